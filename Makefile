@@ -1,0 +1,55 @@
+# Set-up and entry points. `make run` and `make test` work on a fresh machine:
+# they create .venv, install the pinned Python dependencies (constraints.txt),
+# the npm assets of the dashboard (web/package-lock.json) and, when run as root,
+# the Debian packages the browser test needs (chromium).
+
+PYTHON ?= python3
+VENV   := .venv
+BIN    := $(VENV)/bin
+STAMP  := $(VENV)/.installed-stamp
+
+.PHONY: setup run test lint typecheck pytest reproduce bench system-deps clean
+
+setup: $(STAMP) web/node_modules/.stamp
+
+$(STAMP): pyproject.toml constraints.txt
+	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install -q --upgrade pip
+	$(BIN)/python -m pip install -q -c constraints.txt -e '.[dev]'
+	touch $@
+
+web/node_modules/.stamp: web/package.json web/package-lock.json
+	cd web && npm ci --no-audit --no-fund --loglevel=error
+	touch $@
+
+# Debian packages for the browser test. Installed only when missing and only as root.
+system-deps:
+	@if [ ! -x /usr/bin/chromium ]; then \
+	  if [ "$$(id -u)" = "0" ]; then \
+	    (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium) >/dev/null; \
+	  else echo "note: /usr/bin/chromium missing and not root; the browser test will be skipped"; fi; \
+	fi
+
+run: setup
+	$(BIN)/cutwatch serve
+
+reproduce: setup
+	$(BIN)/cutwatch reproduce --all
+
+bench: setup
+	$(BIN)/cutwatch bench
+
+lint: setup
+	$(BIN)/ruff check .
+	$(BIN)/ruff format --check machine estimators server tests bench
+
+typecheck: setup
+	$(BIN)/mypy
+
+pytest: setup system-deps
+	$(BIN)/python -m pytest
+
+test: lint typecheck pytest
+
+clean:
+	rm -rf $(VENV) web/node_modules
