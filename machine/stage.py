@@ -225,15 +225,21 @@ def _simulate_block(x, ctrl, phases, t0, ts, nsub, phi, gam, plant, eff, force, 
         out_ts[k] = 0.0
         for j in range(nsub):
             ts_sub = tk + j * h
-            # cutting torque on the load
+            # cutting torque on the load, at the sub-step's midpoint (second-order
+            # accurate for the held input); the recorded value is the one at t[k]
             fc = 0.0
-            if ts_sub >= f_t0:
+            f0 = 0.0
+            if ts_sub + 0.5 * h >= f_t0:
                 fc = f_off
+                f0 = f_off
                 for i in range(nh):
-                    fc += force[3 + i] * math.sin(phases[i])
+                    dphi = 2.0 * math.pi * force[3 + nh + i] * h
+                    fc += force[3 + i] * math.sin(phases[i] + 0.5 * dphi)
+                    f0 += force[3 + i] * math.sin(phases[i])
                 fc *= f_gain
+                f0 *= f_gain
             if j == 0:
-                out_f[k] = fc
+                out_f[k] = f0 if ts_sub >= f_t0 else 0.0
             for i in range(nh):
                 phases[i] += 2.0 * math.pi * force[3 + nh + i] * h
             wm, wl = x[1], x[3]
