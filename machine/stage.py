@@ -89,8 +89,8 @@ class Trajectory:
 
     speed: float = 30.0  # plateau speed [rad/s]
     half_period: float = 4.0  # time between reversals [s]
-    ramp: float = 1.0  # duration of a reversal ramp [s]
-    start_ramp: float = 0.5  # from rest to the first plateau [s]
+    ramp: float = 0.1  # duration of a reversal ramp [s]
+    start_ramp: float = 0.1  # from rest to the first plateau [s]
 
     def __call__(self, t: F64) -> F64:
         t = np.asarray(t, dtype=np.float64)
