@@ -1,0 +1,462 @@
+r"""Harmonic disturbance force observer (DFO) of seed 002 Section 4.3, eq. (5)-(9).
+
+A disturbance made of sinusoids of known frequencies, eq. (5)-(7),
+
+.. math::
+
+    d_i(t) = A_i \sin(\omega_i t + \theta_i), \quad \dot d_i = A_i\omega_i\cos(\cdot),
+    \quad \ddot d_i = -\omega_i^2 d_i ,
+
+is the state of an undamped oscillator. Each harmonic contributes the states
+:math:`s_i = A_i\sin(\omega_i t + \theta_i)` and :math:`c_i = \dot d_i/\omega_i`, so
+amplitude and phase are read off directly. They drive a known linear *channel*
+:math:`P(s)` together with a known (possibly delayed) input :math:`u`,
+
+.. math::
+
+    y = P(s)\,\Bigl[u(t - T_d) + \sum_i s_i\Bigr],
+
+and a state observer, eq. (8)-(9), :math:`\dot{\hat x} = F\hat x + G u + L(y - H\hat x)`,
+estimates plant and harmonic states together; the gain ``L`` comes from pole placement.
+
+Two channels are used in cutwatch: the x-axis of seed 002 (``P = A/(s^2 + B s + C)``, the
+input is the delayed command, ``y`` the position), and a cutting-force observer's output
+(``P = Q(s)``, its low-pass; no input): there the DFO undoes Q's attenuation and lag at the
+tooth-passing harmonics.
+
+Discretisation (our choice; the paper's observer is continuous): the augmented model is
+discretised exactly (ZOH command, fractional delay split as in the plant) and the observer
+runs in current-estimator form, its error poles placed at ``exp(p T)`` of the continuous
+design poles ``p``; this keeps the estimate free of the bias that a continuous observer fed
+with a sampled-and-held ``y`` would carry.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+from numba import njit
+from numpy.typing import ArrayLike, NDArray
+
+from estimators.errors import ParameterError, require_nonnegative, require_positive
+
+FloatArray = NDArray[np.float64]
+
+
+def _expm(m: FloatArray) -> FloatArray:
+    """Matrix exponential, scaling and squaring of a Taylor series (small matrices)."""
+    a = np.asarray(m, dtype=np.float64)
+    norm = float(np.max(np.sum(np.abs(a), axis=1))) if a.size else 0.0
+    j = max(0, math.ceil(math.log2(norm / 0.25))) if norm > 0.25 else 0
+    a = a / 2.0**j
+    out = np.eye(a.shape[0])
+    term = np.eye(a.shape[0])
+    for k in range(1, 20):
+        term = term @ a / k
+        out = out + term
+    for _ in range(j):
+        out = out @ out
+    return out
+
+
+def _zoh(f: FloatArray, g: FloatArray, h: float) -> tuple[FloatArray, FloatArray]:
+    n = f.shape[0]
+    big = np.zeros((n + 1, n + 1))
+    big[:n, :n] = f
+    big[:n, n] = g
+    e = _expm(big * h)
+    return e[:n, :n], e[:n, n].copy()
+
+
+def _balance(m: FloatArray) -> FloatArray:
+    """Diagonal ``s`` with ``diag(s)^-1 m diag(s)`` of balanced row/column norms."""
+    a = m.copy()
+    s = np.ones(a.shape[0])
+    for _ in range(30):
+        done = True
+        for i in range(a.shape[0]):
+            c = float(np.linalg.norm(np.delete(a[:, i], i)))
+            r = float(np.linalg.norm(np.delete(a[i, :], i)))
+            if c > 0 and r > 0:
+                f = math.sqrt(r / c)
+                if abs(math.log(f)) > 0.05:
+                    done = False
+                a[:, i] *= f
+                a[i, :] /= f
+                s[i] *= f
+        if done:
+            break
+    return s
+
+
+def place_observer(f: FloatArray, h: FloatArray, poles: ArrayLike) -> FloatArray:
+    """Gain ``L`` with ``eig(f - L h) = poles`` (single output, distinct poles).
+
+    Solved on the dual single-input system by the eigenvector method
+    (``w_i = (f^T - p_i I)^-1 h^T``, ``L^T W = 1``) after diagonal balancing; the result
+    is verified and :class:`ParameterError` raised if the placement is not accurate.
+    """
+    p = np.asarray(poles, dtype=np.complex128)
+    n = f.shape[0]
+    if p.shape != (n,):
+        raise ParameterError("poles", f"{n} poles", p.shape)
+    at = f.T.copy()
+    s = _balance(at)
+    a_s = at * s[None, :] / s[:, None]
+    b_s = h / s
+    w = np.empty((n, n), dtype=np.complex128)
+    for i in range(n):
+        w[:, i] = np.linalg.solve(a_s - p[i] * np.eye(n), b_s)
+    k_s = np.linalg.solve(w.T, np.ones(n, dtype=np.complex128))
+    gain = np.real(k_s) / s
+    got = np.sort_complex(np.linalg.eigvals(f - np.outer(gain, h)))
+    want = np.sort_complex(p)
+    scale = max(1.0, float(np.max(np.abs(p))))
+    if np.max(np.abs(got - want)) > 1e-5 * scale:
+        raise ParameterError(
+            "poles",
+            "poles the observer can reach accurately (distinct, "
+            "well separated, not at the model's own eigenvalues)",
+            list(p),
+        )
+    return np.asarray(gain)
+
+
+@dataclass(frozen=True, eq=False)
+class DfoParams:
+    """Harmonic observer for known frequencies.
+
+    Parameters
+    ----------
+    frequencies : tuple of float
+        Harmonic frequencies [Hz], distinct, in (0, Nyquist).
+    sample_time : float
+        [s].
+    channel_num, channel_den : tuple of float
+        Continuous ``P(s)`` from ``u + d`` to ``y`` (highest power first), strictly proper
+        or a static gain.
+    input_delay : float
+        Delay [s] of the known input ``u`` (not of the disturbance), >= 0.
+    uses_input : bool
+        Whether a known input drives the channel (then :func:`apply` must follow each
+        :func:`step`).
+    harmonic_decay : float
+        Real part magnitude [1/s] of the observer poles placed at ``-decay +- j omega_i``
+        (time constant of the amplitude/phase estimates).
+    channel_bandwidth_hz : float
+        The channel states' observer poles sit at ``-2 pi f_b (1 + 0.25 i)``.
+    lead : float
+        The compensation is the harmonic estimate predicted ``lead`` seconds ahead
+        (0 = the paper's DFO; the input delay would make it exact for sinusoids).
+    """
+
+    frequencies: tuple[float, ...]
+    sample_time: float
+    channel_num: tuple[float, ...] = (1.0,)
+    channel_den: tuple[float, ...] = (1.0,)
+    input_delay: float = 0.0
+    uses_input: bool = False
+    harmonic_decay: float = 2 * math.pi * 5.0
+    channel_bandwidth_hz: float = 100.0
+    lead: float = 0.0
+    phi: FloatArray = field(init=False, repr=False)
+    gamma_a: FloatArray = field(init=False, repr=False)
+    gamma_b: FloatArray = field(init=False, repr=False)
+    h: FloatArray = field(init=False, repr=False)
+    gain: FloatArray = field(init=False, repr=False)
+    lead_cos: FloatArray = field(init=False, repr=False)
+    lead_sin: FloatArray = field(init=False, repr=False)
+    channel_order: int = field(init=False)
+    delay_samples: int = field(init=False)
+
+    def __post_init__(self) -> None:
+        ts = require_positive("sample_time", self.sample_time)
+        nyq = 0.5 / ts
+        freqs = tuple(float(x) for x in self.frequencies)
+        if len(freqs) < 1:
+            raise ParameterError("frequencies", "at least one frequency", freqs)
+        for fr in freqs:
+            if not math.isfinite(fr) or fr <= 0 or fr >= nyq:
+                raise ParameterError("frequencies", f"frequencies in (0, {nyq:g}) Hz (Nyquist)", fr)
+        srt = sorted(freqs)
+        for a, b in itertools.pairwise(srt):
+            if b - a <= 1e-9 * b:
+                raise ParameterError("frequencies", "distinct frequencies", freqs)
+        object.__setattr__(self, "frequencies", freqs)
+        require_nonnegative("input_delay", self.input_delay)
+        require_positive("harmonic_decay", self.harmonic_decay)
+        require_positive("channel_bandwidth_hz", self.channel_bandwidth_hz)
+        require_nonnegative("lead", self.lead)
+        num = np.trim_zeros(np.asarray(self.channel_num, dtype=np.float64), "f")
+        den = np.trim_zeros(np.asarray(self.channel_den, dtype=np.float64), "f")
+        if (
+            den.size == 0
+            or num.size == 0
+            or not (np.all(np.isfinite(num)) and np.all(np.isfinite(den)))
+        ):
+            raise ParameterError(
+                "channel_den", "finite, non-zero numerator and denominator", (list(num), list(den))
+            )
+        nc = den.size - 1
+        if num.size - 1 > nc or (nc > 0 and num.size - 1 == nc):
+            raise ParameterError(
+                "channel_num", f"degree < {nc} (strictly proper) or a static gain", num.size - 1
+            )
+        num = num / den[0]
+        den = den / den[0]
+        if self.uses_input and nc == 0:
+            raise ParameterError("uses_input", "False for a static-gain channel", True)
+        d_samples = 0
+        tau = 0.0
+        if self.uses_input:
+            q = self.input_delay / ts
+            d_samples = math.floor(q + 1e-9)
+            tau = max(0.0, self.input_delay - d_samples * ts)
+            if tau < 1e-12 * ts:
+                tau = 0.0
+        k = len(freqs)
+        n = nc + 2 * k
+        f = np.zeros((n, n))
+        g = np.zeros(n)
+        h = np.zeros(n)
+        sel = np.zeros(2 * k)
+        sel[0::2] = 1.0
+        if nc > 0:
+            # controllable canonical form of num/den
+            f[nc - 1, :nc] = -den[1:][::-1]
+            for i in range(nc - 1):
+                f[i, i + 1] = 1.0
+            g[nc - 1] = 1.0
+            numf = np.concatenate([np.zeros(nc - num.size), num])  # length nc, high first
+            h[:nc] = numf[::-1]
+            f[nc - 1, nc:] = sel  # harmonics add to the channel input
+        else:
+            h[nc:] = num[0] * sel  # static gain: y = g * sum s_i
+        omegas = 2 * np.pi * np.array(freqs)
+        for i, w in enumerate(omegas):
+            j = nc + 2 * i
+            # eq. (5)-(7): s' = w c, c' = -w s
+            f[j, j + 1] = w
+            f[j + 1, j] = -w
+        phi, gam_full = _zoh(f, g, ts)
+        if tau > 0:
+            phi_rest, gb = _zoh(f, g, ts - tau)
+            _, gt = _zoh(f, g, tau)
+            ga = phi_rest @ gt
+        else:
+            gb = gam_full
+            ga = np.zeros(n)
+        ch = -2 * np.pi * self.channel_bandwidth_hz * (1 + 0.25 * np.arange(nc))
+        poles_c = np.concatenate(
+            [
+                ch.astype(np.complex128),
+                np.ravel(
+                    [[-self.harmonic_decay + 1j * w, -self.harmonic_decay - 1j * w] for w in omegas]
+                ),
+            ]
+        )
+        z_poles = np.exp(poles_c * ts)
+        # current-estimator error dynamics (I - L H) Phi = I + T (F_delta - L_delta H Phi)
+        f_delta = (phi - np.eye(n)) / ts
+        l_delta = place_observer(f_delta, h @ phi, (z_poles - 1) / ts)
+        gain = l_delta * ts
+        object.__setattr__(self, "phi", phi)
+        object.__setattr__(self, "gamma_a", np.ascontiguousarray(ga))
+        object.__setattr__(self, "gamma_b", np.ascontiguousarray(gb))
+        object.__setattr__(self, "h", h)
+        object.__setattr__(self, "gain", gain)
+        object.__setattr__(self, "lead_cos", np.cos(omegas * self.lead))
+        object.__setattr__(self, "lead_sin", np.sin(omegas * self.lead))
+        object.__setattr__(self, "channel_order", nc)
+        object.__setattr__(self, "delay_samples", d_samples)
+
+    @property
+    def n_states(self) -> int:
+        return self.channel_order + 2 * len(self.frequencies)
+
+    def error_poles(self) -> NDArray[np.complex128]:
+        """Eigenvalues of the discrete estimation-error dynamics ``(I - L H) Phi``."""
+        n = self.n_states
+        m = (np.eye(n) - np.outer(self.gain, self.h)) @ self.phi
+        return np.asarray(np.linalg.eigvals(m), dtype=np.complex128)
+
+    def with_frequencies(self, frequencies: tuple[float, ...]) -> DfoParams:
+        """The same observer retuned to new frequencies (same count keeps the state)."""
+        return replace(self, frequencies=tuple(frequencies))
+
+
+@dataclass(frozen=True, eq=False)
+class DfoState:
+    """Posterior state estimate at the last processed sample, the input FIFO, the count."""
+
+    x: FloatArray
+    u_hist: FloatArray
+    k: int
+
+
+@dataclass(frozen=True, eq=False)
+class DfoRecord:
+    """Per-sample outputs.
+
+    ``d_hat``: the disturbance estimate (sum of harmonics); ``compensation``: the same
+    predicted ``lead`` ahead (what is subtracted from the command); ``amplitude`` and
+    ``phase`` (n, K): each harmonic's :math:`A_i` and :math:`\\theta_i` of eq. (5), the
+    phase relative to ``t = k T`` with ``k`` counted from the observer's start;
+    ``innovation``: ``y - H x_prior``.
+    """
+
+    d_hat: FloatArray
+    compensation: FloatArray
+    amplitude: FloatArray
+    phase: FloatArray
+    innovation: FloatArray
+
+
+def initial_state(params: DfoParams) -> DfoState:
+    """Zero estimates, zero past inputs."""
+    return DfoState(
+        x=np.zeros(params.n_states),
+        u_hist=np.zeros(params.delay_samples + 2 if params.uses_input else 0),
+        k=0,
+    )
+
+
+@njit(cache=True)
+def _dfo_block(
+    phi: FloatArray,
+    ga: FloatArray,
+    gb: FloatArray,
+    h: FloatArray,
+    gain: FloatArray,
+    nc: int,
+    omegas: FloatArray,
+    lc: FloatArray,
+    ls: FloatArray,
+    ts: float,
+    k0: int,
+    x: FloatArray,
+    u_hist: FloatArray,
+    use_u: bool,
+    y: FloatArray,
+    dh: FloatArray,
+    comp: FloatArray,
+    amp: FloatArray,
+    ph: FloatArray,
+    innov: FloatArray,
+) -> None:  # pragma: no cover
+    n = len(x)
+    xp = np.empty(n)
+    nh = len(omegas)
+    for j in range(len(y)):
+        # eq. (8), discrete: prior from the last posterior and the delayed command
+        for r in range(n):
+            acc = 0.0
+            for c in range(n):
+                acc += phi[r, c] * x[c]
+            if use_u:
+                acc += ga[r] * u_hist[j] + gb[r] * u_hist[j + 1]
+            xp[r] = acc
+        # eq. (9): y_hat = H x
+        yh = 0.0
+        for r in range(n):
+            yh += h[r] * xp[r]
+        e = y[j] - yh
+        innov[j] = e
+        for r in range(n):
+            x[r] = xp[r] + gain[r] * e
+        tk = (k0 + j) * ts
+        total = 0.0
+        tc = 0.0
+        for i in range(nh):
+            s = x[nc + 2 * i]
+            c = x[nc + 2 * i + 1]
+            total += s
+            tc += s * lc[i] + c * ls[i]
+            amp[j, i] = math.sqrt(s * s + c * c)
+            th = math.atan2(s, c) - omegas[i] * tk
+            ph[j, i] = math.atan2(math.sin(th), math.cos(th))
+        dh[j] = total
+        comp[j] = tc
+
+
+def step(params: DfoParams, state: DfoState, y: ArrayLike) -> tuple[DfoState, DfoRecord]:
+    """Process a block of measurements ``y``.
+
+    With ``uses_input`` the block may hold at most ``D + 1`` samples (``D`` whole samples
+    of input delay) and the block's commands must be handed over with :func:`apply`
+    before the next step.
+    """
+    ya = np.ascontiguousarray(y, dtype=np.float64)
+    if ya.ndim != 1 or ya.size < 1:
+        raise ParameterError("y", "a non-empty 1-D block", ya.shape)
+    n = ya.size
+    if params.uses_input:
+        big_d = params.delay_samples
+        if n > big_d + 1:
+            raise ParameterError("y", f"a block of at most {big_d + 1} samples (delay + 1)", n)
+        if state.u_hist.size != big_d + 2:
+            raise ParameterError(
+                "state",
+                "the previous block's commands applied first",
+                f"{big_d + 2 - state.u_hist.size} commands missing",
+            )
+    x = state.x.copy()
+    nh = len(params.frequencies)
+    dh = np.empty(n)
+    comp = np.empty(n)
+    amp = np.empty((n, nh))
+    ph = np.empty((n, nh))
+    innov = np.empty(n)
+    omegas = 2 * np.pi * np.asarray(params.frequencies)
+    _dfo_block(
+        params.phi,
+        params.gamma_a,
+        params.gamma_b,
+        params.h,
+        params.gain,
+        params.channel_order,
+        omegas,
+        params.lead_cos,
+        params.lead_sin,
+        params.sample_time,
+        state.k,
+        x,
+        state.u_hist,
+        params.uses_input,
+        ya,
+        dh,
+        comp,
+        amp,
+        ph,
+        innov,
+    )
+    u_hist = state.u_hist[n:].copy() if params.uses_input else state.u_hist
+    return (
+        DfoState(x=x, u_hist=u_hist, k=state.k + n),
+        DfoRecord(d_hat=dh, compensation=comp, amplitude=amp, phase=ph, innovation=innov),
+    )
+
+
+def apply(params: DfoParams, state: DfoState, commands: ArrayLike) -> DfoState:
+    """Hand over the commands [input unit] applied during the last processed block."""
+    u = np.ascontiguousarray(commands, dtype=np.float64)
+    if not params.uses_input:
+        raise ParameterError("commands", "no commands (the observer has no input)", u.shape)
+    need = params.delay_samples + 2 - state.u_hist.size
+    if u.ndim != 1 or u.size != need:
+        raise ParameterError("commands", f"a 1-D block of {need} samples", u.shape)
+    return DfoState(x=state.x, u_hist=np.concatenate([state.u_hist, u]), k=state.k)
+
+
+__all__ = [
+    "DfoParams",
+    "DfoRecord",
+    "DfoState",
+    "apply",
+    "initial_state",
+    "place_observer",
+    "step",
+]
