@@ -75,3 +75,11 @@ def test_list_names_the_rows(capsys: pytest.CaptureFixture[str]) -> None:
     out = capsys.readouterr().out
     assert "disturbance-observers" in out
     assert "peak.78hz.combined" in out
+
+
+def test_bench_group_reports_realtime_factors(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["bench", "disturbance-observers", "--quick", "--repeats", "1", "--json"]) == 0
+    res = json.loads(capsys.readouterr().out)["disturbance-observers"]
+    for c in do.CONFIGS:
+        assert res[f"xy_{c}_realtime_factor"] > 0
+    assert res["dfo_3harmonics_2500hz_realtime_factor"] > 0
