@@ -30,7 +30,7 @@ FloatArray = NDArray[np.float64]
 
 @dataclass(frozen=True)
 class AxisParams:
-    """One feed axis: carriage and PID gains.
+    r"""One feed axis: carriage and PID gains.
 
     Parameters
     ----------
@@ -51,7 +51,7 @@ class AxisParams:
     viscous: float = 300.0
     coulomb: float = 0.0
     force_constant: float = 60.0
-    bandwidth_hz: float = 28.0
+    bandwidth_hz: float = 18.0
 
     def __post_init__(self) -> None:
         require_positive("mass", self.mass)

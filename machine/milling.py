@@ -1,0 +1,497 @@
+r"""Helical end milling with tool eccentricity, cut by the X/Y feed drives (seed 003).
+
+The machine simulated here is a spindle carried by two servo axes
+(:mod:`machine.feed_drives`) cutting a workpiece that stands still. Every sample:
+
+1. the spindle angle :math:`\psi` advances by :math:`\omega_{sp} T_s`;
+2. the position command of the axes is the straight feed path plus the circular
+   modulation of eq. (7), :math:`a_m[\cos(\psi+\theta_m), \sin(\psi+\theta_m)]`;
+3. the geometric tool centre relative to the workpiece is the carriage position plus the
+   eccentricity vector of eq. (6), :math:`\epsilon[\cos(\psi+\theta_\epsilon),
+   \sin(\psi+\theta_\epsilon)]` — eccentricity and modulation add up here;
+4. the chip of every flute and axial layer is the displacement of the tool centre since
+   the previous flute passed the same angle, projected on the edge's radial direction
+   (eq. 4 with the windowing of eq. 5); this is the paper's ``h_n + r_j - r_{j-1}``
+   written in workpiece coordinates, so the modulation and drive errors enter the chip
+   the same way the eccentricity does;
+5. linear edge-force law per layer gives the force; the force acts back on the axes.
+
+Geometry (a choice: the paper gives eq. (6)-(7) in a frame where the spindle turns
+counter-clockwise, so this frame is used): X is the feed direction, Y the normal
+direction, the spindle turns counter-clockwise, an edge at immersion angle :math:`\phi`
+points along :math:`n(\phi) = [\sin\phi, -\cos\phi]`, so the nominal chip is
+:math:`c\sin\phi` (eq. 4). Up-milling engages :math:`\phi \in [0, \arccos(1-2a_e/D)]`,
+down-milling :math:`\phi \in [\arccos(2a_e/D-1), \pi]`.
+
+Cutting coefficients for Al6061-T6 (a choice; the paper does not give them):
+``K_tc = 700 N/mm^2, K_rc = 210 N/mm^2, K_te = 20 N/mm, K_re = 25 N/mm``. These are in
+the range of mechanistic coefficients reported for 6061-T6 with carbide end mills, e.g.
+Schmitz & Smith, *Machining Dynamics* (Springer, 2009; tangential ~ 700-800 N/mm^2,
+normal/radial ratio ~ 0.3) and Altintas, *Manufacturing Automation* (2nd ed., 2012,
+Al7050 example: 796 / 168.8 N/mm^2, edge 27.7 / 30.8 N/mm).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from numba import njit
+from numpy.typing import NDArray
+
+from machine.errors import ParameterError, require_in, require_nonnegative, require_positive
+from machine.feed_drives import FeedDriveParams, FeedDrives
+
+FloatArray = NDArray[np.float64]
+
+#: Slowest spindle the chip history is sized for [rpm] (the tooth period must fit).
+MIN_RPM = 60.0
+#: Largest modulation radius the axes accept [m] (a CNC limit; larger is clamped).
+MAX_MODULATION = 100e-6
+
+
+@dataclass(frozen=True)
+class MillingParams:
+    r"""Cutter, cut and eccentricity (SI units: m, N, rad where not stated).
+
+    Parameters
+    ----------
+    n_flutes : int
+        Number of flutes :math:`N_f` (>= 1).
+    diameter : float
+        Tool diameter :math:`D` [m].
+    helix_deg : float
+        Helix angle :math:`\beta` [deg], in [0, 60].
+    axial_depth : float
+        Axial depth of cut :math:`a_p` [m].
+    radial_immersion : float
+        Radial width of cut over diameter, in (0, 1].
+    down_milling : bool
+        Down (climb) milling if true, up (conventional) milling otherwise.
+    feed_per_tooth : float
+        Feed per tooth :math:`c` [m].
+    spindle_rpm : float
+        Spindle speed [rpm].
+    eccentricity : float
+        Eccentricity radius :math:`\epsilon` [m] (eq. 2).
+    eccentricity_deg : float
+        Eccentricity phase :math:`\theta_\epsilon` [deg] (eq. 2).
+    k_tc, k_rc : float
+        Tangential and radial cutting coefficients [N/m^2].
+    k_te, k_re : float
+        Tangential and radial edge coefficients [N/m].
+    n_layers : int
+        Axial layers :math:`N_l` of eq. (1).
+    """
+
+    n_flutes: int = 4
+    diameter: float = 10e-3
+    helix_deg: float = 30.0
+    axial_depth: float = 1e-3
+    radial_immersion: float = 0.2
+    down_milling: bool = False
+    feed_per_tooth: float = 80e-6
+    spindle_rpm: float = 1200.0
+    eccentricity: float = 20e-6
+    eccentricity_deg: float = 40.0
+    k_tc: float = 700e6
+    k_rc: float = 210e6
+    k_te: float = 20e3
+    k_re: float = 25e3
+    n_layers: int = 10
+
+    def __post_init__(self) -> None:
+        if int(self.n_flutes) != self.n_flutes or self.n_flutes < 1:
+            raise ParameterError("n_flutes", "an integer >= 1", self.n_flutes)
+        require_positive("diameter", self.diameter)
+        require_in("helix_deg", self.helix_deg, 0.0, 60.0)
+        require_positive("axial_depth", self.axial_depth)
+        require_in("radial_immersion", self.radial_immersion, 0.0, 1.0, lo_open=True)
+        require_positive("feed_per_tooth", self.feed_per_tooth)
+        if self.feed_per_tooth > 0.5 * self.diameter:
+            raise ParameterError("feed_per_tooth", "a value <= D/2", self.feed_per_tooth)
+        check_rpm(self.spindle_rpm)
+        require_nonnegative("eccentricity", self.eccentricity)
+        if self.eccentricity > 0.05 * self.diameter:
+            raise ParameterError("eccentricity", "a value <= D/20", self.eccentricity)
+        if not math.isfinite(self.eccentricity_deg):
+            raise ParameterError("eccentricity_deg", "a finite angle", self.eccentricity_deg)
+        for name in ("k_tc", "k_rc", "k_te", "k_re"):
+            require_nonnegative(name, getattr(self, name))
+        if int(self.n_layers) != self.n_layers or not 1 <= self.n_layers <= 200:
+            raise ParameterError("n_layers", "an integer in [1, 200]", self.n_layers)
+
+    @property
+    def spindle_hz(self) -> float:
+        return self.spindle_rpm / 60.0
+
+    def engagement(self) -> tuple[float, float]:
+        r"""Entry and exit angles :math:`(\phi_{st}, \phi_{ex})` [rad] of eq. (5)."""
+        r = self.radial_immersion
+        if self.down_milling:
+            return math.acos(2.0 * r - 1.0), math.pi
+        return 0.0, math.acos(1.0 - 2.0 * r)
+
+    def layer_lags(self) -> FloatArray:
+        r"""Lag angle of each axial layer (eq. 1): :math:`2 z_l \tan\beta / D`, layer mid
+        heights :math:`z_l = (l - 1/2) a_p / N_l`."""
+        z = (np.arange(self.n_layers) + 0.5) * self.axial_depth / self.n_layers
+        return np.asarray(2.0 * z * math.tan(math.radians(self.helix_deg)) / self.diameter)
+
+
+def check_rpm(rpm: float) -> float:
+    """Return ``rpm`` as float if it is a spindle speed the model accepts."""
+    v = float(rpm)
+    if not math.isfinite(v) or v < MIN_RPM or v > 60000.0:
+        raise ParameterError("spindle_rpm", f"a speed in [{MIN_RPM:g}, 60000] rpm", rpm)
+    return v
+
+
+@njit(cache=True)
+def edge_force(
+    phi: float,
+    dpx: float,
+    dpy: float,
+    dz: float,
+    k_tc: float,
+    k_rc: float,
+    k_te: float,
+    k_re: float,
+    phi_st: float,
+    phi_ex: float,
+) -> tuple[float, float]:  # pragma: no cover
+    """Force on the workpiece from one edge element at immersion ``phi``.
+
+    ``(dpx, dpy)`` is the displacement of the tool centre since the previous flute.
+    """
+    two_pi = 2.0 * math.pi
+    p = phi % two_pi
+    # eq. (5): the window g(phi)
+    if p < phi_st or p > phi_ex:
+        return 0.0, 0.0
+    s = math.sin(p)
+    c = math.cos(p)
+    # eq. (4): h = h_n + (r_j - r_{j-1}), as the tool-centre displacement since the
+    # previous flute projected on n(phi) = [sin, -cos]; feed alone gives h = c_f sin(phi)
+    h = dpx * s - dpy * c
+    if h <= 0.0:
+        # the edge is out of the material (the paper's eq. 4 would give a negative chip)
+        return 0.0, 0.0
+    ft = k_tc * dz * h + k_te * dz
+    fr = k_rc * dz * h + k_re * dz
+    # force on the tool: -ft along the edge velocity [cos, sin], -fr along n(phi);
+    # the workpiece (dynamometer) sees the opposite
+    return ft * c + fr * s, ft * s - fr * c
+
+
+@njit(cache=True)
+def _milling_block(
+    n: int,
+    ts: float,
+    n_flutes: int,
+    lags: FloatArray,
+    dz: float,
+    phi_st: float,
+    phi_ex: float,
+    kc: FloatArray,
+    ecc: float,
+    ecc_phase: float,
+    omega: float,
+    feed_speed: float,
+    a_m: float,
+    theta_m: float,
+    drive: FloatArray,
+    st: FloatArray,
+    ax_state: FloatArray,
+    hist: FloatArray,
+    out: FloatArray,
+) -> None:  # pragma: no cover
+    """Advance the machine ``n`` samples.
+
+    ``st = [psi, path_x, head]``; ``ax_state[i] = [x, v, integral, e_prev]`` per axis;
+    ``hist[k] = [px, py]`` ring buffer of tool-centre positions; ``out`` rows are
+    ``fx, fy, x, y, rx, ry, ux, uy, psi``.
+    """
+    hlen = hist.shape[0]
+    pitch = 2.0 * math.pi / n_flutes
+    tau = pitch / omega
+    lag_samples = tau / ts
+    for k in range(n):
+        psi = st[0]
+        # eq. (7): circular modulation added to the feed path in the position command
+        rx = st[1] + a_m * math.cos(psi + theta_m)
+        ry = a_m * math.sin(psi + theta_m)
+        # eq. (6): geometric tool centre = carriage + eccentricity (workpiece coordinates)
+        px = ax_state[0, 0] + ecc * math.cos(psi + ecc_phase)
+        py = ax_state[1, 0] + ecc * math.sin(psi + ecc_phase)
+        head = int(st[2])
+        hist[head, 0] = px
+        hist[head, 1] = py
+        # tool centre one tooth period ago (linear interpolation in the history)
+        back = lag_samples
+        i0 = math.floor(back)
+        fr = back - i0
+        ia = (head - i0) % hlen
+        ib = (head - i0 - 1) % hlen
+        qx = (1.0 - fr) * hist[ia, 0] + fr * hist[ib, 0]
+        qy = (1.0 - fr) * hist[ia, 1] + fr * hist[ib, 1]
+        dpx = px - qx
+        dpy = py - qy
+        fx = 0.0
+        fy = 0.0
+        for j in range(n_flutes):
+            for l in range(lags.shape[0]):
+                # eq. (1): immersion of flute j, layer l
+                phi = psi - j * pitch - lags[l]
+                ex, ey = edge_force(phi, dpx, dpy, dz, kc[0], kc[1], kc[2], kc[3], phi_st, phi_ex)
+                fx += ex
+                fy += ey
+        out[0, k] = fx
+        out[1, k] = fy
+        out[2, k] = ax_state[0, 0]
+        out[3, k] = ax_state[1, 0]
+        out[4, k] = rx
+        out[5, k] = ry
+        out[8, k] = psi
+        for i in range(2):
+            kp = drive[i, 0]
+            ki = drive[i, 1]
+            kd = drive[i, 2]
+            b = drive[i, 4]
+            fc = drive[i, 5]
+            e1 = drive[i, 6]
+            e2 = drive[i, 7]
+            e3 = drive[i, 8]
+            r = rx if i == 0 else ry
+            x = ax_state[i, 0]
+            v = ax_state[i, 1]
+            e = r - x
+            ax_state[i, 2] += ts * e
+            u = kp * e + ki * ax_state[i, 2] + kd * (e - ax_state[i, 3]) / ts
+            ax_state[i, 3] = e
+            out[6 + i, k] = u
+            # the tool feels the reaction of the force on the workpiece
+            f_cut = -(fx if i == 0 else fy)
+            f = u + f_cut - fc * math.tanh(v / 1e-3)
+            if b > 0.0:
+                e4 = (ts - e3) / b
+            else:
+                e4 = ts * ts / (2.0 * drive[i, 3])
+            ax_state[i, 0] = x + e3 * v + e4 * f
+            ax_state[i, 1] = e1 * v + e2 * f
+        st[0] = psi + omega * ts
+        st[1] += feed_speed * ts
+        st[2] = (head + 1) % hlen
+
+
+@dataclass
+class MillingRecord:
+    """Outputs of one block (arrays of the block length).
+
+    ``fx, fy`` force on the workpiece [N] (what a dynamometer reads); ``x, y`` carriage
+    positions [m]; ``rx, ry`` position commands [m]; ``ix, iy`` motor currents [A];
+    ``psi`` spindle angle [rad] (unwrapped); ``t`` time [s].
+    """
+
+    t: FloatArray
+    fx: FloatArray
+    fy: FloatArray
+    x: FloatArray
+    y: FloatArray
+    rx: FloatArray
+    ry: FloatArray
+    ix: FloatArray
+    iy: FloatArray
+    psi: FloatArray
+    a_m: float
+    theta_m: float
+    saturated: bool
+
+
+@dataclass
+class _State:
+    st: FloatArray
+    ax: FloatArray
+    hist: FloatArray
+    k: int = 0
+    extra: dict[str, float] = field(default_factory=dict)
+
+
+class MillingMachine:
+    """The spindle on its X/Y feed drives, cutting; a block step with the modulation held.
+
+    Parameters
+    ----------
+    milling : MillingParams
+        Cutter, cut and eccentricity.
+    drives : FeedDriveParams
+        The two servo axes and the sample time (5 kHz by default).
+    max_modulation : float
+        Largest modulation radius accepted [m]; larger requests are clamped and the block
+        record says ``saturated``.
+
+    Examples
+    --------
+    >>> m = MillingMachine(MillingParams())
+    >>> rec = m.step(m.samples_per_revolution(), a_m=0.0, theta_m=0.0)
+    """
+
+    def __init__(
+        self,
+        milling: MillingParams | None = None,
+        drives: FeedDriveParams | None = None,
+        *,
+        max_modulation: float = MAX_MODULATION,
+    ) -> None:
+        self.milling = milling if milling is not None else MillingParams()
+        self.drives = FeedDrives(drives)
+        self.max_modulation = require_positive("max_modulation", max_modulation)
+        self._drive = self.drives.params.packed()
+        self._rpm = self.milling.spindle_rpm
+        self.reset()
+
+    @property
+    def sample_time(self) -> float:
+        return self.drives.params.sample_time
+
+    @property
+    def spindle_rpm(self) -> float:
+        return self._rpm
+
+    @property
+    def t(self) -> float:
+        return self._s.k * self.sample_time
+
+    @property
+    def spindle_angle(self) -> float:
+        """Unwrapped spindle angle [rad] of the next sample."""
+        return float(self._s.st[0])
+
+    def samples_per_revolution(self) -> float:
+        """:math:`L = 60 / (T_s \\cdot rpm)` of eq. (8) (not necessarily an integer)."""
+        return 60.0 / (self.sample_time * self._rpm)
+
+    def feed_speed(self) -> float:
+        """Feed rate [m/s] at the current spindle speed (feed per tooth held)."""
+        p = self.milling
+        return p.feed_per_tooth * p.n_flutes * self._rpm / 60.0
+
+    def set_spindle_rpm(self, rpm: float) -> None:
+        """Change the spindle speed (the feed rate follows, feed per tooth held)."""
+        self._rpm = check_rpm(rpm)
+
+    def reset(self) -> None:
+        """Steady cut at the nominal feed, no modulation, history filled with the path."""
+        self._rpm = self.milling.spindle_rpm
+        ts = self.sample_time
+        hlen = math.ceil(60.0 / (MIN_RPM * self.milling.n_flutes) / ts) + 8
+        v = self.feed_speed()
+        p = self.milling
+        ecc = p.eccentricity
+        th = math.radians(p.eccentricity_deg)
+        omega = 2.0 * math.pi * self._rpm / 60.0
+        hist = np.zeros((hlen, 2))
+        # the past: straight path at the feed rate, eccentric centre turning (eq. 6). The
+        # kernel writes the sample at t = 0 into index 0 and reads m samples back at
+        # (head - m) % hlen, so index hlen - m holds t = -m ts
+        for m in range(1, hlen):
+            tb = -m * ts
+            hist[hlen - m, 0] = v * tb + ecc * math.cos(omega * tb + th)
+            hist[hlen - m, 1] = ecc * math.sin(omega * tb + th)
+        ax = np.zeros((2, 4))
+        ax[0, 1] = v
+        _, ki, _ = self.drives.params.x.gains()
+        # integral state holding the viscous + Coulomb force of the steady feed
+        xp = self.drives.params.x
+        ax[0, 2] = (xp.viscous * v + xp.coulomb * math.tanh(v / 1e-3)) / ki
+        self._s = _State(st=np.array([0.0, 0.0, 0.0]), ax=ax, hist=hist)
+
+    def cancelling_modulation(self) -> tuple[float, float]:
+        """Truth: the ``(a_m [m], theta_m [rad])`` whose drive response cancels eq. (6).
+
+        Uses the Y axis response as the circle's (both axes' when matched): the carriage
+        moves :math:`G a_m e^{j\\theta_m}` and must equal :math:`-\\epsilon
+        e^{j\\theta_\\epsilon}`. With mismatched axes no circle cancels exactly; this is
+        the cancellation by the mean response :math:`(G_x + G_y)/2`.
+        """
+        gx, gy = self.drives.response(self._rpm / 60.0)
+        g = 0.5 * (gx + gy)
+        p = self.milling
+        target = -p.eccentricity * complex(
+            math.cos(math.radians(p.eccentricity_deg)), math.sin(math.radians(p.eccentricity_deg))
+        )
+        u = target / g
+        return abs(u), math.atan2(u.imag, u.real) % (2.0 * math.pi)
+
+    def step(self, n: int, a_m: float = 0.0, theta_m: float = 0.0) -> MillingRecord:
+        """Advance ``n`` samples with the modulation ``(a_m [m], theta_m [rad])`` held.
+
+        A negative ``a_m`` is the circle of radius ``|a_m|`` at ``theta_m + pi``. A radius
+        beyond ``max_modulation`` is clamped and reported in ``saturated``.
+        """
+        if int(n) != n or n < 0:
+            raise ParameterError("n", "an integer >= 0", n)
+        a = float(a_m)
+        th = float(theta_m)
+        if not (math.isfinite(a) and math.isfinite(th)):
+            raise ParameterError("a_m/theta_m", "finite values", (a_m, theta_m))
+        sat = abs(a) > self.max_modulation
+        if sat:
+            a = math.copysign(self.max_modulation, a)
+        n = int(n)
+        p = self.milling
+        out = np.zeros((9, n))
+        st0, ph_ex = p.engagement()
+        kc = np.array([p.k_tc, p.k_rc, p.k_te, p.k_re])
+        omega = 2.0 * math.pi * self._rpm / 60.0
+        _milling_block(
+            n,
+            self.sample_time,
+            int(p.n_flutes),
+            p.layer_lags(),
+            p.axial_depth / p.n_layers,
+            st0,
+            ph_ex,
+            kc,
+            p.eccentricity,
+            math.radians(p.eccentricity_deg),
+            omega,
+            self.feed_speed(),
+            a,
+            th,
+            self._drive,
+            self._s.st,
+            self._s.ax,
+            self._s.hist,
+            out,
+        )
+        t = np.asarray((self._s.k + np.arange(n)) * self.sample_time, dtype=np.float64)
+        self._s.k += n
+        kf = (self.drives.params.x.force_constant, self.drives.params.y.force_constant)
+        return MillingRecord(
+            t=t,
+            fx=out[0],
+            fy=out[1],
+            x=out[2],
+            y=out[3],
+            rx=out[4],
+            ry=out[5],
+            ix=out[6] / kf[0],
+            iy=out[7] / kf[1],
+            psi=out[8],
+            a_m=a,
+            theta_m=th,
+            saturated=sat,
+        )
+
+
+__all__ = [
+    "MAX_MODULATION",
+    "MIN_RPM",
+    "MillingMachine",
+    "MillingParams",
+    "MillingRecord",
+    "check_rpm",
+    "edge_force",
+]

@@ -1,0 +1,223 @@
+"""The eccentricity loop: milling machine on its feed drives + a tuner, block by block.
+
+:class:`EccentricityLoop` composes :class:`machine.milling.MillingMachine` with either the
+extremum seeking controller (:mod:`estimators.esc`, seed 003) or the fast tuner
+(:mod:`estimators.fast_tuner`), or neither. The tuner sees one revolution of force and
+spindle angle at a time, taken from the dynamometer (the machine's true force) or from
+cutting-force observers on the X/Y drives (a callable given by the caller). The modulation
+it returns is held for the next revolution.
+
+``step(n)`` advances ``n`` samples in any chunking and returns per-sample arrays, so the
+live service can call it with its block length; the reproductions call
+:meth:`EccentricityLoop.run_revolutions`.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from estimators.esc import EscParams, ExtremumSeekingController, positive_polar
+from estimators.fast_tuner import FastTuner, FastTunerParams
+from machine.milling import MillingMachine, MillingParams, MillingRecord
+
+FloatArray = NDArray[np.float64]
+
+#: A force estimator: takes a machine block record, returns (fx_hat, fy_hat) [N].
+ForceSource = Callable[[MillingRecord], tuple[FloatArray, FloatArray]]
+
+
+@dataclass
+class RevolutionLog:
+    """One entry per completed revolution (tuner active or not)."""
+
+    t_end: list[float] = field(default_factory=list)
+    cost: list[float] = field(default_factory=list)
+    cost_true: list[float] = field(default_factory=list)
+    a_um: list[float] = field(default_factory=list)
+    theta_deg: list[float] = field(default_factory=list)
+    a_n_um: list[float] = field(default_factory=list)
+    theta_n_deg: list[float] = field(default_factory=list)
+    saturated: list[bool] = field(default_factory=list)
+    adapting: list[bool] = field(default_factory=list)
+    rpm: list[float] = field(default_factory=list)
+
+    def arrays(self) -> dict[str, FloatArray]:
+        return {k: np.asarray(v, dtype=np.float64) for k, v in self.__dict__.items()}
+
+
+class EccentricityLoop:
+    """Milling with eccentricity, feed drives and a tuner closing the loop per revolution.
+
+    Parameters
+    ----------
+    milling : MillingParams
+        The cut (spindle speed, depth, eccentricity, ...).
+    tuner : {"esc", "fast", "off"}
+        Which tuner adjusts the modulation.
+    esc, fast : EscParams, FastTunerParams
+        Their parameters.
+    cost_axis : {"x", "y"}
+        Force component of the ESC cost (eq. 8). The fast tuner uses both.
+    adapt_start_s : float
+        Time at which the tuner starts (before it: no modulation, as in Fig. 3).
+    force_source : callable, optional
+        Estimated force from the drive signals; default: the dynamometer (true force).
+    """
+
+    def __init__(
+        self,
+        milling: MillingParams | None = None,
+        *,
+        tuner: str = "esc",
+        esc: EscParams | None = None,
+        fast: FastTunerParams | None = None,
+        cost_axis: str = "x",
+        adapt_start_s: float = 1.0,
+        force_source: ForceSource | None = None,
+        machine: MillingMachine | None = None,
+    ) -> None:
+        from server.errors import CutwatchError
+
+        if tuner not in ("esc", "fast", "off"):
+            raise CutwatchError(f"tuner: expected 'esc', 'fast' or 'off', got {tuner!r}")
+        if cost_axis not in ("x", "y"):
+            raise CutwatchError(f"cost_axis: expected 'x' or 'y', got {cost_axis!r}")
+        self.machine = machine if machine is not None else MillingMachine(milling)
+        self.tuner = tuner
+        self.esc = ExtremumSeekingController(esc)
+        self.fast = FastTuner(fast)
+        self.cost_axis = cost_axis
+        self.adapt_start_s = float(adapt_start_s)
+        self.force_source = force_source
+        self.reset()
+
+    def reset(self) -> None:
+        self.machine.reset()
+        self.esc_state = self.esc.initial_state()
+        self.fast_state = self.fast.initial_state()
+        self.a_um = 0.0
+        self.theta_deg = 0.0
+        self.a_n_um = 0.0
+        self.theta_n_deg = 0.0
+        self.saturated = False
+        self.log = RevolutionLog()
+        self._buf: list[MillingRecord] = []
+        self._est: list[tuple[FloatArray, FloatArray]] = []
+        self._rev_start_t = 0.0
+        self._next_boundary = 2.0 * math.pi
+        self.last_cost = math.nan
+        self._started = False
+
+    @property
+    def adapting(self) -> bool:
+        return self.tuner != "off" and self.machine.t >= self.adapt_start_s - 1e-12
+
+    def set_spindle_rpm(self, rpm: float) -> None:
+        """Change the spindle speed (takes effect at the next sample)."""
+        self.machine.set_spindle_rpm(rpm)
+
+    def samples_to_boundary(self) -> int:
+        """Samples until the current revolution ends (the tuner updates there)."""
+        psi = self.machine.spindle_angle
+        w_ts = 2.0 * math.pi * self.machine.spindle_rpm / 60.0 * self.machine.sample_time
+        return max(1, math.ceil((self._next_boundary - psi) / w_ts - 1e-9))
+
+    def step(self, n: int) -> dict[str, FloatArray]:
+        """Advance ``n`` samples; per-sample arrays of forces, positions and tuner state."""
+        chunks: list[dict[str, FloatArray]] = []
+        left = int(n)
+        while left > 0:
+            m = self.samples_to_boundary()
+            c = min(m, left)
+            rec = self.machine.step(c, self.a_um * 1e-6, math.radians(self.theta_deg))
+            self.saturated = rec.saturated
+            est = self.force_source(rec) if self.force_source is not None else (rec.fx, rec.fy)
+            self._buf.append(rec)
+            self._est.append(est)
+            chunks.append(
+                {
+                    "t": rec.t,
+                    "fx": rec.fx,
+                    "fy": rec.fy,
+                    "fx_used": est[0],
+                    "fy_used": est[1],
+                    "x": rec.x,
+                    "y": rec.y,
+                    "ix": rec.ix,
+                    "iy": rec.iy,
+                    "psi": rec.psi,
+                    "a_m_um": np.full(c, self.a_um),
+                    "theta_m_deg": np.full(c, self.theta_deg),
+                    "cost": np.full(c, self.last_cost),
+                }
+            )
+            left -= c
+            if c == m:
+                self._end_revolution()
+        if not chunks:
+            return {}
+        return {k: np.concatenate([ch[k] for ch in chunks]) for k in chunks[0]}
+
+    def run_revolutions(self, n_revs: int) -> None:
+        """Advance whole revolutions (the reproduction's driver)."""
+        for _ in range(int(n_revs)):
+            self.step(self.samples_to_boundary())
+
+    def _end_revolution(self) -> None:
+        psi = np.concatenate([r.psi for r in self._buf])
+        fx = np.concatenate([e[0] for e in self._est])
+        fy = np.concatenate([e[1] for e in self._est])
+        fx_true = np.concatenate([r.fx for r in self._buf])
+        fy_true = np.concatenate([r.fy for r in self._buf])
+        t_end = self.machine.t
+        rev_time = t_end - self._rev_start_t
+        self._buf = []
+        self._est = []
+        self._rev_start_t = t_end
+        self._next_boundary += 2.0 * math.pi
+        from estimators.esc import harmonic_cost
+
+        f_cost = fx if self.cost_axis == "x" else fy
+        f_true = fx_true if self.cost_axis == "x" else fy_true
+        cost = harmonic_cost(f_cost, psi)
+        adapting = self._started
+        if adapting and self.tuner == "esc":
+            self.esc_state, erec = self.esc.step(self.esc_state, f_cost, psi, rev_time)
+            self.a_um, self.theta_deg = erec.a_um, erec.theta_deg
+            self.a_n_um, self.theta_n_deg = erec.a_n_um, erec.theta_n_deg
+            self.saturated = self.saturated or erec.saturated
+        elif adapting and self.tuner == "fast":
+            self.fast_state, frec = self.fast.step(
+                self.fast_state, np.vstack([fx, fy]), psi, rev_time
+            )
+            self.a_um, self.theta_deg = frec.a_um, frec.theta_deg
+            self.a_n_um, self.theta_n_deg = frec.a_best_um, frec.theta_best_deg
+            self.saturated = self.saturated or frec.saturated
+        if not self._started and self.adapting:
+            # adaptation starts with the next revolution: apply the tuner's first values
+            self._started = True
+            if self.tuner == "esc":
+                self.a_um, self.theta_deg = self.esc_state.a_um, self.esc_state.theta_deg
+            else:
+                self.a_um, self.theta_deg = self.fast_state.a_um, self.fast_state.theta_deg
+        self.last_cost = cost
+        lg = self.log
+        lg.t_end.append(t_end)
+        lg.cost.append(cost)
+        lg.cost_true.append(harmonic_cost(f_true, psi))
+        lg.a_um.append(self.a_um)
+        lg.theta_deg.append(self.theta_deg)
+        an, tn = positive_polar(self.a_n_um, self.theta_n_deg)
+        lg.a_n_um.append(an)
+        lg.theta_n_deg.append(tn)
+        lg.saturated.append(self.saturated)
+        lg.adapting.append(adapting)
+        lg.rpm.append(self.machine.spindle_rpm)
+
+
+__all__ = ["EccentricityLoop", "ForceSource", "RevolutionLog"]
