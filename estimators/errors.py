@@ -39,8 +39,9 @@ def require_nonnegative(name: str, value: float) -> float:
     return v
 
 
-def require_in(name: str, value: float, lo: float, hi: float, *, lo_open: bool = False,
-               hi_open: bool = False) -> float:
+def require_in(
+    name: str, value: float, lo: float, hi: float, *, lo_open: bool = False, hi_open: bool = False
+) -> float:
     """Return ``value`` if it lies in the interval given, else raise :class:`ParameterError`."""
     v = float(value)
     ok = math.isfinite(v)

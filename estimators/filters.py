@@ -46,7 +46,7 @@ class DiscreteFilter:
         y0 = dc * x0
         # transposed DF-II steady state: z[i] = sum_{k>i} (b[k] x0 - a[k] y0)
         for i in range(n):
-            z[i] = float(np.sum(self.b[i + 1:]) * x0 - np.sum(self.a[i + 1:]) * y0)
+            z[i] = float(np.sum(self.b[i + 1 :]) * x0 - np.sum(self.a[i + 1 :]) * y0)
         return z
 
     def run(self, x: ArrayLike, z: FloatArray | None = None) -> tuple[FloatArray, FloatArray]:
@@ -66,8 +66,9 @@ class DiscreteFilter:
         return np.asarray(num / den, dtype=np.complex128)
 
 
-def discretize(num: ArrayLike, den: ArrayLike, sample_time: float, *,
-               prewarp_hz: float | None = None) -> DiscreteFilter:
+def discretize(
+    num: ArrayLike, den: ArrayLike, sample_time: float, *, prewarp_hz: float | None = None
+) -> DiscreteFilter:
     r"""Tustin discretisation of ``num(s)/den(s)`` (coefficients, highest power first).
 
     With ``prewarp_hz`` the substitution is :math:`s = \frac{\omega_p}{\tan(\omega_p T/2)}
@@ -144,7 +145,8 @@ def df2t_step(b: FloatArray, a: FloatArray, z: FloatArray, x: float) -> float:  
 
 
 @njit(cache=True)
-def _df2t_block(b: FloatArray, a: FloatArray, z: FloatArray, x: FloatArray,
-                y: FloatArray) -> None:  # pragma: no cover
+def _df2t_block(
+    b: FloatArray, a: FloatArray, z: FloatArray, x: FloatArray, y: FloatArray
+) -> None:  # pragma: no cover
     for k in range(len(x)):
         y[k] = df2t_step(b, a, z, x[k])

@@ -62,8 +62,7 @@ class ObserverParams:
             require_nonnegative(n, getattr(self, n))
         nyq = 0.5 / self.sample_time
         if not (0 < self.q_hz < nyq) or not math.isfinite(self.q_hz):
-            raise ParameterError("q_hz", f"a cut-off in (0, {nyq:g}) Hz (below Nyquist)",
-                                 self.q_hz)
+            raise ParameterError("q_hz", f"a cut-off in (0, {nyq:g}) Hz (below Nyquist)", self.q_hz)
         if int(self.q_order) != self.q_order or self.q_order < 1:
             raise ParameterError("q_order", "an integer >= 1", self.q_order)
 
@@ -109,8 +108,9 @@ _N_CH = 8
 
 
 @njit(cache=True)
-def _torsion_kernel(tau, qm, ql, prev, z, bq, aq, pr,
-                    o_ts, o_tsm, o_tsk, o_al, o_acc, o_vel, o_sgn, o_wl):  # pragma: no cover
+def _torsion_kernel(
+    tau, qm, ql, prev, z, bq, aq, pr, o_ts, o_tsm, o_tsk, o_al, o_acc, o_vel, o_sgn, o_wl
+):  # pragma: no cover
     # prev = [q_m[k-1], q_m[k-2], q_l[k-1], q_l[k-2], tau[k-1], tau[k-2], samples seen]
     ts = pr[0]
     JM, BM, FCM, K = pr[1], pr[2], pr[3], pr[4]
@@ -183,34 +183,50 @@ class TorsionEstimator:
         ts = p.sample_time
         # eq. (8): quantisation variance q^2/12; q/ts and q/ts^2 as the equivalent
         # resolutions of omega and d omega/dt (seed 000 III.B)
-        self._pr = np.array([
-            ts, p.J_M, p.B_M, p.F_CM, p.K,
-            (p.err3_J_M * p.J_M / 3) ** 2, (p.err3_B_M * p.B_M / 3) ** 2,
-            (p.err3_K * p.K / 3) ** 2, (p.err3_F_CM * p.F_CM / 3) ** 2,
-            (qn / ts) ** 2 / 12, (qn / ts**2) ** 2 / 12, qn**2 / 12,
-        ])
+        self._pr = np.array(
+            [
+                ts,
+                p.J_M,
+                p.B_M,
+                p.F_CM,
+                p.K,
+                (p.err3_J_M * p.J_M / 3) ** 2,
+                (p.err3_B_M * p.B_M / 3) ** 2,
+                (p.err3_K * p.K / 3) ** 2,
+                (p.err3_F_CM * p.F_CM / 3) ** 2,
+                (qn / ts) ** 2 / 12,
+                (qn / ts**2) ** 2 / 12,
+                qn**2 / 12,
+            ]
+        )
 
     def init_state(self) -> TorsionState:
         return TorsionState(prev=np.zeros(7), z=np.zeros((_N_CH, max(self.q.order, 1))))
 
-    def step(self, state: TorsionState, tau_m: F64, q_m: F64,
-             q_l: F64) -> tuple[TorsionState, TorsionRecord]:
+    def step(
+        self, state: TorsionState, tau_m: F64, q_m: F64, q_l: F64
+    ) -> tuple[TorsionState, TorsionRecord]:
         """Process one block; returns the new state and the per-sample record."""
         tau = np.ascontiguousarray(tau_m, dtype=np.float64)
         qm = np.ascontiguousarray(q_m, dtype=np.float64)
         ql = np.ascontiguousarray(q_l, dtype=np.float64)
         if not (len(tau) == len(qm) == len(ql)):
-            raise ParameterError("block", "tau_m, q_m, q_l of equal length",
-                                 (len(tau), len(qm), len(ql)))
+            raise ParameterError(
+                "block", "tau_m, q_m, q_l of equal length", (len(tau), len(qm), len(ql))
+            )
         new = TorsionState(prev=state.prev.copy(), z=state.z.copy())
         outs = [np.empty(len(tau)) for _ in range(8)]
         _torsion_kernel(tau, qm, ql, new.prev, new.z, self.q.b, self.q.a, self._pr, *outs)
         return new, TorsionRecord(*outs)
 
 
-def cutting_force(rec: TorsionRecord, J_L: F64 | float, B_L: F64 | float,
-                  F_CL: F64 | float) -> F64:
+def cutting_force(rec: TorsionRecord, J_L: F64 | float, B_L: F64 | float, F_CL: F64 | float) -> F64:
     r"""Eq. (2): :math:`\hat F_{cut} = \hat T_s - Q\{J_L s\omega_L + B_L\omega_L +
     F_{CL}\mathrm{sgn}\,\omega_L\}` with parameters per sample (or constants)."""
-    return np.asarray(rec.t_s - (np.asarray(J_L) * rec.acc_l + np.asarray(B_L) * rec.vel_l
-                                 + np.asarray(F_CL) * rec.sgn_l), dtype=np.float64)
+    return np.asarray(
+        rec.t_s
+        - (
+            np.asarray(J_L) * rec.acc_l + np.asarray(B_L) * rec.vel_l + np.asarray(F_CL) * rec.sgn_l
+        ),
+        dtype=np.float64,
+    )

@@ -64,17 +64,18 @@ class RLSParams:
         if n < 1:
             raise ParameterError("scale", "at least one parameter", self.scale)
         if int(self.window) != self.window or self.window < n:
-            raise ParameterError("window", f"an integer >= the number of parameters ({n})",
-                                 self.window)
+            raise ParameterError(
+                "window", f"an integer >= the number of parameters ({n})", self.window
+            )
         if len(self.lower) != n or len(self.upper) != n:
-            raise ParameterError("lower/upper", f"{n} bounds each",
-                                 (len(self.lower), len(self.upper)))
+            raise ParameterError(
+                "lower/upper", f"{n} bounds each", (len(self.lower), len(self.upper))
+            )
         for s in self.scale:
             require_positive("scale", s)
         for lo, hi in zip(self.lower, self.upper, strict=True):
             if math.isnan(lo) or math.isnan(hi) or not lo < hi:
-                raise ParameterError("lower/upper", "lower < upper for every parameter",
-                                     (lo, hi))
+                raise ParameterError("lower/upper", "lower < upper for every parameter", (lo, hi))
         require_positive("p0", self.p0)
 
     @property
@@ -99,8 +100,14 @@ def rls_init(p: RLSParams, theta0: F64) -> RLSState:
     sc = np.asarray(p.scale, dtype=np.float64)
     th0 = np.clip(np.asarray(theta0, dtype=np.float64), p.lower, p.upper) / sc
     P = np.eye(p.n) * p.p0
-    return RLSState(P=P, r=th0 / p.p0, theta=th0, buf_phi=np.zeros((p.window, p.n)),
-                    buf_y=np.zeros(p.window), meta=np.zeros(3, dtype=np.int64))
+    return RLSState(
+        P=P,
+        r=th0 / p.p0,
+        theta=th0,
+        buf_phi=np.zeros((p.window, p.n)),
+        buf_y=np.zeros(p.window),
+        meta=np.zeros(3, dtype=np.int64),
+    )
 
 
 @njit(cache=True)
@@ -213,7 +220,7 @@ class IdentifierParams:
             raise ParameterError("q_rls_hz", f"a cut-off in (0, {nyq:g}) Hz", self.q_rls_hz)
         if self.acc_threshold < 0 or not math.isfinite(self.acc_threshold):
             raise ParameterError("acc_threshold", "a finite value >= 0", self.acc_threshold)
-        self.rls4  # validates window, bounds, scale
+        _ = self.rls4  # validates window, bounds, scale
 
     @property
     def rls4(self) -> RLSParams:
@@ -222,9 +229,13 @@ class IdentifierParams:
     @property
     def rls3(self) -> RLSParams:
         idx = (0, 1, 3)
-        return RLSParams(self.window, tuple(self.scale[i] for i in idx),
-                         tuple(self.lower[i] for i in idx),
-                         tuple(self.upper[i] for i in idx), self.p0)
+        return RLSParams(
+            self.window,
+            tuple(self.scale[i] for i in idx),
+            tuple(self.lower[i] for i in idx),
+            tuple(self.upper[i] for i in idx),
+            self.p0,
+        )
 
 
 @dataclass
@@ -250,8 +261,9 @@ def _filter_regressors(zf, bq, aq, ts_hat, acc, vel, sgn, out_y, out_phi):  # pr
 
 
 @njit(cache=True)
-def _ordinary_kernel(y, phi, thr, sc, P, r, th, bp, by, meta, lo, hi, p0,
-                     o_theta, o_mode, o_exc):  # pragma: no cover
+def _ordinary_kernel(
+    y, phi, thr, sc, P, r, th, bp, by, meta, lo, hi, p0, o_theta, o_mode, o_exc
+):  # pragma: no cover
     n = len(th)
     ph = np.empty(n)
     for k in range(len(y)):
@@ -268,10 +280,36 @@ def _ordinary_kernel(y, phi, thr, sc, P, r, th, bp, by, meta, lo, hi, p0,
 
 
 @njit(cache=True)
-def _switching_kernel(y, phi, rev, thr, L, sc4, sc3,
-                      P4, r4, th4, bp4, by4, m4, lo4, hi4,
-                      P3, r3, th3, bp3, by3, m3, lo3, hi3, p0, sw,
-                      o_theta, o_mode, o_exc):  # pragma: no cover
+def _switching_kernel(
+    y,
+    phi,
+    rev,
+    thr,
+    L,
+    sc4,
+    sc3,
+    P4,
+    r4,
+    th4,
+    bp4,
+    by4,
+    m4,
+    lo4,
+    hi4,
+    P3,
+    r3,
+    th3,
+    bp3,
+    by3,
+    m3,
+    lo3,
+    hi3,
+    p0,
+    sw,
+    o_theta,
+    o_mode,
+    o_exc,
+):  # pragma: no cover
     # sw = [samples since the last reversal, mode in charge, F_CL used (physical), sign]
     idx3 = np.array([0, 1, 3])
     ph4 = np.empty(4)
@@ -302,8 +340,9 @@ def _switching_kernel(y, phi, rev, thr, L, sc4, sc3,
             for i in range(3):
                 th3[i] = th4[idx3[i]] * sc4[idx3[i]] / sc3[i]
                 for j in range(3):
-                    P3[i, j] = (P4[idx3[i], idx3[j]] * sc4[idx3[i]] * sc4[idx3[j]]
-                                / (sc3[i] * sc3[j]))
+                    P3[i, j] = (
+                        P4[idx3[i], idx3[j]] * sc4[idx3[i]] * sc4[idx3[j]] / (sc3[i] * sc3[j])
+                    )
             m3[0] = 0
             m3[1] = 0
             r3[:] = np.linalg.solve(P3, th3)
@@ -356,8 +395,9 @@ def excitation_index(state: RLSState) -> float:
 
 
 def _copy(s: RLSState) -> RLSState:
-    return RLSState(s.P.copy(), s.r.copy(), s.theta.copy(), s.buf_phi.copy(), s.buf_y.copy(),
-                    s.meta.copy())
+    return RLSState(
+        s.P.copy(), s.r.copy(), s.theta.copy(), s.buf_phi.copy(), s.buf_y.copy(), s.meta.copy()
+    )
 
 
 @dataclass
@@ -375,11 +415,11 @@ class LoadIdentifier:
     def __init__(self, params: IdentifierParams, switching: bool = False) -> None:
         self.params = params
         self.switching = switching
-        self.q_rls: DiscreteFilter = lowpass(params.q_rls_hz, params.sample_time,
-                                             params.q_rls_order)
+        self.q_rls: DiscreteFilter = lowpass(
+            params.q_rls_hz, params.sample_time, params.q_rls_order
+        )
 
-    def init_state(self, J_L: float, B_L: float, F_CL: float,
-                   F_dc: float = 0.0) -> IdentState:
+    def init_state(self, J_L: float, B_L: float, F_CL: float, F_dc: float = 0.0) -> IdentState:
         p = self.params
         z = np.zeros((4, max(self.q_rls.order, 1)))
         s4 = rls_init(p.rls4, np.array([J_L, B_L, F_CL, F_dc]))
@@ -388,18 +428,21 @@ class LoadIdentifier:
         s3 = rls_init(p.rls3, np.array([J_L, B_L, F_dc]))
         return IdentState(zf=z, rls4=s4, rls3=s3, sw=np.array([1e9, 4.0, F_CL, 0.0]))
 
-    def step(self, state: IdentState, t_s: F64, acc_l: F64, vel_l: F64, sgn_l: F64,
-             omega_l: F64) -> tuple[IdentState, IdentRecord]:
+    def step(
+        self, state: IdentState, t_s: F64, acc_l: F64, vel_l: F64, sgn_l: F64, omega_l: F64
+    ) -> tuple[IdentState, IdentRecord]:
         """One block: filter by Q_RLS (eq. 14), test excitation, update, report."""
         p = self.params
         n = len(t_s)
-        new = IdentState(zf=state.zf.copy(), rls4=_copy(state.rls4),
-                         rls3=_copy(state.rls3) if state.rls3 is not None else None,
-                         sw=state.sw.copy() if state.sw is not None else None)
+        new = IdentState(
+            zf=state.zf.copy(),
+            rls4=_copy(state.rls4),
+            rls3=_copy(state.rls3) if state.rls3 is not None else None,
+            sw=state.sw.copy() if state.sw is not None else None,
+        )
         y = np.empty(n)
         phi = np.empty((n, 4))
-        _filter_regressors(new.zf, self.q_rls.b, self.q_rls.a, t_s, acc_l, vel_l, sgn_l,
-                           y, phi)
+        _filter_regressors(new.zf, self.q_rls.b, self.q_rls.a, t_s, acc_l, vel_l, sgn_l, y, phi)
         theta = np.empty((n, 4))
         mode = np.empty(n, dtype=np.int8)
         exc = np.empty(n, dtype=np.bool_)
@@ -408,8 +451,24 @@ class LoadIdentifier:
         lo4 = np.array(r4p.lower) / np.array(r4p.scale)
         hi4 = np.array(r4p.upper) / np.array(r4p.scale)
         if not self.switching:
-            _ordinary_kernel(y, phi, p.acc_threshold, np.array(r4p.scale), a.P, a.r, a.theta,
-                             a.buf_phi, a.buf_y, a.meta, lo4, hi4, r4p.p0, theta, mode, exc)
+            _ordinary_kernel(
+                y,
+                phi,
+                p.acc_threshold,
+                np.array(r4p.scale),
+                a.P,
+                a.r,
+                a.theta,
+                a.buf_phi,
+                a.buf_y,
+                a.meta,
+                lo4,
+                hi4,
+                r4p.p0,
+                theta,
+                mode,
+                exc,
+            )
             resets = int(a.meta[2])
         else:
             assert new.rls3 is not None and new.sw is not None
@@ -417,12 +476,42 @@ class LoadIdentifier:
             b = new.rls3
             lo3 = np.array(r3p.lower) / np.array(r3p.scale)
             hi3 = np.array(r3p.upper) / np.array(r3p.scale)
-            _switching_kernel(y, phi, np.ascontiguousarray(omega_l), p.acc_threshold,
-                              float(p.window), np.array(r4p.scale), np.array(r3p.scale),
-                              a.P, a.r, a.theta, a.buf_phi, a.buf_y, a.meta, lo4, hi4,
-                              b.P, b.r, b.theta, b.buf_phi, b.buf_y, b.meta, lo3, hi3,
-                              r4p.p0, new.sw, theta, mode, exc)
+            _switching_kernel(
+                y,
+                phi,
+                np.ascontiguousarray(omega_l),
+                p.acc_threshold,
+                float(p.window),
+                np.array(r4p.scale),
+                np.array(r3p.scale),
+                a.P,
+                a.r,
+                a.theta,
+                a.buf_phi,
+                a.buf_y,
+                a.meta,
+                lo4,
+                hi4,
+                b.P,
+                b.r,
+                b.theta,
+                b.buf_phi,
+                b.buf_y,
+                b.meta,
+                lo3,
+                hi3,
+                r4p.p0,
+                new.sw,
+                theta,
+                mode,
+                exc,
+            )
             resets = int(a.meta[2] + b.meta[2])
-        return new, IdentRecord(theta=theta, mode=mode, excited=exc, resets=resets,
-                                excitation_index=excitation_index(a),
-                                cov_trace=float(np.trace(a.P)))
+        return new, IdentRecord(
+            theta=theta,
+            mode=mode,
+            excited=exc,
+            resets=resets,
+            excitation_index=excitation_index(a),
+            cov_trace=float(np.trace(a.P)),
+        )

@@ -53,7 +53,10 @@ class PlantEffects:
         require_positive("stribeck_velocity", self.stribeck_velocity)
         require_positive("position_period", self.position_period)
         require_nonnegative("backlash", self.backlash)
-        if int(self.torque_ripple_order) != self.torque_ripple_order or self.torque_ripple_order < 1:
+        if (
+            int(self.torque_ripple_order) != self.torque_ripple_order
+            or self.torque_ripple_order < 1
+        ):
             raise ParameterError("torque_ripple_order", "an integer >= 1", self.torque_ripple_order)
 
     def with_enabled(self, *names: str) -> PlantEffects:
@@ -76,14 +79,16 @@ class PlantEffects:
         def m(name: str) -> float:
             return float(getattr(self, name)) if name in on else 0.0
 
-        return np.array([
-            m("offset"),
-            m("coulomb_asymmetry"),
-            m("stribeck"),
-            float(self.stribeck_velocity),
-            m("position_periodic"),
-            float(self.position_period),
-            m("torque_ripple"),
-            float(self.torque_ripple_order),
-            m("backlash"),
-        ])
+        return np.array(
+            [
+                m("offset"),
+                m("coulomb_asymmetry"),
+                m("stribeck"),
+                float(self.stribeck_velocity),
+                m("position_periodic"),
+                float(self.position_period),
+                m("torque_ripple"),
+                float(self.torque_ripple_order),
+                m("backlash"),
+            ]
+        )

@@ -70,11 +70,13 @@ class StageParams:
 
 
 #: Seed 000 Table I (K chosen, see module docstring)
-OHNO2021 = StageParams(J_M=2.80e-4, J_L=2.80e-4, K=900.0, K_t=0.5710, B_M=0.002, B_L=0.002,
-                       F_CM=0.15, F_CL=0.15)
+OHNO2021 = StageParams(
+    J_M=2.80e-4, J_L=2.80e-4, K=900.0, K_t=0.5710, B_M=0.002, B_L=0.002, F_CM=0.15, F_CL=0.15
+)
 #: Seed 001 Table 1 (K chosen, see module docstring)
-OHNO_SWITCHING = StageParams(J_M=2.8e-3, J_L=3.2e-3, K=9400.0, K_t=0.5710, B_M=0.002,
-                             B_L=0.002, F_CM=0.15, F_CL=0.15)
+OHNO_SWITCHING = StageParams(
+    J_M=2.8e-3, J_L=3.2e-3, K=9400.0, K_t=0.5710, B_M=0.002, B_L=0.002, F_CM=0.15, F_CL=0.15
+)
 
 PRESETS: dict[str, StageParams] = {
     "seed000": OHNO2021,

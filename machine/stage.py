@@ -28,7 +28,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numba import njit
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 from scipy.linalg import expm
 
 from machine.effects import PlantEffects
@@ -56,8 +56,11 @@ class CuttingForce:
 
     def __post_init__(self) -> None:
         if len(self.amplitudes) != len(self.frequencies):
-            raise ParameterError("amplitudes", f"{len(self.frequencies)} values (one per "
-                                 "frequency)", len(self.amplitudes))
+            raise ParameterError(
+                "amplitudes",
+                f"{len(self.frequencies)} values (one per frequency)",
+                len(self.amplitudes),
+            )
         for f in self.frequencies:
             require_positive("frequencies", f)
         require_positive("freq_scale", self.freq_scale)
@@ -68,8 +71,8 @@ class CuttingForce:
         n = len(self.frequencies)
         v = np.zeros(3 + 2 * n)
         v[0], v[1], v[2] = self.offset, self.gain, self.engage_time
-        v[3:3 + n] = self.amplitudes
-        v[3 + n:] = np.asarray(self.frequencies) * self.freq_scale
+        v[3 : 3 + n] = self.amplitudes
+        v[3 + n :] = np.asarray(self.frequencies) * self.freq_scale
         return v
 
 
@@ -92,7 +95,7 @@ class Trajectory:
     ramp: float = 0.1  # duration of a reversal ramp [s]
     start_ramp: float = 0.1  # from rest to the first plateau [s]
 
-    def __call__(self, t: F64) -> F64:
+    def __call__(self, t: ArrayLike) -> F64:
         t = np.asarray(t, dtype=np.float64)
         hp, r, v = self.half_period, self.ramp, self.speed
         # plateaus: +v before the first reversal, then alternating sign
@@ -159,8 +162,11 @@ class StageConfig:
         if not math.isfinite(self.current_noise) or self.current_noise < 0:
             raise ParameterError("current_noise", "a finite value >= 0", self.current_noise)
         if not math.isfinite(self.extra_inertia) or self.params.J_L + self.extra_inertia <= 0:
-            raise ParameterError("extra_inertia", f"a value > {-self.params.J_L:g} "
-                                 "(total load inertia positive)", self.extra_inertia)
+            raise ParameterError(
+                "extra_inertia",
+                f"a value > {-self.params.J_L:g} (total load inertia positive)",
+                self.extra_inertia,
+            )
 
     @property
     def true_params(self) -> StageParams:
@@ -173,12 +179,14 @@ class StageConfig:
 
 def _discrete_linear_part(p: StageParams, h: float) -> tuple[F64, F64]:
     """Exact ZOH discretisation of the linear two-inertia dynamics over one sub-step."""
-    a = np.array([
-        [0.0, 1.0, 0.0, 0.0],
-        [-p.K / p.J_M, -(p.B_M + p.C_s) / p.J_M, p.K / p.J_M, p.C_s / p.J_M],
-        [0.0, 0.0, 0.0, 1.0],
-        [p.K / p.J_L, p.C_s / p.J_L, -p.K / p.J_L, -(p.B_L + p.C_s) / p.J_L],
-    ])
+    a = np.array(
+        [
+            [0.0, 1.0, 0.0, 0.0],
+            [-p.K / p.J_M, -(p.B_M + p.C_s) / p.J_M, p.K / p.J_M, p.C_s / p.J_M],
+            [0.0, 0.0, 0.0, 1.0],
+            [p.K / p.J_L, p.C_s / p.J_L, -p.K / p.J_L, -(p.B_L + p.C_s) / p.J_L],
+        ]
+    )
     b = np.array([[0.0, 0.0], [1.0 / p.J_M, 0.0], [0.0, 0.0], [0.0, 1.0 / p.J_L]])
     m = np.zeros((6, 6))
     m[:4, :4] = a * h
@@ -188,9 +196,31 @@ def _discrete_linear_part(p: StageParams, h: float) -> tuple[F64, F64]:
 
 
 @njit(cache=True)
-def _simulate_block(x, ctrl, phases, t0, ts, nsub, phi, gam, plant, eff, force, gains,
-                    w_ref, noise, q,
-                    out_t, out_i, out_qm, out_ql, out_f, out_wm, out_wl, out_ts):  # pragma: no cover
+def _simulate_block(
+    x,
+    ctrl,
+    phases,
+    t0,
+    ts,
+    nsub,
+    phi,
+    gam,
+    plant,
+    eff,
+    force,
+    gains,
+    w_ref,
+    noise,
+    q,
+    out_t,
+    out_i,
+    out_qm,
+    out_ql,
+    out_f,
+    out_wm,
+    out_wl,
+    out_ts,
+):  # pragma: no cover
     """Advance ``len(w_ref)`` samples. ``x`` = [th_M, w_M, th_L, w_L] (in place);
     ``ctrl`` = [integrator, previous quantised th_M] (in place); ``phases`` of the force
     sinusoids (in place). ``plant`` = [K, C_s, F_CM, F_CL, K_t_true]; ``gains`` = [Kp, Ki,
@@ -248,7 +278,7 @@ def _simulate_block(x, ctrl, phases, t0, ts, nsub, phi, gam, plant, eff, force, 
             # load-side Coulomb friction, optionally direction dependent
             fcl = FCL * (1.0 + asym * sl) * sl
             # Stribeck: extra friction near rest, decaying with speed
-            fcl += strb * math.exp(-(wl / vstr) ** 2) * sl
+            fcl += strb * math.exp(-((wl / vstr) ** 2)) * sl
             u_l = -fc - fcl - off
             if pp_a != 0.0:
                 u_l -= pp_a * math.sin(2.0 * math.pi * x[2] / pp_per)
@@ -275,8 +305,14 @@ def _simulate_block(x, ctrl, phases, t0, ts, nsub, phi, gam, plant, eff, force, 
                 out_ts[k] = tsk
             x0, x1, x2, x3 = x[0], x[1], x[2], x[3]
             for r in range(4):
-                x[r] = (phi[r, 0] * x0 + phi[r, 1] * x1 + phi[r, 2] * x2 + phi[r, 3] * x3
-                        + gam[r, 0] * u_m + gam[r, 1] * u_l)
+                x[r] = (
+                    phi[r, 0] * x0
+                    + phi[r, 1] * x1
+                    + phi[r, 2] * x2
+                    + phi[r, 3] * x3
+                    + gam[r, 0] * u_m
+                    + gam[r, 1] * u_l
+                )
 
 
 class StageSim:
@@ -338,17 +374,39 @@ class StageSim:
         ts = c.sample_time
         t = (self.k + np.arange(n)) * ts
         w_ref = c.trajectory(t)
-        noise = (self._rng.normal(0.0, c.current_noise, n) if c.current_noise > 0
-                 else np.zeros(n))
+        noise = self._rng.normal(0.0, c.current_noise, n) if c.current_noise > 0 else np.zeros(n)
         outs = [np.empty(n) for _ in range(8)]
-        _simulate_block(self.x, self.ctrl, self.phases, self.k * ts, ts, c.substeps,
-                        self._phi, self._gam, self._plant, self._eff, self._force,
-                        self._gains, w_ref, noise, c.encoder_resolution, *outs)
+        _simulate_block(
+            self.x,
+            self.ctrl,
+            self.phases,
+            self.k * ts,
+            ts,
+            c.substeps,
+            self._phi,
+            self._gam,
+            self._plant,
+            self._eff,
+            self._force,
+            self._gains,
+            w_ref,
+            noise,
+            c.encoder_resolution,
+            *outs,
+        )
         o_t, o_i, o_qm, o_ql, o_f, o_wm, o_wl, o_ts = outs
         self.k += n
         nom = c.nominal or c.params
         p = c.true_params
         meas = Measurements(t=o_t, i_m=o_i, tau_m=nom.K_t * o_i, q_m=o_qm, q_l=o_ql, f_ext=o_f)
-        truth = Truth(f_cut=o_f, omega_m=o_wm, omega_l=o_wl, t_s=o_ts, omega_ref=w_ref,
-                      J_L=np.full(n, p.J_L), B_L=np.full(n, p.B_L), F_CL=np.full(n, p.F_CL))
+        truth = Truth(
+            f_cut=o_f,
+            omega_m=o_wm,
+            omega_l=o_wl,
+            t_s=o_ts,
+            omega_ref=w_ref,
+            J_L=np.full(n, p.J_L),
+            B_L=np.full(n, p.B_L),
+            F_CL=np.full(n, p.F_CL),
+        )
         return meas, truth

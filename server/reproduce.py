@@ -66,13 +66,22 @@ class Reproduction:
             "experiment": self.experiment,
             "source": self.source,
             "rows": [
-                {"name": r.name, "ours": clean(r.ours), "paper": clean(r.paper), "unit": r.unit,
-                 "condition": r.condition}
+                {
+                    "name": r.name,
+                    "ours": clean(r.ours),
+                    "paper": clean(r.paper),
+                    "unit": r.unit,
+                    "condition": r.condition,
+                }
                 for r in self.rows
             ],
             "checks": [
-                {"name": c.name, "holds": bool(c.holds), "value": clean(c.value),
-                 "limit": clean(c.limit)}
+                {
+                    "name": c.name,
+                    "holds": bool(c.holds),
+                    "value": clean(c.value),
+                    "limit": clean(c.limit),
+                }
                 for c in self.checks
             ],
             "figures": list(self.figures),
@@ -87,8 +96,9 @@ class ReproductionModule(Protocol):
     NAME: str
     SOURCE: str
 
-    def run(self, *, quick: bool = False, plot_dir: Path | None = None,
-            progress: bool = True) -> Reproduction: ...
+    def run(
+        self, *, quick: bool = False, plot_dir: Path | None = None, progress: bool = True
+    ) -> Reproduction: ...
 
 
 def _fmt(x: float | None) -> str:
@@ -106,8 +116,9 @@ def format_table(rep: Reproduction) -> str:
     """The human table: name, ours, paper, unit, condition; then the checks."""
     head = ("row", "ours", "paper", "unit", "condition")
     body = [(r.name, _fmt(r.ours), _fmt(r.paper), r.unit, r.condition) for r in rep.rows]
-    widths = [max(len(h), *(len(b[i]) for b in body)) if body else len(h)
-              for i, h in enumerate(head)]
+    widths = [
+        max(len(h), *(len(b[i]) for b in body)) if body else len(h) for i, h in enumerate(head)
+    ]
     lines = [f"# {rep.experiment} — {rep.source}"]
     lines.append("  ".join(h.ljust(w) for h, w in zip(head, widths, strict=True)).rstrip())
     lines.append("  ".join("-" * w for w in widths))

@@ -9,6 +9,7 @@ used only to build the scoring signals (true force, the ideal estimate Q(s) F_cu
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -42,19 +43,30 @@ class StageBlock:
     resets: int
 
 
-def observer_params_for(cfg: StageConfig, **design: float) -> ObserverParams:
+def observer_params_for(cfg: StageConfig, **design: Any) -> ObserverParams:
     nom = cfg.nominal or cfg.params
-    return ObserverParams(J_M=nom.J_M, B_M=nom.B_M, F_CM=nom.F_CM, K=nom.K,
-                          sample_time=cfg.sample_time,
-                          encoder_resolution=cfg.encoder_resolution, **design)  # type: ignore[arg-type]
+    return ObserverParams(
+        J_M=nom.J_M,
+        B_M=nom.B_M,
+        F_CM=nom.F_CM,
+        K=nom.K,
+        sample_time=cfg.sample_time,
+        encoder_resolution=cfg.encoder_resolution,
+        **design,
+    )
 
 
 class StageRun:
     """The stage and every force observer, advanced together."""
 
-    def __init__(self, config: StageConfig | None = None, *, seed: int = 0,
-                 ident: IdentifierParams | None = None,
-                 observer_design: dict[str, float] | None = None) -> None:
+    def __init__(
+        self,
+        config: StageConfig | None = None,
+        *,
+        seed: int = 0,
+        ident: IdentifierParams | None = None,
+        observer_design: dict[str, Any] | None = None,
+    ) -> None:
         self.sim = StageSim(config or StageConfig(), seed=seed)
         cfg = self.sim.config
         nom = cfg.nominal or cfg.params
@@ -81,10 +93,12 @@ class StageRun:
     def step(self, n: int) -> StageBlock:
         meas, truth = self.sim.step(n)
         self.s_front, rec = self.front.step(self.s_front, meas.tau_m, meas.q_m, meas.q_l)
-        self.s_ident, ra = self.ident.step(self.s_ident, rec.t_s, rec.acc_l, rec.vel_l,
-                                           rec.sgn_l, rec.omega_l)
-        self.s_sw, rs = self.ident_sw.step(self.s_sw, rec.t_s, rec.acc_l, rec.vel_l,
-                                           rec.sgn_l, rec.omega_l)
+        self.s_ident, ra = self.ident.step(
+            self.s_ident, rec.t_s, rec.acc_l, rec.vel_l, rec.sgn_l, rec.omega_l
+        )
+        self.s_sw, rs = self.ident_sw.step(
+            self.s_sw, rec.t_s, rec.acc_l, rec.vel_l, rec.sgn_l, rec.omega_l
+        )
         nl = self.nominal_load
         f_fixed = cutting_force(rec, nl.J_L, nl.B_L, nl.F_CL)
         # the observer at sample k uses the parameters identified up to sample k-1
@@ -102,9 +116,20 @@ class StageRun:
         self._prev_f = float(truth.f_cut[-1])
         self._prev_qf = float(qf[-1])
         self._prev_t = float(meas.t[-1])
-        return StageBlock(meas=meas, truth=truth, t_est=t_est, f_true=f_true, f_ideal=f_ideal,
-                          f_fixed=f_fixed, f_adaptive=f_ad, f_switching=f_sw,
-                          theta_adaptive=ra.theta, theta_switching=rs.theta,
-                          mode_adaptive=ra.mode, mode_switching=rs.mode, alpha=rec.alpha,
-                          excitation_index=ra.excitation_index,
-                          resets=ra.resets + rs.resets)
+        return StageBlock(
+            meas=meas,
+            truth=truth,
+            t_est=t_est,
+            f_true=f_true,
+            f_ideal=f_ideal,
+            f_fixed=f_fixed,
+            f_adaptive=f_ad,
+            f_switching=f_sw,
+            theta_adaptive=ra.theta,
+            theta_switching=rs.theta,
+            mode_adaptive=ra.mode,
+            mode_switching=rs.mode,
+            alpha=rec.alpha,
+            excitation_index=ra.excitation_index,
+            resets=ra.resets + rs.resets,
+        )

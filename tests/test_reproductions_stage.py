@@ -41,16 +41,23 @@ def test_adaptive_equals_fixed_without_the_weight(adaptive) -> None:
     assert c.holds, c.value
 
 
-@pytest.mark.xfail(strict=True, reason="not reached: adaptive/fixed = 0.99 with the weight "
-                   "(target <= 0.8); J_L does not settle within 10 % (see README)")
+@pytest.mark.xfail(
+    strict=True,
+    reason="not reached: adaptive/fixed = 0.99 with the weight "
+    "(target <= 0.8); J_L does not settle within 10 % (see README)",
+)
 def test_adaptive_beats_fixed_with_the_weight(adaptive) -> None:
     for c in adaptive.checks:
         assert c.holds, (c.name, c.value)
 
 
 def test_reproduce_cli_json_contract() -> None:
-    out = subprocess.run([sys.executable, "-m", "server.cli", "reproduce", "switching-rls",
-                          "--quick", "--json"], capture_output=True, text=True, check=True)
+    out = subprocess.run(
+        [sys.executable, "-m", "server.cli", "reproduce", "switching-rls", "--quick", "--json"],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
     doc = json.loads(out.stdout)
     assert doc["experiment"] == "switching-rls"
     assert {"name", "ours", "paper", "unit"} <= set(doc["rows"][0])
@@ -58,8 +65,9 @@ def test_reproduce_cli_json_contract() -> None:
 
 
 def test_reproduce_cli_rejects_unknown_names() -> None:
-    out = subprocess.run([sys.executable, "-m", "server.cli", "reproduce", "nope"],
-                         capture_output=True, text=True)
+    out = subprocess.run(
+        [sys.executable, "-m", "server.cli", "reproduce", "nope"], capture_output=True, text=True
+    )
     assert out.returncode == 2
     assert "unknown experiment 'nope'" in out.stderr
     assert "adaptive-observer" in out.stderr

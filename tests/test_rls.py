@@ -15,8 +15,7 @@ def _feed(p: RLSParams, phi: np.ndarray, y: np.ndarray, theta0: np.ndarray):
     lo, hi = np.array(p.lower) / sc, np.array(p.upper) / sc
     out = []
     for k in range(len(y)):
-        rls_update(s.P, s.r, s.theta, s.buf_phi, s.buf_y, s.meta, phi[k] * sc, y[k], lo, hi,
-                   p.p0)
+        rls_update(s.P, s.r, s.theta, s.buf_phi, s.buf_y, s.meta, phi[k] * sc, y[k], lo, hi, p.p0)
         out.append(s.theta * sc)
     return s, np.array(out)
 
@@ -29,8 +28,9 @@ def test_sliding_rls_equals_batch_least_squares_over_the_window() -> None:
     # the true parameters drift half way: the window must forget the old ones
     y = phi @ theta + 1e-3 * rng.normal(size=n)
     y[300:] += phi[300:, 0] * 2.92e-4
-    p = RLSParams(window=L, scale=(2.8e-4, 2e-3, 0.15, 1.0), lower=(-1e3,) * 4,
-                  upper=(1e3,) * 4, p0=1e8)
+    p = RLSParams(
+        window=L, scale=(2.8e-4, 2e-3, 0.15, 1.0), lower=(-1e3,) * 4, upper=(1e3,) * 4, p0=1e8
+    )
     _, est = _feed(p, phi, y, np.zeros(4))
     for k in (150, 299, 350, 420, 599):
         sl = slice(k - L + 1, k + 1)
@@ -40,16 +40,15 @@ def test_sliding_rls_equals_batch_least_squares_over_the_window() -> None:
 
 
 @settings(max_examples=40, deadline=None)
-@given(seed=st.integers(0, 10_000), window=st.integers(4, 40),
-       scale=st.floats(1e-3, 1e3))
-def test_covariance_stays_symmetric_positive_definite(seed: int, window: int,
-                                                      scale: float) -> None:
+@given(seed=st.integers(0, 10_000), window=st.integers(4, 40), scale=st.floats(1e-3, 1e3))
+def test_covariance_stays_symmetric_positive_definite(seed: int, window: int, scale: float) -> None:
     rng = np.random.default_rng(seed)
     n = 150
     phi = rng.normal(size=(n, 3)) * scale
     y = rng.normal(size=n)
-    p = RLSParams(window=window, scale=(1.0, 1.0, 1.0), lower=(-1e6,) * 3, upper=(1e6,) * 3,
-                  p0=10.0)
+    p = RLSParams(
+        window=window, scale=(1.0, 1.0, 1.0), lower=(-1e6,) * 3, upper=(1e6,) * 3, p0=10.0
+    )
     s, _ = _feed(p, phi, y, np.zeros(3))
     np.testing.assert_allclose(s.P, s.P.T, atol=1e-12 * np.abs(s.P).max())
     assert np.linalg.eigvalsh(s.P).min() > 0
@@ -85,11 +84,13 @@ def test_lost_positive_definiteness_is_detected_and_reported() -> None:
     # corrupt the covariance: the next downdate/update must detect it and reset
     lo, hi = np.array(p.lower), np.array(p.upper)
     for k in range(5):
-        rls_update(s.P, s.r, s.theta, s.buf_phi, s.buf_y, s.meta, np.array([1.0, k]), 1.0,
-                   lo, hi, p.p0)
+        rls_update(
+            s.P, s.r, s.theta, s.buf_phi, s.buf_y, s.meta, np.array([1.0, k]), 1.0, lo, hi, p.p0
+        )
     s.P[:] = -np.eye(2)
-    rc = rls_update(s.P, s.r, s.theta, s.buf_phi, s.buf_y, s.meta, np.array([1.0, 0.5]), 1.0,
-                    lo, hi, p.p0)
+    rc = rls_update(
+        s.P, s.r, s.theta, s.buf_phi, s.buf_y, s.meta, np.array([1.0, 0.5]), 1.0, lo, hi, p.p0
+    )
     assert rc == 1
     assert s.meta[2] == 1  # reset counted
     assert np.linalg.eigvalsh(s.P).min() > 0

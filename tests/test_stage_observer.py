@@ -99,12 +99,15 @@ def test_an_undeclared_plant_effect_shows_up_in_the_estimate() -> None:
 @pytest.mark.parametrize(
     ("factory", "match"),
     [
-        (lambda: StageParams(J_M=-1, J_L=1, K=1, K_t=1, B_M=0, B_L=0, F_CM=0, F_CL=0),
-         "J_M.*> 0.*-1"),
-        (lambda: StageParams(J_M=1, J_L=0.0, K=1, K_t=1, B_M=0, B_L=0, F_CM=0, F_CL=0),
-         "J_L.*> 0"),
-        (lambda: StageParams(J_M=1, J_L=1, K=float("nan"), K_t=1, B_M=0, B_L=0, F_CM=0,
-                             F_CL=0), "K"),
+        (
+            lambda: StageParams(J_M=-1, J_L=1, K=1, K_t=1, B_M=0, B_L=0, F_CM=0, F_CL=0),
+            "J_M.*> 0.*-1",
+        ),
+        (lambda: StageParams(J_M=1, J_L=0.0, K=1, K_t=1, B_M=0, B_L=0, F_CM=0, F_CL=0), "J_L.*> 0"),
+        (
+            lambda: StageParams(J_M=1, J_L=1, K=float("nan"), K_t=1, B_M=0, B_L=0, F_CM=0, F_CL=0),
+            "K",
+        ),
         (lambda: preset("seed999"), "preset.*seed000.*seed999"),
         (lambda: PlantEffects(enabled=frozenset({"gravity"})), "effects.*gravity"),
         (lambda: PlantEffects().toggled("nope", True), "effect.*nope"),

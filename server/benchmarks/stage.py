@@ -30,8 +30,10 @@ def _rate(block: int, seconds: float) -> tuple[float, float]:
 
 def measure(*, repeats: int, quick: bool) -> dict[str, object]:
     short, long_ = (2.0, 6.0) if quick else (10.0, 40.0)
-    out: dict[str, object] = {"configuration": "seed000 stage + front end + ordinary RLS + "
-                              "switching RLS + 3 force estimates, 1 core"}
+    out: dict[str, object] = {
+        "configuration": "seed000 stage + front end + ordinary RLS + "
+        "switching RLS + 3 force estimates, 1 core"
+    }
     for block, label in ((2500, "offline_block_2500"), (125, "live_block_125")):
         rates, costs_s, costs_l = [], [], []
         for _ in range(repeats):

@@ -23,8 +23,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--list", action="store_true", help="list the experiments and their rows")
     p.add_argument("--json", action="store_true", help="print one JSON object per experiment")
     p.add_argument("--plot", metavar="DIR", type=Path, help="write the figures as PNG into DIR")
-    p.add_argument("--quick", action="store_true",
-                   help="reduced run length (the checks still hold); for tests")
+    p.add_argument(
+        "--quick", action="store_true", help="reduced run length (the checks still hold); for tests"
+    )
 
 
 def run(args: argparse.Namespace) -> int:

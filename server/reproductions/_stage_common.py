@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -26,9 +27,15 @@ class RunTrace:
     resets: int
 
 
-def run_stage(run: StageRun, seconds: float, *, block: int = 1250, progress: bool = False,
-              label: str = "", events: dict[float, Callable[[StageRun], None]] | None = None,
-              ) -> RunTrace:
+def run_stage(
+    run: StageRun,
+    seconds: float,
+    *,
+    block: int = 1250,
+    progress: bool = False,
+    label: str = "",
+    events: Mapping[float, Callable[[StageRun], None]] | None = None,
+) -> RunTrace:
     """Advance ``run`` for ``seconds``; ``events`` maps a time to an action applied just
     before the block starting at that time (times are rounded to the block grid)."""
     ts = run.sim.config.sample_time
@@ -41,15 +48,22 @@ def run_stage(run: StageRun, seconds: float, *, block: int = 1250, progress: boo
                 pending.pop(te)(run)
         blocks.append(run.step(block))
 
-    def cat(name: str) -> F64:
+    def cat(name: str) -> NDArray[Any]:
         return np.concatenate([getattr(b, name) for b in blocks])
 
     return RunTrace(
-        t=cat("t_est"), f_true=cat("f_true"), f_ideal=cat("f_ideal"),
-        est={"fixed": cat("f_fixed"), "adaptive": cat("f_adaptive"),
-             "switching": cat("f_switching")},
+        t=cat("t_est"),
+        f_true=cat("f_true"),
+        f_ideal=cat("f_ideal"),
+        est={
+            "fixed": cat("f_fixed"),
+            "adaptive": cat("f_adaptive"),
+            "switching": cat("f_switching"),
+        },
         theta={"adaptive": cat("theta_adaptive"), "switching": cat("theta_switching")},
-        mode_switching=cat("mode_switching"), resets=blocks[-1].resets)
+        mode_switching=cat("mode_switching"),
+        resets=blocks[-1].resets,
+    )
 
 
 def rms(x: F64) -> float:

@@ -8,6 +8,7 @@ Fig. 9). Ordinary RLS (seed 000) against switching RLS, 20 s each.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 
@@ -23,14 +24,21 @@ from server.stage_run import StageRun
 NAME = "switching-rls"
 SOURCE = "seed 001 (Ohno, Fujimoto) Table 3, Fig. 8, Fig. 10"
 ROWS = [
-    "rms_error.ordinary.stationary", "rms_error.switching.stationary",
-    "rms_error.ordinary.speed_change", "rms_error.switching.speed_change",
-    "F_CL.max_rel_error.ordinary.stationary", "F_CL.max_rel_error.switching.stationary",
+    "rms_error.ordinary.stationary",
+    "rms_error.switching.stationary",
+    "rms_error.ordinary.speed_change",
+    "rms_error.switching.speed_change",
+    "F_CL.max_rel_error.ordinary.stationary",
+    "F_CL.max_rel_error.switching.stationary",
     "err_<dc|100hz|200hz>.<ordinary|switching>.<stationary|speed_change>",
 ]
 # seed 001 Table 3 (RMS of the estimation error)
-PAPER = {("switching", "stationary"): 0.5652, ("ordinary", "stationary"): 0.6643,
-         ("switching", "speed_change"): 1.3622, ("ordinary", "speed_change"): 1.6516}
+PAPER = {
+    ("switching", "stationary"): 0.5652,
+    ("ordinary", "stationary"): 0.6643,
+    ("switching", "speed_change"): 1.3622,
+    ("ordinary", "speed_change"): 1.6516,
+}
 CHANGE_T = 11.0
 
 
@@ -38,20 +46,25 @@ def _run(case: str, seconds: float, progress: bool) -> RunTrace:
     p = preset("seed001")
     cfg = StageConfig(params=p, force=SEED001_FORCE)
     ident = IdentifierParams(q_rls_hz=40.0, scale=(p.J_L, p.B_L, p.F_CL, 1.0))
-    r = StageRun(cfg, ident=ident,
-                 observer_design={"err3_J_M": 0.0, "err3_B_M": 0.0, "err3_K": 0.0,
-                                  "err3_F_CM": 0.0})
-    events = {}
+    r = StageRun(
+        cfg,
+        ident=ident,
+        observer_design={"err3_J_M": 0.0, "err3_B_M": 0.0, "err3_K": 0.0, "err3_F_CM": 0.0},
+    )
+    events: dict[float, Callable[[StageRun], None]] = {}
     if case == "speed_change":
+
         def change(rr: StageRun) -> None:
             f = rr.sim.config.force
             rr.sim.reconfigure(force=replace(f, gain=0.8, freq_scale=0.8))
+
         events[CHANGE_T] = change
     return run_stage(r, seconds, progress=progress, label=case, events=events)
 
 
-def run(*, quick: bool = False, plot_dir: Path | None = None,
-        progress: bool = True) -> Reproduction:
+def run(
+    *, quick: bool = False, plot_dir: Path | None = None, progress: bool = True
+) -> Reproduction:
     seconds = 14.0 if quick else 20.0
     skip = 2.0
     rep = Reproduction(NAME, SOURCE)
@@ -62,8 +75,15 @@ def run(*, quick: bool = False, plot_dir: Path | None = None,
         m = tr.t >= skip
         for obs, key in label.items():
             e = tr.est[key][m] - tr.f_true[m]
-            rep.rows.append(Row(f"rms_error.{obs}.{case}", rms(e), PAPER[(obs, case)], "N m",
-                                f"{seconds - skip:g} s scored"))
+            rep.rows.append(
+                Row(
+                    f"rms_error.{obs}.{case}",
+                    rms(e),
+                    PAPER[(obs, case)],
+                    "N m",
+                    f"{seconds - skip:g} s scored",
+                )
+            )
         # Fig. 8(a)/10(a): error at DC, 100, 200 Hz (speed change: after 11 s, where the
         # harmonics sit at 80 and 160 Hz; we report the error at those)
         for obs, key in label.items():
@@ -73,19 +93,32 @@ def run(*, quick: bool = False, plot_dir: Path | None = None,
                 mm, fs = tr.t >= CHANGE_T + 0.5, (0.0, 80.0, 160.0)
             e = tr.est[key][mm] - tr.f_true[mm]
             for f, lab in zip(fs, ("dc", "100hz", "200hz"), strict=True):
-                rep.rows.append(Row(f"err_{lab}.{obs}.{case}", component(e, tr.t[mm], f),
-                                    None, "N m", f"at {f:g} Hz"))
+                rep.rows.append(
+                    Row(
+                        f"err_{lab}.{obs}.{case}",
+                        component(e, tr.t[mm], f),
+                        None,
+                        "N m",
+                        f"at {f:g} Hz",
+                    )
+                )
         if case == "stationary":
             m5 = tr.t >= 5.0
             for obs, key in label.items():
                 rel = np.abs(tr.theta[key][m5, 2] - fcl_true) / fcl_true
-                rep.rows.append(Row(f"F_CL.max_rel_error.{obs}.stationary", float(rel.max()),
-                                    None, "-", "after the first 5 s"))
+                rep.rows.append(
+                    Row(
+                        f"F_CL.max_rel_error.{obs}.stationary",
+                        float(rel.max()),
+                        None,
+                        "-",
+                        "after the first 5 s",
+                    )
+                )
     g = {r.name: r.ours for r in rep.rows}
     for case in ("stationary", "speed_change"):
         ratio = g[f"rms_error.switching.{case}"] / g[f"rms_error.ordinary.{case}"]
-        rep.checks.append(Check(f"switching <= 0.9 x ordinary ({case})", ratio <= 0.9,
-                                ratio, 0.9))
+        rep.checks.append(Check(f"switching <= 0.9 x ordinary ({case})", ratio <= 0.9, ratio, 0.9))
     fe = g["F_CL.max_rel_error.switching.stationary"]
     rep.checks.append(Check("switching F_CL within 20 % across reversals", fe <= 0.2, fe, 0.2))
     if plot_dir is not None:
