@@ -8,9 +8,9 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed-stamp
 
-.PHONY: setup run test lint typecheck pytest reproduce bench system-deps clean
+.PHONY: setup web-deps run test lint typecheck pytest reproduce bench system-deps clean
 
-setup: $(STAMP) web/node_modules/.stamp
+setup: $(STAMP) web-deps
 
 $(STAMP): pyproject.toml constraints.txt
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -18,9 +18,13 @@ $(STAMP): pyproject.toml constraints.txt
 	$(BIN)/python -m pip install -q -c constraints.txt -e '.[dev]'
 	touch $@
 
-web/node_modules/.stamp: web/package.json web/package-lock.json
-	cd web && npm ci --no-audit --no-fund --loglevel=error
-	touch $@
+# the dashboard's npm packages (uPlot), from web/package-lock.json
+web-deps:
+	@if [ -f web/package-lock.json ]; then \
+	  if [ ! -f web/node_modules/.stamp ] || [ web/package-lock.json -nt web/node_modules/.stamp ]; then \
+	    (cd web && npm ci --no-audit --no-fund --loglevel=error) && touch web/node_modules/.stamp; \
+	  fi; \
+	fi
 
 # Debian packages for the browser test. Installed only when missing and only as root.
 system-deps:
