@@ -1,0 +1,520 @@
+"""Measured logs: read and check them (CSV + JSON sidecar, MATLAB ``.mat``), write them.
+
+The format is DESIGN's "Measured log": a CSV with a header row, one sample per row,
+uniform sampling, SI units, and an optional JSON sidecar with the same stem. Other
+tables come in through a column map, ``COL=EXPR`` with ``EXPR`` one of ``name``,
+``name*scale`` or ``name*scale+offset`` (``scale`` a number or, in a ``.mat`` file, the
+name of a scalar variable, e.g. ``tau_m=vir*gtau``). The map is parsed by a regular
+expression, never evaluated.
+
+Every check failure raises :class:`server.errors.LogFormatError` with a message naming
+the file, the column or row, and what was expected against what was found.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import re
+import tempfile
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from server.errors import LogFormatError
+
+FloatArray = NDArray[np.float64]
+
+REQUIRED_COLUMNS: tuple[str, ...] = ("t", "tau_m", "q_m")
+OPTIONAL_COLUMNS: tuple[str, ...] = ("q_l", "f_ext", "i_m")
+EFFORT_UNITS: frozenset[str] = frozenset({"N", "N m", "Nm", "N*m", "A"})
+POSITION_UNITS: frozenset[str] = frozenset({"m", "rad"})
+KINDS: tuple[str, ...] = ("rigid", "two_inertia")
+
+#: relative deviation of one sampling interval from the median tolerated as jitter
+JITTER_TOLERANCE = 0.05
+#: an interval longer than this many median intervals is a gap (missing samples)
+GAP_FACTOR = 1.5
+#: rows read per chunk (and per progress-bar step) for CSV files
+_CHUNK_ROWS = 200_000
+
+_NUM = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
+_NAME = r"[A-Za-z_][A-Za-z0-9_]*"
+_MAP_RE = re.compile(
+    rf"^\s*(?P<col>{_NAME})\s*=\s*(?P<src>{_NAME})"
+    rf"(?:\s*\*\s*(?P<scale>{_NUM}|{_NAME}))?"
+    rf"(?:\s*(?P<sign>[-+])\s*(?P<offset>\d+\.?\d*(?:[eE][-+]?\d+)?|\.\d+(?:[eE][-+]?\d+)?))?\s*$"
+)
+
+
+@dataclass(frozen=True)
+class ColumnMap:
+    """One ``COL=EXPR`` entry: ``column = source * scale + offset``."""
+
+    column: str
+    source: str
+    scale: float | str = 1.0
+    offset: float = 0.0
+
+    def __str__(self) -> str:
+        return f"{self.column}={self.source}*{self.scale}{self.offset:+g}"
+
+
+def parse_map(text: str) -> ColumnMap:
+    """Parse ``COL=EXPR`` (``name``, ``name*scale``, ``name*scale+offset``) strictly.
+
+    Raises
+    ------
+    LogFormatError
+        If ``text`` is not of that form (nothing is evaluated).
+    """
+    m = _MAP_RE.match(text)
+    if m is None:
+        raise LogFormatError(
+            f"--map {text!r}: expected COL=name, COL=name*scale or COL=name*scale+offset "
+            "(scale and offset numbers; scale may name a scalar variable of a .mat file)"
+        )
+    scale_txt = m.group("scale")
+    scale: float | str = 1.0
+    if scale_txt is not None:
+        scale = scale_txt if re.fullmatch(_NAME, scale_txt) else float(scale_txt)
+    offset = 0.0
+    if m.group("offset") is not None:
+        offset = float(m.group("offset")) * (-1.0 if m.group("sign") == "-" else 1.0)
+    return ColumnMap(m.group("col"), m.group("src"), scale, offset)
+
+
+@dataclass(frozen=True)
+class MeasuredLog:
+    """A checked measured log.
+
+    Attributes
+    ----------
+    path : Path
+        The file read.
+    columns : dict of str to ndarray
+        Canonical columns (``t``, ``tau_m``, ``q_m`` and any of ``q_l``, ``f_ext``), SI.
+    sample_time : float
+        Median sampling interval [s].
+    units : dict
+        ``{"effort": ..., "position": ...}`` as declared.
+    kind : str or None
+        ``rigid`` or ``two_inertia`` when declared.
+    nominal : dict
+        Known parameters from the sidecar (may be empty).
+    sidecar : dict
+        The merged sidecar (file, then ``meta`` overrides).
+    """
+
+    path: Path
+    columns: dict[str, FloatArray]
+    sample_time: float
+    units: dict[str, str]
+    kind: str | None
+    nominal: dict[str, float] = field(default_factory=dict)
+    sidecar: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def n(self) -> int:
+        """Number of samples."""
+        return len(self.columns["t"])
+
+    def __getitem__(self, name: str) -> FloatArray:
+        return self.columns[name]
+
+
+def _read_sidecar(path: Path) -> dict[str, Any]:
+    side = path.with_suffix(".json")
+    if not side.exists() or side == path:
+        return {}
+    try:
+        data = json.loads(side.read_text())
+    except json.JSONDecodeError as exc:
+        raise LogFormatError(f"{side}: not valid JSON ({exc})") from exc
+    if not isinstance(data, dict):
+        raise LogFormatError(f"{side}: expected a JSON object, found {type(data).__name__}")
+    return data
+
+
+def load_meta(text: str | os.PathLike[str] | None) -> dict[str, Any]:
+    """Read ``--meta``: a JSON file path, or an inline JSON object starting with ``{``."""
+    if text is None:
+        return {}
+    s = str(text)
+    src = "--meta"
+    try:
+        if s.lstrip().startswith("{"):
+            data = json.loads(s)
+        else:
+            p = Path(s)
+            if not p.exists():
+                raise LogFormatError(
+                    f"--meta {s}: no such file (expected a JSON file or an inline JSON object)"
+                )
+            src = str(p)
+            data = json.loads(p.read_text())
+    except json.JSONDecodeError as exc:
+        raise LogFormatError(f"{src}: not valid JSON ({exc})") from exc
+    if not isinstance(data, dict):
+        raise LogFormatError(f"{src}: expected a JSON object, found {type(data).__name__}")
+    return data
+
+
+def _read_csv(path: Path, progress: bool) -> dict[str, FloatArray]:
+    with path.open("r", newline="") as fh:
+        header_line = fh.readline()
+        if not header_line.strip():
+            raise LogFormatError(f"{path}: empty file (expected a header row)")
+        header = [h.strip() for h in header_line.strip().split(",")]
+        if len(set(header)) != len(header) or any(not h for h in header):
+            raise LogFormatError(
+                f"{path}: header {header}: expected unique, non-empty column names"
+            )
+        try:
+            size = os.path.getsize(path)
+        except OSError:  # pragma: no cover
+            size = 0
+        bar = None
+        if progress and size > 20_000_000:
+            from tqdm import tqdm
+
+            bar = tqdm(total=size, unit="B", unit_scale=True, desc=f"reading {path.name}")
+        chunks: list[FloatArray] = []
+        row0 = 0
+        while True:
+            lines = [ln for ln in (fh.readline() for _ in range(_CHUNK_ROWS)) if ln]
+            if not lines:
+                break
+            block = _parse_block(path, header, lines, row0)
+            chunks.append(block)
+            row0 += len(lines)
+            if bar is not None:
+                bar.update(sum(len(ln) for ln in lines))
+        if bar is not None:
+            bar.close()
+    if not chunks:
+        raise LogFormatError(f"{path}: no data rows after the header")
+    data = np.concatenate(chunks, axis=0)
+    return {h: np.ascontiguousarray(data[:, j]) for j, h in enumerate(header)}
+
+
+def _parse_block(path: Path, header: list[str], lines: list[str], row0: int) -> FloatArray:
+    ncol = len(header)
+    try:
+        arr = np.loadtxt(lines, delimiter=",", dtype=np.float64, ndmin=2)
+        if arr.shape[1] == ncol:
+            return arr
+    except ValueError:
+        pass
+    # slow path: find the first offending cell and name it
+    for i, line in enumerate(lines):
+        cells = line.rstrip("\r\n").split(",")
+        row = row0 + i + 1
+        if len(cells) != ncol:
+            raise LogFormatError(
+                f"{path}: row {row} (line {row + 1}): expected {ncol} cells "
+                f"({', '.join(header)}), found {len(cells)}"
+            )
+        for h, c in zip(header, cells):
+            try:
+                float(c)
+            except ValueError:
+                raise LogFormatError(
+                    f"{path}: row {row} (line {row + 1}), column {h!r}: "
+                    f"expected a number, found {c.strip()!r}"
+                ) from None
+    raise LogFormatError(
+        f"{path}: rows {row0 + 1}..{row0 + len(lines)}: could not parse "
+        "(expected comma-separated numbers)"
+    )  # pragma: no cover
+
+
+def _read_mat(path: Path) -> dict[str, Any]:
+    import scipy.io
+
+    try:
+        raw = scipy.io.loadmat(str(path))
+    except NotImplementedError as exc:
+        raise LogFormatError(
+            f"{path}: MATLAB v7.3 (HDF5) files are not supported; save with -v7 or export a CSV"
+        ) from exc
+    except (ValueError, OSError, TypeError, scipy.io.matlab.MatReadError) as exc:
+        raise LogFormatError(f"{path}: not a readable MATLAB .mat file ({exc})") from exc
+    return {k: v for k, v in raw.items() if not k.startswith("__")}
+
+
+def _as_vector(path: Path, name: str, value: Any) -> FloatArray:
+    try:
+        arr = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise LogFormatError(
+            f"{path}: variable {name!r}: expected a numeric vector, found {type(value).__name__}"
+        ) from None
+    if arr.ndim == 2 and 1 in arr.shape:
+        arr = arr.ravel()
+    if arr.ndim != 1:
+        raise LogFormatError(
+            f"{path}: variable {name!r}: expected a vector, found shape {arr.shape}"
+        )
+    return np.ascontiguousarray(arr)
+
+
+def _apply_maps(
+    path: Path, source: Mapping[str, Any], maps: Sequence[ColumnMap], is_mat: bool
+) -> dict[str, FloatArray]:
+    kind = "variable" if is_mat else "column"
+    out: dict[str, FloatArray] = {}
+    for name, value in source.items():
+        v = np.asarray(value)
+        if v.size > 1:
+            out[name] = _as_vector(path, name, value)
+    for m in maps:
+        if m.source not in source:
+            raise LogFormatError(
+                f"{path}: --map {m.column}=...: {kind} {m.source!r} does not "
+                f"exist; found {', '.join(sorted(source))}"
+            )
+        base = _as_vector(path, m.source, source[m.source])
+        if isinstance(m.scale, str):
+            if m.scale not in source:
+                raise LogFormatError(
+                    f"{path}: --map {m.column}=...: scale {kind} {m.scale!r} "
+                    f"does not exist; found {', '.join(sorted(source))}"
+                )
+            sv = np.asarray(source[m.scale], dtype=np.float64)
+            if sv.size != 1:
+                raise LogFormatError(
+                    f"{path}: --map {m.column}=...: scale {kind} {m.scale!r}: "
+                    f"expected a scalar, found shape {sv.shape}"
+                )
+            scale = float(sv.ravel()[0])
+        else:
+            scale = float(m.scale)
+        out[m.column] = base * scale + m.offset
+    return out
+
+
+def check_time(path: Path, t: FloatArray, declared: float | None = None) -> float:
+    """Check that ``t`` is strictly increasing and uniform; return the sampling interval.
+
+    Jitter up to :data:`JITTER_TOLERANCE` of the median interval is tolerated; an
+    interval above :data:`GAP_FACTOR` times the median is a gap and is refused, naming
+    the row (1-based data row, the header being line 1).
+    """
+    if len(t) < 2:
+        raise LogFormatError(f"{path}: column 't': expected at least 2 samples, found {len(t)}")
+    dt = np.diff(t)
+    bad = np.flatnonzero(~(dt > 0))
+    if bad.size:
+        i = int(bad[0])
+        raise LogFormatError(
+            f"{path}: column 't', row {i + 2}: time not increasing "
+            f"(t = {t[i + 1]!r} after {t[i]!r})"
+        )
+    ts = float(np.median(dt))
+    gap = np.flatnonzero(dt > GAP_FACTOR * ts)
+    if gap.size:
+        i = int(gap[0])
+        raise LogFormatError(
+            f"{path}: column 't', row {i + 2}: gap of {dt[i]:.6g} s after "
+            f"t = {t[i]:.6g} s (expected uniform sampling every {ts:.6g} s; "
+            "missing samples?)"
+        )
+    jit = np.flatnonzero(np.abs(dt - ts) > JITTER_TOLERANCE * ts)
+    if jit.size:
+        i = int(jit[0])
+        raise LogFormatError(
+            f"{path}: column 't', row {i + 2}: interval {dt[i]:.6g} s "
+            f"(expected {ts:.6g} s within {JITTER_TOLERANCE:.0%} jitter)"
+        )
+    if declared is not None:
+        d = float(declared)
+        if not (math.isfinite(d) and d > 0 and abs(d - ts) <= JITTER_TOLERANCE * ts):
+            raise LogFormatError(
+                f"{path}: sidecar sample_time = {declared!r} s, but column 't' "
+                f"is sampled every {ts:.6g} s"
+            )
+    return ts
+
+
+def load_log(
+    path: str | os.PathLike[str],
+    *,
+    meta: Mapping[str, Any] | None = None,
+    maps: Iterable[str | ColumnMap] = (),
+    kind: str | None = None,
+    required: Sequence[str] = REQUIRED_COLUMNS,
+    progress: bool = False,
+) -> MeasuredLog:
+    """Read a measured log and check it against DESIGN's log format.
+
+    Parameters
+    ----------
+    path : path-like
+        ``.csv`` (with an optional ``.json`` sidecar of the same stem) or ``.mat``.
+    meta : mapping, optional
+        Sidecar keys overriding the file's sidecar (``--meta``).
+    maps : iterable of str or ColumnMap
+        Column map entries ``COL=EXPR`` (``--map``).
+    kind : str, optional
+        ``rigid`` or ``two_inertia``; overrides the sidecar's ``kind``.
+    required : sequence of str
+        Columns that must be present after mapping.
+    progress : bool
+        Show a progress bar while reading long files.
+
+    Returns
+    -------
+    MeasuredLog
+
+    Raises
+    ------
+    LogFormatError
+        On any deviation from the format, naming file, column or row.
+    """
+    p = Path(path)
+    if not p.exists():
+        raise LogFormatError(f"{p}: no such file (expected a .csv or .mat log)")
+    parsed = [m if isinstance(m, ColumnMap) else parse_map(m) for m in maps]
+    sidecar = _read_sidecar(p)
+    sidecar.update(dict(meta or {}))
+    suffix = p.suffix.lower()
+    if suffix == ".mat":
+        source: Mapping[str, Any] = _read_mat(p)
+        is_mat = True
+    elif suffix in (".csv", ".txt"):
+        source = _read_csv(p, progress)
+        is_mat = False
+    else:
+        raise LogFormatError(f"{p}: unknown file type {p.suffix!r} (expected .csv or .mat)")
+    cols = _apply_maps(p, source, parsed, is_mat)
+
+    units = sidecar.get("units")
+    if not isinstance(units, dict) or "effort" not in units or "position" not in units:
+        raise LogFormatError(
+            f"{p}: units not declared: expected sidecar key 'units' = "
+            '{"effort": "N" | "N m" | "A", "position": "m" | "rad"} '
+            f"(in {p.with_suffix('.json').name} or --meta), found {units!r}"
+        )
+    if units["effort"] not in EFFORT_UNITS:
+        raise LogFormatError(
+            f"{p}: units.effort = {units['effort']!r}: expected one of {sorted(EFFORT_UNITS)}"
+        )
+    if units["position"] not in POSITION_UNITS:
+        raise LogFormatError(
+            f"{p}: units.position = {units['position']!r}: expected one of {sorted(POSITION_UNITS)}"
+        )
+    nominal_raw = sidecar.get("nominal", {}) or {}
+    if not isinstance(nominal_raw, dict):
+        raise LogFormatError(
+            f"{p}: sidecar 'nominal': expected an object, found {type(nominal_raw).__name__}"
+        )
+    nominal: dict[str, float] = {}
+    for k, v in nominal_raw.items():
+        if not isinstance(v, int | float) or not math.isfinite(float(v)):
+            raise LogFormatError(f"{p}: sidecar nominal.{k} = {v!r}: expected a finite number")
+        nominal[k] = float(v)
+    # effort given as current: tau_m = K_t * i_m
+    if units["effort"] == "A":
+        if "tau_m" not in cols and "i_m" in cols:
+            cols["tau_m"] = cols["i_m"]
+        if "K_t" not in nominal:
+            raise LogFormatError(
+                f"{p}: units.effort = 'A' (current): expected nominal.K_t "
+                "[N m/A] in the sidecar, found none"
+            )
+        cols["tau_m"] = cols["tau_m"] * nominal["K_t"]
+        units = {**units, "effort": "N m"}
+
+    missing = [c for c in required if c not in cols]
+    if missing:
+        raise LogFormatError(
+            f"{p}: missing column(s) {', '.join(missing)}; found "
+            f"{', '.join(sorted(cols)) or 'none'} (map one with "
+            "--map COL=name*scale+offset)"
+        )
+    keep = [c for c in (*REQUIRED_COLUMNS, *OPTIONAL_COLUMNS) if c in cols]
+    n = len(cols["t"]) if "t" in cols else len(cols[keep[0]])
+    out: dict[str, FloatArray] = {}
+    for c in keep:
+        v = cols[c]
+        if len(v) != n:
+            raise LogFormatError(
+                f"{p}: column {c!r}: expected {n} samples (as 't'), found {len(v)}"
+            )
+        bad = np.flatnonzero(~np.isfinite(v))
+        if bad.size:
+            i = int(bad[0])
+            raise LogFormatError(
+                f"{p}: column {c!r}, row {i + 1}: expected a finite value, found {v[i]!r}"
+            )
+        out[c] = v
+    declared = sidecar.get("sample_time")
+    ts = check_time(p, out["t"], None if declared is None else declared)
+
+    k = kind if kind is not None else sidecar.get("kind")
+    if k is not None and k not in KINDS:
+        raise LogFormatError(f"{p}: kind {k!r}: expected one of {', '.join(KINDS)}")
+    return MeasuredLog(p, out, ts, dict(units), k, nominal, sidecar)
+
+
+def write_log(path: Path, columns: Mapping[str, NDArray[Any]], sidecar: Mapping[str, Any]) -> None:
+    """Write ``columns`` as CSV at ``path`` and ``sidecar`` as JSON beside it, atomically.
+
+    Both files are written to temporary files in the same directory and renamed into
+    place only when complete, so a failure leaves no partial output.
+
+    Raises
+    ------
+    LogFormatError
+        If the columns are empty, not 1-D or of unequal length, or a name is not a
+        plain identifier.
+    """
+    p = Path(path)
+    if not columns:
+        raise LogFormatError(f"{p}: expected at least one column to write, found none")
+    names = list(columns)
+    arrays = [np.asarray(columns[c], dtype=np.float64) for c in names]
+    n = len(arrays[0])
+    for c, a in zip(names, arrays):
+        if not re.fullmatch(_NAME, c):
+            raise LogFormatError(f"{p}: column name {c!r}: expected an identifier")
+        if a.ndim != 1 or len(a) != n:
+            raise LogFormatError(
+                f"{p}: column {c!r}: expected a 1-D array of {n} samples, found shape {a.shape}"
+            )
+    p.parent.mkdir(parents=True, exist_ok=True)
+    side = p.with_suffix(".json")
+    tmps: list[str] = []
+    try:
+        fd, tmp_csv = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent)
+        tmps.append(tmp_csv)
+        with os.fdopen(fd, "w", newline="") as fh:
+            np.savetxt(
+                fh,
+                np.column_stack(arrays),
+                delimiter=",",
+                fmt="%.17g",
+                header=",".join(names),
+                comments="",
+            )
+        fd2, tmp_json = tempfile.mkstemp(prefix=f".{side.name}.", suffix=".tmp", dir=p.parent)
+        tmps.append(tmp_json)
+        with os.fdopen(fd2, "w") as fh:
+            json.dump(dict(sidecar), fh, indent=2, default=float)
+            fh.write("\n")
+        os.replace(tmp_json, side)
+        tmps.remove(tmp_json)
+        os.replace(tmp_csv, p)
+        tmps.remove(tmp_csv)
+    finally:
+        for t in tmps:
+            try:
+                os.unlink(t)
+            except OSError:
+                pass
