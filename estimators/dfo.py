@@ -151,6 +151,10 @@ class DfoParams:
     lead : float
         The compensation is the harmonic estimate predicted ``lead`` seconds ahead
         (0 = the paper's DFO; the input delay would make it exact for sinusoids).
+    include_offset : bool
+        Also estimate a constant part of the disturbance (one more state, observer pole at
+        ``-decay``); it joins ``d_hat`` and the compensation. Not in the paper (its
+        disturbance is pure harmonics); a milling force has a mean.
     """
 
     frequencies: tuple[float, ...]
@@ -162,6 +166,7 @@ class DfoParams:
     harmonic_decay: float = 2 * math.pi * 5.0
     channel_bandwidth_hz: float = 100.0
     lead: float = 0.0
+    include_offset: bool = False
     phi: FloatArray = field(init=False, repr=False)
     gamma_a: FloatArray = field(init=False, repr=False)
     gamma_b: FloatArray = field(init=False, repr=False)
@@ -218,12 +223,15 @@ class DfoParams:
             if tau < 1e-12 * ts:
                 tau = 0.0
         k = len(freqs)
-        n = nc + 2 * k
+        n_off = 1 if self.include_offset else 0
+        n = nc + 2 * k + n_off
         f = np.zeros((n, n))
         g = np.zeros(n)
         h = np.zeros(n)
-        sel = np.zeros(2 * k)
-        sel[0::2] = 1.0
+        sel = np.zeros(2 * k + n_off)
+        sel[0 : 2 * k : 2] = 1.0
+        if n_off:
+            sel[-1] = 1.0  # the offset state (last) adds to the channel input too
         if nc > 0:
             # controllable canonical form of num/den
             f[nc - 1, :nc] = -den[1:][::-1]
@@ -256,6 +264,7 @@ class DfoParams:
                 np.ravel(
                     [[-self.harmonic_decay + 1j * w, -self.harmonic_decay - 1j * w] for w in omegas]
                 ),
+                np.full(n_off, -self.harmonic_decay, dtype=np.complex128),
             ]
         )
         z_poles = np.exp(poles_c * ts)
@@ -275,7 +284,7 @@ class DfoParams:
 
     @property
     def n_states(self) -> int:
-        return self.channel_order + 2 * len(self.frequencies)
+        return self.channel_order + 2 * len(self.frequencies) + int(self.include_offset)
 
     def error_poles(self) -> NDArray[np.complex128]:
         """Eigenvalues of the discrete estimation-error dynamics ``(I - L H) Phi``."""
@@ -305,7 +314,8 @@ class DfoRecord:
     predicted ``lead`` ahead (what is subtracted from the command); ``amplitude`` and
     ``phase`` (n, K): each harmonic's :math:`A_i` and :math:`\\theta_i` of eq. (5), the
     phase relative to ``t = k T`` with ``k`` counted from the observer's start;
-    ``innovation``: ``y - H x_prior``.
+    ``innovation``: ``y - H x_prior``; ``offset``: the constant part (0 without
+    ``include_offset``).
     """
 
     d_hat: FloatArray
@@ -313,6 +323,7 @@ class DfoRecord:
     amplitude: FloatArray
     phase: FloatArray
     innovation: FloatArray
+    offset: FloatArray
 
 
 def initial_state(params: DfoParams) -> DfoState:
@@ -346,6 +357,8 @@ def _dfo_block(
     amp: FloatArray,
     ph: FloatArray,
     innov: FloatArray,
+    off: FloatArray,
+    has_off: bool,
 ) -> None:  # pragma: no cover
     n = len(x)
     xp = np.empty(n)
@@ -378,8 +391,10 @@ def _dfo_block(
             amp[j, i] = math.sqrt(s * s + c * c)
             th = math.atan2(s, c) - omegas[i] * tk
             ph[j, i] = math.atan2(math.sin(th), math.cos(th))
-        dh[j] = total
-        comp[j] = tc
+        o = x[n - 1] if has_off else 0.0
+        off[j] = o
+        dh[j] = total + o
+        comp[j] = tc + o
 
 
 def step(params: DfoParams, state: DfoState, y: ArrayLike) -> tuple[DfoState, DfoRecord]:
@@ -410,6 +425,7 @@ def step(params: DfoParams, state: DfoState, y: ArrayLike) -> tuple[DfoState, Df
     amp = np.empty((n, nh))
     ph = np.empty((n, nh))
     innov = np.empty(n)
+    off = np.empty(n)
     omegas = 2 * np.pi * np.asarray(params.frequencies)
     _dfo_block(
         params.phi,
@@ -432,11 +448,15 @@ def step(params: DfoParams, state: DfoState, y: ArrayLike) -> tuple[DfoState, Df
         amp,
         ph,
         innov,
+        off,
+        params.include_offset,
     )
     u_hist = state.u_hist[n:].copy() if params.uses_input else state.u_hist
     return (
         DfoState(x=x, u_hist=u_hist, k=state.k + n),
-        DfoRecord(d_hat=dh, compensation=comp, amplitude=amp, phase=ph, innovation=innov),
+        DfoRecord(
+            d_hat=dh, compensation=comp, amplitude=amp, phase=ph, innovation=innov, offset=off
+        ),
     )
 
 

@@ -15,6 +15,7 @@ REQUIRED = [
     *(f"mte.{c}" for c in do.CONFIGS),
     *(f"peak.{f}hz.{c}" for c in do.CONFIGS for f in (26, 52, 78)),
 ]
+STAGE = [f"stage.err_{f}hz.{w}" for f in (100, 200) for w in ("before", "after")]
 
 
 @pytest.fixture(scope="module")
@@ -39,7 +40,18 @@ def test_rows_named_in_the_issue_are_present(report: dict[str, object]) -> None:
         assert name in rows, name
         assert rows[name]["ours"] is not None
         assert rows[name]["paper"] is not None  # Table 1 / Table 2 value beside ours
-    assert set(do.ROWS) == set(REQUIRED)
+    for name in STAGE:
+        assert rows[name]["ours"] is not None, name
+    assert set(do.ROWS) == set(REQUIRED + STAGE)
+
+
+def test_stage_rows_improve_and_the_observer_reconverges(report: dict[str, object]) -> None:
+    rows = {r["name"]: r["ours"] for r in report["rows"]}  # type: ignore[attr-defined]
+    for f in (100, 200):
+        assert rows[f"stage.err_{f}hz.after"] < rows[f"stage.err_{f}hz.before"]
+    for f in (80, 160):  # after the spindle-speed change, with the retuned frequencies
+        assert rows[f"stage.err_{f}hz.after"] < rows[f"stage.err_{f}hz.before"]
+    assert 0.0 < rows["stage.reconverge_5pct"] < 1.0
 
 
 def test_checks_hold_on_the_quick_run(report: dict[str, object]) -> None:
@@ -64,7 +76,7 @@ def test_paper_reference_numbers_are_the_tables(report: dict[str, object]) -> No
 
 def test_figures_are_written(report: dict[str, object]) -> None:
     figs = report["figures"]
-    assert len(figs) == 2  # type: ignore[arg-type]
+    assert len(figs) == 3  # type: ignore[arg-type]
     for f in figs:  # type: ignore[attr-defined]
         p = Path(f)
         assert p.suffix == ".png" and p.stat().st_size > 10_000

@@ -26,6 +26,7 @@ from numpy.typing import NDArray
 from estimators import dfo as dfo_mod
 from estimators import imbdo as imbdo_mod
 from machine import xy_axis as xa
+from server import stage_harmonics as sh
 from server.reproduce import Check, Reproduction, Row
 
 NAME = "disturbance-observers"
@@ -51,6 +52,7 @@ ROWS = (
     [f"rmse.{c}" for c in CONFIGS]
     + [f"mte.{c}" for c in CONFIGS]
     + [f"peak.{int(f)}hz.{c}" for c in CONFIGS for f in HARMONICS]
+    + [f"stage.err_{f}hz.{w}" for f in (100, 200) for w in ("before", "after")]
 )
 
 SETTLE_S = 2.0  # one reference period: start transient and observer convergence
@@ -377,9 +379,102 @@ def run(
             1.0,
         )
     )
+    stage = _stage_rows(rep, quick=quick, progress=progress)
     if plot_dir is not None:
         rep.figures.extend(_plots(Path(plot_dir), runs, axis))
+        rep.figures.append(_stage_plot(Path(plot_dir), stage))
     return rep
+
+
+def _stage_rows(rep: Reproduction, *, quick: bool, progress: bool) -> sh.StageHarmonicsRun:
+    """Section 4 of the issue: the DFO on the two-inertia stage's force estimate."""
+    change, total = (2.5, 3.5) if quick else (11.0, 14.0)
+    if progress:
+        print("  simulating the stage with the harmonic observer ...", flush=True)
+    run_s = sh.run_stage(total, change_time=change)
+    cond = f"seed 001 stage, force 2 + sin 100 Hz + sin 200 Hz [N m], {change - 2:g}-{change:g} s"
+    err = sh.error_at(run_s, (100.0, 200.0), change - 2.0, change)
+    for i, f in enumerate((100, 200)):
+        for w in ("before", "after"):
+            what = "observer output (Q-filtered)" if w == "before" else "DFO reconstruction"
+            rep.rows.append(
+                Row(
+                    f"stage.err_{f}hz.{w}",
+                    err[w][i],
+                    None,
+                    "N m",
+                    f"{cond}; error of the {what} against the true force",
+                )
+            )
+    err2 = sh.error_at(run_s, (80.0, 160.0), change + 0.5, total)
+    for i, f in enumerate((80, 160)):
+        for w in ("before", "after"):
+            rep.rows.append(
+                Row(
+                    f"stage.err_{f}hz.{w}",
+                    err2[w][i],
+                    None,
+                    "N m",
+                    f"after the spindle change at {change:g} s (x0.8), "
+                    f"{change + 0.5:g}-{total:g} s",
+                )
+            )
+    t5 = sh.reconvergence_time(run_s, 0.05)
+    t2 = sh.reconvergence_time(run_s, 0.02)
+    rep.rows.append(
+        Row(
+            "stage.reconverge_5pct",
+            t5,
+            None,
+            "s",
+            "after the spindle change, until every amplitude stays within 5 %",
+        )
+    )
+    rep.rows.append(Row("stage.reconverge_2pct", t2, None, "s", "same, within 2 %"))
+    for i, f in enumerate((100, 200)):
+        b, a = err["before"][i], err["after"][i]
+        rep.checks.append(Check(f"stage.err_{f}hz.after < stage.err_{f}hz.before", a < b, a, b))
+    rep.checks.append(
+        Check(
+            "stage DFO re-converges (5 %) after the spindle change",
+            math.isfinite(t5),
+            t5,
+            total - change,
+        )
+    )
+    return run_s
+
+
+def _stage_plot(out: Path, run_s: sh.StageHarmonicsRun) -> str:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out.mkdir(parents=True, exist_ok=True)
+    tc = run_s.change_time or 0.0
+    fig, axs = plt.subplots(2, 1, figsize=(10, 7))
+    sel = (run_s.t > tc - 0.03) & (run_s.t < tc + 0.05)
+    axs[0].plot(run_s.t[sel], run_s.f_true[sel], "k", lw=1.2, label="true force")
+    axs[0].plot(run_s.t[sel], run_s.f_observer[sel], "b", lw=0.8, label="observer (Q-filtered)")
+    axs[0].plot(run_s.t[sel], run_s.f_dfo[sel], "r--", lw=0.8, label="DFO reconstruction")
+    axs[0].axvline(tc, color="grey", ls=":")
+    axs[0].set_ylabel("force [N m]")
+    axs[0].legend(loc="upper right")
+    axs[0].set_title("Stage: the harmonic observer undoes Q(s); spindle change x0.8")
+    sel = (run_s.t > tc - 0.3) & (run_s.t < tc + 0.5)
+    for i in range(run_s.amplitude.shape[1]):
+        axs[1].plot(run_s.t[sel], run_s.amplitude[sel, i], lw=0.9, label=f"harmonic {i + 1}")
+        axs[1].plot(run_s.t[sel], run_s.true_amplitude[sel, i], "k:", lw=0.8)
+    axs[1].axvline(tc, color="grey", ls=":")
+    axs[1].set_xlabel("time [s]")
+    axs[1].set_ylabel("amplitude [N m]")
+    axs[1].legend(loc="upper right")
+    fig.tight_layout()
+    p = out / "disturbance_observers_stage.png"
+    fig.savefig(p, dpi=110)
+    plt.close(fig)
+    return str(p)
 
 
 def _plots(out: Path, runs: dict[str, AxisRun], axis: xa.XYAxisParams) -> list[str]:
