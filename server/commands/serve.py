@@ -1,0 +1,92 @@
+"""Serve the live dashboard: the simulated machine and its observers, streamed.
+
+Examples::
+
+    cutwatch serve                       # http://127.0.0.1:8000/
+    cutwatch serve --speed 0             # start paused
+    CUTWATCH_TOKEN=secret cutwatch serve --host 0.0.0.0
+
+Options override the ``CUTWATCH_*`` environment variables. Any address other than
+loopback requires ``CUTWATCH_TOKEN`` (mutating endpoints then need
+``Authorization: Bearer <token>``); the service refuses to start without it.
+"""
+
+from __future__ import annotations
+
+import argparse
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from server.settings import Settings
+
+HELP = "serve the live dashboard, REST API and WebSocket stream (one uvicorn worker)"
+
+WS_IMPL = "websockets-sansio"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--host", help="address to bind (default 127.0.0.1)")
+    p.add_argument("--port", type=int, help="HTTP port (default 8000)")
+    p.add_argument("--viser-port", type=int, help="port of the viser 3D view (default 8080)")
+    p.add_argument("--scenario", help="scenario at start (see GET /api/scenarios)")
+    p.add_argument(
+        "--speed",
+        type=float,
+        help="simulated seconds per wall second; 0 = start paused (default 1)",
+    )
+    p.add_argument("--log-level", default="warning", help="uvicorn log level")
+
+
+def build_settings(args: argparse.Namespace) -> Settings:
+    """Settings from the environment, overridden by the options given."""
+    from pydantic import ValidationError
+
+    from server.errors import CutwatchError
+    from server.settings import Settings as _Settings
+
+    overrides = {
+        k: v
+        for k, v in {
+            "host": args.host,
+            "port": args.port,
+            "viser_port": args.viser_port,
+            "scenario": args.scenario,
+            "speed": args.speed,
+        }.items()
+        if v is not None
+    }
+    try:
+        return _Settings(**overrides)
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        field = ".".join(str(x) for x in first["loc"])
+        raise CutwatchError(f"{field}: {first['msg']}, got {first.get('input')!r}") from None
+
+
+def run(args: argparse.Namespace) -> int:
+    import uvicorn
+
+    from server.app import create_app
+
+    settings = build_settings(args)
+    app = create_app(settings)
+    shown = "127.0.0.1" if settings.host in ("0.0.0.0", "::") else settings.host
+    print(
+        f"cutwatch dashboard: http://{shown}:{settings.port}/  "
+        f"(API docs: http://{shown}:{settings.port}/docs)",
+        flush=True,
+    )
+    print(
+        f"viser 3D view port: {settings.viser_port} (not started: the 3D view is not built yet)",
+        flush=True,
+    )
+    uvicorn.run(
+        app,
+        host=settings.host,
+        port=settings.port,
+        workers=1,
+        ws=WS_IMPL,
+        log_level=args.log_level,
+        lifespan="on",
+    )
+    return 0

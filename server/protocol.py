@@ -1,0 +1,112 @@
+"""The live stream's message schema (server side); its twin is ``web/protocol.js``.
+
+Two message types travel from server to client as JSON text:
+
+``hello`` (first message after connecting)
+    ``{"type": "hello", "version": VERSION, "channels": [{"name", "unit", "group",
+    "label"}, ...], "sample_time": s, "scenario": name, "knobs": {...}}``
+
+``data`` (at the display rate, ~20 Hz)
+    ``{"type": "data", "dropped": n, "seq": k, "wall": unix_s, "t": [...], "ch": {name:
+    [...]}, "health": {...}, "knobs": {...}}``. ``t`` and every ``ch`` array have the
+    same length (the block's samples, decimated for display). ``dropped`` counts the
+    frames this client lost (buffer full) since its previous frame.
+
+JSON was measured against a binary (float32) encoding: see ``docs/live-service.md``.
+``tests/test_protocol.py`` keeps :data:`SCHEMA` equal to the JS module's ``SCHEMA``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from typing import Any
+
+VERSION = 1
+
+SCHEMA: dict[str, Any] = {
+    "version": VERSION,
+    "hello": ["type", "version", "channels", "sample_time", "scenario", "knobs"],
+    "channel": ["name", "unit", "group", "label"],
+    "data": ["type", "dropped", "seq", "wall", "t", "ch", "health", "knobs"],
+    "health": [
+        "sim_t",
+        "speed",
+        "paused",
+        "lag_ms",
+        "lag_p99_ms",
+        "realtime_factor",
+        "clients",
+        "dropped_total",
+        "stalls",
+    ],
+}
+
+
+def _clean(x: Any) -> Any:
+    """JSON-safe copy: non-finite floats become ``None``, tuples lists."""
+    if isinstance(x, float):
+        return x if math.isfinite(x) else None
+    if isinstance(x, dict):
+        return {str(k): _clean(v) for k, v in x.items()}
+    if isinstance(x, list | tuple):
+        return [_clean(v) for v in x]
+    if hasattr(x, "item"):  # numpy scalar
+        return _clean(x.item())
+    return x
+
+
+def hello(
+    channels: list[dict[str, str]], sample_time: float, scenario: str, knobs: dict[str, Any]
+) -> str:
+    """Encode the ``hello`` message."""
+    msg = {
+        "type": "hello",
+        "version": VERSION,
+        "channels": channels,
+        "sample_time": sample_time,
+        "scenario": scenario,
+        "knobs": knobs,
+    }
+    return json.dumps(_clean(msg), allow_nan=False)
+
+
+def data_body(
+    seq: int,
+    wall: float,
+    t: list[float | None],
+    ch: dict[str, list[float | None]],
+    health: dict[str, Any],
+    knobs: dict[str, Any],
+) -> str:
+    """Encode a data frame without its per-client ``dropped`` field (done once per frame).
+
+    ``t`` and ``ch`` must already be JSON-safe lists (see :func:`samples`).
+
+    :func:`with_dropped` completes it per client.
+    """
+    body = {
+        "seq": seq,
+        "wall": wall,
+        "t": t,
+        "ch": ch,
+        "health": _clean(health),
+        "knobs": _clean(knobs),
+    }
+    return json.dumps(body, allow_nan=False, separators=(",", ":"))
+
+
+def samples(a: Any) -> list[float | None]:
+    """A float array as a JSON-safe list (non-finite values become ``None``)."""
+    import numpy as np
+
+    arr = np.asarray(a, dtype=np.float64)
+    if np.isfinite(arr).all():
+        out: list[float | None] = arr.tolist()
+        return out
+    return [float(v) if math.isfinite(v) else None for v in arr.tolist()]
+
+
+def with_dropped(body: str, dropped: int) -> str:
+    """Complete a frame body from :func:`data_body` with this client's ``dropped`` count."""
+    return '{"type":"data","dropped":' + str(int(dropped)) + "," + body[1:]

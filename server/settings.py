@@ -1,0 +1,71 @@
+"""Settings of the live service, read from the environment (prefix ``CUTWATCH_``).
+
+Examples: ``CUTWATCH_PORT=8001``, ``CUTWATCH_SPEED=0`` (start paused),
+``CUTWATCH_HOST=0.0.0.0 CUTWATCH_TOKEN=...`` (any address other than loopback needs a
+token; see :func:`check_security`).
+"""
+
+from __future__ import annotations
+
+from pydantic import Field, SecretStr
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+from server.errors import CutwatchError
+
+LOOPBACK = frozenset({"127.0.0.1", "localhost", "::1"})
+MAX_SPEED = 1000.0
+
+
+class Settings(BaseSettings):
+    """Configuration of ``cutwatch serve`` (every field also ``CUTWATCH_<FIELD>``)."""
+
+    model_config = SettingsConfigDict(env_prefix="CUTWATCH_", extra="ignore", validate_default=True)
+
+    host: str = Field(default="127.0.0.1", description="address to bind (loopback by default)")
+    port: int = Field(default=8000, ge=1, le=65535, description="HTTP / WebSocket port")
+    viser_port: int = Field(default=8080, ge=1, le=65535, description="port of the viser 3D view")
+    scenario: str = Field(default="default", description="scenario at start (see /api/scenarios)")
+    speed: float = Field(
+        default=1.0,
+        ge=0.0,
+        le=MAX_SPEED,
+        description="simulated seconds per wall second (0 = paused)",
+    )
+    block_ms: float = Field(default=50.0, ge=1.0, le=1000.0, description="loop block length [ms]")
+    frame_hz: float = Field(default=20.0, ge=1.0, le=60.0, description="WebSocket frame rate [Hz]")
+    display_points: int = Field(
+        default=25, ge=1, le=2000, description="displayed samples per channel per block at 1x"
+    )
+    client_buffer: int = Field(
+        default=4, ge=1, le=64, description="frames buffered per client (oldest dropped)"
+    )
+    max_body_bytes: int = Field(
+        default=16384, ge=256, le=1 << 20, description="largest request body accepted [bytes]"
+    )
+    max_lag_s: float = Field(
+        default=2.0, gt=0.0, le=60.0, description="lag after which the loop re-anchors its clock"
+    )
+    token: SecretStr | None = Field(default=None, description="bearer token for mutating endpoints")
+    seed: int = Field(default=0, ge=0, description="seed of the simulation's random generators")
+    viser: bool = Field(default=False, description="start the viser 3D view (not built yet)")
+
+
+def is_loopback(host: str) -> bool:
+    """True if ``host`` is a loopback address."""
+    return host in LOOPBACK or host.startswith("127.")
+
+
+def check_security(settings: Settings) -> None:
+    """Refuse to serve on a non-loopback address without a bearer token.
+
+    Raises
+    ------
+    CutwatchError
+        If ``settings.host`` is not loopback and no (non-empty) token is set.
+    """
+    token = settings.token.get_secret_value() if settings.token is not None else ""
+    if not is_loopback(settings.host) and not token:
+        raise CutwatchError(
+            f"binding to {settings.host!r} (not loopback) requires a bearer token: set "
+            "CUTWATCH_TOKEN in the environment; refusing to start"
+        )
