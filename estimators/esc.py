@@ -280,8 +280,12 @@ class ExtremumSeekingController:
         th_n = state.theta_n_deg
         frozen = state.frozen
         frozen_cost = state.frozen_cost
-        if frozen and cost > p.resume_ratio * frozen_cost:
-            frozen = False
+        if frozen:
+            # the cost at the held values: the first undithered revolution, then the
+            # lowest seen since (the revolution of freezing was still dithered)
+            frozen_cost = cost if frozen_cost <= 0.0 else min(frozen_cost, cost)
+            if cost > p.resume_ratio * frozen_cost:
+                frozen = False
         if not frozen:
             # eq. (9)/(16): integrate the gradient estimate with step sizes K (1/s) over
             # one revolution (see module docstring for the unit choice)
@@ -301,7 +305,7 @@ class ExtremumSeekingController:
             dth = max(h[1] for h in hist) - min(h[1] for h in hist)
             if da < p.freeze_tol * p.amp_a_um and dth < p.freeze_tol * p.amp_theta_deg:
                 frozen = True
-                frozen_cost = cost
+                frozen_cost = 0.0
                 hist = ()
         k = state.k + 1
         if frozen:

@@ -407,15 +407,15 @@ class MillingMachine:
         ax[0, 2] = (xp.viscous * v + xp.coulomb * math.tanh(v / 1e-3)) / ki
         self._s = _State(st=np.array([0.0, 0.0, 0.0]), ax=ax, hist=hist)
 
-    def cancelling_modulation(self) -> tuple[float, float]:
+    def cancelling_modulation(self, rpm: float | None = None) -> tuple[float, float]:
         """Truth: the ``(a_m [m], theta_m [rad])`` whose drive response cancels eq. (6).
 
-        Uses the Y axis response as the circle's (both axes' when matched): the carriage
+        At the spindle speed ``rpm`` (default: the current one). The carriage
         moves :math:`G a_m e^{j\\theta_m}` and must equal :math:`-\\epsilon
         e^{j\\theta_\\epsilon}`. With mismatched axes no circle cancels exactly; this is
         the cancellation by the mean response :math:`(G_x + G_y)/2`.
         """
-        gx, gy = self.drives.response(self._rpm / 60.0)
+        gx, gy = self.drives.response((self._rpm if rpm is None else check_rpm(rpm)) / 60.0)
         g = 0.5 * (gx + gy)
         p = self.milling
         target = -p.eccentricity * complex(

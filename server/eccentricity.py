@@ -50,6 +50,75 @@ class RevolutionLog:
         return {k: np.asarray(v, dtype=np.float64) for k, v in self.__dict__.items()}
 
 
+class ObserverForceSource:
+    """Cutting force of X and Y estimated from the drives' own signals (no dynamometer).
+
+    Runs the cutting force observer of seed 000 (:class:`estimators.force_observer.
+    TorsionEstimator` and :func:`~estimators.force_observer.cutting_force`) on each feed
+    axis, with the motor current times the force constant as effort and the linear scale
+    (quantised to ``resolution``) as position. The axes are rigid, so motor and load
+    position are the same signal; the shaft-twist branch (eq. 4) then carries no
+    information, and a very stiff nominal ``K`` makes the minimum-variance mix (eq. 5)
+    use the motor-side disturbance observer (eq. 3) alone. The mass is split evenly
+    between the motor and load sides (any split gives the same estimate for a rigid axis).
+
+    Parameters
+    ----------
+    machine : MillingMachine
+        Supplies the nominal mass, friction and force constant of each axis.
+    mass_error : float
+        Relative error of the observer's nominal mass (0: exact).
+    resolution : float
+        Linear-scale resolution [m].
+    q_hz : float
+        Cut-off of the observer's Q(s).
+    """
+
+    def __init__(
+        self,
+        machine: MillingMachine,
+        *,
+        mass_error: float = 0.0,
+        resolution: float = 5e-9,
+        q_hz: float = 1000.0,
+    ) -> None:
+        from estimators.force_observer import LoadParams, ObserverParams, TorsionEstimator
+
+        dp = machine.drives.params
+        self.resolution = float(resolution)
+        self._axes = []
+        for ax in (dp.x, dp.y):
+            m = ax.mass * (1.0 + mass_error)
+            op = ObserverParams(
+                J_M=0.5 * m,
+                B_M=0.0,
+                F_CM=0.0,
+                K=1e15,
+                sample_time=dp.sample_time,
+                encoder_resolution=resolution,
+                q_hz=q_hz,
+                err3_J_M=0.0,
+                err3_B_M=0.0,
+                err3_K=0.0,
+                err3_F_CM=0.0,
+            )
+            est = TorsionEstimator(op)
+            load = LoadParams(J_L=0.5 * m, B_L=ax.viscous, F_CL=ax.coulomb)
+            self._axes.append([est, est.init_state(), load, ax.force_constant])
+
+    def __call__(self, rec: MillingRecord) -> tuple[FloatArray, FloatArray]:
+        from estimators.force_observer import cutting_force
+
+        out = []
+        for entry, cur, pos in zip(self._axes, (rec.ix, rec.iy), (rec.x, rec.y), strict=True):
+            est, state, load, kf = entry
+            q = np.round(pos / self.resolution) * self.resolution
+            state, trec = est.step(state, cur * kf, q, q)
+            entry[1] = state
+            out.append(cutting_force(trec, load.J_L, load.B_L, load.F_CL))
+        return out[0], out[1]
+
+
 class EccentricityLoop:
     """Milling with eccentricity, feed drives and a tuner closing the loop per revolution.
 
