@@ -220,6 +220,28 @@ def delta_bound(axis: xa.XYAxisParams, f: NDArray[np.float64]) -> NDArray[np.flo
     return imbdo_mod.inverse_delta(gm * np.exp(-2j * np.pi * f * axis.delay), gm)
 
 
+def delay_free_imbdo_loop(
+    axis: xa.XYAxisParams, ctrl: xa.CascadeParams, cutoff_hz: float = Q_CUTOFF_HZ
+) -> tuple[float, float]:
+    """Loop gain and frequency [Hz] at the -180 deg crossing of the cascade's open loop
+    when the IMBDO's nominal model leaves the delay out (> 1: the closed loop is unstable;
+    the open loop is stable, so Nyquist needs the gain below 1 there)."""
+    f = np.linspace(1.0, 1000.0, 200000)
+    s = 2j * np.pi * f
+    g = axis.response(f)
+    num, den = imbdo_mod.q_filter_tf(cutoff_hz)
+    q = imbdo_mod.continuous_response(num, den, f)
+    g_eff = g / (1 - q + q * np.exp(-s * axis.delay))
+    k, kv = ctrl.response(f)
+    loop = k * (kv + s) * g_eff
+    ph = np.unwrap(np.angle(loop))
+    cross = np.nonzero(np.diff(np.sign(ph + np.pi)))[0]
+    if cross.size == 0:
+        return 0.0, math.nan
+    i = int(cross[0])
+    return float(np.abs(loop[i])), float(f[i])
+
+
 def largest_stable_cutoff(axis: xa.XYAxisParams) -> float:
     """The largest Q cut-off [Hz] (0.5 Hz steps) that keeps eq. (4)."""
     lo, hi = 10.0, 0.45 / axis.sample_time
@@ -331,6 +353,17 @@ def run(
             None,
             "Hz",
             "largest Q cut-off that stays below |1/Delta| (Fig. 5)",
+        )
+    )
+    gain180, f180 = delay_free_imbdo_loop(axis, ctrl)
+    rep.rows.append(
+        Row(
+            "imbdo.delay_free_loop_gain_180",
+            gain180,
+            None,
+            "ratio",
+            f"nominal model without the delay: open-loop gain at the -180 deg crossing "
+            f"({f180:.1f} Hz); > 1 = unstable, hence the delayed model",
         )
     )
     for i, h in enumerate(HARMONICS):
