@@ -116,8 +116,31 @@ class WearModelParams:
         return np.array([float(getattr(self, n)) for n in _ORDER])
 
 
-_ORDER = ("l0", "K1", "alpha_r", "K2", "K3", "K4", "K5", "K6", "n1", "n2", "K7", "n3",
-          "K8", "n4", "n5", "n6", "K9", "n7", "K10", "K11", "K12", "K13", "K14")
+_ORDER = (
+    "l0",
+    "K1",
+    "alpha_r",
+    "K2",
+    "K3",
+    "K4",
+    "K5",
+    "K6",
+    "n1",
+    "n2",
+    "K7",
+    "n3",
+    "K8",
+    "n4",
+    "n5",
+    "n6",
+    "K9",
+    "n7",
+    "K10",
+    "K11",
+    "K12",
+    "K13",
+    "K14",
+)
 
 DEFAULT_WEAR_PARAMS = WearModelParams()
 
@@ -137,13 +160,15 @@ class CuttingCondition:
 @njit(cache=True)
 def _force(p: FloatArray, x: FloatArray, f: float, v: float, d: float) -> float:
     # eq. (8)
-    return ((p[16] * f ** p[17] * (1.0 - p[18] * p[2]) - p[19] - p[20] * v) * d
-            + p[21] * d * (x[0] + x[1]) - p[22] * x[2])
+    return (
+        (p[16] * f ** p[17] * (1.0 - p[18] * p[2]) - p[19] - p[20] * v) * d
+        + p[21] * d * (x[0] + x[1])
+        - p[22] * x[2]
+    )
 
 
 @njit(cache=True)
-def _rhs(p: FloatArray, x: FloatArray, f: float, v: float, d: float,
-         out: FloatArray) -> None:
+def _rhs(p: FloatArray, x: FloatArray, f: float, v: float, d: float, out: FloatArray) -> None:
     F = _force(p, x, f, v, d)
     # eq. (3)
     out[0] = (v / p[0]) * (-x[0] + p[1] * math.cos(p[2]) * F / (f * d))
@@ -158,8 +183,17 @@ def _rhs(p: FloatArray, x: FloatArray, f: float, v: float, d: float,
 
 
 @njit(cache=True)
-def _simulate(p: FloatArray, x0: FloatArray, feed: FloatArray, v: float, d: float,
-              dt: float, substeps: int, xs: FloatArray, Fs: FloatArray) -> None:
+def _simulate(
+    p: FloatArray,
+    x0: FloatArray,
+    feed: FloatArray,
+    v: float,
+    d: float,
+    dt: float,
+    substeps: int,
+    xs: FloatArray,
+    Fs: FloatArray,
+) -> None:
     # classic RK4 with the feed held over each sample (zero-order hold, as the paper's
     # discrete model assumes)
     x = x0.copy()
@@ -219,8 +253,11 @@ class ToolWearModel:
         Cutting speed and depth of cut.
     """
 
-    def __init__(self, params: WearModelParams = DEFAULT_WEAR_PARAMS,
-                 condition: CuttingCondition | None = None) -> None:
+    def __init__(
+        self,
+        params: WearModelParams = DEFAULT_WEAR_PARAMS,
+        condition: CuttingCondition | None = None,
+    ) -> None:
         self.params = params
         self.condition = condition if condition is not None else CuttingCondition()
         self._p = params.as_array()
@@ -256,8 +293,9 @@ class ToolWearModel:
         theta_c = p.K8 * F * c.speed**p.n4 * f**p.n5 * c.depth**p.n6
         return theta_f, theta_c
 
-    def jacobians(self, x: ArrayLike, feed: float) -> tuple[FloatArray, FloatArray,
-                                                              FloatArray, float]:
+    def jacobians(
+        self, x: ArrayLike, feed: float
+    ) -> tuple[FloatArray, FloatArray, FloatArray, float]:
         r"""Analytic partial derivatives at ``(x, f)``.
 
         Returns
@@ -300,12 +338,14 @@ class ToolWearModel:
         dr3_dtheta = p.K4 * F * v * e * p.K5 / (273.0 + theta_c) ** 2
         dr3_dF = p.K4 * v * e + dr3_dtheta * geo
         dfdx[2] = dr3_dF * dFdx
-        dfdu[2] = dr3_dF * dFdf + dr3_dtheta * F * p.K8 * v**p.n4 * p.n5 * f ** (
-            p.n5 - 1.0) * d**p.n6
+        dfdu[2] = (
+            dr3_dF * dFdf + dr3_dtheta * F * p.K8 * v**p.n4 * p.n5 * f ** (p.n5 - 1.0) * d**p.n6
+        )
         return dfdx, dfdu, dFdx, float(dFdf)
 
-    def simulate(self, feed: ArrayLike, sample_time: float, *, x0: ArrayLike | None = None,
-                 substeps: int = 2) -> WearTrajectory:
+    def simulate(
+        self, feed: ArrayLike, sample_time: float, *, x0: ArrayLike | None = None, substeps: int = 2
+    ) -> WearTrajectory:
         """Integrate eq. (3)-(5) with the feed held over each sample.
 
         Parameters
@@ -333,7 +373,9 @@ class ToolWearModel:
         Fs = np.empty(len(fa))
         c = self.condition
         _simulate(self._p, x.copy(), fa, c.speed, c.depth, ts, int(substeps), xs, Fs)
-        return WearTrajectory(t=np.arange(len(fa)) * ts, feed=fa, states=xs, force=Fs)
+        return WearTrajectory(
+            t=np.arange(len(fa), dtype=np.float64) * ts, feed=fa, states=xs, force=Fs
+        )
 
 
 __all__ = [

@@ -1,0 +1,238 @@
+r"""Sensorless tool-life monitor: flank wear and remaining life from per-pass forces.
+
+Beyond seed 004: the force the monitor is fed is whatever the caller has — a
+dynamometer, or the cutting force estimated from the drive signals — averaged over each
+tool pass. Per pass ``j`` (cutting time ``t_j`` on the wear clock [min], mean force
+``F_j`` [N], feed ``f_j`` [mm/rev]):
+
+1. Static gain, eq. (25) of seed 004: ``D = F_1 / f_1`` on the first pass (sharp tool);
+   on a feed change, re-estimated from the change of force over the change of feed
+   (section 4.3.1), with an offset that keeps the wear force continuous.
+2. Wear force, eq. (24): ``dy_j = F_j - D f_j``.
+3. Flank wear ``VB_j = dy_j / s`` with ``s = dF/dVB`` [N/mm], the sensitivity of the
+   force to the flank land known off line (eq. (8): ``K13 d``). Choice: the paper's
+   back-transformation ``x = T x0`` (eq. (14)) is too ill-conditioned to use here (see
+   ``docs/tool-wear.md``); the wear force itself is the well-observed quantity. The
+   crater lowers the force (``-K14 w_c``), so VB is underestimated by
+   ``K14 w_c / (K13 d)``.
+4. Trend: exponentially weighted least squares of ``VB = alpha + beta t`` over the
+   passes after the break-in (``t >= trend_start``), forgetting ``trend_forgetting``
+   per pass.
+5. Remaining life until ``VB = vb_limit`` (ISO 3685: 0.3 mm) by extrapolating the trend,
+   with a standard deviation from the trend's covariance (delta method).
+6. Flags: with the predicted tool life ``L = t + RUL`` (the learned reference),
+   warning when ``t >= warning_fraction L`` and alarm when ``t >= alarm_fraction L``;
+   the alarm is also raised once the trend reaches the limit.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from estimators.errors import ParameterError, require_in, require_positive
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class ToolLifeParams:
+    """Parameters of :class:`ToolLifeMonitor`.
+
+    Parameters
+    ----------
+    force_per_flank_wear : float
+        ``s = dF/dVB`` [N/mm] at the cutting condition (off-line knowledge).
+    vb_limit : float
+        Tool-life criterion [mm]; ISO 3685: 0.3 mm.
+    warning_fraction, alarm_fraction : float
+        Fractions of the predicted tool life at which to warn and to alarm,
+        ``0 < warning_fraction < alarm_fraction <= 1``.
+    trend_start : float
+        Cutting time [min] after which passes enter the trend (skips the break-in).
+    trend_forgetting : float
+        Per-pass forgetting of the trend fit, in (0, 1].
+    min_trend_passes : int
+        Passes in the trend before a remaining life is predicted.
+    feed_tolerance : float
+        Relative feed change treated as a feed change.
+    """
+
+    force_per_flank_wear: float
+    vb_limit: float = 0.3
+    warning_fraction: float = 0.8
+    alarm_fraction: float = 0.95
+    trend_start: float = 2.0
+    trend_forgetting: float = 0.98
+    min_trend_passes: int = 5
+    feed_tolerance: float = 1e-6
+
+    def __post_init__(self) -> None:
+        require_positive("force_per_flank_wear", self.force_per_flank_wear)
+        require_positive("vb_limit", self.vb_limit)
+        require_in("alarm_fraction", self.alarm_fraction, 0.0, 1.0, lo_open=True)
+        require_in(
+            "warning_fraction",
+            self.warning_fraction,
+            0.0,
+            self.alarm_fraction,
+            lo_open=True,
+            hi_open=True,
+        )
+        if not math.isfinite(self.trend_start) or self.trend_start < 0:
+            raise ParameterError("trend_start", "a finite time >= 0 min", self.trend_start)
+        require_in("trend_forgetting", self.trend_forgetting, 0.0, 1.0, lo_open=True)
+        if int(self.min_trend_passes) != self.min_trend_passes or self.min_trend_passes < 3:
+            raise ParameterError("min_trend_passes", "an integer >= 3", self.min_trend_passes)
+        require_positive("feed_tolerance", self.feed_tolerance)
+
+
+@dataclass(frozen=True, eq=False)
+class ToolLifeState:
+    """Explicit state: static gain, offset, last pass, and the trend's weighted sums."""
+
+    misc: FloatArray  # [D, offset, f_prev, F_prev, started, t_prev]
+    sums: FloatArray  # weighted [S0, St, Stt, Sy, Sty, Syy, n]
+
+
+@dataclass(frozen=True, eq=False)
+class ToolLifeRecord:
+    """Per-pass outputs."""
+
+    t: FloatArray  # cutting time at the end of each pass [min]
+    wear_force: FloatArray  # dy, eq. (24) [N]
+    static_gain: FloatArray  # D [N/(mm/rev)]
+    vb: FloatArray  # flank wear of the pass [mm]
+    vb_trend: FloatArray  # trend value at t [mm] (NaN before the trend exists)
+    wear_rate: FloatArray  # trend slope [mm/min]
+    remaining_life: FloatArray  # [min] (inf if the wear does not grow, NaN if unknown)
+    remaining_life_sd: FloatArray  # [min]
+    life_fraction: FloatArray  # t / (t + remaining_life)
+    warning: NDArray[np.bool_]
+    alarm: NDArray[np.bool_]
+
+
+class ToolLifeMonitor:
+    """Flank wear, remaining life and warning/alarm flags, one step per block of passes."""
+
+    def __init__(self, params: ToolLifeParams) -> None:
+        self.params = params
+
+    def initial_state(self) -> ToolLifeState:
+        return ToolLifeState(misc=np.zeros(6), sums=np.zeros(7))
+
+    def step(
+        self, state: ToolLifeState, t: ArrayLike, force: ArrayLike, feed: ArrayLike
+    ) -> tuple[ToolLifeState, ToolLifeRecord]:
+        """Process passes ending at cutting times ``t`` [min], increasing.
+
+        Parameters
+        ----------
+        state : ToolLifeState
+        t : array_like
+            Cutting time on the wear clock at the end of each pass [min].
+        force : array_like
+            Mean cutting force of each pass [N] (any source).
+        feed : array_like
+            Feed of each pass [mm/rev], > 0.
+        """
+        ta = np.atleast_1d(np.asarray(t, dtype=np.float64))
+        Fa = np.atleast_1d(np.asarray(force, dtype=np.float64))
+        fa = np.atleast_1d(np.asarray(feed, dtype=np.float64))
+        if ta.ndim != 1 or Fa.shape != ta.shape or fa.shape != ta.shape:
+            raise ParameterError(
+                "force/feed", f"1-D arrays shaped like t {ta.shape}", (Fa.shape, fa.shape)
+            )
+        if not (np.all(np.isfinite(ta)) and np.all(np.isfinite(Fa))):
+            raise ParameterError("t/force", "finite values", "NaN or inf")
+        if not np.all(np.isfinite(fa)) or np.any(fa <= 0):
+            bad = fa[~(np.isfinite(fa) & (fa > 0))][0]
+            raise ParameterError("feed", "a feed > 0 mm/rev for every pass", float(bad))
+        prev_t = state.misc[5] if state.misc[4] > 0.5 else -math.inf
+        if np.any(np.diff(np.concatenate([[prev_t], ta])) <= 0):
+            raise ParameterError("t", "strictly increasing cutting times", ta.tolist()[:5])
+        p = self.params
+        misc = state.misc.copy()
+        S = state.sums.copy()
+        n = len(ta)
+        out = {k: np.empty(n) for k in ("dy", "D", "vb", "trend", "rate", "rul", "sd", "frac")}
+        warn = np.zeros(n, dtype=bool)
+        alarm = np.zeros(n, dtype=bool)
+        lam = float(p.trend_forgetting)
+        for j in range(n):
+            tj, Fj, fj = float(ta[j]), float(Fa[j]), float(fa[j])
+            if misc[4] < 0.5:
+                # eq. (25): the first pass is cut with a sharp tool
+                misc[0] = Fj / fj
+                misc[1] = 0.0
+                misc[4] = 1.0
+            elif abs(fj - misc[2]) > p.feed_tolerance * misc[2]:
+                # section 4.3.1: D from the change of force over the change of feed
+                d_new = (Fj - misc[3]) / (fj - misc[2])
+                misc[1] += (misc[0] - d_new) * misc[2]
+                misc[0] = d_new
+            # eq. (24)
+            dy = Fj - misc[0] * fj - misc[1]
+            vb = dy / p.force_per_flank_wear
+            if tj >= p.trend_start:
+                S[:6] *= lam
+                S[0] += 1.0
+                S[1] += tj
+                S[2] += tj * tj
+                S[3] += vb
+                S[4] += tj * vb
+                S[5] += vb * vb
+                S[6] += 1.0
+            trend = rate = rul = sd = frac = math.nan
+            if S[6] >= p.min_trend_passes:
+                det = S[0] * S[2] - S[1] * S[1]
+                if det > 0:
+                    beta = (S[0] * S[4] - S[1] * S[3]) / det
+                    alpha = (S[3] - beta * S[1]) / S[0]
+                    # residual variance of the weighted fit (2 parameters)
+                    sse = S[5] - alpha * S[3] - beta * S[4]
+                    # choice: the weighted count S0 as the sample size (conservative
+                    # for forgetting < 1: the effective count is larger)
+                    dof = max(S[0] - 2.0, 1.0)
+                    s2 = max(sse, 0.0) / dof
+                    c_aa, c_bb, c_ab = s2 * S[2] / det, s2 * S[0] / det, -s2 * S[1] / det
+                    trend = alpha + beta * tj
+                    rate = beta
+                    if beta > 0:
+                        t_star = (p.vb_limit - alpha) / beta
+                        rul = max(t_star - tj, 0.0)
+                        # delta method on t* = (VB_lim - alpha) / beta
+                        ga = -1.0 / beta
+                        gb = -(p.vb_limit - alpha) / beta**2
+                        sd = math.sqrt(
+                            max(ga * ga * c_aa + 2 * ga * gb * c_ab + gb * gb * c_bb, 0.0)
+                        )
+                    else:
+                        rul, sd = math.inf, math.inf
+                    frac = tj / (tj + rul) if math.isfinite(rul) else 0.0
+                    warn[j] = frac >= p.warning_fraction
+                    alarm[j] = frac >= p.alarm_fraction or trend >= p.vb_limit
+            out["dy"][j], out["D"][j], out["vb"][j] = dy, misc[0], vb
+            out["trend"][j], out["rate"][j], out["rul"][j] = trend, rate, rul
+            out["sd"][j], out["frac"][j] = sd, frac
+            misc[2], misc[3], misc[5] = fj, Fj, tj
+        rec = ToolLifeRecord(
+            t=ta.copy(),
+            wear_force=out["dy"],
+            static_gain=out["D"],
+            vb=out["vb"],
+            vb_trend=out["trend"],
+            wear_rate=out["rate"],
+            remaining_life=out["rul"],
+            remaining_life_sd=out["sd"],
+            life_fraction=out["frac"],
+            warning=warn,
+            alarm=alarm,
+        )
+        return ToolLifeState(misc=misc, sums=S), rec
+
+
+__all__ = ["ToolLifeMonitor", "ToolLifeParams", "ToolLifeRecord", "ToolLifeState"]
