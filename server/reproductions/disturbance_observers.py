@@ -58,7 +58,9 @@ ROWS = (
 SETTLE_S = 2.0  # one reference period: start transient and observer convergence
 
 
-def calibrated_force(axis: xa.XYAxisParams, ctrl: xa.CascadeParams) -> xa.HarmonicForce:
+def calibrated_force(
+    axis: xa.XYAxisParams, ctrl: xa.CascadeParams, *, refine: bool = True
+) -> xa.HarmonicForce:
     """The synthetic cutting force [V at the plant input], calibrated on Table 2's P/PI.
 
     With the P/PI loop closed, the disturbance reaches the position through
@@ -68,6 +70,10 @@ def calibrated_force(axis: xa.XYAxisParams, ctrl: xa.CascadeParams) -> xa.Harmon
     order of its first harmonic); it only matters during the start transient (the PI
     integral removes it). Phases are zero: Table 1-2's measures do not depend on them
     except through MTE's alignment with the reference.
+
+    With ``refine`` the amplitudes are then rescaled by one run of the discrete P/PI loop
+    (the loop is linear, so each peak scales with its amplitude): the continuous
+    ``S_d`` misses the sampled controller by up to 5 % at 78 Hz.
     """
     f = np.asarray(HARMONICS)
     k, kv = ctrl.response(f)
@@ -75,9 +81,23 @@ def calibrated_force(axis: xa.XYAxisParams, ctrl: xa.CascadeParams) -> xa.Harmon
     g = axis.response(f)
     gm = axis.response(f, with_delay=False)
     sd = np.abs(gm / (1 + g * k * (kv + s)))
-    amps = tuple(float(a) for a in np.asarray(PAPER_PEAK["pi"]) * 1e-3 / sd)
+    amps = np.asarray(PAPER_PEAK["pi"]) * 1e-3 / sd
+    first = xa.HarmonicForce(
+        frequencies=tuple(HARMONICS),
+        amplitudes=tuple(float(a) for a in amps),
+        phases=(0.0, 0.0, 0.0),
+        mean=float(amps[0]),
+    )
+    if not refine:
+        return first
+    m = metrics(simulate("pi", SETTLE_S + 2.0, axis=axis, ctrl=ctrl, force=first))
+    got = np.array([m[f"peak.{int(h)}hz"] for h in HARMONICS])
+    amps = amps * np.asarray(PAPER_PEAK["pi"]) / got
     return xa.HarmonicForce(
-        frequencies=tuple(HARMONICS), amplitudes=amps, phases=(0.0, 0.0, 0.0), mean=amps[0]
+        frequencies=tuple(HARMONICS),
+        amplitudes=tuple(float(a) for a in amps),
+        phases=(0.0, 0.0, 0.0),
+        mean=float(amps[0]),
     )
 
 
