@@ -166,7 +166,9 @@ def edge_force(
     ``(dpx, dpy)`` is the displacement of the tool centre since the previous flute.
     """
     two_pi = 2.0 * math.pi
-    p = phi % two_pi
+    p = phi
+    if p < 0.0 or p >= two_pi:
+        p = phi % two_pi
     # eq. (5): the window g(phi)
     if p < phi_st or p > phi_ex:
         return 0.0, 0.0
@@ -240,10 +242,13 @@ def _milling_block(
         dpy = py - qy
         fx = 0.0
         fy = 0.0
+        p0 = psi % (2.0 * math.pi)
         for j in range(n_flutes):
             for l in range(lags.shape[0]):
-                # eq. (1): immersion of flute j, layer l
-                phi = psi - j * pitch - lags[l]
+                # eq. (1): immersion of flute j, layer l (wrapped into [0, 2 pi))
+                phi = p0 - j * pitch - lags[l]
+                while phi < 0.0:
+                    phi += 2.0 * math.pi
                 ex, ey = edge_force(phi, dpx, dpy, dz, kc[0], kc[1], kc[2], kc[3], phi_st, phi_ex)
                 fx += ex
                 fy += ey
@@ -348,6 +353,10 @@ class MillingMachine:
         self.drives = FeedDrives(drives)
         self.max_modulation = require_positive("max_modulation", max_modulation)
         self._drive = self.drives.params.packed()
+        p = self.milling
+        self._lags = p.layer_lags()
+        self._kc = np.array([p.k_tc, p.k_rc, p.k_te, p.k_re])
+        self._window = p.engagement()
         self._rpm = self.milling.spindle_rpm
         self.reset()
 
@@ -441,19 +450,18 @@ class MillingMachine:
             a = math.copysign(self.max_modulation, a)
         n = int(n)
         p = self.milling
-        out = np.zeros((9, n))
-        st0, ph_ex = p.engagement()
-        kc = np.array([p.k_tc, p.k_rc, p.k_te, p.k_re])
+        out = np.empty((9, n))
+        st0, ph_ex = self._window
         omega = 2.0 * math.pi * self._rpm / 60.0
         _milling_block(
             n,
             self.sample_time,
             int(p.n_flutes),
-            p.layer_lags(),
+            self._lags,
             p.axial_depth / p.n_layers,
             st0,
             ph_ex,
-            kc,
+            self._kc,
             p.eccentricity,
             math.radians(p.eccentricity_deg),
             omega,

@@ -23,6 +23,7 @@ from numpy.typing import NDArray
 
 from estimators.esc import EscParams, ExtremumSeekingController, positive_polar
 from estimators.fast_tuner import FastTuner, FastTunerParams
+from estimators.force_observer import LoadParams, TorsionEstimator, TorsionState
 from machine.milling import MillingMachine, MillingParams, MillingRecord
 
 FloatArray = NDArray[np.float64]
@@ -82,11 +83,14 @@ class ObserverForceSource:
         resolution: float = 5e-9,
         q_hz: float = 1000.0,
     ) -> None:
-        from estimators.force_observer import LoadParams, ObserverParams, TorsionEstimator
+        from estimators.force_observer import ObserverParams
 
         dp = machine.drives.params
         self.resolution = float(resolution)
-        self._axes = []
+        self._est: list[TorsionEstimator] = []
+        self._state: list[TorsionState] = []
+        self._load: list[LoadParams] = []
+        self._kf: list[float] = []
         for ax in (dp.x, dp.y):
             m = ax.mass * (1.0 + mass_error)
             op = ObserverParams(
@@ -104,18 +108,20 @@ class ObserverForceSource:
             )
             est = TorsionEstimator(op)
             load = LoadParams(J_L=0.5 * m, B_L=ax.viscous, F_CL=ax.coulomb)
-            self._axes.append([est, est.init_state(), load, ax.force_constant])
+            self._est.append(est)
+            self._state.append(est.init_state())
+            self._load.append(load)
+            self._kf.append(ax.force_constant)
 
     def __call__(self, rec: MillingRecord) -> tuple[FloatArray, FloatArray]:
         from estimators.force_observer import cutting_force
 
         out = []
-        for entry, cur, pos in zip(self._axes, (rec.ix, rec.iy), (rec.x, rec.y), strict=True):
-            est, state, load, kf = entry
+        for i, (cur, pos) in enumerate(((rec.ix, rec.x), (rec.iy, rec.y))):
             q = np.round(pos / self.resolution) * self.resolution
-            state, trec = est.step(state, cur * kf, q, q)
-            entry[1] = state
-            out.append(cutting_force(trec, load.J_L, load.B_L, load.F_CL))
+            self._state[i], trec = self._est[i].step(self._state[i], cur * self._kf[i], q, q)
+            ld = self._load[i]
+            out.append(cutting_force(trec, ld.J_L, ld.B_L, ld.F_CL))
         return out[0], out[1]
 
 
@@ -198,6 +204,9 @@ class EccentricityLoop:
 
     def step(self, n: int) -> dict[str, FloatArray]:
         """Advance ``n`` samples; per-sample arrays of forces, positions and tuner state."""
+        return self._advance(n, collect=True)
+
+    def _advance(self, n: int, *, collect: bool) -> dict[str, FloatArray]:
         chunks: list[dict[str, FloatArray]] = []
         left = int(n)
         while left > 0:
@@ -208,23 +217,24 @@ class EccentricityLoop:
             est = self.force_source(rec) if self.force_source is not None else (rec.fx, rec.fy)
             self._buf.append(rec)
             self._est.append(est)
-            chunks.append(
-                {
-                    "t": rec.t,
-                    "fx": rec.fx,
-                    "fy": rec.fy,
-                    "fx_used": est[0],
-                    "fy_used": est[1],
-                    "x": rec.x,
-                    "y": rec.y,
-                    "ix": rec.ix,
-                    "iy": rec.iy,
-                    "psi": rec.psi,
-                    "a_m_um": np.full(c, self.a_um),
-                    "theta_m_deg": np.full(c, self.theta_deg),
-                    "cost": np.full(c, self.last_cost),
-                }
-            )
+            if collect:
+                chunks.append(
+                    {
+                        "t": rec.t,
+                        "fx": rec.fx,
+                        "fy": rec.fy,
+                        "fx_used": est[0],
+                        "fy_used": est[1],
+                        "x": rec.x,
+                        "y": rec.y,
+                        "ix": rec.ix,
+                        "iy": rec.iy,
+                        "psi": rec.psi,
+                        "a_m_um": np.full(c, self.a_um),
+                        "theta_m_deg": np.full(c, self.theta_deg),
+                        "cost": np.full(c, self.last_cost),
+                    }
+                )
             left -= c
             if c == m:
                 self._end_revolution()
@@ -235,7 +245,7 @@ class EccentricityLoop:
     def run_revolutions(self, n_revs: int) -> None:
         """Advance whole revolutions (the reproduction's driver)."""
         for _ in range(int(n_revs)):
-            self.step(self.samples_to_boundary())
+            self._advance(self.samples_to_boundary(), collect=False)
 
     def _end_revolution(self) -> None:
         psi = np.concatenate([r.psi for r in self._buf])
@@ -254,6 +264,7 @@ class EccentricityLoop:
         f_cost = fx if self.cost_axis == "x" else fy
         f_true = fx_true if self.cost_axis == "x" else fy_true
         cost = harmonic_cost(f_cost, psi)
+        cost_true = cost if self.force_source is None else harmonic_cost(f_true, psi)
         adapting = self._started
         if adapting and self.tuner == "esc":
             self.esc_state, erec = self.esc.step(self.esc_state, f_cost, psi, rev_time)
@@ -278,7 +289,7 @@ class EccentricityLoop:
         lg = self.log
         lg.t_end.append(t_end)
         lg.cost.append(cost)
-        lg.cost_true.append(harmonic_cost(f_true, psi))
+        lg.cost_true.append(cost_true)
         lg.a_um.append(self.a_um)
         lg.theta_deg.append(self.theta_deg)
         an, tn = positive_polar(self.a_n_um, self.theta_n_deg)

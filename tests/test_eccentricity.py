@@ -1,0 +1,304 @@
+"""ESC (seed 003 eq. 8-16), the fast tuner, the loop and the reproduction."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from estimators.errors import ParameterError
+from estimators.esc import (
+    EscParams,
+    ExtremumSeekingController,
+    harmonic_cost,
+    positive_polar,
+    spindle_harmonic,
+)
+from estimators.fast_tuner import FastTuner, FastTunerParams
+from server.cli import main
+from server.eccentricity import EccentricityLoop
+from server.errors import CutwatchError
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    amp=st.floats(1e-3, 1e3),
+    phase=st.floats(-math.pi, math.pi),
+    samples=st.integers(8, 600),
+    offset=st.floats(-1e3, 1e3),
+    psi0=st.floats(0, 100),
+)
+def test_cost_of_a_pure_spindle_sinusoid_is_its_amplitude(
+    amp: float, phase: float, samples: int, offset: float, psi0: float
+) -> None:
+    psi = psi0 + 2 * np.pi * np.arange(samples) / samples
+    f = offset + amp * np.cos(psi + phase)
+    assert harmonic_cost(f, psi) == pytest.approx(amp, rel=1e-9, abs=1e-9)
+    assert np.angle(spindle_harmonic(f, psi) * np.exp(-1j * phase)) == pytest.approx(0.0, abs=1e-7)
+
+
+def test_cost_ignores_the_tooth_harmonics() -> None:
+    psi = 2 * np.pi * np.arange(250) / 250
+    f = 50 + 30 * np.cos(4 * psi) + 10 * np.cos(8 * psi + 1) + 2 * np.sin(psi)
+    assert harmonic_cost(f, psi) == pytest.approx(2.0, rel=1e-12)
+
+
+def _synthetic_force(y: np.ndarray, psi: np.ndarray) -> np.ndarray:
+    """Forces (X, Y) whose 1x phasors are y = [re x, im x, re y, im y]."""
+    return np.vstack(
+        [
+            np.real((y[0] + 1j * y[1]) * np.exp(1j * psi)),
+            np.real((y[2] + 1j * y[3]) * np.exp(1j * psi)),
+        ]
+    )
+
+
+def _run_esc_on_cone(
+    esc: ExtremumSeekingController, u_star: complex, revs: int, kappa: float = 0.6
+) -> tuple[float, float]:
+    """ESC against a static cone J = kappa |u - u*| (um), once per 0.05 s revolution."""
+    s = esc.initial_state()
+    psi = 2 * np.pi * np.arange(250) / 250
+    for _ in range(revs):
+        u = s.a_um * np.exp(1j * math.radians(s.theta_deg))
+        f = kappa * abs(u - u_star) * np.cos(psi)
+        s, _rec = esc.step(s, f, psi, 0.05)
+    return s.a_n_um, s.theta_n_deg
+
+
+def test_esc_finds_the_minimum_of_a_cone() -> None:
+    u_star = 15.0 * np.exp(1j * math.radians(235.0))
+    esc = ExtremumSeekingController(EscParams(freeze_revs=40))
+    a, th = _run_esc_on_cone(esc, u_star, 1200)
+    u = a * np.exp(1j * math.radians(th))
+    assert abs(u - u_star) < 0.02 * abs(u_star)
+
+
+def test_esc_demodulation_gives_the_gradient_sign() -> None:
+    """Eq. (13)-(15): the demodulated cost has the sign of the gradient."""
+    esc = ExtremumSeekingController(EscParams(k_a=0.0, k_theta=0.0))
+    s = esc.initial_state(a_um=5.0, theta_deg=0.0)
+    psi = 2 * np.pi * np.arange(100) / 100
+    ga = []
+    for _ in range(40):
+        # J = a (cost grows with the radius): the gradient in a is positive
+        f = max(s.a_um, 0.0) * np.cos(psi)
+        s, rec = esc.step(s, f, psi, 0.05)
+        ga.append(rec.grad_a)
+    assert np.mean(ga[8:]) > 0
+    assert s.a_n_um == 5.0  # zero gains: nothing moves
+
+
+def test_esc_clamps_and_reports() -> None:
+    esc = ExtremumSeekingController(EscParams(a_max_um=10.0, k_a=1e5))
+    s = esc.initial_state(a_um=9.0)
+    psi = 2 * np.pi * np.arange(100) / 100
+    sat = False
+    for _ in range(12):
+        # the cost falls with a growing radius: the ESC pushes a_m to its limit
+        f = max(30.0 - s.a_um, 0.0) * np.cos(psi)
+        s, rec = esc.step(s, f, psi, 0.05)
+        sat = sat or rec.saturated
+        assert abs(rec.a_n_um) <= 10.0 - 2.0 + 1e-12
+    assert sat
+
+
+@pytest.mark.parametrize(
+    ("kw", "match"),
+    [
+        ({"psi_theta": 0.0}, "psi_theta"),  # same phase: D_23 does not vanish
+        ({"psi_a": 0.3, "psi_theta": 0.3 + math.pi}, "psi_theta"),  # even multiple
+        ({"amp_a_um": 0.0}, "amp_a_um"),
+        ({"amp_a_um": 70.0}, "amp_a_um"),
+        ({"amp_theta_deg": 120.0}, "amp_theta_deg"),
+        ({"k_a": -1.0}, "k_a"),
+        ({"period_revs": 2}, "period_revs"),
+        ({"hpf_cycles_per_rev": 0.3}, "hpf_cycles_per_rev"),
+        ({"a_max_um": 0.0}, "a_max_um"),
+        ({"freeze_revs": -1}, "freeze_revs"),
+        ({"resume_ratio": 1.0}, "resume_ratio"),
+    ],
+)
+def test_bad_esc_parameters_are_named(kw: dict[str, float], match: str) -> None:
+    with pytest.raises(ParameterError, match=match):
+        EscParams(**kw)  # type: ignore[arg-type]
+
+
+def test_decoupled_phases_are_accepted() -> None:
+    EscParams(psi_a=0.0, psi_theta=-math.pi / 2)
+    EscParams(psi_a=1.0, psi_theta=1.0 + 3 * math.pi / 2)
+
+
+def test_bad_esc_inputs_are_named() -> None:
+    esc = ExtremumSeekingController()
+    with pytest.raises(ParameterError, match="a_um"):
+        esc.initial_state(a_um=1e3)
+    s = esc.initial_state()
+    with pytest.raises(ParameterError, match="force/angle"):
+        esc.step(s, np.ones(10), np.ones(9), 0.05)
+    with pytest.raises(ParameterError, match="rev_time"):
+        esc.step(s, np.ones(10), np.ones(10), 0.0)
+
+
+def test_positive_polar() -> None:
+    assert positive_polar(-3.0, 10.0) == (3.0, 190.0)
+    assert positive_polar(3.0, 370.0) == (3.0, 10.0)
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1))
+def test_fast_tuner_solves_an_affine_response(seed: int) -> None:
+    """On an exactly affine 1x response the tuner lands on its zero in one solve."""
+    rng = np.random.default_rng(seed)
+    m = rng.normal(size=(4, 2))
+    if np.linalg.svd(m, compute_uv=False)[-1] < 0.3:
+        m = m + np.array([[1, 0], [0, 1], [0, 0], [0, 0]])
+    u_star = rng.uniform(-20, 20, size=2)
+    f0 = -m @ u_star
+    tuner = FastTuner(FastTunerParams(settle_revs=0))
+    s = tuner.initial_state()
+    psi = 2 * np.pi * np.arange(64) / 64
+    for _ in range(6):
+        y = f0 + m @ np.array(s.u)
+        s, rec = tuner.step(s, _synthetic_force(y, psi), psi, 0.05)
+    assert np.hypot(*(np.array(s.u) - u_star)) < 1e-6
+    assert rec.mode == "hold"
+    assert rec.iterations <= 2
+
+
+def test_fast_tuner_fit_rejects_collinear_points() -> None:
+    t = FastTuner()
+    with pytest.raises(ParameterError, match="one line"):
+        t.fit([[0, 0], [1, 1], [2, 2]], np.zeros((3, 4)))
+    with pytest.raises(ParameterError, match="3 points"):
+        t.fit([[0, 0], [1, 1]], np.zeros((2, 4)))
+
+
+@pytest.mark.parametrize(
+    ("kw", "match"),
+    [
+        ({"probe_um": 0.0}, "probe_um"),
+        ({"probe_um": 80.0}, "probe_um"),
+        ({"measure_revs": 0}, "measure_revs"),
+        ({"settle_revs": -1}, "settle_revs"),
+        ({"max_points": 2}, "max_points"),
+        ({"rise_ratio": 0.5}, "rise_ratio"),
+    ],
+)
+def test_bad_fast_tuner_parameters_are_named(kw: dict[str, float], match: str) -> None:
+    with pytest.raises(ParameterError, match=match):
+        FastTunerParams(**kw)  # type: ignore[arg-type]
+
+
+def test_fast_tuner_bad_inputs_are_named() -> None:
+    t = FastTuner()
+    with pytest.raises(ParameterError, match="a_um"):
+        t.initial_state(a_um=59.0)
+    with pytest.raises(ParameterError, match="forces"):
+        t.step(t.initial_state(), np.ones((3, 10)), np.ones(10), 0.05)
+
+
+def test_loop_block_steps_any_chunking() -> None:
+    """The live API: step(n) in odd chunks equals whole revolutions."""
+    a = EccentricityLoop(tuner="fast", adapt_start_s=0.1)
+    b = EccentricityLoop(tuner="fast", adapt_start_s=0.1)
+    a.run_revolutions(10)
+    n = a.machine._s.k
+    outs = []
+    while b.machine._s.k < n:
+        outs.append(b.step(min(37, n - b.machine._s.k)))
+    assert np.allclose(a.log.arrays()["cost"], b.log.arrays()["cost"])
+    fx = np.concatenate([o["fx"] for o in outs])
+    assert fx.size == n
+    assert set(outs[0]) >= {"t", "fx", "fy", "a_m_um", "theta_m_deg", "cost"}
+
+
+def test_loop_rejects_unknown_tuner() -> None:
+    with pytest.raises(CutwatchError, match="tuner"):
+        EccentricityLoop(tuner="magic")
+    with pytest.raises(CutwatchError, match="cost_axis"):
+        EccentricityLoop(cost_axis="z")
+
+
+@pytest.fixture(scope="module")
+def reproduction() -> dict[str, object]:
+    from server.reproductions import eccentricity
+
+    return eccentricity.run(quick=True, progress=False).to_json()
+
+
+def _rows(rep: dict[str, object]) -> dict[str, float]:
+    return {r["name"]: r["ours"] for r in rep["rows"]}  # type: ignore[index, union-attr]
+
+
+def _checks(rep: dict[str, object]) -> dict[str, bool]:
+    return {c["name"]: c["holds"] for c in rep["checks"]}  # type: ignore[index, union-attr]
+
+
+def test_reproduction_has_the_issue_rows(reproduction: dict[str, object]) -> None:
+    rows = _rows(reproduction)
+    for c in (1, 2):
+        for r in (
+            "converge_time_s",
+            "cost_reduction",
+            "a_m_um",
+            "theta_m_deg",
+            "fast_tuner.revolutions",
+            "fast_tuner.cost_reduction",
+        ):
+            assert f"case{c}.{r}" in rows
+    for r in (
+        "case1.force_pp.before",
+        "case1.force_pp.after",
+        "case1.estimated_force.converge_time_s",
+        "case1.estimated_force.cost_reduction",
+    ):
+        assert r in rows
+
+
+def test_esc_converges_to_the_cancelling_modulation(reproduction: dict[str, object]) -> None:
+    rows = _rows(reproduction)
+    for c in (1, 2):
+        assert rows[f"case{c}.param_error"] < 0.1
+        assert rows[f"case{c}.cost_reduction"] < 0.1
+        assert rows[f"case{c}.force_pp.after"] < 0.1 * rows[f"case{c}.force_pp.before"]
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="with Table 1 step sizes (our unit reading) the ESC "
+    "needs 17.6 s (case 1) and 15.5 s (case 2); see docs/eccentricity.md",
+)
+def test_esc_converges_within_15_s(reproduction: dict[str, object]) -> None:
+    checks = _checks(reproduction)
+    assert checks["case1.esc_within_10pct_of_cancelling_by_15s"]
+    assert checks["case2.esc_within_10pct_of_cancelling_by_15s"]
+
+
+def test_fast_tuner_beats_esc(reproduction: dict[str, object]) -> None:
+    checks = _checks(reproduction)
+    rows = _rows(reproduction)
+    for c in (1, 2):
+        assert checks[f"case{c}.fast_tuner_fewer_revolutions_than_esc"]
+        assert checks[f"case{c}.fast_tuner_cost_below_10pct"]
+        assert rows[f"case{c}.fast_tuner.revolutions"] <= 15
+    assert checks["case1.fast_tuner_recovers_after_speed_change"]
+    assert rows["case1.fast_tuner.force_pp.after"] < 14.0
+
+
+def test_estimated_force_drives_the_esc(reproduction: dict[str, object]) -> None:
+    assert _checks(reproduction)["case1.estimated_force_esc_cost_below_10pct"]
+
+
+def test_cli_lists_and_prints_json(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["reproduce", "--list"]) == 0
+    out = capsys.readouterr().out
+    assert "eccentricity" in out and "case<1|2>.converge_time_s" in out
+    rc = main(["bench", "eccentricity", "--quick", "--repeats", "1", "--json"])
+    assert rc == 0
+    res = json.loads(capsys.readouterr().out)
+    assert res["eccentricity"]["esc_loop_realtime_factor"] > 0
