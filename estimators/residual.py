@@ -1,0 +1,685 @@
+r"""Residual analysis of a rigid axis: candidate effects, held-out scoring, greedy selection.
+
+The nominal model is the rigid inverse dynamic model of :mod:`estimators.idim`,
+identified by IDIM-LS on the first part of the record (``1 - holdout_fraction``). Each
+candidate effect is a parametric family of extra regressor columns whose *shape*
+parameters (period, frequency, velocity scale) are found from the data of the fitting
+part; its *linear* coefficients are refitted jointly with the nominal parameters. A
+candidate is scored by the error on the held-out part only.
+
+Greedy selection (stated test): at each round the candidate with the lowest held-out
+mean square error is accepted when
+
+* its held-out mean square error is at least ``min_gain`` (2 %) below the current
+  model's, and
+* the reduction is significant in a one-sided paired t-test over ``blocks`` (10)
+  contiguous blocks of the held-out segment (per block: mean of
+  :math:`e_{before}^2 - e_{after}^2`; :math:`t > t_{crit}` = 1.833, the 95 % quantile
+  of Student's t with 9 degrees of freedom). Blocks rather than samples because the
+  residual is strongly autocorrelated.
+
+Selection stops when no candidate passes or after ``max_effects`` effects. What is left
+is summarised as ``unexplained`` structure: the largest peak of the residual's spectrum
+in time and in position, with amplitude, when it stands out of the spectrum.
+
+Families (canonical names of DESIGN) and their columns, with :math:`v = \dot q`:
+
+================== ========================================================= ==========
+name               columns                                                   shape
+================== ========================================================= ==========
+offset             :math:`1`                                                 —
+inertia            :math:`\ddot q`                                           —
+viscous            :math:`v`                                                 —
+coulomb_asymmetry  :math:`1[v>0]`, :math:`|v|` (direction-dependent friction) —
+stribeck           :math:`\mathrm{sign}(v)\,e^{-(|v|/v_s)^2}`                :math:`v_s`
+position_periodic  :math:`\cos, \sin(2\pi k q / P)`, k = 1, 2                :math:`P`
+harmonic           :math:`\cos, \sin(2\pi f t)`                              :math:`f`
+delay              :math:`\dddot q` (first-order Taylor of a lag d: the
+                   inertial term :math:`M\ddot q(t-d) \approx M\ddot q - Md\dddot q`;
+                   d = -coef / M)                                            d
+drift              :math:`(t - t_0) / T`                                     —
+================== ========================================================= ==========
+
+Columns already spanned by the current model (e.g. ``offset`` in the rigid nominal, or
+``1[v>0]`` given ``sign(v)`` and an offset) are dropped before fitting, so a family
+that adds nothing new scores no gain. ``torque_ripple`` (motor angle) and ``backlash``
+need a load-side position; they are not offered for a one-position rigid log.
+
+Pure numpy/scipy (batch; no per-sample recursion, so no numba kernel).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from estimators.errors import ParameterError, require_in, require_positive
+from estimators.idim import (
+    RIGID_NAMES,
+    IdimParams,
+    decimate,
+    decimated_index,
+    kinematics,
+    rigid_regressor,
+)
+
+FloatArray = NDArray[np.float64]
+
+FAMILIES: tuple[str, ...] = (
+    "offset",
+    "inertia",
+    "viscous",
+    "coulomb_asymmetry",
+    "stribeck",
+    "position_periodic",
+    "harmonic",
+    "delay",
+    "drift",
+)
+#: families of DESIGN not offered for a rigid one-position log, with the reason
+NOT_OFFERED: dict[str, str] = {
+    "torque_ripple": "needs motor and load positions (q_l) to separate from position_periodic",
+    "backlash": "needs a load-side position (q_l)",
+}
+#: largest number of samples used by a shape search (the residual is subsampled)
+_SEARCH_SAMPLES = 200_000
+
+
+@dataclass(frozen=True)
+class ResidualParams:
+    """Settings of the residual analysis.
+
+    Parameters
+    ----------
+    holdout_fraction : float
+        Fraction of the record, at its end, held out for scoring (0.05 ... 0.7).
+    min_gain : float
+        Least relative reduction of the held-out mean square error to accept an effect.
+    blocks : int
+        Contiguous blocks of the held-out segment for the paired t-test (>= 3).
+    t_crit : float
+        Critical t value of the one-sided test (default: 95 %, 9 degrees of freedom).
+    max_effects : int
+        Most effects added.
+    families : tuple of str
+        Families offered (subset of :data:`FAMILIES`).
+    idim : IdimParams
+        Filtering / decimation of the IDIM-LS pipeline.
+    """
+
+    holdout_fraction: float = 0.3
+    min_gain: float = 0.02
+    blocks: int = 10
+    t_crit: float = 1.833
+    max_effects: int = 4
+    families: tuple[str, ...] = FAMILIES
+    idim: IdimParams = field(default_factory=IdimParams)
+
+    def __post_init__(self) -> None:
+        require_in("holdout_fraction", self.holdout_fraction, 0.05, 0.7)
+        require_in("min_gain", self.min_gain, 0.0, 1.0)
+        if not isinstance(self.blocks, int) or self.blocks < 3:
+            raise ParameterError("blocks", "an integer >= 3", self.blocks)
+        require_positive("t_crit", self.t_crit)
+        if not isinstance(self.max_effects, int) or not 0 <= self.max_effects <= len(FAMILIES):
+            raise ParameterError(
+                "max_effects", f"an integer in [0, {len(FAMILIES)}]", self.max_effects
+            )
+        unknown = [f for f in self.families if f not in FAMILIES]
+        if unknown:
+            raise ParameterError("families", f"names among {', '.join(FAMILIES)}", unknown[0])
+
+
+@dataclass(frozen=True)
+class Effect:
+    """A candidate effect with its shape parameters fixed (coefficients are fitted)."""
+
+    name: str
+    shape: dict[str, float]
+    columns: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class Signals:
+    """Full-rate signals on the samples kept by the differentiation (ends dropped)."""
+
+    t: FloatArray
+    q: FloatArray
+    qd: FloatArray
+    qdd: FloatArray
+    qddd: FloatArray
+    force: FloatArray
+
+
+@dataclass(frozen=True)
+class CandidateScore:
+    """One candidate at the round it was last scored."""
+
+    name: str
+    params: dict[str, float]
+    rms_before: float
+    rms_after: float
+    score: float
+    t_stat: float
+    selected: bool
+    note: str = ""
+
+
+@dataclass(frozen=True, eq=False)
+class ResidualResult:
+    """Outcome of :func:`analyse_rigid`.
+
+    ``rms_*`` and ``relerr_*`` are on the held-out decimated samples; ``f_hat_*`` are the
+    model efforts at every input sample (full rate).
+    """
+
+    names_before: tuple[str, ...]
+    theta_before: FloatArray
+    names_after: tuple[str, ...]
+    theta_after: FloatArray
+    effects: tuple[Effect, ...]
+    candidates: tuple[CandidateScore, ...]
+    holdout_start: float
+    holdout_stop: float
+    rms_before: float
+    rms_after: float
+    relerr_before: float
+    relerr_after: float
+    unexplained: tuple[dict[str, float | str], ...]
+    f_hat_before: FloatArray
+    f_hat_after: FloatArray
+    t_dec: FloatArray
+    residual_before_dec: FloatArray
+    residual_after_dec: FloatArray
+    q_dec: FloatArray
+    qd_dec: FloatArray
+
+
+# ----------------------------------------------------------------------------- columns
+
+
+def effect_columns(effect: Effect, sig: Signals) -> FloatArray:
+    """Regressor columns of ``effect`` over the samples of ``sig`` (shape ``(n, k)``)."""
+    v = sig.qd
+    n = len(v)
+    name = effect.name
+    if name == "offset":
+        return np.ones((n, 1))
+    if name == "inertia":
+        return sig.qdd[:, None].copy()
+    if name == "viscous":
+        return v[:, None].copy()
+    if name == "coulomb_asymmetry":
+        return np.column_stack([(v > 0).astype(np.float64), np.abs(v)])
+    if name == "stribeck":
+        vs = effect.shape["v_s"]
+        return (np.sign(v) * np.exp(-((np.abs(v) / vs) ** 2)))[:, None]
+    if name == "position_periodic":
+        w = 2.0 * np.pi * sig.q / effect.shape["period"]
+        return np.column_stack([np.cos(w), np.sin(w), np.cos(2 * w), np.sin(2 * w)])
+    if name == "harmonic":
+        w = 2.0 * np.pi * effect.shape["frequency"] * sig.t
+        return np.column_stack([np.cos(w), np.sin(w)])
+    if name == "delay":
+        return sig.qddd[:, None].copy()
+    if name == "drift":
+        t0, span = effect.shape["t0"], effect.shape["span"]
+        return ((sig.t - t0) / span)[:, None]
+    raise ParameterError("effect", f"one of {', '.join(FAMILIES)}", name)
+
+
+def _columns_names(name: str) -> tuple[str, ...]:
+    return {
+        "offset": ("offset",),
+        "inertia": ("inertia",),
+        "viscous": ("viscous",),
+        "coulomb_asymmetry": ("dir_pos", "abs_v"),
+        "stribeck": ("F_s",),
+        "position_periodic": ("c1", "s1", "c2", "s2"),
+        "harmonic": ("c", "s"),
+        "delay": ("jerk",),
+        "drift": ("slope",),
+    }[name]
+
+
+# ------------------------------------------------------------------------ shape search
+
+
+def _project_rss(cols: FloatArray, r: FloatArray) -> float:
+    coef, *_ = np.linalg.lstsq(cols, r, rcond=None)
+    e = r - cols @ coef
+    return float(e @ e)
+
+
+def _search_period(q: FloatArray, r: FloatArray, dq_min: float) -> tuple[float, float]:
+    """Period in position of the strongest periodic component of ``r`` (grid + refine)."""
+    span = float(np.ptp(q))
+    lo = max(4.0 * dq_min, span * 1e-4, 1e-12)
+    hi = span / 2.0
+    if not hi > lo:
+        return math.nan, math.inf
+    grid = np.geomspace(lo, hi, 160)
+
+    def rss(p: float) -> float:
+        w = 2.0 * np.pi * q / p
+        return _project_rss(np.column_stack([np.cos(w), np.sin(w)]), r)
+
+    vals = np.array([rss(p) for p in grid])
+    k = int(np.argmin(vals))
+    a, b = grid[max(k - 1, 0)], grid[min(k + 1, len(grid) - 1)]
+    fine = np.linspace(a, b, 41)
+    fv = np.array([rss(p) for p in fine])
+    j = int(np.argmin(fv))
+    return float(fine[j]), float(fv[j])
+
+
+def _search_frequency(t: FloatArray, r: FloatArray) -> tuple[float, float]:
+    """Frequency [Hz] and amplitude of the largest spectral peak of ``r`` (zero-padded FFT)."""
+    n = len(r)
+    if n < 16:
+        return math.nan, 0.0
+    dt = float(np.median(np.diff(t)))
+    nfft = 1 << int(math.ceil(math.log2(4 * n)))
+    win = np.hanning(n)
+    spec = np.abs(np.fft.rfft((r - r.mean()) * win, nfft)) * 2.0 / win.sum()
+    f = np.fft.rfftfreq(nfft, dt)
+    # skip the lowest bins (below three cycles over the record: that is drift, not harmonic)
+    spec[f < 3.0 / (n * dt)] = 0.0
+    k = int(np.argmax(spec))
+    return float(f[k]), float(spec[k])
+
+
+def find_shape(name: str, sig: Signals, residual: FloatArray, mask: NDArray[np.bool_]) -> Effect:
+    """Fix the shape parameters of family ``name`` from the residual on ``mask`` samples."""
+    idx = np.flatnonzero(mask)
+    stride = max(1, int(math.ceil(len(idx) / _SEARCH_SAMPLES)))
+    idx = idx[::stride]
+    r = residual[idx]
+    shape: dict[str, float] = {}
+    if name == "stribeck":
+        vmax = float(np.max(np.abs(sig.qd[idx])))
+        sub = Signals(
+            sig.t[idx], sig.q[idx], sig.qd[idx], sig.qdd[idx], sig.qddd[idx], sig.force[idx]
+        )
+        best = (math.inf, vmax * 0.1)
+        for vs in np.geomspace(max(vmax * 1e-3, 1e-12), vmax * 0.5, 40):
+            cols = effect_columns(Effect("stribeck", {"v_s": float(vs)}, ()), sub)
+            val = _project_rss(np.column_stack([cols, np.ones(len(idx))]), r)
+            if val < best[0]:
+                best = (val, float(vs))
+        shape = {"v_s": best[1]}
+    elif name == "position_periodic":
+        dq = float(np.median(np.abs(np.diff(sig.q)))) if len(sig.q) > 1 else 0.0
+        period, _ = _search_period(sig.q[idx], r - r.mean(), dq)
+        shape = {"period": period}
+    elif name == "harmonic":
+        tt = sig.t[np.flatnonzero(mask)]
+        rr = residual[np.flatnonzero(mask)]
+        freq, _ = _search_frequency(tt, rr)
+        shape = {"frequency": freq}
+    elif name == "drift":
+        tt = sig.t[np.flatnonzero(mask)]
+        shape = {"t0": float(tt[0]), "span": float(max(tt[-1] - tt[0], 1e-12))}
+    return Effect(name, shape, _columns_names(name))
+
+
+# ---------------------------------------------------------------------------- fitting
+
+
+@dataclass(frozen=True, eq=False)
+class _Design:
+    """Decimated regressor, force and the full-rate columns of one model structure."""
+
+    names: tuple[str, ...]
+    x_dec: FloatArray
+    x_full: FloatArray
+
+
+def _build(
+    sig: Signals,
+    effects: tuple[Effect, ...],
+    p: IdimParams,
+    cache: dict[tuple[str, tuple[tuple[str, float], ...]], tuple[FloatArray, FloatArray]]
+    | None = None,
+) -> _Design:
+    """Regressor of the nominal model plus ``effects``; decimated blocks are cached."""
+    cache = {} if cache is None else cache
+    full = []
+    dec = []
+    names = list(RIGID_NAMES)
+    keys: list[tuple[str, tuple[tuple[str, float], ...]]] = [("__rigid__", ())]
+    keys.extend((e.name, tuple(sorted(e.shape.items()))) for e in effects)
+    for key, e in zip(keys, (None, *effects)):
+        if key not in cache:
+            c = rigid_regressor(sig.qd, sig.qdd) if e is None else effect_columns(e, sig)
+            cache[key] = (c, decimate(c, p))
+        full.append(cache[key][0])
+        dec.append(cache[key][1])
+        if e is not None:
+            names.extend(f"{e.name}.{cn}" for cn in e.columns)
+    return _Design(tuple(names), np.hstack(dec), np.hstack(full))
+
+
+def _independent(x: FloatArray, base: int, fit: NDArray[np.bool_]) -> NDArray[np.bool_]:
+    """Keep mask of columns: base columns always; later ones if not spanned by the kept."""
+    keep = np.zeros(x.shape[1], dtype=bool)
+    keep[:base] = True
+    xf = x[fit]
+    for j in range(base, x.shape[1]):
+        c = xf[:, j]
+        nc = float(np.linalg.norm(c))
+        if nc == 0.0:
+            continue
+        a = xf[:, keep]
+        coef, *_ = np.linalg.lstsq(a, c, rcond=None)
+        if float(np.linalg.norm(c - a @ coef)) > 1e-6 * nc:
+            keep[j] = True
+    return keep
+
+
+def _fit(
+    design: _Design, y_dec: FloatArray, fit: NDArray[np.bool_]
+) -> tuple[FloatArray, NDArray[np.bool_]]:
+    """Least squares on the fitting samples; returns theta (0 for dropped columns), keep."""
+    keep = _independent(design.x_dec, len(RIGID_NAMES), fit)
+    theta = np.zeros(design.x_dec.shape[1])
+    sol, *_ = np.linalg.lstsq(design.x_dec[fit][:, keep], y_dec[fit], rcond=None)
+    theta[keep] = sol
+    return theta, keep
+
+
+def _block_t(e0: FloatArray, e1: FloatArray, blocks: int) -> float:
+    d = e0 * e0 - e1 * e1
+    parts = np.array_split(d, blocks)
+    means = np.array([float(np.mean(b)) for b in parts if len(b)])
+    sd = float(np.std(means, ddof=1))
+    if sd == 0.0:
+        return math.inf if float(np.mean(means)) > 0 else 0.0
+    return float(np.mean(means)) / (sd / math.sqrt(len(means)))
+
+
+def _effect_params(
+    effect: Effect,
+    design: _Design,
+    theta: FloatArray,
+) -> dict[str, float]:
+    out = dict(effect.shape)
+    byname = dict(zip(design.names, theta))
+    for cn in effect.columns:
+        out[cn] = float(byname.get(f"{effect.name}.{cn}", 0.0))
+    if effect.name == "delay":
+        m = float(byname.get("M", math.nan))
+        out["delay_s"] = -out["jerk"] / m if m else math.nan
+    if effect.name == "position_periodic":
+        out["amplitude_1"] = math.hypot(out["c1"], out["s1"])
+        out["amplitude_2"] = math.hypot(out["c2"], out["s2"])
+    if effect.name == "harmonic":
+        out["amplitude"] = math.hypot(out["c"], out["s"])
+    if effect.name == "coulomb_asymmetry":
+        fv, fc, off = byname["Fv"], byname["Fc"], byname["offset"]
+        out["Fv_pos"] = float(fv + out["abs_v"])
+        out["Fv_neg"] = float(fv - out["abs_v"])
+        out["Fc_pos"] = float(fc + off + out["dir_pos"])
+        out["Fc_neg"] = float(fc - off)
+    return out
+
+
+# ----------------------------------------------------------------------- unexplained
+
+
+def unexplained_structure(
+    sig: Signals, residual: FloatArray, *, prominence: float = 6.0, min_ratio: float = 0.15
+) -> list[dict[str, float | str]]:
+    """The largest periodic structure left in ``residual``, in time and in position.
+
+    A peak is reported when its amplitude is at least ``prominence`` times the median
+    amplitude of its spectrum and at least ``min_ratio`` times the residual's rms.
+    """
+    out: list[dict[str, float | str]] = []
+    rms = float(np.sqrt(np.mean(residual**2)))
+    if rms == 0.0:
+        return out
+    freq, amp = _search_frequency(sig.t, residual)
+    n = len(residual)
+    win = np.hanning(n)
+    spec = np.abs(np.fft.rfft((residual - residual.mean()) * win)) * 2.0 / win.sum()
+    med = float(np.median(spec[1:])) if len(spec) > 1 else 0.0
+    if math.isfinite(freq) and amp >= prominence * med and amp >= min_ratio * rms:
+        out.append(
+            {"domain": "time", "frequency_hz": freq, "amplitude": amp, "ratio_to_rms": amp / rms}
+        )
+    stride = max(1, int(math.ceil(n / _SEARCH_SAMPLES)))
+    q, r = sig.q[::stride], residual[::stride] - residual.mean()
+    dq = float(np.median(np.abs(np.diff(sig.q)))) if n > 1 else 0.0
+    period, _ = _search_period(q, r, dq)
+    if math.isfinite(period):
+        w = 2.0 * np.pi * q / period
+        cols = np.column_stack([np.cos(w), np.sin(w)])
+        coef, *_ = np.linalg.lstsq(cols, r, rcond=None)
+        pamp = float(math.hypot(coef[0], coef[1]))
+        if pamp >= min_ratio * rms:
+            out.append(
+                {
+                    "domain": "position",
+                    "period": period,
+                    "amplitude": pamp,
+                    "ratio_to_rms": pamp / rms,
+                }
+            )
+    return out
+
+
+# ----------------------------------------------------------------------------- driver
+
+
+def signals(
+    q: ArrayLike, force: ArrayLike, t: ArrayLike, sample_time: float, p: IdimParams | None = None
+) -> Signals:
+    """Filter and differentiate the position (IDIM pipeline) and align ``t`` and ``force``."""
+    p = IdimParams() if p is None else p
+    kin = kinematics(q, sample_time, p)
+    qddd = np.gradient(kin.qdd, sample_time)
+    ta = np.asarray(t, dtype=np.float64)
+    fa = np.asarray(force, dtype=np.float64)
+    return Signals(ta[kin.index], kin.q, kin.qd, kin.qdd, qddd, fa[kin.index])
+
+
+def _full_rate(values: FloatArray, n: int) -> FloatArray:
+    """Extend a series over samples 1..n-2 to 0..n-1 (ends repeat their neighbour)."""
+    out = np.empty(n)
+    out[1:-1] = values
+    out[0], out[-1] = values[0], values[-1]
+    return out
+
+
+def analyse_rigid(
+    q: ArrayLike,
+    force: ArrayLike,
+    t: ArrayLike,
+    sample_time: float,
+    params: ResidualParams = ResidualParams(),
+    *,
+    progress: Callable[[str], None] | None = None,
+) -> ResidualResult:
+    """Fit the rigid nominal model, search the effect library greedily, score held out.
+
+    Parameters
+    ----------
+    q, force, t : array_like
+        Position, effort and time, uniformly sampled, same length.
+    sample_time : float
+        Sampling interval [s].
+    params : ResidualParams
+        Settings.
+    progress : callable, optional
+        Called with a short message at each stage.
+
+    Raises
+    ------
+    ParameterError
+        If the record is too short for the held-out split.
+    """
+    qa = np.asarray(q, dtype=np.float64)
+    n = len(qa)
+    p = params.idim
+    min_dec = 40 * params.blocks
+    if n < 3 + p.decimation * min_dec:
+        raise ParameterError(
+            "samples",
+            f"at least {3 + p.decimation * min_dec} samples for the held-out split "
+            f"({min_dec} decimated samples)",
+            n,
+        )
+    sig = signals(qa, force, t, sample_time, p)
+    m = len(sig.t)
+    di = decimated_index(m, p)
+    y_dec = decimate(sig.force, p)
+    t_dec = sig.t[di]
+    split = int(round((1.0 - params.holdout_fraction) * len(t_dec)))
+    fit = np.zeros(len(t_dec), dtype=bool)
+    fit[:split] = True
+    hold = ~fit
+    if hold.sum() < 4 * params.blocks or fit.sum() < 20:
+        raise ParameterError(
+            "samples", "enough decimated samples on both sides of the split", int(hold.sum())
+        )
+    # full-rate mask of the fitting part (for shape searches)
+    fit_full = sig.t < t_dec[split]
+
+    def say(msg: str) -> None:
+        if progress is not None:
+            progress(msg)
+
+    say("nominal fit")
+    cache: dict[tuple[str, tuple[tuple[str, float], ...]], tuple[FloatArray, FloatArray]] = {}
+    design0 = _build(sig, (), p, cache)
+    theta0, _ = _fit(design0, y_dec, fit)
+    e0 = y_dec[hold] - design0.x_dec[hold] @ theta0
+    selected: tuple[Effect, ...] = ()
+    design, theta, e_cur = design0, theta0, e0
+    scores: dict[str, CandidateScore] = {}
+    offered = [f for f in params.families]
+    while len(selected) < params.max_effects:
+        resid_full = sig.force - design.x_full @ theta
+        best: tuple[float, Effect, _Design, FloatArray, FloatArray, float] | None = None
+        for name in offered:
+            if any(e.name == name for e in selected):
+                continue
+            say(f"candidate {name}")
+            eff = find_shape(name, sig, resid_full, fit_full)
+            if any(not math.isfinite(v) for v in eff.shape.values()):
+                scores[name] = CandidateScore(
+                    name, eff.shape, _rms(e_cur), _rms(e_cur), 0.0, 0.0, False, "no shape found"
+                )
+                continue
+            d = _build(sig, (*selected, eff), p, cache)
+            th, keep = _fit(d, y_dec, fit)
+            e1 = y_dec[hold] - d.x_dec[hold] @ th
+            added = int(keep[len(design.names) :].sum())
+            gain = 1.0 - float(np.mean(e1**2)) / max(float(np.mean(e_cur**2)), 1e-300)
+            tstat = _block_t(e_cur, e1, params.blocks)
+            note = "" if added else "spanned by the current model (nothing new)"
+            scores[name] = CandidateScore(
+                name, _effect_params(eff, d, th), _rms(e_cur), _rms(e1), gain, tstat, False, note
+            )
+            if added and (best is None or float(np.mean(e1**2)) < best[0]):
+                best = (float(np.mean(e1**2)), eff, d, th, e1, tstat)
+        if best is None:
+            break
+        mse1, eff, d, th, e1, tstat = best
+        gain = 1.0 - mse1 / max(float(np.mean(e_cur**2)), 1e-300)
+        if gain < params.min_gain or tstat < params.t_crit:
+            break
+        selected = (*selected, eff)
+        design, theta, e_cur = d, th, e1
+        sc = scores[eff.name]
+        scores[eff.name] = CandidateScore(
+            sc.name, sc.params, sc.rms_before, sc.rms_after, sc.score, sc.t_stat, True, sc.note
+        )
+    # final joint parameters of the selected effects
+    final_scores = []
+    for sc in scores.values():
+        if sc.selected:
+            eff = next(e for e in selected if e.name == sc.name)
+            sc = CandidateScore(
+                sc.name,
+                _effect_params(eff, design, theta),
+                sc.rms_before,
+                sc.rms_after,
+                sc.score,
+                sc.t_stat,
+                True,
+                sc.note,
+            )
+        final_scores.append(sc)
+    say("unexplained structure")
+    resid_after_full = sig.force - design.x_full @ theta
+    hold_full = ~fit_full
+    unexpl = unexplained_structure(_subset(sig, hold_full), resid_after_full[hold_full])
+    y_h = y_dec[hold]
+    norm_y = max(float(np.linalg.norm(y_h)), 1e-300)
+    return ResidualResult(
+        names_before=design0.names,
+        theta_before=theta0,
+        names_after=design.names,
+        theta_after=theta,
+        effects=selected,
+        candidates=tuple(final_scores),
+        holdout_start=float(t_dec[split]),
+        holdout_stop=float(t_dec[-1]),
+        rms_before=_rms(e0),
+        rms_after=_rms(e_cur),
+        relerr_before=100.0 * float(np.linalg.norm(e0)) / norm_y,
+        relerr_after=100.0 * float(np.linalg.norm(e_cur)) / norm_y,
+        unexplained=tuple(unexpl),
+        f_hat_before=_full_rate(design0.x_full @ theta0, n),
+        f_hat_after=_full_rate(design.x_full @ theta, n),
+        t_dec=t_dec,
+        residual_before_dec=y_dec - design0.x_dec @ theta0,
+        residual_after_dec=y_dec - design.x_dec @ theta,
+        q_dec=sig.q[di],
+        qd_dec=sig.qd[di],
+    )
+
+
+def _subset(sig: Signals, mask: NDArray[np.bool_]) -> Signals:
+    return Signals(
+        sig.t[mask], sig.q[mask], sig.qd[mask], sig.qdd[mask], sig.qddd[mask], sig.force[mask]
+    )
+
+
+def _rms(e: FloatArray) -> float:
+    return float(np.sqrt(np.mean(e * e))) if len(e) else math.nan
+
+
+def apply_model(
+    result: ResidualResult,
+    q: ArrayLike,
+    force: ArrayLike,
+    t: ArrayLike,
+    sample_time: float,
+    p: IdimParams | None = None,
+) -> dict[str, float]:
+    """Held-out numbers of ``result``'s models (before/after) on a second record.
+
+    Returns ``rms_before``, ``rms_after``, ``relerr_before``, ``relerr_after`` over all
+    decimated samples of the record (none of it was fitted).
+    """
+    p = IdimParams() if p is None else p
+    sig = signals(q, force, t, sample_time, p)
+    y = decimate(sig.force, p)
+    d0 = _build(sig, (), p)
+    d1 = _build(sig, result.effects, p)
+    e0 = y - d0.x_dec @ result.theta_before
+    e1 = y - d1.x_dec @ result.theta_after
+    ny = max(float(np.linalg.norm(y)), 1e-300)
+    return {
+        "rms_before": _rms(e0),
+        "rms_after": _rms(e1),
+        "relerr_before": 100.0 * float(np.linalg.norm(e0)) / ny,
+        "relerr_after": 100.0 * float(np.linalg.norm(e1)) / ny,
+    }
