@@ -15,7 +15,9 @@ def _feed(p: RLSParams, phi: np.ndarray, y: np.ndarray, theta0: np.ndarray):
     lo, hi = np.array(p.lower) / sc, np.array(p.upper) / sc
     out = []
     for k in range(len(y)):
-        rls_update(s.P, s.r, s.theta, s.buf_phi, s.buf_y, s.meta, phi[k] * sc, y[k], lo, hi, p.p0)
+        rls_update(
+            s.P, s.r, s.theta, s.buf_phi, s.buf_y, s.meta, phi[k] * sc, y[k], lo, hi, p.p0, 1
+        )
         out.append(s.theta * sc)
     return s, np.array(out)
 
@@ -85,11 +87,11 @@ def test_lost_positive_definiteness_is_detected_and_reported() -> None:
     lo, hi = np.array(p.lower), np.array(p.upper)
     for k in range(5):
         rls_update(
-            s.P, s.r, s.theta, s.buf_phi, s.buf_y, s.meta, np.array([1.0, k]), 1.0, lo, hi, p.p0
+            s.P, s.r, s.theta, s.buf_phi, s.buf_y, s.meta, np.array([1.0, k]), 1.0, lo, hi, p.p0, 1
         )
     s.P[:] = -np.eye(2)
     rc = rls_update(
-        s.P, s.r, s.theta, s.buf_phi, s.buf_y, s.meta, np.array([1.0, 0.5]), 1.0, lo, hi, p.p0
+        s.P, s.r, s.theta, s.buf_phi, s.buf_y, s.meta, np.array([1.0, 0.5]), 1.0, lo, hi, p.p0, 1
     )
     assert rc == 1
     assert s.meta[2] == 1  # reset counted

@@ -93,3 +93,17 @@ def settle_time(t: F64, est: F64, truth: float, t0: float, tol: float = 0.1) -> 
     if last == len(tt) - 1:
         return float("inf")
     return float(tt[last + 1] - t0)
+
+
+#: The two identifier variants every stage reproduction runs side by side.
+#: "ours": the ridge follows the estimate (1/p0 = 10) — the project's design, used live.
+#: "paper": the papers' recursion, the ridge fixed on the initial estimate with a weak
+#: P_0 (p0 = 100); row names get the prefix ``paper_recursion.``.
+VARIANTS: dict[str, dict[str, Any]] = {
+    "ours": {"ridge": "previous", "p0": 0.1},
+    "paper": {"ridge": "initial", "p0": 100.0},
+}
+
+
+def prefix(variant: str) -> str:
+    return "" if variant == "ours" else "paper_recursion."

@@ -18,7 +18,7 @@ from estimators.rls import IdentifierParams
 from machine.params import preset
 from machine.stage import SEED001_FORCE, StageConfig
 from server.reproduce import Check, Reproduction, Row
-from server.reproductions._stage_common import RunTrace, component, rms, run_stage
+from server.reproductions._stage_common import VARIANTS, RunTrace, component, prefix, rms, run_stage
 from server.stage_run import StageRun
 
 NAME = "switching-rls"
@@ -31,6 +31,7 @@ ROWS = [
     "F_CL.max_rel_error.ordinary.stationary",
     "F_CL.max_rel_error.switching.stationary",
     "err_<dc|100hz|200hz>.<ordinary|switching>.<stationary|speed_change>",
+    "paper_recursion.<the same>",
 ]
 # seed 001 Table 3 (RMS of the estimation error)
 PAPER = {
@@ -42,10 +43,10 @@ PAPER = {
 CHANGE_T = 11.0
 
 
-def _run(case: str, seconds: float, progress: bool) -> RunTrace:
+def _run(case: str, seconds: float, variant: str, progress: bool) -> RunTrace:
     p = preset("seed001")
     cfg = StageConfig(params=p, force=SEED001_FORCE)
-    ident = IdentifierParams(q_rls_hz=40.0, scale=(p.J_L, p.B_L, p.F_CL, 1.0))
+    ident = IdentifierParams(q_rls_hz=40.0, scale=(p.J_L, p.B_L, p.F_CL, 1.0), **VARIANTS[variant])
     r = StageRun(
         cfg,
         ident=ident,
@@ -59,7 +60,7 @@ def _run(case: str, seconds: float, progress: bool) -> RunTrace:
             rr.sim.reconfigure(force=replace(f, gain=0.8, freq_scale=0.8))
 
         events[CHANGE_T] = change
-    return run_stage(r, seconds, progress=progress, label=case, events=events)
+    return run_stage(r, seconds, progress=progress, label=f"{variant} {case}", events=events)
 
 
 def run(
@@ -68,80 +69,93 @@ def run(
     seconds = 14.0 if quick else 20.0
     skip = 2.0
     rep = Reproduction(NAME, SOURCE)
-    traces = {c: _run(c, seconds, progress) for c in ("stationary", "speed_change")}
     fcl_true = preset("seed001").F_CL
     label = {"ordinary": "adaptive", "switching": "switching"}
-    for case, tr in traces.items():
-        m = tr.t >= skip
-        for obs, key in label.items():
-            e = tr.est[key][m] - tr.f_true[m]
-            rep.rows.append(
-                Row(
-                    f"rms_error.{obs}.{case}",
-                    rms(e),
-                    PAPER[(obs, case)],
-                    "N m",
-                    f"{seconds - skip:g} s scored",
-                )
-            )
-        # Fig. 8(a)/10(a): error at DC, 100, 200 Hz (speed change: after 11 s, where the
-        # harmonics sit at 80 and 160 Hz; we report the error at those)
-        for obs, key in label.items():
-            if case == "stationary":
-                mm, fs = m, (0.0, 100.0, 200.0)
-            else:
-                mm, fs = tr.t >= CHANGE_T + 0.5, (0.0, 80.0, 160.0)
-            e = tr.est[key][mm] - tr.f_true[mm]
-            for f, lab in zip(fs, ("dc", "100hz", "200hz"), strict=True):
-                rep.rows.append(
-                    Row(
-                        f"err_{lab}.{obs}.{case}",
-                        component(e, tr.t[mm], f),
-                        None,
-                        "N m",
-                        f"at {f:g} Hz",
-                    )
-                )
-        if case == "stationary":
-            m5 = tr.t >= 5.0
+    figs: dict[str, dict[str, RunTrace]] = {}
+    for variant in VARIANTS:
+        pre = prefix(variant)
+        traces = {c: _run(c, seconds, variant, progress) for c in ("stationary", "speed_change")}
+        figs[variant] = traces
+        for case, tr in traces.items():
+            m = tr.t >= skip
             for obs, key in label.items():
-                rel = np.abs(tr.theta[key][m5, 2] - fcl_true) / fcl_true
+                e = tr.est[key][m] - tr.f_true[m]
                 rep.rows.append(
                     Row(
-                        f"F_CL.max_rel_error.{obs}.stationary",
-                        float(rel.max()),
-                        None,
-                        "-",
-                        "after the first 5 s",
+                        f"{pre}rms_error.{obs}.{case}",
+                        rms(e),
+                        PAPER[(obs, case)],
+                        "N m",
+                        f"{seconds - skip:g} s scored",
                     )
                 )
-    g = {r.name: r.ours for r in rep.rows}
-    for case in ("stationary", "speed_change"):
-        ratio = g[f"rms_error.switching.{case}"] / g[f"rms_error.ordinary.{case}"]
-        rep.checks.append(Check(f"switching <= 0.9 x ordinary ({case})", ratio <= 0.9, ratio, 0.9))
-    fe = g["F_CL.max_rel_error.switching.stationary"]
-    rep.checks.append(Check("switching F_CL within 20 % across reversals", fe <= 0.2, fe, 0.2))
+            # Fig. 8(a)/10(a): error at DC, 100, 200 Hz (speed change: after 11 s, where
+            # the harmonics sit at 80 and 160 Hz; we report the error at those)
+            for obs, key in label.items():
+                if case == "stationary":
+                    mm, fs = m, (0.0, 100.0, 200.0)
+                else:
+                    mm, fs = tr.t >= CHANGE_T + 0.5, (0.0, 80.0, 160.0)
+                e = tr.est[key][mm] - tr.f_true[mm]
+                for f, lab in zip(fs, ("dc", "100hz", "200hz"), strict=True):
+                    rep.rows.append(
+                        Row(
+                            f"{pre}err_{lab}.{obs}.{case}",
+                            component(e, tr.t[mm], f),
+                            None,
+                            "N m",
+                            f"at {f:g} Hz",
+                        )
+                    )
+            if case == "stationary":
+                m5 = tr.t >= 5.0
+                for obs, key in label.items():
+                    rel = np.abs(tr.theta[key][m5, 2] - fcl_true) / fcl_true
+                    rep.rows.append(
+                        Row(
+                            f"{pre}F_CL.max_rel_error.{obs}.stationary",
+                            float(rel.max()),
+                            None,
+                            "-",
+                            "after the first 5 s",
+                        )
+                    )
+        g = {r.name: r.ours for r in rep.rows}
+        lab = "ours" if variant == "ours" else "paper recursion"
+        for case in ("stationary", "speed_change"):
+            ratio = g[f"{pre}rms_error.switching.{case}"] / g[f"{pre}rms_error.ordinary.{case}"]
+            rep.checks.append(
+                Check(f"[{lab}] switching <= 0.9 x ordinary ({case})", ratio <= 0.9, ratio, 0.9)
+            )
+        fe = g[f"{pre}F_CL.max_rel_error.switching.stationary"]
+        rep.checks.append(
+            Check(f"[{lab}] switching F_CL within 20 % across reversals", fe <= 0.2, fe, 0.2)
+        )
     if plot_dir is not None:
-        rep.figures += _plot(plot_dir, traces, fcl_true)
+        rep.figures += _plot(plot_dir, figs, fcl_true)
     return rep
 
 
-def _plot(d: Path, traces: dict[str, RunTrace], fcl_true: float) -> list[str]:
+def _plot(d: Path, figs: dict[str, dict[str, RunTrace]], fcl_true: float) -> list[str]:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     d.mkdir(parents=True, exist_ok=True)
-    fig, axes = plt.subplots(2, 1, figsize=(9, 6), sharex=True)
-    for ax, (case, tr) in zip(axes, traces.items(), strict=True):
+    fig, axes = plt.subplots(2, 2, figsize=(12, 6), sharex=True)
+    cells = [(v, c) for v in ("paper", "ours") for c in ("stationary", "speed_change")]
+    for ax, (variant, case) in zip(axes.T.ravel(), cells, strict=True):
+        tr = figs[variant][case]
         ax.plot(tr.t, tr.theta["adaptive"][:, 2], label="F_CL ordinary RLS", lw=0.8)
         ax.plot(tr.t, tr.theta["switching"][:, 2], label="F_CL switching RLS", lw=0.8)
         ax.axhline(fcl_true, color="k", ls="--", label="true F_CL")
         ax.set_ylabel("F_CL [N m]")
-        ax.set_title(f"Fig. 8(b)/10(b)-like ({case})")
-        ax.legend(loc="upper right")
-    axes[-1].set_xlabel("time [s]")
+        ax.set_title(f"Fig. 8(b)/10(b)-like ({case}, {variant} recursion)", fontsize=9)
+        ax.set_ylim(0, 3 * fcl_true)
+        ax.legend(loc="upper right", fontsize=7)
+    for ax in axes[-1]:
+        ax.set_xlabel("time [s]")
     p = d / "switching_rls_fcl.png"
     fig.tight_layout()
     fig.savefig(p, dpi=100)
