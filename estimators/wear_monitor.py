@@ -15,9 +15,9 @@ tool pass. Per pass ``j`` (cutting time ``t_j`` on the wear clock [min], mean fo
    ``docs/tool-wear.md``); the wear force itself is the well-observed quantity. The
    crater lowers the force (``-K14 w_c``), so VB is underestimated by
    ``K14 w_c / (K13 d)``.
-4. Trend: exponentially weighted least squares of ``VB = alpha + beta t`` over the
-   passes after the break-in (``t >= trend_start``), forgetting ``trend_forgetting``
-   per pass.
+4. Trend: exponentially weighted least squares of a straight line or a parabola in
+   time over the passes after the break-in (``t >= trend_start``), forgetting
+   ``trend_forgetting`` per pass.
 5. Remaining life until ``VB = vb_limit`` (ISO 3685: 0.3 mm) by extrapolating the trend,
    with a standard deviation from the trend's covariance (delta method).
 6. Flags: with the predicted tool life ``L = t + RUL`` (the learned reference),
@@ -59,6 +59,21 @@ class ToolLifeParams:
         Passes in the trend before a remaining life is predicted.
     feed_tolerance : float
         Relative feed change treated as a feed change.
+    trend_order : int
+        1: straight-line trend (default); 2: quadratic. Choice: after the break-in the
+        flank wear first decelerates (abrasive tail) and then accelerates (diffusion,
+        eq. (4), (6)); a parabola fitted across the inflection often never reaches the
+        limit, the straight line is biased (late) but usable.
+    crater_force_rate : float
+        Force lost to crater wear per minute of cutting [N/min], from the design model
+        (``K14`` times its crater-wear rate), added back to the wear force. Choice: the
+        crater enters the force through the same output as the flank land, so it cannot
+        be separated from the force alone; 0 ignores it.
+    extrapolate_sharp_force : bool
+        Eq. (25) needs the force of the sharp tool, but a pass mean already contains the
+        break-in wear of that pass. True: the sharp-tool force is extrapolated back to
+        t = 0 from the first two pass means (linear in the pass mid-times); False:
+        the first pass mean is used as is.
     """
 
     force_per_flank_wear: float
@@ -69,6 +84,9 @@ class ToolLifeParams:
     trend_forgetting: float = 0.98
     min_trend_passes: int = 5
     feed_tolerance: float = 1e-6
+    crater_force_rate: float = 0.0
+    extrapolate_sharp_force: bool = True
+    trend_order: int = 1
 
     def __post_init__(self) -> None:
         require_positive("force_per_flank_wear", self.force_per_flank_wear)
@@ -88,14 +106,20 @@ class ToolLifeParams:
         if int(self.min_trend_passes) != self.min_trend_passes or self.min_trend_passes < 3:
             raise ParameterError("min_trend_passes", "an integer >= 3", self.min_trend_passes)
         require_positive("feed_tolerance", self.feed_tolerance)
+        if self.trend_order not in (1, 2):
+            raise ParameterError("trend_order", "1 or 2", self.trend_order)
+        if not math.isfinite(self.crater_force_rate) or self.crater_force_rate < 0:
+            raise ParameterError(
+                "crater_force_rate", "a finite value >= 0 N/min", self.crater_force_rate
+            )
 
 
 @dataclass(frozen=True, eq=False)
 class ToolLifeState:
     """Explicit state: static gain, offset, last pass, and the trend's weighted sums."""
 
-    misc: FloatArray  # [D, offset, f_prev, F_prev, started, t_prev]
-    sums: FloatArray  # weighted [S0, St, Stt, Sy, Sty, Syy, n]
+    misc: FloatArray  # [D, offset, f_prev, F_prev, passes, t_prev, t_first]
+    sums: FloatArray  # weighted sums of t^0..t^4, t^0..t^2 VB, VB^2; pass count
 
 
 @dataclass(frozen=True, eq=False)
@@ -115,6 +139,16 @@ class ToolLifeRecord:
     alarm: NDArray[np.bool_]
 
 
+def _crossing(c: FloatArray, level: float, after: float) -> float:
+    """First time >= ``after`` at which the polynomial ``sum c_i t^i`` reaches ``level``."""
+    roots = np.roots(np.concatenate([c[::-1][:-1], [c[0] - level]]))
+    real = roots[np.abs(roots.imag) < 1e-9].real
+    real = real[real >= after]
+    if len(real) == 0:
+        return math.nan if float(np.polyval(c[::-1], after)) < level else after
+    return float(real.min())
+
+
 class ToolLifeMonitor:
     """Flank wear, remaining life and warning/alarm flags, one step per block of passes."""
 
@@ -122,7 +156,7 @@ class ToolLifeMonitor:
         self.params = params
 
     def initial_state(self) -> ToolLifeState:
-        return ToolLifeState(misc=np.zeros(6), sums=np.zeros(7))
+        return ToolLifeState(misc=np.zeros(7), sums=np.zeros(10))
 
     def step(
         self, state: ToolLifeState, t: ArrayLike, force: ArrayLike, feed: ArrayLike
@@ -151,7 +185,7 @@ class ToolLifeMonitor:
         if not np.all(np.isfinite(fa)) or np.any(fa <= 0):
             bad = fa[~(np.isfinite(fa) & (fa > 0))][0]
             raise ParameterError("feed", "a feed > 0 mm/rev for every pass", float(bad))
-        prev_t = state.misc[5] if state.misc[4] > 0.5 else -math.inf
+        prev_t = state.misc[5] if state.misc[4] > 0.5 else 0.0
         if np.any(np.diff(np.concatenate([[prev_t], ta])) <= 0):
             raise ParameterError("t", "strictly increasing cutting times", ta.tolist()[:5])
         p = self.params
@@ -164,52 +198,59 @@ class ToolLifeMonitor:
         lam = float(p.trend_forgetting)
         for j in range(n):
             tj, Fj, fj = float(ta[j]), float(Fa[j]), float(fa[j])
+            feed_changed = misc[4] > 0.5 and abs(fj - misc[2]) > p.feed_tolerance * misc[2]
             if misc[4] < 0.5:
                 # eq. (25): the first pass is cut with a sharp tool
                 misc[0] = Fj / fj
                 misc[1] = 0.0
-                misc[4] = 1.0
-            elif abs(fj - misc[2]) > p.feed_tolerance * misc[2]:
+                misc[6] = tj
+            elif misc[4] < 1.5 and p.extrapolate_sharp_force and not feed_changed:
+                # eq. (25) with y(0) extrapolated to t = 0 from the first two pass means
+                m1 = 0.5 * misc[6]
+                m2 = 0.5 * (misc[6] + tj)
+                f0 = misc[3] - (Fj - misc[3]) * m1 / (m2 - m1)
+                misc[0] = f0 / fj
+            elif feed_changed:
                 # section 4.3.1: D from the change of force over the change of feed
                 d_new = (Fj - misc[3]) / (fj - misc[2])
                 misc[1] += (misc[0] - d_new) * misc[2]
                 misc[0] = d_new
             # eq. (24)
             dy = Fj - misc[0] * fj - misc[1]
-            vb = dy / p.force_per_flank_wear
+            vb = (dy + p.crater_force_rate * tj) / p.force_per_flank_wear
             if tj >= p.trend_start:
-                S[:6] *= lam
-                S[0] += 1.0
-                S[1] += tj
-                S[2] += tj * tj
-                S[3] += vb
-                S[4] += tj * vb
-                S[5] += vb * vb
-                S[6] += 1.0
+                # weighted normal equations of VB = sum_i c_i (t - t_trend)^i
+                tau = tj - p.trend_start
+                S *= lam
+                powers = tau ** np.arange(5)
+                S[0:5] += powers
+                S[5:8] += powers[:3] * vb
+                S[8] += vb * vb
+                S[9] += 1.0
             trend = rate = rul = sd = frac = math.nan
-            if S[6] >= p.min_trend_passes:
-                det = S[0] * S[2] - S[1] * S[1]
-                if det > 0:
-                    beta = (S[0] * S[4] - S[1] * S[3]) / det
-                    alpha = (S[3] - beta * S[1]) / S[0]
-                    # residual variance of the weighted fit (2 parameters)
-                    sse = S[5] - alpha * S[3] - beta * S[4]
-                    # choice: the weighted count S0 as the sample size (conservative
-                    # for forgetting < 1: the effective count is larger)
-                    dof = max(S[0] - 2.0, 1.0)
-                    s2 = max(sse, 0.0) / dof
-                    c_aa, c_bb, c_ab = s2 * S[2] / det, s2 * S[0] / det, -s2 * S[1] / det
-                    trend = alpha + beta * tj
-                    rate = beta
-                    if beta > 0:
-                        t_star = (p.vb_limit - alpha) / beta
-                        rul = max(t_star - tj, 0.0)
-                        # delta method on t* = (VB_lim - alpha) / beta
-                        ga = -1.0 / beta
-                        gb = -(p.vb_limit - alpha) / beta**2
-                        sd = math.sqrt(
-                            max(ga * ga * c_aa + 2 * ga * gb * c_ab + gb * gb * c_bb, 0.0)
-                        )
+            m = int(p.trend_order) + 1
+            if S[9] >= p.min_trend_passes:
+                M = np.array([[S[i + k] for k in range(m)] for i in range(m)])
+                r = S[5 : 5 + m]
+                if np.linalg.cond(M) < 1e12:
+                    Minv = np.linalg.inv(M)
+                    c = Minv @ r
+                    sse = S[8] - float(c @ r)
+                    # choice: the weighted count S0 as the sample size (conservative for
+                    # forgetting < 1: the effective count is larger)
+                    s2 = max(sse, 0.0) / max(S[0] - m, 1.0)
+                    C = s2 * Minv
+                    tau = tj - p.trend_start
+                    trend = float(np.polyval(c[::-1], tau))
+                    dc = c[1:] * np.arange(1, m)
+                    rate = float(np.polyval(dc[::-1], tau))
+                    t_star = _crossing(c, p.vb_limit, tau)
+                    if math.isfinite(t_star):
+                        rul = max(t_star - tau, 0.0)
+                        # delta method: g(c, t*) = sum c_i t*^i - VB_lim = 0
+                        slope = float(np.polyval(dc[::-1], t_star))
+                        grad = -(t_star ** np.arange(m)) / slope
+                        sd = math.sqrt(max(float(grad @ C @ grad), 0.0))
                     else:
                         rul, sd = math.inf, math.inf
                     frac = tj / (tj + rul) if math.isfinite(rul) else 0.0
@@ -219,6 +260,7 @@ class ToolLifeMonitor:
             out["trend"][j], out["rate"][j], out["rul"][j] = trend, rate, rul
             out["sd"][j], out["frac"][j] = sd, frac
             misc[2], misc[3], misc[5] = fj, Fj, tj
+            misc[4] += 1.0
         rec = ToolLifeRecord(
             t=ta.copy(),
             wear_force=out["dy"],

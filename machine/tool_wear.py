@@ -52,19 +52,19 @@ class WearModelParams:
     # eq. (3): l0/v is the time constant of the abrasive (break-in) flank wear. Koren's
     # first-order flank-wear model uses a characteristic cut length; 100 m puts the
     # time constant at ~0.7 min at 150 m/min, the short break-in of a carbide insert.
-    l0: float = 102.448  # [m]
+    l0: float = 102.144  # [m]
     # eq. (3): abrasive land per unit specific cutting pressure [mm / (N/mm^2)]; a
     # steady land of ~0.1-0.15 mm at ~2000 N/mm^2 (ISO 3685 break-in wear of P-grade
     # carbide on steel).
-    K1: float = 4.599e-5
+    K1: float = 4.50771e-5
     # rake angle: +6 deg, a common positive-rake carbide turning insert [rad]
     alpha_r: float = math.radians(6.0)
     # eq. (4): diffusion pre-factor [mm/min/(m/min)^0.5]; gives ~0.05 mm of diffusive
     # flank wear in 15 min at the nominal condition, ~0.3 mm at the heavy one.
-    K2: float = 39.0
+    K2: float = 428.0
     # eq. (4): activation temperature of diffusion wear of WC-Co against steel [K];
     # Takeyama & Murata's diffusion term, E ~ 130 kJ/mol -> E/R ~ 1.6e4 K.
-    K3: float = 1.0e4
+    K3: float = 1.2e4
     # eq. (5): crater wear coefficient [mm/(N m/min min)]; crater depth reaches the ISO
     # KT criterion in ~10 min at the heavy condition, stays below it at the nominal one.
     K4: float = 1.1e-4
@@ -89,11 +89,11 @@ class WearModelParams:
     n6: float = -0.9
     # eq. (8): Kienzle specific cutting force of a plain carbon steel, k_c1.1 ~ 2000
     # N/mm^2 with m_c = 0.25 (n7 = 1 - m_c); rake correction 1.5 % per degree.
-    K9: float = 12641.3
+    K9: float = 12655.4
     n7: float = 1.5
     K10: float = 0.86  # [1/rad] = 1.5 %/deg
     # eq. (8): intercept and speed term (force falls with speed) [N/mm^2 ... per m/min]
-    K11: float = 69.6857
+    K11: float = 71.4557
     K12: float = 0.20
     # eq. (8): force rise per unit flank land: ~100 N per 0.1 mm land at d = 2 mm
     K13: float = 498.0  # [N/mm^2]

@@ -111,11 +111,15 @@ class AcceleratedToolWear:
             )
         self.rate = float(wear_minutes_per_second)
         c = self.model.condition
-        # off-line knowledge of the monitor: dF/dVB = K13 d (eq. (8))
+        # off-line knowledge of the monitor: dF/dVB = K13 d (eq. (8)), and the force lost
+        # to the crater per minute, K14 w_c(t)/t of a 20-min design run at this condition
         s = self.model.params.K13 * c.depth
+        design = self.model.simulate(np.full(200, self.feed), 0.1)
+        crater_rate = self.model.params.K14 * float(design.states[-1, 2]) / 20.0
         self.monitor = ToolLifeMonitor(
             ToolLifeParams(
                 force_per_flank_wear=s,
+                crater_force_rate=crater_rate,
                 vb_limit=VB_LIMIT_MM,
                 warning_fraction=warning_fraction,
                 alarm_fraction=alarm_fraction,
