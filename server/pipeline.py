@@ -80,7 +80,7 @@ class LivePipeline:
             raise ParameterError("name", f"one of {sorted(self._knobs)}", name)
         k = self._knobs[name]
         if k.min is not None and k.max is not None:
-            v = float(value)  # type: ignore[arg-type]
+            v = float(value)
             if not (math.isfinite(v) and k.min <= v <= k.max):
                 raise ParameterError(name, f"a value in [{k.min:g}, {k.max:g}] {k.unit}", value)
         k.value = value
