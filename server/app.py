@@ -35,10 +35,6 @@ UPLOT_DIR = WEB_DIR / "node_modules" / "uplot" / "dist"
 Message = MutableMapping[str, Any]
 
 
-class BodyTooLarge(Exception):
-    """A request body exceeded ``max_body_bytes``."""
-
-
 class BodyLimit:
     """ASGI middleware refusing request bodies larger than ``limit`` bytes (413).
 
@@ -64,28 +60,27 @@ class BodyLimit:
                     await self._reject(send)
                     return
         seen = 0
-        started = False
+        rejected = False
 
         async def counted() -> Message:
-            nonlocal seen
+            # past the limit: answer 413 ourselves and tell the app the client has gone
+            nonlocal seen, rejected
+            if rejected:
+                return {"type": "http.disconnect"}
             msg = await receive()
             if msg["type"] == "http.request":
                 seen += len(msg.get("body", b""))
                 if seen > self.limit:
-                    raise BodyTooLarge
+                    rejected = True
+                    await self._reject(send)
+                    return {"type": "http.disconnect"}
             return msg
 
-        async def tracked_send(msg: Message) -> None:
-            nonlocal started
-            if msg["type"] == "http.response.start":
-                started = True
-            await send(msg)
+        async def guarded_send(msg: Message) -> None:
+            if not rejected:
+                await send(msg)
 
-        try:
-            await self.app(scope, counted, tracked_send)
-        except BodyTooLarge:
-            if not started:
-                await self._reject(send)
+        await self.app(scope, counted, guarded_send)
 
     async def _reject(self, send: Send) -> None:
         body = json.dumps({"detail": f"request body larger than {self.limit} bytes"}).encode()

@@ -15,22 +15,25 @@ from server.commands.serve import WS_IMPL
 from server.settings import Settings
 
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
 @contextmanager
-def serve(**settings: object) -> Iterator[str]:
-    """Run the app in a background thread; yield its base URL; stop it cleanly."""
-    port = free_port()
+def serve(*, sndbuf: int | None = None, **settings: object) -> Iterator[str]:
+    """Run the app in a background thread; yield ``host:port``; stop it cleanly.
+
+    ``sndbuf`` shrinks the kernel send buffer of the accepted sockets (Linux inherits it
+    from the listening socket), so that a client that never reads fills the pipe quickly.
+    """
+    sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    if sndbuf is not None:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, sndbuf)
+    sock.bind(("127.0.0.1", 0))
+    port = int(sock.getsockname()[1])
     app = create_app(Settings(port=port, **settings))  # type: ignore[arg-type]
     config = uvicorn.Config(
         app, host="127.0.0.1", port=port, ws=WS_IMPL, log_level="warning", lifespan="on"
     )
     server = uvicorn.Server(config)
-    thread = threading.Thread(target=server.run, daemon=True)
+    thread = threading.Thread(target=server.run, kwargs={"sockets": [sock]}, daemon=True)
     thread.start()
     deadline = time.monotonic() + 20
     while not server.started:
@@ -42,3 +45,4 @@ def serve(**settings: object) -> Iterator[str]:
     finally:
         server.should_exit = True
         thread.join(10)
+        sock.close()

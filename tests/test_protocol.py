@@ -1,0 +1,97 @@
+"""The stream schema is one thing on both sides: server/protocol.py and web/protocol.js."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from server import protocol
+
+WEB = Path(__file__).resolve().parent.parent / "web"
+NODE = shutil.which("node")
+pytestmark = pytest.mark.skipif(NODE is None, reason="node is not installed")
+
+
+def run_js(code: str, stdin: str = "") -> str:
+    assert NODE is not None
+    out = subprocess.run(
+        [NODE, "--input-type=module", "-e", code],
+        input=stdin,
+        capture_output=True,
+        text=True,
+        timeout=30,
+        cwd=WEB,
+        check=False,
+    )
+    if out.returncode != 0:
+        raise AssertionError(out.stderr)
+    return out.stdout
+
+
+def test_schema_equal_on_both_sides() -> None:
+    js = json.loads(
+        run_js("import {SCHEMA} from './protocol.js';console.log(JSON.stringify(SCHEMA));")
+    )
+    assert js == protocol.SCHEMA
+
+
+def frames() -> list[str]:
+    hello = protocol.hello(
+        [{"name": "force_true", "unit": "N", "group": "force", "label": "true"}],
+        4e-4,
+        "default",
+        {"spindle_rpm": 1500.0},
+    )
+    health = dict.fromkeys(protocol.SCHEMA["health"], 0.0)
+    body = protocol.data_body(
+        3,
+        1.0,
+        [0.1, 0.2],
+        {"force_true": protocol.samples([1.0, float("nan")])},
+        health,
+        {"spindle_rpm": 1500.0},
+    )
+    return [hello, protocol.with_dropped(body, 7)]
+
+
+def test_js_accepts_what_python_sends() -> None:
+    code = (
+        "import {checkMessage} from './protocol.js';"
+        "import {readFileSync} from 'node:fs';"
+        "const lines = readFileSync(0, 'utf8').trim().split('\\n');"
+        "console.log(JSON.stringify(lines.map((l) => checkMessage(l).type)));"
+    )
+    assert json.loads(run_js(code, "\n".join(frames()))) == ["hello", "data"]
+
+
+def test_python_frames_follow_schema() -> None:
+    hello, data = (json.loads(f) for f in frames())
+    assert list(hello) == protocol.SCHEMA["hello"]
+    assert list(data) == protocol.SCHEMA["data"]
+    assert data["dropped"] == 7 and data["ch"]["force_true"] == [1.0, None]
+
+
+@pytest.mark.parametrize(
+    ("bad", "message"),
+    [
+        ('{"type": "nope"}', "unknown message type nope"),
+        ('{"type": "hello", "version": 1}', "hello message lacks channels"),
+        (
+            '{"type": "hello", "version": 99, "channels": [], "sample_time": 1, "scenario": "",'
+            ' "knobs": {}}',
+            "protocol version 99, this page speaks 1",
+        ),
+    ],
+)
+def test_js_rejects_malformed(bad: str, message: str) -> None:
+    code = (
+        "import {checkMessage} from './protocol.js';"
+        "import {readFileSync} from 'node:fs';"
+        "try { checkMessage(readFileSync(0, 'utf8')); console.log('accepted'); }"
+        " catch (e) { console.log(e.message); }"
+    )
+    assert message in run_js(code, bad)

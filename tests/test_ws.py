@@ -1,0 +1,162 @@
+"""The WebSocket stream through the real app: hello, frames, a PATCH seen in the stream,
+no skipped or repeated samples, a slow client that loses frames without slowing anyone."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import socket
+import time
+from collections.abc import Iterator
+from typing import Any
+
+import httpx
+import pytest
+from _live import serve
+from websockets.exceptions import ConnectionClosed
+from websockets.sync.client import ClientConnection, connect
+
+from server import protocol
+from server.live import ClientQueue, Hub
+from server.pipeline import LivePipeline
+
+
+@pytest.fixture(scope="module")
+def hp() -> Iterator[str]:
+    with serve() as hostport:
+        yield hostport
+
+
+def recv(ws: ClientConnection) -> dict[str, Any]:
+    msg: dict[str, Any] = json.loads(ws.recv(timeout=5))
+    return msg
+
+
+def test_hello_then_frames(hp: str) -> None:
+    with connect(f"ws://{hp}/ws") as ws:
+        hello = recv(ws)
+        assert hello["type"] == "hello" and hello["version"] == protocol.VERSION
+        names = [c["name"] for c in hello["channels"]]
+        assert names == [c.name for c in LivePipeline().channels()]
+        frames = [recv(ws) for _ in range(10)]
+    for f in frames:
+        assert f["type"] == "data" and f["dropped"] == 0
+        assert set(f["ch"]) == set(names)
+        assert all(len(v) == len(f["t"]) for v in f["ch"].values())
+        assert f["health"]["clients"] >= 1
+    assert [f["seq"] for f in frames] == list(range(frames[0]["seq"], frames[0]["seq"] + 10))
+
+
+def test_samples_neither_skipped_nor_repeated(hp: str) -> None:
+    with connect(f"ws://{hp}/ws") as ws:
+        dt = recv(ws)["sample_time"]
+        t = [x for _ in range(20) for x in recv(ws)["t"]]
+    steps = {round((b - a) / dt) for a, b in zip(t, t[1:])}
+    assert len(steps) == 1 and steps.pop() >= 1  # one fixed display stride, no gaps
+
+
+def test_patch_seen_in_stream(hp: str) -> None:
+    with connect(f"ws://{hp}/ws") as ws, httpx.Client(base_url=f"http://{hp}") as api:
+        assert recv(ws)["knobs"]["spindle_rpm"] == 1500.0
+        recv(ws)
+        assert api.patch("/api/params", json={"spindle_rpm": 6000}).status_code == 200
+        seen = [recv(ws)["knobs"]["spindle_rpm"] for _ in range(5)]
+        api.patch("/api/params", json={"spindle_rpm": 1500})
+    assert seen[-1] == 6000.0
+
+
+def test_pause_seen_in_stream(hp: str) -> None:
+    with connect(f"ws://{hp}/ws") as ws, httpx.Client(base_url=f"http://{hp}") as api:
+        recv(ws)
+        api.post("/api/control", json={"action": "pause"})
+        recv(ws)  # a frame possibly built before the pause
+        frames = [recv(ws) for _ in range(4)]  # health keeps flowing while paused
+        api.post("/api/control", json={"action": "resume"})
+    assert all(f["health"]["paused"] and f["t"] == [] for f in frames)
+    assert len({f["health"]["sim_t"] for f in frames}) == 1
+
+
+def test_slow_client_loses_frames_others_do_not() -> None:
+    # tiny socket buffers so a client that never reads fills the pipe within seconds
+    with serve(sndbuf=4096, frame_hz=50, display_points=2000, client_buffer=4) as hp:
+        raw = socket.create_connection(("127.0.0.1", int(hp.split(":")[1])))
+        raw.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+        slow = connect(f"ws://{hp}/ws", sock=raw, max_queue=2)
+        with connect(f"ws://{hp}/ws") as fast, httpx.Client(base_url=f"http://{hp}") as api:
+            recv(fast)
+            arrivals: list[float] = []
+            fast_dropped = 0
+            deadline = time.monotonic() + 20
+            while time.monotonic() < deadline:
+                f = recv(fast)
+                arrivals.append(time.monotonic())
+                fast_dropped += f["dropped"]
+                if len(arrivals) % 25 == 0 and metric(api, "dropped_frames_total") > 0:
+                    break
+            assert metric(api, "dropped_frames_total") > 0, "the slow client never lost a frame"
+            gaps = [b - a for a, b in zip(arrivals, arrivals[1:])]
+            assert fast_dropped == 0
+            assert max(gaps) < 0.5  # the fast client kept its ~50 Hz stream
+            assert metric(api, "realtime_factor") > 0.5  # the loop never waited
+            # the slow client finally reads (faster now): it is told how many frames it lost
+            raw.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 20)
+            told = 0
+            for _ in range(400):
+                try:
+                    told = recv(slow).get("dropped", 0)
+                except (TimeoutError, ConnectionClosed):
+                    break
+                if told:
+                    break
+            assert told > 0
+        slow.close()
+
+
+def metric(api: httpx.Client, suffix: str) -> float:
+    for line in api.get("/metrics").text.splitlines():
+        if line.startswith("cutwatch_") and line.split()[0].endswith(suffix):
+            return float(line.split()[1])
+    raise AssertionError(f"no metric *{suffix}")
+
+
+def test_client_queue_is_bounded_latest_wins() -> None:
+    async def main() -> None:
+        q = ClientQueue(3, asyncio.get_running_loop())
+        for i in range(10):
+            q.push(str(i))
+        assert len(q) == 3
+        frames, dropped = q.take()
+        assert frames == ["7", "8", "9"] and dropped == 7
+        assert q.take() == ([], 0)
+
+    asyncio.run(main())
+
+
+def test_hub_publish_never_blocks_and_counts() -> None:
+    async def main() -> None:
+        hub = Hub(2)
+        hub.bind(asyncio.get_running_loop())
+        a, b = hub.add(), hub.add()
+        for i in range(5):
+            hub.publish(str(i))
+        await asyncio.sleep(0)
+        assert a.event.is_set()
+        assert a.take() == (["3", "4"], 3)
+        assert hub.dropped() == 6  # a's 3 and b's 3
+        hub.remove(b)
+        assert hub.dropped() == 6 and hub.clients == 1
+        hub.close()
+        await asyncio.sleep(0)
+        assert a.closed and a.event.is_set()
+
+    asyncio.run(main())
+
+
+def test_server_shutdown_closes_streams() -> None:
+    with serve() as hp:
+        ws = connect(f"ws://{hp}/ws")
+        recv(ws)
+    with pytest.raises(ConnectionClosed):
+        for _ in range(100):
+            ws.recv(timeout=5)
+    assert ws.close_code in (1001, 1012)
