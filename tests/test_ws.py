@@ -4,6 +4,7 @@ no skipped or repeated samples, a slow client that loses frames without slowing 
 from __future__ import annotations
 
 import asyncio
+import itertools
 import json
 import socket
 import time
@@ -51,7 +52,7 @@ def test_samples_neither_skipped_nor_repeated(hp: str) -> None:
     with connect(f"ws://{hp}/ws") as ws:
         dt = recv(ws)["sample_time"]
         t = [x for _ in range(20) for x in recv(ws)["t"]]
-    steps = {round((b - a) / dt) for a, b in zip(t, t[1:])}
+    steps = {round((b - a) / dt) for a, b in itertools.pairwise(t)}
     assert len(steps) == 1 and steps.pop() >= 1  # one fixed display stride, no gaps
 
 
@@ -94,7 +95,7 @@ def test_slow_client_loses_frames_others_do_not() -> None:
                 if len(arrivals) % 25 == 0 and metric(api, "dropped_frames_total") > 0:
                     break
             assert metric(api, "dropped_frames_total") > 0, "the slow client never lost a frame"
-            gaps = [b - a for a, b in zip(arrivals, arrivals[1:])]
+            gaps = [b - a for a, b in itertools.pairwise(arrivals)]
             assert fast_dropped == 0
             assert max(gaps) < 0.5  # the fast client kept its ~50 Hz stream
             assert metric(api, "realtime_factor") > 0.5  # the loop never waited
