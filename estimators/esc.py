@@ -28,8 +28,9 @@ Choices where the paper is ambiguous (also written at the lines concerned):
 - **Stopping the dither.** The paper notes the dither "can be stopped at the mean value
   after convergence". With ``freeze_revs > 0`` the dither stops when the nominal values
   moved less than ``freeze_tol`` (in units of the perturbation amplitudes) over the last
-  ``freeze_revs`` revolutions, and restarts if the cost rises above ``resume_ratio``
-  times the cost at freezing.
+  ``freeze_revs`` revolutions, and restarts when the cost, averaged over a perturbation
+  period, rises above ``resume_ratio`` times its average over the first period after
+  freezing (e.g. after a spindle-speed change).
 """
 
 from __future__ import annotations
@@ -53,10 +54,15 @@ def spindle_harmonic(force: ArrayLike, angle: ArrayLike) -> complex:
 
     ``angle`` is the spindle angle :math:`\psi_n` of each sample (the spindle encoder), which
     equals :math:`\omega_{sp} n T_s` at constant speed and keeps the phase consistent from
-    one revolution to the next. Choice: the block mean is removed first. For an integer
-    number of samples per revolution this changes nothing (the DC term sums to zero);
-    when :math:`L` is not an integer (1800 rpm at 5 kHz: L = 166.7) it removes the leakage
-    of the large mean force into the 1x bin.
+    one revolution to the next.
+
+    Choice for a non-integer :math:`L` (1800 rpm at 5 kHz: L = 166.7), where the last
+    revolution holds 166 or 167 samples: the sum is taken as a rectangle rule over exactly
+    a whole number of revolutions, the last sample weighted by the fraction of its angular
+    step that falls inside, and the weighted mean is removed. Without this the large mean
+    force and the tooth-passing harmonic leak into the 1x bin by an amount that changes
+    from one revolution to the next. For an integer :math:`L` every weight is 1 and the
+    mean term sums to zero, so the result is eq. (8) exactly.
 
     Raises
     ------
@@ -69,8 +75,15 @@ def spindle_harmonic(force: ArrayLike, angle: ArrayLike) -> complex:
         raise ParameterError(
             "force/angle", "two 1-D arrays of the same length >= 4", (f.shape, a.shape)
         )
-    fm = f - f.mean()
-    return complex(2.0 / f.size * np.sum(fm * np.exp(-1j * a)))
+    n = f.size
+    step = (a[-1] - a[0]) / (n - 1)
+    w = np.ones(n)
+    if step > 0.0:
+        span = n * step
+        revs = max(1.0, round(span / (2.0 * np.pi)))
+        w[-1] = min(max(1.0 - (span - 2.0 * np.pi * revs) / step, 0.0), 2.0)
+    fm = f - np.sum(w * f) / np.sum(w)
+    return complex(2.0 / np.sum(w) * np.sum(w * fm * np.exp(-1j * a)))
 
 
 def harmonic_cost(force: ArrayLike, angle: ArrayLike) -> float:
@@ -105,8 +118,8 @@ class EscParams:
     freeze_tol : float
         Stillness tolerance, in perturbation amplitudes.
     resume_ratio : float
-        After freezing, the dither restarts when the cost exceeds this times the cost at
-        freezing.
+        After freezing, the dither restarts when the period-mean cost exceeds this times
+        the period-mean cost just after freezing.
     """
 
     k_a: float = 45.0
@@ -178,6 +191,7 @@ class EscState:
     frozen: bool
     frozen_cost: float
     history: tuple[tuple[float, float], ...]
+    recent_costs: tuple[float, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -216,9 +230,20 @@ class ExtremumSeekingController:
         self.params = params if params is not None else EscParams()
         self._hpf = self.params.hpf()
 
-    def initial_state(self, a_um: float = 0.0, theta_deg: float = 0.0) -> EscState:
-        """State at adaptation start, nominal ``(a_um, theta_deg)``; no perturbation yet."""
+    def initial_state(
+        self, a_um: float = 0.0, theta_deg: float = 0.0, cost_ref: float | None = None
+    ) -> EscState:
+        """State at adaptation start: nominal ``(a_um, theta_deg)`` plus the first
+        perturbation.
+
+        ``cost_ref`` is the normaliser :math:`J_0` of the cost: the cost measured without
+        modulation (the eccentricity's own level). Give it when the adaptation starts
+        from a modulation already near the optimum; otherwise the first revolution's cost
+        is used, which near the optimum is small and would make the gains huge.
+        """
         p = self.params
+        if cost_ref is not None:
+            require_positive("cost_ref", cost_ref)
         a = float(a_um)
         if not math.isfinite(a) or abs(a) > p.a_max_um:
             raise ParameterError("a_um", f"a radius with |a| <= a_max_um = {p.a_max_um:g}", a_um)
@@ -232,7 +257,7 @@ class ExtremumSeekingController:
             theta_n_deg=th,
             a_um=a + pa,
             theta_deg=th + pt,
-            j_ref=0.0,
+            j_ref=0.0 if cost_ref is None else float(cost_ref),
             hpf_state=np.zeros(max(self._hpf.order, 1)),
             frozen=False,
             frozen_cost=0.0,
@@ -280,12 +305,19 @@ class ExtremumSeekingController:
         th_n = state.theta_n_deg
         frozen = state.frozen
         frozen_cost = state.frozen_cost
+        recent = state.recent_costs
         if frozen:
-            # the cost at the held values: the first undithered revolution, then the
-            # lowest seen since (the revolution of freezing was still dithered)
-            frozen_cost = cost if frozen_cost <= 0.0 else min(frozen_cost, cost)
-            if cost > p.resume_ratio * frozen_cost:
-                frozen = False
+            # the reference is the mean cost over the first perturbation period at the
+            # held values; the dither restarts when the mean over the latest period
+            # exceeds resume_ratio times it (a mean, so one noisy revolution does not)
+            recent = (*recent, cost)[-p.period_revs :]
+            if len(recent) == p.period_revs:
+                mean_recent = sum(recent) / len(recent)
+                if frozen_cost <= 0.0:
+                    frozen_cost = mean_recent
+                elif mean_recent > p.resume_ratio * frozen_cost:
+                    frozen = False
+                    recent = ()
         if not frozen:
             # eq. (9)/(16): integrate the gradient estimate with step sizes K (1/s) over
             # one revolution (see module docstring for the unit choice)
@@ -294,7 +326,8 @@ class ExtremumSeekingController:
         sat = abs(a_n) > p.a_max_um - p.amp_a_um
         if sat:
             a_n = math.copysign(p.a_max_um - p.amp_a_um, a_n)
-        hist = (*state.history, (a_n, th_n))[-max(p.freeze_revs, 1) :]
+        # stillness is judged on adapting revolutions only (reset while frozen)
+        hist = () if frozen else (*state.history, (a_n, th_n))[-max(p.freeze_revs, 1) :]
         if (
             not frozen
             and p.freeze_revs > 0
@@ -306,6 +339,7 @@ class ExtremumSeekingController:
             if da < p.freeze_tol * p.amp_a_um and dth < p.freeze_tol * p.amp_theta_deg:
                 frozen = True
                 frozen_cost = 0.0
+                recent = ()
                 hist = ()
         k = state.k + 1
         if frozen:
@@ -326,6 +360,7 @@ class ExtremumSeekingController:
             frozen=frozen,
             frozen_cost=frozen_cost,
             history=hist,
+            recent_costs=recent,
         )
         rec = EscRecord(
             cost=cost,

@@ -282,6 +282,10 @@ class EccentricityLoop:
             # adaptation starts with the next revolution: apply the tuner's first values
             self._started = True
             if self.tuner == "esc":
+                # normalise by the cost of this revolution, measured without modulation
+                self.esc_state = self.esc.initial_state(
+                    cost_ref=cost if cost > 0 and self.a_um == 0.0 else None
+                )
                 self.a_um, self.theta_deg = self.esc_state.a_um, self.esc_state.theta_deg
             else:
                 self.a_um, self.theta_deg = self.fast_state.a_um, self.fast_state.theta_deg

@@ -78,6 +78,26 @@ def test_esc_finds_the_minimum_of_a_cone() -> None:
     assert abs(u - u_star) < 0.02 * abs(u_star)
 
 
+def test_esc_stops_its_dither_and_restarts_when_the_optimum_moves() -> None:
+    esc = ExtremumSeekingController(EscParams(freeze_revs=40))
+    psi = 2 * np.pi * np.arange(250) / 250
+    # start near the optimum; the normaliser is the cost without modulation
+    s = esc.initial_state(a_um=-14.0, theta_deg=50.0, cost_ref=0.6 * 15.0)
+    u_star = 15.0 * np.exp(1j * math.radians(235.0))
+    frozen_at = None
+    for k in range(1500):
+        if k == 700:
+            assert s.frozen  # converged and the dither stopped
+            frozen_at = (s.a_n_um, s.theta_n_deg)
+            u_star = 15.0 * np.exp(1j * math.radians(245.0))  # e.g. a speed change
+        u = s.a_um * np.exp(1j * math.radians(s.theta_deg))
+        s, rec = esc.step(s, 0.6 * abs(u - u_star) * np.cos(psi), psi, 0.05)
+    assert frozen_at is not None
+    u = s.a_n_um * np.exp(1j * math.radians(s.theta_n_deg))
+    assert (s.a_n_um, s.theta_n_deg) != frozen_at
+    assert abs(u - u_star) < 0.03 * abs(u_star)
+
+
 def test_esc_demodulation_gives_the_gradient_sign() -> None:
     """Eq. (13)-(15): the demodulated cost has the sign of the gradient."""
     esc = ExtremumSeekingController(EscParams(k_a=0.0, k_theta=0.0))
@@ -137,6 +157,8 @@ def test_bad_esc_inputs_are_named() -> None:
     esc = ExtremumSeekingController()
     with pytest.raises(ParameterError, match="a_um"):
         esc.initial_state(a_um=1e3)
+    with pytest.raises(ParameterError, match="cost_ref"):
+        esc.initial_state(cost_ref=0.0)
     s = esc.initial_state()
     with pytest.raises(ParameterError, match="force/angle"):
         esc.step(s, np.ones(10), np.ones(9), 0.05)
