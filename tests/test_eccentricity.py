@@ -91,7 +91,7 @@ def test_esc_stops_its_dither_and_restarts_when_the_optimum_moves() -> None:
             frozen_at = (s.a_n_um, s.theta_n_deg)
             u_star = 15.0 * np.exp(1j * math.radians(245.0))  # e.g. a speed change
         u = s.a_um * np.exp(1j * math.radians(s.theta_deg))
-        s, rec = esc.step(s, 0.6 * abs(u - u_star) * np.cos(psi), psi, 0.05)
+        s, _rec = esc.step(s, 0.6 * abs(u - u_star) * np.cos(psi), psi, 0.05)
     assert frozen_at is not None
     u = s.a_n_um * np.exp(1j * math.radians(s.theta_n_deg))
     assert (s.a_n_um, s.theta_n_deg) != frozen_at
