@@ -242,6 +242,34 @@ class EccentricityLoop:
             return {}
         return {k: np.concatenate([ch[k] for ch in chunks]) for k in chunks[0]}
 
+    def state(self) -> dict[str, float | bool | str]:
+        """Latest values for a live display: modulation applied and nominal, cost, tuner
+        mode, clamp, and the truth (eccentricity, cancelling modulation) for scoring."""
+        a_s, th_s = self.machine.cancelling_modulation()
+        an, tn = positive_polar(self.a_n_um, self.theta_n_deg)
+        p = self.machine.milling
+        mode = self.tuner
+        if self.tuner == "esc":
+            mode = "esc:frozen" if self.esc_state.frozen else "esc:adapting"
+        elif self.tuner == "fast":
+            mode = f"fast:{self.fast_state.mode}"
+        return {
+            "t": self.machine.t,
+            "rpm": self.machine.spindle_rpm,
+            "adapting": self._started,
+            "mode": mode,
+            "a_m_um": self.a_um,
+            "theta_m_deg": self.theta_deg,
+            "a_n_um": an,
+            "theta_n_deg": tn,
+            "cost": self.last_cost,
+            "saturated": self.saturated,
+            "true.eccentricity_um": p.eccentricity * 1e6,
+            "true.eccentricity_deg": p.eccentricity_deg,
+            "true.cancelling_a_um": a_s * 1e6,
+            "true.cancelling_theta_deg": math.degrees(th_s),
+        }
+
     def run_revolutions(self, n_revs: int) -> None:
         """Advance whole revolutions (the reproduction's driver)."""
         for _ in range(int(n_revs)):

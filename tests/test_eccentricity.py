@@ -228,7 +228,7 @@ def test_loop_block_steps_any_chunking() -> None:
     """The live API: step(n) in odd chunks equals whole revolutions."""
     a = EccentricityLoop(tuner="fast", adapt_start_s=0.1)
     b = EccentricityLoop(tuner="fast", adapt_start_s=0.1)
-    a.run_revolutions(10)
+    a.run_revolutions(16)
     n = a.machine._s.k
     outs = []
     while b.machine._s.k < n:
@@ -237,6 +237,9 @@ def test_loop_block_steps_any_chunking() -> None:
     fx = np.concatenate([o["fx"] for o in outs])
     assert fx.size == n
     assert set(outs[0]) >= {"t", "fx", "fy", "a_m_um", "theta_m_deg", "cost"}
+    st_ = b.state()
+    assert st_["mode"] == "fast:hold" and st_["adapting"] is True
+    assert st_["a_n_um"] == pytest.approx(st_["true.cancelling_a_um"], rel=0.1)
 
 
 def test_loop_rejects_unknown_tuner() -> None:
