@@ -138,3 +138,16 @@ def test_every_canonical_effect_runs_and_stays_bounded() -> None:
         m, tr = sim.step(5000)
         assert np.all(np.isfinite(m.q_l)), name
         assert np.abs(tr.omega_l).max() < 200, name
+
+
+def test_small_expm_agrees_with_scipy() -> None:
+    import scipy.linalg
+
+    from machine.stage import _expm_small
+
+    rng = np.random.default_rng(2)
+    for scale in (1e-3, 0.3, 5.0, 300.0):
+        m = rng.normal(size=(6, 6)) * scale
+        m[4:, :] = 0.0  # the augmented form used for ZOH
+        ref = scipy.linalg.expm(m)
+        np.testing.assert_allclose(_expm_small(m), ref, rtol=1e-10, atol=1e-12 * np.abs(ref).max())
