@@ -320,6 +320,17 @@ def find_shape(name: str, sig: Signals, residual: FloatArray, mask: NDArray[np.b
         tt = sig.t[np.flatnonzero(mask)]
         rr = residual[np.flatnonzero(mask)]
         freq, _ = _search_frequency(tt, rr)
+        if math.isfinite(freq) and freq > 0:
+            # refine within +-1 bin of the padded FFT by least squares on the residual
+            df = 1.0 / (4.0 * max(float(tt[-1] - tt[0]), 1e-12))
+            ts_, rs_ = sig.t[idx], r - r.mean()
+
+            def rss(fr: float) -> float:
+                w = 2.0 * np.pi * fr * ts_
+                return _project_rss(np.column_stack([np.cos(w), np.sin(w)]), rs_)
+
+            fine = np.linspace(max(freq - df, df * 1e-3), freq + df, 41)
+            freq = float(fine[int(np.argmin([rss(fr) for fr in fine]))])
         shape = {"frequency": freq}
     elif name == "drift":
         tt = sig.t[np.flatnonzero(mask)]

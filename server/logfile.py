@@ -314,7 +314,7 @@ def check_time(path: Path, t: FloatArray, declared: float | None = None) -> floa
         i = int(bad[0])
         raise LogFormatError(
             f"{path}: column 't', row {i + 2}: time not increasing "
-            f"(t = {t[i + 1]!r} after {t[i]!r})"
+            f"(t = {float(t[i + 1])!r} after {float(t[i])!r})"
         )
     ts = float(np.median(dt))
     gap = np.flatnonzero(dt > GAP_FACTOR * ts)
@@ -451,7 +451,7 @@ def load_log(
         if bad.size:
             i = int(bad[0])
             raise LogFormatError(
-                f"{p}: column {c!r}, row {i + 1}: expected a finite value, found {v[i]!r}"
+                f"{p}: column {c!r}, row {i + 1}: expected a finite value, found {float(v[i])}"
             )
         out[c] = v
     declared = sidecar.get("sample_time")
