@@ -1,7 +1,6 @@
-"""Pipeline wiring: the simulated machine feeding every estimator, block by block.
+"""Pipeline wiring for the live service: the simulated stage feeding every force observer.
 
-PROVISIONAL STUB (being replaced by the foundation's real stage + observers).
-The public surface below is the contract the live service builds on:
+The public surface is the contract the live service builds on:
 
 - ``LivePipeline(scenario: str = "default", seed: int = 0)``
 - ``.sample_time`` (s), ``.t`` (simulated time, s)
@@ -13,16 +12,31 @@ The public surface below is the contract the live service builds on:
   allowed range and the value; nothing changes on error
 - ``.reset()``; ``.snapshot() -> dict`` (latest values, truths, knob values)
 - ``SCENARIOS``: name -> one-line description
+
+Behind it is :class:`server.stage_run.StageRun`: the two-inertia stage of seed 000 with
+the fixed-parameter, adaptive (ordinary RLS) and switching-RLS force observers. The
+estimators see the Measurements only; the truth columns are for display.
+
+Scenario events are scheduled on simulated time, so a run is the same whatever the
+wall-clock speed. The default scenario: the stage reciprocates while milling; the
+workpiece (an inertia of the size of seed 000's added weight) loses mass at
+``removal_rate`` % per second until a fresh blank is clamped; every 15 s the spindle
+speed steps between the knob's value and 80 % of it (force gain and frequencies, as in
+seed 001 Fig. 9).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from estimators.errors import ParameterError
+from estimators.rls import IdentifierParams
+from machine.params import ADDED_WEIGHT_INERTIA, preset
+from machine.stage import SEED000_FORCE, SEED001_FORCE, CuttingForce, StageConfig
+from server.stage_run import StageRun
 
 
 @dataclass(frozen=True)
@@ -46,53 +60,234 @@ class Knob:
 
 SCENARIOS: dict[str, str] = {
     "default": "X stage reciprocating while milling; workpiece losing mass; spindle changes",
+    "seed000-weight": "seed 000 Table III: the weight (+2.92e-4 kg m^2) added at 10 s",
+    "seed001-spindle": "seed 001 Fig. 9: spindle speed and force drop to 80 % at 11 s",
 }
+
+#: spindle speed at which the force's frequencies are the papers' 100 / 200 Hz
+BASE_RPM = 3000.0
+SPINDLE_PERIOD = 15.0  # default scenario: the spindle steps every 15 s of simulated time
+WORKPIECE_INERTIA = ADDED_WEIGHT_INERTIA  # a blank as heavy as seed 000's weight
+REMOVAL_STEP = 0.05  # the workpiece's inertia is updated in steps of 5 % of the blank
+
+CHANNELS: list[Channel] = [
+    Channel("f_true", "N m", "force", "true cutting torque"),
+    Channel("f_fixed", "N m", "force", "fixed-parameter observer"),
+    Channel("f_adaptive", "N m", "force", "adaptive observer (RLS)"),
+    Channel("f_switching", "N m", "force", "switching-RLS observer"),
+    Channel("J_L_true", "kg m^2", "J_L", "true J_L"),
+    Channel("J_L_adaptive", "kg m^2", "J_L", "J_L identified (RLS)"),
+    Channel("J_L_switching", "kg m^2", "J_L", "J_L identified (switching RLS)"),
+    Channel("B_L_true", "N m s/rad", "B_L", "true B_L"),
+    Channel("B_L_adaptive", "N m s/rad", "B_L", "B_L identified (RLS)"),
+    Channel("B_L_switching", "N m s/rad", "B_L", "B_L identified (switching RLS)"),
+    Channel("F_CL_true", "N m", "F_CL", "true F_CL"),
+    Channel("F_CL_adaptive", "N m", "F_CL", "F_CL identified (RLS)"),
+    Channel("F_CL_switching", "N m", "F_CL", "F_CL identified (switching RLS)"),
+    Channel("mode_switching", "", "rls", "switching-RLS regressor mode"),
+    Channel("excitation", "", "rls", "excitation index of the block"),
+    Channel("omega_l", "rad/s", "motion", "load velocity (true)"),
+    Channel("spindle_rpm", "rpm", "motion", "spindle speed in effect"),
+]
+
+
+def _knobs() -> dict[str, Knob]:
+    ks = [
+        Knob(
+            "spindle_rpm",
+            BASE_RPM,
+            600.0,
+            6000.0,
+            "rpm",
+            "spindle speed (3000 rpm = the papers' 100/200 Hz force)",
+        ),
+        Knob("feed_scale", 1.0, 0.0, 3.0, "", "feed: scales the cutting force"),
+        Knob("weight_on", False, None, None, "", "seed 000's weight on the load"),
+        Knob(
+            "removal_rate",
+            2.0,
+            0.0,
+            20.0,
+            "%/s",
+            "workpiece mass removed per second (default scenario)",
+        ),
+        Knob(
+            "spindle_changes",
+            True,
+            None,
+            None,
+            "",
+            "spindle steps to 80 % every 15 s (default scenario)",
+        ),
+        Knob("current_noise", 0.0, 0.0, 0.05, "A", "rms noise of the current measurement"),
+    ]
+    return {k.name: k for k in ks}
 
 
 class LivePipeline:
+    """The stage and its observers, advanced block by block, with live knobs.
+
+    Parameters
+    ----------
+    scenario
+        One of :data:`SCENARIOS`.
+    seed
+        Seed of the simulation's random generator.
+    """
+
     def __init__(self, scenario: str = "default", seed: int = 0) -> None:
         if scenario not in SCENARIOS:
             raise ParameterError("scenario", f"one of {sorted(SCENARIOS)}", scenario)
         self.scenario = scenario
         self.seed = seed
-        self.sample_time = 4e-4
-        self._knobs = {
-            "spindle_rpm": Knob("spindle_rpm", 1500.0, 100.0, 12000.0, "rpm", "spindle speed"),
-            "weight_on": Knob("weight_on", False, None, None, "", "added load weight"),
-        }
+        self._knobs = _knobs()
+        if scenario == "seed001-spindle":
+            self._knobs["spindle_changes"].value = False
         self.reset()
 
-    def reset(self) -> None:
-        self.t = 0.0
-        self._k = 0
+    # ------------------------------------------------------------------ set-up
+    def _base(self) -> tuple[StageConfig, IdentifierParams, dict[str, float]]:
+        if self.scenario == "seed001-spindle":
+            p = preset("seed001")
+            ident = IdentifierParams(q_rls_hz=40.0, scale=(p.J_L, p.B_L, p.F_CL, 1.0))
+            design = {"err3_J_M": 0.0, "err3_B_M": 0.0, "err3_K": 0.0, "err3_F_CM": 0.0}
+            return StageConfig(params=p, force=SEED001_FORCE), ident, design
+        return StageConfig(params=preset("seed000"), force=SEED000_FORCE), IdentifierParams(), {}
 
+    def reset(self) -> None:
+        """Start the simulation and every estimator again from t = 0 (knobs kept)."""
+        cfg, ident, design = self._base()
+        self._force0: CuttingForce = cfg.force
+        self.run = StageRun(cfg, seed=self.seed, ident=ident, observer_design=design)
+        self.sample_time = float(cfg.sample_time)
+        self._removed = 0.0  # fraction of the current workpiece removed
+        self._last: dict[str, float] = {}
+        self._applied: tuple[float, ...] = ()
+        self._apply(0.0)
+
+    @property
+    def t(self) -> float:
+        """Simulated time elapsed: samples produced times the sample time [s]."""
+        return float(self.run.sim.t)
+
+    # ------------------------------------------------------------------ scenario
+    def _spindle_factor(self, t: float) -> float:
+        if self.scenario == "seed001-spindle":
+            return 0.8 if t >= 11.0 else 1.0
+        if self._knobs["spindle_changes"].value and math.floor(t / SPINDLE_PERIOD) % 2 == 1:
+            return 0.8
+        return 1.0
+
+    def _apply(self, t: float) -> None:
+        """Set the stage's configuration for the block starting at ``t``."""
+        k = self._knobs
+        sf = self._spindle_factor(t)
+        freq = float(k["spindle_rpm"].value) / BASE_RPM * sf
+        gain = float(k["feed_scale"].value) * sf
+        extra = ADDED_WEIGHT_INERTIA if k["weight_on"].value else 0.0
+        if self.scenario == "seed000-weight" and t >= 10.0:
+            extra = ADDED_WEIGHT_INERTIA
+        if self.scenario == "default":
+            # in steps of REMOVAL_STEP: each change of the plant costs a matrix
+            # exponential (~1-7 ms here), too much to pay every 50 ms block
+            removed = math.floor(self._removed / REMOVAL_STEP) * REMOVAL_STEP
+            extra += WORKPIECE_INERTIA * (1.0 - removed)
+        noise = float(k["current_noise"].value)
+        key = (freq, gain, extra, noise)
+        if key == self._applied:
+            return
+        self._applied = key
+        self.run.sim.reconfigure(
+            force=replace(self._force0, freq_scale=freq, gain=gain),
+            extra_inertia=extra,
+            current_noise=noise,
+        )
+
+    # ------------------------------------------------------------------ contract
     def channels(self) -> list[Channel]:
-        return [
-            Channel("force_true", "N m", "force", "true cutting torque"),
-            Channel("force_fixed", "N m", "force", "fixed-parameter observer"),
-        ]
+        """Every per-sample output of :meth:`step`, with unit and display group."""
+        return list(CHANNELS)
 
     def knobs(self) -> dict[str, Knob]:
+        """Live-tweakable parameters with their ranges (the objects themselves)."""
         return dict(self._knobs)
 
     def set_knob(self, name: str, value: float | bool | str) -> None:
+        """Set one knob; validated, nothing changes on error.
+
+        Raises
+        ------
+        ParameterError
+            Unknown name, wrong type, or a value outside the knob's range.
+        """
         if name not in self._knobs:
             raise ParameterError("name", f"one of {sorted(self._knobs)}", name)
         k = self._knobs[name]
-        if k.min is not None and k.max is not None:
-            v = float(value)
-            if not (math.isfinite(v) and k.min <= v <= k.max):
-                raise ParameterError(name, f"a value in [{k.min:g}, {k.max:g}] {k.unit}", value)
+        if isinstance(k.value, bool):
+            if not isinstance(value, bool):
+                raise ParameterError(name, "true or false", value)
+        else:
+            ok = isinstance(value, int | float) and not isinstance(value, bool)
+            v = float(value) if ok else math.nan
+            lo, hi = k.min, k.max
+            if not (math.isfinite(v) and (lo is None or v >= lo) and (hi is None or v <= hi)):
+                raise ParameterError(name, f"a value in [{lo:g}, {hi:g}] {k.unit}".rstrip(), value)
+            value = v
         k.value = value
 
     def step(self, n: int) -> dict[str, np.ndarray]:
-        t = self.t + self.sample_time * np.arange(1, n + 1)
-        f = float(self._knobs["spindle_rpm"].value) / 60.0 * 4
-        true = 0.2 + 0.1 * np.sin(2 * np.pi * f * t)
-        self.t = float(t[-1])
-        self._k += n
-        return {"t": t, "force_true": true, "force_fixed": true * 0.9}
+        """Advance ``n`` samples; return ``"t"`` and every channel, ``n`` values each.
+
+        Estimates refer to the previous sample (see :mod:`server.stage_run`); ``t`` is the
+        time they refer to, and the truth columns are aligned to it.
+        """
+        t0 = float(self.run.sim.t)
+        if self.scenario == "default":
+            rate = float(self._knobs["removal_rate"].value) / 100.0
+            self._removed += rate * n * self.sample_time
+            if self._removed >= 1.0:  # a fresh blank is clamped
+                self._removed = 0.0
+        self._apply(t0)
+        b = self.run.step(n)
+        th_a, th_s = b.theta_adaptive, b.theta_switching
+        spindle = float(self._knobs["spindle_rpm"].value) * self._spindle_factor(t0)
+        out = {
+            # b.t_est, except that the very first estimate refers to t = -dt, not 0 twice
+            "t": b.meas.t - self.sample_time,
+            "f_true": b.f_true,
+            "f_fixed": b.f_fixed,
+            "f_adaptive": b.f_adaptive,
+            "f_switching": b.f_switching,
+            "J_L_true": b.truth.J_L,
+            "J_L_adaptive": th_a[:, 0],
+            "J_L_switching": th_s[:, 0],
+            "B_L_true": b.truth.B_L,
+            "B_L_adaptive": th_a[:, 1],
+            "B_L_switching": th_s[:, 1],
+            "F_CL_true": b.truth.F_CL,
+            "F_CL_adaptive": th_a[:, 2],
+            "F_CL_switching": th_s[:, 2],
+            "mode_switching": b.mode_switching.astype(np.float64),
+            "excitation": np.full(n, float(b.excitation_index)),
+            "omega_l": b.truth.omega_l,
+            "spindle_rpm": np.full(n, spindle),
+        }
+        out = {k: np.ascontiguousarray(v, dtype=np.float64) for k, v in out.items()}
+        self._last = {k: float(v[-1]) for k, v in out.items()}
+        return out
 
     def snapshot(self) -> dict[str, object]:
-        return {"t": self.t, "scenario": self.scenario,
-                "knobs": {k: v.value for k, v in self._knobs.items()}}
+        """Latest value of every channel, the true parameters and the knob values."""
+        p = self.run.sim.config.true_params
+        return {
+            "t": self.t,
+            "scenario": self.scenario,
+            "latest": dict(self._last),
+            "truth": {
+                "J_L": p.J_L,
+                "B_L": p.B_L,
+                "F_CL": p.F_CL,
+                "workpiece_removed": self._removed,
+            },
+            "knobs": {k: v.value for k, v in self._knobs.items()},
+        }

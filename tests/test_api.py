@@ -74,7 +74,7 @@ def test_patch_changes_value(api: httpx.Client) -> None:
         (
             {"spindle_rpm": 1e9},
             "spindle_rpm",
-            r"spindle_rpm: expected a number in \[100, 12000\] rpm, got 1000000000.0",
+            r"spindle_rpm: expected a number in \[600, 6000\] rpm, got 1000000000.0",
         ),
         ({"spindle_rpm": "fast"}, "spindle_rpm", r"expected a number in .* got 'fast'"),
         ({"spindle_rpm": True}, "spindle_rpm", r"expected a number in .* got True"),

@@ -58,11 +58,11 @@ def test_samples_neither_skipped_nor_repeated(hp: str) -> None:
 
 def test_patch_seen_in_stream(hp: str) -> None:
     with connect(f"ws://{hp}/ws") as ws, httpx.Client(base_url=f"http://{hp}") as api:
-        assert recv(ws)["knobs"]["spindle_rpm"] == 1500.0
+        assert recv(ws)["knobs"]["spindle_rpm"] == 3000.0
         recv(ws)
         assert api.patch("/api/params", json={"spindle_rpm": 6000}).status_code == 200
         seen = [recv(ws)["knobs"]["spindle_rpm"] for _ in range(5)]
-        api.patch("/api/params", json={"spindle_rpm": 1500})
+        api.patch("/api/params", json={"spindle_rpm": 3000})
     assert seen[-1] == 6000.0
 
 

@@ -1,0 +1,84 @@
+"""The live pipeline: contract shapes, knob validation, scenarios, determinism."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from estimators.errors import ParameterError
+from server.pipeline import SCENARIOS, LivePipeline
+
+
+def test_step_returns_every_channel_with_n_samples() -> None:
+    p = LivePipeline()
+    out = p.step(125)
+    names = {c.name for c in p.channels()}
+    assert set(out) == names | {"t"}
+    assert all(v.shape == (125,) and v.dtype == np.float64 for v in out.values())
+    assert np.all(np.diff(out["t"]) > 0)
+    assert p.t == pytest.approx(125 * p.sample_time)
+
+
+def test_same_seed_same_run_and_reset_repeats_it() -> None:
+    a, b = LivePipeline(seed=3), LivePipeline(seed=3)
+    xa = [a.step(100) for _ in range(5)]
+    xb = [b.step(100) for _ in range(5)]
+    for u, v in zip(xa, xb):
+        for k in u:
+            np.testing.assert_array_equal(u[k], v[k])
+    a.reset()
+    assert a.t == 0.0
+    np.testing.assert_array_equal(a.step(100)["f_fixed"], xa[0]["f_fixed"])
+
+
+def test_default_scenario_workpiece_loses_mass_and_observers_track() -> None:
+    p = LivePipeline()
+    p.set_knob("removal_rate", 10.0)
+    first = p.step(125)["J_L_true"][0]
+    for _ in range(100):  # 5 s: half of the blank removed
+        out = p.step(125)
+    assert out["J_L_true"][-1] < first * 0.8
+    err = {
+        k: float(np.sqrt(np.mean((out[k] - out["f_true"]) ** 2)))
+        for k in ("f_fixed", "f_adaptive", "f_switching")
+    }
+    assert all(np.isfinite(v) and v < 5.0 for v in err.values()), err
+
+
+def test_spindle_knob_and_steps() -> None:
+    p = LivePipeline()
+    p.set_knob("spindle_rpm", 4000)
+    assert p.step(10)["spindle_rpm"][0] == 4000.0
+    p.set_knob("spindle_changes", False)
+    assert p.knobs()["spindle_changes"].value is False
+
+
+@pytest.mark.parametrize(
+    ("name", "value", "message"),
+    [
+        ("spindle_rpm", 1e6, r"parameter 'spindle_rpm': expected a value in \[600, 6000\] rpm"),
+        ("spindle_rpm", float("nan"), r"'spindle_rpm': expected a value in \[600, 6000\]"),
+        ("spindle_rpm", "fast", r"'spindle_rpm': expected a value in .*got 'fast'"),
+        ("weight_on", 1, r"parameter 'weight_on': expected true or false, got 1"),
+        ("nope", 1, r"parameter 'name': expected one of \["),
+    ],
+)
+def test_set_knob_rejects_and_changes_nothing(name: str, value: object, message: str) -> None:
+    p = LivePipeline()
+    before = {k: v.value for k, v in p.knobs().items()}
+    with pytest.raises(ParameterError, match=message):
+        p.set_knob(name, value)  # type: ignore[arg-type]
+    assert {k: v.value for k, v in p.knobs().items()} == before
+
+
+def test_unknown_scenario() -> None:
+    with pytest.raises(ParameterError, match=r"parameter 'scenario': expected one of"):
+        LivePipeline("nope")
+
+
+@pytest.mark.parametrize("scenario", sorted(SCENARIOS))
+def test_each_scenario_runs(scenario: str) -> None:
+    p = LivePipeline(scenario)
+    out = p.step(250)
+    assert np.isfinite(out["f_adaptive"]).all()
+    assert p.snapshot()["scenario"] == scenario
