@@ -26,6 +26,11 @@ circle into an ellipse). The tuner
    refits from new points; when the cost rises above ``rise_ratio`` times the converged
    cost it re-probes around the held value.
 
+With ``ellipse=True`` the unknown is :math:`(u, v)`, :math:`v = b_m e^{j\phi_m}` a
+counter-rotating circle, so the commanded motion is an ellipse; 4 equations in 4 unknowns
+then zero the 1x force of both axes even when the axes' dynamics differ (the paper's
+suggested "additional optimization variables", section 4). It probes 4 directions.
+
 It never sees the eccentricity or the drive response.
 """
 
@@ -61,6 +66,10 @@ class FastTunerParams:
         Largest modulation radius [um]; solutions beyond are clamped and reported.
     rise_ratio : float
         Re-probe when the cost exceeds this times the cost at convergence (> 1).
+    ellipse : bool
+        Also tune a counter-rotating circle :math:`v = b_m e^{j\\phi_m}` (4 unknowns: the
+        modulation becomes an ellipse), which can cancel the 1x force of both axes when
+        their dynamics differ. ``max_points`` must then be >= 5.
     """
 
     probe_um: float = 5.0
@@ -70,6 +79,12 @@ class FastTunerParams:
     max_points: int = 5
     a_max_um: float = 60.0
     rise_ratio: float = 3.0
+    ellipse: bool = False
+
+    @property
+    def dim(self) -> int:
+        """Number of real unknowns: 2 (circle) or 4 (ellipse)."""
+        return 4 if self.ellipse else 2
 
     def __post_init__(self) -> None:
         require_positive("a_max_um", self.a_max_um)
@@ -80,22 +95,27 @@ class FastTunerParams:
                 raise ParameterError(name, f"an integer >= {lo}", v)
         require_positive("tol_um", self.tol_um)
         require_in("rise_ratio", self.rise_ratio, 1.0, math.inf, lo_open=True)
+        if self.max_points < self.dim + 1:
+            raise ParameterError(
+                "max_points", f"an integer >= {self.dim + 1} (ellipse)", self.max_points
+            )
 
 
 @dataclass(frozen=True)
 class FastTunerState:
-    """Explicit state. ``u`` values are modulation phasors [um] as (re, im)."""
+    """Explicit state. ``u`` is the modulation [um]: (re, im) of the co-rotating phasor,
+    then (re, im) of the counter-rotating one when tuning an ellipse."""
 
     mode: str  # "probe", "solve", "hold"
-    u: tuple[float, float]  # applied now
-    u_best: tuple[float, float]
+    u: tuple[float, ...]  # applied now
+    u_best: tuple[float, ...]
     rev_in_point: int
     acc: tuple[float, ...]  # summed measurement over the point's measured revolutions
     n_acc: int
-    points_u: tuple[tuple[float, float], ...]
+    points_u: tuple[tuple[float, ...], ...]
     points_y: tuple[tuple[float, ...], ...]
-    probes_left: tuple[tuple[float, float], ...]
-    jac: tuple[float, ...] | None  # last M (row major, 4x2) if any
+    probes_left: tuple[tuple[float, ...], ...]
+    jac: tuple[float, ...] | None  # last M (row major, 4 x dim) if any
     rev_time: float
     hold_cost: float
     iterations: int
@@ -103,11 +123,21 @@ class FastTunerState:
 
     @property
     def a_um(self) -> float:
-        return math.hypot(*self.u)
+        return math.hypot(self.u[0], self.u[1])
 
     @property
     def theta_deg(self) -> float:
         return math.degrees(math.atan2(self.u[1], self.u[0])) % 360.0
+
+    @property
+    def b_um(self) -> float:
+        return math.hypot(self.u[2], self.u[3]) if len(self.u) == 4 else 0.0
+
+    @property
+    def phi_deg(self) -> float:
+        if len(self.u) < 4:
+            return 0.0
+        return math.degrees(math.atan2(self.u[3], self.u[2])) % 360.0
 
 
 @dataclass(frozen=True)
@@ -124,10 +154,15 @@ class FastTunerRecord:
     saturated: bool
     iterations: int
     fit_residual: float
+    b_um: float = 0.0
+    phi_deg: float = 0.0
 
 
 def _clamp(u: FloatArray, a_max: float) -> tuple[FloatArray, bool]:
+    # the largest excursion of co- plus counter-rotating circles is |u| + |v|
     r = float(np.hypot(u[0], u[1]))
+    if u.size == 4:
+        r += float(np.hypot(u[2], u[3]))
     if r > a_max:
         return u * (a_max / r), True
     return u, False
@@ -148,7 +183,9 @@ class FastTuner:
                 "a_um", f"|a| <= a_max_um - probe_um = {p.a_max_um - p.probe_um:g}", a_um
             )
         th = math.radians(float(theta_deg))
-        u0 = (a * math.cos(th), a * math.sin(th))
+        u0: tuple[float, ...] = (a * math.cos(th), a * math.sin(th))
+        if p.ellipse:
+            u0 = (*u0, 0.0, 0.0)
         return FastTunerState(
             mode="probe",
             u=u0,
@@ -166,9 +203,11 @@ class FastTuner:
             revolutions=0,
         )
 
-    def _probes(self, u0: tuple[float, float]) -> tuple[tuple[float, float], ...]:
+    def _probes(self, u0: tuple[float, ...]) -> tuple[tuple[float, ...], ...]:
         d = self.params.probe_um
-        return ((u0[0] + d, u0[1]), (u0[0], u0[1] + d))
+        return tuple(
+            tuple(v + (d if i == k else 0.0) for i, v in enumerate(u0)) for k in range(len(u0))
+        )
 
     def fit(self, us: ArrayLike, ys: ArrayLike) -> tuple[FloatArray, FloatArray, float]:
         """Least-squares fit of ``y = f0 + M u``; returns ``(f0, M, rms residual)``.
@@ -176,14 +215,18 @@ class FastTuner:
         Raises
         ------
         ParameterError
-            With fewer than 3 points or points on a line (no information on M).
+            With fewer than ``d + 1`` points (``d`` unknowns) or points in a lower
+            dimension (e.g. on one line for the circle: no information on M).
         """
         u = np.asarray(us, dtype=np.float64)
         y = np.asarray(ys, dtype=np.float64)
-        if u.ndim != 2 or u.shape[1] != 2 or y.shape[0] != u.shape[0] or u.shape[0] < 3:
-            raise ParameterError("points", ">= 3 points (u: n x 2, y: n x m)", (u.shape, y.shape))
+        d = u.shape[1] if u.ndim == 2 else 0
+        if d not in (2, 4) or y.shape[0] != u.shape[0] or u.shape[0] < d + 1:
+            raise ParameterError(
+                "points", ">= 3 points (u: n x 2, y: n x m), or >= 5 for n x 4", (u.shape, y.shape)
+            )
         a = np.hstack([np.ones((u.shape[0], 1)), u])
-        if np.linalg.matrix_rank(a, tol=1e-9 * max(1.0, float(np.abs(u).max()))) < 3:
+        if np.linalg.matrix_rank(a, tol=1e-9 * max(1.0, float(np.abs(u).max()))) < d + 1:
             raise ParameterError("points", "modulation points not all on one line", u.tolist())
         coef, *_ = np.linalg.lstsq(a, y, rcond=None)
         res = y - a @ coef
@@ -210,6 +253,8 @@ class FastTuner:
         h = [spindle_harmonic(f[i], angle) for i in range(2)]
         y = np.array([h[0].real, h[0].imag, h[1].real, h[1].imag])
         cost = abs(h[0])
+        # what the tuner drives to zero and watches: the 1x of both axes
+        level = float(np.linalg.norm(y))
         s = state
         sat = False
         fit_res = math.nan
@@ -229,7 +274,7 @@ class FastTuner:
             return s, self._record(s, cost, sat, fit_res)
         s = replace(s, rev_time=dt, revolutions=s.revolutions + 1)
         if s.mode == "hold":
-            if cost > p.rise_ratio * max(s.hold_cost, 1e-9):
+            if level > p.rise_ratio * max(s.hold_cost, 1e-9):
                 s = replace(
                     s,
                     mode="probe",
@@ -259,13 +304,14 @@ class FastTuner:
             s = replace(s, u=s.probes_left[0], probes_left=s.probes_left[1:])
             return s, self._record(s, cost, sat, fit_res)
         u_now = np.array(s.u)
-        m_prev = np.array(s.jac).reshape(4, 2) if s.jac is not None else None
+        dim = len(s.u)
+        m_prev = np.array(s.jac).reshape(4, dim) if s.jac is not None else None
         f0: FloatArray | None = None
         m: FloatArray | None = None
         ua = np.array(pu)
         spread = (
             float(np.linalg.svd(ua - ua.mean(axis=0), compute_uv=False)[-1])
-            if len(pu) >= 3
+            if len(pu) >= dim + 1
             else 0.0
         )
         if spread >= 0.2 * p.probe_um:
@@ -285,22 +331,23 @@ class FastTuner:
             s = replace(s, u=s.probes_left[0], probes_left=s.probes_left[1:])
             return s, self._record(s, cost, sat, fit_res)
         u_new, sat = _clamp(self.solve(f0, m), p.a_max_um)
-        step = float(np.hypot(*(u_new - u_now)))
+        step = float(np.linalg.norm(u_new - u_now))
+        u_t = tuple(float(v) for v in u_new)
         s = replace(
             s,
             jac=tuple(float(v) for v in m.ravel()),
             iterations=s.iterations + 1,
-            u=(float(u_new[0]), float(u_new[1])),
-            u_best=(float(u_new[0]), float(u_new[1])),
+            u=u_t,
+            u_best=u_t,
             mode="solve",
         )
         if step < p.tol_um:
-            s = replace(s, mode="hold", hold_cost=max(cost, 1e-9))
+            s = replace(s, mode="hold", hold_cost=max(level, 1e-9))
         return s, self._record(s, cost, sat, fit_res)
 
     @staticmethod
     def _record(s: FastTunerState, cost: float, sat: bool, fit_res: float) -> FastTunerRecord:
-        ab = math.hypot(*s.u_best)
+        ab = math.hypot(s.u_best[0], s.u_best[1])
         tb = math.degrees(math.atan2(s.u_best[1], s.u_best[0])) % 360.0
         return FastTunerRecord(
             cost=cost,
@@ -312,6 +359,8 @@ class FastTuner:
             saturated=sat,
             iterations=s.iterations,
             fit_residual=fit_res,
+            b_um=s.b_um,
+            phi_deg=s.phi_deg,
         )
 
 

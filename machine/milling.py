@@ -203,6 +203,8 @@ def _milling_block(
     feed_speed: float,
     a_m: float,
     theta_m: float,
+    b_m: float,
+    phi_m: float,
     drive: FloatArray,
     st: FloatArray,
     ax_state: FloatArray,
@@ -224,6 +226,10 @@ def _milling_block(
         # eq. (7): circular modulation added to the feed path in the position command
         rx = st[1] + a_m * math.cos(psi + theta_m)
         ry = a_m * math.sin(psi + theta_m)
+        # beyond the paper: a counter-rotating circle (with eq. 7 it makes an ellipse,
+        # which can undo a gain/phase mismatch between the axes)
+        rx += b_m * math.cos(psi + phi_m)
+        ry -= b_m * math.sin(psi + phi_m)
         # eq. (6): geometric tool centre = carriage + eccentricity (workpiece coordinates)
         px = ax_state[0, 0] + ecc * math.cos(psi + ecc_phase)
         py = ax_state[1, 0] + ecc * math.sin(psi + ecc_phase)
@@ -312,6 +318,8 @@ class MillingRecord:
     a_m: float
     theta_m: float
     saturated: bool
+    b_m: float = 0.0
+    phi_m: float = 0.0
 
 
 @dataclass
@@ -433,21 +441,35 @@ class MillingMachine:
         u = target / g
         return abs(u), math.atan2(u.imag, u.real) % (2.0 * math.pi)
 
-    def step(self, n: int, a_m: float = 0.0, theta_m: float = 0.0) -> MillingRecord:
+    def step(
+        self,
+        n: int,
+        a_m: float = 0.0,
+        theta_m: float = 0.0,
+        b_m: float = 0.0,
+        phi_m: float = 0.0,
+    ) -> MillingRecord:
         """Advance ``n`` samples with the modulation ``(a_m [m], theta_m [rad])`` held.
 
-        A negative ``a_m`` is the circle of radius ``|a_m|`` at ``theta_m + pi``. A radius
-        beyond ``max_modulation`` is clamped and reported in ``saturated``.
+        A negative ``a_m`` is the circle of radius ``|a_m|`` at ``theta_m + pi``.
+        ``b_m, phi_m`` add a counter-rotating circle
+        :math:`b_m[\\cos(\\psi+\\phi_m), -\\sin(\\psi+\\phi_m)]` (0 in the paper). When
+        ``|a_m| + |b_m|`` exceeds ``max_modulation`` both are scaled down and the record
+        says ``saturated``.
         """
         if int(n) != n or n < 0:
             raise ParameterError("n", "an integer >= 0", n)
         a = float(a_m)
         th = float(theta_m)
-        if not (math.isfinite(a) and math.isfinite(th)):
-            raise ParameterError("a_m/theta_m", "finite values", (a_m, theta_m))
-        sat = abs(a) > self.max_modulation
+        b = float(b_m)
+        ph = float(phi_m)
+        if not all(math.isfinite(v) for v in (a, th, b, ph)):
+            raise ParameterError("a_m/theta_m", "finite values", (a_m, theta_m, b_m, phi_m))
+        total = abs(a) + abs(b)
+        sat = total > self.max_modulation
         if sat:
-            a = math.copysign(self.max_modulation, a)
+            a *= self.max_modulation / total
+            b *= self.max_modulation / total
         n = int(n)
         p = self.milling
         out = np.empty((9, n))
@@ -468,6 +490,8 @@ class MillingMachine:
             self.feed_speed(),
             a,
             th,
+            b,
+            ph,
             self._drive,
             self._s.st,
             self._s.ax,
@@ -491,6 +515,8 @@ class MillingMachine:
             a_m=a,
             theta_m=th,
             saturated=sat,
+            b_m=b,
+            phi_m=ph,
         )
 
 

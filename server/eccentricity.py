@@ -179,6 +179,8 @@ class EccentricityLoop:
         self.theta_deg = 0.0
         self.a_n_um = 0.0
         self.theta_n_deg = 0.0
+        self.b_um = 0.0
+        self.phi_deg = 0.0
         self.saturated = False
         self.log = RevolutionLog()
         self._buf: list[MillingRecord] = []
@@ -212,7 +214,13 @@ class EccentricityLoop:
         while left > 0:
             m = self.samples_to_boundary()
             c = min(m, left)
-            rec = self.machine.step(c, self.a_um * 1e-6, math.radians(self.theta_deg))
+            rec = self.machine.step(
+                c,
+                self.a_um * 1e-6,
+                math.radians(self.theta_deg),
+                self.b_um * 1e-6,
+                math.radians(self.phi_deg),
+            )
             self.saturated = rec.saturated
             est = self.force_source(rec) if self.force_source is not None else (rec.fx, rec.fy)
             self._buf.append(rec)
@@ -260,6 +268,8 @@ class EccentricityLoop:
             "mode": mode,
             "a_m_um": self.a_um,
             "theta_m_deg": self.theta_deg,
+            "b_m_um": self.b_um,
+            "phi_m_deg": self.phi_deg,
             "a_n_um": an,
             "theta_n_deg": tn,
             "cost": self.last_cost,
@@ -304,6 +314,7 @@ class EccentricityLoop:
                 self.fast_state, np.vstack([fx, fy]), psi, rev_time
             )
             self.a_um, self.theta_deg = frec.a_um, frec.theta_deg
+            self.b_um, self.phi_deg = frec.b_um, frec.phi_deg
             self.a_n_um, self.theta_n_deg = frec.a_best_um, frec.theta_best_deg
             self.saturated = self.saturated or frec.saturated
         if not self._started and self.adapting:
@@ -317,6 +328,7 @@ class EccentricityLoop:
                 self.a_um, self.theta_deg = self.esc_state.a_um, self.esc_state.theta_deg
             else:
                 self.a_um, self.theta_deg = self.fast_state.a_um, self.fast_state.theta_deg
+                self.b_um, self.phi_deg = self.fast_state.b_um, self.fast_state.phi_deg
         self.last_cost = cost
         lg = self.log
         lg.t_end.append(t_end)

@@ -31,8 +31,9 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from estimators.esc import EscParams
+from estimators.esc import EscParams, spindle_harmonic
 from estimators.fast_tuner import FastTunerParams
+from machine.feed_drives import AxisParams, FeedDriveParams
 from machine.milling import MillingMachine, MillingParams
 from server.eccentricity import EccentricityLoop, ForceSource, ObserverForceSource
 from server.reproduce import Check, Reproduction, Row
@@ -107,10 +108,17 @@ def run_case(
     fast: FastTunerParams | None = None,
     rpm_change: tuple[float, float] | None = None,
     force_source: ForceSource | None = None,
+    drives: FeedDriveParams | None = None,
 ) -> Trace:
     """Run one cut for ``seconds`` with the tuner starting at :data:`ADAPT_START`."""
     loop = EccentricityLoop(
-        mp, tuner=tuner, esc=esc, fast=fast, adapt_start_s=ADAPT_START, force_source=force_source
+        mp,
+        tuner=tuner,
+        esc=esc,
+        fast=fast,
+        adapt_start_s=ADAPT_START,
+        force_source=force_source,
+        machine=MillingMachine(mp, drives),
     )
     ts, fxs, fys, psis = [], [], [], []
     changed = False
@@ -153,6 +161,15 @@ def non_tooth_periodic_pp(
         c = 2.0 / fm.size * np.sum(fm * np.exp(-1j * h * ang))
         wave += np.real(c * np.exp(1j * h * grid))
     return float(wave.max() - wave.min())
+
+
+def last_revolution_1x(tr: Trace) -> float:
+    """|(F1x, F1y)| (eq. 8 on both axes) over the last complete revolution of a run."""
+    k = math.floor(tr.psi[-1] / (2 * math.pi))
+    m = (tr.psi >= 2 * math.pi * (k - 1)) & (tr.psi < 2 * math.pi * k)
+    hx = spindle_harmonic(tr.fx[m], tr.psi[m])
+    hy = spindle_harmonic(tr.fy[m], tr.psi[m])
+    return float(math.hypot(abs(hx), abs(hy)))
 
 
 def _initial_cost(loop: EccentricityLoop, key: str = "cost") -> float:
@@ -452,6 +469,52 @@ def run(
             rep.figures.append(
                 _plot(Path(plot_dir), f"case{case}", {"ESC": tr_esc, "fast tuner": tr_fast})
             )
+    # mismatched axes (Y 40 % heavier, PID placed at 14 Hz): circle vs ellipse
+    mis = FeedDriveParams(y=AxisParams(mass=210.0, bandwidth_hz=14.0))
+    for case in (1, 2):
+        mp = case_params(case)
+        base = None
+        for label, tuner, fp, secs in (
+            ("none", "off", None, 2.0),
+            ("esc", "esc", None, seconds_esc),
+            ("fast_tuner", "fast", None, seconds_fast),
+            ("fast_tuner_ellipse", "fast", FastTunerParams(ellipse=True), seconds_fast),
+        ):
+            tr_m = run_case(mp, tuner, secs, fast=fp, drives=mis)
+            r1 = last_revolution_1x(tr_m)
+            if base is None:
+                base = r1
+                continue
+            rep.rows.append(
+                Row(
+                    f"case{case}.mismatch.{label}.residual_1x",
+                    r1 / base,
+                    None,
+                    "-",
+                    "|(F1x, F1y)| at the end / without modulation; Y axis 40 % heavier",
+                )
+            )
+            if label == "fast_tuner_ellipse":
+                lg = tr_m.loop.log.arrays()
+                j0 = _initial_cost(tr_m.loop, "cost_true")
+                ci = converge_index(lg["cost_true"], lg["adapting"], j0)
+                first = int(np.nonzero(lg["adapting"] > 0)[0][0])
+                revs = math.inf if ci is None else float(ci - first + 1)
+                rep.rows.append(
+                    Row(
+                        f"case{case}.mismatch.fast_tuner_ellipse.revolutions",
+                        revs,
+                        None,
+                        "rev",
+                        "X cost below 10 % and staying",
+                    )
+                )
+                ell = r1 / base
+            if label == "fast_tuner":
+                circ = r1 / base
+        rep.checks.append(
+            Check(f"case{case}.mismatch.ellipse_beats_circle", ell < 0.5 * circ, ell, 0.5 * circ)
+        )
     # 4(a): the same cut with the force estimated by observers on the X/Y drives
     mp = case_params(1)
     for label, me in (("estimated_force", 0.0), ("estimated_force.mass_error_3pct", 0.03)):
