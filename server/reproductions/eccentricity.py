@@ -48,6 +48,7 @@ ROWS = [
     "case<1|2>.a_m_um.cancelling",
     "case<1|2>.theta_m_deg.cancelling",
     "case<1|2>.param_error",
+    "case<1|2>.param_converge_time_s",
     "case<1|2>.force_pp.before",
     "case<1|2>.force_pp.after",
     "case<1|2>.esc.revolutions",
@@ -58,8 +59,12 @@ ROWS = [
     "case1.fast_tuner.speed_change.revolutions",
     "case1.fast_tuner.speed_change.cost_reduction",
     "case1.esc.speed_change.converge_time_s",
+    "case<1|2>.esc_gains_x2.<param_converge_time_s|converge_time_s>",
+    "case<1|2>.mismatch.<esc|fast_tuner|fast_tuner_ellipse>.residual_1x",
+    "case<1|2>.mismatch.fast_tuner_ellipse.revolutions",
     "case1.estimated_force.converge_time_s",
     "case1.estimated_force.cost_reduction",
+    "case1.estimated_force[.mass_error_3pct].<param_error|fast_tuner.revolutions|...>",
 ]
 
 ADAPT_START = 1.0  # [s] "Adaptation start" of Fig. 3
