@@ -2,7 +2,7 @@ r"""Recursive least squares with a forgetting factor (seed 004, eq. (20)-(21)).
 
 Two implementations of the same recursion:
 
-- :func:`rls_update`: the covariance form as the paper writes it,
+- :func:`covariance_update`: the covariance form as the paper writes it,
 
   .. math::
       \hat\theta(k) &= \hat\theta(k-1) + \frac{P\phi}{\beta + \phi^T P \phi}
@@ -15,7 +15,7 @@ Two implementations of the same recursion:
   ref. [32]) for its numerical robustness: P stays symmetric and positive definite by
   construction.
 
-Both are numba kernels usable inside other kernels; :class:`RecursiveLeastSquares` is
+Both are numba kernels usable inside other kernels; :class:`ForgettingRLS` is
 the block-step unit around them.
 """
 
@@ -34,7 +34,7 @@ FloatArray = NDArray[np.float64]
 
 
 @njit(cache=True)
-def rls_update(
+def covariance_update(
     theta: FloatArray, P: FloatArray, phi: FloatArray, y: float, beta: float
 ) -> float:  # pragma: no cover - compiled
     """One step of eq. (20)-(21) in place; returns the a-priori residual."""
@@ -105,13 +105,13 @@ def _rls_block(
         if use_ud:
             resid[k] = ud_update(theta, U, D, Phi[k], y[k], beta)
         else:
-            resid[k] = rls_update(theta, P, Phi[k], y[k], beta)
+            resid[k] = covariance_update(theta, P, Phi[k], y[k], beta)
         thetas[k] = theta
 
 
 @dataclass(frozen=True)
-class RLSParams:
-    """Parameters of :class:`RecursiveLeastSquares`.
+class ForgettingRLSParams:
+    """Parameters of :class:`ForgettingRLS`.
 
     Parameters
     ----------
@@ -140,7 +140,7 @@ class RLSParams:
 
 
 @dataclass(frozen=True, eq=False)
-class RLSState:
+class ForgettingRLSState:
     """Estimate and covariance (as U-D factors and as the full matrix)."""
 
     theta: FloatArray
@@ -154,29 +154,31 @@ class RLSState:
 
 
 @dataclass(frozen=True, eq=False)
-class RLSRecord:
+class ForgettingRLSRecord:
     """Per-sample outputs of a block: estimates and a-priori residuals."""
 
     theta: FloatArray  # (n_samples, n)
     residual: FloatArray  # (n_samples,)
 
 
-class RecursiveLeastSquares:
+class ForgettingRLS:
     """Block-step RLS with forgetting, eq. (20)-(21), plain or U-D factorised."""
 
-    def __init__(self, params: RLSParams) -> None:
+    def __init__(self, params: ForgettingRLSParams) -> None:
         self.params = params
 
-    def initial_state(self, theta0: ArrayLike | None = None) -> RLSState:
+    def initial_state(self, theta0: ArrayLike | None = None) -> ForgettingRLSState:
         n = self.params.n
         th = np.zeros(n) if theta0 is None else np.asarray(theta0, dtype=np.float64).copy()
         if th.shape != (n,):
             raise ParameterError("theta0", f"an array of shape ({n},)", th.shape)
-        return RLSState(
+        return ForgettingRLSState(
             theta=th, P=np.eye(n) * self.params.p0, U=np.eye(n), D=np.full(n, self.params.p0)
         )
 
-    def step(self, state: RLSState, phi: ArrayLike, y: ArrayLike) -> tuple[RLSState, RLSRecord]:
+    def step(
+        self, state: ForgettingRLSState, phi: ArrayLike, y: ArrayLike
+    ) -> tuple[ForgettingRLSState, ForgettingRLSRecord]:
         """Run the recursion over a block of regressors ``phi`` (m, n) and outputs ``y``."""
         Phi = np.ascontiguousarray(phi, dtype=np.float64)
         ya = np.ascontiguousarray(y, dtype=np.float64).reshape(-1)
@@ -190,14 +192,15 @@ class RecursiveLeastSquares:
         _rls_block(th, P, U, D, Phi, ya, float(self.params.forgetting), use_ud, thetas, resid)
         if use_ud:
             P = U @ np.diag(D) @ U.T
-        return RLSState(theta=th, P=P, U=U, D=D), RLSRecord(theta=thetas, residual=resid)
+        new = ForgettingRLSState(theta=th, P=P, U=U, D=D)
+        return new, ForgettingRLSRecord(theta=thetas, residual=resid)
 
 
 __all__ = [
-    "RLSParams",
-    "RLSRecord",
-    "RLSState",
-    "RecursiveLeastSquares",
-    "rls_update",
+    "ForgettingRLS",
+    "ForgettingRLSParams",
+    "ForgettingRLSRecord",
+    "ForgettingRLSState",
+    "covariance_update",
     "ud_update",
 ]

@@ -25,7 +25,7 @@ from numba import njit
 from numpy.typing import ArrayLike, NDArray
 
 from estimators.errors import ParameterError, require_in, require_positive
-from estimators.ud_rls import rls_update, ud_update
+from estimators.ud_rls import covariance_update, ud_update
 
 FloatArray = NDArray[np.float64]
 
@@ -287,7 +287,7 @@ def _observer_block(
             if use_ud:
                 res = ud_update(theta, U, Dd, phi, dyk, beta)
             else:
-                res = rls_update(theta, P, phi, dyk, beta)
+                res = covariance_update(theta, P, phi, dyk, beta)
             _limit_covariance(P, U, Dd, use_ud, p_max)
             if constrained:
                 # eq. (29): unscale, project on Table 2, rescale

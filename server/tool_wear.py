@@ -104,7 +104,8 @@ class AcceleratedToolWear:
         trend_start: float = 2.0,
     ) -> None:
         self.model = ToolWearModel(condition=condition)
-        self.feed = self.model._check_feed(feed)
+        self.model.force(np.zeros(3), feed)  # validates the feed (machine ParameterError)
+        self.feed = float(feed)
         if not np.isfinite(wear_minutes_per_second) or wear_minutes_per_second <= 0:
             raise ParameterError(
                 "wear_minutes_per_second", "a finite value > 0", wear_minutes_per_second

@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 from scipy.signal import cont2discrete, ss2tf
 
 from estimators.errors import ParameterError as EstParameterError
-from estimators.ud_rls import RecursiveLeastSquares, RLSParams
+from estimators.ud_rls import ForgettingRLS, ForgettingRLSParams
 from estimators.wear_linear import (
     DiscreteModel,
     LinearModel,
@@ -36,7 +36,8 @@ from server.tool_wear import AcceleratedToolWear
 
 
 def _run_rls(method: str, phi: np.ndarray, y: np.ndarray, beta: float):
-    est = RecursiveLeastSquares(RLSParams(n=phi.shape[1], forgetting=beta, p0=100.0, method=method))  # type: ignore[arg-type]
+    p = ForgettingRLSParams(n=phi.shape[1], forgetting=beta, p0=100.0, method=method)  # type: ignore[arg-type]
+    est = ForgettingRLS(p)
     return est.step(est.initial_state(), phi, y)
 
 
@@ -78,12 +79,12 @@ def test_rls_converges_on_rich_noise_free_data(seed: int) -> None:
 
 def test_rls_params_reject_bad_forgetting_and_shapes() -> None:
     with pytest.raises(EstParameterError, match=r"forgetting.*\(0, 1\].*1\.5"):
-        RLSParams(n=3, forgetting=1.5)
+        ForgettingRLSParams(n=3, forgetting=1.5)
     with pytest.raises(EstParameterError, match=r"forgetting.*\(0, 1\]"):
-        RLSParams(n=3, forgetting=0.0)
+        ForgettingRLSParams(n=3, forgetting=0.0)
     with pytest.raises(EstParameterError, match="method"):
-        RLSParams(n=3, method="qr")  # type: ignore[arg-type]
-    est = RecursiveLeastSquares(RLSParams(n=3))
+        ForgettingRLSParams(n=3, method="qr")  # type: ignore[arg-type]
+    est = ForgettingRLS(ForgettingRLSParams(n=3))
     with pytest.raises(EstParameterError, match=r"phi.*\(2, 3\)"):
         est.step(est.initial_state(), np.zeros((2, 4)), np.zeros(2))
 
