@@ -34,9 +34,9 @@ coulomb_asymmetry  :math:`1[v>0]`, :math:`|v|` (direction-dependent friction) â€
 stribeck           :math:`\mathrm{sign}(v)\,e^{-(|v|/v_s)^2}`                :math:`v_s`
 position_periodic  :math:`\cos, \sin(2\pi k q / P)`, k = 1, 2                :math:`P`
 harmonic           :math:`\cos, \sin(2\pi f t)`                              :math:`f`
-delay              :math:`\dddot q` (first-order Taylor of a lag d: the
-                   inertial term :math:`M\ddot q(t-d) \approx M\ddot q - Md\dddot q`;
-                   d = -coef / M)                                            d
+delay              :math:`P(t-d) - P(t)`, P the nominal model's effort with
+                   the nominal parameters at the search (the effort acts
+                   late by d; coefficient 1 = the whole effort delayed)      d
 drift              :math:`(t - t_0) / T`                                     â€”
 ================== ========================================================= ==========
 
@@ -225,7 +225,7 @@ def effect_columns(effect: Effect, sig: Signals) -> FloatArray:
         w = 2.0 * np.pi * effect.shape["frequency"] * sig.t
         return np.column_stack([np.cos(w), np.sin(w)])
     if name == "delay":
-        return sig.qddd[:, None].copy()
+        return _delay_column(effect.shape, sig)[:, None]
     if name == "drift":
         t0, span = effect.shape["t0"], effect.shape["span"]
         return ((sig.t - t0) / span)[:, None]
@@ -241,7 +241,7 @@ def _columns_names(name: str) -> tuple[str, ...]:
         "stribeck": ("F_s",),
         "position_periodic": ("c1", "s1", "c2", "s2"),
         "harmonic": ("c", "s"),
-        "delay": ("jerk",),
+        "delay": ("gain",),
         "drift": ("slope",),
     }[name]
 
@@ -293,8 +293,32 @@ def _search_frequency(t: FloatArray, r: FloatArray) -> tuple[float, float]:
     return float(f[k]), float(spec[k])
 
 
-def find_shape(name: str, sig: Signals, residual: FloatArray, mask: NDArray[np.bool_]) -> Effect:
-    """Fix the shape parameters of family ``name`` from the residual on ``mask`` samples."""
+def _nominal_effort(shape: dict[str, float], sig: Signals) -> FloatArray:
+    return np.asarray(
+        rigid_regressor(sig.qd, sig.qdd)
+        @ np.array([shape["M"], shape["Fv"], shape["Fc"], shape["offset"]]),
+        dtype=np.float64,
+    )
+
+
+def _delay_column(shape: dict[str, float], sig: Signals) -> FloatArray:
+    """``P(t - d) - P(t)`` with ``P`` the nominal effort (linear interpolation in time)."""
+    p = _nominal_effort(shape, sig)
+    # the first d seconds have no past: P is held at its first value there
+    return np.asarray(np.interp(sig.t - shape["delay_s"], sig.t, p) - p, dtype=np.float64)
+
+
+def find_shape(
+    name: str,
+    sig: Signals,
+    residual: FloatArray,
+    mask: NDArray[np.bool_],
+    nominal: FloatArray | None = None,
+) -> Effect:
+    """Fix the shape parameters of family ``name`` from the residual on ``mask`` samples.
+
+    ``nominal`` (M, Fv, Fc, offset of the current model) is needed by ``delay``.
+    """
     idx = np.flatnonzero(mask)
     stride = max(1, int(math.ceil(len(idx) / _SEARCH_SAMPLES)))
     idx = idx[::stride]
@@ -332,6 +356,21 @@ def find_shape(name: str, sig: Signals, residual: FloatArray, mask: NDArray[np.b
             fine = np.linspace(max(freq - df, df * 1e-3), freq + df, 41)
             freq = float(fine[int(np.argmin([rss(fr) for fr in fine]))])
         shape = {"frequency": freq}
+    elif name == "delay":
+        if nominal is None:
+            raise ParameterError("nominal", "the nominal parameters (M, Fv, Fc, offset)", None)
+        base = dict(zip(("M", "Fv", "Fc", "offset"), map(float, nominal[:4])))
+        ts = float(np.median(np.diff(sig.t)))
+        span = float(sig.t[-1] - sig.t[0])
+        # lags from one sample to 5 % of the record (at most 0.5 s)
+        grid = np.geomspace(ts, max(min(0.5, 0.05 * span), 2 * ts), 40)
+        best = (math.inf, math.nan)
+        for d in grid:
+            col = _delay_column({**base, "delay_s": float(d)}, sig)[idx]
+            val = _project_rss(np.column_stack([col, np.ones(len(idx))]), r)
+            if val < best[0]:
+                best = (val, float(d))
+        shape = {**base, "delay_s": best[1]}
     elif name == "drift":
         tt = sig.t[np.flatnonzero(mask)]
         shape = {"t0": float(tt[0]), "span": float(max(tt[-1] - tt[0], 1e-12))}
@@ -422,9 +461,6 @@ def _effect_params(
     byname = dict(zip(design.names, theta))
     for cn in effect.columns:
         out[cn] = float(byname.get(f"{effect.name}.{cn}", 0.0))
-    if effect.name == "delay":
-        m = float(byname.get("M", math.nan))
-        out["delay_s"] = -out["jerk"] / m if m else math.nan
     if effect.name == "position_periodic":
         out["amplitude_1"] = math.hypot(out["c1"], out["s1"])
         out["amplitude_2"] = math.hypot(out["c2"], out["s2"])
@@ -581,7 +617,7 @@ def analyse_rigid(
             if any(e.name == name for e in selected):
                 continue
             say(f"candidate {name}")
-            eff = find_shape(name, sig, resid_full, fit_full)
+            eff = find_shape(name, sig, resid_full, fit_full, theta[:4])
             if any(not math.isfinite(v) for v in eff.shape.values()):
                 scores[name] = CandidateScore(
                     name, eff.shape, _rms(e_cur), _rms(e_cur), 0.0, 0.0, False, "no shape found"

@@ -39,6 +39,10 @@ def synthetic(effect: str, n: int = 20000, seed: int = 0) -> dict[str, np.ndarra
     q = 0.05 * np.sin(w1 * t) + 0.01 * np.sin(w2 * t + 0.3)
     qd = 0.05 * w1 * np.cos(w1 * t) + 0.01 * w2 * np.cos(w2 * t + 0.3)
     qdd = -0.05 * w1**2 * np.sin(w1 * t) - 0.01 * w2**2 * np.sin(w2 * t + 0.3)
+    if effect == "delay":  # the whole effort acts 10 ms late
+        td = t - 0.01
+        qd = 0.05 * w1 * np.cos(w1 * td) + 0.01 * w2 * np.cos(w2 * td + 0.3)
+        qdd = -0.05 * w1**2 * np.sin(w1 * td) - 0.01 * w2**2 * np.sin(w2 * td + 0.3)
     f = 20 * qdd + 100 * qd + 8 * np.sign(qd) - 1.0
     extra = {
         "none": np.zeros(n),
@@ -47,6 +51,7 @@ def synthetic(effect: str, n: int = 20000, seed: int = 0) -> dict[str, np.ndarra
         "harmonic": 3 * np.sin(2 * np.pi * 7.3 * t),
         "coulomb_asymmetry": 40 * np.abs(qd),
         "drift": 0.3 * t,
+        "delay": np.zeros(n),
     }[effect]
     return {"t": t, "tau_m": f + extra + rng.normal(0.0, NOISE, n), "q_m": q}
 
@@ -66,7 +71,7 @@ def _run(tmp_path: Path, effect: str, *extra: str) -> dict:
 
 
 @pytest.mark.parametrize(
-    "effect", ["position_periodic", "stribeck", "harmonic", "coulomb_asymmetry", "drift"]
+    "effect", ["position_periodic", "stribeck", "harmonic", "coulomb_asymmetry", "drift", "delay"]
 )
 def test_undeclared_effect_is_named_first_and_error_halves(
     tmp_path: Path, effect: str, floor: float
