@@ -626,7 +626,9 @@ def _plots(
     axs[0].legend()
     axs[1].plot(t, wear[:, 0] + wear[:, 1], "r-", label="flank, x = T x0")
     axs[1].plot(t, wear[:, 2], "m--", label="crater, x = T x0")
-    axs[1].set_ylabel("back-transformed [mm]")
+    axs[1].plot(t, states[:-1, 0] + states[:-1, 1], "k-", lw=1, label="true flank")
+    axs[1].set_yscale("symlog", linthresh=0.1)
+    axs[1].set_ylabel("back-transformed [mm] (symlog)")
     axs[1].set_xlabel("time [min]")
     axs[1].legend()
     p = out / "tool_wear_physical.png"
