@@ -109,8 +109,9 @@ class Control(BaseModel):
     """Body of ``POST /api/control``."""
 
     model_config = ConfigDict(extra="forbid")
-    action: Literal["pause", "resume", "reset", "speed"]
+    action: Literal["pause", "resume", "reset", "speed", "scenario"]
     value: float | None = Field(None, description=f"speed in [0, {MAX_SPEED:g}] (action speed)")
+    scenario: str | None = Field(None, description="scenario name (action scenario)")
 
 
 def _json_safe(v: Any) -> Any:
@@ -314,6 +315,23 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             lp.resume()
         elif body.action == "reset":
             lp.reset()
+        elif body.action == "scenario":
+            if body.scenario not in SCENARIOS:
+                allowed = "one of " + ", ".join(SCENARIOS)
+                return JSONResponse(
+                    {
+                        "detail": [
+                            _error(
+                                "scenario",
+                                allowed,
+                                body.scenario,
+                                f"scenario: expected {allowed}, got {body.scenario!r}",
+                            )
+                        ]
+                    },
+                    status_code=422,
+                )
+            lp.set_scenario(body.scenario)
         else:
             v = body.value
             if v is None or not math.isfinite(v) or not 0.0 <= v <= MAX_SPEED:
@@ -332,7 +350,12 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                     status_code=422,
                 )
             lp.set_speed(v)
-        return {"speed": lp.speed, "paused": lp.paused, "sim_t": lp.pipeline.t}
+        return {
+            "speed": lp.speed,
+            "paused": lp.paused,
+            "sim_t": lp.pipeline.t,
+            "scenario": lp.pipeline.scenario,
+        }
 
     @app.get("/api/snapshot", summary="latest values, truths, knob values and loop health")
     def snapshot(lp: Lp) -> dict[str, Any]:

@@ -201,6 +201,15 @@ class LiveLoop:
             self._anchor()
         self._wake.set()
 
+    def set_scenario(self, name: str) -> None:
+        """Switch to another scenario: a fresh pipeline from t = 0, its default knobs."""
+        pipe = LivePipeline(name, seed=self.settings.seed)
+        with self.lock:
+            self.pipeline = pipe
+            self._pending.clear()
+            self._anchor()
+        self._wake.set()
+
     # ------------------------------------------------------------------ thread
     def start(self) -> None:
         self._thread = threading.Thread(target=self._run, name="cutwatch-loop", daemon=True)
@@ -217,6 +226,12 @@ class LiveLoop:
         return self._thread is not None and self._thread.is_alive()
 
     def _run(self) -> None:
+        # warm-up: the first block loads the compiled kernels (~1 s); run it off the clock
+        # and start again from t = 0, so the schedule does not begin with a catch-up burst
+        with self.lock:
+            self.pipeline.step(self.block_n)
+            self.pipeline.reset()
+            self._anchor()
         last_frame = time.monotonic()
         try:
             while not self._stop.is_set():

@@ -34,7 +34,7 @@ class Settings(BaseSettings):
     block_ms: float = Field(default=50.0, ge=1.0, le=1000.0, description="loop block length [ms]")
     frame_hz: float = Field(default=20.0, ge=1.0, le=60.0, description="WebSocket frame rate [Hz]")
     display_points: int = Field(
-        default=25, ge=1, le=2000, description="displayed samples per channel per block at 1x"
+        default=42, ge=1, le=2000, description="displayed samples per channel per block at 1x"
     )
     client_buffer: int = Field(
         default=4, ge=1, le=64, description="frames buffered per client (oldest dropped)"

@@ -1,0 +1,268 @@
+// cutwatch dashboard: WebSocket stream -> uPlot charts; controls through the REST API.
+// The message schema lives in protocol.js (its twin is server/protocol.py).
+import { checkMessage } from "./protocol.js";
+
+const uPlot = window.uPlot;
+const $ = (id) => document.getElementById(id);
+
+const COLORS = {
+  true: "#1d232b", fixed: "#e69f00", adaptive: "#0072b2", switching: "#cc3311",
+  mode: "#7b3294", excitation: "#009e73", lag: "#cc3311", rtf: "#0072b2",
+};
+
+// chart id -> {window [s of simulated time], series [[channel, label, color]]}
+const CHARTS = {
+  force: { window: 0.5, series: [["f_true", "true", COLORS.true], ["f_fixed", "fixed", COLORS.fixed],
+    ["f_adaptive", "adaptive", COLORS.adaptive], ["f_switching", "switching", COLORS.switching]] },
+  J_L: { window: 30, series: [["J_L_true", "true", COLORS.true],
+    ["J_L_adaptive", "RLS", COLORS.adaptive], ["J_L_switching", "switching RLS", COLORS.switching]] },
+  B_L: { window: 30, series: [["B_L_true", "true", COLORS.true],
+    ["B_L_adaptive", "RLS", COLORS.adaptive], ["B_L_switching", "switching RLS", COLORS.switching]] },
+  F_CL: { window: 30, series: [["F_CL_true", "true", COLORS.true],
+    ["F_CL_adaptive", "RLS", COLORS.adaptive], ["F_CL_switching", "switching RLS", COLORS.switching]] },
+  rls: { window: 30, series: [["mode_switching", "mode", COLORS.mode],
+    ["excitation", "excitation", COLORS.excitation]] },
+};
+const HEALTH_WINDOW = 60; // wall seconds
+
+const state = {
+  ws: null, retry: 0, charts: {}, data: {}, zoomed: {}, channels: [], frames: 0,
+  dropped: 0, dirty: false, health: { x: [], lag: [], rtf: [] }, healthChart: null,
+};
+
+// ---------------------------------------------------------------- charts
+function width(el) {
+  return Math.max(200, el.clientWidth || 400);
+}
+
+function makeChart(id, spec) {
+  const el = $(`chart-${id}`);
+  const opts = {
+    width: width(el), height: id === "force" ? 260 : 170,
+    scales: { x: { time: false } },
+    axes: [{ label: "t [s]" }, { size: 70 }],
+    legend: { live: true },
+    cursor: { drag: { x: true, y: false } },
+    series: [{ label: "t" }, ...spec.series.map(([, label, color]) => (
+      { label, stroke: color, width: 1.4, points: { show: false } }))],
+    hooks: {
+      setSelect: [(u) => { if (u.select.width > 0) state.zoomed[id] = true; }],
+    },
+  };
+  const empty = [[], ...spec.series.map(() => [])];
+  const chart = new uPlot(opts, empty, el);
+  el.addEventListener("dblclick", () => { state.zoomed[id] = false; });
+  state.charts[id] = chart;
+  state.data[id] = empty;
+  state.zoomed[id] = false;
+}
+
+function makeHealthChart() {
+  const el = $("chart-health");
+  state.healthChart = new uPlot({
+    width: width(el), height: 130, scales: { x: { time: true }, rtf: { auto: true } },
+    axes: [{}, { label: "lag [ms]", size: 55 }, { scale: "rtf", side: 1, label: "rt factor", size: 55 }],
+    series: [{}, { label: "lag [ms]", stroke: COLORS.lag, points: { show: false } },
+      { label: "real-time factor", stroke: COLORS.rtf, scale: "rtf", points: { show: false } }],
+  }, [[], [], []], el);
+}
+
+function clearData() {
+  for (const [id, spec] of Object.entries(CHARTS)) {
+    state.data[id] = [[], ...spec.series.map(() => [])];
+  }
+}
+
+function append(frame) {
+  const t = frame.t;
+  if (!t.length) return;
+  for (const [id, spec] of Object.entries(CHARTS)) {
+    const d = state.data[id];
+    // a reset (time going back) starts the chart again
+    if (d[0].length && t[0] < d[0][d[0].length - 1]) {
+      for (const arr of d) arr.length = 0;
+    }
+    d[0].push(...t);
+    spec.series.forEach(([ch], i) => {
+      const v = frame.ch[ch];
+      d[i + 1].push(...(v || t.map(() => null)));
+    });
+    const tmin = t[t.length - 1] - spec.window;
+    let cut = 0;
+    while (cut < d[0].length && d[0][cut] < tmin) cut++;
+    if (cut) for (const arr of d) arr.splice(0, cut);
+  }
+}
+
+function redraw() {
+  for (const [id, chart] of Object.entries(state.charts)) {
+    chart.setData(state.data[id], !state.zoomed[id]);
+  }
+  const h = state.health;
+  state.healthChart.setData([h.x, h.lag, h.rtf]);
+}
+
+function resize() {
+  for (const [id, chart] of Object.entries(state.charts)) {
+    chart.setSize({ width: width($(`chart-${id}`)), height: chart.height });
+  }
+  state.healthChart.setSize({ width: width($("chart-health")), height: state.healthChart.height });
+}
+
+// ---------------------------------------------------------------- health
+function showHealth(h) {
+  const now = Date.now() / 1000;
+  const hh = state.health;
+  hh.x.push(now); hh.lag.push(h.lag_ms); hh.rtf.push(h.realtime_factor);
+  while (hh.x.length && hh.x[0] < now - HEALTH_WINDOW) { hh.x.shift(); hh.lag.shift(); hh.rtf.shift(); }
+  $("simt").textContent = `t = ${h.sim_t.toFixed(2)} s${h.paused ? " (paused)" : ""}`;
+  $("simt").dataset.simT = String(h.sim_t);
+  const rows = [
+    ["real-time factor", h.realtime_factor.toFixed(3)],
+    ["speed", h.paused ? "paused" : `${h.speed}×`],
+    ["loop lag", `${h.lag_ms.toFixed(2)} ms (p99 ${h.lag_p99_ms.toFixed(2)} ms)`],
+    ["clients", h.clients],
+    ["frames dropped (all clients)", h.dropped_total],
+    ["frames dropped (this page)", state.dropped],
+    ["stalls", h.stalls],
+  ];
+  $("health").innerHTML = rows.map(([k, v]) => `<tr><td>${k}</td><td>${v}</td></tr>`).join("");
+  $("pause").disabled = h.paused;
+  $("resume").disabled = !h.paused;
+}
+
+// ---------------------------------------------------------------- REST
+function headers() {
+  const h = { "content-type": "application/json" };
+  const tok = $("token").value.trim();
+  if (tok) h.authorization = `Bearer ${tok}`;
+  return h;
+}
+
+async function call(method, path, body) {
+  $("error").textContent = "";
+  const r = await fetch(path, { method, headers: headers(), body: JSON.stringify(body) });
+  const j = await r.json().catch(() => ({}));
+  if (!r.ok) {
+    const d = j.detail;
+    $("error").textContent = Array.isArray(d) ? d.map((e) => e.msg).join("; ") : String(d);
+    throw new Error($("error").textContent);
+  }
+  return j;
+}
+
+const control = (action, extra = {}) => call("POST", "/api/control", { action, ...extra });
+
+function knobControl(name, k) {
+  const label = document.createElement("label");
+  label.textContent = name.replaceAll("_", " ");
+  label.title = k.doc;
+  label.htmlFor = `knob-${name}`;
+  const out = document.createElement("output");
+  let input;
+  if (k.type === "bool") {
+    input = document.createElement("input");
+    input.type = "checkbox";
+    input.checked = k.value;
+    out.textContent = "";
+    input.addEventListener("change", () => call("PATCH", "/api/params", { [name]: input.checked })
+      .catch(() => { input.checked = !input.checked; }));
+  } else {
+    input = document.createElement("input");
+    input.type = "range";
+    input.min = k.min; input.max = k.max;
+    input.step = (k.max - k.min) / 200;
+    input.value = k.value;
+    const show = () => { out.textContent = `${Number(input.value).toPrecision(3)} ${k.unit}`; };
+    show();
+    input.addEventListener("input", show);
+    input.addEventListener("change", () => call("PATCH", "/api/params", { [name]: Number(input.value) }));
+  }
+  input.id = `knob-${name}`;
+  input.name = name;
+  return [label, input, out];
+}
+
+async function loadControls() {
+  const [params, sc] = await Promise.all([
+    fetch("/api/params").then((r) => r.json()), fetch("/api/scenarios").then((r) => r.json())]);
+  const form = $("knobs");
+  form.replaceChildren(...Object.entries(params).flatMap(([n, k]) => knobControl(n, k)));
+  const sel = $("scenario");
+  sel.replaceChildren(...Object.entries(sc.scenarios).map(([name, doc]) => {
+    const o = document.createElement("option");
+    o.value = name; o.textContent = name; o.title = doc; o.selected = name === sc.current;
+    return o;
+  }));
+}
+
+function syncKnobs(knobs) {
+  for (const [name, v] of Object.entries(knobs)) {
+    const el = document.getElementById(`knob-${name}`);
+    if (!el || el === document.activeElement) continue;
+    if (el.type === "checkbox") el.checked = v;
+    else if (Number(el.value) !== v) { el.value = v; el.dispatchEvent(new Event("input")); }
+  }
+}
+
+// ---------------------------------------------------------------- stream
+function connect() {
+  const proto = location.protocol === "https:" ? "wss" : "ws";
+  const ws = new WebSocket(`${proto}://${location.host}/ws`);
+  state.ws = ws;
+  const conn = $("conn");
+  ws.onopen = () => { state.retry = 0; };
+  ws.onmessage = (ev) => {
+    let msg;
+    try { msg = checkMessage(ev.data); } catch (e) { $("error").textContent = e.message; return; }
+    if (msg.type === "hello") {
+      state.channels = msg.channels;
+      clearData();
+      conn.textContent = `live · ${msg.scenario}`;
+      conn.className = "conn up";
+      conn.dataset.state = "up";
+      loadControls().catch((e) => { $("error").textContent = e.message; });
+      return;
+    }
+    state.frames += 1;
+    state.dropped += msg.dropped;
+    append(msg);
+    state.dirty = true;
+    showHealth(msg.health);
+    syncKnobs(msg.knobs);
+    document.body.dataset.frames = String(state.frames);
+  };
+  ws.onclose = () => {
+    conn.textContent = "disconnected — reconnecting…";
+    conn.className = "conn down";
+    conn.dataset.state = "down";
+    const delay = Math.min(5000, 500 * 2 ** state.retry);
+    state.retry += 1;
+    setTimeout(connect, delay);
+  };
+  ws.onerror = () => ws.close();
+}
+
+function frameLoop() {
+  if (state.dirty) { state.dirty = false; redraw(); }
+  requestAnimationFrame(frameLoop);
+}
+
+function init() {
+  for (const [id, spec] of Object.entries(CHARTS)) makeChart(id, spec);
+  makeHealthChart();
+  $("pause").onclick = () => control("pause");
+  $("resume").onclick = () => control("resume");
+  $("reset").onclick = () => control("reset");
+  $("speed").onchange = (e) => control("speed", { value: Number(e.target.value) });
+  $("scenario").onchange = (e) => control("scenario", { scenario: e.target.value })
+    .then((r) => { $("conn").textContent = `live · ${r.scenario}`; clearData(); return loadControls(); })
+    .catch(() => {});
+  $("token").value = localStorage.getItem("cutwatch-token") || "";
+  $("token").onchange = (e) => localStorage.setItem("cutwatch-token", e.target.value);
+  window.addEventListener("resize", resize);
+  connect();
+  requestAnimationFrame(frameLoop);
+}
+
+init();
