@@ -106,6 +106,10 @@ class EscParams:
     psi_a, psi_theta : float
         Perturbation phases :math:`\Psi_a, \Psi_\theta` [rad]; their difference must be an
         odd multiple of :math:`\pi/2` so the cross term :math:`D_{2,3}` of eq. (14) vanishes.
+    demod_phase : float
+        Phase lag [rad] of the demodulation signal behind the perturbation (Ariyur &
+        Krstic's compensation of the plant's phase at the dither frequency); 0 in the
+        paper and by default.
     period_revs : int
         Perturbation period in revolutions (eq. 16: 4, i.e. :math:`\omega_p = \pi/2` per
         revolution). Must be >= 3 to be seen by a once-per-revolution cost.
@@ -170,6 +174,8 @@ class EscParams:
         if int(self.freeze_revs) != self.freeze_revs or self.freeze_revs < 0:
             raise ParameterError("freeze_revs", "an integer >= 0", self.freeze_revs)
         require_positive("freeze_tol", self.freeze_tol)
+        if not math.isfinite(self.demod_phase):
+            raise ParameterError("demod_phase", "a finite phase [rad]", self.demod_phase)
         require_in("resume_ratio", self.resume_ratio, 1.0, math.inf, lo_open=True)
 
     def hpf(self) -> DiscreteFilter:

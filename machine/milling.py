@@ -34,7 +34,7 @@ Al7050 example: 796 / 168.8 N/mm^2, edge 27.7 / 30.8 N/mm).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
@@ -328,7 +328,6 @@ class _State:
     ax: FloatArray
     hist: FloatArray
     k: int = 0
-    extra: dict[str, float] = field(default_factory=dict)
 
 
 class MillingMachine:

@@ -141,6 +141,7 @@ def test_esc_clamps_and_reports() -> None:
         ({"a_max_um": 0.0}, "a_max_um"),
         ({"freeze_revs": -1}, "freeze_revs"),
         ({"resume_ratio": 1.0}, "resume_ratio"),
+        ({"demod_phase": float("nan")}, "demod_phase"),
     ],
 )
 def test_bad_esc_parameters_are_named(kw: dict[str, float], match: str) -> None:
