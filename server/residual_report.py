@@ -89,7 +89,19 @@ def _png(fig: Any) -> str:
     return base64.b64encode(buf.getvalue()).decode("ascii")
 
 
-def _figures(res: ResidualResult, unit: str) -> list[tuple[str, str]]:
+def _position_spectrum(q: np.ndarray, r: np.ndarray, periods: np.ndarray) -> np.ndarray:
+    """Amplitude of the best-fitting sinusoid in position at each period (least squares)."""
+    amp = np.empty(len(periods))
+    rr = r - r.mean()
+    for i, p in enumerate(periods):
+        w = 2.0 * np.pi * q / p
+        a = np.column_stack([np.cos(w), np.sin(w)])
+        coef, *_ = np.linalg.lstsq(a, rr, rcond=None)
+        amp[i] = float(np.hypot(coef[0], coef[1]))
+    return amp
+
+
+def _figures(res: ResidualResult, unit: str, pos_unit: str = "") -> list[tuple[str, str]]:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -107,8 +119,8 @@ def _figures(res: ResidualResult, unit: str) -> list[tuple[str, str]]:
     out.append(("Residual against time", _png(fig)))
     plt.close(fig)
     for xs, lab, title in (
-        (res.qd_dec, "velocity", "Residual against velocity"),
-        (res.q_dec, "position", "Residual against position"),
+        (res.qd_dec, f"velocity [{pos_unit}/s]", "Residual against velocity"),
+        (res.q_dec, f"position [{pos_unit}]", "Residual against position"),
     ):
         fig, ax = plt.subplots(figsize=(9, 3))
         ax.plot(xs, r0, ".", ms=1.5, label="before")
@@ -129,6 +141,19 @@ def _figures(res: ResidualResult, unit: str) -> list[tuple[str, str]]:
     ax.legend(loc="upper right")
     out.append(("Residual spectrum (time)", _png(fig)))
     plt.close(fig)
+    span = float(np.ptp(res.q_dec))
+    if span > 0:
+        periods = np.geomspace(span * 1e-3, span / 2.0, 200)
+        fig, ax = plt.subplots(figsize=(9, 3))
+        for r, lab in ((r0, "before"), (r1, "after")):
+            ax.loglog(
+                periods, _position_spectrum(res.q_dec, r, periods) + 1e-300, lw=0.8, label=lab
+            )
+        ax.set_xlabel(f"period in position [{pos_unit}]")
+        ax.set_ylabel(f"amplitude [{unit}]")
+        ax.legend(loc="upper right")
+        out.append(("Residual spectrum (position)", _png(fig)))
+        plt.close(fig)
     return out
 
 
@@ -204,7 +229,7 @@ def write_report(
 ) -> dict[str, Any]:
     """Write ``report.json``, ``estimates.csv`` and ``report.html`` into ``out_dir``."""
     rep = report_dict(log, res, validation)
-    figs = _figures(res, log.units.get("effort", ""))
+    figs = _figures(res, log.units.get("effort", ""), log.units.get("position", ""))
     page = report_html(rep, figs)
     est = io.StringIO()
     np.savetxt(

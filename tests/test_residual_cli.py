@@ -143,7 +143,7 @@ def test_report_files_follow_the_contract(tmp_path: Path) -> None:
     assert rows[0] == ["t", "f_hat_before", "f_hat_after"]
     assert len(rows) == 8000 + 1
     page = (out / "report.html").read_text()
-    assert page.count("data:image/png;base64,") == 4
+    assert page.count("data:image/png;base64,") == 5
     assert "stribeck" in page
 
 
