@@ -47,6 +47,21 @@ def test_cost_ignores_the_tooth_harmonics() -> None:
     assert harmonic_cost(f, psi) == pytest.approx(2.0, rel=1e-12)
 
 
+@pytest.mark.parametrize("rpm", [1800.0, 1500.0, 1234.5])
+def test_cost_over_a_non_integer_revolution(rpm: float) -> None:
+    """166.7 samples per revolution (1800 rpm at 5 kHz): the big mean and tooth harmonic
+    must not leak into the 1x bin, whichever 166 or 167 samples the revolution holds."""
+    ts = 2e-4
+    w = 2 * np.pi * rpm / 60
+    t = np.arange(20000) * ts
+    psi = w * t
+    f = 80 + 40 * np.cos(4 * psi + 0.3) + 10 * np.cos(8 * psi) + 2.0 * np.cos(psi + 1.0)
+    k = np.floor(psi / (2 * np.pi))
+    for rev in range(3, 9):
+        m = k == rev
+        assert harmonic_cost(f[m], psi[m]) == pytest.approx(2.0, abs=0.02)
+
+
 def _synthetic_force(y: np.ndarray, psi: np.ndarray) -> np.ndarray:
     """Forces (X, Y) whose 1x phasors are y = [re x, im x, re y, im y]."""
     return np.vstack(
