@@ -103,9 +103,9 @@ def zoh_terms(mass: float, viscous: float, ts: float) -> tuple[float, float, flo
     r"""Exact sample-to-sample solution of :math:`m\ddot x + b\dot x = F` (F constant).
 
     Returns ``(e1, e2, e3)`` with :math:`v^+ = e_1 v + e_2 F` and
-    :math:`x^+ = x + e_3' v + e_4' F` computed by the kernel from them:
-    ``e1 = exp(-b T/m)``, ``e2 = (1 - e1)/b`` (or ``T/m`` when b = 0),
-    ``e3 = (1 - e1) m / b`` (or ``T``), the displacement per unit initial velocity.
+    :math:`x^+ = x + e_3 v + e_4 F`: ``e1 = exp(-b T/m)``, ``e2 = (1 - e1)/b`` (or
+    ``T/m`` when b = 0), ``e3 = (1 - e1) m / b`` (or ``T``), the displacement per unit
+    initial velocity. The kernel forms ``e4 = (T - e3)/b`` (or ``T^2/(2m)``).
     """
     if viscous <= 0.0:
         return 1.0, ts / mass, ts
