@@ -73,6 +73,10 @@ class ObserverForceSource:
         Linear-scale resolution [m].
     q_hz : float
         Cut-off of the observer's Q(s).
+    current_noise : float
+        White noise on the measured motor current [A rms]; needs ``rng``.
+    rng : numpy.random.Generator, optional
+        Seeded generator for the current noise.
     """
 
     def __init__(
@@ -82,9 +86,18 @@ class ObserverForceSource:
         mass_error: float = 0.0,
         resolution: float = 5e-9,
         q_hz: float = 1000.0,
+        current_noise: float = 0.0,
+        rng: np.random.Generator | None = None,
     ) -> None:
         from estimators.force_observer import ObserverParams
+        from server.errors import CutwatchError
 
+        if not (math.isfinite(current_noise) and current_noise >= 0.0):
+            raise CutwatchError(f"current_noise: expected a value >= 0 A, got {current_noise!r}")
+        if current_noise > 0.0 and rng is None:
+            raise CutwatchError("current_noise > 0 needs a seeded rng (numpy Generator)")
+        self.current_noise = float(current_noise)
+        self.rng = rng
         dp = machine.drives.params
         self.resolution = float(resolution)
         self._est: list[TorsionEstimator] = []
@@ -119,6 +132,8 @@ class ObserverForceSource:
         out = []
         for i, (cur, pos) in enumerate(((rec.ix, rec.x), (rec.iy, rec.y))):
             q = np.round(pos / self.resolution) * self.resolution
+            if self.current_noise > 0.0 and self.rng is not None:
+                cur = cur + self.rng.normal(0.0, self.current_noise, cur.size)
             self._state[i], trec = self._est[i].step(self._state[i], cur * self._kf[i], q, q)
             ld = self._load[i]
             out.append(cutting_force(trec, ld.J_L, ld.B_L, ld.F_CL))

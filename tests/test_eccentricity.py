@@ -258,6 +258,16 @@ def test_loop_block_steps_any_chunking() -> None:
     assert st_["a_n_um"] == pytest.approx(st_["true.cancelling_a_um"], rel=0.1)
 
 
+def test_observer_source_needs_a_seeded_rng_for_noise() -> None:
+    from machine.milling import MillingMachine
+    from server.eccentricity import ObserverForceSource
+
+    with pytest.raises(CutwatchError, match="rng"):
+        ObserverForceSource(MillingMachine(), current_noise=0.1)
+    with pytest.raises(CutwatchError, match="current_noise"):
+        ObserverForceSource(MillingMachine(), current_noise=-1.0)
+
+
 def test_loop_rejects_unknown_tuner() -> None:
     with pytest.raises(CutwatchError, match="tuner"):
         EccentricityLoop(tuner="magic")
