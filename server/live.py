@@ -158,6 +158,7 @@ class LiveLoop:
         self._lags: collections.deque[float] = collections.deque(maxlen=600)
         self._rate: collections.deque[tuple[float, float]] = collections.deque(maxlen=64)
         self.lag_s = 0.0
+        self._p99, self._p99_at = 0.0, -math.inf
         self.stalls = 0
         self.blocks = 0
         self.seq = 0
@@ -286,13 +287,20 @@ class LiveLoop:
             1, math.ceil(self.speed)
         )
         step = min(step, self.block_n * 64)
-        idx = slice(step - 1, None, step)
-        t = protocol.samples(merged.pop("t")[idx])
+        # keep the samples whose index on the simulation's own grid is a multiple of the
+        # stride: the displayed grid stays regular across frames, blocks and idle spells
+        tt = merged.pop("t")
+        idx = np.rint(tt / self.pipeline.sample_time).astype(np.int64) % step == 0
+        t = protocol.samples(tt[idx])
         return t, {k: protocol.samples(v[idx]) for k, v in merged.items()}
 
     def _publish(self) -> None:
-        t, ch = self._decimated()
         self.seq += 1
+        if self.hub.clients == 0:  # nobody listens: drop the blocks, skip the encoding
+            with self.lock:
+                self._pending.clear()
+            return
+        t, ch = self._decimated()
         body = protocol.data_body(self.seq, time.time(), t, ch, self.health(), self.knob_values())
         self.hub.publish(body)
 
@@ -307,9 +315,13 @@ class LiveLoop:
         return (s1 - s0) / (w1 - w0)
 
     def lag_p99(self) -> float:
-        if not self._lags:
-            return 0.0
-        return float(np.percentile(np.fromiter(self._lags, float), 99))
+        """p99 of the lag over the last 600 blocks (recomputed at most once a second)."""
+        now = time.monotonic()
+        if now - self._p99_at > 1.0:
+            self._p99_at = now
+            lags = np.fromiter(self._lags, float) if self._lags else np.zeros(1)
+            self._p99 = float(np.percentile(lags, 99))
+        return self._p99
 
     def health(self) -> dict[str, Any]:
         return {
