@@ -86,7 +86,7 @@ NOT_OFFERED: dict[str, str] = {
     "backlash": "needs a load-side position (q_l)",
 }
 #: largest number of samples used by a shape search (the residual is subsampled)
-_SEARCH_SAMPLES = 200_000
+_SEARCH_SAMPLES = 50_000
 
 
 @dataclass(frozen=True)
@@ -250,9 +250,15 @@ def _columns_names(name: str) -> tuple[str, ...]:
 
 
 def _project_rss(cols: FloatArray, r: FloatArray) -> float:
-    coef, *_ = np.linalg.lstsq(cols, r, rcond=None)
-    e = r - cols @ coef
-    return float(e @ e)
+    # normal equations: a few columns, well scaled (sin/cos, unit exponentials, ones)
+    g = cols.T @ cols
+    b = cols.T @ r
+    if np.linalg.cond(g) < 1e10:
+        coef = np.linalg.solve(g, b)
+    else:  # near-singular (e.g. a vanishing Stribeck column): the robust solver
+        coef, *_ = np.linalg.lstsq(cols, r, rcond=None)
+        return float(np.sum((r - cols @ coef) ** 2))
+    return float(r @ r - b @ coef)
 
 
 def _search_period(q: FloatArray, r: FloatArray, dq_min: float) -> tuple[float, float]:
@@ -365,8 +371,11 @@ def find_shape(
         # lags from one sample to 5 % of the record (at most 0.5 s)
         grid = np.geomspace(ts, max(min(0.5, 0.05 * span), 2 * ts), 40)
         best = (math.inf, math.nan)
+        p_full = _nominal_effort(base, sig)
+        t_sub = sig.t[idx]
         for d in grid:
-            col = _delay_column({**base, "delay_s": float(d)}, sig)[idx]
+            # the column of _delay_column, evaluated on the search samples only
+            col = np.interp(t_sub - d, sig.t, p_full) - p_full[idx]
             val = _project_rss(np.column_stack([col, np.ones(len(idx))]), r)
             if val < best[0]:
                 best = (val, float(d))
