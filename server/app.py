@@ -194,12 +194,18 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         hub.bind(asyncio.get_running_loop())
         loop = LiveLoop(s, hub)
         app.state.hub, app.state.loop = hub, loop
+        if s.viser:
+            from server.viser_scene import StageScene
+
+            loop.scene = StageScene(s.host, s.viser_port)
         loop.start()
         try:
             yield
         finally:
             hub.close()
             await asyncio.to_thread(loop.stop)
+            if loop.scene is not None:
+                loop.scene.stop()
 
     app = FastAPI(
         title="cutwatch",
@@ -242,7 +248,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             "status": status,
             "loop_error": lp.error,
             "viser_port": s.viser_port,
-            "viser_running": False,
+            "viser_running": lp.scene is not None,
             "scenario": lp.pipeline.scenario,
             **protocol._clean(h),
         }

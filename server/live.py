@@ -21,7 +21,7 @@ import contextlib
 import math
 import threading
 import time
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -29,6 +29,9 @@ from server import protocol
 from server.errors import CutwatchError
 from server.pipeline import LivePipeline
 from server.settings import MAX_SPEED, Settings
+
+if TYPE_CHECKING:
+    from server.viser_scene import StageScene
 
 
 class ClientQueue:
@@ -164,6 +167,7 @@ class LiveLoop:
         self.seq = 0
         self.error: str | None = None
         self._pending: list[dict[str, np.ndarray]] = []
+        self.scene: StageScene | None = None  # the viser view, if started
         self._anchor()
 
     # ------------------------------------------------------------------ control
@@ -259,6 +263,9 @@ class LiveLoop:
                     out = self.pipeline.step(self.block_n)
                     self._pending.append(out)
                     self.blocks += 1
+                if self.scene is not None:
+                    p = self.pipeline
+                    self.scene.update(p.latest, p.workpiece_removed, p.t)
                 done = time.monotonic()
                 lag = max(0.0, done - due)
                 self.lag_s = lag

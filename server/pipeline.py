@@ -88,7 +88,10 @@ CHANNELS: list[Channel] = [
     Channel("excitation", "", "rls", "excitation index of the block"),
     Channel("omega_l", "rad/s", "motion", "load velocity (true)"),
     Channel("spindle_rpm", "rpm", "motion", "spindle speed in effect"),
+    Channel("q_m", "rad", "motion", "motor angle (encoder)"),
+    Channel("x_l", "m", "motion", "table position (load encoder x 10 mm lead)"),
 ]
+SCREW_LEAD = 0.01  # m per revolution, for the displayed table position (papers give none)
 
 
 def _knobs() -> dict[str, Knob]:
@@ -271,10 +274,22 @@ class LivePipeline:
             "excitation": np.full(n, float(b.excitation_index)),
             "omega_l": b.truth.omega_l,
             "spindle_rpm": np.full(n, spindle),
+            "q_m": b.meas.q_m,
+            "x_l": b.meas.q_l * (SCREW_LEAD / (2 * math.pi)),
         }
         out = {k: np.ascontiguousarray(v, dtype=np.float64) for k, v in out.items()}
         self._last = {k: float(v[-1]) for k, v in out.items()}
         return out
+
+    @property
+    def latest(self) -> dict[str, float]:
+        """Last value of every channel (empty before the first step)."""
+        return dict(self._last)
+
+    @property
+    def workpiece_removed(self) -> float:
+        """Fraction of the current blank removed (default scenario; else 0)."""
+        return self._removed
 
     def snapshot(self) -> dict[str, object]:
         """Latest value of every channel, the true parameters and the knob values."""

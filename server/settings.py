@@ -47,7 +47,7 @@ class Settings(BaseSettings):
     )
     token: SecretStr | None = Field(default=None, description="bearer token for mutating endpoints")
     seed: int = Field(default=0, ge=0, description="seed of the simulation's random generators")
-    viser: bool = Field(default=False, description="start the viser 3D view (not built yet)")
+    viser: bool = Field(default=True, description="start the viser 3D view on viser_port")
 
 
 def is_loopback(host: str) -> bool:

@@ -28,6 +28,7 @@ def serve(*, sndbuf: int | None = None, **settings: object) -> Iterator[str]:
         sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, sndbuf)
     sock.bind(("127.0.0.1", 0))
     port = int(sock.getsockname()[1])
+    settings.setdefault("viser", False)  # tests start viser only where they mean to
     app = create_app(Settings(port=port, **settings))  # type: ignore[arg-type]
     config = uvicorn.Config(
         app, host="127.0.0.1", port=port, ws=WS_IMPL, log_level="warning", lifespan="on"

@@ -34,6 +34,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         type=float,
         help="simulated seconds per wall second; 0 = start paused (default 1)",
     )
+    p.add_argument("--no-viser", action="store_true", help="do not start the viser 3D view")
     p.add_argument("--log-level", default="warning", help="uvicorn log level")
 
 
@@ -52,6 +53,7 @@ def build_settings(args: argparse.Namespace) -> Settings:
             "viser_port": args.viser_port,
             "scenario": args.scenario,
             "speed": args.speed,
+            "viser": False if args.no_viser else None,
         }.items()
         if v is not None
     }
@@ -70,16 +72,18 @@ def run(args: argparse.Namespace) -> int:
 
     settings = build_settings(args)
     app = create_app(settings)
+    if settings.viser:
+        from server.viser_scene import check_port_free
+
+        check_port_free(settings.host, settings.viser_port)  # fail before serving anything
     shown = "127.0.0.1" if settings.host in ("0.0.0.0", "::") else settings.host
     print(
         f"cutwatch dashboard: http://{shown}:{settings.port}/  "
         f"(API docs: http://{shown}:{settings.port}/docs)",
         flush=True,
     )
-    print(
-        f"viser 3D view port: {settings.viser_port} (not started: the 3D view is not built yet)",
-        flush=True,
-    )
+    if settings.viser:
+        print(f"viser 3D view: http://{shown}:{settings.viser_port}/", flush=True)
     uvicorn.run(
         app,
         host=settings.host,

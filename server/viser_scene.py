@@ -1,0 +1,184 @@
+"""The viser 3D view of the stage: its own server on its own, pinned port.
+
+Scene: the machine bed; the ball screw turning with the motor angle; the table and the
+workpiece moving with the load position (the workpiece shrinking as material is
+removed); the spindle and the tool turning at the spindle speed; the cutting force as
+arrows (true: black, adaptive observer: blue). Eccentricity and wear are not drawn yet:
+their estimators are not in the live pipeline.
+
+:meth:`StageScene.update` is called from the loop thread with the latest values; it
+coalesces to at most ``max_hz`` updates per second (latest values win).
+"""
+
+from __future__ import annotations
+
+import math
+import socket
+import time
+
+import numpy as np
+
+from server.errors import CutwatchError
+
+#: lead of the (drawn) ball screw: 10 mm per revolution (the papers give none)
+SCREW_LEAD = 0.01
+FORCE_SCALE = 0.02  # arrow length per N m of cutting torque [m]
+BLANK = (0.16, 0.12, 0.06)  # workpiece (x, y, z) when fresh [m]
+
+
+def _quat_axis(axis: tuple[float, float, float], angle: float) -> np.ndarray:
+    s = math.sin(0.5 * angle)
+    return np.array([math.cos(0.5 * angle), axis[0] * s, axis[1] * s, axis[2] * s])
+
+
+def _qmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton product of two quaternions (w, x, y, z)."""
+    w1, x1, y1, z1 = a
+    w2, x2, y2, z2 = b
+    return np.array(
+        [
+            w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
+            w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+            w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
+            w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
+        ]
+    )
+
+
+def check_port_free(host: str, port: int) -> None:
+    """Raise :class:`CutwatchError` if ``port`` cannot be bound (viser would drift)."""
+    with socket.socket() as s:
+        try:
+            s.bind((host, port))
+        except OSError as exc:
+            raise CutwatchError(
+                f"viser port {port} on {host} is not free ({exc.strerror}); "
+                "choose another with --viser-port"
+            ) from None
+
+
+class StageScene:
+    """A running viser server showing the stage.
+
+    Parameters
+    ----------
+    host, port
+        Where viser listens. The port is pinned: if it is taken, :class:`CutwatchError`
+        (viser itself would move to the next free port).
+    max_hz
+        Most scene updates per second.
+    """
+
+    def __init__(self, host: str, port: int, max_hz: float = 30.0) -> None:
+        import viser
+
+        check_port_free(host, port)
+        self.server = viser.ViserServer(host=host, port=port, verbose=False)
+        if self.server.get_port() != port:
+            got = self.server.get_port()
+            self.server.stop()
+            raise CutwatchError(f"viser port {port} was taken (viser moved to {got})")
+        self.port = port
+        self.period = 1.0 / max_hz
+        self._last = -math.inf
+        self._spindle_angle = 0.0
+        self._t_prev: float | None = None
+        self.updates = 0
+        sc = self.server.scene
+        sc.add_box(
+            "/bed", color=(90, 96, 110), dimensions=(0.9, 0.36, 0.06), position=(0.0, 0.0, -0.03)
+        )
+        along_x = _quat_axis((0.0, 1.0, 0.0), math.pi / 2)  # cylinders stand on z
+        self._along_x = along_x
+        self.screw = sc.add_cylinder(
+            "/screw",
+            radius=0.012,
+            height=0.8,
+            color=(170, 170, 180),
+            wxyz=along_x,
+            position=(0.0, 0.0, 0.03),
+        )
+        # a stripe on the screw makes its turning visible
+        self.stripe = sc.add_box(
+            "/screw/stripe",
+            color=(220, 60, 40),
+            dimensions=(0.006, 0.004, 0.8),
+            position=(0.0, 0.012, 0.0),
+        )
+        sc.add_box(
+            "/motor", color=(40, 40, 45), dimensions=(0.08, 0.08, 0.08), position=(-0.44, 0.0, 0.03)
+        )
+        self.table = sc.add_box(
+            "/table",
+            color=(120, 140, 170),
+            dimensions=(0.24, 0.3, 0.03),
+            position=(0.0, 0.0, 0.075),
+        )
+        self.work = sc.add_box(
+            "/table/work",
+            color=(200, 170, 90),
+            dimensions=BLANK,
+            position=(0.0, 0.0, 0.015 + BLANK[2] / 2),
+        )
+        self.spindle = sc.add_cylinder(
+            "/spindle", radius=0.035, height=0.14, color=(60, 60, 70), position=(0.0, 0.0, 0.29)
+        )
+        self.tool = sc.add_cylinder(
+            "/spindle/tool",
+            radius=0.006,
+            height=0.1,
+            color=(230, 230, 235),
+            position=(0.0, 0.0, -0.12),
+        )
+        self.flute = sc.add_box(
+            "/spindle/tool/flute", color=(30, 30, 30), dimensions=(0.013, 0.002, 0.1)
+        )
+        self.arrows = sc.add_arrows(
+            "/force",
+            points=np.zeros((2, 2, 3)),
+            colors=np.array([[20, 20, 20], [0, 114, 178]], np.uint8),
+            shaft_radius=0.004,
+            head_radius=0.01,
+            head_length=0.02,
+        )
+        self.label = sc.add_label("/label", "cutwatch stage", position=(-0.44, 0.0, 0.12))
+
+    def update(self, latest: dict[str, float], removed: float, t: float) -> bool:
+        """Move the scene to the latest values; skipped if called again within 1/max_hz.
+
+        Returns True if the scene was updated.
+        """
+        now = time.monotonic()
+        if now - self._last < self.period or not latest:
+            return False
+        self._last = now
+        q_m = latest.get("q_m", 0.0)
+        x_l = latest.get("x_l", 0.0)
+        rpm = latest.get("spindle_rpm", 0.0)
+        dt = 0.0 if self._t_prev is None else max(0.0, t - self._t_prev)
+        self._t_prev = t
+        self._spindle_angle = (self._spindle_angle + 2 * math.pi * rpm / 60.0 * dt) % (2 * math.pi)
+        frac = min(max(1.0 - removed, 0.05), 1.0)
+        f_true = latest.get("f_true", 0.0)
+        f_est = latest.get("f_adaptive", 0.0)
+        with self.server.atomic():
+            self.screw.wxyz = _qmul(_quat_axis((1.0, 0.0, 0.0), q_m % (2 * math.pi)), self._along_x)
+            self.table.position = (x_l, 0.0, 0.075)
+            self.work.scale = (1.0, 1.0, frac)
+            self.work.position = (0.0, 0.0, 0.015 + frac * BLANK[2] / 2)
+            self.spindle.wxyz = _quat_axis((0.0, 0.0, 1.0), self._spindle_angle)
+            z, dy = 0.17, 0.02
+            pts = np.array(
+                [
+                    [[0.0, 0.0, z], [FORCE_SCALE * f_true, 0.0, z]],
+                    [[0.0, dy, z], [FORCE_SCALE * f_est, dy, z]],
+                ],
+                dtype=np.float32,
+            )
+            self.arrows.points = pts
+        self.updates += 1
+        return True
+
+    def stop(self) -> None:
+        """Stop the viser server."""
+        self.server.stop()
