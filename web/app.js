@@ -31,6 +31,13 @@ const state = {
 };
 
 // ---------------------------------------------------------------- charts
+// tick labels that stay distinct for small parameters (J_L ~ 1e-4 kg m^2)
+function fmt(v) {
+  if (v === 0) return "0";
+  const a = Math.abs(v);
+  return a < 1e-2 || a >= 1e4 ? v.toExponential(2) : String(Number(v.toPrecision(4)));
+}
+
 function width(el) {
   return Math.max(200, el.clientWidth || 400);
 }
@@ -40,7 +47,7 @@ function makeChart(id, spec) {
   const opts = {
     width: width(el), height: id === "force" ? 260 : 170,
     scales: { x: { time: false } },
-    axes: [{ label: "t [s]" }, { size: 70 }],
+    axes: [{ label: "t [s]" }, { size: 70, values: (u, vals) => vals.map(fmt) }],
     legend: { live: true },
     cursor: { drag: { x: true, y: false } },
     series: [{ label: "t" }, ...spec.series.map(([, label, color]) => (
@@ -183,6 +190,16 @@ function knobControl(name, k) {
   return [label, input, out];
 }
 
+async function loadViser() {
+  const h = await fetch("/api/health").then((r) => r.json());
+  if (!h.viser_running) return;
+  const url = `${location.protocol}//${location.hostname}:${h.viser_port}/`;
+  const frame = $("viser");
+  if (frame.src !== url) frame.src = url;
+  $("viser-link").href = url;
+  $("viser-panel").hidden = false;
+}
+
 async function loadControls() {
   const [params, sc] = await Promise.all([
     fetch("/api/params").then((r) => r.json()), fetch("/api/scenarios").then((r) => r.json())]);
@@ -222,6 +239,7 @@ function connect() {
       conn.className = "conn up";
       conn.dataset.state = "up";
       loadControls().catch((e) => { $("error").textContent = e.message; });
+      loadViser().catch(() => {});
       return;
     }
     state.frames += 1;
