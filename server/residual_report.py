@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from estimators.residual import ResidualResult
+from estimators.residual_two_inertia import TwoInertiaResult
 from server.logfile import MeasuredLog
 
 
@@ -38,13 +39,23 @@ def _clean(x: Any) -> Any:
 
 
 def report_dict(
-    log: MeasuredLog, res: ResidualResult, validation: Mapping[str, Any] | None = None
+    log: MeasuredLog,
+    res: ResidualResult | TwoInertiaResult,
+    validation: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
     """The ``report.json`` object (DESIGN's contract keys plus details)."""
+    two = isinstance(res, TwoInertiaResult)
+    model = "rigid: tau = M*qdd + Fv*qd + Fc*sign(qd) + offset (IDIM-LS)"
+    if isinstance(res, TwoInertiaResult):
+        model = (
+            "two_inertia: cutting force observer (seed 000 eq. 2-8) with the log's nominal "
+            f"parameters; residual against {res.reference}; error over the force residual "
+            "and the twist disagreement T_sK - T_sM"
+        )
     rep: dict[str, Any] = {
         "log": str(log.path),
-        "model": "rigid: tau = M*qdd + Fv*qd + Fc*sign(qd) + offset (IDIM-LS)",
-        "kind": "rigid",
+        "model": model,
+        "kind": "two_inertia" if two else "rigid",
         "n_samples": log.n,
         "sample_time": log.sample_time,
         "holdout": {"start": res.holdout_start, "stop": res.holdout_stop},
@@ -78,6 +89,19 @@ def report_dict(
         "score": "relative reduction of the held-out mean square error (1 - mse_after/"
         "mse_before) at the round the candidate was last scored",
     }
+    if isinstance(res, TwoInertiaResult):
+        rep["rms_force_before"] = res.rms_force_before
+        rep["rms_force_after"] = res.rms_force_after
+        rep["rms_twist_before"] = res.rms_twist_before
+        rep["rms_twist_after"] = res.rms_twist_after
+        rep["observer_effects"] = [
+            {"name": e.name, "side": e.side, "shape": dict(e.shape), "coef": list(e.coef)}
+            for e in res.effects
+        ]
+        rep["selection_test"] += (
+            "; mean square error over both channels; among candidates within 1 % of the "
+            "best reduction the one with fewer columns"
+        )
     if validation is not None:
         rep["validation"] = dict(validation)
     return _clean(rep)
@@ -103,7 +127,9 @@ def _position_spectrum(q: np.ndarray, r: np.ndarray, periods: np.ndarray) -> np.
     return amp
 
 
-def _figures(res: ResidualResult, unit: str, pos_unit: str = "") -> list[tuple[str, str]]:
+def _figures(
+    res: ResidualResult | TwoInertiaResult, unit: str, pos_unit: str = ""
+) -> list[tuple[str, str]]:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -226,7 +252,7 @@ Selected: {_fmt(", ".join(rep["selected"]) or "none")}.</p>
 def write_report(
     out_dir: Path,
     log: MeasuredLog,
-    res: ResidualResult,
+    res: ResidualResult | TwoInertiaResult,
     validation: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Write ``report.json``, ``estimates.csv`` and ``report.html`` into ``out_dir``."""

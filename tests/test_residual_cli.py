@@ -258,13 +258,14 @@ def test_unknown_kind(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> Non
     )
 
 
-def test_two_inertia_not_available_yet(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_two_inertia_needs_q_l(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     write_log(tmp_path / "s.csv", synthetic("none", n=3000), SIDECAR)
     _fails(
         tmp_path,
         [str(tmp_path / "s.csv"), "--kind", "two_inertia"],
         capsys,
-        r"kind 'two_inertia' is not available yet",
+        r"s\.csv: kind 'two_inertia' needs the load-side position column 'q_l'; "
+        r"found q_m, t, tau_m",
     )
 
 
