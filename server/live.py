@@ -34,6 +34,10 @@ if TYPE_CHECKING:
     from server.viser_scene import StageScene
 
 
+#: significant digits of the displayed samples (relative to each frame's largest value)
+DISPLAY_DIGITS = 5
+
+
 class ClientQueue:
     """Bounded, latest-value-wins frame queue of one WebSocket client.
 
@@ -298,8 +302,8 @@ class LiveLoop:
         # stride: the displayed grid stays regular across frames, blocks and idle spells
         tt = merged.pop("t")
         idx = np.rint(tt / self.pipeline.sample_time).astype(np.int64) % step == 0
-        t = protocol.samples(tt[idx])
-        return t, {k: protocol.samples(v[idx]) for k, v in merged.items()}
+        t = protocol.samples(np.round(tt[idx], 6))  # 1 us: exact on the 0.4 ms grid
+        return t, {k: protocol.samples(v[idx], DISPLAY_DIGITS) for k, v in merged.items()}
 
     def _publish(self) -> None:
         self.seq += 1

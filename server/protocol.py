@@ -96,11 +96,20 @@ def data_body(
     return json.dumps(body, allow_nan=False, separators=(",", ":"))
 
 
-def samples(a: Any) -> list[float | None]:
-    """A float array as a JSON-safe list (non-finite values become ``None``)."""
+def samples(a: Any, digits: int | None = None) -> list[float | None]:
+    """A float array as a JSON-safe list (non-finite values become ``None``).
+
+    ``digits``: round to that many significant digits relative to the array's largest
+    magnitude (display precision; halves the frame size against full float64 reprs).
+    """
     import numpy as np
 
     arr = np.asarray(a, dtype=np.float64)
+    if digits is not None and arr.size:
+        with np.errstate(invalid="ignore"):
+            m = float(np.nanmax(np.abs(arr))) if not np.isnan(arr).all() else 0.0
+        if math.isfinite(m) and m > 0.0:
+            arr = np.round(arr, digits - 1 - math.floor(math.log10(m)))
     if np.isfinite(arr).all():
         out: list[float | None] = arr.tolist()
         return out

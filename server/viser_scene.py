@@ -143,14 +143,19 @@ class StageScene:
         )
         self.label = sc.add_label("/label", "cutwatch stage", position=(-0.44, 0.0, 0.12))
 
-    def update(self, latest: dict[str, float], removed: float, t: float) -> bool:
-        """Move the scene to the latest values; skipped if called again within 1/max_hz.
+    def update(
+        self, latest: dict[str, float], removed: float, t: float, *, force: bool = False
+    ) -> bool:
+        """Move the scene to the latest values; skipped if called again within 1/max_hz,
+        and while no viser client is connected (unless ``force``).
 
         Returns True if the scene was updated.
         """
         now = time.monotonic()
         if now - self._last < self.period or not latest:
             return False
+        if not self.server.get_clients() and not force:
+            return False  # nobody is looking: spend nothing (the scene catches up on connect)
         self._last = now
         q_m = latest.get("q_m", 0.0)
         x_l = latest.get("x_l", 0.0)

@@ -95,3 +95,11 @@ def test_js_rejects_malformed(bad: str, message: str) -> None:
         " catch (e) { console.log(e.message); }"
     )
     assert message in run_js(code, bad)
+
+
+def test_samples_rounds_to_significant_digits_relative_to_the_largest() -> None:
+    assert protocol.samples([5.7212345e-4, 1.0e-4], 3) == [5.72e-4, 1.0e-4]
+    assert protocol.samples([123.456, 0.001], 4) == [123.5, 0.0]
+    assert protocol.samples([float("inf"), 1.0], 3) == [None, 1.0]
+    assert protocol.samples([float("nan")] * 2, 3) == [None, None]
+    assert protocol.samples([], 3) == []
