@@ -58,12 +58,16 @@ def test_samples_neither_skipped_nor_repeated(hp: str) -> None:
 
 def test_patch_seen_in_stream(hp: str) -> None:
     with connect(f"ws://{hp}/ws") as ws, httpx.Client(base_url=f"http://{hp}") as api:
-        assert recv(ws)["knobs"]["spindle_rpm"] == 3000.0
         recv(ws)
-        assert api.patch("/api/params", json={"spindle_rpm": 6000}).status_code == 200
-        seen = [recv(ws)["knobs"]["spindle_rpm"] for _ in range(5)]
-        api.patch("/api/params", json={"spindle_rpm": 3000})
-    assert seen[-1] == 6000.0
+        first = recv(ws)
+        assert first["knobs"]["weight_on"] is False
+        j_before = max(first["ch"]["J_L_true"])
+        assert api.patch("/api/params", json={"weight_on": True}).status_code == 200
+        frames = [recv(ws) for _ in range(5)]
+        api.patch("/api/params", json={"weight_on": False})
+    assert frames[-1]["knobs"]["weight_on"] is True
+    # the weight (+2.92e-4 kg m^2, seed 000 Fig. 7(b)) is in the true J_L of the stream
+    assert max(frames[-1]["ch"]["J_L_true"]) > j_before + 2.5e-4
 
 
 def test_pause_seen_in_stream(hp: str) -> None:
