@@ -7,13 +7,17 @@ const $ = (id) => document.getElementById(id);
 
 const COLORS = {
   true: "#1d232b", fixed: "#e69f00", adaptive: "#0072b2", switching: "#cc3311",
-  mode: "#7b3294", excitation: "#009e73", lag: "#cc3311", rtf: "#0072b2",
+  dfo: "#009e73", mode: "#7b3294", excitation: "#009e73", lag: "#cc3311", rtf: "#0072b2",
 };
 
 // chart id -> {window [s of simulated time], series [[channel, label, color]]}
 const CHARTS = {
   force: { window: 0.5, series: [["f_true", "true", COLORS.true], ["f_fixed", "fixed", COLORS.fixed],
-    ["f_adaptive", "adaptive", COLORS.adaptive], ["f_switching", "switching", COLORS.switching]] },
+    ["f_adaptive", "adaptive", COLORS.adaptive], ["f_switching", "switching", COLORS.switching],
+    ["f_dfo", "adaptive + DFO", COLORS.dfo]] },
+  harmonics: { window: 30, series: [["h1_true", "1st true", COLORS.true],
+    ["h1_amp", "1st DFO", COLORS.adaptive], ["h2_true", "2nd true", "#888888"],
+    ["h2_amp", "2nd DFO", COLORS.switching]] },
   J_L: { window: 30, series: [["J_L_true", "true", COLORS.true],
     ["J_L_adaptive", "RLS", COLORS.adaptive], ["J_L_switching", "switching RLS", COLORS.switching]] },
   B_L: { window: 30, series: [["B_L_true", "true", COLORS.true],
