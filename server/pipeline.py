@@ -35,6 +35,7 @@ import numpy as np
 from estimators import dfo as dfo_mod
 from estimators.errors import ParameterError
 from estimators.rls import IdentifierParams
+from machine.effects import EFFECT_NAMES, PlantEffects
 from machine.params import ADDED_WEIGHT_INERTIA, preset
 from machine.stage import SEED000_FORCE, SEED001_FORCE, CuttingForce, StageConfig
 from server.stage_harmonics import make_dfo
@@ -131,6 +132,11 @@ def _knobs() -> dict[str, Knob]:
         ),
         Knob("current_noise", 0.0, 0.0, 0.05, "A", "rms noise of the current measurement"),
     ]
+    # each plant effect the observers do not model (machine.effects), on/off
+    ks += [
+        Knob(f"effect_{e}", False, None, None, "", f"plant effect {e!r} (unmodelled)")
+        for e in EFFECT_NAMES
+    ]
     return {k.name: k for k in ks}
 
 
@@ -172,7 +178,7 @@ class LivePipeline:
         self.sample_time = float(cfg.sample_time)
         self._removed = 0.0  # fraction of the current workpiece removed
         self._last: dict[str, float] = {}
-        self._applied: tuple[float, ...] = ()
+        self._applied: tuple[object, ...] = ()
         # seed 002's harmonic observer (DFO) through Q(s) (server.stage_harmonics), on the
         # adaptive observer's output: on the fixed one the workpiece's unmodelled inertia
         # biases the harmonics (measured: 2.8 N m for a true 4.0; adaptive: 4.06-4.17);
@@ -209,7 +215,8 @@ class LivePipeline:
             removed = math.floor(self._removed / REMOVAL_STEP) * REMOVAL_STEP
             extra += WORKPIECE_INERTIA * (1.0 - removed)
         noise = float(k["current_noise"].value)
-        key = (freq, gain, extra, noise)
+        effects = tuple(e for e in EFFECT_NAMES if k[f"effect_{e}"].value)
+        key = (freq, gain, extra, noise, effects)
         if key == self._applied:
             return
         self._applied = key
@@ -220,6 +227,7 @@ class LivePipeline:
             force=replace(self._force0, freq_scale=freq, gain=gain),
             extra_inertia=extra,
             current_noise=noise,
+            effects=PlantEffects().with_enabled(*effects),
         )
 
     # ------------------------------------------------------------------ contract

@@ -82,3 +82,14 @@ def test_each_scenario_runs(scenario: str) -> None:
     out = p.step(250)
     assert np.isfinite(out["f_adaptive"]).all()
     assert p.snapshot()["scenario"] == scenario
+
+
+def test_plant_effect_knob_reaches_the_plant() -> None:
+    p = LivePipeline()
+    p.step(125)
+    p.set_knob("effect_offset", True)
+    p.step(125)
+    assert p.run.sim.config.effects.enabled == frozenset({"offset"})
+    p.set_knob("effect_offset", False)
+    p.step(125)
+    assert p.run.sim.config.effects.enabled == frozenset()
