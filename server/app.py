@@ -17,6 +17,8 @@ from pathlib import Path
 from typing import Annotated, Any, Literal
 
 from fastapi import Depends, FastAPI, Request, WebSocket, WebSocketDisconnect
+from fastapi.encoders import jsonable_encoder
+from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse, PlainTextResponse
 from fastapi.staticfiles import StaticFiles
 from pydantic import BaseModel, ConfigDict, Field
@@ -122,6 +124,17 @@ def _json_safe(v: Any) -> Any:
     return repr(v)[:80]
 
 
+def _sanitise(x: Any) -> Any:
+    """Non-finite floats anywhere in ``x`` become their repr (JSON has no NaN)."""
+    if isinstance(x, float) and not math.isfinite(x):
+        return repr(x)
+    if isinstance(x, dict):
+        return {k: _sanitise(v) for k, v in x.items()}
+    if isinstance(x, list | tuple):
+        return [_sanitise(v) for v in x]
+    return x
+
+
 def _error(field: str, allowed: str, got: Any, msg: str) -> dict[str, Any]:
     return {"field": field, "allowed": allowed, "got": _json_safe(got), "msg": msg}
 
@@ -225,6 +238,12 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                 "mutating endpoints need 'Authorization: Bearer <token>' (CUTWATCH_TOKEN)",
                 {"WWW-Authenticate": "Bearer"},
             )
+
+    @app.exception_handler(RequestValidationError)
+    async def _validation_error(request: Request, exc: RequestValidationError) -> JSONResponse:
+        # FastAPI's own 422, with inputs made JSON-safe (a body of Infinity or NaN would
+        # otherwise fail to serialise and turn the 422 into a 500)
+        return JSONResponse({"detail": _sanitise(jsonable_encoder(exc.errors()))}, status_code=422)
 
     @app.exception_handler(CutwatchError)
     async def _cutwatch_error(request: Request, exc: CutwatchError) -> JSONResponse:

@@ -117,7 +117,7 @@ def test_patch_non_finite_number_is_422_not_500(api: httpx.Client) -> None:
     assert r.json()["detail"][0]["got"] == "nan"
 
 
-@pytest.mark.parametrize("content", [b"[1, 2]", b"not json", b'"text"'])
+@pytest.mark.parametrize("content", [b"[1, 2]", b"not json", b'"text"', b"Infinity", b"[NaN]"])
 def test_patch_body_not_an_object(api: httpx.Client, content: bytes) -> None:
     r = api.patch("/api/params", content=content, headers={"content-type": "application/json"})
     assert r.status_code == 422
