@@ -276,3 +276,23 @@ def test_refuses_public_bind_without_token() -> None:
 def test_unknown_scenario_refused() -> None:
     with pytest.raises(CutwatchError, match=r"scenario: expected one of .*got 'nope'"):
         create_app(Settings(scenario="nope"))
+
+
+@settings(
+    max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
+@given(
+    body=JSON
+    | st.fixed_dictionaries(
+        {"action": st.sampled_from(["speed", "pause", "resume", "x"])},
+        optional={"value": st.none() | st.floats() | st.integers() | st.text(max_size=3)},
+    )
+)
+def test_control_fuzz_never_500(api: httpx.Client, body: object) -> None:
+    r = api.post(
+        "/api/control",
+        content=json.dumps(body).encode(),
+        headers={"content-type": "application/json"},
+    )
+    assert r.status_code in (200, 422), r.text
+    api.post("/api/control", json={"action": "speed", "value": 1})  # leave it running
