@@ -66,12 +66,18 @@ def test_dashboard_moves_and_pauses(hp: str, tmp_path: Path) -> None:
             )
             assert drawn > 1000
             page.screenshot(path=str(tmp_path / "dashboard-running.png"))
+            shot0 = page.locator("#chart-force canvas").screenshot()
+            time.sleep(0.5)
+            assert page.locator("#chart-force canvas").screenshot() != shot0  # it moves
 
             page.click("#pause")
             page.wait_for_selector("#simt:has-text('paused')", timeout=5000)
             t_paused = sim_t()
+            time.sleep(0.3)  # a frame built before the pause may still arrive
+            still = page.locator("#chart-force canvas").screenshot()
             time.sleep(1.0)
-            assert sim_t() == t_paused  # the charts stopped
+            assert sim_t() == t_paused
+            assert page.locator("#chart-force canvas").screenshot() == still  # it stopped
             assert page.is_disabled("#pause") and not page.is_disabled("#resume")
             shot = Path("out") / "dashboard.png"
             shot.parent.mkdir(exist_ok=True)
