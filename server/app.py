@@ -449,7 +449,13 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         try:
             with lp.lock:
                 chans = [
-                    {"name": c.name, "unit": c.unit, "group": c.group, "label": c.label}
+                    {
+                        "name": c.name,
+                        "unit": c.unit,
+                        "group": c.group,
+                        "label": c.label,
+                        "grid": protocol.grid_of(c.group),
+                    }
                     for c in lp.pipeline.channels()
                 ]
             await ws.send_text(

@@ -287,11 +287,14 @@ class LiveLoop:
             raise
 
     # ------------------------------------------------------------------ frames
-    def _decimated(self) -> tuple[list[float | None], dict[str, list[float | None]]]:
+    def _decimated(
+        self,
+    ) -> tuple[list[float | None], list[float | None], dict[str, list[float | None]]]:
         with self.lock:
             blocks, self._pending = self._pending, []
+            grids = {c.name: protocol.grid_of(c.group) for c in self.pipeline.channels()}
         if not blocks:
-            return [], {}
+            return [], [], {}
         merged = {k: np.concatenate([b[k] for b in blocks]) for k in blocks[0]}
         # a fixed stride per speed keeps the displayed sample rate steady across frames
         step = math.ceil(self.block_n / self.settings.display_points) * max(
@@ -301,9 +304,16 @@ class LiveLoop:
         # keep the samples whose index on the simulation's own grid is a multiple of the
         # stride: the displayed grid stays regular across frames, blocks and idle spells
         tt = merged.pop("t")
-        idx = np.rint(tt / self.pipeline.sample_time).astype(np.int64) % step == 0
-        t = protocol.samples(np.round(tt[idx], 6))  # 1 us: exact on the 0.4 ms grid
-        return t, {k: protocol.samples(v[idx], DISPLAY_DIGITS) for k, v in merged.items()}
+        g = np.rint(tt / self.pipeline.sample_time).astype(np.int64)
+        fast = g % step == 0
+        slow = g % (step * protocol.SLOW_FACTOR) == 0
+        t = protocol.samples(np.round(tt[fast], 6))  # 1 us: exact on the 0.4 ms grid
+        ts = protocol.samples(np.round(tt[slow], 6))
+        ch = {
+            k: protocol.samples(v[fast if grids.get(k, "ts") == "t" else slow], DISPLAY_DIGITS)
+            for k, v in merged.items()
+        }
+        return t, ts, ch
 
     def _publish(self) -> None:
         self.seq += 1
@@ -311,8 +321,10 @@ class LiveLoop:
             with self.lock:
                 self._pending.clear()
             return
-        t, ch = self._decimated()
-        body = protocol.data_body(self.seq, time.time(), t, ch, self.health(), self.knob_values())
+        t, ts, ch = self._decimated()
+        body = protocol.data_body(
+            self.seq, time.time(), t, ts, ch, self.health(), self.knob_values()
+        )
         self.hub.publish(body)
 
     # ------------------------------------------------------------------ status

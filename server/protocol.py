@@ -4,13 +4,15 @@ Two message types travel from server to client as JSON text:
 
 ``hello`` (first message after connecting)
     ``{"type": "hello", "version": VERSION, "channels": [{"name", "unit", "group",
-    "label"}, ...], "sample_time": s, "scenario": name, "knobs": {...}}``
+    "label", "grid"}, ...], "sample_time": s, "scenario": name, "knobs": {...}}``
 
 ``data`` (at the display rate, ~20 Hz)
-    ``{"type": "data", "dropped": n, "seq": k, "wall": unix_s, "t": [...], "ch": {name:
-    [...]}, "health": {...}, "knobs": {...}}``. ``t`` and every ``ch`` array have the
-    same length (the block's samples, decimated for display). ``dropped`` counts the
-    frames this client lost (buffer full) since its previous frame.
+    ``{"type": "data", "dropped": n, "seq": k, "wall": unix_s, "t": [...], "ts": [...],
+    "ch": {name: [...]}, "health": {...}, "knobs": {...}}``. Two display grids: a
+    channel whose ``grid`` is ``"t"`` (the forces) has one value per entry of ``t``; a
+    channel on ``"ts"`` (parameters, modes, harmonics: slow signals) one per entry of
+    ``ts``, a coarser subset of the same samples. ``dropped`` counts the frames this
+    client lost (buffer full) since its previous frame.
 
 JSON was measured against a binary (float32) encoding: see ``docs/live-service.md``.
 ``tests/test_protocol.py`` keeps :data:`SCHEMA` equal to the JS module's ``SCHEMA``.
@@ -23,12 +25,23 @@ import math
 from typing import Any
 
 VERSION = 1
+#: channel groups shown on the fast grid ``t``; every other group goes on ``ts``
+FAST_GROUPS = frozenset({"force"})
+#: the slow grid keeps one sample in SLOW_FACTOR of the fast one
+SLOW_FACTOR = 6
+
+
+def grid_of(group: str) -> str:
+    """``"t"`` for the fast display grid, ``"ts"`` for the slow one."""
+    return "t" if group in FAST_GROUPS else "ts"
+
 
 SCHEMA: dict[str, Any] = {
     "version": VERSION,
     "hello": ["type", "version", "channels", "sample_time", "scenario", "knobs"],
-    "channel": ["name", "unit", "group", "label"],
-    "data": ["type", "dropped", "seq", "wall", "t", "ch", "health", "knobs"],
+    "channel": ["name", "unit", "group", "label", "grid"],
+    "data": ["type", "dropped", "seq", "wall", "t", "ts", "ch", "health", "knobs"],
+    "fast_groups": sorted(FAST_GROUPS),
     "health": [
         "sim_t",
         "speed",
@@ -75,13 +88,14 @@ def data_body(
     seq: int,
     wall: float,
     t: list[float | None],
+    ts: list[float | None],
     ch: dict[str, list[float | None]],
     health: dict[str, Any],
     knobs: dict[str, Any],
 ) -> str:
     """Encode a data frame without its per-client ``dropped`` field (done once per frame).
 
-    ``t`` and ``ch`` must already be JSON-safe lists (see :func:`samples`).
+    ``t``, ``ts`` and ``ch`` must already be JSON-safe lists (see :func:`samples`).
 
     :func:`with_dropped` completes it per client.
     """
@@ -89,6 +103,7 @@ def data_body(
         "seq": seq,
         "wall": wall,
         "t": t,
+        "ts": ts,
         "ch": ch,
         "health": _clean(health),
         "knobs": _clean(knobs),

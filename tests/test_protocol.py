@@ -41,7 +41,10 @@ def test_schema_equal_on_both_sides() -> None:
 
 def frames() -> list[str]:
     hello = protocol.hello(
-        [{"name": "force_true", "unit": "N", "group": "force", "label": "true"}],
+        [
+            {"name": "force_true", "unit": "N", "group": "force", "label": "true", "grid": "t"},
+            {"name": "J_L", "unit": "kg m^2", "group": "J_L", "label": "J_L", "grid": "ts"},
+        ],
         4e-4,
         "default",
         {"spindle_rpm": 1500.0},
@@ -51,7 +54,8 @@ def frames() -> list[str]:
         3,
         1.0,
         [0.1, 0.2],
-        {"force_true": protocol.samples([1.0, float("nan")])},
+        [0.1],
+        {"force_true": protocol.samples([1.0, float("nan")]), "J_L": [2.8e-4]},
         health,
         {"spindle_rpm": 1500.0},
     )
@@ -84,6 +88,18 @@ def test_python_frames_follow_schema() -> None:
             '{"type": "hello", "version": 99, "channels": [], "sample_time": 1, "scenario": "",'
             ' "knobs": {}}',
             "protocol version 99, this page speaks 1",
+        ),
+        (
+            '{"type": "data", "dropped": 0, "seq": 1, "wall": 0, "t": [1, 2], "ts": [1],'
+            ' "ch": {"x": [1, 2]}, "health": {}, "knobs": {}}',
+            "health lacks sim_t",
+        ),
+        (
+            '{"type": "data", "dropped": 0, "seq": 1, "wall": 0, "t": [1, 2], "ts": [1],'
+            ' "ch": {"x": [1, 2, 3]}, "health": {"sim_t": 0, "speed": 1, "paused": false,'
+            ' "lag_ms": 0, "lag_p99_ms": 0, "realtime_factor": 1, "clients": 1,'
+            ' "dropped_total": 0, "stalls": 0}, "knobs": {}}',
+            "channel x: 3 samples, t has 2, ts has 1",
         ),
     ],
 )

@@ -39,11 +39,14 @@ def test_hello_then_frames(hp: str) -> None:
         assert hello["type"] == "hello" and hello["version"] == protocol.VERSION
         names = [c["name"] for c in hello["channels"]]
         assert names == [c.name for c in LivePipeline().channels()]
+        grid = {c["name"]: c["grid"] for c in hello["channels"]}
+        assert grid["f_true"] == "t" and grid["J_L_true"] == "ts"
         frames = [recv(ws) for _ in range(10)]
     for f in frames:
         assert f["type"] == "data" and f["dropped"] == 0
         assert set(f["ch"]) == set(names)
-        assert all(len(v) == len(f["t"]) for v in f["ch"].values())
+        assert all(len(v) == len(f[grid[k]]) for k, v in f["ch"].items())
+        assert set(f["ts"]) <= set(f["t"])  # the slow grid is a subset of the fast one
         assert f["health"]["clients"] >= 1
     assert [f["seq"] for f in frames] == list(range(frames[0]["seq"], frames[0]["seq"] + 10))
 

@@ -31,7 +31,7 @@ const HEALTH_WINDOW = 60; // wall seconds
 
 const state = {
   ws: null, retry: 0, charts: {}, data: {}, zoomed: {}, channels: [], frames: 0,
-  dropped: 0, dirty: false, health: { x: [], lag: [], rtf: [] }, healthChart: null,
+  dropped: 0, dirty: false, grid: {}, health: { x: [], lag: [], rtf: [] }, healthChart: null,
 };
 
 // ---------------------------------------------------------------- charts
@@ -85,10 +85,11 @@ function clearData() {
 }
 
 function append(frame) {
-  const t = frame.t;
-  if (!t.length) return;
+  if (!frame.t.length) return;
   for (const [id, spec] of Object.entries(CHARTS)) {
     const d = state.data[id];
+    const t = frame[state.grid[spec.series[0][0]] || "ts"];
+    if (!t.length) continue;
     // a reset (time going back) starts the chart again
     if (d[0].length && t[0] < d[0][d[0].length - 1]) {
       for (const arr of d) arr.length = 0;
@@ -238,6 +239,7 @@ function connect() {
     try { msg = checkMessage(ev.data); } catch (e) { $("error").textContent = e.message; return; }
     if (msg.type === "hello") {
       state.channels = msg.channels;
+      state.grid = Object.fromEntries(msg.channels.map((c) => [c.name, c.grid]));
       clearData();
       conn.textContent = `live · ${msg.scenario}`;
       conn.className = "conn up";

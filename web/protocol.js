@@ -3,12 +3,15 @@
 // server's, and that checkMessage accepts the frames the server really sends.
 
 export const VERSION = 1;
+// channel groups on the fast grid t; every other group is on ts (see server/protocol.py)
+export const FAST_GROUPS = ["force"];
 
 export const SCHEMA = {
   version: VERSION,
   hello: ["type", "version", "channels", "sample_time", "scenario", "knobs"],
-  channel: ["name", "unit", "group", "label"],
-  data: ["type", "dropped", "seq", "wall", "t", "ch", "health", "knobs"],
+  channel: ["name", "unit", "group", "label", "grid"],
+  data: ["type", "dropped", "seq", "wall", "t", "ts", "ch", "health", "knobs"],
+  fast_groups: FAST_GROUPS,
   health: ["sim_t", "speed", "paused", "lag_ms", "lag_p99_ms", "realtime_factor",
            "clients", "dropped_total", "stalls"],
 };
@@ -32,13 +35,16 @@ export function checkMessage(text) {
     for (const c of msg.channels) {
       const m = missing(c, SCHEMA.channel);
       if (m.length) throw new Error(`channel lacks ${m.join(", ")}`);
+      if (c.grid !== "t" && c.grid !== "ts") throw new Error(`channel ${c.name}: grid ${c.grid}`);
     }
   } else {
     const m = missing(msg.health, SCHEMA.health);
     if (m.length) throw new Error(`health lacks ${m.join(", ")}`);
+    // each channel lies on one of the two grids: t (fast) or ts (slow)
     for (const [name, arr] of Object.entries(msg.ch)) {
-      if (arr.length !== msg.t.length) {
-        throw new Error(`channel ${name}: ${arr.length} samples, t has ${msg.t.length}`);
+      if (arr.length !== msg.t.length && arr.length !== msg.ts.length) {
+        throw new Error(`channel ${name}: ${arr.length} samples, t has ${msg.t.length}, ` +
+                        `ts has ${msg.ts.length}`);
       }
     }
   }
