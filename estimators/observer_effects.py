@@ -12,7 +12,7 @@ side        families                          where the term acts
 load        offset, coulomb_asymmetry,        eq. (2): subtracted from the force estimate,
             stribeck, position_periodic,      like :math:`Q\{J_L s\omega_L + B_L\omega_L +
             inertia, viscous, harmonic, drift F_{CL}\mathrm{sgn}\,\omega_L\}`
-motor       torque_ripple                     eq. (3): added to :math:`\hat T_{sM}`
+motor       torque_ripple, delay              eq. (3): added to :math:`\hat T_{sM}`
                                               (a torque the motor model lacks)
 shaft       backlash                          eq. (4): subtracted from :math:`\hat T_{sK}`
                                               (a twist :math:`K\Delta\theta` that carries
@@ -51,6 +51,8 @@ inertia            :math:`a_L`
 viscous            :math:`\omega_L`
 harmonic           :math:`\cos, \sin(2\pi f t)`
 drift              :math:`(t - t_0)/T`
+delay              :math:`\tau(t - d) - \tau(t)` (the torque acts late by d; gain 1 =
+                   the whole torque late), :math:`\tau` the observer's motor torque
 ================== ===============================================================
 """
 
@@ -79,6 +81,7 @@ SIDES: dict[str, str] = {
     "harmonic": "load",
     "drift": "load",
     "torque_ripple": "motor",
+    "delay": "motor",
     "backlash": "shaft",
 }
 #: coefficient names per family (one per basis column)
@@ -93,6 +96,7 @@ COLUMNS: dict[str, tuple[str, ...]] = {
     "viscous": ("B",),
     "harmonic": ("c", "s"),
     "drift": ("slope",),
+    "delay": ("gain",),
 }
 #: shape parameters each family needs
 SHAPES: dict[str, tuple[str, ...]] = {
@@ -102,6 +106,7 @@ SHAPES: dict[str, tuple[str, ...]] = {
     "backlash": ("gap",),
     "harmonic": ("frequency",),
     "drift": ("t0", "span"),
+    "delay": ("delay_s",),
 }
 
 
@@ -130,7 +135,7 @@ class ObserverEffect:
             v = self.shape.get(key)
             if v is None or not math.isfinite(float(v)):
                 raise ParameterError(f"{self.name}.{key}", "a finite shape parameter", v)
-        for key in ("v_s", "period", "gap", "span"):
+        for key in ("v_s", "period", "gap", "span", "delay_s"):
             if key in SHAPES.get(self.name, ()):
                 require_positive(f"{self.name}.{key}", float(self.shape[key]))
         n = len(COLUMNS[self.name])
@@ -151,13 +156,26 @@ class Kinematics:
     q_l: F64
     w_l: F64
     a_l: F64
+    # motor torque as the observer uses it (mean over the two ZOH intervals around
+    # t[k-1]), preceded by n_hist earlier values (for the delay family)
+    tau_ext: F64 = field(default_factory=lambda: np.zeros(0))
+    n_hist: int = 0
+    sample_time: float = 0.0
 
 
 def kinematics(
-    t: F64, q_m: F64, q_l: F64, sample_time: float, prev: F64 | None = None
+    t: F64,
+    q_m: F64,
+    q_l: F64,
+    sample_time: float,
+    prev: F64 | None = None,
+    tau: F64 | None = None,
+    tau_hist: F64 | None = None,
 ) -> tuple[Kinematics, F64]:
     """Aligned signals of one block; ``prev`` = [q_m[k-1], q_m[k-2], q_l[k-1], q_l[k-2],
-    seen] carries the history between blocks (None: start of a record)."""
+    seen] carries the history between blocks (None: start of a record). With ``tau``,
+    ``tau_hist`` (>= 3 raw torques before the block, oldest first; None at the start of a
+    record: the first torque held) gives the torque history of the delay family."""
     qm = np.asarray(q_m, dtype=np.float64)
     ql = np.asarray(q_l, dtype=np.float64)
     n = len(qm)
@@ -174,8 +192,24 @@ def kinematics(
     w_l = (el[2:] - el[:-2]) / (2.0 * ts)
     a_l = (el[2:] - 2.0 * el[1:-1] + el[:-2]) / (ts * ts)
     new_prev = np.array([em[-1], em[-2], el[-1], el[-2], 1.0])
+    tau_ext = np.zeros(0)
+    n_hist = 0
+    if tau is not None:
+        ta = np.asarray(tau, dtype=np.float64)
+        hist = np.full(3, ta[0] if len(ta) else 0.0) if tau_hist is None else tau_hist
+        ext = np.concatenate([hist, ta])
+        # as in the observer kernel: the torque at t[k-1] is 0.5 (tau[k-1] + tau[k-2])
+        tau_ext = 0.5 * (ext[1:-1] + ext[:-2])
+        n_hist = len(hist) - 2
     kin = Kinematics(
-        t=np.asarray(t, dtype=np.float64) - ts, q_m=em[1:-1], q_l=el[1:-1], w_l=w_l, a_l=a_l
+        t=np.asarray(t, dtype=np.float64) - ts,
+        q_m=em[1:-1],
+        q_l=el[1:-1],
+        w_l=w_l,
+        a_l=a_l,
+        tau_ext=tau_ext,
+        n_hist=n_hist,
+        sample_time=ts,
     )
     return kin, new_prev
 
@@ -208,6 +242,16 @@ def raw_basis(name: str, shape: Mapping[str, float], kin: Kinematics) -> F64:
         return np.column_stack([np.cos(ph), np.sin(ph)])
     if name == "drift":
         return ((kin.t - shape["t0"]) / shape["span"])[:, None]
+    if name == "delay":
+        lag = shape["delay_s"] / kin.sample_time if kin.sample_time > 0 else math.inf
+        if len(kin.tau_ext) != n + kin.n_hist or lag > kin.n_hist:
+            raise ParameterError(
+                "delay", f"a torque history of at least {lag:.3g} samples", kin.n_hist
+            )
+        now = np.arange(n) + float(kin.n_hist)
+        past = np.interp(now - lag, np.arange(len(kin.tau_ext)), kin.tau_ext)
+        # the torque acts late by delay_s: the motor model lacks tau(t - d) - tau(t)
+        return (past - kin.tau_ext[kin.n_hist :])[:, None]
     raise ParameterError("name", f"one of {', '.join(SIDES)}", name)
 
 
@@ -260,6 +304,7 @@ class EffectsState:
 
     prev: F64
     z: F64
+    tau_hist: F64 = field(default_factory=lambda: np.zeros(0))
 
 
 @dataclass
@@ -290,20 +335,47 @@ class ObserverEffects:
         self.params = params
         self.q = lowpass(params.q_hz, params.sample_time, params.q_order)
         self._ncols = sum(len(COLUMNS[e.name]) for e in params.effects)
+        lags = [
+            e.shape["delay_s"] / params.sample_time for e in params.effects if e.name == "delay"
+        ]
+        self._hist = int(math.ceil(max(lags))) + 3 if lags else 0
 
     def init_state(self) -> EffectsState:
-        return EffectsState(prev=np.zeros(5), z=np.zeros((self._ncols, max(self.q.order, 1))))
+        return EffectsState(
+            prev=np.zeros(5),
+            z=np.zeros((self._ncols, max(self.q.order, 1))),
+            tau_hist=np.zeros(0),
+        )
 
     def step(
-        self, state: EffectsState, alpha: F64, t: F64, q_m: F64, q_l: F64
+        self,
+        state: EffectsState,
+        alpha: F64,
+        t: F64,
+        q_m: F64,
+        q_l: F64,
+        tau_m: F64 | None = None,
     ) -> tuple[EffectsState, EffectsRecord]:
-        """Terms of one block (``alpha`` from the block's :class:`TorsionRecord`)."""
+        """Terms of one block (``alpha`` from the block's :class:`TorsionRecord`;
+        ``tau_m``, the block's motor torque, is needed by a ``delay`` effect)."""
         n = len(t)
+        if self._hist and (tau_m is None or len(tau_m) != n):
+            raise ParameterError("tau_m", f"the block's {n} motor torques (delay effect)", None)
         if not (len(alpha) == len(q_m) == len(q_l) == n):
             raise ParameterError(
                 "block", "alpha, t, q_m, q_l of equal length", (len(alpha), n, len(q_m), len(q_l))
             )
-        kin, prev = kinematics(t, q_m, q_l, self.params.sample_time, state.prev)
+        hist = None
+        if self._hist and state.prev[4] != 0.0:
+            hist = state.tau_hist
+        elif self._hist and tau_m is not None and n:
+            hist = np.full(self._hist, float(tau_m[0]))
+        kin, prev = kinematics(
+            t, q_m, q_l, self.params.sample_time, state.prev, tau_m if self._hist else None, hist
+        )
+        new_hist = np.zeros(0)
+        if self._hist and tau_m is not None and hist is not None:
+            new_hist = np.concatenate([hist, np.asarray(tau_m, dtype=np.float64)])[-self._hist :]
         f = np.zeros(n)
         tsm = np.zeros(n)
         tsk = np.zeros(n)
@@ -323,4 +395,4 @@ class ObserverEffects:
             else:
                 tsk += term
                 f += (1.0 - a) * term
-        return EffectsState(prev=prev, z=z), EffectsRecord(f, tsm, tsk)
+        return EffectsState(prev=prev, z=z, tau_hist=new_hist), EffectsRecord(f, tsm, tsk)

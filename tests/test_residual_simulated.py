@@ -198,17 +198,40 @@ def test_effects_blockwise_equals_whole(block: int, seed: int) -> None:
         ObserverEffect("torque_ripple", {"period": 1.047}, (0.1, 0.05, 0.0, 0.01)),
         ObserverEffect("backlash", {"gap": 2e-4}, (900.0,)),
         ObserverEffect("stribeck", {"v_s": 3.0}, (0.2,)),
+        ObserverEffect("delay", {"delay_s": 1.3e-3}, (1.0,)),
     )
+    tau = rng.normal(0.0, 1.0, n)
     fx = ObserverEffects(EffectsParams(effects, ts))
-    _, whole = fx.step(fx.init_state(), alpha, t, q_m, q_l)
+    _, whole = fx.step(fx.init_state(), alpha, t, q_m, q_l, tau)
     s = fx.init_state()
     parts = []
     for a in range(0, n, block):
-        s, r = fx.step(
-            s, alpha[a : a + block], t[a : a + block], q_m[a : a + block], q_l[a : a + block]
-        )
+        sl = slice(a, a + block)
+        s, r = fx.step(s, alpha[sl], t[sl], q_m[sl], q_l[sl], tau[sl])
         parts.append(r.f_corr)
     assert np.allclose(np.concatenate(parts), whole.f_corr, atol=1e-12)
+
+
+def test_delay_term_is_the_late_torque() -> None:
+    """A delay of exactly 2 samples: the term is tau(k-1-2) - tau(k-1) (ZOH-averaged)."""
+    n, ts = 400, 4e-4
+    t = np.arange(n) * ts
+    tau = np.sin(2 * np.pi * 7.0 * t)
+    fx = ObserverEffects(
+        EffectsParams((ObserverEffect("delay", {"delay_s": 2 * ts}, (1.0,)),), ts, q_hz=250.0)
+    )
+    _, rec = fx.step(fx.init_state(), np.ones(n), t, np.zeros(n), np.zeros(n), tau)
+    avg = 0.5 * (tau[1:] + tau[:-1])  # avg[k-2] = torque the observer uses at sample k
+    expect = np.zeros(n)
+    expect[4:] = avg[:-3] - avg[2:-1]
+    # motor side with alpha = 1: the force changes by -Q{term}; the first samples differ
+    # (the module holds the first torque), Q forgets them within a few samples
+    from estimators.filters import lowpass
+
+    qe, _ = lowpass(250.0, ts, 1).run(expect)
+    assert np.allclose(-rec.f_corr[60:], qe[60:], atol=1e-9)  # start transient gone
+    with pytest.raises(ParameterError, match=r"'tau_m': expected the block's 400 motor torques"):
+        fx.step(fx.init_state(), np.ones(n), t, np.zeros(n), np.zeros(n))
 
 
 def test_effect_parameters_are_validated() -> None:
