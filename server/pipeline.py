@@ -40,6 +40,7 @@ from machine.params import ADDED_WEIGHT_INERTIA, preset
 from machine.stage import SEED000_FORCE, SEED001_FORCE, CuttingForce, StageConfig
 from server.stage_harmonics import make_dfo
 from server.stage_run import StageRun
+from server.tool_wear import AcceleratedToolWear
 
 
 @dataclass(frozen=True)
@@ -72,6 +73,8 @@ BASE_RPM = 3000.0
 SPINDLE_PERIOD = 15.0  # default scenario: the spindle steps every 15 s of simulated time
 WORKPIECE_INERTIA = ADDED_WEIGHT_INERTIA  # a blank as heavy as seed 000's weight
 REMOVAL_STEP = 0.05  # the workpiece's inertia is updated in steps of 5 % of the blank
+PASS_S = 1.0  # default scenario: one tool-wear pass per second of simulated time
+VB_LIMIT = 0.3  # flank wear at which the tool is changed [mm] (seed 004's limit)
 
 CHANNELS: list[Channel] = [
     Channel("f_true", "N m", "force", "true cutting torque"),
@@ -92,6 +95,10 @@ CHANNELS: list[Channel] = [
     Channel("h2_amp", "N m", "harmonics", "2nd tooth-passing harmonic, DFO amplitude"),
     Channel("h1_true", "N m", "harmonics", "1st harmonic, true amplitude"),
     Channel("h2_true", "N m", "harmonics", "2nd harmonic, true amplitude"),
+    Channel("vb_true", "mm", "wear", "flank wear, true"),
+    Channel("vb_est", "mm", "wear", "flank wear, estimated from the adaptive observer"),
+    Channel("vb_limit", "mm", "wear", "flank-wear limit (tool change)"),
+    Channel("life_left", "min", "wear", "remaining tool life (wear clock)"),
     Channel("mode_switching", "", "rls", "switching-RLS regressor mode"),
     Channel("excitation", "", "rls", "excitation index of the block"),
     Channel("omega_l", "rad/s", "motion", "load velocity (true)"),
@@ -131,6 +138,14 @@ def _knobs() -> dict[str, Knob]:
             "spindle steps to 80 % every 15 s (default scenario)",
         ),
         Knob("current_noise", 0.0, 0.0, 0.05, "A", "rms noise of the current measurement"),
+        Knob(
+            "wear_rate",
+            0.5,
+            0.05,
+            5.0,
+            "min/s",
+            "minutes of tool wear per second of machining (default scenario)",
+        ),
     ]
     # each plant effect the observers do not model (machine.effects), on/off
     ks += [
@@ -185,7 +200,28 @@ class LivePipeline:
         # retuned, state kept, when the spindle speed changes
         self._dfo = make_dfo(self.run.front.params, tuple(cfg.force.frequencies))
         self._dfo_state = dfo_mod.initial_state(self._dfo)
+        self._new_tool()
         self._apply(0.0)
+
+    def _new_tool(self) -> None:
+        """A sharp tool: seed 004's wear model on an accelerated clock (default scenario).
+
+        The wear raises the cutting force on the stage (gain = pass force / sharp force);
+        the life monitor is fed the force the adaptive observer sees, back in the wear
+        model's newtons: ``F_sharp * mean(f_adaptive) / mean(force without wear)``.
+        """
+        self._wear = AcceleratedToolWear(
+            wear_minutes_per_second=float(self._knobs["wear_rate"].value)
+        )
+        self._wear_gain = 1.0
+        # force of the sharp tool (eq. (8) at zero wear): the stage's force is scaled by
+        # the wear model's force over this one
+        self._f_sharp = self._wear.model.force(np.zeros(3), self._wear.feed)
+        self._pass_est = self._pass_nom = self._pass_t = 0.0
+        self._vb_true = 0.0
+        self._vb_est = math.nan
+        self._life_left = math.nan
+        self.tools_changed = getattr(self, "tools_changed", -1) + 1
 
     @property
     def t(self) -> float:
@@ -205,7 +241,7 @@ class LivePipeline:
         k = self._knobs
         sf = self._spindle_factor(t)
         freq = float(k["spindle_rpm"].value) / BASE_RPM * sf
-        gain = float(k["feed_scale"].value) * sf
+        gain = float(k["feed_scale"].value) * sf * self._wear_gain
         extra = ADDED_WEIGHT_INERTIA if k["weight_on"].value else 0.0
         if self.scenario == "seed000-weight" and t >= 10.0:
             extra = ADDED_WEIGHT_INERTIA
@@ -277,6 +313,8 @@ class LivePipeline:
         self._apply(t0)
         b = self.run.step(n)
         self._dfo_state, dr = dfo_mod.step(self._dfo, self._dfo_state, b.f_adaptive)
+        if self.scenario == "default":
+            self._wear_pass(n, b.f_adaptive, t0)
         f = self.run.sim.config.force
         true_amp = np.asarray(f.amplitudes, dtype=np.float64) * f.gain
         th_a, th_s = b.theta_adaptive, b.theta_switching
@@ -302,6 +340,10 @@ class LivePipeline:
             "h2_amp": dr.amplitude[:, 1],
             "h1_true": np.full(n, true_amp[0]),
             "h2_true": np.full(n, true_amp[1]),
+            "vb_true": np.full(n, self._vb_true),
+            "vb_est": np.full(n, self._vb_est),
+            "vb_limit": np.full(n, VB_LIMIT),
+            "life_left": np.full(n, self._life_left),
             "mode_switching": b.mode_switching.astype(np.float64),
             "excitation": np.full(n, float(b.excitation_index)),
             "omega_l": b.truth.omega_l,
@@ -312,6 +354,30 @@ class LivePipeline:
         out = {k: np.ascontiguousarray(v, dtype=np.float64) for k, v in out.items()}
         self._last = {k: float(v[-1]) for k, v in out.items()}
         return out
+
+    def _wear_pass(self, n: int, f_est: np.ndarray, t0: float) -> None:
+        """Accumulate the block into the current pass; close the pass every PASS_S."""
+        nominal = self._force0.offset * float(self._knobs["feed_scale"].value)
+        nominal *= self._spindle_factor(t0)
+        # the mean of the observer's force over a pass is the offset's (the harmonics
+        # average out); the nominal mean is what it would be with a sharp tool
+        self._pass_est += float(np.sum(f_est))
+        self._pass_nom += n * nominal
+        self._pass_t += n * self.sample_time
+        if self._pass_t < PASS_S - 1e-9:
+            return
+        w = self._wear
+        w.rate = float(self._knobs["wear_rate"].value)
+        _, f_true, x = w.cut_pass(self._pass_t)
+        if self._pass_nom > 0.0:
+            rec = w.observe_pass(self._f_sharp * self._pass_est / self._pass_nom)
+            self._vb_est = float(rec.vb[-1])
+            self._life_left = float(rec.remaining_life[-1])
+        self._vb_true = float(x[0] + x[1])  # flank wear w_f1 + w_f2
+        self._wear_gain = f_true / self._f_sharp
+        self._pass_est = self._pass_nom = self._pass_t = 0.0
+        if self._vb_true >= VB_LIMIT:  # the tool is changed at the flank-wear limit
+            self._new_tool()
 
     @property
     def latest(self) -> dict[str, float]:

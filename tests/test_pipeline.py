@@ -93,3 +93,16 @@ def test_plant_effect_knob_reaches_the_plant() -> None:
     p.set_knob("effect_offset", False)
     p.step(125)
     assert p.run.sim.config.effects.enabled == frozenset()
+
+
+def test_tool_wears_is_estimated_and_changed_at_the_limit() -> None:
+    p = LivePipeline()
+    p.set_knob("wear_rate", 5.0)  # 5 min of wear per second: a tool lasts a few seconds
+    vb_true, vb_est = [], []
+    for _ in range(200):  # 10 s
+        out = p.step(125)
+        vb_true.append(out["vb_true"][-1])
+        vb_est.append(out["vb_est"][-1])
+    assert p.tools_changed >= 1
+    assert max(vb_true) < 0.3 + 0.1  # changed at the limit (checked once per 1 s pass)
+    assert np.nanmax(vb_est) > 0.1  # the monitor sees the wear through the observer

@@ -24,6 +24,9 @@ const CHARTS = {
     ["B_L_adaptive", "RLS", COLORS.adaptive], ["B_L_switching", "switching RLS", COLORS.switching]] },
   F_CL: { window: 30, series: [["F_CL_true", "true", COLORS.true],
     ["F_CL_adaptive", "RLS", COLORS.adaptive], ["F_CL_switching", "switching RLS", COLORS.switching]] },
+  wear: { window: 120, series: [["vb_true", "VB true [mm]", COLORS.true],
+    ["vb_est", "VB estimated [mm]", COLORS.adaptive], ["vb_limit", "limit", "#cc3311"],
+    ["life_left", "life left [min]", COLORS.dfo, "life"]] },
   rls: { window: 30, series: [["mode_switching", "mode", COLORS.mode],
     ["excitation", "excitation", COLORS.excitation]] },
 };
@@ -51,11 +54,13 @@ function makeChart(id, spec) {
   const opts = {
     width: width(el), height: id === "force" ? 260 : 170,
     scales: { x: { time: false } },
-    axes: [{ label: "t [s]" }, { size: 70, values: (u, vals) => vals.map(fmt) }],
+    axes: [{ label: "t [s]" }, { size: 70, values: (u, vals) => vals.map(fmt) },
+      ...(spec.series.some((s) => s[3]) ? [{ scale: spec.series.find((s) => s[3])[3],
+        side: 1, size: 50, values: (u, vals) => vals.map(fmt) }] : [])],
     legend: { live: true },
     cursor: { drag: { x: true, y: false } },
-    series: [{ label: "t" }, ...spec.series.map(([, label, color]) => (
-      { label, stroke: color, width: 1.4, points: { show: false } }))],
+    series: [{ label: "t" }, ...spec.series.map(([, label, color, scale]) => (
+      { label, stroke: color, width: 1.4, points: { show: false }, ...(scale ? { scale } : {}) }))],
     hooks: {
       setSelect: [(u) => { if (u.select.width > 0) state.zoomed[id] = true; }],
     },
@@ -183,7 +188,7 @@ function knobControl(name, k) {
     input = document.createElement("input");
     input.type = "range";
     input.min = k.min; input.max = k.max;
-    input.step = (k.max - k.min) / 200;
+    input.step = "any";
     input.value = k.value;
     const show = () => { out.textContent = `${Number(input.value).toPrecision(3)} ${k.unit}`; };
     show();
