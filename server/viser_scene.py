@@ -166,12 +166,17 @@ class StageScene:
         frac = min(max(1.0 - removed, 0.05), 1.0)
         f_true = latest.get("f_true", 0.0)
         f_est = latest.get("f_adaptive", 0.0)
+        # wear shown on the tool: silver when sharp, red at the flank-wear limit
+        wear = latest.get("vb_true", 0.0) / max(latest.get("vb_limit", 0.3), 1e-9)
+        wear = min(max(wear if math.isfinite(wear) else 0.0, 0.0), 1.0)
+        tool_color = (230, int(230 * (1 - wear)), int(235 * (1 - wear)))
         with self.server.atomic():
             self.screw.wxyz = _qmul(_quat_axis((1.0, 0.0, 0.0), q_m % (2 * math.pi)), self._along_x)
             self.table.position = (x_l, 0.0, 0.075)
             self.work.scale = (1.0, 1.0, frac)
             self.work.position = (0.0, 0.0, 0.015 + frac * BLANK[2] / 2)
             self.spindle.wxyz = _quat_axis((0.0, 0.0, 1.0), self._spindle_angle)
+            self.tool.color = tool_color
             z, dy = 0.17, 0.02
             pts = np.array(
                 [

@@ -44,7 +44,15 @@ def test_taken_port_fails_clearly_and_does_not_drift() -> None:
 def test_scene_updates_coalesce() -> None:
     scene = StageScene("127.0.0.1", free_port(), max_hz=10.0)
     try:
-        latest = {"q_m": 1.0, "x_l": 0.05, "spindle_rpm": 3000.0, "f_true": 4.0, "f_adaptive": 3.5}
+        latest = {
+            "q_m": 1.0,
+            "x_l": 0.05,
+            "spindle_rpm": 3000.0,
+            "f_true": 4.0,
+            "f_adaptive": 3.5,
+            "vb_true": 0.3,
+            "vb_limit": 0.3,
+        }
         assert not scene.update(latest, 0.3, 0.1)  # no viser client: nothing to do
         assert scene.update(latest, 0.3, 0.1, force=True)
         assert not scene.update(latest, 0.3, 0.15, force=True)  # within 1/max_hz: skipped
@@ -52,5 +60,6 @@ def test_scene_updates_coalesce() -> None:
         assert scene.update(latest, 0.4, 0.2, force=True)
         assert scene.updates == 2
         assert tuple(scene.table.position) == pytest.approx((0.05, 0.0, 0.075))
+        assert tuple(scene.tool.color) == (230, 0, 0)  # worn to the limit: red
     finally:
         scene.stop()
