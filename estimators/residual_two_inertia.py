@@ -313,29 +313,44 @@ class _Fit:
 def _fit(
     base: tuple[F64, F64], cf: F64, cs: F64, y_f: F64, y_s: F64, fit: NDArray[np.bool_]
 ) -> _Fit:
-    """Joint least squares over both channels on the fit rows; drops spanned columns."""
+    """Joint least squares over both channels on the fit rows; drops spanned columns.
+
+    Normal equations on norm-scaled columns (a few columns, up to millions of rows): a
+    column is dropped when its part not spanned by the columns kept before it is below
+    1e-6 of its norm (the Schur complement of the Gram matrix).
+    """
     nb = base[0].shape[1]
     xf = np.hstack([base[0], cf])
     xs = np.hstack([base[1], cs])
-    x = np.vstack([xf[fit], xs[fit]])
-    y = np.concatenate([y_f[fit], y_s[fit]])
-    keep = np.zeros(x.shape[1], dtype=bool)
-    keep[:nb] = True
-    for j in range(nb, x.shape[1]):
-        c = x[:, j]
-        nc = float(np.linalg.norm(c))
-        if nc == 0.0:
+    rows = np.flatnonzero(fit)
+    sel: slice | NDArray[np.intp] = rows
+    if len(rows) and rows[-1] - rows[0] + 1 == len(rows):
+        sel = slice(int(rows[0]), int(rows[-1]) + 1)
+    af, as_ = xf[sel], xs[sel]
+    g = af.T @ af + as_.T @ as_
+    rhs = af.T @ y_f[sel] + as_.T @ y_s[sel]
+    nrm = np.sqrt(np.maximum(np.diag(g), 0.0))
+    scale = np.where(nrm > 0, 1.0 / np.where(nrm > 0, nrm, 1.0), 0.0)
+    gs = g * np.outer(scale, scale)
+    bs = rhs * scale
+    keep = np.zeros(xf.shape[1], dtype=bool)
+    keep[:nb] = nrm[:nb] > 0
+    for j in range(nb, xf.shape[1]):
+        if nrm[j] == 0.0:
             continue
-        if keep.any():
-            a = x[:, keep]
-            coef, *_ = np.linalg.lstsq(a, c, rcond=None)
-            if float(np.linalg.norm(c - a @ coef)) <= 1e-6 * nc:
+        k = np.flatnonzero(keep)
+        if len(k):
+            gk = gs[np.ix_(k, k)]
+            v = gs[k, j]
+            sol, *_ = np.linalg.lstsq(gk, v, rcond=None)
+            if float(gs[j, j] - v @ sol) <= 1e-12:
                 continue
         keep[j] = True
-    theta = np.zeros(x.shape[1])
-    if keep.any():
-        sol, *_ = np.linalg.lstsq(x[:, keep], y, rcond=None)
-        theta[keep] = sol
+    theta = np.zeros(xf.shape[1])
+    k = np.flatnonzero(keep)
+    if len(k):
+        sol, *_ = np.linalg.lstsq(gs[np.ix_(k, k)], bs[k], rcond=None)
+        theta[k] = sol * scale[k]
     return _Fit(theta, keep, y_f - xf @ theta, y_s - xs @ theta)
 
 
