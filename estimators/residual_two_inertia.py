@@ -241,8 +241,6 @@ def find_shape_two_inertia(
     r_s: F64,
     fit: NDArray[np.bool_],
     angular: bool,
-    q_hz: float = 250.0,
-    q_order: int = 1,
 ) -> dict[str, float]:
     """Shape parameters of family ``name`` from the current residuals on the fit rows."""
     rows = np.flatnonzero(fit)
@@ -511,9 +509,7 @@ def analyse_two_inertia(
             if any(s[0] == name for s in selected):
                 continue
             say(f"candidate {name}")
-            shape = find_shape_two_inertia(
-                name, d, cur.e_f, cur.e_s, fit, angular, observer.q_hz, observer.q_order
-            )
+            shape = find_shape_two_inertia(name, d, cur.e_f, cur.e_s, fit, angular)
             if any(not math.isfinite(v) for v in shape.values()):
                 scores[name] = CandidateScore(
                     name, shape, _rms2(cur, hold), _rms2(cur, hold), 0.0, 0.0, False,
