@@ -87,25 +87,54 @@ class Trajectory:
     ramps of ``ramp`` seconds centred on every multiple of ``half_period`` (the velocity
     reverses there: seed 001 has reversals at 12 s and 16 s). The figures themselves are
     not in the seed text; this shape keeps their features (plateaus, reversals).
+
+    Two options make a record richer for identification (``cutwatch simulate`` uses
+    them; the papers' experiments do not): ``dwell`` seconds at rest in the middle of each
+    reversal (friction that acts only while moving then differs from a constant load),
+    and ``levels``, plateau speeds as fractions of ``speed`` taken in turn (friction's
+    dependence on speed becomes visible).
     """
 
     speed: float = 30.0  # plateau speed [rad/s]
     half_period: float = 4.0  # time between reversals [s]
     ramp: float = 0.1  # duration of a reversal ramp [s]
     start_ramp: float = 0.1  # from rest to the first plateau [s]
+    dwell: float = 0.0  # rest at each reversal [s]
+    levels: tuple[float, ...] = (1.0,)  # plateau speeds, fractions of ``speed``, in turn
+
+    def __post_init__(self) -> None:
+        for name in ("speed", "half_period", "ramp", "start_ramp"):
+            require_positive(name, getattr(self, name))
+        if not (math.isfinite(self.dwell) and self.dwell >= 0):
+            raise ParameterError("dwell", "a finite value >= 0", self.dwell)
+        if self.ramp + self.dwell >= self.half_period:
+            raise ParameterError(
+                "dwell", f"ramp + dwell < half_period ({self.half_period:g} s)", self.dwell
+            )
+        if not self.levels or not all(math.isfinite(x) and 0 < x <= 1 for x in self.levels):
+            raise ParameterError("levels", "fractions in (0, 1]", self.levels)
 
     def __call__(self, t: ArrayLike) -> F64:
         t = np.asarray(t, dtype=np.float64)
-        hp, r, v = self.half_period, self.ramp, self.speed
-        # plateaus: +v before the first reversal, then alternating sign
-        w = v * np.where(np.floor(t / hp) % 2 == 0, 1.0, -1.0)
-        # ramps centred on the reversals m * hp (m >= 1), from -s v to s v
+        hp, r, v, dw = self.half_period, self.ramp, self.speed, self.dwell
+        lv = np.asarray(self.levels, dtype=np.float64)
+
+        def plateau(k: NDArray[np.float64]) -> F64:
+            # segment k (after reversal k): sign (-1)^k, speed level k mod len(levels)
+            kk = np.maximum(k, 0).astype(np.int64)
+            return np.where(kk % 2 == 0, 1.0, -1.0) * v * lv[kk % len(lv)]
+
+        w = plateau(np.floor(t / hp))
+        # reversal m (m >= 1) at m*hp: ramp from the previous plateau to rest in r/2,
+        # rest for the dwell, ramp to the next plateau in r/2
         m = np.round(t / hp)
         d = t - m * hp
-        s_after = np.where(m % 2 == 0, 1.0, -1.0)
-        w = np.where((m >= 1) & (np.abs(d) < 0.5 * r), s_after * v * (2.0 * d / r), w)
+        half = 0.5 * r + 0.5 * dw
+        before = plateau(m - 1) * np.clip((-0.5 * dw - d) / (0.5 * r), 0.0, 1.0)
+        after = plateau(m) * np.clip((d - 0.5 * dw) / (0.5 * r), 0.0, 1.0)
+        w = np.where((m >= 1) & (np.abs(d) < half), before + after, w)
         # start from rest
-        w = np.where(t < self.start_ramp, v * np.clip(t, 0.0, None) / self.start_ramp, w)
+        w = np.where(t < self.start_ramp, v * lv[0] * np.clip(t, 0.0, None) / self.start_ramp, w)
         return np.asarray(w, dtype=np.float64)
 
 

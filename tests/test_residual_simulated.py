@@ -34,14 +34,19 @@ EFFECTS = (
 )
 # measured (see docs/residual.md): the simulator's direction asymmetry adds a*F_CL in BOTH
 # directions while the axis moves (friction = F_CL (sgn w + a)), the same signal as a
-# constant load torque; the parsimony rule names the one-column family
-ASYM = "the simulator's coulomb_asymmetry is a constant a*F_CL while moving: offset named"
-# measured: Stribeck acts only within ~3 rad/s of a reversal (about 20 ms per reversal at
-# 600 rad/s^2): 2 % lower held-out error, t = 1.0, below the test
-STRIBECK = "stribeck acts ~20 ms per reversal: held-out gain 2 %, t = 1.0 (not significant)"
+# constant load torque; the dwell at each reversal does not separate them because the
+# 100/200 Hz cutting force keeps the load vibrating through zero velocity (it never
+# sticks). The parsimony rule names the one-column family; the held-out rms falls from
+# 0.0467 to 0.0245 N m (0.52, target <= 0.5)
+ASYM = "coulomb_asymmetry is a*F_CL while moving (the load never sticks): offset named"
+ASYM_HALF = "coulomb_asymmetry: held-out rms 0.0467 -> 0.0245 N m (0.52, target 0.5)"
+# measured with `cutwatch simulate`'s default motion (dwell, three speed levels): Stribeck
+# is named first (v_s 5.7 rad/s, F_s 0.106 N m against 3 and 0.25), but it acts only near
+# zero speed: held-out rms 0.0315 -> 0.0277 N m (0.88, target <= 0.5)
+STRIBECK = "stribeck acts only near zero speed: held-out rms 0.0315 -> 0.0277 N m (0.88)"
 
-FIRST_XFAIL = {"coulomb_asymmetry": ASYM, "stribeck": STRIBECK}
-HALF_XFAIL = {"stribeck": STRIBECK}
+FIRST_XFAIL = {"coulomb_asymmetry": ASYM}
+HALF_XFAIL = {"stribeck": STRIBECK, "coulomb_asymmetry": ASYM_HALF}
 
 
 @pytest.fixture(scope="module")

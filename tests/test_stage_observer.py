@@ -151,3 +151,28 @@ def test_small_expm_agrees_with_scipy() -> None:
         m[4:, :] = 0.0  # the augmented form used for ZOH
         ref = scipy.linalg.expm(m)
         np.testing.assert_allclose(_expm_small(m), ref, rtol=1e-10, atol=1e-12 * np.abs(ref).max())
+
+
+def test_trajectory_dwell_and_levels() -> None:
+    tr = Trajectory(half_period=2.0, dwell=0.4, levels=(1.0, 0.5))
+    assert tr(np.array([1.0]))[0] == 30.0
+    assert tr(np.array([2.0, 2.15]))[0] == 0.0 and tr(np.array([2.15]))[0] == 0.0  # at rest
+    assert tr(np.array([3.0]))[0] == -15.0  # second plateau: half speed, reversed
+    assert tr(np.array([5.0]))[0] == 30.0
+    # without the options, the papers' shape: a straight ramp through zero
+    assert Trajectory()(np.array([4.025]))[0] == pytest.approx(15.0)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"dwell": -1.0}, "dwell.*>= 0"),
+        ({"dwell": 4.0}, "dwell.*half_period"),
+        ({"levels": (1.0, 1.5)}, r"levels.*\(0, 1\]"),
+        ({"levels": ()}, "levels"),
+        ({"speed": 0.0}, "speed"),
+    ],
+)
+def test_bad_trajectory_is_named(kwargs: dict, match: str) -> None:
+    with pytest.raises(ParameterError, match=match):
+        Trajectory(**kwargs)

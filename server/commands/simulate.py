@@ -10,6 +10,10 @@ Examples::
 
     cutwatch simulate --out run.csv --seconds 20
     cutwatch simulate --out run.csv --effect coulomb_asymmetry --weight
+    cutwatch simulate --out paper.csv --half-period 4 --dwell 0 --levels 1   # seed 000 Fig. 8
+
+The default motion is richer than the papers' (reversals every 2 s, 0.3 s at rest at
+each, plateaus at 100/50/25 % of the speed) so that friction effects can be told apart.
 """
 
 from __future__ import annotations
@@ -42,6 +46,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--weight", action="store_true", help="add the weight of seed 000 Fig. 7(b)")
     p.add_argument("--no-force", action="store_true", help="air cut: no cutting force")
+    p.add_argument("--speed", type=float, default=30.0, help="plateau speed [rad/s]")
+    p.add_argument(
+        "--half-period", type=float, default=2.0, help="time between velocity reversals [s]"
+    )
+    p.add_argument(
+        "--dwell", type=float, default=0.3, help="rest at each reversal [s] (0: no stop)"
+    )
+    p.add_argument(
+        "--levels", default="1,0.5,0.25", help="plateau speeds as fractions of --speed, in turn"
+    )
     p.add_argument("--seed", type=int, default=0, help="random seed (current noise)")
     p.add_argument("--current-noise", type=float, default=0.0, help="current noise rms [A]")
 
@@ -52,7 +66,14 @@ def run(args: argparse.Namespace) -> int:
 
     from machine.effects import PlantEffects
     from machine.params import preset
-    from machine.stage import SEED000_FORCE, SEED001_FORCE, CuttingForce, StageConfig, StageSim
+    from machine.stage import (
+        SEED000_FORCE,
+        SEED001_FORCE,
+        CuttingForce,
+        StageConfig,
+        StageSim,
+        Trajectory,
+    )
     from server.errors import CutwatchError
     from server.logfile import write_log
 
@@ -61,9 +82,19 @@ def run(args: argparse.Namespace) -> int:
     force = SEED000_FORCE if args.preset == "seed000" else SEED001_FORCE
     if args.no_force:
         force = CuttingForce(offset=0.0, amplitudes=(0.0,), frequencies=(100.0,))
+    try:
+        levels = tuple(float(x) for x in str(args.levels).split(","))
+    except ValueError:
+        raise CutwatchError(
+            f"--levels: expected comma-separated fractions in (0, 1], got {args.levels!r}"
+        ) from None
+    traj = Trajectory(
+        speed=args.speed, half_period=args.half_period, dwell=args.dwell, levels=levels
+    )
     cfg = StageConfig(
         params=preset(args.preset),
         force=force,
+        trajectory=traj,
         effects=PlantEffects().with_enabled(*args.effect),
         current_noise=args.current_noise,
     )
@@ -92,6 +123,12 @@ def run(args: argparse.Namespace) -> int:
         "nominal": nom.as_dict(),
         "encoder_resolution": cfg.encoder_resolution,
         "source": f"cutwatch simulate --preset {args.preset}",
+        "trajectory": {
+            "speed": args.speed,
+            "half_period": args.half_period,
+            "dwell": args.dwell,
+            "levels": list(levels),
+        },
     }
     write_log(args.out, {k: np.concatenate(v) for k, v in cols.items()}, sidecar)
     truth = {
