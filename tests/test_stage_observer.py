@@ -160,7 +160,7 @@ def test_trajectory_dwell_and_levels() -> None:
     assert tr(np.array([3.0]))[0] == -15.0  # second plateau: half speed, reversed
     assert tr(np.array([5.0]))[0] == 30.0
     # without the options, the papers' shape: a straight ramp through zero
-    assert Trajectory()(np.array([4.025]))[0] == pytest.approx(15.0)
+    assert Trajectory()(np.array([4.025]))[0] == pytest.approx(-15.0)
 
 
 @pytest.mark.parametrize(
