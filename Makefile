@@ -45,7 +45,7 @@ bench: setup
 
 lint: setup
 	$(BIN)/ruff check .
-	$(BIN)/ruff format --check machine estimators server tests bench
+	$(BIN)/ruff format --check .
 
 typecheck: setup
 	$(BIN)/mypy
