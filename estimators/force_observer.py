@@ -100,7 +100,7 @@ class TorsionRecord:
     acc_l: F64  # Q(s) d omega_L/dt [rad/s^2]
     vel_l: F64  # Q(s) omega_L [rad/s]
     sgn_l: F64  # Q(s) sgn(omega_L)
-    omega_l: F64  # raw backward-difference load velocity [rad/s]
+    omega_l: F64  # raw central-difference load velocity (at t[k-1]) [rad/s]
 
 
 # channels filtered by Q

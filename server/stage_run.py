@@ -76,9 +76,9 @@ class StageRun:
         self.ident = LoadIdentifier(ip, switching=False)
         self.ident_sw = LoadIdentifier(ip, switching=True)
         self._q = lowpass(self.front.params.q_hz, cfg.sample_time, self.front.params.q_order)
-        self.reset_estimators()
+        self._reset_estimators()
 
-    def reset_estimators(self) -> None:
+    def _reset_estimators(self) -> None:
         nl = self.nominal_load
         self.s_front = self.front.init_state()
         self.s_ident = self.ident.init_state(nl.J_L, nl.B_L, nl.F_CL)

@@ -111,3 +111,21 @@ def test_lost_positive_definiteness_is_detected_and_reported() -> None:
 def test_bad_identifier_parameters_are_named(kwargs: dict, match: str) -> None:
     with pytest.raises(ParameterError, match=match):
         IdentifierParams(**kwargs)
+
+
+def test_a_failed_downdate_resets_and_keeps_the_new_sample() -> None:
+    p = RLSParams(window=3, scale=(1.0,), lower=(-10,), upper=(10,), p0=1.0)
+    s = rls_init(p, np.zeros(1))
+    lo, hi = np.array(p.lower), np.array(p.upper)
+    for _ in range(3):
+        rls_update(
+            s.P, s.r, s.theta, s.buf_phi, s.buf_y, s.meta, np.array([1.0]), 2.0, lo, hi, p.p0, 1
+        )
+    # make the oldest sample's downdate impossible (1 - phi P phi <= 0)
+    s.P[0, 0] = 5.0
+    rc = rls_update(
+        s.P, s.r, s.theta, s.buf_phi, s.buf_y, s.meta, np.array([1.0]), 3.0, lo, hi, p.p0, 1
+    )
+    assert rc == 1
+    assert s.meta[1] == 1  # the fresh window holds the new sample
+    assert s.buf_y[s.meta[0]] == 3.0
