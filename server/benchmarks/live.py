@@ -119,7 +119,9 @@ async def _session(
     raw.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
     from websockets.sync.client import connect as sync_connect
 
-    slow = await asyncio.to_thread(sync_connect, ws_url, sock=raw, max_queue=1)
+    slow = await asyncio.to_thread(
+        sync_connect, ws_url, sock=raw, max_queue=1, ping_interval=None, close_timeout=1
+    )
     lat.clear()
     rss0 = _rss_mb(pid)
     peak = rss0
