@@ -1,7 +1,16 @@
-"""Benchmarks: simulated seconds per wall second and per-block cost.
+"""Benchmarks: simulated seconds per wall second and per-block cost (medians).
 
-Each group in :mod:`server.benchmarks` is measured several times; medians are printed.
-``--json`` prints ``{"realtime_factor": x, ...}`` with the configuration measured.
+Groups (modules in server/benchmarks/; see bench/README.md):
+  stage                  the stage with its observers and both RLS (issue 2)
+  disturbance_observers  seed 002's loops and the stage DFO
+  eccentricity           milling with X/Y drives, ESC and the fast tuner
+  tool_wear              the wear model, observer and life monitor
+  residual               residual analysis of 1,000,000 samples (rigid)
+  residual_two_inertia   the same for the two-inertia observer
+  live                   the real service with 10 WebSocket clients
+
+--json prints {"realtime_factor": x, "<group>": {...}} with the configuration measured.
+This is a benchmark, not a test: run it on a quiet machine and compare medians.
 """
 
 from __future__ import annotations
