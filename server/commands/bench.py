@@ -2,9 +2,9 @@
 
 Groups (modules in server/benchmarks/; see bench/README.md):
   stage                  the stage with its observers and both RLS (issue 2)
-  disturbance_observers  seed 002's loops and the stage DFO
+  disturbance-observers  seed 002's loops and the stage DFO
   eccentricity           milling with X/Y drives, ESC and the fast tuner
-  tool_wear              the wear model, observer and life monitor
+  tool-wear              the wear model, observer and life monitor
   residual               residual analysis of 1,000,000 samples (rigid)
   residual_two_inertia   the same for the two-inertia observer
   live                   the real service with 10 WebSocket clients
