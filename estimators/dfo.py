@@ -42,33 +42,9 @@ from numba import njit
 from numpy.typing import ArrayLike, NDArray
 
 from estimators.errors import ParameterError, require_nonnegative, require_positive
+from estimators.filters import zoh
 
 FloatArray = NDArray[np.float64]
-
-
-def _expm(m: FloatArray) -> FloatArray:
-    """Matrix exponential, scaling and squaring of a Taylor series (small matrices)."""
-    a = np.asarray(m, dtype=np.float64)
-    norm = float(np.max(np.sum(np.abs(a), axis=1))) if a.size else 0.0
-    j = max(0, math.ceil(math.log2(norm / 0.25))) if norm > 0.25 else 0
-    a = a / 2.0**j
-    out = np.eye(a.shape[0])
-    term = np.eye(a.shape[0])
-    for k in range(1, 20):
-        term = term @ a / k
-        out = out + term
-    for _ in range(j):
-        out = out @ out
-    return out
-
-
-def _zoh(f: FloatArray, g: FloatArray, h: float) -> tuple[FloatArray, FloatArray]:
-    n = f.shape[0]
-    big = np.zeros((n + 1, n + 1))
-    big[:n, :n] = f
-    big[:n, n] = g
-    e = _expm(big * h)
-    return e[:n, :n], e[:n, n].copy()
 
 
 def _balance(m: FloatArray) -> FloatArray:
@@ -249,10 +225,10 @@ class DfoParams:
             # eq. (5)-(7): s' = w c, c' = -w s
             f[j, j + 1] = w
             f[j + 1, j] = -w
-        phi, gam_full = _zoh(f, g, ts)
+        phi, gam_full = zoh(f, g, ts)
         if tau > 0:
-            phi_rest, gb = _zoh(f, g, ts - tau)
-            _, gt = _zoh(f, g, tau)
+            phi_rest, gb = zoh(f, g, ts - tau)
+            _, gt = zoh(f, g, tau)
             ga = phi_rest @ gt
         else:
             gb = gam_full

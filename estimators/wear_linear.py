@@ -20,9 +20,9 @@ from typing import Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.linalg import expm
 
 from estimators.errors import ParameterError, require_positive
+from estimators.filters import expm
 
 FloatArray = NDArray[np.float64]
 

@@ -32,6 +32,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from machine.effects import PlantEffects
 from machine.errors import ParameterError, require_positive
+from machine.linalg import zoh
 from machine.params import ADDED_WEIGHT_INERTIA, ENCODER_BITS, SAMPLE_TIME, StageParams, preset
 
 F64 = NDArray[np.float64]
@@ -205,28 +206,6 @@ class StageConfig:
         return 2 * math.pi / 2**self.encoder_bits
 
 
-def _expm_small(m: F64) -> F64:
-    """Matrix exponential of a small matrix: scaling and squaring with a Taylor series.
-
-    scipy's ``expm`` costs about 10 ms per call on this machine (its Pade path goes through
-    threaded BLAS); the live loop re-discretises whenever the workpiece's inertia changes,
-    so a plain numpy version (agreeing with scipy to 1e-13, tested) keeps that cheap.
-    """
-    norm = float(np.max(np.sum(np.abs(m), axis=1)))
-    s = max(0, math.ceil(math.log2(norm)) + 1) if norm > 0.5 else 0
-    a = m / 2.0**s
-    term = np.eye(len(m))
-    out = term.copy()
-    for k in range(1, 20):
-        term = term @ a / k
-        out = out + term
-        if float(np.max(np.abs(term))) < 1e-18 * float(np.max(np.abs(out))):
-            break
-    for _ in range(s):
-        out = out @ out
-    return np.asarray(out, dtype=np.float64)
-
-
 def _discrete_linear_part(p: StageParams, h: float) -> tuple[F64, F64]:
     """Exact ZOH discretisation of the linear two-inertia dynamics over one sub-step."""
     a = np.array(
@@ -238,11 +217,7 @@ def _discrete_linear_part(p: StageParams, h: float) -> tuple[F64, F64]:
         ]
     )
     b = np.array([[0.0, 0.0], [1.0 / p.J_M, 0.0], [0.0, 0.0], [0.0, 1.0 / p.J_L]])
-    m = np.zeros((6, 6))
-    m[:4, :4] = a * h
-    m[:4, 4:] = b * h
-    e = _expm_small(m)
-    return np.ascontiguousarray(e[:4, :4]), np.ascontiguousarray(e[:4, 4:])
+    return zoh(a, b, h)
 
 
 @njit(cache=True)

@@ -33,6 +33,7 @@ from numba import njit
 from numpy.typing import ArrayLike, NDArray
 
 from machine.errors import ParameterError, require_nonnegative, require_positive
+from machine.linalg import zoh
 
 FloatArray = NDArray[np.float64]
 
@@ -57,33 +58,6 @@ PAPER_HARMONICS_HZ = (26.0, 52.0, 78.0)
 #: Our sample time: seed 002 runs on a dSPACE DS1104 without stating the rate; 10 kHz
 #: is a common DS1104 rate and makes the 1.2 ms delay a whole number of samples.
 DEFAULT_SAMPLE_TIME = 1e-4
-
-
-def expm(m: FloatArray) -> FloatArray:
-    """Matrix exponential by scaling and squaring of a Taylor series (small matrices)."""
-    a = np.asarray(m, dtype=np.float64)
-    norm = float(np.max(np.sum(np.abs(a), axis=1))) if a.size else 0.0
-    j = max(0, math.ceil(math.log2(norm / 0.25))) if norm > 0.25 else 0
-    a = a / 2.0**j
-    out = np.eye(a.shape[0])
-    term = np.eye(a.shape[0])
-    for k in range(1, 20):
-        term = term @ a / k
-        out = out + term
-    for _ in range(j):
-        out = out @ out
-    return out
-
-
-def zoh_integral(f: FloatArray, g: FloatArray, h: float) -> tuple[FloatArray, FloatArray]:
-    r"""Return :math:`e^{F h}` and :math:`\int_0^h e^{F r}\,dr\; G` (one exponential)."""
-    n = f.shape[0]
-    m = g.shape[1]
-    big = np.zeros((n + m, n + m))
-    big[:n, :n] = f
-    big[:n, n:] = g
-    e = expm(big * h)
-    return e[:n, :n], e[:n, n:]
 
 
 def split_delay(delay: float, sample_time: float) -> tuple[int, float]:
@@ -133,11 +107,11 @@ class XYAxisParams:
         d, tau = split_delay(self.delay, self.sample_time)
         f, g = self.state_space()
         ts = self.sample_time
-        phi, gam_full = zoh_integral(f, g, ts)
+        phi, gam_full = zoh(f, g, ts)
         # modified z-transform of the delayed ZOH input: u[k-D-1] drives the first tau
         # of the interval, u[k-D] the remaining Ts - tau.
-        phi_rest, gam_b = zoh_integral(f, g, ts - tau)
-        _, gam_tau = zoh_integral(f, g, tau) if tau > 0 else (None, np.zeros_like(g))
+        phi_rest, gam_b = zoh(f, g, ts - tau)
+        _, gam_tau = zoh(f, g, tau) if tau > 0 else (None, np.zeros_like(g))
         gam_a = phi_rest @ gam_tau
         object.__setattr__(self, "phi", phi)
         object.__setattr__(self, "gamma_a", gam_a[:, 0].copy())
@@ -378,7 +352,6 @@ __all__ = [
     "XYAxisParams",
     "apply",
     "cascade_step",
-    "expm",
     "initial_state",
     "sine_reference",
     "split_delay",

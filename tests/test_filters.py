@@ -81,3 +81,22 @@ def test_bad_filter_parameters_are_named(kwargs: dict, match: str) -> None:
 def test_improper_transfer_function_refused() -> None:
     with pytest.raises(ParameterError, match="proper"):
         discretize([1.0, 0.0, 0.0], [1.0, 1.0], 1e-3)
+
+
+def test_state_space_zoh_agrees_with_scipy() -> None:
+    import scipy.linalg
+    import scipy.signal
+
+    from estimators.filters import expm, zoh
+
+    rng = np.random.default_rng(4)
+    for scale in (1e-3, 0.3, 5.0, 300.0):
+        m = rng.normal(size=(5, 5)) * scale
+        ref = scipy.linalg.expm(m)
+        np.testing.assert_allclose(expm(m), ref, rtol=1e-10, atol=1e-12 * np.abs(ref).max())
+    f = np.array([[0.0, 1.0], [-400.0, -3.0]])
+    g = np.array([0.0, 2.0])
+    phi, gam = zoh(f, g, 1e-3)
+    ad, bd, *_ = scipy.signal.cont2discrete((f, g[:, None], np.eye(2), np.zeros((2, 1))), 1e-3)
+    np.testing.assert_allclose(phi, ad, rtol=1e-12)
+    np.testing.assert_allclose(gam, bd[:, 0], rtol=1e-12)
