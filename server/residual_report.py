@@ -21,8 +21,8 @@ from typing import Any
 
 import numpy as np
 
-from estimators.residual import ResidualResult
-from estimators.residual_two_inertia import TwoInertiaResult
+from estimators.residual import NOT_OFFERED, ResidualResult
+from estimators.residual_two_inertia import NOT_OFFERED_TWO_INERTIA, TwoInertiaResult
 from server.logfile import MeasuredLog
 
 
@@ -36,6 +36,17 @@ def _clean(x: Any) -> Any:
     if isinstance(x, float) and not math.isfinite(x):
         return None
     return x
+
+
+def describe_structure(u: Mapping[str, Any]) -> str:
+    """One line for an ``unexplained`` entry, e.g. ``time: 23.7 Hz, 0.047``."""
+    amp = u.get("amplitude")
+    amp_s = f"{amp:.3g}" if isinstance(amp, int | float) else "?"
+    if "frequency_hz" in u:
+        return f"{u.get('domain', 'time')}: {u['frequency_hz']:.4g} Hz, amplitude {amp_s}"
+    if "period" in u:
+        return f"{u.get('domain', 'position')}: period {u['period']:.4g}, amplitude {amp_s}"
+    return ", ".join(f"{k}={v}" for k, v in u.items())
 
 
 def report_dict(
@@ -78,6 +89,8 @@ def report_dict(
             for c in res.candidates
         ],
         "unexplained": list(res.unexplained),
+        # canonical families this kind does not offer, and why
+        "not_offered": dict(NOT_OFFERED_TWO_INERTIA if two else NOT_OFFERED),
         "parameters_before": dict(zip(res.names_before, map(float, res.theta_before))),
         "parameters_after": dict(zip(res.names_after, map(float, res.theta_after))),
         "units": log.units,
@@ -212,8 +225,11 @@ def report_html(rep: Mapping[str, Any], figures: list[tuple[str, str]]) -> str:
         if k not in rep["parameters_before"]
     )
     unexpl = (
-        "".join(f"<li>{_fmt(json.dumps(u))}</li>" for u in rep["unexplained"])
+        "".join(f"<li>{_fmt(describe_structure(u))}</li>" for u in rep["unexplained"])
         or "<li>none above the reporting threshold</li>"
+    )
+    unexpl += "".join(
+        f"<li>not offered: {_fmt(k)} — {_fmt(v)}</li>" for k, v in rep["not_offered"].items()
     )
     val = ""
     if "validation" in rep:

@@ -146,19 +146,7 @@ def _run_rigid(
             raise CutwatchError(f"{other.path}: cannot validate on it: {exc}") from None
         validation = {"log": str(other.path), **nums}
     rep = write_report(args.out, log, res, validation)
-    print(
-        f"{log.path}: held-out rms {rep['rms_before']:.4g} -> {rep['rms_after']:.4g} "
-        f"{log.units['effort']}, relerr {rep['relerr_before']:.3f} % -> "
-        f"{rep['relerr_after']:.3f} %; selected: {', '.join(rep['selected']) or 'none'}"
-    )
-    for u in rep["unexplained"]:
-        print(f"  unexplained: {u}")
-    if validation is not None:
-        print(
-            f"validation {validation['log']}: relerr {validation['relerr_before']:.3f} % -> "
-            f"{validation['relerr_after']:.3f} %"
-        )
-    print(f"wrote {args.out}/report.json, estimates.csv, report.html")
+    _summary(args, log, rep, validation)
     return 0
 
 
@@ -284,13 +272,15 @@ def _run_two_inertia(
 
 
 def _summary(args: argparse.Namespace, log: Any, rep: Any, validation: Any) -> None:
+    from server.residual_report import describe_structure
+
     print(
         f"{log.path}: held-out rms {rep['rms_before']:.4g} -> {rep['rms_after']:.4g} "
         f"{log.units['effort']}, relerr {rep['relerr_before']:.3f} % -> "
         f"{rep['relerr_after']:.3f} %; selected: {', '.join(rep['selected']) or 'none'}"
     )
     for u in rep["unexplained"]:
-        print(f"  unexplained: {u}")
+        print(f"  unexplained: {describe_structure(u)}")
     if validation is not None:
         print(
             f"validation {validation['log']}: relerr {validation['relerr_before']:.3f} % -> "
