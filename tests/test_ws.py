@@ -89,7 +89,7 @@ def test_slow_client_loses_frames_others_do_not() -> None:
     with serve(sndbuf=4096, frame_hz=50, display_points=2000, client_buffer=4) as hp:
         raw = socket.create_connection(("127.0.0.1", int(hp.split(":")[1])))
         raw.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
-        slow = connect(f"ws://{hp}/ws", sock=raw, max_queue=2)
+        slow = connect(f"ws://{hp}/ws", sock=raw, max_queue=2, ping_interval=None, close_timeout=1)
         with connect(f"ws://{hp}/ws") as fast, httpx.Client(base_url=f"http://{hp}") as api:
             recv(fast)
             arrivals: list[float] = []
