@@ -3,10 +3,27 @@
 Imports nothing of ours outside this package and never sees the simulator's truth: each
 estimator takes measurements and parameters and returns estimates with diagnostics.
 Public names of the cutting force observer and the identifiers are re-exported here; the
-other estimators (IMBDO, DFO, ESC, wear observer, residual analysis) live in their own
-modules.
+other estimators are re-exported as their modules (each with its own ``__all__`` or
+documented public functions): ``dfo`` and ``imbdo`` (seed 002), ``esc`` and
+``fast_tuner`` (seed 003), ``ud_rls``, ``wear_linear``, ``wear_observer`` and
+``wear_monitor`` (seed 004), ``idim``, ``residual``, ``residual_two_inertia`` and
+``observer_effects`` (the residual loop).
 """
 
+from estimators import (
+    dfo,
+    esc,
+    fast_tuner,
+    idim,
+    imbdo,
+    observer_effects,
+    residual,
+    residual_two_inertia,
+    ud_rls,
+    wear_linear,
+    wear_monitor,
+    wear_observer,
+)
 from estimators.errors import EstimatorError, ParameterError
 from estimators.filters import DiscreteFilter, discretize, highpass, lowpass
 from estimators.force_observer import (
@@ -45,10 +62,22 @@ __all__ = [
     "TorsionRecord",
     "TorsionState",
     "cutting_force",
+    "dfo",
     "discretize",
+    "esc",
     "excitation_index",
+    "fast_tuner",
     "highpass",
+    "idim",
+    "imbdo",
     "lowpass",
+    "observer_effects",
+    "residual",
+    "residual_two_inertia",
     "rls_init",
     "rls_update",
+    "ud_rls",
+    "wear_linear",
+    "wear_monitor",
+    "wear_observer",
 ]

@@ -1,10 +1,12 @@
 """The simulated machine tool: a source of measurements (pure numpy/numba, no I/O).
 
 Imports nothing of ours outside this package. Public names of the two-inertia stage
-(seed 000) are re-exported here; the other machines (seed 002's x-axis, seed 003's
-milling and feed drives, seed 004's wear model) live in their own modules.
+(seed 000) are re-exported here; the other machines are re-exported as their modules:
+``xy_axis`` (seed 002), ``milling`` and ``feed_drives`` (seed 003), ``tool_wear``
+(seed 004), and ``linalg`` (the matrix exponential they share).
 """
 
+from machine import feed_drives, linalg, milling, tool_wear, xy_axis
 from machine.effects import EFFECT_NAMES, PlantEffects
 from machine.errors import MachineError, ParameterError
 from machine.params import ADDED_WEIGHT_INERTIA, PRESETS, SAMPLE_TIME, StageParams, preset
@@ -36,5 +38,10 @@ __all__ = [
     "StageSim",
     "Trajectory",
     "Truth",
+    "feed_drives",
+    "linalg",
+    "milling",
     "preset",
+    "tool_wear",
+    "xy_axis",
 ]
