@@ -446,6 +446,19 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         except CutwatchError:
             await ws.close(1001, "shutting down")
             return
+
+        async def drain() -> None:
+            # read and drop whatever the client sends: its close is seen at once, and the
+            # read side keeps flowing (uvicorn pauses reading until the app receives)
+            try:
+                while (await ws.receive())["type"] != "websocket.disconnect":
+                    pass
+            except (WebSocketDisconnect, RuntimeError):
+                pass
+            q.gone = True
+            q.event.set()
+
+        reader = asyncio.create_task(drain())
         try:
             with lp.lock:
                 chans = [
@@ -465,6 +478,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             )
             while True:
                 await q.event.wait()
+                if q.gone:
+                    return
                 if q.closed:
                     await ws.close(1001, "server shutting down")
                     return
@@ -475,6 +490,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         except (WebSocketDisconnect, RuntimeError):
             return
         finally:
+            reader.cancel()
             hub.remove(q)
 
     if UPLOT_DIR.is_dir():

@@ -52,7 +52,8 @@ class ClientQueue:
         self.event = asyncio.Event()
         self.dropped = 0
         self.dropped_total = 0
-        self.closed = False
+        self.closed = False  # the service stops
+        self.gone = False  # the client went away
 
     def push(self, body: str) -> None:
         """Append a frame body (loop thread); the oldest is dropped when full."""

@@ -11,7 +11,7 @@ from contextlib import contextmanager
 import uvicorn
 
 from server.app import create_app
-from server.commands.serve import WS_IMPL
+from server.commands.serve import WS_IMPL, WS_MAX_SIZE
 from server.settings import Settings
 
 
@@ -31,7 +31,13 @@ def serve(*, sndbuf: int | None = None, **settings: object) -> Iterator[str]:
     settings.setdefault("viser", False)  # tests start viser only where they mean to
     app = create_app(Settings(port=port, **settings))  # type: ignore[arg-type]
     config = uvicorn.Config(
-        app, host="127.0.0.1", port=port, ws=WS_IMPL, log_level="warning", lifespan="on"
+        app,
+        host="127.0.0.1",
+        port=port,
+        ws=WS_IMPL,
+        ws_max_size=WS_MAX_SIZE,
+        log_level="warning",
+        lifespan="on",
     )
     server = uvicorn.Server(config)
     thread = threading.Thread(target=server.run, kwargs={"sockets": [sock]}, daemon=True)

@@ -168,3 +168,32 @@ def test_server_shutdown_closes_streams() -> None:
         for _ in range(100):
             ws.recv(timeout=5)
     assert ws.close_code in (1001, 1012)
+
+
+def test_disconnects_are_seen_and_client_messages_are_dropped(hp: str) -> None:
+    with httpx.Client(base_url=f"http://{hp}") as api:
+        base = api.get("/api/health").json()["clients"]
+        socks = [connect(f"ws://{hp}/ws") for _ in range(3)]
+        for ws in socks:
+            recv(ws)
+        assert api.get("/api/health").json()["clients"] == base + 3
+        chatty = socks[0]
+        for _ in range(200):  # a client that talks is read and ignored; frames still flow
+            chatty.send("x" * 1000)
+        assert [recv(chatty)["type"] for _ in range(3)] == ["data"] * 3
+        for ws in socks:
+            ws.close()
+        deadline = time.monotonic() + 5
+        while api.get("/api/health").json()["clients"] != base:
+            assert time.monotonic() < deadline, "closed clients still counted"
+            time.sleep(0.05)
+
+
+def test_oversized_client_message_closes_that_client(hp: str) -> None:
+    with connect(f"ws://{hp}/ws") as ws:
+        recv(ws)
+        ws.send("x" * 100_000)  # above the 64 KiB limit
+        with pytest.raises(ConnectionClosed):
+            for _ in range(100):
+                ws.recv(timeout=5)
+    assert ws.close_code == 1009  # message too big

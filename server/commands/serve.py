@@ -22,6 +22,8 @@ if TYPE_CHECKING:
 HELP = "serve the live dashboard, REST API and WebSocket stream (one uvicorn worker)"
 
 WS_IMPL = "websockets-sansio"
+#: largest WebSocket message accepted from a client (clients need send nothing)
+WS_MAX_SIZE = 65536
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -90,6 +92,7 @@ def run(args: argparse.Namespace) -> int:
         port=settings.port,
         workers=1,
         ws=WS_IMPL,
+        ws_max_size=WS_MAX_SIZE,
         log_level=args.log_level,
         lifespan="on",
     )
