@@ -75,6 +75,7 @@ WORKPIECE_INERTIA = ADDED_WEIGHT_INERTIA  # a blank as heavy as seed 000's weigh
 REMOVAL_STEP = 0.05  # the workpiece's inertia is updated in steps of 5 % of the blank
 PASS_S = 1.0  # default scenario: one tool-wear pass per second of simulated time
 VB_LIMIT = 0.3  # flank wear at which the tool is changed [mm] (seed 004's limit)
+WEAR_GAIN_STEP = 0.01  # the wear's force gain on the stage, in steps of 1 %
 
 CHANNELS: list[Channel] = [
     Channel("f_true", "N m", "force", "true cutting torque"),
@@ -374,7 +375,9 @@ class LivePipeline:
             self._vb_est = float(rec.vb[-1])
             self._life_left = float(rec.remaining_life[-1])
         self._vb_true = float(x[0] + x[1])  # flank wear w_f1 + w_f2
-        self._wear_gain = f_true / self._f_sharp
+        # in 1 % steps: every change of the stage's force re-runs its matrix exponential
+        # (StageSim.reconfigure), 1-7 ms here; the wear moves the force ~0.5 %/s
+        self._wear_gain = round(f_true / self._f_sharp / WEAR_GAIN_STEP) * WEAR_GAIN_STEP
         self._pass_est = self._pass_nom = self._pass_t = 0.0
         if self._vb_true >= VB_LIMIT:  # the tool is changed at the flank-wear limit
             self._new_tool()
