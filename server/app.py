@@ -25,6 +25,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from starlette.types import ASGIApp, Receive, Scope, Send
 
 from estimators.errors import ParameterError
+from machine.errors import ParameterError as MachineParameterError
 from server import protocol
 from server.errors import CutwatchError
 from server.live import Hub, LiveLoop
@@ -251,6 +252,12 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     @app.exception_handler(ParameterError)
     async def _param_error(request: Request, exc: ParameterError) -> JSONResponse:
+        return JSONResponse(
+            {"detail": [_error(exc.name, exc.expected, exc.got, str(exc))]}, status_code=422
+        )
+
+    @app.exception_handler(MachineParameterError)
+    async def _machine_param_error(request: Request, exc: MachineParameterError) -> JSONResponse:
         return JSONResponse(
             {"detail": [_error(exc.name, exc.expected, exc.got, str(exc))]}, status_code=422
         )

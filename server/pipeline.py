@@ -233,7 +233,13 @@ class LivePipeline:
     def _spindle_factor(self, t: float) -> float:
         if self.scenario == "seed001-spindle":
             return 0.8 if t >= 11.0 else 1.0
-        if self._knobs["spindle_changes"].value and math.floor(t / SPINDLE_PERIOD) % 2 == 1:
+        # the spindle steps belong to the default scenario; the papers' experiments keep a
+        # constant force (seed 000 Table III)
+        if (
+            self.scenario == "default"
+            and self._knobs["spindle_changes"].value
+            and math.floor(t / SPINDLE_PERIOD) % 2 == 1
+        ):
             return 0.8
         return 1.0
 

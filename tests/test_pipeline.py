@@ -38,11 +38,31 @@ def test_default_scenario_workpiece_loses_mass_and_observers_track() -> None:
     for _ in range(100):  # 5 s: half of the blank removed
         out = p.step(125)
     assert out["J_L_true"][-1] < first * 0.8
+    # the observers estimate Q(s) F_cut: against the true force their error is the Q(s)
+    # floor (about 2 N m rms on this force), far below the force itself
+    f_rms = float(np.sqrt(np.mean(out["f_true"] ** 2)))
     err = {
         k: float(np.sqrt(np.mean((out[k] - out["f_true"]) ** 2)))
         for k in ("f_fixed", "f_adaptive", "f_switching")
     }
-    assert all(np.isfinite(v) and v < 5.0 for v in err.values()), err
+    assert all(np.isfinite(v) and v < 0.5 * f_rms for v in err.values()), (err, f_rms)
+    # a constant force of its mean would be much worse than every observer
+    const = float(np.sqrt(np.mean((out["f_true"] - out["f_true"].mean()) ** 2)))
+    assert max(err.values()) < 0.8 * const, (err, const)
+
+
+def test_adaptive_j_l_follows_the_weight() -> None:
+    # seed000-weight: the weight of Fig. 7(b) goes on at 10 s
+    p = LivePipeline("seed000-weight")
+    ratio = []
+    for _ in range(int(24 / 0.05)):
+        out = p.step(125)
+        if p.t > 20.0:
+            ratio.append(out["J_L_adaptive"] / out["J_L_true"])
+    r = np.concatenate(ratio)
+    assert out["J_L_true"][-1] == pytest.approx(2.8e-4 + 2.92e-4)
+    # measured: within 2 % once two reversals have passed (README, adaptive-observer)
+    assert np.median(np.abs(r - 1)) < 0.05
 
 
 def test_spindle_knob_and_steps() -> None:
