@@ -382,7 +382,12 @@ class StageSim:
         p = c.true_params
         nom = c.nominal or c.params
         h = c.sample_time / c.substeps
-        self._phi, self._gam = _discrete_linear_part(p, h)
+        # re-discretise only when the linear plant changed (a force or effect change
+        # between blocks costs nothing then)
+        key = (p, h)
+        if getattr(self, "_disc_key", None) != key:
+            self._phi, self._gam = _discrete_linear_part(p, h)
+            self._disc_key = key
         self._plant = np.array([p.K, p.C_s, p.F_CM, p.F_CL, p.K_t])
         self._eff = c.effects.vector()
         self._force = c.force.vector()
