@@ -38,6 +38,7 @@ from estimators.rls import IdentifierParams
 from machine.effects import EFFECT_NAMES, PlantEffects
 from machine.params import ADDED_WEIGHT_INERTIA, preset
 from machine.stage import SEED000_FORCE, SEED001_FORCE, CuttingForce, StageConfig
+from server.live_eccentricity import ECC_BASE_RPM, ECC_CHANNELS, TUNERS, LiveEccentricity
 from server.stage_harmonics import make_dfo
 from server.stage_run import StageRun
 from server.tool_wear import AcceleratedToolWear
@@ -106,7 +107,7 @@ CHANNELS: list[Channel] = [
     Channel("spindle_rpm", "rpm", "motion", "spindle speed in effect"),
     Channel("q_m", "rad", "motion", "motor angle (encoder)"),
     Channel("x_l", "m", "motion", "table position (load encoder x 10 mm lead)"),
-]
+] + [Channel(k, u, "eccentricity", lab) for k, (u, lab) in ECC_CHANNELS.items()]
 SCREW_LEAD = 0.01  # m per revolution, for the displayed table position (papers give none)
 
 
@@ -147,6 +148,17 @@ def _knobs() -> dict[str, Knob]:
             "min/s",
             "minutes of tool wear per second of machining (default scenario)",
         ),
+        Knob(
+            "eccentricity_um",
+            20.0,
+            0.0,
+            50.0,
+            "um",
+            "tool eccentricity radius (default scenario; seed 003 case 1: 20 um)",
+        ),
+        Knob("eccentricity_deg", 40.0, 0.0, 360.0, "deg", "tool eccentricity angle"),
+        Knob("esc_on", True, None, None, "", "eccentricity cancellation (tuner) running"),
+        Knob("tuner", "esc", None, None, "", "tuner: extremum seeking or fast", choices=TUNERS),
     ]
     # each plant effect the observers do not model (machine.effects), on/off
     ks += [
@@ -202,6 +214,16 @@ class LivePipeline:
         self._dfo = make_dfo(self.run.front.params, tuple(cfg.force.frequencies))
         self._dfo_state = dfo_mod.initial_state(self._dfo)
         self._new_tool()
+        # seed 003's milling machine with eccentricity and its tuner (default scenario)
+        k = self._knobs
+        self._ecc: LiveEccentricity | None = None
+        if self.scenario == "default":
+            self._ecc = LiveEccentricity(
+                float(k["eccentricity_um"].value),
+                float(k["eccentricity_deg"].value),
+                tuner=str(k["tuner"].value),
+                enabled=bool(k["esc_on"].value),
+            )
         self._apply(0.0)
 
     def _new_tool(self) -> None:
@@ -257,6 +279,14 @@ class LivePipeline:
             # exponential (~1-7 ms here), too much to pay every 50 ms block
             removed = math.floor(self._removed / REMOVAL_STEP) * REMOVAL_STEP
             extra += WORKPIECE_INERTIA * (1.0 - removed)
+        if self._ecc is not None:
+            self._ecc.configure(
+                float(k["eccentricity_um"].value),
+                float(k["eccentricity_deg"].value),
+                str(k["tuner"].value),
+                bool(k["esc_on"].value),
+                ECC_BASE_RPM * freq,
+            )
         noise = float(k["current_noise"].value)
         effects = tuple(e for e in EFFECT_NAMES if k[f"effect_{e}"].value)
         key = (freq, gain, extra, noise, effects)
@@ -296,6 +326,9 @@ class LivePipeline:
         if isinstance(k.value, bool):
             if not isinstance(value, bool):
                 raise ParameterError(name, "true or false", value)
+        elif k.choices is not None:
+            if not isinstance(value, str) or value not in k.choices:
+                raise ParameterError(name, "one of " + ", ".join(k.choices), value)
         else:
             ok = isinstance(value, int | float) and not isinstance(value, bool)
             v = float(value) if ok else math.nan
@@ -358,6 +391,10 @@ class LivePipeline:
             "q_m": b.meas.q_m,
             "x_l": b.meas.q_l * (SCREW_LEAD / (2 * math.pi)),
         }
+        if self._ecc is not None:
+            out.update(self._ecc.step(out["t"], self.sample_time))
+        else:
+            out.update({k: np.full(n, math.nan) for k in ECC_CHANNELS})
         out = {k: np.ascontiguousarray(v, dtype=np.float64) for k, v in out.items()}
         self._last = {k: float(v[-1]) for k, v in out.items()}
         return out

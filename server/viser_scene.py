@@ -26,6 +26,9 @@ FORCE_SCALE = 0.02  # arrow length per N m of cutting torque [m]
 BLANK = (0.16, 0.12, 0.06)  # workpiece (x, y, z) when fresh [m]
 
 
+ECC_SCALE = 200.0  # the tool's eccentricity drawn this many times larger
+
+
 def _quat_axis(axis: tuple[float, float, float], angle: float) -> np.ndarray:
     s = math.sin(0.5 * angle)
     return np.array([math.cos(0.5 * angle), axis[0] * s, axis[1] * s, axis[2] * s])
@@ -177,6 +180,13 @@ class StageScene:
             self.work.position = (0.0, 0.0, 0.015 + frac * BLANK[2] / 2)
             self.spindle.wxyz = _quat_axis((0.0, 0.0, 1.0), self._spindle_angle)
             self.tool.color = tool_color
+            # the tool's eccentricity, exaggerated ECC_SCALE times (20 um -> 4 mm), in the
+            # turning spindle's frame
+            e = latest.get("ecc_true_um", 0.0) * 1e-6 * ECC_SCALE
+            e = e if math.isfinite(e) else 0.0
+            th = math.radians(latest.get("ecc_true_deg", 0.0) or 0.0)
+            th = th if math.isfinite(th) else 0.0
+            self.tool.position = (e * math.cos(th), e * math.sin(th), -0.12)
             z, dy = 0.17, 0.02
             pts = np.array(
                 [

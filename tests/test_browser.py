@@ -103,5 +103,11 @@ def test_knob_change_through_the_page(hp: str) -> None:
             page.wait_for_selector("#knob-weight_on", timeout=15000)
             page.check("#knob-weight_on")
             wait_for(lambda: httpx.get(f"http://{hp}/api/params").json()["weight_on"]["value"])
+            # the tuner is a choice: a select, through PATCH
+            page.select_option("#knob-tuner", "fast")
+            wait_for(
+                lambda: httpx.get(f"http://{hp}/api/params").json()["tuner"]["value"] == "fast"
+            )
+            assert page.locator("#chart-ecc_radius canvas").count() == 1
         finally:
             browser.close()

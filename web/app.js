@@ -27,6 +27,13 @@ const CHARTS = {
   wear: { window: 120, series: [["vb_true", "VB true [mm]", COLORS.true],
     ["vb_est", "VB estimated [mm]", COLORS.adaptive], ["vb_limit", "limit", "#cc3311"],
     ["life_left", "life left [min]", COLORS.dfo, "life"]] },
+  ecc_radius: { window: 60, series: [["ecc_a_cancel", "cancelling a_m (true) [um]", COLORS.true],
+    ["ecc_a_m", "tuner a_m [um]", COLORS.adaptive], ["ecc_fast_on", "fast tuner on", COLORS.mode, "on"],
+    ["ecc_esc_on", "ESC on", COLORS.dfo, "on"]] },
+  ecc_phase: { window: 60, series: [["ecc_theta_cancel", "cancelling theta_m (true) [deg]", COLORS.true],
+    ["ecc_theta_m", "tuner theta_m [deg]", COLORS.adaptive]] },
+  ecc_cost: { window: 60, series: [["ecc_cost", "cost, eq. (8) [N]", COLORS.adaptive],
+    ["ecc_f1x", "1x force amplitude, true [N]", COLORS.true]] },
   rls: { window: 30, series: [["mode_switching", "mode", COLORS.mode],
     ["excitation", "excitation", COLORS.excitation]] },
 };
@@ -177,7 +184,15 @@ function knobControl(name, k) {
   label.htmlFor = `knob-${name}`;
   const out = document.createElement("output");
   let input;
-  if (k.type === "bool") {
+  if (k.type === "choice") {
+    input = document.createElement("select");
+    input.replaceChildren(...k.choices.map((c) => {
+      const o = document.createElement("option");
+      o.value = c; o.textContent = c; o.selected = c === k.value;
+      return o;
+    }));
+    input.addEventListener("change", () => call("PATCH", "/api/params", { [name]: input.value }));
+  } else if (k.type === "bool") {
     input = document.createElement("input");
     input.type = "checkbox";
     input.checked = k.value;
@@ -228,6 +243,7 @@ function syncKnobs(knobs) {
     const el = document.getElementById(`knob-${name}`);
     if (!el || el === document.activeElement) continue;
     if (el.type === "checkbox") el.checked = v;
+    else if (el.tagName === "SELECT") el.value = v;
     else if (Number(el.value) !== v) { el.value = v; el.dispatchEvent(new Event("input")); }
   }
 }
