@@ -9,8 +9,10 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import html
 import json
 import math
+import re
 import secrets
 from collections.abc import AsyncIterator, MutableMapping
 from pathlib import Path
@@ -19,7 +21,7 @@ from typing import Annotated, Any, Literal
 from fastapi import Depends, FastAPI, Request, WebSocket, WebSocketDisconnect
 from fastapi.encoders import jsonable_encoder
 from fastapi.exceptions import RequestValidationError
-from fastapi.responses import JSONResponse, PlainTextResponse
+from fastapi.responses import FileResponse, HTMLResponse, JSONResponse, PlainTextResponse
 from fastapi.staticfiles import StaticFiles
 from pydantic import BaseModel, ConfigDict, Field
 from starlette.types import ASGIApp, Receive, Scope, Send
@@ -443,6 +445,75 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             "\n".join(lines) + "\n", media_type="text/plain; version=0.0.4; charset=utf-8"
         )
 
+    # ------------------------------------------------------------------ issue 4 section 7
+    @app.get("/residual", response_class=HTMLResponse, summary="residual reports on disk")
+    def residual_index() -> HTMLResponse:
+        rows = "".join(
+            f'<li><a href="/residual/{html.escape(n)}/">{html.escape(n)}</a></li>'
+            for n in residual_reports(s.reports_dir)
+        )
+        body = rows or "<li>none yet: <code>cutwatch residual LOG --out DIR</code></li>"
+        return HTMLResponse(
+            "<!doctype html><html><head><meta charset='utf-8'><title>cutwatch residual "
+            f"reports</title></head><body><h1>Residual reports in "
+            f"{html.escape(str(s.reports_dir))}</h1><ul>{body}</ul></body></html>"
+        )
+
+    @app.get("/residual/{name}/", summary="one residual report (its report.html)")
+    def residual_report(name: str) -> FileResponse:
+        return FileResponse(report_file(s.reports_dir, name, "report.html"))
+
+    @app.get("/residual/{name}/report.json", summary="one residual report (its report.json)")
+    def residual_report_json(name: str) -> FileResponse:
+        return FileResponse(report_file(s.reports_dir, name, "report.json"))
+
+    @app.post(
+        "/api/replay",
+        summary="replay a two_inertia log through the live observers",
+        dependencies=[Depends(authorised)],
+    )
+    def replay(body: Replay, lp: Lp) -> dict[str, Any]:
+        from server.replay import ReplayPipeline, open_replay
+
+        log = open_replay(body.path)
+        pipe = ReplayPipeline(log, seed=s.seed)
+        lp.set_pipeline(pipe)
+        n = len(log["t"])
+        return {
+            "scenario": "replay",
+            "path": str(log.path),
+            "samples": n,
+            "sample_time": log.sample_time,
+            "duration_s": n * log.sample_time,
+            "reference_force": "f_ext" in log.columns,
+        }
+
+    @app.get("/api/observer-effects", summary="effects installed in the live observer")
+    def get_effects(lp: Lp) -> dict[str, Any]:
+        with lp.lock:
+            return {"observer_effects": _effects_json(lp.pipeline.effects)}
+
+    @app.post(
+        "/api/observer-effects",
+        summary="install identified effects (report.json path or its observer_effects list)",
+        dependencies=[Depends(authorised)],
+    )
+    def post_effects(body: EffectsBody, lp: Lp) -> dict[str, Any]:
+        effects, skipped = parse_effects(body.path, body.observer_effects)
+        with lp.lock:
+            lp.pipeline.set_observer_effects(effects)
+            return {"observer_effects": _effects_json(lp.pipeline.effects), "skipped": skipped}
+
+    @app.delete(
+        "/api/observer-effects",
+        summary="remove the installed effects",
+        dependencies=[Depends(authorised)],
+    )
+    def delete_effects(lp: Lp) -> dict[str, Any]:
+        with lp.lock:
+            lp.pipeline.set_observer_effects(())
+        return {"observer_effects": []}
+
     @app.websocket("/ws")
     async def stream(ws: WebSocket) -> None:
         lp: LiveLoop = ws.app.state.loop
@@ -506,6 +577,123 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         app.mount("/", StaticFiles(directory=WEB_DIR, html=True), name="web")
     app.add_middleware(BodyLimit, limit=s.max_body_bytes)
     return app
+
+
+class Replay(BaseModel):
+    """``POST /api/replay``: a measured log on the server's disk."""
+
+    model_config = ConfigDict(extra="forbid")
+    path: str = Field(..., min_length=1, max_length=4096, description="two_inertia log (.csv)")
+
+
+class EffectsBody(BaseModel):
+    """``POST /api/observer-effects``: a residual report.json, or its effects list."""
+
+    model_config = ConfigDict(extra="forbid")
+    path: str | None = Field(None, max_length=4096, description="a residual report.json")
+    observer_effects: list[dict[str, Any]] | None = Field(
+        None, description="[{name, shape, coef}] as in report.json"
+    )
+
+
+def _effects_json(effects: Any) -> list[dict[str, Any]]:
+    out: list[dict[str, Any]] = protocol._clean(
+        [{"name": e.name, "side": e.side, "shape": dict(e.shape), "coef": list(e.coef)}
+         for e in effects]
+    )  # fmt: skip
+    return out
+
+
+#: effect families referenced to the log's time axis (a drift from its t0, a harmonic of
+#: its clock's phase); not installed live: the live clock is another one
+LOG_TIME_EFFECTS = ("drift", "harmonic")
+
+
+def parse_effects(
+    path: str | None, items: list[dict[str, Any]] | None
+) -> tuple[tuple[Any, ...], list[str]]:
+    """Effects from a report.json path or an ``observer_effects`` list, and the names of
+    those skipped (:data:`LOG_TIME_EFFECTS`).
+
+    Raises
+    ------
+    CutwatchError
+        Neither or both given, unreadable file, or malformed entries.
+    ParameterError
+        An entry that :class:`estimators.observer_effects.ObserverEffect` refuses.
+    """
+    from estimators.observer_effects import ObserverEffect
+
+    if (path is None) == (items is None):
+        raise CutwatchError("expected one of 'path' (a report.json) or 'observer_effects'")
+    if path is not None:
+        p = Path(path)
+        try:
+            rep = json.loads(p.read_text())
+        except FileNotFoundError:
+            raise CutwatchError(f"{p}: no such file (expected a residual report.json)") from None
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise CutwatchError(f"{p}: not a readable JSON report: {exc}") from None
+        items = rep.get("observer_effects") if isinstance(rep, dict) else None
+        if not isinstance(items, list):
+            raise CutwatchError(
+                f"{p}: no 'observer_effects' list (expected a report of "
+                "'cutwatch residual --kind two_inertia')"
+            )
+    out = []
+    skipped = []
+    for i, e in enumerate(items or []):
+        shape: Any = e.get("shape", {}) if isinstance(e, dict) else None
+        coef: Any = e.get("coef") if isinstance(e, dict) else None
+        ok = isinstance(e, dict) and isinstance(e.get("name"), str)
+        ok = ok and isinstance(shape, dict) and isinstance(coef, list)
+        ok = ok and all(_is_number(v) for v in coef) and all(_is_number(v) for v in shape.values())
+        if not ok:
+            raise CutwatchError(
+                f"observer_effects[{i}]: expected {{'name': str, 'shape': {{str: number}}, "
+                f"'coef': [number, ...]}}, got {e!r}"[:300]
+            )
+        if e["name"] in LOG_TIME_EFFECTS:
+            # referenced to the log's own clock: meaningless on the live clock
+            skipped.append(e["name"])
+            continue
+        out.append(ObserverEffect(e["name"], dict(shape), tuple(float(c) for c in coef)))
+    return tuple(out), skipped
+
+
+def _is_number(v: Any) -> bool:
+    return isinstance(v, int | float) and not isinstance(v, bool)
+
+
+_REPORT_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,127}$")
+
+
+def residual_reports(root: Path) -> list[str]:
+    """Sub-directories of ``root`` holding a report.html, sorted."""
+    if not root.is_dir():
+        return []
+    return sorted(
+        d.name
+        for d in root.iterdir()
+        if _REPORT_NAME.match(d.name) and (d / "report.html").is_file()
+    )
+
+
+def report_file(root: Path, name: str, leaf: str) -> Path:
+    """``root/name/leaf``, refusing any name that would leave ``root``.
+
+    Raises
+    ------
+    _HTTPError
+        404 for an unknown or unsafe name (path traversal) or a missing file.
+    """
+    base = root.resolve()
+    if not _REPORT_NAME.match(name) or ".." in name:
+        raise _HTTPError(404, f"no residual report named {name!r} (expected a directory name)")
+    f = (base / name / leaf).resolve()
+    if not f.is_relative_to(base) or not f.is_file():
+        raise _HTTPError(404, f"no residual report named {name!r} in {root}")
+    return f
 
 
 class _HTTPError(Exception):

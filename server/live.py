@@ -213,10 +213,20 @@ class LiveLoop:
 
     def set_scenario(self, name: str) -> None:
         """Switch to another scenario: a fresh pipeline from t = 0, its default knobs."""
-        pipe = LivePipeline(name, seed=self.settings.seed)
+        self.set_pipeline(LivePipeline(name, seed=self.settings.seed))
+
+    def set_pipeline(self, pipe: LivePipeline) -> None:
+        """Run ``pipe`` from now on (a scenario, or a log replay); installed observer
+        effects carry over. Not paused: a replay starts at once."""
         with self.lock:
+            if self.pipeline.effects:
+                pipe.set_observer_effects(self.pipeline.effects)
             self.pipeline = pipe
+            self.block_n = max(1, round(self.settings.block_ms * 1e-3 / pipe.sample_time))
             self._pending.clear()
+            if self.paused and getattr(self.pipeline, "finished", None) is not None:
+                self.paused = False
+                self.speed = self.speed or 1.0
             self._anchor()
         self._wake.set()
 
@@ -263,6 +273,8 @@ class LiveLoop:
                     self._wake.clear()
                     continue
                 with self.lock:
+                    if getattr(self.pipeline, "finished", False):
+                        self.paused = True  # a replayed log has ended
                     if self.paused or self._stop.is_set():
                         continue
                     out = self.pipeline.step(self.block_n)

@@ -34,6 +34,7 @@ import numpy as np
 
 from estimators import dfo as dfo_mod
 from estimators.errors import ParameterError
+from estimators.observer_effects import EffectsParams, ObserverEffect, ObserverEffects
 from estimators.rls import IdentifierParams
 from machine.effects import EFFECT_NAMES, PlantEffects
 from machine.params import ADDED_WEIGHT_INERTIA, preset
@@ -92,6 +93,7 @@ CHANNELS: list[Channel] = [
     Channel("F_CL_true", "N m", "F_CL", "true F_CL"),
     Channel("F_CL_adaptive", "N m", "F_CL", "F_CL identified (RLS)"),
     Channel("F_CL_switching", "N m", "F_CL", "F_CL identified (switching RLS)"),
+    Channel("f_effects", "N m", "force", "fixed observer with the identified effects"),
     Channel("f_dfo", "N m", "force", "harmonic observer (DFO) on the adaptive observer"),
     Channel("h1_amp", "N m", "harmonics", "1st tooth-passing harmonic, DFO amplitude"),
     Channel("h2_amp", "N m", "harmonics", "2nd tooth-passing harmonic, DFO amplitude"),
@@ -185,6 +187,7 @@ class LivePipeline:
         self.scenario = scenario
         self.seed = seed
         self._knobs = _knobs()
+        self.effects: tuple[ObserverEffect, ...] = ()
         if scenario == "seed001-spindle":
             self._knobs["spindle_changes"].value = False
         self.reset()
@@ -214,6 +217,7 @@ class LivePipeline:
         self._dfo = make_dfo(self.run.front.params, tuple(cfg.force.frequencies))
         self._dfo_state = dfo_mod.initial_state(self._dfo)
         self._new_tool()
+        self._install_effects()
         # seed 003's milling machine with eccentricity and its tuner (default scenario)
         k = self._knobs
         self._ecc: LiveEccentricity | None = None
@@ -245,6 +249,32 @@ class LivePipeline:
         self._vb_est = math.nan
         self._life_left = math.nan
         self.tools_changed = getattr(self, "tools_changed", -1) + 1
+
+    def _install_effects(self) -> None:
+        fp = self.run.front.params
+        self._fx: ObserverEffects | None = None
+        if self.effects:
+            self._fx = ObserverEffects(
+                EffectsParams(self.effects, self.sample_time, fp.q_hz, fp.q_order)
+            )
+            self._fx_state = self._fx.init_state()
+
+    def set_observer_effects(self, effects: tuple[ObserverEffect, ...]) -> None:
+        """Install identified effects (issue 4 section 4) into the live observer; ``()``
+        removes them. Their terms are subtracted from the fixed-parameter observer's
+        force as :mod:`estimators.residual_two_inertia` does (channel ``f_effects``).
+
+        Raises
+        ------
+        ParameterError
+            An effect without its fitted coefficients.
+        """
+        effects = tuple(effects)
+        if effects:
+            fp = self.run.front.params
+            EffectsParams(effects, self.sample_time, fp.q_hz, fp.q_order)  # validates
+        self.effects = effects
+        self._install_effects()
 
     @property
     def t(self) -> float:
@@ -353,6 +383,12 @@ class LivePipeline:
         self._apply(t0)
         b = self.run.step(n)
         self._dfo_state, dr = dfo_mod.step(self._dfo, self._dfo_state, b.f_adaptive)
+        f_effects = b.f_fixed
+        if self._fx is not None:
+            m = b.meas
+            # the effects' terms, at t_(k-1) like the observer's (estimators.observer_effects)
+            self._fx_state, er = self._fx.step(self._fx_state, b.alpha, m.t, m.q_m, m.q_l, m.tau_m)
+            f_effects = b.f_fixed - er.f_corr
         if self.scenario == "default":
             self._wear_pass(n, b.f_adaptive, t0)
         f = self.run.sim.config.force
@@ -375,6 +411,7 @@ class LivePipeline:
             "F_CL_true": b.truth.F_CL,
             "F_CL_adaptive": th_a[:, 2],
             "F_CL_switching": th_s[:, 2],
+            "f_effects": f_effects,
             "f_dfo": dr.d_hat,
             "h1_amp": dr.amplitude[:, 0],
             "h2_amp": dr.amplitude[:, 1],
@@ -449,4 +486,7 @@ class LivePipeline:
                 "workpiece_removed": self._removed,
             },
             "knobs": {k: v.value for k, v in self._knobs.items()},
+            "observer_effects": [
+                {"name": e.name, "shape": dict(e.shape), "coef": list(e.coef)} for e in self.effects
+            ],
         }

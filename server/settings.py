@@ -7,6 +7,8 @@ token; see :func:`check_security`).
 
 from __future__ import annotations
 
+from pathlib import Path
+
 from pydantic import Field, SecretStr
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
@@ -48,6 +50,10 @@ class Settings(BaseSettings):
     token: SecretStr | None = Field(default=None, description="bearer token for mutating endpoints")
     seed: int = Field(default=0, ge=0, description="seed of the simulation's random generators")
     viser: bool = Field(default=True, description="start the viser 3D view on viser_port")
+    reports_dir: Path = Field(
+        default=Path("reports"),
+        description="directory whose sub-directories hold residual reports (GET /residual)",
+    )
 
 
 def is_loopback(host: str) -> bool:
