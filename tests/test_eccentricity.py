@@ -322,7 +322,7 @@ def test_esc_converges_to_the_cancelling_modulation(reproduction: dict[str, obje
 @pytest.mark.xfail(
     strict=True,
     reason="with Table 1 step sizes (our unit reading) the ESC "
-    "needs 17.6 s (case 1) and 15.4 s (case 2); see the README ("Tool eccentricity")",
+    "needs 17.6 s (case 1) and 15.4 s (case 2); see the README, section 'Tool eccentricity'",
 )
 def test_esc_converges_within_15_s(reproduction: dict[str, object]) -> None:
     checks = _checks(reproduction)

@@ -67,7 +67,7 @@ def test_state_error_within_twice_table4(rep: Reproduction, name: str) -> None:
 @pytest.mark.xfail(
     strict=True,
     reason="measured |mean error of x03| = 1.52 N against the limit 1.50 N (twice Table 4's "
-    "0.75 N); see the README ("Tool wear")",
+    "0.75 N); see the README, section 'Tool wear'",
 )
 def test_state_error_mean_x3_within_twice_table4(rep: Reproduction) -> None:
     c = _check(rep, "state_error.mean.x3 within twice Table 4's")
