@@ -322,10 +322,15 @@ class LiveLoop:
         slow = g % (step * protocol.SLOW_FACTOR) == 0
         t = protocol.samples(np.round(tt[fast], 6))  # 1 us: exact on the 0.4 ms grid
         ts = protocol.samples(np.round(tt[slow], 6))
-        ch = {
-            k: protocol.samples(v[fast if grids.get(k, "ts") == "t" else slow], DISPLAY_DIGITS)
-            for k, v in merged.items()
-        }
+        # every channel of a grid rounded in one pass (protocol.samples_rows: the same
+        # values as protocol.samples per channel, ~4x cheaper for the 35 channels)
+        ch: dict[str, list[float | None]] = {}
+        for grid, mask in (("t", fast), ("ts", slow)):
+            names = [k for k in merged if grids.get(k, "ts") == grid]
+            if names:
+                rows = np.vstack([merged[k][mask] for k in names])
+                ch.update(zip(names, protocol.samples_rows(rows, DISPLAY_DIGITS), strict=True))
+        ch = {k: ch[k] for k in merged}  # channel order as the pipeline gives it
         return t, ts, ch
 
     def _publish(self) -> None:

@@ -131,6 +131,37 @@ def samples(a: Any, digits: int | None = None) -> list[float | None]:
     return [float(v) if math.isfinite(v) else None for v in arr.tolist()]
 
 
+def samples_rows(a: Any, digits: int) -> list[list[float | None]]:
+    """:func:`samples` of every row of a 2-D array at once (same values, one pass).
+
+    Each row is rounded to ``digits`` significant digits relative to its own largest
+    magnitude, with numpy's ``round`` arithmetic (scale, ``rint``, unscale), so the result
+    equals ``[samples(row, digits) for row in a]``.
+    """
+    import numpy as np
+
+    arr = np.array(a, dtype=np.float64, ndmin=2)
+    if arr.size == 0:
+        return [[] for _ in range(arr.shape[0])]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        finite = np.isfinite(arr)
+        # like samples: NaN ignored, an infinite value leaves the row unrounded
+        m = np.max(np.where(np.isnan(arr), 0.0, np.abs(arr)), axis=1)
+        ok = np.isfinite(m) & (m > 0.0)
+        dec = np.zeros(arr.shape[0], dtype=np.int64)
+        dec[ok] = digits - 1 - np.floor(np.log10(m[ok])).astype(np.int64)
+        f = np.power(10.0, np.abs(dec)).astype(np.float64)[:, None]
+        pos = (dec >= 0)[:, None]
+        up = np.where(pos, arr * f, arr / f)
+        r = np.rint(up)
+        arr = np.where(ok[:, None], np.where(pos, r / f, r * f), arr)
+    out: list[list[float | None]] = []
+    all_finite: list[bool] = np.all(finite, axis=1).tolist()
+    for row, fin in zip(arr.tolist(), all_finite, strict=True):
+        out.append(row if fin else [v if math.isfinite(v) else None for v in row])
+    return out
+
+
 def with_dropped(body: str, dropped: int) -> str:
     """Complete a frame body from :func:`data_body` with this client's ``dropped`` count."""
     return '{"type":"data","dropped":' + str(int(dropped)) + "," + body[1:]

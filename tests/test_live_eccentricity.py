@@ -101,3 +101,14 @@ def test_tuner_knob_through_the_app() -> None:
             time.sleep(0.1)
             latest = c.get("/api/snapshot").json()["pipeline"]["latest"]
         assert "ecc_a_m" in latest and "ecc_cost" in latest
+
+
+def test_samples_rows_equals_samples_per_row() -> None:
+    from server import protocol
+
+    rng = np.random.default_rng(3)
+    rows = [rng.normal(0.0, 10.0**e, 17) for e in range(-8, 8)]
+    rows += [np.full(17, np.nan), np.zeros(17), np.full(17, 1e-300), np.full(17, -4.5e5)]
+    rows.append(np.r_[np.nan, np.inf, rng.normal(size=15)])
+    a = np.vstack(rows)
+    assert protocol.samples_rows(a, 5) == [protocol.samples(r, 5) for r in a]
