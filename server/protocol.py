@@ -14,7 +14,7 @@ Two message types travel from server to client as JSON text:
     ``ts``, a coarser subset of the same samples. ``dropped`` counts the frames this
     client lost (buffer full) since its previous frame.
 
-JSON was measured against a binary (float32) encoding: see ``docs/live-service.md``.
+JSON was measured against a binary (float32) encoding: see the README ("Stream").
 ``tests/test_protocol.py`` keeps :data:`SCHEMA` equal to the JS module's ``SCHEMA``.
 """
 
