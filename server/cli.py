@@ -24,8 +24,22 @@ dashboard.
 """
 
 
-class _HelpFormatter(argparse.RawDescriptionHelpFormatter, argparse.ArgumentDefaultsHelpFormatter):
-    """Keeps the commands' own line breaks and shows every option's default."""
+class _HelpFormatter(argparse.RawDescriptionHelpFormatter):
+    """Keeps the commands' own line breaks and shows each option's default (unless its
+    help already says it, or there is none)."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text = action.help or ""
+        d = action.default
+        if (
+            "default" in text
+            or d is None
+            or d is argparse.SUPPRESS
+            or isinstance(d, bool)
+            or d == []
+        ):
+            return text
+        return f"{text} (default: %(default)s)"
 
 
 def build_parser() -> argparse.ArgumentParser:
