@@ -32,6 +32,9 @@ from server.eccentricity import EccentricityLoop
 
 FloatArray = NDArray[np.float64]
 
+#: revolutions of the tuner's log kept in the live service
+LOG_KEEP = 64
+
 #: milling spindle speed at the live knob's base speed (seed 003 Table 1, case 1)
 ECC_BASE_RPM = 1200.0
 LIVE_BASE_RPM = 3000.0
@@ -138,6 +141,11 @@ class LiveEccentricity:
         idx = np.clip(np.searchsorted(te, t + 1e-12, side="right") - 1, 0, m - 1)
         log = self.loop.log
         f1x = log.cost_true[-1] if log.cost_true else math.nan
+        # the per-revolution log is for offline runs; live, keep only its tail (it grew
+        # the service by 0.28 MB/min over a 30-minute soak: 20 revolutions/s x 10 lists)
+        if len(log.t_end) > LOG_KEEP:
+            for entries in log.__dict__.values():
+                del entries[:-LOG_KEEP]
         lp = self.loop
         a_c, th_c = self._cancel
         a = out["a_m_um"][idx]
