@@ -15,11 +15,18 @@ tool pass. Per pass ``j`` (cutting time ``t_j`` on the wear clock [min], mean fo
    the README, "Tool wear"); the wear force itself is the well-observed quantity. The
    crater lowers the force (``-K14 w_c``), so VB is underestimated by
    ``K14 w_c / (K13 d)``.
-4. Trend: exponentially weighted least squares of a straight line or a parabola in
-   time over the passes after the break-in (``t >= trend_start``), forgetting
-   ``trend_forgetting`` per pass.
-5. Remaining life until ``VB = vb_limit`` (ISO 3685: 0.3 mm) by extrapolating the trend,
-   with a standard deviation from the trend's covariance (delta method).
+4. Trend: with ``law`` given (default of the live machine and the reproduction), the
+   reduced wear law of :mod:`estimators.wear_law` — the form of seed 004's eq. (3)-(8)
+   with its two scale factors fitted to the passes after the break-in
+   (``t >= trend_start``); the crater's force loss of step 3 then follows the crater
+   law driven by the measured force instead of a constant rate. Without ``law``:
+   exponentially weighted least squares of a straight line or a parabola in time,
+   forgetting ``trend_forgetting`` per pass (also the fallback at a feed other than
+   the law's).
+5. Remaining life until ``VB = vb_limit`` (ISO 3685: 0.3 mm): the law integrated forward
+   with an S.D. from the fit's covariance and the off-line constants' uncertainty (see
+   :mod:`estimators.wear_law`); or the polynomial trend extrapolated, with an S.D. from
+   its covariance (delta method).
 6. Flags: with the predicted tool life ``L = t + RUL`` (the learned reference),
    warning when ``t >= warning_fraction L`` and alarm when ``t >= alarm_fraction L``;
    the alarm is also raised once the trend reaches the limit.
@@ -28,12 +35,16 @@ tool pass. Per pass ``j`` (cutting time ``t_j`` on the wear clock [min], mean fo
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from estimators.errors import ParameterError, require_in, require_positive
+from estimators.wear_law import WearLawParams, WearLawPredictor
+
+#: passes of history kept for the wear-law fit (the oldest are dropped beyond it)
+MAX_HISTORY = 4000
 
 FloatArray = NDArray[np.float64]
 
@@ -68,12 +79,16 @@ class ToolLifeParams:
         Force lost to crater wear per minute of cutting [N/min], from the design model
         (``K14`` times its crater-wear rate), added back to the wear force. Choice: the
         crater enters the force through the same output as the flank land, so it cannot
-        be separated from the force alone; 0 ignores it.
+        be separated from the force alone; 0 ignores it. Not used when ``law`` is given
+        (the crater law replaces it).
     extrapolate_sharp_force : bool
         Eq. (25) needs the force of the sharp tool, but a pass mean already contains the
         break-in wear of that pass. True: the sharp-tool force is extrapolated back to
         t = 0 from the first two pass means (linear in the pass mid-times); False:
         the first pass mean is used as is.
+    law : WearLawParams or None
+        Off-line constants of the reduced wear law (:mod:`estimators.wear_law`) for the
+        remaining-life prediction; None: the polynomial trend.
     """
 
     force_per_flank_wear: float
@@ -87,6 +102,7 @@ class ToolLifeParams:
     crater_force_rate: float = 0.0
     extrapolate_sharp_force: bool = True
     trend_order: int = 1
+    law: WearLawParams | None = None
 
     def __post_init__(self) -> None:
         require_positive("force_per_flank_wear", self.force_per_flank_wear)
@@ -120,6 +136,10 @@ class ToolLifeState:
 
     misc: FloatArray  # [D, offset, f_prev, F_prev, passes, t_prev, t_first]
     sums: FloatArray  # weighted sums of t^0..t^4, t^0..t^2 VB, VB^2; pass count
+    # wear law: [z (low-passed F/(f d)), force lost to the crater C [N]]
+    law: FloatArray = field(default_factory=lambda: np.zeros(2))
+    # wear law: one row per pass [t_mid, VB, pass mean of z, C at mid-pass]
+    hist: FloatArray = field(default_factory=lambda: np.zeros((0, 4)))
 
 
 @dataclass(frozen=True, eq=False)
@@ -154,6 +174,7 @@ class ToolLifeMonitor:
 
     def __init__(self, params: ToolLifeParams) -> None:
         self.params = params
+        self._law = WearLawPredictor(params.law) if params.law is not None else None
 
     def initial_state(self) -> ToolLifeState:
         return ToolLifeState(misc=np.zeros(7), sums=np.zeros(10))
@@ -191,6 +212,9 @@ class ToolLifeMonitor:
         p = self.params
         misc = state.misc.copy()
         S = state.sums.copy()
+        law = state.law.copy()
+        hist_rows: list[FloatArray] = [state.hist]
+        n_hist = len(state.hist)
         n = len(ta)
         out = {k: np.empty(n) for k in ("dy", "D", "vb", "trend", "rate", "rul", "sd", "frac")}
         warn = np.zeros(n, dtype=bool)
@@ -217,7 +241,27 @@ class ToolLifeMonitor:
                 misc[0] = d_new
             # eq. (24)
             dy = Fj - misc[0] * fj - misc[1]
-            vb = (dy + p.crater_force_rate * tj) / p.force_per_flank_wear
+            lp = p.law
+            # the law's constants hold for one feed: passes at another feed use the
+            # polynomial trend and the constant crater rate (and do not enter the law)
+            law_ok = lp is not None and abs(fj - lp.feed) <= p.feed_tolerance * lp.feed
+            if law_ok and lp is not None and self._law is not None:
+                # the wear law's inputs over this pass (force held over the pass):
+                # eq. (3)'s low-pass of F/(f d) and eq. (5)'s crater force loss
+                dt = tj - (misc[5] if misc[4] > 0.5 else 0.0)
+                e = math.exp(-dt / lp.tau_abrasive)
+                u = Fj / (fj * lp.depth)
+                zbar = u + (law[0] - u) * lp.tau_abrasive / dt * (1.0 - e)
+                law[0] = u + (law[0] - u) * e
+                c_rate = float(self._law.crater_rate(Fj))
+                c_mid = law[1] + 0.5 * dt * c_rate
+                law[1] += dt * c_rate
+                vb = (dy + c_mid) / p.force_per_flank_wear
+                if tj >= p.trend_start:
+                    hist_rows.append(np.array([[tj - 0.5 * dt, vb, zbar, c_mid]]))
+                    n_hist += 1
+            else:
+                vb = (dy + p.crater_force_rate * tj) / p.force_per_flank_wear
             if tj >= p.trend_start:
                 # weighted normal equations of VB = sum_i c_i (t - t_trend)^i
                 tau = tj - p.trend_start
@@ -253,6 +297,21 @@ class ToolLifeMonitor:
                         sd = math.sqrt(max(float(grad @ C @ grad), 0.0))
                     else:
                         rul, sd = math.inf, math.inf
+                    if law_ok and self._law is not None and lp is not None:
+                        H = np.concatenate(hist_rows)[-MAX_HISTORY:]
+                        hist_rows = [H]
+                        trend, rate, rul, sd = self._law.predict(
+                            H[:, 0],
+                            H[:, 1],
+                            H[:, 2],
+                            H[:, 3],
+                            t_now=tj,
+                            z_now=law[0],
+                            crater_now=law[1],
+                            force_sharp=misc[0] * fj + misc[1],
+                            force_per_flank_wear=p.force_per_flank_wear,
+                            vb_limit=p.vb_limit,
+                        )
                     frac = tj / (tj + rul) if math.isfinite(rul) else 0.0
                     warn[j] = frac >= p.warning_fraction
                     alarm[j] = frac >= p.alarm_fraction or trend >= p.vb_limit
@@ -274,7 +333,8 @@ class ToolLifeMonitor:
             warning=warn,
             alarm=alarm,
         )
-        return ToolLifeState(misc=misc, sums=S), rec
+        hist = np.concatenate(hist_rows)[-MAX_HISTORY:] if n_hist else state.hist
+        return ToolLifeState(misc=misc, sums=S, law=law, hist=hist), rec
 
 
 __all__ = ["ToolLifeMonitor", "ToolLifeParams", "ToolLifeRecord", "ToolLifeState"]

@@ -17,6 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from estimators.errors import ParameterError
+from estimators.wear_law import WearLawParams
 from estimators.wear_linear import (
     DiscreteModel,
     linearise_along_path,
@@ -78,6 +79,33 @@ def observer_params(
     return WearObserverParams(theta0=th0, forgetting=0.95, transform=transform, use_ud=use_ud)
 
 
+def wear_law_params(model: ToolWearModel, feed: float, **kw: float) -> WearLawParams:
+    """The off-line constants of the reduced wear law (``estimators.wear_law``).
+
+    Read from the machine's wear model at its cutting condition and ``feed``: the form
+    of eq. (3)-(8) and every constant except the two scale factors the predictor fits
+    on line (``kappa0`` and ``k2_0`` are only the nominal start of that fit).
+    """
+    p, c = model.params, model.condition
+    v, d, f = c.speed, c.depth, float(feed)
+    if p.n3 != 1.0:
+        raise ParameterError("n3", "1 (the reduced wear law assumes eq. (6) linear in w_f2)", p.n3)
+    return WearLawParams(
+        feed=f,
+        depth=d,
+        tau_abrasive=p.l0 / v,
+        kappa0=p.K1 * float(np.cos(p.alpha_r)),
+        k2_0=p.K2 * float(np.sqrt(v)),
+        activation=p.K3,
+        theta0=273.0 + p.K6 * v**p.n1 * f**p.n2,
+        theta_per_wear=p.K7,
+        crater_gain=p.K14 * p.K4 * v,
+        crater_activation=p.K5,
+        crater_theta_per_newton=p.K8 * v**p.n4 * f**p.n5 * d**p.n6,
+        **kw,
+    )
+
+
 class AcceleratedToolWear:
     """The wear model advanced pass by pass on an accelerated clock.
 
@@ -102,6 +130,7 @@ class AcceleratedToolWear:
         warning_fraction: float = 0.8,
         alarm_fraction: float = 0.95,
         trend_start: float = 2.0,
+        use_law: bool = True,
     ) -> None:
         self.model = ToolWearModel(condition=condition)
         self.model.force(np.zeros(3), feed)  # validates the feed (machine ParameterError)
@@ -125,6 +154,7 @@ class AcceleratedToolWear:
                 warning_fraction=warning_fraction,
                 alarm_fraction=alarm_fraction,
                 trend_start=trend_start,
+                law=wear_law_params(self.model, self.feed) if use_law else None,
             )
         )
         self.reset()
@@ -163,4 +193,5 @@ __all__ = [
     "DesignModel",
     "design_linear_model",
     "observer_params",
+    "wear_law_params",
 ]

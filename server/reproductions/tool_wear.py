@@ -20,13 +20,20 @@
 from __future__ import annotations
 
 import itertools
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
-from estimators.wear_monitor import ToolLifeMonitor
+from estimators.wear_monitor import ToolLifeMonitor, ToolLifeParams
 from estimators.wear_observer import AdaptiveWearObserver
-from machine.tool_wear import VB_LIMIT_MM, CuttingCondition, ToolWearModel, crater_limit_mm
+from machine.tool_wear import (
+    DEFAULT_WEAR_PARAMS,
+    VB_LIMIT_MM,
+    CuttingCondition,
+    ToolWearModel,
+    crater_limit_mm,
+)
 from server.reproduce import Check, Reproduction, Row
 from server.tool_wear import (
     SAMPLE_TIME_MIN,
@@ -91,6 +98,17 @@ PASS_MIN = 0.2  # wear minutes per tool pass in the sensorless run
 DYNAMOMETER_NOISE_N = 2.0
 OVERRUN = 1.1  # cut on past the criterion to see when the alarm comes
 STAGE_WARMUP_S = 5.0  # the force observer's identifier settles before the first pass
+LIFE_FRACTIONS = (0.25, 0.5, 0.75)
+_P0 = DEFAULT_WEAR_PARAMS
+#: model mismatch: the "true" tool's constants differ from the off-line ones the
+#: monitor's wear law is built from (tool-to-tool and batch-to-batch variation)
+MISMATCH = {
+    "scales": {"K1": 0.9 * _P0.K1, "K2": 1.5 * _P0.K2},
+    "hotter": {"K3": 1.05 * _P0.K3, "K4": 1.5 * _P0.K4},
+    "colder": {"K3": 0.95 * _P0.K3, "K4": 0.6 * _P0.K4},
+    "crater_x2": {"K4": 2.0 * _P0.K4},
+    "heating_x1.2": {"K7": 1.2 * _P0.K7},
+}
 
 
 def _tname(t: float) -> str:
@@ -135,6 +153,13 @@ ROWS: list[str] = (
         "life.warning_at_fraction",
         "life.alarm_at_fraction",
     ]
+    + [f"life.{k}.{q}pct" for q in (25, 75) for k in ("prediction_error_min", "prediction_sd_min")]
+    + [
+        f"life.mismatch.{c}.{k}"
+        for c in MISMATCH
+        for k in ("true_min", "prediction_error_min", "prediction_sd_min")
+    ]
+    + ["life.mismatch.max_abs_error_in_sd"]
 )
 
 
@@ -200,7 +225,41 @@ def _life_run(force_errors: np.ndarray, rng: np.random.Generator) -> dict[str, o
         "life": life,
         "dyn": cat(recs_dyn),
         "est": cat(recs_est),
+        "params": mon.params,
     }
+
+
+def _mismatch_run(
+    true_params: dict[str, float], mon: ToolLifeMonitor
+) -> tuple[float, list[tuple[float, float]]]:
+    """A tool with other constants than the monitor's; dynamometer force without noise.
+
+    Returns the true life [min] and (prediction error, predicted S.D.) [min] at each of
+    :data:`LIFE_FRACTIONS` of it.
+    """
+    m = ToolWearModel(params=replace(DEFAULT_WEAR_PARAMS, **true_params))
+    st = mon.initial_state()
+    x = np.zeros(3)
+    tw = 0.0
+    t, vb, rul, sd = [], [], [], []
+    while True:
+        tr = m.simulate(np.full(20, FEED), PASS_MIN / 20, x0=x)
+        x = tr.states[-1]
+        tw += PASS_MIN
+        st, r = mon.step(st, [tw], [float(np.mean(tr.force))], [FEED])
+        t.append(tw)
+        vb.append(x[0] + x[1])
+        rul.append(float(r.remaining_life[0]))
+        sd.append(float(r.remaining_life_sd[0]))
+        if vb[-1] >= VB_LIMIT_MM or len(t) > 2000:
+            break
+    ta = np.array(t)
+    life = float(np.interp(VB_LIMIT_MM, np.array(vb), ta))
+    out = []
+    for fr in LIFE_FRACTIONS:
+        j = int(np.searchsorted(ta, fr * life))
+        out.append((rul[j] - (life - ta[j]), sd[j]))
+    return life, out
 
 
 def section3_behaviour() -> dict[str, dict[str, float]]:
@@ -575,6 +634,65 @@ def run(
                 "first flag time / true tool life (estimated force)",
             )
         )
+    for q in (25, 75):
+        jq = int(np.searchsorted(t, q / 100 * life_min))
+        rep.rows.append(
+            Row(
+                f"life.prediction_error_min.{q}pct",
+                float(est["remaining_life"][jq] - (life_min - t[jq])),
+                None,
+                "min",
+                f"predicted - true remaining life at t = {t[jq]:.1f} min ({q} % of life)",
+            )
+        )
+        rep.rows.append(
+            Row(
+                f"life.prediction_sd_min.{q}pct",
+                float(est["remaining_life_sd"][jq]),
+                None,
+                "min",
+                f"predicted S.D. (1 sigma) at {q} % of life",
+            )
+        )
+    mon_params = life["params"]
+    assert isinstance(mon_params, ToolLifeParams)
+    worst_sigma = 0.0
+    for case, kw in MISMATCH.items():
+        # the monitor keeps the nominal constants (off-line knowledge)
+        life_c, pts = _mismatch_run(kw, ToolLifeMonitor(mon_params))
+        desc = ", ".join(f"{k} x{v / getattr(DEFAULT_WEAR_PARAMS, k):g}" for k, v in kw.items())
+        e50, s50 = pts[LIFE_FRACTIONS.index(0.5)]
+        rep.rows.append(Row(f"life.mismatch.{case}.true_min", life_c, None, "min", desc))
+        rep.rows.append(
+            Row(
+                f"life.mismatch.{case}.prediction_error_min",
+                e50,
+                None,
+                "min",
+                f"{desc}; at 50 % of life, dynamometer without noise",
+            )
+        )
+        rep.rows.append(
+            Row(f"life.mismatch.{case}.prediction_sd_min", s50, None, "min", "1 sigma at 50 %")
+        )
+        worst_sigma = max([worst_sigma] + [abs(e) / sd for e, sd in pts])
+    rep.rows.append(
+        Row(
+            "life.mismatch.max_abs_error_in_sd",
+            worst_sigma,
+            None,
+            "-",
+            f"max |error| / S.D. over {len(MISMATCH)} mismatched tools at 25, 50, 75 % of life",
+        )
+    )
+    rep.checks.append(
+        Check(
+            "remaining life of mismatched tools within 3 sigma (25, 50, 75 % of life)",
+            worst_sigma <= 3.0,
+            worst_sigma,
+            3.0,
+        )
+    )
     k50_ok = abs(float(est["remaining_life"][j50]) - true_rul)
     rep.checks.append(
         Check(
