@@ -291,26 +291,20 @@ class WearLawPredictor:
             e = r - kap[:, None] * zbar[None, :]
             return np.einsum("ij,ij->i", e, e), kap
 
-        u0 = math.log(self.params.k2_0)
-        grid = u0 + np.linspace(-math.log(1e3), math.log(1e3), 61)
-        sse, _ = sse_of(grid)
-        i = int(np.argmin(sse))
-        lo, hi = grid[max(i - 1, 0)], grid[min(i + 1, len(grid) - 1)]
-        # golden section on [lo, hi]
-        g = 0.5 * (math.sqrt(5.0) - 1.0)
-        a, b = lo + (1 - g) * (hi - lo), lo + g * (hi - lo)
-        fa = float(sse_of(np.array([a]))[0][0])
-        fb = float(sse_of(np.array([b]))[0][0])
-        for _ in range(40):
-            if fa < fb:
-                hi, b, fb = b, a, fa
-                a = lo + (1 - g) * (hi - lo)
-                fa = float(sse_of(np.array([a]))[0][0])
-            else:
-                lo, a, fa = a, b, fb
-                b = lo + g * (hi - lo)
-                fb = float(sse_of(np.array([b]))[0][0])
-        u = 0.5 * (lo + hi)
+        # coarse grid over +-3 decades of k2, a fine grid around its best point, then the
+        # vertex of the parabola through the fine grid's best three points
+        u = math.log(self.params.k2_0)
+        half = math.log(1e3)
+        for _ in range(2):
+            grid = u + np.linspace(-half, half, 61)
+            sse, _ = sse_of(grid)
+            i = int(np.clip(np.argmin(sse), 1, len(grid) - 2))
+            u, half = float(grid[i]), 2.0 * (grid[1] - grid[0])
+        f0, f1, f2 = sse[i - 1], sse[i], sse[i + 1]
+        h = grid[1] - grid[0]
+        den = f0 - 2.0 * f1 + f2
+        if den > 0.0:
+            u += float(np.clip(0.5 * h * (f0 - f2) / den, -h, h))
         s2, kap = sse_of(np.array([u]))
         return float(kap[0]), u, float(s2[0])
 

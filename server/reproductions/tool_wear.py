@@ -134,6 +134,7 @@ ROWS: list[str] = (
         for i in (1, 2, 3)
     ]
     + [f"state_error.{s}.x{i}" for s in ("mean", "sd") for i in (1, 2, 3)]
+    + ["table4.true.x1.change_4_to_12min"]
     + [f"state_error.run.{s}.x{i}" for s in ("mean", "sd") for i in (1, 2, 3)]
     + [
         f"model.{c}.{k}"
@@ -414,6 +415,7 @@ def run(
         return np.linalg.solve(dm.T, tr.states[k]), dm.a, dm.b
 
     errs = []
+    x01_true: dict[float, float] = {}
     for tm in TABLE_TIMES:
         k = round(tm / SAMPLE_TIME_MIN) - 1
         x0, a, b = true_x0(k)
@@ -458,6 +460,19 @@ def run(
                 )
             )
         errs.append(x0 - rec.x0_hat[k])
+        x01_true[tm] = float(x0[0])
+    # eq. (16): x01 = y - D u, the wear part of the force. Table 4's true x01 falls from
+    # 100.7 N at 4 min to 26.7 N at 12 min: the paper's force is not monotone in time
+    # while the wear grows, so it cannot be a monotone function of the flank wear.
+    rep.rows.append(
+        Row(
+            "table4.true.x1.change_4_to_12min",
+            x01_true[12.0] - x01_true[4.0],
+            TABLE4_TRUE[12.0][0] - TABLE4_TRUE[4.0][0],
+            "N",
+            "x01 = F - D f (eq. 16): change of the wear force from 4 to 12 min",
+        )
+    )
     E = np.array(errs)
     mean, sd = E.mean(axis=0), E.std(axis=0, ddof=1)
     for i in range(3):
