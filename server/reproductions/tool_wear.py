@@ -99,6 +99,8 @@ DYNAMOMETER_NOISE_N = 2.0
 OVERRUN = 1.1  # cut on past the criterion to see when the alarm comes
 STAGE_WARMUP_S = 5.0  # the force observer's identifier settles before the first pass
 LIFE_FRACTIONS = (0.25, 0.5, 0.75)
+#: sample period of the better-conditioned back-transformation tried [min]
+DECIMATED_MIN = 1.0
 _P0 = DEFAULT_WEAR_PARAMS
 #: model mismatch: the "true" tool's constants differ from the off-line ones the
 #: monitor's wear law is built from (tool-to-tool and batch-to-batch variation)
@@ -142,6 +144,10 @@ ROWS: list[str] = (
         for k in ("time_to_vb_min", "time_to_kt_min", "flank_1min_mm", "diffusive_share_at_end")
     ]
     + ["wear.flank.rel_error.15min", "wear.crater.rel_error.15min", "wear.transform.cond"]
+    + [
+        f"wear.decimated_{DECIMATED_MIN:g}min.{k}"
+        for k in ("transform.cond", "flank.rel_error", "crater.rel_error")
+    ]
     + [
         "wear.flank.rel_error.dynamometer",
         "wear.flank.rel_error.estimated_force",
@@ -228,6 +234,40 @@ def _life_run(force_errors: np.ndarray, rng: np.random.Generator) -> dict[str, o
         "est": cat(recs_est),
         "params": mon.params,
     }
+
+
+def _decimated_wear(model: ToolWearModel, tr: object) -> tuple[float, float, float, float]:
+    """x = T x0 on a decimated clock, with the exact a, b and T of the current state.
+
+    The best case for eq. (14): no RLS error (the design model's parameters, re-linearised
+    at every decimated sample) and a sample period of :data:`DECIMATED_MIN`, where T is
+    far better conditioned. Returns cond(T) at the end, the flank and crater relative
+    errors at the last decimated sample, and its time [min].
+    """
+    from estimators.wear_observer import deadbeat_observer_step
+
+    states = np.asarray(tr.states)  # type: ignore[attr-defined]
+    force = np.asarray(tr.force)  # type: ignore[attr-defined]
+    step = round(DECIMATED_MIN / SAMPLE_TIME_MIN)
+    d_static = model.force(np.zeros(3), FEED) / FEED
+    x0 = np.zeros(3)
+    x_hat = np.zeros(3)
+    cond = k_last = 0
+    for k in range(0, len(force), step):
+        dm = design_linear_model(model, FEED, states[max(k, 1)], sample_time=DECIMATED_MIN)
+        # eq. (14): the estimate of x(k) from the observer-form state before the update
+        x_hat = dm.T @ x0
+        cond, k_last = float(np.linalg.cond(dm.T)), k
+        # eq. (17)-(19) with the design model's a, b (deadbeat)
+        x0 = deadbeat_observer_step(dm.a, dm.b, x0, FEED, float(force[k] - d_static * FEED))
+    xt = states[k_last]
+    wf = xt[0] + xt[1]
+    return (
+        cond,
+        float((x_hat[0] + x_hat[1] - wf) / wf),
+        float((x_hat[2] - xt[2]) / xt[2]),
+        k_last * SAMPLE_TIME_MIN,
+    )
 
 
 def _mismatch_run(
@@ -565,6 +605,22 @@ def run(
             "condition number of T",
         )
     )
+    cond_d, rel_f, rel_c, t_d = _decimated_wear(model, tr)
+    cond_txt = f"exact a, b, T re-linearised each sample, T = {DECIMATED_MIN:g} min"
+    for key, val in (
+        ("transform.cond", cond_d),
+        ("flank.rel_error", rel_f),
+        ("crater.rel_error", rel_c),
+    ):
+        rep.rows.append(
+            Row(
+                f"wear.decimated_{DECIMATED_MIN:g}min.{key}",
+                val,
+                None,
+                "-",
+                f"{cond_txt}; at t = {t_d:g} min",
+            )
+        )
 
     # --- beyond the paper: sensorless tool life --------------------------------------
     pass_seconds = PASS_MIN  # at one minute of wear per second
