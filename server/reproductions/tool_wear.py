@@ -252,7 +252,7 @@ def _decimated_wear(model: ToolWearModel, tr: object) -> tuple[float, float, flo
     d_static = model.force(np.zeros(3), FEED) / FEED
     x0 = np.zeros(3)
     x_hat = np.zeros(3)
-    cond = k_last = 0
+    cond, k_last = 0.0, 0
     for k in range(0, len(force), step):
         dm = design_linear_model(model, FEED, states[max(k, 1)], sample_time=DECIMATED_MIN)
         # eq. (14): the estimate of x(k) from the observer-form state before the update
