@@ -419,6 +419,26 @@ def test_wear_law_absorbs_other_scale_factors_and_predicts_the_life() -> None:
     )
 
 
+@settings(max_examples=6, deadline=None)
+@given(
+    k1=st.floats(min_value=0.7, max_value=1.3),
+    k2=st.floats(min_value=0.5, max_value=2.5),
+)
+def test_wear_law_remaining_life_for_any_abrasive_and_diffusive_scale(k1: float, k2: float) -> None:
+    # property: whatever the tool's K1, K2 (the law's two fitted scale factors), the
+    # remaining life at mid-life is within the predicted 3 sigma and within 3 % of life
+    p0 = DEFAULT_WEAR_PARAMS
+    true = ToolWearModel(params=replace(p0, K1=k1 * p0.K1, K2=k2 * p0.K2))
+    t, F, vb = _passes(true, 0.1)
+    life = float(np.interp(0.3, vb, t))
+    mon = _monitor(wear_law_params(ToolWearModel(), 0.1))
+    _, rec = mon.step(mon.initial_state(), t, F, np.full(len(t), 0.1))
+    j = int(np.searchsorted(t, 0.5 * life))
+    err = rec.remaining_life[j] - (life - t[j])
+    assert abs(err) <= 3.0 * rec.remaining_life_sd[j]
+    assert abs(err) <= 0.03 * life
+
+
 def test_wear_law_sd_contains_the_model_form_part() -> None:
     t, F, _ = _passes(ToolWearModel(), 0.1, until_vb=0.22)
     law = wear_law_params(ToolWearModel(), 0.1)
