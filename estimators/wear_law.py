@@ -29,7 +29,8 @@ the integral of eq. (4)), the flank wear of pass ``j`` is
 
 .. math:: VB_j = \kappa \bar z_j + W_2(k_2 t_j),
 
-linear in ``kappa`` and one-dimensional in ``log k2`` (grid, then golden section).
+linear in ``kappa`` and one-dimensional in ``log k2`` (a coarse and a fine grid, then
+the vertex of a parabola).
 
 Prediction. The fitted law is integrated forward (RK4) from the present state until
 ``VB`` reaches the limit.
