@@ -38,6 +38,13 @@ class Settings(BaseSettings):
     display_points: int = Field(
         default=42, ge=1, le=2000, description="displayed samples per channel per block at 1x"
     )
+    ws_deflate: bool = Field(
+        default=False,
+        description=(
+            "offer permessage-deflate on /ws (off: every client would compress the same "
+            "frame again, which cost more CPU than the whole stream; see README)"
+        ),
+    )
     client_buffer: int = Field(
         default=4, ge=1, le=64, description="frames buffered per client (oldest dropped)"
     )

@@ -11,7 +11,7 @@ from contextlib import contextmanager
 import uvicorn
 
 from server.app import create_app
-from server.commands.serve import WS_IMPL, WS_MAX_SIZE
+from server.commands.serve import uvicorn_options
 from server.settings import Settings
 
 
@@ -29,15 +29,16 @@ def serve(*, sndbuf: int | None = None, **settings: object) -> Iterator[str]:
     sock.bind(("127.0.0.1", 0))
     port = int(sock.getsockname()[1])
     settings.setdefault("viser", False)  # tests start viser only where they mean to
-    app = create_app(Settings(port=port, **settings))  # type: ignore[arg-type]
+    s = Settings(port=port, **settings)  # type: ignore[arg-type]
+    app = create_app(s)
+    options = uvicorn_options(s)
+    del options["workers"]  # one server in this thread
     config = uvicorn.Config(
         app,
         host="127.0.0.1",
         port=port,
-        ws=WS_IMPL,
-        ws_max_size=WS_MAX_SIZE,
         log_level="warning",
-        lifespan="on",
+        **options,  # type: ignore[arg-type]
     )
     server = uvicorn.Server(config)
     thread = threading.Thread(target=server.run, kwargs={"sockets": [sock]}, daemon=True)

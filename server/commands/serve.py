@@ -67,6 +67,18 @@ def build_settings(args: argparse.Namespace) -> Settings:
         raise CutwatchError(f"{field}: {first['msg']}, got {first.get('input')!r}") from None
 
 
+def uvicorn_options(settings: Settings) -> dict[str, object]:
+    """The uvicorn options of the service (one worker; shared by the tests' server)."""
+    return {
+        "workers": 1,
+        "ws": WS_IMPL,
+        "ws_max_size": WS_MAX_SIZE,
+        # each client would deflate the same frame again: off unless asked for
+        "ws_per_message_deflate": settings.ws_deflate,
+        "lifespan": "on",
+    }
+
+
 def run(args: argparse.Namespace) -> int:
     import uvicorn
 
@@ -90,10 +102,7 @@ def run(args: argparse.Namespace) -> int:
         app,
         host=settings.host,
         port=settings.port,
-        workers=1,
-        ws=WS_IMPL,
-        ws_max_size=WS_MAX_SIZE,
         log_level=args.log_level,
-        lifespan="on",
+        **uvicorn_options(settings),  # type: ignore[arg-type]
     )
     return 0
