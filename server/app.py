@@ -538,22 +538,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
         reader = asyncio.create_task(drain())
         try:
-            with lp.lock:
-                chans = [
-                    {
-                        "name": c.name,
-                        "unit": c.unit,
-                        "group": c.group,
-                        "label": c.label,
-                        "grid": protocol.grid_of(c.group),
-                    }
-                    for c in lp.pipeline.channels()
-                ]
-            await ws.send_text(
-                protocol.hello(
-                    chans, lp.pipeline.sample_time, lp.pipeline.scenario, lp.knob_values()
-                )
-            )
+            await ws.send_text(lp.hello())
             while True:
                 await q.event.wait()
                 if q.gone:
@@ -561,7 +546,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                 if q.closed:
                     await ws.close(1001, "server shutting down")
                     return
-                frames, dropped = q.take()
+                hello, frames, dropped = q.take()
+                if hello is not None:  # the pipeline changed (scenario, replay)
+                    await ws.send_text(hello)
                 for body in frames:
                     await ws.send_text(protocol.with_dropped(body, dropped))
                     dropped = 0

@@ -47,6 +47,7 @@ class ClientQueue:
 
     def __init__(self, maxlen: int, loop: asyncio.AbstractEventLoop) -> None:
         self._frames: collections.deque[str] = collections.deque(maxlen=maxlen)
+        self._hello: str | None = None  # a new hello (pipeline changed), never dropped
         self._lock = threading.Lock()
         self._loop = loop
         self.event = asyncio.Event()
@@ -63,14 +64,24 @@ class ClientQueue:
                 self.dropped_total += 1
             self._frames.append(body)
 
-    def take(self) -> tuple[list[str], int]:
-        """Remove and return the pending frame bodies and the drop count since last take."""
+    def push_hello(self, hello: str) -> None:
+        """A new ``hello`` (the pipeline changed): it goes out before any later frame and
+        is never dropped; frames still queued belong to the old pipeline and are
+        discarded (not counted as dropped: the client could not use them)."""
         with self._lock:
+            self._hello = hello
+            self._frames.clear()
+
+    def take(self) -> tuple[str | None, list[str], int]:
+        """Remove and return a pending new hello (or None), the pending frame bodies and
+        the drop count since the last take."""
+        with self._lock:
+            hello, self._hello = self._hello, None
             frames = list(self._frames)
             self._frames.clear()
             dropped, self.dropped = self.dropped, 0
             self.event.clear()
-        return frames, dropped
+        return hello, frames, dropped
 
     def __len__(self) -> int:
         return len(self._frames)
@@ -127,6 +138,16 @@ class Hub:
             with contextlib.suppress(RuntimeError):  # event loop already closed
                 self._aio.call_soon_threadsafe(_wake, clients)
 
+    def publish_hello(self, hello: str) -> None:
+        """Hand a new ``hello`` to every client (after a scenario change or a replay)."""
+        with self._lock:
+            clients = list(self._clients)
+        for q in clients:
+            q.push_hello(hello)
+        if clients and self._aio is not None:
+            with contextlib.suppress(RuntimeError):
+                self._aio.call_soon_threadsafe(_wake, clients)
+
     def close(self) -> None:
         """Tell every client coroutine that the service stops."""
         self.closed = True
@@ -172,6 +193,7 @@ class LiveLoop:
         self.seq = 0
         self.error: str | None = None
         self._pending: list[dict[str, np.ndarray]] = []
+        self._hello_due = False  # the pipeline changed: clients need a new hello
         self.scene: StageScene | None = None  # the viser view, if started
         self._anchor()
 
@@ -224,6 +246,7 @@ class LiveLoop:
             self.pipeline = pipe
             self.block_n = max(1, round(self.settings.block_ms * 1e-3 / pipe.sample_time))
             self._pending.clear()
+            self._hello_due = True  # sent by the loop thread before its next frame
             if self.paused and getattr(self.pipeline, "finished", None) is not None:
                 self.paused = False
                 self.speed = self.speed or 1.0
@@ -306,6 +329,7 @@ class LiveLoop:
         with self.lock:
             blocks, self._pending = self._pending, []
             grids = {c.name: protocol.grid_of(c.group) for c in self.pipeline.channels()}
+            sample_time = self.pipeline.sample_time
         if not blocks:
             return [], [], {}
         merged = {k: np.concatenate([b[k] for b in blocks]) for k in blocks[0]}
@@ -317,7 +341,7 @@ class LiveLoop:
         # keep the samples whose index on the simulation's own grid is a multiple of the
         # stride: the displayed grid stays regular across frames, blocks and idle spells
         tt = merged.pop("t")
-        g = np.rint(tt / self.pipeline.sample_time).astype(np.int64)
+        g = np.rint(tt / sample_time).astype(np.int64)
         fast = g % step == 0
         slow = g % (step * protocol.SLOW_FACTOR) == 0
         t = protocol.samples(np.round(tt[fast], 6))  # 1 us: exact on the 0.4 ms grid
@@ -333,7 +357,30 @@ class LiveLoop:
         ch = {k: ch[k] for k in merged}  # channel order as the pipeline gives it
         return t, ts, ch
 
+    def hello(self) -> str:
+        """The ``hello`` message of the current pipeline (channels, sample time, knobs)."""
+        with self.lock:
+            chans = [
+                {
+                    "name": c.name,
+                    "unit": c.unit,
+                    "group": c.group,
+                    "label": c.label,
+                    "grid": protocol.grid_of(c.group),
+                }
+                for c in self.pipeline.channels()
+            ]
+            return protocol.hello(
+                chans, self.pipeline.sample_time, self.pipeline.scenario, self.knob_values()
+            )
+
     def _publish(self) -> None:
+        # runs on the loop thread only, so a new hello is ordered after every frame of
+        # the old pipeline and before every frame of the new one
+        with self.lock:
+            hello_due, self._hello_due = self._hello_due, False
+        if hello_due and self.hub.clients:
+            self.hub.publish_hello(self.hello())
         self.seq += 1
         if self.hub.clients == 0:  # nobody listens: drop the blocks, skip the encoding
             with self.lock:

@@ -51,6 +51,18 @@ def test_hello_then_frames(hp: str) -> None:
     assert [f["seq"] for f in frames] == list(range(frames[0]["seq"], frames[0]["seq"] + 10))
 
 
+def test_no_per_message_deflate_unless_asked(hp: str) -> None:
+    # the client offers permessage-deflate (websockets does by default); the service
+    # declines, so it does not compress every frame once per client
+    with connect(f"ws://{hp}/ws") as ws:
+        assert ws.request is not None and ws.response is not None
+        assert "permessage-deflate" in ws.request.headers.get("Sec-WebSocket-Extensions", "")
+        assert "Sec-WebSocket-Extensions" not in ws.response.headers
+    with serve(ws_deflate=True) as hp2, connect(f"ws://{hp2}/ws") as ws:
+        assert ws.response is not None
+        assert "permessage-deflate" in ws.response.headers.get("Sec-WebSocket-Extensions", "")
+
+
 def test_samples_neither_skipped_nor_repeated(hp: str) -> None:
     with connect(f"ws://{hp}/ws") as ws:
         dt = recv(ws)["sample_time"]
@@ -71,6 +83,26 @@ def test_patch_seen_in_stream(hp: str) -> None:
     assert frames[-1]["knobs"]["weight_on"] is True
     # the weight (+2.92e-4 kg m^2, seed 000 Fig. 7(b)) is in the true J_L of the stream
     assert max(frames[-1]["ch"]["J_L_true"]) > j_before + 2.5e-4
+
+
+def test_scenario_change_sends_a_new_hello_first(hp: str) -> None:
+    with connect(f"ws://{hp}/ws") as ws, httpx.Client(base_url=f"http://{hp}") as api:
+        assert recv(ws)["scenario"] == "default"
+        t_old = max(max(m["t"], default=0.0) for m in (recv(ws), recv(ws), recv(ws)))
+        r = api.post("/api/control", json={"action": "scenario", "scenario": "seed000-weight"})
+        assert r.status_code == 200, r.text
+        msgs = [recv(ws) for _ in range(8)]
+        api.post("/api/control", json={"action": "scenario", "scenario": "default"})
+    kinds = [m["type"] for m in msgs]
+    assert "hello" in kinds, kinds
+    i = kinds.index("hello")
+    assert msgs[i]["scenario"] == "seed000-weight"
+    assert [c["name"] for c in msgs[i]["channels"]] == [c.name for c in LivePipeline().channels()]
+    after = [m for m in msgs[i + 1 :] if m["t"]]
+    assert after, "no data frame after the new hello"
+    # every frame after the hello comes from the new pipeline (its clock restarted at 0)
+    assert all(m["type"] == "data" for m in msgs[i + 1 :])
+    assert t_old > 0.0 and after[0]["t"][0] < t_old
 
 
 def test_pause_seen_in_stream(hp: str) -> None:
@@ -133,9 +165,15 @@ def test_client_queue_is_bounded_latest_wins() -> None:
         for i in range(10):
             q.push(str(i))
         assert len(q) == 3
-        frames, dropped = q.take()
-        assert frames == ["7", "8", "9"] and dropped == 7
-        assert q.take() == ([], 0)
+        hello, frames, dropped = q.take()
+        assert hello is None and frames == ["7", "8", "9"] and dropped == 7
+        assert q.take() == (None, [], 0)
+        # a new hello clears the old pipeline's frames and is never dropped by later ones
+        q.push("old")
+        q.push_hello("H")
+        for i in range(5):
+            q.push(f"n{i}")
+        assert q.take() == ("H", ["n2", "n3", "n4"], 2)
 
     asyncio.run(main())
 
@@ -149,7 +187,7 @@ def test_hub_publish_never_blocks_and_counts() -> None:
             hub.publish(str(i))
         await asyncio.sleep(0)
         assert a.event.is_set()
-        assert a.take() == (["3", "4"], 3)
+        assert a.take() == (None, ["3", "4"], 3)
         assert hub.dropped() == 6  # a's 3 and b's 3
         hub.remove(b)
         assert hub.dropped() == 6 and hub.clients == 1
