@@ -2,9 +2,10 @@
 
 Scene: the machine bed; the ball screw turning with the motor angle; the table and the
 workpiece moving with the load position (the workpiece shrinking as material is
-removed); the spindle and the tool turning at the spindle speed; the cutting force as
-arrows (true: black, adaptive observer: blue). Eccentricity and wear are not drawn yet:
-their estimators are not in the live pipeline.
+removed); the spindle and the tool turning at the spindle speed, the tool off the
+spindle axis by its eccentricity drawn ``ECC_SCALE`` times larger; the tool's colour
+going from silver (sharp) to red at the flank-wear limit; the cutting force as arrows
+(true: black, adaptive observer: blue).
 
 :meth:`StageScene.update` is called from the loop thread with the latest values; it
 coalesces to at most ``max_hz`` updates per second (latest values win).
