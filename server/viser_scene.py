@@ -88,6 +88,11 @@ class StageScene:
         self._spindle_angle = 0.0
         self._t_prev: float | None = None
         self.updates = 0
+        # the view opens on the stage (the 0.9 m bed fills about half of it), z up
+        cam = self.server.initial_camera
+        cam.up = (0.0, 0.0, 1.0)
+        cam.look_at = (0.0, 0.0, 0.05)
+        cam.position = (0.45, -0.6, 0.4)
         sc = self.server.scene
         sc.add_box(
             "/bed", color=(90, 96, 110), dimensions=(0.9, 0.36, 0.06), position=(0.0, 0.0, -0.03)

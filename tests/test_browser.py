@@ -111,3 +111,46 @@ def test_knob_change_through_the_page(hp: str) -> None:
             assert page.locator("#chart-ecc_radius canvas").count() == 1
         finally:
             browser.close()
+
+
+def test_viser_scene_renders_and_moves(tmp_path: Path) -> None:
+    # WebGL in software (SwiftShader): the 3D view is drawn, and the stage moves in it
+    sync_api = pytest.importorskip("playwright.sync_api")
+    import io
+    import socket
+
+    import numpy as np
+    from PIL import Image
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        vp = int(s.getsockname()[1])
+    gl = [*ARGS, "--use-angle=swiftshader", "--enable-unsafe-swiftshader"]
+    with serve(viser=True, viser_port=vp), sync_api.sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=str(CHROMIUM), args=gl)
+        try:
+            page = browser.new_page(viewport={"width": 1280, "height": 720})
+            page.goto(f"http://127.0.0.1:{vp}/")
+            page.wait_for_selector("canvas", timeout=20000)
+
+            def shot() -> np.ndarray:
+                png = page.screenshot(clip={"x": 320, "y": 150, "width": 600, "height": 500})
+                return np.asarray(Image.open(io.BytesIO(png)).convert("RGB"), dtype=float)
+
+            # the stage's bed (90, 96, 110 with shading) covers a good part of the view
+            def drawn(img: np.ndarray) -> float:
+                return float(np.mean(np.abs(img - 255.0).sum(axis=2) > 60.0))
+
+            wait_for(lambda: drawn(shot()) > 0.2, timeout=30.0)
+            a = shot()
+            time.sleep(1.0)
+            b = shot()
+            page.screenshot(path=str(tmp_path / "viser.png"))
+            out = Path("out")
+            out.mkdir(exist_ok=True)
+            page.screenshot(path=str(out / "viser.png"))
+        finally:
+            browser.close()
+    assert drawn(a) > 0.2
+    # the table, screw stripe and spindle move between the two shots
+    assert float(np.mean(np.abs(a - b).sum(axis=2) > 30.0)) > 0.002
