@@ -164,7 +164,17 @@ def _knobs() -> dict[str, Knob]:
         ),
         Knob("eccentricity_deg", 40.0, 0.0, 360.0, "deg", "tool eccentricity angle"),
         Knob("esc_on", True, None, None, "", "eccentricity cancellation (tuner) running"),
-        Knob("tuner", "esc", None, None, "", "tuner: extremum seeking or fast", choices=TUNERS),
+        Knob(
+            "tuner",
+            "esc",
+            None,
+            None,
+            "",
+            "tuner: extremum seeking (seed 003, Table 1 gains: converges from the default "
+            "40 deg; stalls for phases far from its start, e.g. 90-270 deg) or fast "
+            "(converges from any phase in ~5 revolutions)",
+            choices=TUNERS,
+        ),
     ]
     # each plant effect the observers do not model (machine.effects), on/off
     ks += [
