@@ -77,13 +77,18 @@ def spindle_harmonic(force: ArrayLike, angle: ArrayLike) -> complex:
         )
     n = f.size
     step = (a[-1] - a[0]) / (n - 1)
-    w = np.ones(n)
+    w_last = 1.0  # every weight is 1 but the last sample's
     if step > 0.0:
         span = n * step
         revs = max(1.0, round(span / (2.0 * np.pi)))
-        w[-1] = min(max(1.0 - (span - 2.0 * np.pi * revs) / step, 0.0), 2.0)
-    fm = f - np.sum(w * f) / np.sum(w)
-    return complex(2.0 / np.sum(w) * np.sum(w * fm * np.exp(-1j * a)))
+        w_last = min(max(1.0 - (span - 2.0 * np.pi * revs) / step, 0.0), 2.0)
+    w_sum = n - 1.0 + w_last
+    fm = f - (float(np.sum(f)) + (w_last - 1.0) * f[-1]) / w_sum  # weighted mean removed
+    c, s = np.cos(a), np.sin(a)
+    extra = (w_last - 1.0) * fm[-1]
+    re = float(fm @ c) + extra * c[-1]
+    im = float(fm @ s) + extra * s[-1]
+    return complex(2.0 / w_sum * re, -2.0 / w_sum * im)
 
 
 def harmonic_cost(force: ArrayLike, angle: ArrayLike) -> float:
@@ -298,7 +303,13 @@ class ExtremumSeekingController:
         return self.perturbation(k, lag=p.demod_phase)[0], self.perturbation(k, lag=th_lag)[1]
 
     def step(
-        self, state: EscState, force: ArrayLike, angle: ArrayLike, rev_time: float
+        self,
+        state: EscState,
+        force: ArrayLike,
+        angle: ArrayLike,
+        rev_time: float,
+        *,
+        cost: float | None = None,
     ) -> tuple[EscState, EscRecord]:
         """One revolution: measure the cost of the samples given, update, perturb.
 
@@ -310,10 +321,14 @@ class ExtremumSeekingController:
             Force [N] and spindle angle [rad] of the revolution just finished.
         rev_time : float
             Duration of that revolution [s] (the integrator's time step).
+        cost : float, optional
+            ``harmonic_cost(force, angle)`` if the caller has computed it already (it is
+            not computed again); ``force`` and ``angle`` are then not read.
         """
         p = self.params
         dt = require_positive("rev_time", rev_time)
-        cost = harmonic_cost(force, angle)
+        if cost is None:
+            cost = harmonic_cost(force, angle)
         j_ref = state.j_ref if state.j_ref > 0.0 else max(cost, 1e-12)
         j = cost / j_ref
         # eq. (12): high-pass the (normalised) cost, once-per-revolution samples

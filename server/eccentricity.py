@@ -320,7 +320,7 @@ class EccentricityLoop:
         cost_true = cost if self.force_source is None else harmonic_cost(f_true, psi)
         adapting = self._started
         if adapting and self.tuner == "esc":
-            self.esc_state, erec = self.esc.step(self.esc_state, f_cost, psi, rev_time)
+            self.esc_state, erec = self.esc.step(self.esc_state, f_cost, psi, rev_time, cost=cost)
             self.a_um, self.theta_deg = erec.a_um, erec.theta_deg
             self.a_n_um, self.theta_n_deg = erec.a_n_um, erec.theta_n_deg
             self.saturated = self.saturated or erec.saturated

@@ -62,6 +62,18 @@ def test_cost_over_a_non_integer_revolution(rpm: float) -> None:
         assert harmonic_cost(f[m], psi[m]) == pytest.approx(2.0, abs=0.02)
 
 
+def test_esc_step_with_the_cost_given_equals_computing_it() -> None:
+    psi = 2 * np.pi * np.arange(250) / 250
+    esc = ExtremumSeekingController(EscParams())
+    a = b = esc.initial_state(cost_ref=3.0)
+    for k in range(12):
+        f = 50 + (3.0 - 0.1 * k) * np.cos(psi + 0.2 * k)
+        a, ra = esc.step(a, f, psi, 0.05)
+        b, rb = esc.step(b, f, psi, 0.05, cost=harmonic_cost(f, psi))
+        assert (ra.a_um, ra.theta_deg, ra.cost) == (rb.a_um, rb.theta_deg, rb.cost)
+    assert a.a_um != 0.0  # it did move
+
+
 def _synthetic_force(y: np.ndarray, psi: np.ndarray) -> np.ndarray:
     """Forces (X, Y) whose 1x phasors are y = [re x, im x, re y, im y]."""
     return np.vstack(
