@@ -143,3 +143,14 @@ def test_live_wear_estimate_tracks_the_true_wear() -> None:
     # extrapolated from two passes of 0.5 min); before the warm-up and the pass's own
     # force, +0.03 .. +0.035 mm
     assert np.abs(e).max() < 0.025, e
+
+
+def test_bench_group_runs_the_whole_pipeline(capsys: pytest.CaptureFixture[str]) -> None:
+    import json
+
+    from server.cli import main
+
+    assert main(["bench", "pipeline", "--quick", "--repeats", "1", "--json"]) == 0
+    res = json.loads(capsys.readouterr().out)["pipeline"]
+    assert res["live_block_125.realtime_factor"] > 0.0
+    assert res["offline_block_2500.realtime_factor"] > 0.0
