@@ -283,7 +283,7 @@ def _search_period(q: FloatArray, r: FloatArray, dq_min: float) -> tuple[float, 
     return float(fine[j]), float(fv[j])
 
 
-def _search_frequency(t: FloatArray, r: FloatArray) -> tuple[float, float]:
+def search_frequency(t: FloatArray, r: FloatArray) -> tuple[float, float]:
     """Frequency [Hz] and amplitude of the largest spectral peak of ``r`` (zero-padded FFT)."""
     n = len(r)
     if n < 16:
@@ -349,7 +349,7 @@ def find_shape(
     elif name == "harmonic":
         tt = sig.t[np.flatnonzero(mask)]
         rr = residual[np.flatnonzero(mask)]
-        freq, _ = _search_frequency(tt, rr)
+        freq, _ = search_frequency(tt, rr)
         if math.isfinite(freq) and freq > 0:
             # refine within +-1 bin of the padded FFT by least squares on the residual
             df = 1.0 / (4.0 * max(float(tt[-1] - tt[0]), 1e-12))
@@ -451,14 +451,18 @@ def _fit(
     return theta, keep
 
 
-def _block_t(e0: FloatArray, e1: FloatArray, blocks: int) -> float:
-    d = e0 * e0 - e1 * e1
-    parts = np.array_split(d, blocks)
-    means = np.array([float(np.mean(b)) for b in parts if len(b)])
+def block_t(d: FloatArray, blocks: int) -> float:
+    """t statistic of the mean of ``d`` over ``blocks`` contiguous blocks (the blocks'
+    means as the samples: serial correlation inside a block does not inflate it)."""
+    means = np.array([float(np.mean(b)) for b in np.array_split(d, blocks) if len(b)])
     sd = float(np.std(means, ddof=1))
     if sd == 0.0:
         return math.inf if float(np.mean(means)) > 0 else 0.0
     return float(np.mean(means)) / (sd / math.sqrt(len(means)))
+
+
+def _block_t(e0: FloatArray, e1: FloatArray, blocks: int) -> float:
+    return block_t(e0 * e0 - e1 * e1, blocks)
 
 
 def _effect_params(
@@ -496,17 +500,17 @@ def unexplained_structure(
     amplitude of its spectrum and at least ``min_ratio`` times the residual's rms.
     """
     out: list[dict[str, float | str]] = []
-    rms = float(np.sqrt(np.mean(residual**2)))
-    if rms == 0.0:
+    level = rms(residual)
+    if level == 0.0:
         return out
-    freq, amp = _search_frequency(sig.t, residual)
+    freq, amp = search_frequency(sig.t, residual)
     n = len(residual)
     win = np.hanning(n)
     spec = np.abs(np.fft.rfft((residual - residual.mean()) * win)) * 2.0 / win.sum()
     med = float(np.median(spec[1:])) if len(spec) > 1 else 0.0
-    if math.isfinite(freq) and amp >= prominence * med and amp >= min_ratio * rms:
+    if math.isfinite(freq) and amp >= prominence * med and amp >= min_ratio * level:
         out.append(
-            {"domain": "time", "frequency_hz": freq, "amplitude": amp, "ratio_to_rms": amp / rms}
+            {"domain": "time", "frequency_hz": freq, "amplitude": amp, "ratio_to_rms": amp / level}
         )
     stride = max(1, int(math.ceil(n / _SEARCH_SAMPLES)))
     q, r = sig.q[::stride], residual[::stride] - residual.mean()
@@ -517,13 +521,13 @@ def unexplained_structure(
         cols = np.column_stack([np.cos(w), np.sin(w)])
         coef, *_ = np.linalg.lstsq(cols, r, rcond=None)
         pamp = float(math.hypot(coef[0], coef[1]))
-        if pamp >= min_ratio * rms:
+        if pamp >= min_ratio * level:
             out.append(
                 {
                     "domain": "position",
                     "period": period,
                     "amplitude": pamp,
-                    "ratio_to_rms": pamp / rms,
+                    "ratio_to_rms": pamp / level,
                 }
             )
     return out
@@ -629,7 +633,7 @@ def analyse_rigid(
             eff = find_shape(name, sig, resid_full, fit_full, theta[:4])
             if any(not math.isfinite(v) for v in eff.shape.values()):
                 scores[name] = CandidateScore(
-                    name, eff.shape, _rms(e_cur), _rms(e_cur), 0.0, 0.0, False, "no shape found"
+                    name, eff.shape, rms(e_cur), rms(e_cur), 0.0, 0.0, False, "no shape found"
                 )
                 continue
             d = _build(sig, (*selected, eff), p, cache)
@@ -640,7 +644,7 @@ def analyse_rigid(
             tstat = _block_t(e_cur, e1, params.blocks)
             note = "" if added else "spanned by the current model (nothing new)"
             scores[name] = CandidateScore(
-                name, _effect_params(eff, d, th), _rms(e_cur), _rms(e1), gain, tstat, False, note
+                name, _effect_params(eff, d, th), rms(e_cur), rms(e1), gain, tstat, False, note
             )
             if added and (best is None or float(np.mean(e1**2)) < best[0]):
                 best = (float(np.mean(e1**2)), eff, d, th, e1, tstat)
@@ -687,8 +691,8 @@ def analyse_rigid(
         candidates=tuple(final_scores),
         holdout_start=float(t_dec[split]),
         holdout_stop=float(t_dec[-1]),
-        rms_before=_rms(e0),
-        rms_after=_rms(e_cur),
+        rms_before=rms(e0),
+        rms_after=rms(e_cur),
         relerr_before=100.0 * float(np.linalg.norm(e0)) / norm_y,
         relerr_after=100.0 * float(np.linalg.norm(e_cur)) / norm_y,
         unexplained=tuple(unexpl),
@@ -708,7 +712,8 @@ def _subset(sig: Signals, mask: NDArray[np.bool_]) -> Signals:
     )
 
 
-def _rms(e: FloatArray) -> float:
+def rms(e: FloatArray) -> float:
+    """Root mean square (NaN for an empty array)."""
     return float(np.sqrt(np.mean(e * e))) if len(e) else math.nan
 
 
@@ -734,8 +739,8 @@ def apply_model(
     e1 = y - d1.x_dec @ result.theta_after
     ny = max(float(np.linalg.norm(y)), 1e-300)
     return {
-        "rms_before": _rms(e0),
-        "rms_after": _rms(e1),
+        "rms_before": rms(e0),
+        "rms_after": rms(e1),
         "relerr_before": 100.0 * float(np.linalg.norm(e0)) / ny,
         "relerr_after": 100.0 * float(np.linalg.norm(e1)) / ny,
     }

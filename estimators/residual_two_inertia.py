@@ -62,7 +62,14 @@ from estimators.observer_effects import (
     raw_basis,
     signature,
 )
-from estimators.residual import CandidateScore, Signals, unexplained_structure
+from estimators.residual import (
+    CandidateScore,
+    Signals,
+    block_t,
+    rms,
+    search_frequency,
+    unexplained_structure,
+)
 
 F64 = NDArray[np.float64]
 
@@ -221,19 +228,6 @@ def _period_search(q: F64, r: F64, angular: bool) -> float:
     return best[1]
 
 
-def _frequency_search(t: F64, r: F64) -> float:
-    n = len(r)
-    if n < 16:
-        return math.nan
-    dt = float(np.median(np.diff(t)))
-    nfft = 1 << int(math.ceil(math.log2(4 * n)))
-    win = np.hanning(n)
-    spec = np.abs(np.fft.rfft((r - r.mean()) * win, nfft))
-    f = np.fft.rfftfreq(nfft, dt)
-    spec[f < 3.0 / (n * dt)] = 0.0
-    return float(f[int(np.argmax(spec))])
-
-
 def find_shape_two_inertia(
     name: str,
     d: _Data,
@@ -285,19 +279,11 @@ def find_shape_two_inertia(
         return {"gap": best[1]}
     if name == "harmonic":
         allr = np.flatnonzero(fit)
-        return {"frequency": _frequency_search(kin.t[d.idx[allr]], r_f[allr])}
+        return {"frequency": search_frequency(kin.t[d.idx[allr]], r_f[allr])[0]}
     if name == "drift":
         tt = kin.t[d.idx[np.flatnonzero(fit)]]
         return {"t0": float(tt[0]), "span": float(max(tt[-1] - tt[0], 1e-12))}
     return {}
-
-
-def _block_t(d: F64, blocks: int) -> float:
-    means = np.array([float(np.mean(b)) for b in np.array_split(d, blocks) if len(b)])
-    sd = float(np.std(means, ddof=1))
-    if sd == 0.0:
-        return math.inf if float(np.mean(means)) > 0 else 0.0
-    return float(np.mean(means)) / (sd / math.sqrt(len(means)))
 
 
 @dataclass(frozen=True, eq=False)
@@ -354,10 +340,6 @@ def _fit(
 
 def _mse(e_f: F64, e_s: F64) -> float:
     return float(np.mean(e_f * e_f + e_s * e_s)) / 2.0
-
-
-def _rms(e: F64) -> float:
-    return float(np.sqrt(np.mean(e * e))) if len(e) else math.nan
 
 
 def observer_front(
@@ -523,7 +505,7 @@ def analyse_two_inertia(
             mse1 = _mse(fr.e_f[hold], fr.e_s[hold])
             gain = 1.0 - mse1 / max(mse_cur, 1e-300)
             dd = (cur.e_f[hold] ** 2 + cur.e_s[hold] ** 2) - (fr.e_f[hold] ** 2 + fr.e_s[hold] ** 2)
-            tstat = _block_t(dd, params.blocks)
+            tstat = block_t(dd, params.blocks)
             coefs = fr.theta[-cf.shape[1] :]
             pars = {**shape, **dict(zip(COLUMNS[name], map(float, coefs)))}
             note = "" if added else "spanned by the current model (nothing new)"
@@ -599,10 +581,10 @@ def analyse_two_inertia(
         rms_after=math.sqrt(_mse(cur.e_f[hold], cur.e_s[hold])),
         relerr_before=100.0 * float(np.linalg.norm(f0.e_f[hold])) / nr,
         relerr_after=100.0 * float(np.linalg.norm(cur.e_f[hold])) / nr,
-        rms_force_before=_rms(f0.e_f[hold]),
-        rms_force_after=_rms(cur.e_f[hold]),
-        rms_twist_before=_rms(f0.e_s[hold]),
-        rms_twist_after=_rms(cur.e_s[hold]),
+        rms_force_before=rms(f0.e_f[hold]),
+        rms_force_after=rms(cur.e_f[hold]),
+        rms_twist_before=rms(f0.e_s[hold]),
+        rms_twist_after=rms(cur.e_s[hold]),
         unexplained=tuple(unexpl),
         f_hat_before=_to_log_time(f_hat),
         f_hat_after=_to_log_time(f_after),
