@@ -260,7 +260,7 @@ class LivePipeline:
         self._f_sharp = self._wear.model.force(np.zeros(3), self._wear.feed)
         self._pass_est = self._pass_nom = self._pass_t = 0.0
         self._pass_cut: tuple[float, np.ndarray] | None = None  # (mean force, wear at end)
-        self._pass_first_nom = math.nan  # nominal force of the previous block (none yet)
+        self._pass_prev_nom = math.nan  # nominal force of the previous block (none yet)
         self._pass_steady = True  # no change of cutting condition within the pass
         self._vb_true = 0.0
         self._vb_est = math.nan
@@ -476,7 +476,7 @@ class LivePipeline:
         nominal *= self._spindle_factor(t0)
         # the mean of the observer's force over a pass is the offset's (the harmonics
         # average out); the nominal mean is what it would be with a sharp tool
-        prev, self._pass_first_nom = self._pass_first_nom, nominal
+        prev, self._pass_prev_nom = self._pass_prev_nom, nominal
         if not math.isnan(prev) and nominal != prev:  # changed in the pass or at its start
             self._pass_steady = False
         self._pass_est += float(np.sum(f_est))
