@@ -10,9 +10,9 @@ from contextlib import contextmanager
 
 import uvicorn
 
-from server.app import create_app
-from server.commands.serve import uvicorn_options
-from server.settings import Settings
+from server.cli.commands.serve import uvicorn_options
+from server.service.app import create_app
+from server.service.settings import Settings
 
 
 @contextmanager

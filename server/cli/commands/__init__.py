@@ -1,0 +1,1 @@
+"""Sub-commands of ``cutwatch`` (one module each; see :mod:`server.cli.main`)."""

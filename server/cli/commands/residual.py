@@ -1,0 +1,289 @@
+"""Find what the nominal model of a measured log misses, add it, report before and after.
+
+Examples::
+
+    cutwatch residual run.csv --out out/run
+    cutwatch residual ../shared/data/emps/DATA_EMPS.mat \\
+        --map tau_m=vir*gtau --map q_m=qm \\
+        --meta '{"units": {"effort": "N", "position": "m"}}' --out out/emps
+
+The nominal rigid model is identified by IDIM-LS (estimators.idim) on the first part of
+the record; candidate effects (estimators.residual) are scored on the held-out end of
+the record. Writes DIR/report.json, DIR/estimates.csv and DIR/report.html.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+HELP = "find the residual of a measured log, add the missing effect, report before/after"
+
+KINDS = ("rigid", "two_inertia")
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("log", type=Path, help="measured log (.csv with .json sidecar, or .mat)")
+    p.add_argument(
+        "--meta",
+        metavar="JSON",
+        help="sidecar keys overriding the log's (a JSON file or inline object)",
+    )
+    p.add_argument(
+        "--map",
+        metavar="COL=EXPR",
+        action="append",
+        default=[],
+        help="column map: COL=name, COL=name*scale or COL=name*scale+offset",
+    )
+    p.add_argument(
+        "--kind", metavar="KIND", help="rigid or two_inertia (default: sidecar, else rigid)"
+    )
+    p.add_argument(
+        "--validate",
+        metavar="OTHER_LOG",
+        type=Path,
+        help="apply the fitted model to a second record (same --meta/--map)",
+    )
+    p.add_argument(
+        "--holdout",
+        type=float,
+        default=0.3,
+        metavar="FRACTION",
+        help="fraction at the end of the record held out for scoring (0.3)",
+    )
+    p.add_argument(
+        "--air-cut",
+        metavar="START:STOP",
+        action="append",
+        default=[],
+        help="two_inertia without f_ext: a segment [s] with no cutting force (repeatable)",
+    )
+    p.add_argument("--out", metavar="DIR", type=Path, required=True, help="output directory")
+    p.add_argument("--quiet", action="store_true", help="no progress messages")
+
+
+def run(args: argparse.Namespace) -> int:
+    from estimators.errors import ParameterError
+    from estimators.residual import ResidualParams
+    from server.errors import CutwatchError
+    from server.records.measured_log import load_log, load_meta
+
+    if args.kind is not None and args.kind not in KINDS:
+        raise CutwatchError(f"--kind {args.kind!r}: expected one of {', '.join(KINDS)}")
+    try:
+        params = ResidualParams(holdout_fraction=args.holdout)
+    except ParameterError as exc:
+        raise CutwatchError(f"--holdout: {exc}") from None
+    meta = load_meta(args.meta)
+    progress = not args.quiet
+    log = load_log(args.log, meta=meta, maps=args.map, kind=args.kind, progress=progress)
+    kind = log.kind or "rigid"
+    with _Progress(progress) as say:
+        if kind == "two_inertia":
+            return _run_two_inertia(args, log, meta, say)
+        return _run_rigid(args, log, meta, params, say)
+
+
+class _Progress:
+    """Stage messages and a tqdm bar over the scored candidates, on stderr (--quiet: off)."""
+
+    def __init__(self, on: bool) -> None:
+        self.on = on
+        self.bar: Any = None
+
+    def __enter__(self) -> Callable[[str], None]:
+        if self.on:
+            from tqdm import tqdm
+
+            self.bar = tqdm(desc="residual", unit="step", file=sys.stderr, leave=False)
+        return self
+
+    def __call__(self, msg: str) -> None:
+        if self.bar is not None:
+            self.bar.set_postfix_str(msg, refresh=False)
+            self.bar.update(1)
+
+    def __exit__(self, *exc: object) -> None:
+        if self.bar is not None:
+            self.bar.close()
+
+
+def _run_rigid(
+    args: argparse.Namespace,
+    log: Any,
+    meta: Any,
+    params: Any,
+    say: Callable[[str], None],
+) -> int:
+    from estimators.errors import ParameterError
+    from estimators.residual import analyse_rigid, apply_model
+    from server.errors import CutwatchError
+    from server.records.measured_log import load_log
+    from server.records.residual_report import write_report
+
+    progress = not args.quiet
+    try:
+        res = analyse_rigid(
+            log["q_m"], log["tau_m"], log["t"], log.sample_time, params, progress=say
+        )
+    except ParameterError as exc:
+        raise CutwatchError(
+            f"{log.path}: too few samples for the held-out split ({log.n} rows): {exc}"
+        ) from None
+    validation = None
+    if args.validate is not None:
+        other = load_log(args.validate, meta=meta, maps=args.map, kind=args.kind, progress=progress)
+        try:
+            nums = apply_model(
+                res, other["q_m"], other["tau_m"], other["t"], other.sample_time, params.idim
+            )
+        except ParameterError as exc:
+            raise CutwatchError(f"{other.path}: cannot validate on it: {exc}") from None
+        validation = {"log": str(other.path), **nums}
+    rep = write_report(args.out, log, res, validation)
+    _summary(args, log, rep, validation)
+    return 0
+
+
+_NOMINAL = ("J_M", "B_M", "F_CM", "K", "J_L", "B_L", "F_CL")
+
+
+def parse_air_cuts(specs: list[str], t: Any, where: str) -> Any:
+    """Mask of the samples inside the ``START:STOP`` segments [s] (CutwatchError if bad)."""
+    import numpy as np
+
+    from server.errors import CutwatchError
+
+    mask = np.zeros(len(t), dtype=bool)
+    for spec in specs:
+        parts = spec.split(":")
+        try:
+            if len(parts) != 2:
+                raise ValueError
+            a, b = float(parts[0]), float(parts[1])
+        except ValueError:
+            raise CutwatchError(
+                f"--air-cut {spec!r}: expected START:STOP in seconds, e.g. 0.5:2.0"
+            ) from None
+        if not (math.isfinite(a) and math.isfinite(b) and b > a):
+            raise CutwatchError(f"--air-cut {spec!r}: expected finite START < STOP")
+        seg = (t >= a) & (t <= b)
+        if not seg.any():
+            raise CutwatchError(
+                f"{where}: --air-cut {spec!r} holds no sample (the log spans "
+                f"{float(t[0]):g} ... {float(t[-1]):g} s)"
+            )
+        mask |= seg
+    return mask
+
+
+def _observer_inputs(log: Any) -> tuple[Any, Any]:
+    from estimators.errors import ParameterError
+    from estimators.force_observer import LoadParams, ObserverParams
+    from server.errors import CutwatchError
+
+    if "q_l" not in log.columns:
+        raise CutwatchError(
+            f"{log.path}: kind 'two_inertia' needs the load-side position column 'q_l'; "
+            f"found {', '.join(sorted(log.columns))}"
+        )
+    missing = [k for k in _NOMINAL if k not in log.nominal]
+    if missing:
+        raise CutwatchError(
+            f"{log.path}: kind 'two_inertia' needs the nominal parameters "
+            f"{', '.join(_NOMINAL)} in the sidecar (or --meta '{{\"nominal\": ...}}'); "
+            f"missing {', '.join(missing)}"
+        )
+    nom = log.nominal
+    res = log.sidecar.get("encoder_resolution")
+    try:
+        op = ObserverParams(
+            J_M=nom["J_M"],
+            B_M=nom["B_M"],
+            F_CM=nom["F_CM"],
+            K=nom["K"],
+            sample_time=log.sample_time,
+            # without a declared resolution: the seed's 20-bit encoder (eq. 8 weights only)
+            encoder_resolution=2 * math.pi / 2**20 if res is None else float(res),
+        )
+        lp = LoadParams(J_L=nom["J_L"], B_L=nom["B_L"], F_CL=nom["F_CL"])
+    except (ParameterError, TypeError, ValueError) as exc:
+        raise CutwatchError(f"{log.path}: nominal parameters: {exc}") from None
+    return op, lp
+
+
+def _run_two_inertia(
+    args: argparse.Namespace, log: Any, meta: Any, say: Callable[[str], None]
+) -> int:
+    from estimators.errors import ParameterError
+    from estimators.residual_two_inertia import (
+        TwoInertiaParams,
+        analyse_two_inertia,
+        apply_two_inertia,
+    )
+    from server.errors import CutwatchError
+    from server.records.measured_log import load_log
+    from server.records.residual_report import write_report
+
+    try:
+        params = TwoInertiaParams(holdout_fraction=args.holdout)
+    except ParameterError as exc:
+        raise CutwatchError(f"--holdout: {exc}") from None
+    op, lp = _observer_inputs(log)
+    f_ext = log["f_ext"] if "f_ext" in log.columns else None
+    if f_ext is None and not args.air_cut:
+        raise CutwatchError(
+            f"{log.path}: kind 'two_inertia' needs a reference force column 'f_ext' or "
+            "--air-cut START:STOP segments with no cutting force"
+        )
+    air = parse_air_cuts(args.air_cut, log["t"], str(log.path)) if f_ext is None else None
+    angular = log.units.get("position") == "rad"
+    try:
+        res = analyse_two_inertia(
+            log["t"], log["tau_m"], log["q_m"], log["q_l"], op, lp,
+            f_ext=f_ext, air_cut=air, params=params, angular=angular, progress=say,
+        )  # fmt: skip
+    except ParameterError as exc:
+        raise CutwatchError(f"{log.path}: {exc}") from None
+    validation = None
+    if args.validate is not None:
+        other = load_log(
+            args.validate, meta=meta, maps=args.map, kind="two_inertia", progress=not args.quiet
+        )
+        op2, lp2 = _observer_inputs(other)
+        f2 = other["f_ext"] if "f_ext" in other.columns else None
+        air2 = parse_air_cuts(args.air_cut, other["t"], str(other.path)) if f2 is None else None
+        try:
+            nums = apply_two_inertia(
+                res, other["t"], other["tau_m"], other["q_m"], other["q_l"], op2, lp2,
+                f_ext=f2, air_cut=air2,
+            )  # fmt: skip
+        except ParameterError as exc:
+            raise CutwatchError(f"{other.path}: cannot validate on it: {exc}") from None
+        validation = {"log": str(other.path), **nums}
+    rep = write_report(args.out, log, res, validation)
+    _summary(args, log, rep, validation)
+    return 0
+
+
+def _summary(args: argparse.Namespace, log: Any, rep: Any, validation: Any) -> None:
+    from server.records.residual_report import describe_structure
+
+    print(
+        f"{log.path}: held-out rms {rep['rms_before']:.4g} -> {rep['rms_after']:.4g} "
+        f"{log.units['effort']}, relerr {rep['relerr_before']:.3f} % -> "
+        f"{rep['relerr_after']:.3f} %; selected: {', '.join(rep['selected']) or 'none'}"
+    )
+    for u in rep["unexplained"]:
+        print(f"  unexplained: {describe_structure(u)}")
+    if validation is not None:
+        print(
+            f"validation {validation['log']}: relerr {validation['relerr_before']:.3f} % -> "
+            f"{validation['relerr_after']:.3f} %"
+        )
+    print(f"wrote {args.out}/report.json, estimates.csv, report.html")

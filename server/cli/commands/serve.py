@@ -1,0 +1,108 @@
+"""Serve the live dashboard: the simulated machine and its observers, streamed.
+
+Examples::
+
+    cutwatch serve                       # http://127.0.0.1:8000/
+    cutwatch serve --speed 0             # start paused
+    CUTWATCH_TOKEN=secret cutwatch serve --host 0.0.0.0
+
+Options override the ``CUTWATCH_*`` environment variables. Any address other than
+loopback requires ``CUTWATCH_TOKEN`` (mutating endpoints then need
+``Authorization: Bearer <token>``); the service refuses to start without it.
+"""
+
+from __future__ import annotations
+
+import argparse
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from server.service.settings import Settings
+
+HELP = "serve the live dashboard, REST API and WebSocket stream (one uvicorn worker)"
+
+WS_IMPL = "websockets-sansio"
+#: largest WebSocket message accepted from a client (clients need send nothing)
+WS_MAX_SIZE = 65536
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--host", help="address to bind (default 127.0.0.1)")
+    p.add_argument("--port", type=int, help="HTTP port (default 8000)")
+    p.add_argument("--viser-port", type=int, help="port of the viser 3D view (default 8080)")
+    p.add_argument("--scenario", help="scenario at start (see GET /api/scenarios)")
+    p.add_argument(
+        "--speed",
+        type=float,
+        help="simulated seconds per wall second; 0 = start paused (default 1)",
+    )
+    p.add_argument("--no-viser", action="store_true", help="do not start the viser 3D view")
+    p.add_argument("--log-level", default="warning", help="uvicorn log level")
+
+
+def build_settings(args: argparse.Namespace) -> Settings:
+    """Settings from the environment, overridden by the options given."""
+    from pydantic import ValidationError
+
+    from server.errors import CutwatchError
+    from server.service.settings import Settings as _Settings
+
+    overrides = {
+        k: v
+        for k, v in {
+            "host": args.host,
+            "port": args.port,
+            "viser_port": args.viser_port,
+            "scenario": args.scenario,
+            "speed": args.speed,
+            "viser": False if args.no_viser else None,
+        }.items()
+        if v is not None
+    }
+    try:
+        return _Settings(**overrides)
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        field = ".".join(str(x) for x in first["loc"])
+        raise CutwatchError(f"{field}: {first['msg']}, got {first.get('input')!r}") from None
+
+
+def uvicorn_options(settings: Settings) -> dict[str, object]:
+    """The uvicorn options of the service (one worker; shared by the tests' server)."""
+    return {
+        "workers": 1,
+        "ws": WS_IMPL,
+        "ws_max_size": WS_MAX_SIZE,
+        # each client would deflate the same frame again: off unless asked for
+        "ws_per_message_deflate": settings.ws_deflate,
+        "lifespan": "on",
+    }
+
+
+def run(args: argparse.Namespace) -> int:
+    import uvicorn
+
+    from server.service.app import create_app
+
+    settings = build_settings(args)
+    app = create_app(settings)
+    if settings.viser:
+        from server.service.viser_scene import check_port_free
+
+        check_port_free(settings.host, settings.viser_port)  # fail before serving anything
+    shown = "127.0.0.1" if settings.host in ("0.0.0.0", "::") else settings.host
+    print(
+        f"cutwatch dashboard: http://{shown}:{settings.port}/  "
+        f"(API docs: http://{shown}:{settings.port}/docs)",
+        flush=True,
+    )
+    if settings.viser:
+        print(f"viser 3D view: http://{shown}:{settings.viser_port}/", flush=True)
+    uvicorn.run(
+        app,
+        host=settings.host,
+        port=settings.port,
+        log_level=args.log_level,
+        **uvicorn_options(settings),  # type: ignore[arg-type]
+    )
+    return 0

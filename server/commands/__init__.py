@@ -1,1 +1,0 @@
-"""Sub-commands of ``cutwatch`` (one module each; see :mod:`server.cli`)."""

@@ -1,0 +1,1 @@
+"""One module per reproduced paper experiment (see :mod:`server.experiments.reproduction`)."""

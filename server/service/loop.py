@@ -1,0 +1,430 @@
+"""The live runtime: one background thread advancing the pipeline, and the client hub.
+
+:class:`LiveLoop` owns simulated time. It steps the
+:class:`~server.pipeline.live_pipeline.LivePipeline`
+in whole blocks (``block_ms``) on a schedule anchored to the wall clock,
+``due(T) = wall0 + (T - sim0) / speed``; a block whose end lies at simulated time ``T``
+is computed at ``due(T)``. Samples are never skipped or duplicated: after a host stall
+the loop runs blocks back to back until it has caught up, and reports the lag (how late
+a block finished against its due time). A lag beyond ``max_lag_s`` re-anchors the clock
+(counted in ``stalls``) rather than racing forever.
+
+Frames for the WebSocket clients are built at ``frame_hz`` from the blocks since the last
+frame, decimated for display, encoded once and handed to :class:`Hub`, which keeps a
+bounded latest-value-wins queue per client. The loop never waits for a client.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import collections
+import contextlib
+import math
+import threading
+import time
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from server.errors import CutwatchError
+from server.pipeline.live_pipeline import LivePipeline
+from server.service import protocol
+from server.service.settings import MAX_SPEED, Settings
+
+if TYPE_CHECKING:
+    from server.service.viser_scene import StageScene
+
+
+#: significant digits of the displayed samples (relative to each frame's largest value)
+DISPLAY_DIGITS = 5
+
+
+class ClientQueue:
+    """Bounded, latest-value-wins frame queue of one WebSocket client.
+
+    Written by the loop thread, read by the client's coroutine; ``dropped`` counts the
+    frames pushed out of the full queue since the client last took its frames.
+    """
+
+    def __init__(self, maxlen: int, loop: asyncio.AbstractEventLoop) -> None:
+        self._frames: collections.deque[str] = collections.deque(maxlen=maxlen)
+        self._hello: str | None = None  # a new hello (pipeline changed), never dropped
+        self._lock = threading.Lock()
+        self._loop = loop
+        self.event = asyncio.Event()
+        self.dropped = 0
+        self.dropped_total = 0
+        self.closed = False  # the service stops
+        self.gone = False  # the client went away
+
+    def push(self, body: str) -> None:
+        """Append a frame body (loop thread); the oldest is dropped when full."""
+        with self._lock:
+            if len(self._frames) == self._frames.maxlen:
+                self.dropped += 1
+                self.dropped_total += 1
+            self._frames.append(body)
+
+    def push_hello(self, hello: str) -> None:
+        """A new ``hello`` (the pipeline changed): it goes out before any later frame and
+        is never dropped; frames still queued belong to the old pipeline and are
+        discarded (not counted as dropped: the client could not use them)."""
+        with self._lock:
+            self._hello = hello
+            self._frames.clear()
+
+    def take(self) -> tuple[str | None, list[str], int]:
+        """Remove and return a pending new hello (or None), the pending frame bodies and
+        the drop count since the last take."""
+        with self._lock:
+            hello, self._hello = self._hello, None
+            frames = list(self._frames)
+            self._frames.clear()
+            dropped, self.dropped = self.dropped, 0
+            self.event.clear()
+        return hello, frames, dropped
+
+    def __len__(self) -> int:
+        return len(self._frames)
+
+
+class Hub:
+    """The set of connected clients; thread-safe publish from the loop thread."""
+
+    def __init__(self, maxlen: int) -> None:
+        self.maxlen = maxlen
+        self._clients: set[ClientQueue] = set()
+        self._lock = threading.Lock()
+        self._aio: asyncio.AbstractEventLoop | None = None
+        self.dropped_total = 0
+        self.frames_total = 0
+        self.closed = False
+
+    def bind(self, loop: asyncio.AbstractEventLoop) -> None:
+        """Attach the event loop the client coroutines run on."""
+        self._aio = loop
+
+    def add(self) -> ClientQueue:
+        """Register a client (from its coroutine)."""
+        if self.closed:
+            raise CutwatchError("the service is shutting down")
+        q = ClientQueue(self.maxlen, asyncio.get_running_loop())
+        with self._lock:
+            self._clients.add(q)
+        return q
+
+    def remove(self, q: ClientQueue) -> None:
+        """Unregister a client."""
+        with self._lock:
+            self._clients.discard(q)
+            self.dropped_total += q.dropped_total
+
+    @property
+    def clients(self) -> int:
+        return len(self._clients)
+
+    def dropped(self) -> int:
+        """Frames dropped over every client, connected or gone."""
+        with self._lock:
+            return self.dropped_total + sum(q.dropped_total for q in self._clients)
+
+    def publish(self, body: str) -> None:
+        """Hand a frame to every client and wake their coroutines; never blocks on them."""
+        with self._lock:
+            clients = list(self._clients)
+        self.frames_total += 1
+        for q in clients:
+            q.push(body)
+        if clients and self._aio is not None:
+            with contextlib.suppress(RuntimeError):  # event loop already closed
+                self._aio.call_soon_threadsafe(_wake, clients)
+
+    def publish_hello(self, hello: str) -> None:
+        """Hand a new ``hello`` to every client (after a scenario change or a replay)."""
+        with self._lock:
+            clients = list(self._clients)
+        for q in clients:
+            q.push_hello(hello)
+        if clients and self._aio is not None:
+            with contextlib.suppress(RuntimeError):
+                self._aio.call_soon_threadsafe(_wake, clients)
+
+    def close(self) -> None:
+        """Tell every client coroutine that the service stops."""
+        self.closed = True
+        with self._lock:
+            clients = list(self._clients)
+        for q in clients:
+            q.closed = True
+        if clients and self._aio is not None:
+            with contextlib.suppress(RuntimeError):
+                self._aio.call_soon_threadsafe(_wake, clients)
+
+
+def _wake(clients: list[ClientQueue]) -> None:
+    for q in clients:
+        q.event.set()
+
+
+class LiveLoop:
+    """The background loop: pipeline stepping on a wall-clock schedule, frames to the hub.
+
+    Every public method is thread-safe. Pipeline access (stepping, knobs, reset,
+    snapshot) is serialised by one lock held for one block at a time.
+    """
+
+    def __init__(self, settings: Settings, hub: Hub) -> None:
+        self.settings = settings
+        self.hub = hub
+        self.pipeline = LivePipeline(settings.scenario, seed=settings.seed)
+        self.lock = threading.RLock()
+        self._wake = threading.Event()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self.speed = float(settings.speed)
+        self.paused = self.speed == 0.0
+        self.block_n = max(1, round(settings.block_ms * 1e-3 / self.pipeline.sample_time))
+        self.frame_period = 1.0 / settings.frame_hz
+        self._lags: collections.deque[float] = collections.deque(maxlen=600)
+        self._rate: collections.deque[tuple[float, float]] = collections.deque(maxlen=64)
+        self.lag_s = 0.0
+        self._p99, self._p99_at = 0.0, -math.inf
+        self.stalls = 0
+        self.blocks = 0
+        self.seq = 0
+        self.error: str | None = None
+        self._pending: list[dict[str, np.ndarray]] = []
+        self._hello_due = False  # the pipeline changed: clients need a new hello
+        self.scene: StageScene | None = None  # the viser view, if started
+        self._anchor()
+
+    # ------------------------------------------------------------------ control
+    def _anchor(self) -> None:
+        self._wall0 = time.monotonic()
+        self._sim0 = self.pipeline.t
+
+    def set_speed(self, speed: float) -> None:
+        """Set simulated seconds per wall second (0 pauses)."""
+        if not (math.isfinite(speed) and 0.0 <= speed <= MAX_SPEED):
+            raise CutwatchError(f"speed: expected a value in [0, {MAX_SPEED:g}], got {speed!r}")
+        with self.lock:
+            self.speed = float(speed)
+            self.paused = self.speed == 0.0
+            self._anchor()
+        self._wake.set()
+
+    def pause(self) -> None:
+        with self.lock:
+            self.paused = True
+        self._wake.set()
+
+    def resume(self) -> None:
+        with self.lock:
+            if self.speed == 0.0:
+                self.speed = 1.0
+            self.paused = False
+            self._anchor()
+        self._wake.set()
+
+    def reset(self) -> None:
+        """Restart the simulation and every estimator from t = 0 (knob values kept)."""
+        with self.lock:
+            self.pipeline.reset()
+            self._pending.clear()
+            self._anchor()
+        self._wake.set()
+
+    def set_scenario(self, name: str) -> None:
+        """Switch to another scenario: a fresh pipeline from t = 0, its default knobs."""
+        self.set_pipeline(LivePipeline(name, seed=self.settings.seed))
+
+    def set_pipeline(self, pipe: LivePipeline) -> None:
+        """Run ``pipe`` from now on (a scenario, or a log replay); installed observer
+        effects carry over. Not paused: a replay starts at once."""
+        with self.lock:
+            if self.pipeline.effects:
+                pipe.set_observer_effects(self.pipeline.effects)
+            self.pipeline = pipe
+            self.block_n = max(1, round(self.settings.block_ms * 1e-3 / pipe.sample_time))
+            self._pending.clear()
+            self._hello_due = True  # sent by the loop thread before its next frame
+            if self.paused and getattr(self.pipeline, "finished", None) is not None:
+                self.paused = False
+                self.speed = self.speed or 1.0
+            self._anchor()
+        self._wake.set()
+
+    # ------------------------------------------------------------------ thread
+    def start(self) -> None:
+        self._thread = threading.Thread(target=self._run, name="cutwatch-loop", daemon=True)
+        self._thread.start()
+
+    def stop(self, timeout: float = 5.0) -> None:
+        self._stop.set()
+        self._wake.set()
+        if self._thread is not None:
+            self._thread.join(timeout)
+
+    @property
+    def running(self) -> bool:
+        return self._thread is not None and self._thread.is_alive()
+
+    def _run(self) -> None:
+        # warm-up: the first block loads the compiled kernels (~1 s); run it off the clock
+        # and start again from t = 0, so the schedule does not begin with a catch-up burst
+        with self.lock:
+            self.pipeline.step(self.block_n)
+            self.pipeline.reset()
+            self._anchor()
+        last_frame = time.monotonic()
+        try:
+            while not self._stop.is_set():
+                with self.lock:
+                    paused, speed = self.paused, self.speed
+                    block_s = self.block_n * self.pipeline.sample_time
+                    due = self._wall0 + (self.pipeline.t + block_s - self._sim0) / max(speed, 1e-9)
+                now = time.monotonic()
+                if paused:
+                    self.lag_s = 0.0
+                    self._wake.wait(self.frame_period)
+                    self._wake.clear()
+                    if time.monotonic() - last_frame >= self.frame_period:
+                        last_frame = time.monotonic()
+                        self._publish()  # health keeps flowing while paused
+                    continue
+                if now < due:
+                    self._wake.wait(min(due - now, self.frame_period))
+                    self._wake.clear()
+                    continue
+                with self.lock:
+                    if getattr(self.pipeline, "finished", False):
+                        self.paused = True  # a replayed log has ended
+                    if self.paused or self._stop.is_set():
+                        continue
+                    out = self.pipeline.step(self.block_n)
+                    self._pending.append(out)
+                    self.blocks += 1
+                if self.scene is not None:
+                    p = self.pipeline
+                    self.scene.update(p.latest, p.workpiece_removed, p.t)
+                done = time.monotonic()
+                lag = max(0.0, done - due)
+                self.lag_s = lag
+                self._lags.append(lag)
+                self._rate.append((done, self.pipeline.t))
+                if lag > self.settings.max_lag_s:
+                    self.stalls += 1
+                    with self.lock:
+                        self._anchor()
+                if done - last_frame >= self.frame_period:
+                    last_frame = done
+                    self._publish()
+        except Exception as exc:  # keep the service up and say why the loop stopped
+            self.error = f"{type(exc).__name__}: {exc}"
+            raise
+
+    # ------------------------------------------------------------------ frames
+    def _decimated(
+        self,
+    ) -> tuple[list[float | None], list[float | None], dict[str, list[float | None]]]:
+        with self.lock:
+            blocks, self._pending = self._pending, []
+            grids = {c.name: protocol.grid_of(c.group) for c in self.pipeline.channels()}
+            sample_time = self.pipeline.sample_time
+        if not blocks:
+            return [], [], {}
+        merged = {k: np.concatenate([b[k] for b in blocks]) for k in blocks[0]}
+        # a fixed stride per speed keeps the displayed sample rate steady across frames
+        step = math.ceil(self.block_n / self.settings.display_points) * max(
+            1, math.ceil(self.speed)
+        )
+        step = min(step, self.block_n * 64)
+        # keep the samples whose index on the simulation's own grid is a multiple of the
+        # stride: the displayed grid stays regular across frames, blocks and idle spells
+        tt = merged.pop("t")
+        g = np.rint(tt / sample_time).astype(np.int64)
+        fast = g % step == 0
+        slow = g % (step * protocol.SLOW_FACTOR) == 0
+        t = protocol.samples(np.round(tt[fast], 6))  # 1 us: exact on the 0.4 ms grid
+        ts = protocol.samples(np.round(tt[slow], 6))
+        # every channel of a grid rounded in one pass (protocol.samples_rows: the same
+        # values as protocol.samples per channel, ~4x cheaper for the 35 channels)
+        ch: dict[str, list[float | None]] = {}
+        for grid, mask in (("t", fast), ("ts", slow)):
+            names = [k for k in merged if grids.get(k, "ts") == grid]
+            if names:
+                rows = np.vstack([merged[k][mask] for k in names])
+                ch.update(zip(names, protocol.samples_rows(rows, DISPLAY_DIGITS), strict=True))
+        ch = {k: ch[k] for k in merged}  # channel order as the pipeline gives it
+        return t, ts, ch
+
+    def hello(self) -> str:
+        """The ``hello`` message of the current pipeline (channels, sample time, knobs)."""
+        with self.lock:
+            chans = [
+                {
+                    "name": c.name,
+                    "unit": c.unit,
+                    "group": c.group,
+                    "label": c.label,
+                    "grid": protocol.grid_of(c.group),
+                }
+                for c in self.pipeline.channels()
+            ]
+            return protocol.hello(
+                chans, self.pipeline.sample_time, self.pipeline.scenario, self.knob_values()
+            )
+
+    def _publish(self) -> None:
+        # runs on the loop thread only, so a new hello is ordered after every frame of
+        # the old pipeline and before every frame of the new one
+        with self.lock:
+            hello_due, self._hello_due = self._hello_due, False
+        if hello_due and self.hub.clients:
+            self.hub.publish_hello(self.hello())
+        self.seq += 1
+        if self.hub.clients == 0:  # nobody listens: drop the blocks, skip the encoding
+            with self.lock:
+                self._pending.clear()
+            return
+        t, ts, ch = self._decimated()
+        body = protocol.data_body(
+            self.seq, time.time(), t, ts, ch, self.health(), self.knob_values()
+        )
+        self.hub.publish(body)
+
+    # ------------------------------------------------------------------ status
+    def realtime_factor(self) -> float:
+        """Simulated seconds per wall second over the last ~64 blocks (0 when paused)."""
+        if self.paused or len(self._rate) < 2:
+            return 0.0
+        (w0, s0), (w1, s1) = self._rate[0], self._rate[-1]
+        if time.monotonic() - w1 > 1.0 or w1 <= w0:
+            return 0.0
+        return (s1 - s0) / (w1 - w0)
+
+    def lag_p99(self) -> float:
+        """p99 of the lag over the last 600 blocks (recomputed at most once a second)."""
+        now = time.monotonic()
+        if now - self._p99_at > 1.0:
+            self._p99_at = now
+            lags = np.fromiter(self._lags, float) if self._lags else np.zeros(1)
+            self._p99 = float(np.percentile(lags, 99))
+        return self._p99
+
+    def health(self) -> dict[str, Any]:
+        return {
+            "sim_t": self.pipeline.t,
+            "speed": self.speed,
+            "paused": self.paused,
+            "lag_ms": 1e3 * self.lag_s,
+            "lag_p99_ms": 1e3 * self.lag_p99(),
+            "realtime_factor": self.realtime_factor(),
+            "clients": self.hub.clients,
+            "dropped_total": self.hub.dropped(),
+            "stalls": self.stalls,
+        }
+
+    def knob_values(self) -> dict[str, Any]:
+        with self.lock:
+            return {k: v.value for k, v in self.pipeline.knobs().items()}

@@ -1,0 +1,298 @@
+"""REST API through the real app on a real uvicorn server: every 4xx path with its message."""
+
+from __future__ import annotations
+
+import json
+import re
+import time
+from collections.abc import Iterator
+
+import httpx
+import pytest
+from _live import serve
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from server.errors import CutwatchError
+from server.service.app import create_app
+from server.service.settings import Settings
+
+JSON = st.recursive(
+    st.none() | st.booleans() | st.integers() | st.floats() | st.text(max_size=20),
+    lambda inner: (
+        st.lists(inner, max_size=4) | st.dictionaries(st.text(max_size=8), inner, max_size=4)
+    ),
+    max_leaves=10,
+)
+# bodies aimed at the real knobs as well as arbitrary JSON
+BODIES = JSON | st.dictionaries(
+    st.sampled_from(["spindle_rpm", "weight_on", "Spindle_rpm", ""]),
+    st.none() | st.booleans() | st.integers() | st.floats() | st.text(max_size=5),
+    max_size=3,
+)
+
+
+@pytest.fixture(scope="module")
+def api() -> Iterator[httpx.Client]:
+    with serve() as hp, httpx.Client(base_url=f"http://{hp}", timeout=10) as client:
+        yield client
+
+
+def sim_t(api: httpx.Client) -> float:
+    return float(api.get("/api/health").json()["sim_t"])
+
+
+def test_health_reports_loop(api: httpx.Client) -> None:
+    deadline = time.monotonic() + 20
+    while sim_t(api) < 1.5 and time.monotonic() < deadline:
+        time.sleep(0.1)
+    h = api.get("/api/health").json()
+    assert h["status"] == "ok"
+    assert h["viser_port"] == 8080
+    assert h["sim_t"] >= 1.5
+    assert 0.5 < h["realtime_factor"] < 2.0  # 1x real time, measured over the last blocks
+    assert h["lag_ms"] >= 0.0 and h["lag_p99_ms"] >= 0.0
+
+
+def test_scenarios_and_params(api: httpx.Client) -> None:
+    sc = api.get("/api/scenarios").json()
+    assert sc["current"] == "default" and "default" in sc["scenarios"]
+    params = api.get("/api/params").json()
+    rpm = params["spindle_rpm"]
+    assert rpm["type"] == "number" and rpm["min"] < rpm["value"] < rpm["max"]
+    assert params["weight_on"]["type"] == "bool"
+
+
+def test_patch_changes_value(api: httpx.Client) -> None:
+    r = api.patch("/api/params", json={"spindle_rpm": 2400})
+    assert r.status_code == 200
+    assert r.json()["spindle_rpm"]["value"] == 2400
+    assert api.get("/api/params").json()["spindle_rpm"]["value"] == 2400
+
+
+@pytest.mark.parametrize(
+    ("body", "field", "message"),
+    [
+        (
+            {"spindle_rpm": 1e9},
+            "spindle_rpm",
+            r"spindle_rpm: expected a number in \[600, 6000\] rpm, got 1000000000.0",
+        ),
+        ({"spindle_rpm": "fast"}, "spindle_rpm", r"expected a number in .* got 'fast'"),
+        ({"spindle_rpm": True}, "spindle_rpm", r"expected a number in .* got True"),
+        ({"weight_on": 1}, "weight_on", r"weight_on: expected true or false, got 1"),
+        ({"bogus": 1}, "bogus", r"unknown parameter 'bogus'; expected one of spindle_rpm"),
+        ({}, "body", r"no field given"),
+    ],
+)
+def test_patch_rejects_with_field_range_and_value(
+    api: httpx.Client, body: dict[str, object], field: str, message: str
+) -> None:
+    r = api.patch("/api/params", json=body)
+    assert r.status_code == 422
+    (err,) = r.json()["detail"]
+    assert err["field"] == field
+    assert err["allowed"]
+    assert re.search(message, err["msg"]), err["msg"]
+
+
+def test_patch_is_all_or_nothing(api: httpx.Client) -> None:
+    before = api.get("/api/params").json()
+    r = api.patch(
+        "/api/params", json={"weight_on": not before["weight_on"]["value"], "spindle_rpm": -5}
+    )
+    assert r.status_code == 422
+    assert [e["field"] for e in r.json()["detail"]] == ["spindle_rpm"]
+    assert api.get("/api/params").json() == before
+    t0 = sim_t(api)
+    time.sleep(0.2)
+    assert sim_t(api) > t0  # the loop kept running
+
+
+def test_patch_non_finite_number_is_422_not_500(api: httpx.Client) -> None:
+    r = api.patch(
+        "/api/params", content=b'{"spindle_rpm": NaN}', headers={"content-type": "application/json"}
+    )
+    assert r.status_code == 422
+    assert r.json()["detail"][0]["got"] == "nan"
+
+
+@pytest.mark.parametrize("content", [b"[1, 2]", b"not json", b'"text"', b"Infinity", b"[NaN]"])
+def test_patch_body_not_an_object(api: httpx.Client, content: bytes) -> None:
+    r = api.patch("/api/params", content=content, headers={"content-type": "application/json"})
+    assert r.status_code == 422
+    assert r.json()["detail"][0]["loc"][0] == "body"
+
+
+def test_body_size_limited(api: httpx.Client) -> None:
+    big = b'{"spindle_rpm": 1500, "pad": "' + b"x" * 20000 + b'"}'
+    r = api.patch("/api/params", content=big, headers={"content-type": "application/json"})
+    assert r.status_code == 413
+    assert r.json()["detail"] == "request body larger than 16384 bytes"
+
+    def chunks() -> Iterator[bytes]:  # no Content-Length: counted as it streams
+        yield b'{"pad": "'
+        for _ in range(40):
+            yield b"x" * 1000
+        yield b'"}'
+
+    r = api.patch("/api/params", content=chunks(), headers={"content-type": "application/json"})
+    assert r.status_code == 413
+
+
+@pytest.mark.parametrize(
+    ("body", "message"),
+    [
+        ({"action": "jump"}, r"Input should be 'pause', 'resume', 'reset', 'speed' or 'scenario'"),
+        ({"action": "speed"}, r"speed: expected a number in \[0, 1000\], got None"),
+        (
+            {"action": "speed", "value": 5000},
+            r"speed: expected a number in \[0, 1000\], got 5000.0",
+        ),
+        ({"action": "pause", "extra": 1}, r"Extra inputs are not permitted"),
+        ({}, r"Field required"),
+        (
+            {"action": "scenario", "scenario": "mars"},
+            r"scenario: expected one of default, .*"
+            r"got 'mars'",
+        ),
+        ({"action": "scenario"}, r"scenario: expected one of default, .*got None"),
+    ],
+)
+def test_control_rejects(api: httpx.Client, body: dict[str, object], message: str) -> None:
+    r = api.post("/api/control", json=body)
+    assert r.status_code == 422
+    assert re.search(message, r.json()["detail"][0]["msg"]), r.json()
+
+
+def test_control_pause_resume_reset_speed(api: httpx.Client) -> None:
+    assert api.post("/api/control", json={"action": "pause"}).json()["paused"] is True
+    t0 = sim_t(api)
+    time.sleep(0.3)
+    assert sim_t(api) == t0
+    assert api.post("/api/control", json={"action": "resume"}).json()["paused"] is False
+    time.sleep(0.3)
+    assert sim_t(api) > t0
+    api.post("/api/control", json={"action": "reset"})
+    assert sim_t(api) < 0.2
+    r = api.post("/api/control", json={"action": "speed", "value": 4})
+    assert r.json()["speed"] == 4.0
+    t1 = sim_t(api)
+    time.sleep(0.5)
+    assert sim_t(api) - t1 > 1.0  # 4x real time
+    assert api.post("/api/control", json={"action": "speed", "value": 0}).json()["paused"]
+    api.post("/api/control", json={"action": "speed", "value": 1})
+
+
+def test_scenario_switch(api: httpx.Client) -> None:
+    r = api.post("/api/control", json={"action": "scenario", "scenario": "seed001-spindle"})
+    assert r.status_code == 200 and r.json()["scenario"] == "seed001-spindle"
+    assert api.get("/api/scenarios").json()["current"] == "seed001-spindle"
+    assert api.get("/api/params").json()["spindle_changes"]["value"] is False
+    r = api.post("/api/control", json={"action": "scenario", "scenario": "default"})
+    assert api.get("/api/health").json()["scenario"] == "default"
+
+
+def test_snapshot_and_metrics(api: httpx.Client) -> None:
+    snap = api.get("/api/snapshot").json()
+    assert snap["pipeline"]["scenario"] == "default"
+    assert "spindle_rpm" in snap["pipeline"]["knobs"]
+    assert snap["health"]["sim_t"] >= 0
+    m = api.get("/metrics")
+    assert m.headers["content-type"].startswith("text/plain")
+    values = {
+        line.split()[0]: float(line.split()[1])
+        for line in m.text.splitlines()
+        if line and not line.startswith("#")
+    }
+    for name in (
+        "cutwatch_loop_lag_seconds",
+        "cutwatch_realtime_factor",
+        "cutwatch_ws_clients",
+        "cutwatch_ws_dropped_frames_total",
+    ):
+        assert name in values
+    assert values["cutwatch_blocks_total"] > 0
+
+
+def test_openapi_lists_every_endpoint(api: httpx.Client) -> None:
+    paths = api.get("/openapi.json").json()["paths"]
+    for p in (
+        "/api/health",
+        "/api/scenarios",
+        "/api/params",
+        "/api/control",
+        "/api/snapshot",
+        "/metrics",
+    ):
+        assert p in paths
+    assert "patch" in paths["/api/params"]
+    assert api.get("/docs").status_code == 200
+
+
+def test_unknown_route_404(api: httpx.Client) -> None:
+    assert api.get("/api/nothing").status_code == 404
+
+
+@settings(
+    max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
+@given(body=BODIES)
+def test_patch_fuzz_never_500(api: httpx.Client, body: object) -> None:
+    before = api.get("/api/params").json()
+    # NaN and Infinity are sent as Python writes them (not strict JSON), on purpose
+    r = api.patch(
+        "/api/params",
+        content=json.dumps(body).encode(),
+        headers={"content-type": "application/json"},
+    )
+    assert r.status_code in (200, 422), r.text
+    if r.status_code == 422:
+        assert api.get("/api/params").json() == before
+
+
+def test_token_required_for_mutations_when_set() -> None:
+    with serve(token="s3cret") as hp, httpx.Client(base_url=f"http://{hp}") as c:
+        assert c.get("/api/params").status_code == 200  # reading needs no token
+        r = c.patch("/api/params", json={"spindle_rpm": 2000})
+        assert r.status_code == 401
+        assert "Bearer" in r.json()["detail"] and r.headers["www-authenticate"] == "Bearer"
+        r = c.post(
+            "/api/control", json={"action": "pause"}, headers={"Authorization": "Bearer wrong"}
+        )
+        assert r.status_code == 401
+        r = c.patch(
+            "/api/params", json={"spindle_rpm": 2000}, headers={"Authorization": "Bearer s3cret"}
+        )
+        assert r.status_code == 200
+
+
+def test_refuses_public_bind_without_token() -> None:
+    with pytest.raises(CutwatchError, match=r"binding to '0.0.0.0' \(not loopback\) requires"):
+        create_app(Settings(host="0.0.0.0"))
+    create_app(Settings(host="0.0.0.0", token="t"))  # with a token it builds
+
+
+def test_unknown_scenario_refused() -> None:
+    with pytest.raises(CutwatchError, match=r"scenario: expected one of .*got 'nope'"):
+        create_app(Settings(scenario="nope"))
+
+
+@settings(
+    max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
+@given(
+    body=JSON
+    | st.fixed_dictionaries(
+        {"action": st.sampled_from(["speed", "pause", "resume", "x"])},
+        optional={"value": st.none() | st.floats() | st.integers() | st.text(max_size=3)},
+    )
+)
+def test_control_fuzz_never_500(api: httpx.Client, body: object) -> None:
+    r = api.post(
+        "/api/control",
+        content=json.dumps(body).encode(),
+        headers={"content-type": "application/json"},
+    )
+    assert r.status_code in (200, 422), r.text
+    api.post("/api/control", json={"action": "speed", "value": 1})  # leave it running

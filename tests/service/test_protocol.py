@@ -1,0 +1,121 @@
+"""The stream schema is one thing on both sides: server/protocol.py and web/protocol.js."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from server.service import protocol
+
+WEB = Path(__file__).resolve().parents[2] / "web"
+NODE = shutil.which("node")
+pytestmark = pytest.mark.skipif(NODE is None, reason="node is not installed")
+
+
+def run_js(code: str, stdin: str = "") -> str:
+    assert NODE is not None
+    out = subprocess.run(
+        [NODE, "--input-type=module", "-e", code],
+        input=stdin,
+        capture_output=True,
+        text=True,
+        timeout=30,
+        cwd=WEB,
+        check=False,
+    )
+    if out.returncode != 0:
+        raise AssertionError(out.stderr)
+    return out.stdout
+
+
+def test_schema_equal_on_both_sides() -> None:
+    js = json.loads(
+        run_js("import {SCHEMA} from './protocol.js';console.log(JSON.stringify(SCHEMA));")
+    )
+    assert js == protocol.SCHEMA
+
+
+def frames() -> list[str]:
+    hello = protocol.hello(
+        [
+            {"name": "force_true", "unit": "N", "group": "force", "label": "true", "grid": "t"},
+            {"name": "J_L", "unit": "kg m^2", "group": "J_L", "label": "J_L", "grid": "ts"},
+        ],
+        4e-4,
+        "default",
+        {"spindle_rpm": 1500.0},
+    )
+    health = dict.fromkeys(protocol.SCHEMA["health"], 0.0)
+    body = protocol.data_body(
+        3,
+        1.0,
+        [0.1, 0.2],
+        [0.1],
+        {"force_true": protocol.samples([1.0, float("nan")]), "J_L": [2.8e-4]},
+        health,
+        {"spindle_rpm": 1500.0},
+    )
+    return [hello, protocol.with_dropped(body, 7)]
+
+
+def test_js_accepts_what_python_sends() -> None:
+    code = (
+        "import {checkMessage} from './protocol.js';"
+        "import {readFileSync} from 'node:fs';"
+        "const lines = readFileSync(0, 'utf8').trim().split('\\n');"
+        "console.log(JSON.stringify(lines.map((l) => checkMessage(l).type)));"
+    )
+    assert json.loads(run_js(code, "\n".join(frames()))) == ["hello", "data"]
+
+
+def test_python_frames_follow_schema() -> None:
+    hello, data = (json.loads(f) for f in frames())
+    assert list(hello) == protocol.SCHEMA["hello"]
+    assert list(data) == protocol.SCHEMA["data"]
+    assert data["dropped"] == 7 and data["ch"]["force_true"] == [1.0, None]
+
+
+@pytest.mark.parametrize(
+    ("bad", "message"),
+    [
+        ('{"type": "nope"}', "unknown message type nope"),
+        ('{"type": "hello", "version": 1}', "hello message lacks channels"),
+        (
+            '{"type": "hello", "version": 99, "channels": [], "sample_time": 1, "scenario": "",'
+            ' "knobs": {}}',
+            "protocol version 99, this page speaks 1",
+        ),
+        (
+            '{"type": "data", "dropped": 0, "seq": 1, "wall": 0, "t": [1, 2], "ts": [1],'
+            ' "ch": {"x": [1, 2]}, "health": {}, "knobs": {}}',
+            "health lacks sim_t",
+        ),
+        (
+            '{"type": "data", "dropped": 0, "seq": 1, "wall": 0, "t": [1, 2], "ts": [1],'
+            ' "ch": {"x": [1, 2, 3]}, "health": {"sim_t": 0, "speed": 1, "paused": false,'
+            ' "lag_ms": 0, "lag_p99_ms": 0, "realtime_factor": 1, "clients": 1,'
+            ' "dropped_total": 0, "stalls": 0}, "knobs": {}}',
+            "channel x: 3 samples, t has 2, ts has 1",
+        ),
+    ],
+)
+def test_js_rejects_malformed(bad: str, message: str) -> None:
+    code = (
+        "import {checkMessage} from './protocol.js';"
+        "import {readFileSync} from 'node:fs';"
+        "try { checkMessage(readFileSync(0, 'utf8')); console.log('accepted'); }"
+        " catch (e) { console.log(e.message); }"
+    )
+    assert message in run_js(code, bad)
+
+
+def test_samples_rounds_to_significant_digits_relative_to_the_largest() -> None:
+    assert protocol.samples([5.7212345e-4, 1.0e-4], 3) == [5.72e-4, 1.0e-4]
+    assert protocol.samples([123.456, 0.001], 4) == [123.5, 0.0]
+    assert protocol.samples([float("inf"), 1.0], 3) == [None, 1.0]
+    assert protocol.samples([float("nan")] * 2, 3) == [None, None]
+    assert protocol.samples([], 3) == []

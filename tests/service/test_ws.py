@@ -1,0 +1,242 @@
+"""The WebSocket stream through the real app: hello, frames, a PATCH seen in the stream,
+no skipped or repeated samples, a slow client that loses frames without slowing anyone."""
+
+from __future__ import annotations
+
+import asyncio
+import itertools
+import json
+import socket
+import time
+from collections.abc import Iterator
+from typing import Any
+
+import httpx
+import pytest
+from _live import serve
+from websockets.exceptions import ConnectionClosed
+from websockets.sync.client import ClientConnection, connect
+
+from server.pipeline.live_pipeline import LivePipeline
+from server.service import protocol
+from server.service.loop import ClientQueue, Hub
+
+
+@pytest.fixture(scope="module")
+def hp() -> Iterator[str]:
+    with serve() as hostport:
+        yield hostport
+
+
+def recv(ws: ClientConnection) -> dict[str, Any]:
+    msg: dict[str, Any] = json.loads(ws.recv(timeout=5))
+    return msg
+
+
+def test_hello_then_frames(hp: str) -> None:
+    with connect(f"ws://{hp}/ws") as ws:
+        hello = recv(ws)
+        assert hello["type"] == "hello" and hello["version"] == protocol.VERSION
+        names = [c["name"] for c in hello["channels"]]
+        assert names == [c.name for c in LivePipeline().channels()]
+        grid = {c["name"]: c["grid"] for c in hello["channels"]}
+        assert grid["f_true"] == "t" and grid["J_L_true"] == "ts"
+        frames = [recv(ws) for _ in range(10)]
+    for f in frames:
+        assert f["type"] == "data" and f["dropped"] == 0
+        assert set(f["ch"]) == set(names)
+        assert all(len(v) == len(f[grid[k]]) for k, v in f["ch"].items())
+        assert set(f["ts"]) <= set(f["t"])  # the slow grid is a subset of the fast one
+        assert f["health"]["clients"] >= 1
+    assert [f["seq"] for f in frames] == list(range(frames[0]["seq"], frames[0]["seq"] + 10))
+
+
+def test_no_per_message_deflate_unless_asked(hp: str) -> None:
+    # the client offers permessage-deflate (websockets does by default); the service
+    # declines, so it does not compress every frame once per client
+    with connect(f"ws://{hp}/ws") as ws:
+        assert ws.request is not None and ws.response is not None
+        assert "permessage-deflate" in ws.request.headers.get("Sec-WebSocket-Extensions", "")
+        assert "Sec-WebSocket-Extensions" not in ws.response.headers
+    with serve(ws_deflate=True) as hp2, connect(f"ws://{hp2}/ws") as ws:
+        assert ws.response is not None
+        assert "permessage-deflate" in ws.response.headers.get("Sec-WebSocket-Extensions", "")
+
+
+def test_samples_neither_skipped_nor_repeated(hp: str) -> None:
+    with connect(f"ws://{hp}/ws") as ws:
+        dt = recv(ws)["sample_time"]
+        t = [x for _ in range(20) for x in recv(ws)["t"]]
+    steps = {round((b - a) / dt) for a, b in itertools.pairwise(t)}
+    assert len(steps) == 1 and steps.pop() >= 1  # one fixed display stride, no gaps
+
+
+def test_patch_seen_in_stream(hp: str) -> None:
+    with connect(f"ws://{hp}/ws") as ws, httpx.Client(base_url=f"http://{hp}") as api:
+        recv(ws)
+        first = recv(ws)
+        assert first["knobs"]["weight_on"] is False
+        j_before = max(first["ch"]["J_L_true"])
+        assert api.patch("/api/params", json={"weight_on": True}).status_code == 200
+        frames = [recv(ws) for _ in range(5)]
+        api.patch("/api/params", json={"weight_on": False})
+    assert frames[-1]["knobs"]["weight_on"] is True
+    # the weight (+2.92e-4 kg m^2, seed 000 Fig. 7(b)) is in the true J_L of the stream
+    assert max(frames[-1]["ch"]["J_L_true"]) > j_before + 2.5e-4
+
+
+def test_scenario_change_sends_a_new_hello_first(hp: str) -> None:
+    with connect(f"ws://{hp}/ws") as ws, httpx.Client(base_url=f"http://{hp}") as api:
+        assert recv(ws)["scenario"] == "default"
+        t_old = max(max(m["t"], default=0.0) for m in (recv(ws), recv(ws), recv(ws)))
+        r = api.post("/api/control", json={"action": "scenario", "scenario": "seed000-weight"})
+        assert r.status_code == 200, r.text
+        msgs = [recv(ws) for _ in range(8)]
+        api.post("/api/control", json={"action": "scenario", "scenario": "default"})
+    kinds = [m["type"] for m in msgs]
+    assert "hello" in kinds, kinds
+    i = kinds.index("hello")
+    assert msgs[i]["scenario"] == "seed000-weight"
+    assert [c["name"] for c in msgs[i]["channels"]] == [c.name for c in LivePipeline().channels()]
+    after = [m for m in msgs[i + 1 :] if m["t"]]
+    assert after, "no data frame after the new hello"
+    # every frame after the hello comes from the new pipeline (its clock restarted at 0)
+    assert all(m["type"] == "data" for m in msgs[i + 1 :])
+    assert t_old > 0.0 and after[0]["t"][0] < t_old
+
+
+def test_pause_seen_in_stream(hp: str) -> None:
+    with connect(f"ws://{hp}/ws") as ws, httpx.Client(base_url=f"http://{hp}") as api:
+        recv(ws)
+        api.post("/api/control", json={"action": "pause"})
+        # frames built before the pause may still be queued (a loaded machine queues
+        # more than one); the first paused frame must come within a second of frames
+        for _ in range(25):
+            f = recv(ws)
+            if f["type"] == "data" and f["health"]["paused"]:
+                break
+        frames = [recv(ws) for _ in range(4)]  # health keeps flowing while paused
+        api.post("/api/control", json={"action": "resume"})
+    assert all(f["health"]["paused"] and f["t"] == [] for f in frames)
+    assert len({f["health"]["sim_t"] for f in frames}) == 1
+
+
+def test_slow_client_loses_frames_others_do_not() -> None:
+    # tiny socket buffers so a client that never reads fills the pipe within seconds
+    with serve(sndbuf=4096, frame_hz=50, display_points=2000, client_buffer=4) as hp:
+        raw = socket.create_connection(("127.0.0.1", int(hp.split(":")[1])))
+        raw.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+        slow = connect(f"ws://{hp}/ws", sock=raw, max_queue=2, ping_interval=None, close_timeout=1)
+        with connect(f"ws://{hp}/ws") as fast, httpx.Client(base_url=f"http://{hp}") as api:
+            recv(fast)
+            arrivals: list[float] = []
+            fast_dropped = 0
+            deadline = time.monotonic() + 20
+            while time.monotonic() < deadline:
+                f = recv(fast)
+                arrivals.append(time.monotonic())
+                fast_dropped += f["dropped"]
+                if len(arrivals) % 25 == 0 and metric(api, "dropped_frames_total") > 0:
+                    break
+            assert metric(api, "dropped_frames_total") > 0, "the slow client never lost a frame"
+            gaps = [b - a for a, b in itertools.pairwise(arrivals)]
+            assert fast_dropped == 0
+            assert max(gaps) < 0.5  # the fast client kept its ~50 Hz stream
+            assert metric(api, "realtime_factor") > 0.5  # the loop never waited
+            # the slow client finally reads (faster now): it is told how many frames it lost
+            raw.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 20)
+            told = 0
+            for _ in range(400):
+                try:
+                    told = recv(slow).get("dropped", 0)
+                except (TimeoutError, ConnectionClosed):
+                    break
+                if told:
+                    break
+            assert told > 0
+        slow.close()
+
+
+def metric(api: httpx.Client, suffix: str) -> float:
+    for line in api.get("/metrics").text.splitlines():
+        if line.startswith("cutwatch_") and line.split()[0].endswith(suffix):
+            return float(line.split()[1])
+    raise AssertionError(f"no metric *{suffix}")
+
+
+def test_client_queue_is_bounded_latest_wins() -> None:
+    async def main() -> None:
+        q = ClientQueue(3, asyncio.get_running_loop())
+        for i in range(10):
+            q.push(str(i))
+        assert len(q) == 3
+        hello, frames, dropped = q.take()
+        assert hello is None and frames == ["7", "8", "9"] and dropped == 7
+        assert q.take() == (None, [], 0)
+        # a new hello clears the old pipeline's frames and is never dropped by later ones
+        q.push("old")
+        q.push_hello("H")
+        for i in range(5):
+            q.push(f"n{i}")
+        assert q.take() == ("H", ["n2", "n3", "n4"], 2)
+
+    asyncio.run(main())
+
+
+def test_hub_publish_never_blocks_and_counts() -> None:
+    async def main() -> None:
+        hub = Hub(2)
+        hub.bind(asyncio.get_running_loop())
+        a, b = hub.add(), hub.add()
+        for i in range(5):
+            hub.publish(str(i))
+        await asyncio.sleep(0)
+        assert a.event.is_set()
+        assert a.take() == (None, ["3", "4"], 3)
+        assert hub.dropped() == 6  # a's 3 and b's 3
+        hub.remove(b)
+        assert hub.dropped() == 6 and hub.clients == 1
+        hub.close()
+        await asyncio.sleep(0)
+        assert a.closed and a.event.is_set()
+
+    asyncio.run(main())
+
+
+def test_server_shutdown_closes_streams() -> None:
+    with serve() as hp:
+        ws = connect(f"ws://{hp}/ws")
+        recv(ws)
+    with pytest.raises(ConnectionClosed):
+        for _ in range(100):
+            ws.recv(timeout=5)
+    assert ws.close_code in (1001, 1012)
+
+
+def test_disconnects_are_seen_and_client_messages_are_dropped(hp: str) -> None:
+    with httpx.Client(base_url=f"http://{hp}") as api:
+        base = api.get("/api/health").json()["clients"]
+        socks = [connect(f"ws://{hp}/ws") for _ in range(3)]
+        for ws in socks:
+            recv(ws)
+        assert api.get("/api/health").json()["clients"] == base + 3
+        chatty = socks[0]
+        for _ in range(200):  # a client that talks is read and ignored; frames still flow
+            chatty.send("x" * 1000)
+        assert [recv(chatty)["type"] for _ in range(3)] == ["data"] * 3
+        for ws in socks:
+            ws.close()
+        deadline = time.monotonic() + 5
+        while api.get("/api/health").json()["clients"] != base:
+            assert time.monotonic() < deadline, "closed clients still counted"
+            time.sleep(0.05)
+
+
+def test_oversized_client_message_closes_that_client(hp: str) -> None:
+    with connect(f"ws://{hp}/ws") as ws:
+        recv(ws)
+        ws.send("x" * 100_000)  # above the 64 KiB limit
+        with pytest.raises(ConnectionClosed):
+            for _ in range(100):
+                ws.recv(timeout=5)
+    assert ws.close_code == 1009  # message too big
