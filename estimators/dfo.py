@@ -41,13 +41,12 @@ import numpy as np
 from numba import njit
 from numpy.typing import ArrayLike, NDArray
 
+from common.arrays import F64
 from estimators.errors import ParameterError, require_nonnegative, require_positive
 from estimators.filters import zoh
 
-FloatArray = NDArray[np.float64]
 
-
-def _balance(m: FloatArray) -> FloatArray:
+def _balance(m: F64) -> F64:
     """Diagonal ``s`` with ``diag(s)^-1 m diag(s)`` of balanced row/column norms."""
     a = m.copy()
     s = np.ones(a.shape[0])
@@ -68,7 +67,7 @@ def _balance(m: FloatArray) -> FloatArray:
     return s
 
 
-def place_observer(f: FloatArray, h: FloatArray, poles: ArrayLike) -> FloatArray:
+def place_observer(f: F64, h: F64, poles: ArrayLike) -> F64:
     """Gain ``L`` with ``eig(f - L h) = poles`` (single output, distinct poles).
 
     Solved on the dual single-input system by the eigenvector method
@@ -143,13 +142,13 @@ class DfoParams:
     channel_bandwidth_hz: float = 100.0
     lead: float = 0.0
     include_offset: bool = False
-    phi: FloatArray = field(init=False, repr=False)
-    gamma_a: FloatArray = field(init=False, repr=False)
-    gamma_b: FloatArray = field(init=False, repr=False)
-    h: FloatArray = field(init=False, repr=False)
-    gain: FloatArray = field(init=False, repr=False)
-    lead_cos: FloatArray = field(init=False, repr=False)
-    lead_sin: FloatArray = field(init=False, repr=False)
+    phi: F64 = field(init=False, repr=False)
+    gamma_a: F64 = field(init=False, repr=False)
+    gamma_b: F64 = field(init=False, repr=False)
+    h: F64 = field(init=False, repr=False)
+    gain: F64 = field(init=False, repr=False)
+    lead_cos: F64 = field(init=False, repr=False)
+    lead_sin: F64 = field(init=False, repr=False)
     channel_order: int = field(init=False)
     delay_samples: int = field(init=False)
 
@@ -277,8 +276,8 @@ class DfoParams:
 class DfoState:
     """Posterior state estimate at the last processed sample, the input FIFO, the count."""
 
-    x: FloatArray
-    u_hist: FloatArray
+    x: F64
+    u_hist: F64
     k: int
 
 
@@ -294,12 +293,12 @@ class DfoRecord:
     ``include_offset``).
     """
 
-    d_hat: FloatArray
-    compensation: FloatArray
-    amplitude: FloatArray
-    phase: FloatArray
-    innovation: FloatArray
-    offset: FloatArray
+    d_hat: F64
+    compensation: F64
+    amplitude: F64
+    phase: F64
+    innovation: F64
+    offset: F64
 
 
 def initial_state(params: DfoParams) -> DfoState:
@@ -313,27 +312,27 @@ def initial_state(params: DfoParams) -> DfoState:
 
 @njit(cache=True)
 def _dfo_block(
-    phi: FloatArray,
-    ga: FloatArray,
-    gb: FloatArray,
-    h: FloatArray,
-    gain: FloatArray,
+    phi: F64,
+    ga: F64,
+    gb: F64,
+    h: F64,
+    gain: F64,
     nc: int,
-    omegas: FloatArray,
-    lc: FloatArray,
-    ls: FloatArray,
+    omegas: F64,
+    lc: F64,
+    ls: F64,
     ts: float,
     k0: int,
-    x: FloatArray,
-    u_hist: FloatArray,
+    x: F64,
+    u_hist: F64,
     use_u: bool,
-    y: FloatArray,
-    dh: FloatArray,
-    comp: FloatArray,
-    amp: FloatArray,
-    ph: FloatArray,
-    innov: FloatArray,
-    off: FloatArray,
+    y: F64,
+    dh: F64,
+    comp: F64,
+    amp: F64,
+    ph: F64,
+    innov: F64,
+    off: F64,
     has_off: bool,
 ) -> None:  # pragma: no cover
     n = len(x)

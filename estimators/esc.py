@@ -39,12 +39,11 @@ import math
 from dataclasses import dataclass, replace
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
+from common.arrays import F64
 from estimators.errors import ParameterError, require_in, require_nonnegative, require_positive
 from estimators.filters import DiscreteFilter, highpass
-
-FloatArray = NDArray[np.float64]
 
 
 def spindle_harmonic(force: ArrayLike, angle: ArrayLike) -> complex:
@@ -208,7 +207,7 @@ class EscState:
     a_um: float
     theta_deg: float
     j_ref: float
-    hpf_state: FloatArray
+    hpf_state: F64
     frozen: bool
     frozen_cost: float
     history: tuple[tuple[float, float], ...]

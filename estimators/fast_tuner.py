@@ -40,12 +40,11 @@ import math
 from dataclasses import dataclass, replace
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
+from common.arrays import F64
 from estimators.errors import ParameterError, require_in, require_positive
 from estimators.esc import spindle_harmonic
-
-FloatArray = NDArray[np.float64]
 
 
 @dataclass(frozen=True)
@@ -158,7 +157,7 @@ class FastTunerRecord:
     phi_deg: float = 0.0
 
 
-def _clamp(u: FloatArray, a_max: float) -> tuple[FloatArray, bool]:
+def _clamp(u: F64, a_max: float) -> tuple[F64, bool]:
     # the largest excursion of co- plus counter-rotating circles is |u| + |v|
     r = float(np.hypot(u[0], u[1]))
     if u.size == 4:
@@ -209,7 +208,7 @@ class FastTuner:
             tuple(v + (d if i == k else 0.0) for i, v in enumerate(u0)) for k in range(len(u0))
         )
 
-    def fit(self, us: ArrayLike, ys: ArrayLike) -> tuple[FloatArray, FloatArray, float]:
+    def fit(self, us: ArrayLike, ys: ArrayLike) -> tuple[F64, F64, float]:
         """Least-squares fit of ``y = f0 + M u``; returns ``(f0, M, rms residual)``.
 
         Raises
@@ -235,7 +234,7 @@ class FastTuner:
         return f0, m, float(np.sqrt(np.mean(res**2)))
 
     @staticmethod
-    def solve(f0: FloatArray, m: FloatArray) -> FloatArray:
+    def solve(f0: F64, m: F64) -> F64:
         r"""The modulation minimising :math:`\|f_0 + M u\|`."""
         sol, *_ = np.linalg.lstsq(m, -f0, rcond=None)
         return np.asarray(sol, dtype=np.float64)
@@ -306,8 +305,8 @@ class FastTuner:
         u_now = np.array(s.u)
         dim = len(s.u)
         m_prev = np.array(s.jac).reshape(4, dim) if s.jac is not None else None
-        f0: FloatArray | None = None
-        m: FloatArray | None = None
+        f0: F64 | None = None
+        m: F64 | None = None
         ua = np.array(pu)
         spread = (
             float(np.linalg.svd(ua - ua.mean(axis=0), compute_uv=False)[-1])

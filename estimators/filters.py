@@ -19,24 +19,23 @@ import numpy as np
 from numba import njit
 from numpy.typing import ArrayLike, NDArray
 
+from common.arrays import F64
 from estimators.errors import ParameterError, require_positive
-
-FloatArray = NDArray[np.float64]
 
 
 @dataclass(frozen=True, eq=False)
 class DiscreteFilter:
     """A discrete filter ``B(z)/A(z)`` in powers of ``z^-1`` with ``a[0] == 1``."""
 
-    b: FloatArray
-    a: FloatArray
+    b: F64
+    a: F64
     sample_time: float
 
     @property
     def order(self) -> int:
         return len(self.a) - 1
 
-    def initial_state(self, x0: float = 0.0) -> FloatArray:
+    def initial_state(self, x0: float = 0.0) -> F64:
         """The state of a filter that has seen the constant input ``x0`` forever."""
         n = self.order
         z = np.zeros(max(n, 1))
@@ -49,7 +48,7 @@ class DiscreteFilter:
             z[i] = float(np.sum(self.b[i + 1 :]) * x0 - np.sum(self.a[i + 1 :]) * y0)
         return z
 
-    def run(self, x: ArrayLike, z: FloatArray | None = None) -> tuple[FloatArray, FloatArray]:
+    def run(self, x: ArrayLike, z: F64 | None = None) -> tuple[F64, F64]:
         """Filter a block; returns the output and the new state (input state untouched)."""
         xa = np.ascontiguousarray(x, dtype=np.float64)
         zz = self.initial_state() if z is None else np.array(z, dtype=np.float64)
@@ -131,7 +130,7 @@ def highpass(cutoff_hz: float, sample_time: float) -> DiscreteFilter:
     return discretize([1.0, 0.0], [1.0, wc], ts, prewarp_hz=fc)
 
 
-def expm(m: ArrayLike) -> FloatArray:
+def expm(m: ArrayLike) -> F64:
     """Matrix exponential of a small matrix (scaling and squaring of a Taylor series).
 
     Agrees with ``scipy.linalg.expm`` to ~1e-13 on the systems here (tested) at a
@@ -154,7 +153,7 @@ def expm(m: ArrayLike) -> FloatArray:
     return np.asarray(out, dtype=np.float64)
 
 
-def zoh(f: ArrayLike, g: ArrayLike, h: float) -> tuple[FloatArray, FloatArray]:
+def zoh(f: ArrayLike, g: ArrayLike, h: float) -> tuple[F64, F64]:
     r"""Zero-order-hold discretisation of :math:`\dot x = F x + G u` over ``h``:
     :math:`e^{F h}` and :math:`\int_0^h e^{F r}\,dr\,G` (``G`` keeps its shape)."""
     fa = np.asarray(f, dtype=np.float64)
@@ -169,7 +168,7 @@ def zoh(f: ArrayLike, g: ArrayLike, h: float) -> tuple[FloatArray, FloatArray]:
 
 
 @njit(cache=True)
-def df2t_step(b: FloatArray, a: FloatArray, z: FloatArray, x: float) -> float:  # pragma: no cover
+def df2t_step(b: F64, a: F64, z: F64, x: float) -> float:  # pragma: no cover
     """One sample of a transposed direct form II filter; updates ``z`` in place."""
     n = len(a) - 1
     if n == 0:
@@ -182,8 +181,6 @@ def df2t_step(b: FloatArray, a: FloatArray, z: FloatArray, x: float) -> float:  
 
 
 @njit(cache=True)
-def _df2t_block(
-    b: FloatArray, a: FloatArray, z: FloatArray, x: FloatArray, y: FloatArray
-) -> None:  # pragma: no cover
+def _df2t_block(b: F64, a: F64, z: F64, x: F64, y: F64) -> None:  # pragma: no cover
     for k in range(len(x)):
         y[k] = df2t_step(b, a, z, x[k])

@@ -25,12 +25,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from numba import njit
-from numpy.typing import NDArray
 
+from common.arrays import F64
 from estimators.errors import ParameterError, require_nonnegative, require_positive
 from estimators.filters import DiscreteFilter, df2t_step, lowpass
-
-F64 = NDArray[np.float64]
 
 
 @dataclass(frozen=True)

@@ -36,9 +36,8 @@ import numpy as np
 import scipy.signal
 from numpy.typing import ArrayLike, NDArray
 
+from common.arrays import F64
 from estimators.errors import ParameterError, require_positive
-
-FloatArray = NDArray[np.float64]
 
 RIGID_NAMES: tuple[str, ...] = ("M", "Fv", "Fc", "offset")
 
@@ -79,9 +78,9 @@ class Kinematics:
     """Filtered position and its central-difference derivatives, end samples dropped."""
 
     index: NDArray[np.int64]
-    q: FloatArray
-    qd: FloatArray
-    qdd: FloatArray
+    q: F64
+    qd: F64
+    qdd: F64
 
 
 @dataclass(frozen=True, eq=False)
@@ -105,8 +104,8 @@ class IdimResult:
     """
 
     names: tuple[str, ...]
-    theta: FloatArray
-    std: FloatArray
+    theta: F64
+    std: F64
     relerr: float
     rms: float
     n_samples: int
@@ -117,7 +116,7 @@ class IdimResult:
         return {n: float(v) for n, v in zip(self.names, self.theta)}
 
 
-def _check_signal(name: str, x: ArrayLike, n: int | None = None) -> FloatArray:
+def _check_signal(name: str, x: ArrayLike, n: int | None = None) -> F64:
     a = np.asarray(x, dtype=np.float64)
     if a.ndim != 1:
         raise ParameterError(name, "a 1-D array", f"shape {a.shape}")
@@ -158,7 +157,7 @@ def kinematics(q: ArrayLike, sample_time: float, params: IdimParams = IdimParams
     return Kinematics(idx, qf[idx], qd[idx], qdd[idx])
 
 
-def decimate(x: ArrayLike, params: IdimParams = IdimParams()) -> FloatArray:
+def decimate(x: ArrayLike, params: IdimParams = IdimParams()) -> F64:
     """Anti-alias filter (zero phase) and keep every ``decimation``-th sample (step 3).
 
     The kept samples end at the last sample, as MATLAB's ``decimate`` does.
@@ -187,7 +186,7 @@ def decimated_index(n: int, params: IdimParams = IdimParams()) -> NDArray[np.int
     return np.arange(r - (r * nout - n) - 1, n, r)
 
 
-def rigid_regressor(qd: ArrayLike, qdd: ArrayLike) -> FloatArray:
+def rigid_regressor(qd: ArrayLike, qdd: ArrayLike) -> F64:
     r"""Regressor columns :math:`[\ddot q, \dot q, \mathrm{sign}(\dot q), 1]` of the rigid model."""
     v = np.asarray(qd, dtype=np.float64)
     acc = np.asarray(qdd, dtype=np.float64)

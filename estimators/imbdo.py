@@ -43,21 +43,19 @@ import numpy as np
 from numba import njit
 from numpy.typing import ArrayLike, NDArray
 
+from common.arrays import F64
 from estimators.errors import ParameterError, require_nonnegative, require_positive
 from estimators.filters import DiscreteFilter, df2t_step, discretize
 
-FloatArray = NDArray[np.float64]
 ComplexArray = NDArray[np.complex128]
-Response = Callable[[FloatArray], ComplexArray]
+Response = Callable[[F64], ComplexArray]
 
 
 class QFilterStabilityError(ParameterError):
     """The Q-filter crosses the robust-stability bound :math:`|1/\\Delta|` (eq. 4)."""
 
 
-def q_filter_tf(
-    cutoff_hz: float, order: int = 3, numerator_order: int = 1
-) -> tuple[FloatArray, FloatArray]:
+def q_filter_tf(cutoff_hz: float, order: int = 3, numerator_order: int = 1) -> tuple[F64, F64]:
     """Continuous ``(num, den)`` of the binomial Q-filter (highest power first)."""
     fc = require_positive("cutoff_hz", cutoff_hz)
     if int(order) != order or order < 1:
@@ -100,7 +98,7 @@ class StabilityCheck:
     f_closest: float
 
 
-def inverse_delta(plant: ComplexArray, nominal: ComplexArray) -> FloatArray:
+def inverse_delta(plant: ComplexArray, nominal: ComplexArray) -> F64:
     r""":math:`|1/\Delta(f)|` of eq. (4), ``Delta = (G - G_n) / G_n`` (inf where Delta = 0)."""
     g = np.asarray(plant, dtype=np.complex128)
     gn = np.asarray(nominal, dtype=np.complex128)
@@ -248,17 +246,17 @@ class ImbdoState:
     """States of the two discrete filters ``Q G_n^-1`` (on z) and ``Q`` (on the delayed v),
     and the last ``D + 1`` commands ``v`` (oldest first) for the model delay."""
 
-    z_inv: FloatArray
-    z_q: FloatArray
-    v_hist: FloatArray
+    z_inv: F64
+    z_q: F64
+    v_hist: F64
 
 
 @dataclass(frozen=True, eq=False)
 class ImbdoRecord:
     """Per-sample outputs: the command after compensation ``v`` [V] and ``d_hat`` [V]."""
 
-    v: FloatArray
-    d_hat: FloatArray
+    v: F64
+    d_hat: F64
 
 
 def initial_state(params: ImbdoParams) -> ImbdoState:
@@ -272,19 +270,19 @@ def initial_state(params: ImbdoParams) -> ImbdoState:
 
 @njit(cache=True)
 def _imbdo_block(
-    bi: FloatArray,
-    ai: FloatArray,
-    zi: FloatArray,
-    bq: FloatArray,
-    aq: FloatArray,
-    zq: FloatArray,
-    vh: FloatArray,
+    bi: F64,
+    ai: F64,
+    zi: F64,
+    bq: F64,
+    aq: F64,
+    zq: F64,
+    vh: F64,
     d: int,
     frac: float,
-    z: FloatArray,
-    uc: FloatArray,
-    v: FloatArray,
-    dh: FloatArray,
+    z: F64,
+    uc: F64,
+    v: F64,
+    dh: F64,
 ) -> None:  # pragma: no cover
     m = len(vh)  # D + 1: vh[m-1] = v[k-1], vh[m-1-i] = v[k-i]
     for k in range(len(z)):

@@ -63,12 +63,10 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
-from numpy.typing import NDArray
 
+from common.arrays import F64
 from estimators.errors import ParameterError, require_positive
 from estimators.filters import DiscreteFilter, lowpass
-
-F64 = NDArray[np.float64]
 
 #: side of the observer's model each family acts on
 SIDES: dict[str, str] = {

@@ -57,6 +57,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from common.arrays import F64
 from estimators.errors import ParameterError, require_in, require_positive
 from estimators.idim import (
     RIGID_NAMES,
@@ -66,8 +67,6 @@ from estimators.idim import (
     kinematics,
     rigid_regressor,
 )
-
-FloatArray = NDArray[np.float64]
 
 FAMILIES: tuple[str, ...] = (
     "offset",
@@ -147,12 +146,12 @@ class Effect:
 class Signals:
     """Full-rate signals on the samples kept by the differentiation (ends dropped)."""
 
-    t: FloatArray
-    q: FloatArray
-    qd: FloatArray
-    qdd: FloatArray
-    qddd: FloatArray
-    force: FloatArray
+    t: F64
+    q: F64
+    qd: F64
+    qdd: F64
+    qddd: F64
+    force: F64
 
 
 @dataclass(frozen=True)
@@ -178,9 +177,9 @@ class ResidualResult:
     """
 
     names_before: tuple[str, ...]
-    theta_before: FloatArray
+    theta_before: F64
     names_after: tuple[str, ...]
-    theta_after: FloatArray
+    theta_after: F64
     effects: tuple[Effect, ...]
     candidates: tuple[CandidateScore, ...]
     holdout_start: float
@@ -190,19 +189,19 @@ class ResidualResult:
     relerr_before: float
     relerr_after: float
     unexplained: tuple[dict[str, float | str], ...]
-    f_hat_before: FloatArray
-    f_hat_after: FloatArray
-    t_dec: FloatArray
-    residual_before_dec: FloatArray
-    residual_after_dec: FloatArray
-    q_dec: FloatArray
-    qd_dec: FloatArray
+    f_hat_before: F64
+    f_hat_after: F64
+    t_dec: F64
+    residual_before_dec: F64
+    residual_after_dec: F64
+    q_dec: F64
+    qd_dec: F64
 
 
 # ----------------------------------------------------------------------------- columns
 
 
-def effect_columns(effect: Effect, sig: Signals) -> FloatArray:
+def effect_columns(effect: Effect, sig: Signals) -> F64:
     """Regressor columns of ``effect`` over the samples of ``sig`` (shape ``(n, k)``)."""
     v = sig.qd
     n = len(v)
@@ -249,7 +248,7 @@ def _columns_names(name: str) -> tuple[str, ...]:
 # ------------------------------------------------------------------------ shape search
 
 
-def _project_rss(cols: FloatArray, r: FloatArray) -> float:
+def _project_rss(cols: F64, r: F64) -> float:
     # normal equations: a few columns, well scaled (sin/cos, unit exponentials, ones)
     g = cols.T @ cols
     b = cols.T @ r
@@ -261,7 +260,7 @@ def _project_rss(cols: FloatArray, r: FloatArray) -> float:
     return float(r @ r - b @ coef)
 
 
-def _search_period(q: FloatArray, r: FloatArray, dq_min: float) -> tuple[float, float]:
+def _search_period(q: F64, r: F64, dq_min: float) -> tuple[float, float]:
     """Period in position of the strongest periodic component of ``r`` (grid + refine)."""
     span = float(np.ptp(q))
     lo = max(4.0 * dq_min, span * 1e-4, 1e-12)
@@ -283,7 +282,7 @@ def _search_period(q: FloatArray, r: FloatArray, dq_min: float) -> tuple[float, 
     return float(fine[j]), float(fv[j])
 
 
-def search_frequency(t: FloatArray, r: FloatArray) -> tuple[float, float]:
+def search_frequency(t: F64, r: F64) -> tuple[float, float]:
     """Frequency [Hz] and amplitude of the largest spectral peak of ``r`` (zero-padded FFT)."""
     n = len(r)
     if n < 16:
@@ -299,7 +298,7 @@ def search_frequency(t: FloatArray, r: FloatArray) -> tuple[float, float]:
     return float(f[k]), float(spec[k])
 
 
-def _nominal_effort(shape: dict[str, float], sig: Signals) -> FloatArray:
+def _nominal_effort(shape: dict[str, float], sig: Signals) -> F64:
     return np.asarray(
         rigid_regressor(sig.qd, sig.qdd)
         @ np.array([shape["M"], shape["Fv"], shape["Fc"], shape["offset"]]),
@@ -307,7 +306,7 @@ def _nominal_effort(shape: dict[str, float], sig: Signals) -> FloatArray:
     )
 
 
-def _delay_column(shape: dict[str, float], sig: Signals) -> FloatArray:
+def _delay_column(shape: dict[str, float], sig: Signals) -> F64:
     """``P(t - d) - P(t)`` with ``P`` the nominal effort (linear interpolation in time)."""
     p = _nominal_effort(shape, sig)
     # the first d seconds have no past: P is held at its first value there
@@ -317,9 +316,9 @@ def _delay_column(shape: dict[str, float], sig: Signals) -> FloatArray:
 def find_shape(
     name: str,
     sig: Signals,
-    residual: FloatArray,
+    residual: F64,
     mask: NDArray[np.bool_],
-    nominal: FloatArray | None = None,
+    nominal: F64 | None = None,
 ) -> Effect:
     """Fix the shape parameters of family ``name`` from the residual on ``mask`` samples.
 
@@ -394,16 +393,15 @@ class _Design:
     """Decimated regressor, force and the full-rate columns of one model structure."""
 
     names: tuple[str, ...]
-    x_dec: FloatArray
-    x_full: FloatArray
+    x_dec: F64
+    x_full: F64
 
 
 def _build(
     sig: Signals,
     effects: tuple[Effect, ...],
     p: IdimParams,
-    cache: dict[tuple[str, tuple[tuple[str, float], ...]], tuple[FloatArray, FloatArray]]
-    | None = None,
+    cache: dict[tuple[str, tuple[tuple[str, float], ...]], tuple[F64, F64]] | None = None,
 ) -> _Design:
     """Regressor of the nominal model plus ``effects``; decimated blocks are cached."""
     cache = {} if cache is None else cache
@@ -423,7 +421,7 @@ def _build(
     return _Design(tuple(names), np.hstack(dec), np.hstack(full))
 
 
-def _independent(x: FloatArray, base: int, fit: NDArray[np.bool_]) -> NDArray[np.bool_]:
+def _independent(x: F64, base: int, fit: NDArray[np.bool_]) -> NDArray[np.bool_]:
     """Keep mask of columns: base columns always; later ones if not spanned by the kept."""
     keep = np.zeros(x.shape[1], dtype=bool)
     keep[:base] = True
@@ -440,9 +438,7 @@ def _independent(x: FloatArray, base: int, fit: NDArray[np.bool_]) -> NDArray[np
     return keep
 
 
-def _fit(
-    design: _Design, y_dec: FloatArray, fit: NDArray[np.bool_]
-) -> tuple[FloatArray, NDArray[np.bool_]]:
+def _fit(design: _Design, y_dec: F64, fit: NDArray[np.bool_]) -> tuple[F64, NDArray[np.bool_]]:
     """Least squares on the fitting samples; returns theta (0 for dropped columns), keep."""
     keep = _independent(design.x_dec, len(RIGID_NAMES), fit)
     theta = np.zeros(design.x_dec.shape[1])
@@ -451,7 +447,7 @@ def _fit(
     return theta, keep
 
 
-def block_t(d: FloatArray, blocks: int) -> float:
+def block_t(d: F64, blocks: int) -> float:
     """t statistic of the mean of ``d`` over ``blocks`` contiguous blocks (the blocks'
     means as the samples: serial correlation inside a block does not inflate it)."""
     means = np.array([float(np.mean(b)) for b in np.array_split(d, blocks) if len(b)])
@@ -461,14 +457,14 @@ def block_t(d: FloatArray, blocks: int) -> float:
     return float(np.mean(means)) / (sd / math.sqrt(len(means)))
 
 
-def _block_t(e0: FloatArray, e1: FloatArray, blocks: int) -> float:
+def _block_t(e0: F64, e1: F64, blocks: int) -> float:
     return block_t(e0 * e0 - e1 * e1, blocks)
 
 
 def _effect_params(
     effect: Effect,
     design: _Design,
-    theta: FloatArray,
+    theta: F64,
 ) -> dict[str, float]:
     out = dict(effect.shape)
     byname = dict(zip(design.names, theta))
@@ -492,7 +488,7 @@ def _effect_params(
 
 
 def unexplained_structure(
-    sig: Signals, residual: FloatArray, *, prominence: float = 6.0, min_ratio: float = 0.15
+    sig: Signals, residual: F64, *, prominence: float = 6.0, min_ratio: float = 0.15
 ) -> list[dict[str, float | str]]:
     """The largest periodic structure left in ``residual``, in time and in position.
 
@@ -548,7 +544,7 @@ def signals(
     return Signals(ta[kin.index], kin.q, kin.qd, kin.qdd, qddd, fa[kin.index])
 
 
-def _full_rate(values: FloatArray, n: int) -> FloatArray:
+def _full_rate(values: F64, n: int) -> F64:
     """Extend a series over samples 1..n-2 to 0..n-1 (ends repeat their neighbour)."""
     out = np.empty(n)
     out[1:-1] = values
@@ -615,7 +611,7 @@ def analyse_rigid(
             progress(msg)
 
     say("nominal fit")
-    cache: dict[tuple[str, tuple[tuple[str, float], ...]], tuple[FloatArray, FloatArray]] = {}
+    cache: dict[tuple[str, tuple[tuple[str, float], ...]], tuple[F64, F64]] = {}
     design0 = _build(sig, (), p, cache)
     theta0, _ = _fit(design0, y_dec, fit)
     e0 = y_dec[hold] - design0.x_dec[hold] @ theta0
@@ -625,7 +621,7 @@ def analyse_rigid(
     offered = [f for f in params.families]
     while len(selected) < params.max_effects:
         resid_full = sig.force - design.x_full @ theta
-        best: tuple[float, Effect, _Design, FloatArray, FloatArray, float] | None = None
+        best: tuple[float, Effect, _Design, F64, F64, float] | None = None
         for name in offered:
             if any(e.name == name for e in selected):
                 continue
@@ -712,7 +708,7 @@ def _subset(sig: Signals, mask: NDArray[np.bool_]) -> Signals:
     )
 
 
-def rms(e: FloatArray) -> float:
+def rms(e: F64) -> float:
     """Root mean square (NaN for an empty array)."""
     return float(np.sqrt(np.mean(e * e))) if len(e) else math.nan
 

@@ -42,6 +42,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from common.arrays import F64
 from estimators.errors import ParameterError, require_in, require_positive
 from estimators.filters import DiscreteFilter, lowpass
 from estimators.force_observer import (
@@ -70,8 +71,6 @@ from estimators.residual import (
     search_frequency,
     unexplained_structure,
 )
-
-F64 = NDArray[np.float64]
 
 FAMILIES_TWO_INERTIA: tuple[str, ...] = (
     "offset",

@@ -46,10 +46,10 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
+from common.arrays import F64
 from estimators.errors import ParameterError, require_positive
 from estimators.filters import DiscreteFilter, df2t_step, lowpass
 
-F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
 
 

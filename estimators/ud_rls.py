@@ -26,16 +26,15 @@ from typing import Literal
 
 import numpy as np
 from numba import njit
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
+from common.arrays import F64
 from estimators.errors import ParameterError, require_in, require_positive
-
-FloatArray = NDArray[np.float64]
 
 
 @njit(cache=True)
 def covariance_update(
-    theta: FloatArray, P: FloatArray, phi: FloatArray, y: float, beta: float
+    theta: F64, P: F64, phi: F64, y: float, beta: float
 ) -> float:  # pragma: no cover - compiled
     """One step of eq. (20)-(21) in place; returns the a-priori residual."""
     n = len(theta)
@@ -54,7 +53,7 @@ def covariance_update(
 
 @njit(cache=True)
 def ud_update(
-    theta: FloatArray, U: FloatArray, D: FloatArray, phi: FloatArray, y: float, beta: float
+    theta: F64, U: F64, D: F64, phi: F64, y: float, beta: float
 ) -> float:  # pragma: no cover - compiled
     """Eq. (20)-(21) on the factors ``P = U diag(D) U^T`` (Bierman), in place.
 
@@ -90,16 +89,16 @@ def ud_update(
 
 @njit(cache=True)
 def _rls_block(
-    theta: FloatArray,
-    P: FloatArray,
-    U: FloatArray,
-    D: FloatArray,
-    Phi: FloatArray,
-    y: FloatArray,
+    theta: F64,
+    P: F64,
+    U: F64,
+    D: F64,
+    Phi: F64,
+    y: F64,
     beta: float,
     use_ud: bool,
-    thetas: FloatArray,
-    resid: FloatArray,
+    thetas: F64,
+    resid: F64,
 ) -> None:  # pragma: no cover
     for k in range(len(y)):
         if use_ud:
@@ -143,12 +142,12 @@ class ForgettingRLSParams:
 class ForgettingRLSState:
     """Estimate and covariance (as U-D factors and as the full matrix)."""
 
-    theta: FloatArray
-    P: FloatArray
-    U: FloatArray
-    D: FloatArray
+    theta: F64
+    P: F64
+    U: F64
+    D: F64
 
-    def covariance(self) -> FloatArray:
+    def covariance(self) -> F64:
         """The covariance P (from the factors when the U-D form is used)."""
         return np.asarray(self.U @ np.diag(self.D) @ self.U.T)
 
@@ -157,8 +156,8 @@ class ForgettingRLSState:
 class ForgettingRLSRecord:
     """Per-sample outputs of a block: estimates and a-priori residuals."""
 
-    theta: FloatArray  # (n_samples, n)
-    residual: FloatArray  # (n_samples,)
+    theta: F64  # (n_samples, n)
+    residual: F64  # (n_samples,)
 
 
 class ForgettingRLS:

@@ -53,11 +53,9 @@ from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
-from numpy.typing import NDArray
 
+from common.arrays import F64
 from estimators.errors import ParameterError, require_in, require_positive
-
-FloatArray = NDArray[np.float64]
 
 #: flank-wear grid of the W2 table [mm]
 _W_MAX = 2.0
@@ -145,7 +143,7 @@ class WearLawParams:
         require_in("crater_rel_sd", self.crater_rel_sd, 0.0, 1.0, hi_open=True)
 
 
-def w2_table(activation: float, theta0: float, theta_per_wear: float) -> FloatArray:
+def w2_table(activation: float, theta0: float, theta_per_wear: float) -> F64:
     r"""Diffusion time ``tau`` [mm] at which a sharp tool's diffusive land reaches ``w``.
 
     Eq. (4), (6): ``dw/dtau = exp(-A/(Theta_0 + c w))`` with ``tau = k2 t``, so
@@ -160,18 +158,18 @@ def w2_table(activation: float, theta0: float, theta_per_wear: float) -> FloatAr
     return tau
 
 
-def w_grid() -> FloatArray:
+def w_grid() -> F64:
     """Grid of diffusive land of the W2 tables [mm]."""
     return np.linspace(0.0, _W_MAX, _N_TABLE)
 
 
 @njit(cache=True)
 def _law_rhs(
-    x: FloatArray,
+    x: F64,
     kappa: float,
     k2: float,
-    q: FloatArray,
-    out: FloatArray,
+    q: F64,
+    out: F64,
 ) -> None:
     # q = [tau1, fd, Fs, s, A, theta0, c_theta, g_c, A_c, c_c]
     # eq. (8)
@@ -189,10 +187,10 @@ def _law_rhs(
 
 @njit(cache=True)
 def _crossing_time(
-    x0: FloatArray,
+    x0: F64,
     kappa: float,
     k2: float,
-    q: FloatArray,
+    q: F64,
     vb_limit: float,
     h: float,
     horizon: float,
@@ -245,7 +243,7 @@ class WearLawPredictor:
             for s in (-1, 0, 1)
         }
 
-    def _q(self, force_sharp: float, s: float, act_sign: int, crater_scale: float) -> FloatArray:
+    def _q(self, force_sharp: float, s: float, act_sign: int, crater_scale: float) -> F64:
         p = self.params
         return np.array(
             [
@@ -262,7 +260,7 @@ class WearLawPredictor:
             ]
         )
 
-    def crater_rate(self, force: float | FloatArray) -> float | FloatArray:
+    def crater_rate(self, force: float | F64) -> float | F64:
         """Force lost to the crater per minute at ``force`` [N/min] (eq. (5), (7), (8))."""
         p = self.params
         F = np.asarray(force, dtype=np.float64)
@@ -275,17 +273,15 @@ class WearLawPredictor:
         )
         return r if F.ndim else float(r)
 
-    def _w2(self, tau: FloatArray, act_sign: int) -> FloatArray:
+    def _w2(self, tau: F64, act_sign: int) -> F64:
         return np.interp(tau, self._tables[act_sign], self._w)
 
-    def _fit(
-        self, t: FloatArray, y: FloatArray, zbar: FloatArray, act_sign: int
-    ) -> tuple[float, float, float]:
+    def _fit(self, t: F64, y: F64, zbar: F64, act_sign: int) -> tuple[float, float, float]:
         """Least squares of ``y = kappa zbar + W2(k2 t)`` over ``kappa`` and ``u = log k2``."""
         table = self._tables[act_sign]
         zz = float(zbar @ zbar)
 
-        def sse_of(u: FloatArray) -> tuple[FloatArray, FloatArray]:
+        def sse_of(u: F64) -> tuple[F64, F64]:
             tau = np.exp(u)[:, None] * t[None, :]
             r = y[None, :] - np.interp(tau.ravel(), table, self._w).reshape(tau.shape)
             kap = (r @ zbar) / zz
@@ -309,17 +305,17 @@ class WearLawPredictor:
         s2, kap = sse_of(np.array([u]))
         return float(kap[0]), u, float(s2[0])
 
-    def _rate(self, kappa: float, k2: float, x: FloatArray, q: FloatArray) -> float:
+    def _rate(self, kappa: float, k2: float, x: F64, q: F64) -> float:
         out = np.empty(3)
         _law_rhs(x, kappa, k2, q, out)
         return float(out[0] + out[1])
 
     def predict(
         self,
-        t_mid: FloatArray,
-        vb: FloatArray,
-        zbar: FloatArray,
-        crater_mid: FloatArray,
+        t_mid: F64,
+        vb: F64,
+        zbar: F64,
+        crater_mid: F64,
         *,
         t_now: float,
         z_now: float,
@@ -357,7 +353,7 @@ class WearLawPredictor:
 
         def fit_predict(
             act_sign: int, cscale: float
-        ) -> tuple[float, float, float, FloatArray, FloatArray, float]:
+        ) -> tuple[float, float, float, F64, F64, float]:
             # the flank wear from the force depends on the crater law assumed (eq. (8))
             y = vb + (cscale - 1.0) * crater_mid / s
             kap, u, sse = self._fit(t_mid, y, zbar, act_sign)

@@ -19,24 +19,23 @@ from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
+from common.arrays import F64
 from estimators.errors import ParameterError, require_positive
 from estimators.filters import expm
 
-FloatArray = NDArray[np.float64]
-
 #: ``jacobian(x, u) -> (df/dx (n, n), df/du (n,), dg/dx (n,), dg/du)``
-Jacobian = Callable[[FloatArray, float], tuple[FloatArray, FloatArray, FloatArray, float]]
+Jacobian = Callable[[F64, float], tuple[F64, F64, F64, float]]
 
 
 @dataclass(frozen=True, eq=False)
 class LinearModel:
     """Continuous linear model eq. (A7)-(A8): ``x' = A x + b u``, ``y = c x + D u``."""
 
-    A: FloatArray
-    b: FloatArray
-    c: FloatArray
+    A: F64
+    b: F64
+    c: F64
     D: float
 
 
@@ -44,9 +43,9 @@ class LinearModel:
 class DiscreteModel:
     """Discrete model eq. (11)-(12): ``x(k+1) = P x(k) + q u(k)``, ``y = c x + D u``."""
 
-    P: FloatArray
-    q: FloatArray
-    c: FloatArray
+    P: F64
+    q: F64
+    c: F64
     D: float
     sample_time: float
 
@@ -131,7 +130,7 @@ def zoh(model: LinearModel, sample_time: float) -> DiscreteModel:
     )
 
 
-def transfer_function(model: DiscreteModel) -> tuple[FloatArray, FloatArray]:
+def transfer_function(model: DiscreteModel) -> tuple[F64, F64]:
     r"""The :math:`a_i, b_i` of eq. (13) (``b_0 = 0``, ``m = n``).
 
     .. math:: \frac{Y(z)}{U(z)} - D = \frac{\sum_{j=1}^n b_j z^{-j}}
@@ -155,7 +154,7 @@ def transfer_function(model: DiscreteModel) -> tuple[FloatArray, FloatArray]:
     return a, b
 
 
-def observer_form(a: ArrayLike, b: ArrayLike) -> tuple[FloatArray, FloatArray, FloatArray]:
+def observer_form(a: ArrayLike, b: ArrayLike) -> tuple[F64, F64, F64]:
     """Matrices of the observer form, eq. (15)-(16): ``(A_o, b_o, c_o)``."""
     aa = np.asarray(a, dtype=np.float64).reshape(-1)
     bb = np.asarray(b, dtype=np.float64).reshape(-1)
@@ -170,7 +169,7 @@ def observer_form(a: ArrayLike, b: ArrayLike) -> tuple[FloatArray, FloatArray, F
     return Ao, bb.copy(), co
 
 
-def observer_transform(model: DiscreteModel) -> FloatArray:
+def observer_transform(model: DiscreteModel) -> F64:
     r"""The matrix :math:`T` of eq. (14), :math:`x = T x_0`.
 
     Both realisations share the output, so their observability matrices satisfy

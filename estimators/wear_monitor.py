@@ -40,13 +40,12 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from common.arrays import F64
 from estimators.errors import ParameterError, require_in, require_positive
 from estimators.wear_law import WearLawParams, WearLawPredictor
 
 #: passes of history kept for the wear-law fit (the oldest are dropped beyond it)
 MAX_HISTORY = 4000
-
-FloatArray = NDArray[np.float64]
 
 
 @dataclass(frozen=True)
@@ -134,32 +133,32 @@ class ToolLifeParams:
 class ToolLifeState:
     """Explicit state: static gain, offset, last pass, and the trend's weighted sums."""
 
-    misc: FloatArray  # [D, offset, f_prev, F_prev, passes, t_prev, t_first]
-    sums: FloatArray  # weighted sums of t^0..t^4, t^0..t^2 VB, VB^2; pass count
+    misc: F64  # [D, offset, f_prev, F_prev, passes, t_prev, t_first]
+    sums: F64  # weighted sums of t^0..t^4, t^0..t^2 VB, VB^2; pass count
     # wear law: [z (low-passed F/(f d)), force lost to the crater C [N]]
-    law: FloatArray = field(default_factory=lambda: np.zeros(2))
+    law: F64 = field(default_factory=lambda: np.zeros(2))
     # wear law: one row per pass [t_mid, VB, pass mean of z, C at mid-pass]
-    hist: FloatArray = field(default_factory=lambda: np.zeros((0, 4)))
+    hist: F64 = field(default_factory=lambda: np.zeros((0, 4)))
 
 
 @dataclass(frozen=True, eq=False)
 class ToolLifeRecord:
     """Per-pass outputs."""
 
-    t: FloatArray  # cutting time at the end of each pass [min]
-    wear_force: FloatArray  # dy, eq. (24) [N]
-    static_gain: FloatArray  # D [N/(mm/rev)]
-    vb: FloatArray  # flank wear of the pass [mm]
-    vb_trend: FloatArray  # trend value at t [mm] (NaN before the trend exists)
-    wear_rate: FloatArray  # trend slope [mm/min]
-    remaining_life: FloatArray  # [min] (inf if the wear does not grow, NaN if unknown)
-    remaining_life_sd: FloatArray  # [min]
-    life_fraction: FloatArray  # t / (t + remaining_life)
+    t: F64  # cutting time at the end of each pass [min]
+    wear_force: F64  # dy, eq. (24) [N]
+    static_gain: F64  # D [N/(mm/rev)]
+    vb: F64  # flank wear of the pass [mm]
+    vb_trend: F64  # trend value at t [mm] (NaN before the trend exists)
+    wear_rate: F64  # trend slope [mm/min]
+    remaining_life: F64  # [min] (inf if the wear does not grow, NaN if unknown)
+    remaining_life_sd: F64  # [min]
+    life_fraction: F64  # t / (t + remaining_life)
     warning: NDArray[np.bool_]
     alarm: NDArray[np.bool_]
 
 
-def _crossing(c: FloatArray, level: float, after: float) -> float:
+def _crossing(c: F64, level: float, after: float) -> float:
     """First time >= ``after`` at which the polynomial ``sum c_i t^i`` reaches ``level``."""
     roots = np.roots(np.concatenate([c[::-1][:-1], [c[0] - level]]))
     real = roots[np.abs(roots.imag) < 1e-9].real
@@ -213,7 +212,7 @@ class ToolLifeMonitor:
         misc = state.misc.copy()
         S = state.sums.copy()
         law = state.law.copy()
-        hist_rows: list[FloatArray] = [state.hist]
+        hist_rows: list[F64] = [state.hist]
         n_hist = len(state.hist)
         n = len(ta)
         out = {k: np.empty(n) for k in ("dy", "D", "vb", "trend", "rate", "rul", "sd", "frac")}

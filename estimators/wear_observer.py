@@ -22,12 +22,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from numba import njit
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
+from common.arrays import F64
 from estimators.errors import ParameterError, require_in, require_positive
 from estimators.ud_rls import covariance_update, ud_update
-
-FloatArray = NDArray[np.float64]
 
 #: Table 2 of seed 004: bounds of a1, a2, a3 and of the ratios b2/b1, b3/b1
 TABLE2_A_BOUNDS = ((-3.2, -2.8), (2.8, 3.2), (-1.2, -0.8))
@@ -53,7 +52,7 @@ class WearConstraints:
                 if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
                     raise ParameterError(name, "finite (lo, hi) pairs with lo < hi", (lo, hi))
 
-    def as_array(self) -> FloatArray:
+    def as_array(self) -> F64:
         return np.array([list(b) for b in (*self.a_bounds, *self.b_ratio_bounds)], dtype=np.float64)
 
     def violations(self, theta: ArrayLike) -> list[str]:
@@ -107,14 +106,14 @@ class WearObserverParams:
         A relative feed change larger than this is a feed change (D re-estimated).
     """
 
-    theta0: FloatArray
+    theta0: F64
     forgetting: float = 0.95
     scale_output: float = 10.0
     scale_input: float = 100.0
     p0: float | tuple[float, ...] = (1e-6, 1e-6, 1e-6, 100.0, 100.0, 100.0)
     p_max: float = 1e4
     constraints: WearConstraints | None = field(default_factory=WearConstraints)
-    transform: FloatArray | None = None
+    transform: F64 | None = None
     use_ud: bool = True
     feed_tolerance: float = 1e-6
 
@@ -153,14 +152,14 @@ class WearObserverParams:
 class WearObserverState:
     """Explicit state of the adaptive observer."""
 
-    theta: FloatArray  # scaled parameters eq. (29)
-    P: FloatArray  # covariance (plain form)
-    U: FloatArray  # U-D factors
-    Dd: FloatArray
-    dy_hist: FloatArray  # dy(k-1), dy(k-2), dy(k-3)
-    u_hist: FloatArray  # u(k-1), u(k-2), u(k-3)
-    x0_hat: FloatArray  # observer-form state estimate for the next sample
-    misc: FloatArray  # [D, offset, u_prev, y_prev, started, samples]
+    theta: F64  # scaled parameters eq. (29)
+    P: F64  # covariance (plain form)
+    U: F64  # U-D factors
+    Dd: F64
+    dy_hist: F64  # dy(k-1), dy(k-2), dy(k-3)
+    u_hist: F64  # u(k-1), u(k-2), u(k-3)
+    x0_hat: F64  # observer-form state estimate for the next sample
+    misc: F64  # [D, offset, u_prev, y_prev, started, samples]
 
     @property
     def static_gain(self) -> float:
@@ -171,25 +170,25 @@ class WearObserverState:
 class WearObserverRecord:
     """Per-sample outputs of one block."""
 
-    x0_hat: FloatArray  # (n, 3) observer-form state estimate at each sample (eq. (17))
-    theta: FloatArray  # (n, 6) unscaled estimates a1, a2, a3, b1, b2, b3
-    dy: FloatArray  # (n,) force with the static value removed, eq. (24)
-    static_gain: FloatArray  # (n,) D
-    residual: FloatArray  # (n,) a-priori RLS residual [N]
-    cov_trace: FloatArray  # (n,) trace of P (scaled)
-    wear: FloatArray | None  # (n, 3) T x0_hat, physical wear states, if T is given
+    x0_hat: F64  # (n, 3) observer-form state estimate at each sample (eq. (17))
+    theta: F64  # (n, 6) unscaled estimates a1, a2, a3, b1, b2, b3
+    dy: F64  # (n,) force with the static value removed, eq. (24)
+    static_gain: F64  # (n,) D
+    residual: F64  # (n,) a-priori RLS residual [N]
+    cov_trace: F64  # (n,) trace of P (scaled)
+    wear: F64 | None  # (n, 3) T x0_hat, physical wear states, if T is given
 
     @property
-    def flank(self) -> FloatArray | None:
+    def flank(self) -> F64 | None:
         return None if self.wear is None else np.asarray(self.wear[:, 0] + self.wear[:, 1])
 
     @property
-    def crater(self) -> FloatArray | None:
+    def crater(self) -> F64 | None:
         return None if self.wear is None else np.asarray(self.wear[:, 2])
 
 
 @njit(cache=True)
-def _project(th: FloatArray, bounds: FloatArray) -> None:  # pragma: no cover - compiled
+def _project(th: F64, bounds: F64) -> None:  # pragma: no cover - compiled
     # Table 2: box on a1..a3 ...
     for i in range(3):
         th[i] = min(max(th[i], bounds[i, 0]), bounds[i, 1])
@@ -202,7 +201,7 @@ def _project(th: FloatArray, bounds: FloatArray) -> None:  # pragma: no cover - 
 
 @njit(cache=True)
 def _limit_covariance(
-    P: FloatArray, U: FloatArray, Dd: FloatArray, use_ud: bool, p_max: float
+    P: F64, U: F64, Dd: F64, use_ud: bool, p_max: float
 ) -> None:  # pragma: no cover - compiled
     # anti-windup (see WearObserverParams.p_max): scale P so max diag(P) <= p_max; the
     # same uniform scaling in both forms keeps the U-D and plain updates equivalent
@@ -226,30 +225,30 @@ def _limit_covariance(
 
 @njit(cache=True)
 def _observer_block(
-    y: FloatArray,
-    u: FloatArray,
-    theta: FloatArray,
-    P: FloatArray,
-    U: FloatArray,
-    Dd: FloatArray,
-    dy_hist: FloatArray,
-    u_hist: FloatArray,
-    xh: FloatArray,
-    misc: FloatArray,
+    y: F64,
+    u: F64,
+    theta: F64,
+    P: F64,
+    U: F64,
+    Dd: F64,
+    dy_hist: F64,
+    u_hist: F64,
+    xh: F64,
+    misc: F64,
     beta: float,
     s1: float,
     s2: float,
     use_ud: bool,
     constrained: bool,
     p_max: float,
-    bounds: FloatArray,
+    bounds: F64,
     ftol: float,
-    out_x: FloatArray,
-    out_th: FloatArray,
-    out_dy: FloatArray,
-    out_D: FloatArray,
-    out_res: FloatArray,
-    out_tr: FloatArray,
+    out_x: F64,
+    out_th: F64,
+    out_dy: F64,
+    out_D: F64,
+    out_res: F64,
+    out_tr: F64,
 ) -> None:  # pragma: no cover
     phi = np.empty(6)
     th_u = np.empty(6)
@@ -453,7 +452,7 @@ class AdaptiveWearObserver:
 
 def deadbeat_observer_step(
     a: ArrayLike, b: ArrayLike, x0_hat: ArrayLike, u: float, y: float
-) -> FloatArray:
+) -> F64:
     """One step of eq. (17) with the deadbeat gains ``g = -a`` (for fixed parameters).
 
     ``y`` is the output with the static part removed (eq. (23)).

@@ -21,11 +21,9 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from numpy.typing import NDArray
 
+from common.arrays import F64
 from machine.errors import ParameterError, require_nonnegative, require_positive
-
-FloatArray = NDArray[np.float64]
 
 
 @dataclass(frozen=True)
@@ -88,7 +86,7 @@ class FeedDriveParams:
             if not isinstance(ax, AxisParams):
                 raise ParameterError(name, "an AxisParams", type(ax).__name__)
 
-    def packed(self) -> FloatArray:
+    def packed(self) -> F64:
         """Per-axis coefficients for the kernel: rows x, y; columns
         ``kp, ki, kd, m, b, coulomb, e1, e2, e3`` (exact ZOH terms, see :func:`zoh_terms`)."""
         out = np.zeros((2, 9))

@@ -38,12 +38,10 @@ from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
-from numpy.typing import NDArray
 
+from common.arrays import F64
 from machine.errors import ParameterError, require_in, require_nonnegative, require_positive
 from machine.feed_drives import FeedDriveParams, FeedDrives
-
-FloatArray = NDArray[np.float64]
 
 #: Slowest spindle the chip history is sized for [rpm] (the tooth period must fit).
 MIN_RPM = 60.0
@@ -133,7 +131,7 @@ class MillingParams:
             return math.acos(2.0 * r - 1.0), math.pi
         return 0.0, math.acos(1.0 - 2.0 * r)
 
-    def layer_lags(self) -> FloatArray:
+    def layer_lags(self) -> F64:
         r"""Lag angle of each axial layer (eq. 1): :math:`2 z_l \tan\beta / D`, layer mid
         heights :math:`z_l = (l - 1/2) a_p / N_l`."""
         z = (np.arange(self.n_layers) + 0.5) * self.axial_depth / self.n_layers
@@ -192,11 +190,11 @@ def _milling_block(
     n: int,
     ts: float,
     n_flutes: int,
-    lags: FloatArray,
+    lags: F64,
     dz: float,
     phi_st: float,
     phi_ex: float,
-    kc: FloatArray,
+    kc: F64,
     ecc: float,
     ecc_phase: float,
     omega: float,
@@ -205,11 +203,11 @@ def _milling_block(
     theta_m: float,
     b_m: float,
     phi_m: float,
-    drive: FloatArray,
-    st: FloatArray,
-    ax_state: FloatArray,
-    hist: FloatArray,
-    out: FloatArray,
+    drive: F64,
+    st: F64,
+    ax_state: F64,
+    hist: F64,
+    out: F64,
 ) -> None:  # pragma: no cover
     """Advance the machine ``n`` samples.
 
@@ -305,16 +303,16 @@ class MillingRecord:
     ``psi`` spindle angle [rad] (unwrapped); ``t`` time [s].
     """
 
-    t: FloatArray
-    fx: FloatArray
-    fy: FloatArray
-    x: FloatArray
-    y: FloatArray
-    rx: FloatArray
-    ry: FloatArray
-    ix: FloatArray
-    iy: FloatArray
-    psi: FloatArray
+    t: F64
+    fx: F64
+    fy: F64
+    x: F64
+    y: F64
+    rx: F64
+    ry: F64
+    ix: F64
+    iy: F64
+    psi: F64
     a_m: float
     theta_m: float
     saturated: bool
@@ -324,9 +322,9 @@ class MillingRecord:
 
 @dataclass
 class _State:
-    st: FloatArray
-    ax: FloatArray
-    hist: FloatArray
+    st: F64
+    ax: F64
+    hist: F64
     k: int = 0
 
 

@@ -28,14 +28,14 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numba import njit
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
+from common.arrays import F64
 from machine.effects import PlantEffects
 from machine.errors import ParameterError, require_positive
 from machine.linalg import zoh
 from machine.params import ADDED_WEIGHT_INERTIA, ENCODER_BITS, SAMPLE_TIME, StageParams, preset
 
-F64 = NDArray[np.float64]
 OMEGA_S = 0.05  # velocity scale of the regularised Coulomb friction [rad/s]
 
 
@@ -120,7 +120,7 @@ class Trajectory:
         hp, r, v, dw = self.half_period, self.ramp, self.speed, self.dwell
         lv = np.asarray(self.levels, dtype=np.float64)
 
-        def plateau(k: NDArray[np.float64]) -> F64:
+        def plateau(k: F64) -> F64:
             # segment k (after reversal k): sign (-1)^k, speed level k mod len(levels)
             kk = np.maximum(k, 0).astype(np.int64)
             return np.where(kk % 2 == 0, 1.0, -1.0) * v * lv[kk % len(lv)]

@@ -30,11 +30,10 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 from numba import njit
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
+from common.arrays import F64
 from machine.errors import ParameterError, require_positive
-
-FloatArray = NDArray[np.float64]
 
 #: ISO 3685 tool-life criterion: mean flank wear land VB = 0.3 mm
 VB_LIMIT_MM = 0.3
@@ -123,7 +122,7 @@ class WearModelParams:
         if self.n3 < 1.0:
             raise ParameterError("n3", "a value >= 1 (finite Jacobian at w_f2 = 0)", self.n3)
 
-    def as_array(self) -> FloatArray:
+    def as_array(self) -> F64:
         """The constants as one array, in the order the kernels read them."""
         return np.array([float(getattr(self, n)) for n in _ORDER])
 
@@ -170,7 +169,7 @@ class CuttingCondition:
 
 
 @njit(cache=True)
-def _force(p: FloatArray, x: FloatArray, f: float, v: float, d: float) -> float:
+def _force(p: F64, x: F64, f: float, v: float, d: float) -> float:
     # eq. (8)
     return (
         (p[16] * f ** p[17] * (1.0 - p[18] * p[2]) - p[19] - p[20] * v) * d
@@ -180,7 +179,7 @@ def _force(p: FloatArray, x: FloatArray, f: float, v: float, d: float) -> float:
 
 
 @njit(cache=True)
-def _rhs(p: FloatArray, x: FloatArray, f: float, v: float, d: float, out: FloatArray) -> None:
+def _rhs(p: F64, x: F64, f: float, v: float, d: float, out: F64) -> None:
     F = _force(p, x, f, v, d)
     # eq. (3)
     out[0] = (v / p[0]) * (-x[0] + p[1] * math.cos(p[2]) * F / (f * d))
@@ -196,15 +195,15 @@ def _rhs(p: FloatArray, x: FloatArray, f: float, v: float, d: float, out: FloatA
 
 @njit(cache=True)
 def _simulate(
-    p: FloatArray,
-    x0: FloatArray,
-    feed: FloatArray,
+    p: F64,
+    x0: F64,
+    feed: F64,
     v: float,
     d: float,
     dt: float,
     substeps: int,
-    xs: FloatArray,
-    Fs: FloatArray,
+    xs: F64,
+    Fs: F64,
 ) -> None:
     # classic RK4 with the feed held over each sample (zero-order hold, as the paper's
     # discrete model assumes)
@@ -239,18 +238,18 @@ def _simulate(
 class WearTrajectory:
     """States at every sample (``len(feed) + 1`` rows: before each sample and the end)."""
 
-    t: FloatArray  # sample times [min], len n
-    feed: FloatArray  # [mm/rev], len n
-    states: FloatArray  # (n + 1, 3): w_f1, w_f2, w_c [mm] at t and at the end
-    force: FloatArray  # F at each sample [N], len n
+    t: F64  # sample times [min], len n
+    feed: F64  # [mm/rev], len n
+    states: F64  # (n + 1, 3): w_f1, w_f2, w_c [mm] at t and at the end
+    force: F64  # F at each sample [N], len n
 
     @property
-    def flank(self) -> FloatArray:
+    def flank(self) -> F64:
         """Total flank wear w_f = w_f1 + w_f2 at each sample [mm]."""
         return np.asarray(self.states[:-1, 0] + self.states[:-1, 1])
 
     @property
-    def crater(self) -> FloatArray:
+    def crater(self) -> F64:
         return np.asarray(self.states[:-1, 2])
 
 
@@ -287,7 +286,7 @@ class ToolWearModel:
         c = self.condition
         return float(_force(self._p, np.asarray(x, dtype=np.float64), f, c.speed, c.depth))
 
-    def rates(self, x: ArrayLike, feed: float) -> FloatArray:
+    def rates(self, x: ArrayLike, feed: float) -> F64:
         """Wear rates eq. (3)-(5) [mm/min]."""
         f = self._check_feed(feed)
         c = self.condition
@@ -305,9 +304,7 @@ class ToolWearModel:
         theta_c = p.K8 * F * c.speed**p.n4 * f**p.n5 * c.depth**p.n6
         return theta_f, theta_c
 
-    def jacobians(
-        self, x: ArrayLike, feed: float
-    ) -> tuple[FloatArray, FloatArray, FloatArray, float]:
+    def jacobians(self, x: ArrayLike, feed: float) -> tuple[F64, F64, F64, float]:
         r"""Analytic partial derivatives at ``(x, f)``.
 
         Returns

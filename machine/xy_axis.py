@@ -32,10 +32,9 @@ import numpy as np
 from numba import njit
 from numpy.typing import ArrayLike, NDArray
 
+from common.arrays import F64
 from machine.errors import ParameterError, require_nonnegative, require_positive
 from machine.linalg import zoh
-
-FloatArray = NDArray[np.float64]
 
 #: Seed 002, Section 2: the identified x-axis (eq. 1).
 PAPER_A = 78020.0  # mm / (V s^2)
@@ -90,10 +89,10 @@ class XYAxisParams:
     c: float = PAPER_C
     delay: float = PAPER_DELAY
     sample_time: float = DEFAULT_SAMPLE_TIME
-    phi: FloatArray = field(init=False, repr=False)
-    gamma_a: FloatArray = field(init=False, repr=False)
-    gamma_b: FloatArray = field(init=False, repr=False)
-    gamma_d: FloatArray = field(init=False, repr=False)
+    phi: F64 = field(init=False, repr=False)
+    gamma_a: F64 = field(init=False, repr=False)
+    gamma_b: F64 = field(init=False, repr=False)
+    gamma_d: F64 = field(init=False, repr=False)
     delay_samples: int = field(init=False)
     delay_fraction: float = field(init=False)
 
@@ -120,7 +119,7 @@ class XYAxisParams:
         object.__setattr__(self, "delay_samples", d)
         object.__setattr__(self, "delay_fraction", tau)
 
-    def state_space(self) -> tuple[FloatArray, FloatArray]:
+    def state_space(self) -> tuple[F64, F64]:
         """Continuous ``F``, ``G`` of the states ``[z, dz/dt]`` (mm, mm/s)."""
         f = np.array([[0.0, 1.0], [-self.c, -self.b]])
         g = np.array([[0.0], [self.a]])
@@ -144,8 +143,8 @@ class AxisState:
     previous block's commands have been applied).
     """
 
-    x: FloatArray
-    u_hist: FloatArray
+    x: F64
+    u_hist: F64
     k: int
 
 
@@ -156,14 +155,14 @@ def initial_state(params: XYAxisParams, z0: float = 0.0) -> AxisState:
 
 @njit(cache=True)
 def _plant_block(
-    phi: FloatArray,
-    ga: FloatArray,
-    gb: FloatArray,
-    gd: FloatArray,
-    x: FloatArray,
-    u_hist: FloatArray,
-    d: FloatArray,
-    z: FloatArray,
+    phi: F64,
+    ga: F64,
+    gb: F64,
+    gd: F64,
+    x: F64,
+    u_hist: F64,
+    d: F64,
+    z: F64,
 ) -> None:  # pragma: no cover
     x0 = x[0]
     x1 = x[1]
@@ -179,9 +178,7 @@ def _plant_block(
     x[1] = x1
 
 
-def step(
-    params: XYAxisParams, state: AxisState, disturbance: ArrayLike
-) -> tuple[AxisState, FloatArray]:
+def step(params: XYAxisParams, state: AxisState, disturbance: ArrayLike) -> tuple[AxisState, F64]:
     """Measure and advance one block of ``n <= D`` samples.
 
     Parameters
@@ -272,9 +269,9 @@ def _cascade_block(
     ts: float,
     integral: float,
     z_prev: float,
-    z: FloatArray,
-    ref: FloatArray,
-    u: FloatArray,
+    z: F64,
+    ref: F64,
+    u: F64,
 ) -> tuple[float, float]:  # pragma: no cover
     for k in range(len(z)):
         v = (z[k] - z_prev) / ts
@@ -288,7 +285,7 @@ def _cascade_block(
 
 def cascade_step(
     params: CascadeParams, state: CascadeState, z: ArrayLike, ref: ArrayLike
-) -> tuple[CascadeState, FloatArray]:
+) -> tuple[CascadeState, F64]:
     """Controller output [V] for a block of measured positions and references [mm]."""
     za = np.ascontiguousarray(z, dtype=np.float64)
     ra = np.ascontiguousarray(ref, dtype=np.float64)
@@ -306,7 +303,7 @@ def cascade_step(
 
 def sine_reference(
     t: ArrayLike, amplitude: float = PAPER_REF_AMPLITUDE, frequency: float = PAPER_REF_FREQUENCY
-) -> FloatArray:
+) -> F64:
     """Seed 002 Section 5's reference ``amplitude * sin(2 pi f t)`` [mm]."""
     ta = np.asarray(t, dtype=np.float64)
     return np.asarray(amplitude * np.sin(2 * np.pi * frequency * ta))
@@ -336,7 +333,7 @@ class HarmonicForce:
         for a in self.amplitudes:
             require_nonnegative("amplitudes", a)
 
-    def __call__(self, t: ArrayLike) -> FloatArray:
+    def __call__(self, t: ArrayLike) -> F64:
         ta = np.asarray(t, dtype=np.float64)
         out = np.full(ta.shape, float(self.mean))
         for f, a, p in zip(self.frequencies, self.amplitudes, self.phases, strict=True):

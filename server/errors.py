@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from common.errors import ParameterError
 from estimators.errors import EstimatorError
 from machine.errors import MachineError
 
@@ -16,4 +17,4 @@ class LogFormatError(CutwatchError, ValueError):
 
 def is_user_error(exc: BaseException) -> bool:
     """True for named errors that describe bad input (printed without a traceback)."""
-    return isinstance(exc, CutwatchError | EstimatorError | MachineError)
+    return isinstance(exc, CutwatchError | EstimatorError | MachineError | ParameterError)

@@ -19,17 +19,15 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
-from numpy.typing import NDArray
 
+from common.arrays import F64
 from estimators.esc import EscParams, ExtremumSeekingController, positive_polar
 from estimators.fast_tuner import FastTuner, FastTunerParams
 from estimators.force_observer import LoadParams, TorsionEstimator, TorsionState
 from machine.milling import MillingMachine, MillingParams, MillingRecord
 
-FloatArray = NDArray[np.float64]
-
 #: A force estimator: takes a machine block record, returns (fx_hat, fy_hat) [N].
-ForceSource = Callable[[MillingRecord], tuple[FloatArray, FloatArray]]
+ForceSource = Callable[[MillingRecord], tuple[F64, F64]]
 
 
 @dataclass
@@ -47,7 +45,7 @@ class RevolutionLog:
     adapting: list[bool] = field(default_factory=list)
     rpm: list[float] = field(default_factory=list)
 
-    def arrays(self) -> dict[str, FloatArray]:
+    def arrays(self) -> dict[str, F64]:
         return {k: np.asarray(v, dtype=np.float64) for k, v in self.__dict__.items()}
 
 
@@ -126,7 +124,7 @@ class ObserverForceSource:
             self._load.append(load)
             self._kf.append(ax.force_constant)
 
-    def __call__(self, rec: MillingRecord) -> tuple[FloatArray, FloatArray]:
+    def __call__(self, rec: MillingRecord) -> tuple[F64, F64]:
         from estimators.force_observer import cutting_force
 
         out = []
@@ -199,7 +197,7 @@ class EccentricityLoop:
         self.saturated = False
         self.log = RevolutionLog()
         self._buf: list[MillingRecord] = []
-        self._est: list[tuple[FloatArray, FloatArray]] = []
+        self._est: list[tuple[F64, F64]] = []
         self._rev_start_t = 0.0
         self._next_boundary = 2.0 * math.pi
         self.last_cost = math.nan
@@ -219,12 +217,12 @@ class EccentricityLoop:
         w_ts = 2.0 * math.pi * self.machine.spindle_rpm / 60.0 * self.machine.sample_time
         return max(1, math.ceil((self._next_boundary - psi) / w_ts - 1e-9))
 
-    def step(self, n: int) -> dict[str, FloatArray]:
+    def step(self, n: int) -> dict[str, F64]:
         """Advance ``n`` samples; per-sample arrays of forces, positions and tuner state."""
         return self._advance(n, collect=True)
 
-    def _advance(self, n: int, *, collect: bool) -> dict[str, FloatArray]:
-        chunks: list[dict[str, FloatArray]] = []
+    def _advance(self, n: int, *, collect: bool) -> dict[str, F64]:
+        chunks: list[dict[str, F64]] = []
         left = int(n)
         while left > 0:
             m = self.samples_to_boundary()

@@ -24,13 +24,11 @@ import math
 from dataclasses import replace
 
 import numpy as np
-from numpy.typing import NDArray
 
+from common.arrays import F64
 from estimators.esc import EscParams
 from machine.milling import MillingParams
 from server.pipeline.eccentricity_loop import EccentricityLoop
-
-FloatArray = NDArray[np.float64]
 
 #: revolutions of the tuner's log kept in the live service
 LOG_KEEP = 64
@@ -124,7 +122,7 @@ class LiveEccentricity:
         self._key = key
         self._cancel = m.cancelling_modulation()
 
-    def step(self, t: FloatArray, dt: float) -> dict[str, FloatArray]:
+    def step(self, t: F64, dt: float) -> dict[str, F64]:
         """Advance by ``t.size * dt`` of simulated time; channels picked at the times ``t``.
 
         Each output value is the loop's value at the latest of its samples not after the
@@ -166,7 +164,7 @@ class LiveEccentricity:
         self._last = {k: float(v[-1]) for k, v in res.items()}
         return res
 
-    def _hold(self, n: int) -> dict[str, FloatArray]:
+    def _hold(self, n: int) -> dict[str, F64]:
         return {k: np.full(n, self._last.get(k, math.nan)) for k in ECC_CHANNELS}
 
     def state(self) -> dict[str, float | bool | str]:

@@ -18,15 +18,14 @@ import math
 from dataclasses import dataclass, replace
 
 import numpy as np
-from numpy.typing import NDArray
 
+from common.arrays import F64
 from estimators import dfo as dfo_mod
 from estimators.force_observer import ObserverParams
 from machine.params import preset
 from machine.stage import SEED001_FORCE, CuttingForce, StageConfig
 from server.pipeline.stage_run import StageRun
 
-F64 = NDArray[np.float64]
 BLOCK = 125  # 50 ms at 2.5 kHz
 
 

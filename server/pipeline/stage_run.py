@@ -14,12 +14,11 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from common.arrays import F64
 from estimators.filters import lowpass
 from estimators.force_observer import LoadParams, ObserverParams, TorsionEstimator, cutting_force
 from estimators.rls import IdentifierParams, LoadIdentifier
 from machine.stage import Measurements, StageConfig, StageSim, Truth
-
-F64 = NDArray[np.float64]
 
 
 @dataclass

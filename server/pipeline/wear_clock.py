@@ -14,8 +14,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 
+from common.arrays import F64
 from estimators.errors import ParameterError
 from estimators.wear_law import WearLawParams
 from estimators.wear_linear import (
@@ -28,8 +28,6 @@ from estimators.wear_linear import (
 from estimators.wear_monitor import ToolLifeMonitor, ToolLifeParams, ToolLifeRecord
 from estimators.wear_observer import WearObserverParams
 from machine.tool_wear import VB_LIMIT_MM, CuttingCondition, ToolWearModel
-
-F64 = NDArray[np.float64]
 
 #: Sample period of the wear observer [min]. The paper does not give it; 0.01 min
 #: (0.6 s) puts the abrasive pole at Table 1's 0.9889 with our l0 (see the model).

@@ -26,9 +26,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from common.arrays import F64
 from server.errors import LogFormatError
-
-FloatArray = NDArray[np.float64]
 
 REQUIRED_COLUMNS: tuple[str, ...] = ("t", "tau_m", "q_m")
 OPTIONAL_COLUMNS: tuple[str, ...] = ("q_l", "f_ext", "i_m")
@@ -112,7 +111,7 @@ class MeasuredLog:
     """
 
     path: Path
-    columns: dict[str, FloatArray]
+    columns: dict[str, F64]
     sample_time: float
     units: dict[str, str]
     kind: str | None
@@ -124,7 +123,7 @@ class MeasuredLog:
         """Number of samples."""
         return len(self.columns["t"])
 
-    def __getitem__(self, name: str) -> FloatArray:
+    def __getitem__(self, name: str) -> F64:
         return self.columns[name]
 
 
@@ -165,7 +164,7 @@ def load_meta(text: str | os.PathLike[str] | None) -> dict[str, Any]:
     return data
 
 
-def _read_csv(path: Path, progress: bool) -> dict[str, FloatArray]:
+def _read_csv(path: Path, progress: bool) -> dict[str, F64]:
     with path.open("r", newline="") as fh:
         header_line = fh.readline()
         if not header_line.strip():
@@ -184,7 +183,7 @@ def _read_csv(path: Path, progress: bool) -> dict[str, FloatArray]:
             from tqdm import tqdm
 
             bar = tqdm(total=size, unit="B", unit_scale=True, desc=f"reading {path.name}")
-        chunks: list[FloatArray] = []
+        chunks: list[F64] = []
         row0 = 0
         while True:
             lines = [ln for ln in (fh.readline() for _ in range(_CHUNK_ROWS)) if ln]
@@ -203,7 +202,7 @@ def _read_csv(path: Path, progress: bool) -> dict[str, FloatArray]:
     return {h: np.ascontiguousarray(data[:, j]) for j, h in enumerate(header)}
 
 
-def _parse_block(path: Path, header: list[str], lines: list[str], row0: int) -> FloatArray:
+def _parse_block(path: Path, header: list[str], lines: list[str], row0: int) -> F64:
     ncol = len(header)
     try:
         arr = np.loadtxt(lines, delimiter=",", dtype=np.float64, ndmin=2)
@@ -248,7 +247,7 @@ def _read_mat(path: Path) -> dict[str, Any]:
     return {k: v for k, v in raw.items() if not k.startswith("__")}
 
 
-def _as_vector(path: Path, name: str, value: Any) -> FloatArray:
+def _as_vector(path: Path, name: str, value: Any) -> F64:
     try:
         arr = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError):
@@ -266,9 +265,9 @@ def _as_vector(path: Path, name: str, value: Any) -> FloatArray:
 
 def _apply_maps(
     path: Path, source: Mapping[str, Any], maps: Sequence[ColumnMap], is_mat: bool
-) -> dict[str, FloatArray]:
+) -> dict[str, F64]:
     kind = "variable" if is_mat else "column"
-    out: dict[str, FloatArray] = {}
+    out: dict[str, F64] = {}
     for name, value in source.items():
         v = np.asarray(value)
         if v.size > 1:
@@ -299,7 +298,7 @@ def _apply_maps(
     return out
 
 
-def check_time(path: Path, t: FloatArray, declared: float | None = None) -> float:
+def check_time(path: Path, t: F64, declared: float | None = None) -> float:
     """Check that ``t`` is strictly increasing and uniform; return the sampling interval.
 
     Jitter up to :data:`JITTER_TOLERANCE` of the median interval is tolerated; an
@@ -440,7 +439,7 @@ def load_log(
         )
     keep = [c for c in (*REQUIRED_COLUMNS, *OPTIONAL_COLUMNS) if c in cols]
     n = len(cols["t"]) if "t" in cols else len(cols[keep[0]])
-    out: dict[str, FloatArray] = {}
+    out: dict[str, F64] = {}
     for c in keep:
         v = cols[c]
         if len(v) != n:

@@ -10,9 +10,9 @@ import numpy as np
 from numpy.typing import NDArray
 from tqdm import tqdm
 
+from common.arrays import F64
 from server.pipeline.stage_run import StageBlock, StageRun
 
-F64 = NDArray[np.float64]
 OBSERVERS = ("fixed", "adaptive", "switching")
 
 

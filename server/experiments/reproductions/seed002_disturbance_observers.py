@@ -21,8 +21,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from numpy.typing import NDArray
 
+from common.arrays import F64
 from estimators import dfo as dfo_mod
 from estimators import imbdo as imbdo_mod
 from machine import xy_axis as xa
@@ -136,13 +136,13 @@ def make_dfo(
 class AxisRun:
     """One closed-loop run: time, reference, position, disturbance and its estimates."""
 
-    t: NDArray[np.float64]
-    ref: NDArray[np.float64]
-    z: NDArray[np.float64]
-    d: NDArray[np.float64]
-    d_hat_dfo: NDArray[np.float64]
-    d_hat_imbdo: NDArray[np.float64]
-    amplitude: NDArray[np.float64]
+    t: F64
+    ref: F64
+    z: F64
+    d: F64
+    d_hat_dfo: F64
+    d_hat_imbdo: F64
+    amplitude: F64
 
 
 def simulate(
@@ -198,7 +198,7 @@ def simulate(
     return AxisRun(t=t, ref=ref, z=z_all, d=dist, d_hat_dfo=dhd, d_hat_imbdo=dhi, amplitude=amp)
 
 
-def spectrum(e: NDArray[np.float64], ts: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+def spectrum(e: F64, ts: float) -> tuple[F64, F64]:
     """Single-sided amplitude spectrum ``2|X|/N`` (rectangular window, whole periods)."""
     n = e.size
     return np.asarray(np.fft.rfftfreq(n, ts), dtype=np.float64), np.abs(np.fft.rfft(e)) * 2.0 / n
@@ -234,7 +234,7 @@ def bandwidth(
     return float(f[below[0]]) if below.size else math.inf
 
 
-def delta_bound(axis: xa.XYAxisParams, f: NDArray[np.float64]) -> NDArray[np.float64]:
+def delta_bound(axis: xa.XYAxisParams, f: F64) -> F64:
     """|1/Delta| of eq. (4) for a delay error of +-Td (Fig. 5's bound, our choice)."""
     gm = axis.response(f, with_delay=False)
     return imbdo_mod.inverse_delta(gm * np.exp(-2j * np.pi * f * axis.delay), gm)

@@ -30,8 +30,8 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
-from numpy.typing import NDArray
 
+from common.arrays import F64
 from estimators.esc import EscParams, ExtremumSeekingController, harmonic_cost, spindle_harmonic
 from estimators.fast_tuner import FastTunerParams
 from machine.feed_drives import AxisParams, FeedDriveParams
@@ -82,8 +82,6 @@ ROWS = [
 ADAPT_START = 1.0  # [s] "Adaptation start" of Fig. 3
 PAPER_CONVERGE_S = 10.0  # seed 003 section 3: "converges ... in ~10 seconds"
 
-FloatArray = NDArray[np.float64]
-
 
 def case_params(case: int) -> MillingParams:
     """Seed 003 Table 1 (and section 3: 4 flutes, D 10 mm, 20 % immersion, 80 um/tooth)."""
@@ -110,10 +108,10 @@ class Trace:
     """A run: per-revolution log and per-sample force (decimated for plots)."""
 
     loop: EccentricityLoop
-    t: FloatArray
-    fx: FloatArray
-    fy: FloatArray
-    psi: FloatArray
+    t: F64
+    fx: F64
+    fy: F64
+    psi: F64
 
 
 def run_case(
@@ -157,9 +155,7 @@ def run_case(
     )
 
 
-def non_tooth_periodic_pp(
-    t: FloatArray, f: FloatArray, psi: FloatArray, t0: float, rpm: float, n_flutes: int
-) -> float:
+def non_tooth_periodic_pp(t: F64, f: F64, psi: F64, t0: float, rpm: float, n_flutes: int) -> float:
     """Peak-to-peak of the once-per-revolution, not once-per-tooth, part of ``f``.
 
     Over the revolution starting at ``t0``: the harmonics 1 .. ``n_flutes - 1`` of the
@@ -195,9 +191,7 @@ def _initial_cost(loop: EccentricityLoop, key: str = "cost") -> float:
     return float(lg[key][max(i, 0)])
 
 
-def converge_index(
-    cost: FloatArray, adapting: FloatArray, j0: float, ratio: float = 0.1
-) -> int | None:
+def converge_index(cost: F64, adapting: F64, j0: float, ratio: float = 0.1) -> int | None:
     """Index of the first adaptive revolution after which the cost stays below
     ``ratio * j0``; None if it never does."""
     idx = np.nonzero(adapting > 0)[0]
@@ -212,7 +206,7 @@ def converge_index(
     return int(idx[last + 1])
 
 
-def param_error(loop: EccentricityLoop) -> FloatArray:
+def param_error(loop: EccentricityLoop) -> F64:
     """Per revolution: |u - u*| / |u*| of the nominal modulation against the cancelling
     modulation at that revolution's spindle speed."""
     lg = loop.log.arrays()
