@@ -110,3 +110,18 @@ def test_mkdocs_builds_strict(tmp_path: Path) -> None:
     assert result.returncode == 0, result.stderr
     assert (tmp_path / "index.html").is_file()
     assert (tmp_path / "img" / "dashboard.png").is_file()
+
+
+_DOC_CITATION = re.compile(r"\bdocs/[\w./-]+\.md\b")
+
+
+def test_code_cites_existing_doc_pages() -> None:
+    """A ``docs/<page>.md`` named in a comment or docstring of our code exists."""
+    missing = []
+    for layer in ("common", "machine", "estimators", "server", "tests"):
+        for path in sorted((ROOT / layer).rglob("*.py")):
+            text = path.read_text(encoding="utf-8")
+            for cited in sorted(set(_DOC_CITATION.findall(text))):
+                if not (ROOT / cited).is_file():
+                    missing.append(f"{path.relative_to(ROOT)} cites {cited}, which does not exist")
+    assert missing == []
