@@ -79,6 +79,11 @@ def test_there_are_pages_with_links() -> None:
     assert n_links >= 20, f"expected the README and docs to link their pages, found {n_links}"
 
 
+def test_readme_stays_short() -> None:
+    n = len((ROOT / "README.md").read_text(encoding="utf-8").splitlines())
+    assert n <= 200, f"README.md has {n} lines; the detail belongs in docs/ (at most ~200)"
+
+
 @pytest.mark.parametrize("page", doc_pages(), ids=lambda p: str(p.relative_to(ROOT)))
 def test_relative_links_resolve(page: Path) -> None:
     assert broken_links(page) == []
