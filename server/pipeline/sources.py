@@ -28,7 +28,8 @@ knobs_apply : bool
     log or a live feed ignores :meth:`MeasurementSource.reconfigure`.
 t : float
     Time of the next sample, counted from the source's start [s]. Advances by
-    ``sample_time`` per sample handed out, never otherwise.
+    ``sample_time`` per sample handed out (an empty block leaves it), and may jump only
+    at a discontinuity (a live feed's missing samples).
 finished : bool
     True once the source will hand out no more samples (the end of a log). A live feed
     that has nothing yet is not finished: its :meth:`MeasurementSource.step` returns an
