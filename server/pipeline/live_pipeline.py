@@ -530,7 +530,8 @@ class LivePipeline:
         self._dfo_state = dfo_mod.initial_state(self._dfo)
         if self._fx is not None:
             self._fx_state = self._fx.init_state()
-        self._pass_steady = False
+        if self._pass_cut is not None:  # a wear pass is under way: it spans the gap
+            self._pass_steady = False
 
     def _wear_begin(self, t0: float) -> None:
         """Start a pass: advance the wear model over it first, so the stage cuts with the
