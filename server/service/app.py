@@ -124,7 +124,7 @@ async def _http_error(request: Request, exc: StarletteHTTPException) -> Response
         items = [error("path", "a path listed in /openapi.json or a dashboard file", path, msg)]
     elif exc.status_code == 405:
         allowed = _methods(request) or ["GET", "HEAD"]  # otherwise a static file
-        headers.setdefault("Allow", ", ".join(allowed))
+        headers["Allow"] = ", ".join(allowed)
         msg = f"{exc.detail}: {request.method} {path}; allowed: {', '.join(allowed)}"
         items = [error("method", "one of " + ", ".join(allowed), request.method, msg)]
     else:
@@ -135,9 +135,10 @@ async def _http_error(request: Request, exc: StarletteHTTPException) -> Response
 def _methods(request: Request) -> list[str]:
     """The methods the API routes accept at this request's path (sorted)."""
     out: set[str] = set()
-    for route in request.app.routes:
-        if isinstance(route, APIRoute) and route.path_regex.match(request.url.path):
-            out |= route.methods or set()
+    for router in ROUTERS:
+        for route in router.routes:
+            if isinstance(route, APIRoute) and route.path_regex.match(request.url.path):
+                out |= route.methods or set()
     return sorted(out)
 
 

@@ -40,13 +40,21 @@ _ERROR_DOCS = {
 }
 
 
-def error_responses(*codes: int) -> dict[int | str, dict[str, Any]]:
-    """OpenAPI ``responses=`` for the given 4xx codes, plus ``4XX`` for any other."""
-    out: dict[int | str, dict[str, Any]] = {
-        c: {"model": ErrorBody, "description": _ERROR_DOCS[c]} for c in codes
+def error_responses(*codes: int, json_route: bool = True) -> dict[int | str, dict[str, Any]]:
+    """OpenAPI ``responses=`` for the given 4xx codes, plus ``4XX`` for any other.
+
+    ``json_route=False`` for routes answering HTML or text: FastAPI would file a
+    ``model`` under the route's own media type, but the error bodies are JSON.
+    """
+    docs: dict[int | str, str] = {c: _ERROR_DOCS[c] for c in codes}
+    docs["4XX"] = "any other client error, same shape"
+    if json_route:
+        return {c: {"model": ErrorBody, "description": d} for c, d in docs.items()}
+    ref = {"$ref": "#/components/schemas/ErrorBody"}  # registered by the JSON routes
+    return {
+        c: {"description": d, "content": {"application/json": {"schema": ref}}}
+        for c, d in docs.items()
     }
-    out["4XX"] = {"model": ErrorBody, "description": "any other client error, same shape"}
-    return out
 
 
 # ------------------------------------------------------------------ status

@@ -49,7 +49,12 @@ def report_file(root: Path, name: str, leaf: str) -> Path:
     return f
 
 
-@router.get("/residual", response_class=HTMLResponse, summary="residual reports on disk")
+@router.get(
+    "/residual",
+    response_class=HTMLResponse,
+    summary="residual reports on disk",
+    responses=error_responses(json_route=False),
+)
 def residual_index(s: Config) -> HTMLResponse:
     rows = "".join(
         f'<li><a href="/residual/{html.escape(n)}/">{html.escape(n)}</a></li>'
@@ -67,7 +72,7 @@ def residual_index(s: Config) -> HTMLResponse:
     "/residual/{name}/",
     response_class=HTMLResponse,
     summary="one residual report (its report.html)",
-    responses=error_responses(404),
+    responses=error_responses(404, json_route=False),
 )
 def residual_report(name: str, s: Config) -> FileResponse:
     return FileResponse(report_file(s.reports_dir, name, "report.html"))

@@ -45,7 +45,12 @@ def snapshot(lp: Live) -> Snapshot:
     return Snapshot.model_validate(protocol._clean({"pipeline": snap, "health": lp.health()}))
 
 
-@router.get("/metrics", response_class=PlainTextResponse, summary="Prometheus metrics")
+@router.get(
+    "/metrics",
+    response_class=PlainTextResponse,
+    summary="Prometheus metrics",
+    responses=error_responses(json_route=False),
+)
 def metrics(lp: Live) -> PlainTextResponse:
     h = lp.health()
     rows = [
