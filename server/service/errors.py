@@ -19,8 +19,12 @@ def _json_safe(v: Any) -> Any:
     """``v`` if it is a JSON scalar, else its repr (at most 80 characters).
 
     Used for the ``got`` of an error: a non-finite float comes back as ``"nan"`` or
-    ``"inf"``, not ``null``, so that a client that sent NaN is not told it sent nothing.
+    ``"inf"``, not ``null``, so that a client that sent NaN is not told it sent nothing
+    (deliberate, unlike ``protocol._clean`` where NaN means "no value yet"). A numpy
+    scalar is its number (it came back as ``"np.float64(...)"`` before).
     """
+    if getattr(v, "ndim", None) == 0 and hasattr(v, "item"):  # a numpy scalar: its number
+        v = v.item()
     if isinstance(v, bool | int | str) or v is None:
         return v
     if isinstance(v, float) and math.isfinite(v):

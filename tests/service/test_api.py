@@ -16,6 +16,7 @@ from hypothesis import strategies as st
 from server.errors import CutwatchError
 from server.service import protocol
 from server.service.app import create_app
+from server.service.errors import error
 from server.service.schemas import ErrorBody, LoopHealth
 from server.service.settings import Settings
 
@@ -420,3 +421,14 @@ def test_health_model_matches_the_stream_schema() -> None:
     # /api/health and /api/snapshot carry the loop's health through LoopHealth: a key
     # added to the stream's health (protocol.SCHEMA) must be added there too
     assert list(LoopHealth.model_fields) == protocol.SCHEMA["health"]
+
+
+def test_error_entry_got_is_json() -> None:
+    import numpy as np
+
+    assert error("x", "a number", np.float64(2.5), "m")["got"] == 2.5  # not "np.float64(2.5)"
+    assert error("x", "a number", np.int64(3), "m")["got"] == 3
+    # a client's NaN is echoed as "nan", not null (null would read as "you sent null")
+    assert error("x", "a number", float("nan"), "m")["got"] == "nan"
+    assert error("x", "a number", None, "m")["got"] is None
+    assert error("x", "a list", np.zeros(2), "m")["got"] == "array([0., 0.])"
