@@ -8,14 +8,15 @@ on the command line), ``SOURCE`` (seed file and table) and
 
 from __future__ import annotations
 
-import importlib
 import json
 import math
-import pkgutil
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from types import ModuleType
 from typing import Protocol
+
+from common.jsonsafe import json_safe
+from server.plugins import plugin_modules
 
 
 @dataclass(frozen=True)
@@ -57,10 +58,7 @@ class Reproduction:
 
     def to_json(self) -> dict[str, object]:
         def clean(x: float | None) -> float | None:
-            if x is None:
-                return None
-            xf = float(x)
-            return xf if math.isfinite(xf) else None
+            return None if x is None else json_safe(float(x))
 
         return {
             "experiment": self.experiment,
@@ -141,10 +139,7 @@ def discover() -> dict[str, ModuleType]:
     from server.experiments import reproductions
 
     found: dict[str, ModuleType] = {}
-    for info in sorted(pkgutil.iter_modules(reproductions.__path__), key=lambda i: i.name):
-        if info.name.startswith("_"):
-            continue
-        mod = importlib.import_module(f"server.experiments.reproductions.{info.name}")
+    for mod in plugin_modules(reproductions):
         name = getattr(mod, "NAME", None)
         if isinstance(name, str):
             found[name] = mod

@@ -16,9 +16,7 @@ This is a benchmark, not a test: run it on a quiet machine and compare medians.
 from __future__ import annotations
 
 import argparse
-import importlib
 import json
-import pkgutil
 
 HELP = "measure speed (medians of several runs); a benchmark, not a test"
 
@@ -33,12 +31,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from server.errors import CutwatchError
     from server.experiments import benchmarks
+    from server.plugins import plugin_modules
 
-    mods = {}
-    for info in sorted(pkgutil.iter_modules(benchmarks.__path__), key=lambda i: i.name):
-        if not info.name.startswith("_"):
-            m = importlib.import_module(f"server.experiments.benchmarks.{info.name}")
-            mods[m.NAME] = m
+    mods = {m.NAME: m for m in plugin_modules(benchmarks)}
     groups = args.group or list(mods)
     for g in groups:
         if g not in mods:
