@@ -66,10 +66,6 @@ def run_stage(
     )
 
 
-def rms(x: F64) -> float:
-    return float(np.sqrt(np.mean(np.square(x))))
-
-
 def component(x: F64, t: F64, f_hz: float) -> float:
     """Amplitude of the component of ``x`` at ``f_hz`` (DC: the mean), over the whole
     periods contained in ``t``."""
