@@ -42,8 +42,8 @@ from numba import njit
 from numpy.typing import ArrayLike, NDArray
 
 from common.arrays import F64
+from common.linalg import zoh
 from estimators.errors import ParameterError, require_nonnegative, require_positive
-from estimators.filters import zoh
 
 
 def _balance(m: F64) -> F64:

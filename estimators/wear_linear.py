@@ -22,8 +22,8 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from common.arrays import F64
+from common.linalg import expm
 from estimators.errors import ParameterError, require_positive
-from estimators.filters import expm
 
 #: ``jacobian(x, u) -> (df/dx (n, n), df/du (n,), dg/dx (n,), dg/du)``
 Jacobian = Callable[[F64, float], tuple[F64, F64, F64, float]]

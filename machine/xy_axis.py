@@ -33,8 +33,8 @@ from numba import njit
 from numpy.typing import ArrayLike, NDArray
 
 from common.arrays import F64
+from common.linalg import zoh
 from machine.errors import ParameterError, require_nonnegative, require_positive
-from machine.linalg import zoh
 
 #: Seed 002, Section 2: the identified x-axis (eq. 1).
 PAPER_A = 78020.0  # mm / (V s^2)
