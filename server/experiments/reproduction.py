@@ -10,10 +10,8 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import asdict, dataclass, field
-from pathlib import Path
+from dataclasses import dataclass, field
 from types import ModuleType
-from typing import Protocol
 
 from common.jsonsafe import json_safe
 from server.plugins import plugin_modules
@@ -90,15 +88,6 @@ class Reproduction:
         return all(c.holds for c in self.checks)
 
 
-class ReproductionModule(Protocol):
-    NAME: str
-    SOURCE: str
-
-    def run(
-        self, *, quick: bool = False, plot_dir: Path | None = None, progress: bool = True
-    ) -> Reproduction: ...
-
-
 def _fmt(x: float | None) -> str:
     if x is None:
         return "-"
@@ -150,4 +139,4 @@ def dumps(rep: Reproduction) -> str:
     return json.dumps(rep.to_json(), indent=2)
 
 
-__all__ = ["Check", "Reproduction", "Row", "asdict", "discover", "dumps", "format_table"]
+__all__ = ["Check", "Reproduction", "Row", "discover", "dumps", "format_table"]

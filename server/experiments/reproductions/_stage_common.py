@@ -13,8 +13,6 @@ from tqdm import tqdm
 from common.arrays import F64
 from server.pipeline.stage_run import StageBlock, StageRun
 
-OBSERVERS = ("fixed", "adaptive", "switching")
-
 
 @dataclass
 class RunTrace:
