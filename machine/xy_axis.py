@@ -1,6 +1,6 @@
 r"""The x-axis of the XY positioning table of seed 002, with its cascade P/PI controller.
 
-Plant (seed 002 eq. 1), input voltage :math:`u` [V], output table position :math:`z` [mm]:
+Plant (seed002 (1)), input voltage :math:`u` [V], output table position :math:`z` [mm]:
 
 .. math::
 
@@ -36,7 +36,7 @@ from common.arrays import F64
 from common.linalg import zoh
 from machine.errors import ParameterError, require_nonnegative, require_positive
 
-#: Seed 002, Section 2: the identified x-axis (eq. 1).
+#: Seed 002, Section 2: the identified x-axis (seed002 (1)).
 PAPER_A = 78020.0  # mm / (V s^2)
 PAPER_B = 163.0  # 1/s
 PAPER_C = 193.3  # 1/s^2
@@ -71,12 +71,12 @@ def split_delay(delay: float, sample_time: float) -> tuple[int, float]:
 
 @dataclass(frozen=True, eq=False)
 class XYAxisParams:
-    """Seed 002's x-axis plant, eq. (1), sampled at ``sample_time``.
+    """Seed 002's x-axis plant, seed002 (1), sampled at ``sample_time``.
 
     Parameters
     ----------
     a, b, c : float
-        Gain [mm/(V s^2)], damping [1/s] and stiffness [1/s^2] of eq. (1), all > 0.
+        Gain [mm/(V s^2)], damping [1/s] and stiffness [1/s^2] of seed002 (1), all > 0.
     delay : float
         Input delay ``Td`` [s], > 0 and at least one sample (the block closed loop needs
         the measured positions of a block to depend on earlier commands only).
@@ -126,7 +126,7 @@ class XYAxisParams:
         return f, g
 
     def response(self, f_hz: ArrayLike, *, with_delay: bool = True) -> NDArray[np.complex128]:
-        """Continuous frequency response of eq. (1) [mm/V] at ``f_hz``."""
+        """Continuous frequency response of seed002 (1) [mm/V] at ``f_hz``."""
         s = 2j * np.pi * np.asarray(f_hz, dtype=np.float64)
         g = self.a / (s**2 + self.b * s + self.c)
         if with_delay:

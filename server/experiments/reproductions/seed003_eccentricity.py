@@ -2,13 +2,13 @@
 
 Two simulated cuts (Table 1 cases 1 and 2: 4 flutes, 10 mm, 20 % radial immersion, up
 milling, 80 um/tooth, Al6061) on the X/Y feed drives of :mod:`machine.feed_drives`. The
-adaptation starts at 1 s, as in Fig. 3. The extremum seeking controller (eq. 8-16, Table 1
+adaptation starts at 1 s, as in Fig. 3. The extremum seeking controller (seed003 (8)-(16), Table 1
 step sizes and perturbations) runs on the dynamometer force; beside it the fast tuner of
 :mod:`estimators.fast_tuner` runs on the same cases and through a spindle-speed change.
 
 Definitions used by the rows:
 
-- *cost* J: eq. (8) on the feed-direction (X) force, one value per revolution;
+- *cost* J: seed003 (8) on the feed-direction (X) force, one value per revolution;
 - *converge time*: time from adaptation start until the cost stays below 10 % of its
   value in the revolution before adaptation starts;
 - *cost reduction*: mean cost over the last 2 s divided by that initial cost;
@@ -19,7 +19,7 @@ Definitions used by the rows:
 - *cancelling modulation*: the ``(a_m, theta_m)`` whose response through the drives'
   closed loop at the spindle frequency equals minus the eccentricity vector (truth, from
   the drive model; the tuners never see it). The paper's column shows the ideal-drive
-  values of eq. (7): :math:`a_m = \\epsilon`, :math:`\\theta_m = \\theta_\\epsilon + 180`.
+  values of seed003 (7): :math:`a_m = \\epsilon`, :math:`\\theta_m = \\theta_\\epsilon + 180`.
 """
 
 from __future__ import annotations
@@ -159,7 +159,7 @@ def non_tooth_periodic_pp(t: F64, f: F64, psi: F64, t0: float, rpm: float, n_flu
     """Peak-to-peak of the once-per-revolution, not once-per-tooth, part of ``f``.
 
     Over the revolution starting at ``t0``: the harmonics 1 .. ``n_flutes - 1`` of the
-    spindle frequency (eq. 8's DFT at each order) summed into one waveform. This is the
+    spindle frequency (seed003 (8)'s DFT at each order) summed into one waveform. This is the
     uneven load between flutes that eccentricity causes. The raw sampled force is not
     used: its entry/exit edges fall between samples differently on each flute (62.5
     samples per tooth at 1200 rpm), which would add a sampling artefact of several N.
@@ -177,7 +177,7 @@ def non_tooth_periodic_pp(t: F64, f: F64, psi: F64, t0: float, rpm: float, n_flu
 
 
 def last_revolution_1x(tr: Trace) -> float:
-    """|(F1x, F1y)| (eq. 8 on both axes) over the last complete revolution of a run."""
+    """|(F1x, F1y)| (seed003 (8) on both axes) over the last complete revolution of a run."""
     k = math.floor(tr.psi[-1] / (2 * math.pi))
     m = (tr.psi >= 2 * math.pi * (k - 1)) & (tr.psi < 2 * math.pi * k)
     hx = spindle_harmonic(tr.fx[m], tr.psi[m])
@@ -374,7 +374,7 @@ def _plot(plot_dir: Path, name: str, traces: dict[str, Trace]) -> str:
 
 def _one_revolution(m: MillingMachine, a_um: float, theta_deg: float) -> float:
     """Advance ``m`` to its next revolution boundary with the modulation held; the
-    eq. (8) cost of the X force over that revolution."""
+    seed003 (8) cost of the X force over that revolution."""
     psi = m.spindle_angle
     k = math.floor(psi / (2.0 * math.pi) + 1e-9) + 1
     w_ts = 2.0 * math.pi * m.spindle_rpm / 60.0 * m.sample_time
@@ -394,7 +394,7 @@ def first_revolution_response(
     pattern of a non-integer number of samples per revolution cancels; the steady change
     is the mean over revolutions 2-4 (a whole period of that pattern at 1800 rpm).
     1 means the cost of a revolution reflects only that revolution's modulation (a static
-    plant, as eq. 11 assumes); 0 means it shows one revolution late.
+    plant, as seed003 (11) assumes); 0 means it shows one revolution late.
     """
     m, twin = MillingMachine(mp), MillingMachine(mp)
     for mach in (m, twin):
@@ -447,7 +447,7 @@ def static_cone_time(
         th = first_rev[1] * s.theta_deg + (1.0 - first_rev[1]) * prev[1]
         j = j0 * abs(a * np.exp(1j * math.radians(th)) - u_star) / abs(u_star)
         prev = (s.a_um, s.theta_deg)
-        # a pure sinusoid of amplitude j at the spindle frequency: eq. (8) returns j
+        # a pure sinusoid of amplitude j at the spindle frequency: seed003 (8) returns j
         s, rec = ctl.step(s, j * np.cos(ang), ang, rev_time)
         u = rec.a_n_um * np.exp(1j * math.radians(rec.theta_n_deg))
         if abs(u - u_star) / abs(u_star) >= 0.1:
@@ -551,7 +551,7 @@ def esc_diagnosis(case: int, seconds: float) -> list[Row]:
                 "(0.05 elsewhere; the paper gives none)",
             )
         )
-    # eq. (14) allows any Psi_a - Psi_theta = odd multiple of pi/2; eq. (16) takes +pi/2
+    # seed003 (14) allows any Psi_a - Psi_theta = odd multiple of pi/2; seed003 (16) takes +pi/2
     minus = replace(ESC_TABLE1, psi_theta=-0.5 * math.pi)
     rows.append(
         Row(

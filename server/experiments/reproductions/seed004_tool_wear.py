@@ -3,10 +3,10 @@
 1. Table 1: the wear model (``machine.tool_wear``) cut for 15 min at f = 0.1 and
    0.125 mm/rev (v = 150 m/min, d = 2 mm), linearised along the path from the origin
    to the 15-min state (appendix, n' = 200), ZOH-discretised (T = 0.01 min), a_i, b_i of
-   eq. (13).
+   seed004 (13).
 2. Tables 3 and 4: the adaptive observer (RLS with beta = 0.95, U-D, Table 2
    constraints, deadbeat observer) run on the force of the f = 0.1 cut; "true"
-   observer-form states ``x0 = T(k)^-1 x(k)`` with T (eq. (14)) of the model linearised
+   observer-form states ``x0 = T(k)^-1 x(k)`` with T (seed004 (14)) of the model linearised
    at each time. Table 4's mean and S.D. are over its five times, as the paper's are
    (error = true - estimated, sample S.D.).
 3. Physical wear: ``x = T x0`` with T of the design linearisation.
@@ -239,7 +239,7 @@ def _life_run(force_errors: np.ndarray, rng: np.random.Generator) -> dict[str, o
 def _decimated_wear(model: ToolWearModel, tr: object) -> tuple[float, float, float, float]:
     """x = T x0 on a decimated clock, with the exact a, b and T of the current state.
 
-    The best case for eq. (14): no RLS error (the design model's parameters, re-linearised
+    The best case for seed004 (14): no RLS error (the design model's parameters, re-linearised
     at every decimated sample) and a sample period of :data:`DECIMATED_MIN`, where T is
     far better conditioned. Returns cond(T) at the end, the flank and crater relative
     errors at the last decimated sample, and its time [min].
@@ -255,10 +255,10 @@ def _decimated_wear(model: ToolWearModel, tr: object) -> tuple[float, float, flo
     cond, k_last = 0.0, 0
     for k in range(0, len(force), step):
         dm = design_linear_model(model, FEED, states[max(k, 1)], sample_time=DECIMATED_MIN)
-        # eq. (14): the estimate of x(k) from the observer-form state before the update
+        # seed004 (14): the estimate of x(k) from the observer-form state before the update
         x_hat = dm.T @ x0
         cond, k_last = float(np.linalg.cond(dm.T)), k
-        # eq. (17)-(19) with the design model's a, b (deadbeat)
+        # seed004 (17)-(19) with the design model's a, b (deadbeat)
         x0 = deadbeat_observer_step(dm.a, dm.b, x0, FEED, float(force[k] - d_static * FEED))
     xt = states[k_last]
     wf = xt[0] + xt[1]
@@ -501,7 +501,7 @@ def run(
             )
         errs.append(x0 - rec.x0_hat[k])
         x01_true[tm] = float(x0[0])
-    # eq. (16): x01 = y - D u, the wear part of the force. Table 4's true x01 falls from
+    # seed004 (16): x01 = y - D u, the wear part of the force. Table 4's true x01 falls from
     # 100.7 N at 4 min to 26.7 N at 12 min: the paper's force is not monotone in time
     # while the wear grows, so it cannot be a monotone function of the flank wear.
     rep.rows.append(
