@@ -338,6 +338,7 @@ def _dfo_block(
     n = len(x)
     xp = np.empty(n)
     nh = len(omegas)
+    # x- = Phi x + G_a u[k-D-1] + G_b u[k-D]; x = x- + L (y - H x-) (seed002 (8)-(9))
     for j in range(len(y)):
         # seed002 (8), discrete: prior from the last posterior and the delayed command
         for r in range(n):

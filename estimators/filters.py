@@ -137,6 +137,7 @@ def df2t_step(b: F64, a: F64, z: F64, x: float) -> float:  # pragma: no cover
     if n == 0:
         return b[0] * x
     y = b[0] * x + z[0]
+    # y = b0 x + z0; z_i <- b_{i+1} x - a_{i+1} y + z_{i+1} (transposed direct form II of B(z)/A(z))
     for i in range(n - 1):
         z[i] = b[i + 1] * x - a[i + 1] * y + z[i + 1]
     z[n - 1] = b[n] * x - a[n] * y
@@ -145,5 +146,6 @@ def df2t_step(b: F64, a: F64, z: F64, x: float) -> float:  # pragma: no cover
 
 @njit(cache=True)
 def _df2t_block(b: F64, a: F64, z: F64, x: F64, y: F64) -> None:  # pragma: no cover
+    # y[k] = (B(z)/A(z)) x[k], one df2t_step per sample
     for k in range(len(x)):
         y[k] = df2t_step(b, a, z, x[k])

@@ -114,6 +114,7 @@ def _torsion_kernel(
     JM, BM, FCM, K = pr[1], pr[2], pr[3], pr[4]
     s2J, s2B, s2K, s2F = pr[5], pr[6], pr[7], pr[8]
     var_w, var_dw, var_q = pr[9], pr[10], pr[11]
+    # T_s = alpha T_sM + (1 - alpha) T_sK, alpha = V_K / (V_M + V_K) (seed000 (3)-(8))
     for k in range(len(tau)):
         if prev[6] == 0.0:
             prev[0] = prev[1] = qm[k]

@@ -285,6 +285,7 @@ def _imbdo_block(
     dh: F64,
 ) -> None:  # pragma: no cover
     m = len(vh)  # D + 1: vh[m-1] = v[k-1], vh[m-1-i] = v[k-i]
+    # d_hat = Q G_n^-1 z - Q e^{-s T_d} v, v = u_c - d_hat (seed002 section 4.2)
     for k in range(len(z)):
         w = df2t_step(bi, ai, zi, z[k])
         # the command delayed by the model delay D + frac samples; the fraction by linear

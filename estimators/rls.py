@@ -117,6 +117,7 @@ def rls_init(p: RLSParams, theta0: F64) -> RLSState:
 @njit(cache=True)
 def _reset(P, r, th, meta, p0):  # pragma: no cover
     n = len(th)
+    # P = p0 I, r = theta / p0: the window emptied
     for i in range(n):
         for j in range(n):
             P[i, j] = p0 if i == j else 0.0
@@ -168,6 +169,7 @@ def rls_update(P, r, th, buf_phi, buf_y, meta, phi, y, lo, hi, p0, follow):  # p
     was_reset = 0
     if meta[1] == L:
         h = meta[0]
+        # P <- P + P phi_o phi_o^T P / (1 - phi_o^T P phi_o), r <- r - phi_o y_o
         # downdate: the oldest accepted sample leaves the window (seed000 (12), sign fixed)
         for i in range(n):
             acc = 0.0
@@ -189,6 +191,7 @@ def rls_update(P, r, th, buf_phi, buf_y, meta, phi, y, lo, hi, p0, follow):  # p
                 r[i] -= buf_phi[h, i] * buf_y[h]
             meta[0] = (h + 1) % L
             meta[1] -= 1
+    # P <- P - P phi phi^T P / (1 + phi^T P phi), r <- r + phi y
     # update with the new sample (seed000 (11))
     for i in range(n):
         acc = 0.0
@@ -215,6 +218,7 @@ def rls_update(P, r, th, buf_phi, buf_y, meta, phi, y, lo, hi, p0, follow):  # p
             s = 0.5 * (P[i, j] + P[j, i])
             P[i, j] = s
             P[j, i] = s
+    # theta <- clamp(theta + Proj(P r - theta), lo, hi)
     # seed000 (9)-(10): increment towards the window's least-squares solution P r
     for i in range(n):
         acc = 0.0
@@ -302,6 +306,8 @@ class IdentRecord:
 
 @njit(cache=True)
 def _filter_regressors(zf, bq, aq, ts_hat, acc, vel, sgn, out_y, out_phi):  # pragma: no cover
+    # y = Q_RLS{T_s}, phi = [Q_RLS{d omega_L/dt}, Q_RLS{omega_L}, Q_RLS{sgn omega_L}, 1] (seed000
+    #  (14))
     for k in range(len(ts_hat)):
         out_y[k] = df2t_step(bq, aq, zf[0], ts_hat[k])
         out_phi[k, 0] = df2t_step(bq, aq, zf[1], acc[k])
@@ -316,6 +322,8 @@ def _ordinary_kernel(
 ):  # pragma: no cover
     n = len(th)
     ph = np.empty(n)
+    # theta[k] = window RLS update of theta[k-1] with (phi[k], y[k]) if |phi_acc[k]| > thr (seed000
+    #  (15)), else theta[k-1]
     for k in range(len(y)):
         exc = abs(phi[k, 0]) > thr
         o_exc[k] = exc
@@ -365,6 +373,8 @@ def _switching_kernel(
     idx3 = np.array([0, 1, 3])
     ph4 = np.empty(4)
     ph3 = np.empty(3)
+    # theta[k] = update of the model in charge: 4 parameters (seed001 (11)) while a reversal is in
+    #  the window, else 3 (seed001 (12))
     for k in range(len(y)):
         s = 1.0 if rev[k] > 0 else (-1.0 if rev[k] < 0 else 0.0)
         if s != 0.0 and s != sw[3]:

@@ -41,9 +41,11 @@ def covariance_update(
     Pphi = P @ phi
     den = beta + phi @ Pphi
     e = float(y - phi @ theta)
+    # theta <- theta + P phi e / (beta + phi^T P phi), e = y - phi^T theta
     # seed004 (20)
     for i in range(n):
         theta[i] += Pphi[i] / den * e
+    # P <- (P - P phi phi^T P / (beta + phi^T P phi)) / beta
     # seed004 (21)
     for i in range(n):
         for j in range(n):
@@ -67,6 +69,8 @@ def ud_update(
     alpha = beta + v[0] * f[0]
     D[0] = D[0] * beta / alpha
     K[0] = v[0]
+    # Bierman: U, D of P - P phi phi^T P / alpha, alpha_j = beta + sum_{i<=j} v_i f_i, f = U^T phi,
+    #  v = D f
     for j in range(1, n):
         alpha_new = alpha + v[j] * f[j]
         D[j] = D[j] * alpha / alpha_new
@@ -100,6 +104,7 @@ def _rls_block(
     thetas: F64,
     resid: F64,
 ) -> None:  # pragma: no cover
+    # theta[k] = RLS-with-forgetting update of theta[k-1] with (Phi[k], y[k]) (seed004 (20)-(21))
     for k in range(len(y)):
         if use_ud:
             resid[k] = ud_update(theta, U, D, Phi[k], y[k], beta)

@@ -205,6 +205,7 @@ def _crossing_time(
     k4 = np.empty(3)
     xt = np.empty(3)
     t = 0.0
+    # RK4 on dx/dt = f(x) (the reduced law, seed004 (3)-(8)) until w1 + w2 >= vb_limit
     while t < horizon:
         _law_rhs(x, kappa, k2, q, k1)
         for i in range(3):

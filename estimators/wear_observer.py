@@ -190,6 +190,7 @@ class WearObserverRecord:
 @njit(cache=True)
 def _project(th: F64, bounds: F64) -> None:  # pragma: no cover - compiled
     # Table 2: box on a1..a3 ...
+    # a_i <- clamp(a_i, Table 2); b_j <- clamp(b_j, [lo_j b1, hi_j b1]) (seed004 (29))
     for i in range(3):
         th[i] = min(max(th[i], bounds[i, 0]), bounds[i, 1])
     # ... and b2, b3 within ratios of b1. Choice: the ratio bounds only make sense for
@@ -207,6 +208,7 @@ def _limit_covariance(
     # same uniform scaling in both forms keeps the U-D and plain updates equivalent
     n = len(Dd)
     m = 0.0
+    # P <- P p_max / max diag(P) when max diag(P) > p_max
     for i in range(n):
         if use_ud:
             s = 0.0
@@ -252,6 +254,8 @@ def _observer_block(
 ) -> None:  # pragma: no cover
     phi = np.empty(6)
     th_u = np.empty(6)
+    # dy = y - D u (seed004 (24)); RLS (seed004 (20)-(21)) on phi(k-1) (seed004 (28)); deadbeat
+    #  x0_hat (seed004 (17)-(19))
     for k in range(len(y)):
         uk = u[k]
         yk = y[k]

@@ -219,6 +219,8 @@ def _milling_block(
     pitch = 2.0 * math.pi / n_flutes
     tau = pitch / omega
     lag_samples = tau / ts
+    # F = sum over flutes j and layers l of the edge force at phi_jl (seed003 (1)-(5)), tool centre
+    #  per seed003 (6)-(7)
     for k in range(n):
         psi = st[0]
         # seed003 (7): circular modulation added to the feed path in the position command

@@ -214,6 +214,7 @@ def _simulate(
     k4 = np.empty(3)
     xt = np.empty(3)
     h = dt / substeps
+    # RK4 on dx/dt = f(x; f, v, d) of seed004 (3)-(8), the feed held over each sample
     for k in range(len(feed)):
         f = feed[k]
         xs[k, :] = x

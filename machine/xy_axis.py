@@ -166,6 +166,8 @@ def _plant_block(
 ) -> None:  # pragma: no cover
     x0 = x[0]
     x1 = x[1]
+    # x[k+1] = Phi x[k] + G_a u[k-D-1] + G_b u[k-D] + G_d d[k], z[k] = x_1[k] (seed002 (1), ZOH with
+    #  delay)
     for j in range(len(d)):
         z[j] = x0
         ua = u_hist[j]
@@ -273,6 +275,7 @@ def _cascade_block(
     ref: F64,
     u: F64,
 ) -> tuple[float, float]:  # pragma: no cover
+    # u = K_p e_v + K_i sum(T_s e_v), e_v = K_v (r - z) - dz/dt (seed002 section 4.1 cascade)
     for k in range(len(z)):
         v = (z[k] - z_prev) / ts
         z_prev = z[k]
