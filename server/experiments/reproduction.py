@@ -38,6 +38,10 @@ class Check:
     limit: float
 
 
+#: one section of a reproduction: its rows and its checks, each in order
+Section = tuple[list[Row], list[Check]]
+
+
 @dataclass
 class Reproduction:
     """Result of one reproduction run."""
@@ -47,6 +51,12 @@ class Reproduction:
     rows: list[Row] = field(default_factory=list)
     checks: list[Check] = field(default_factory=list)
     figures: list[str] = field(default_factory=list)
+
+    def add(self, section: Section) -> None:
+        """Append a section's rows and checks."""
+        rows, checks = section
+        self.rows.extend(rows)
+        self.checks.extend(checks)
 
     def row(self, name: str) -> Row:
         for r in self.rows:
@@ -139,4 +149,4 @@ def dumps(rep: Reproduction) -> str:
     return json.dumps(rep.to_json(), indent=2)
 
 
-__all__ = ["Check", "Reproduction", "Row", "discover", "dumps", "format_table"]
+__all__ = ["Check", "Reproduction", "Row", "Section", "discover", "dumps", "format_table"]
