@@ -36,7 +36,6 @@ LOG_KEEP = 64
 
 #: milling spindle speed at the live knob's base speed (seed 003 Table 1, case 1)
 ECC_BASE_RPM = 1200.0
-LIVE_BASE_RPM = 3000.0
 #: the ESC of seed 003 Table 1 with the dither stopped after convergence
 #: (docs/reproductions/seed003-eccentricity.md: "ESC details")
 ESC_LIVE = EscParams(k_a=45.0, k_theta=50.0, amp_a_um=2.0, amp_theta_deg=2.0, freeze_revs=40)
