@@ -46,7 +46,7 @@ def _us(fn: Callable[[], object], count: int, repeats: int) -> float:
 def measure(*, repeats: int, quick: bool) -> dict[str, object]:
     cols = _block()
     count = 300 if quick else 3000
-    variants = {
+    variants: dict[str, tuple[Callable[[], bytes], Callable[[bytes], object]]] = {
         "binary_f32": (
             lambda: encode_drive(1, 0.0, 4e-4, cols, UNITS),
             decode_drive,
@@ -63,5 +63,9 @@ def measure(*, repeats: int, quick: bool) -> dict[str, object]:
     for name, (enc, dec) in variants.items():
         payload = enc()
         out[f"{name}.bytes"] = len(payload)
-        out[f"{name}.round_trip_us"] = _us(lambda e=enc, d=dec: d(e()), count, repeats)
+
+        def round_trip(e: Callable[[], bytes] = enc, d: Callable[[bytes], object] = dec) -> object:
+            return d(e())
+
+        out[f"{name}.round_trip_us"] = _us(round_trip, count, repeats)
     return out
