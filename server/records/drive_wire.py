@@ -14,9 +14,11 @@ Three payloads travel on ``cutwatch/<machine>/...`` (docs/broker.md):
   (``<f4`` float32 or ``<f8`` float64 per column). Sample ``i`` is at ``t0 + i *
   sample_time``: time is uniform within a block (DESIGN's log contract), so it costs no
   column. ``seq`` counts blocks from 0 per publisher run; with ``t0`` it reveals gaps,
-  duplicates and blocks out of order. Columns: ``q_m`` and one of ``tau_m``/``i_m`` are
-  required; ``q_l`` and ``f_ext`` are optional. Positions should travel as ``<f8``: a
-  float32 angle of 1000 rad resolves only 6e-5 rad, coarser than a 20-bit encoder.
+  duplicates and blocks out of order. An optional ``wall`` (the publisher's clock at
+  publishing, unix s) lets the receivers measure latency. Columns: ``q_m`` and one of
+  ``tau_m``/``i_m`` are required; ``q_l`` and ``f_ext`` are optional. Positions should
+  travel as ``<f8``: a float32 angle of 1000 rad resolves only 6e-5 rad, coarser than a
+  20-bit encoder.
 
 ``meta`` — retained JSON, the log sidecar's keys (``sample_time``, ``units``, ``kind``,
 ``nominal``, ``encoder_resolution``) plus ``schema`` and ``version``.
@@ -83,6 +85,8 @@ class DriveBlock:
     sample_time: float
     columns: dict[str, F64]
     units: dict[str, str] = field(default_factory=dict)
+    #: the publisher's wall clock at publishing (unix s), when it sent one
+    wall: float | None = None
 
     @property
     def n(self) -> int:
@@ -109,6 +113,7 @@ def encode_drive(
     columns: Mapping[str, Any],
     units: Mapping[str, str],
     dtypes: Mapping[str, str] | None = None,
+    wall: float | None = None,
 ) -> bytes:
     """Encode one drive block (see the module docstring for the format).
 
@@ -147,6 +152,8 @@ def encode_drive(
         "n": int(n or 0),
         "columns": head_cols,
     }
+    if wall is not None:
+        header["wall"] = float(wall)
     return json.dumps(header, separators=(",", ":")).encode() + b"\n" + b"".join(parts)
 
 
@@ -231,7 +238,9 @@ def decode_drive(payload: bytes) -> DriveBlock:
         raise WireError(
             "schema", f"drive block: columns {sorted(out)}: expected q_m and tau_m or i_m"
         )
-    return DriveBlock(seq=seq, t0=t0, sample_time=ts, columns=out, units=units)
+    wall = header.get("wall")
+    wall = float(wall) if isinstance(wall, int | float) and not isinstance(wall, bool) else None
+    return DriveBlock(seq=seq, t0=t0, sample_time=ts, columns=out, units=units, wall=wall)
 
 
 def encode_drive_json(

@@ -118,7 +118,9 @@ def run(args: argparse.Namespace) -> int:
                     if delay > 0:
                         time.sleep(delay)
                 cols = {k: log.columns[source[k]][a:b] for k in names}
-                payload = encode_drive(seq, float(t_col[a] - t_col[0]), ts, cols, units, dtypes)
+                payload = encode_drive(
+                    seq, float(t_col[a] - t_col[0]), ts, cols, units, dtypes, wall=time.time()
+                )
                 info = client.publish(drive_topic, payload, qos=0)
                 seq += 1
                 bar.update(b - a)
