@@ -8,7 +8,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed-stamp
 
-.PHONY: setup web-deps run test lint typecheck pytest reproduce bench system-deps clean
+.PHONY: setup web-deps run test lint typecheck pytest reproduce bench docs system-deps clean
 
 setup: $(STAMP) web-deps
 
@@ -46,6 +46,10 @@ reproduce: setup
 
 bench: setup
 	$(BIN)/cutwatch bench
+
+# the documentation (docs/, mkdocs.yml) as a site in site/; any warning fails the build
+docs: setup
+	$(BIN)/mkdocs build --strict --site-dir site
 
 lint: setup
 	$(BIN)/ruff check .

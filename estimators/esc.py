@@ -117,8 +117,9 @@ class EscParams:
     demod_phase_theta : float or None
         The same for the phase channel; None (default) uses ``demod_phase``. The two
         channels see different lags: in the simulated cut a radius step shows in the cost
-        mostly one revolution late, a phase step mostly at once (README, "Why the ESC is
-        slower than the paper").
+        mostly one revolution late, a phase step mostly at once (see
+        docs/reproductions/seed003-eccentricity.md,
+        "Why the ESC is slower than the paper").
     period_revs : int
         Perturbation period in revolutions (eq. 16: 4, i.e. :math:`\omega_p = \pi/2` per
         revolution). Must be >= 3 to be seen by a once-per-revolution cost.

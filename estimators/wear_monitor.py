@@ -12,8 +12,8 @@ tool pass. Per pass ``j`` (cutting time ``t_j`` on the wear clock [min], mean fo
 3. Flank wear ``VB_j = dy_j / s`` with ``s = dF/dVB`` [N/mm], the sensitivity of the
    force to the flank land known off line (eq. (8): ``K13 d``). Choice: the paper's
    back-transformation ``x = T x0`` (eq. (14)) is too ill-conditioned to use here (see
-   the README, "Tool wear"); the wear force itself is the well-observed quantity. The
-   crater lowers the force (``-K14 w_c``), so VB is underestimated by
+   docs/reproductions/seed004-tool-wear.md); the wear force itself is the well-observed
+   quantity. The crater lowers the force (``-K14 w_c``), so VB is underestimated by
    ``K14 w_c / (K13 d)``.
 4. Trend: with ``law`` given (default of the live machine and the reproduction), the
    reduced wear law of :mod:`estimators.wear_law` — the form of seed 004's eq. (3)-(8)

@@ -20,7 +20,8 @@ values of :data:`DEFAULT_WEAR_PARAMS` are ours; each carries its source or reaso
 beside it. Four of them (``l0``, ``K1``, ``K9`` and ``K11``, with ``n7`` chosen) were
 fitted so that the model, linearised by the paper's appendix method at f = 0.1 and
 0.125 mm/rev, v = 150 m/min, d = 2 mm (end point: the state after 15 min), has the
-discrete parameters of the paper's Table 1 at T = 0.01 min (see the README, "Tool wear").
+discrete parameters of the paper's Table 1 at T = 0.01 min (see
+docs/reproductions/seed004-tool-wear.md).
 """
 
 from __future__ import annotations
@@ -98,7 +99,7 @@ class WearModelParams:
     # +15.7). Table 1's positive b1 that shrinks from f = 0.1 to 0.125 needs F/(f d) to
     # rise with the feed: n7 = 1.5 with K9, K11 fitted (F = 525 N at f = 0.1, d = 2).
     # This is a deviation from real cutting forced by matching Table 1 with the forms of
-    # eq. (3) and (8); see the README ("Tool wear").
+    # eq. (3) and (8); see docs/reproductions/seed004-tool-wear.md.
     K9: float = 12655.4
     n7: float = 1.5
     K10: float = 0.86  # [1/rad] = 1.5 %/deg rake correction (Kienzle/Koenig)

@@ -473,10 +473,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         dependencies=[Depends(authorised)],
     )
     def replay(body: Replay, lp: Lp) -> dict[str, Any]:
-        from server.pipeline.replay import ReplayPipeline, open_replay
+        from server.pipeline.live_pipeline import LivePipeline
+        from server.pipeline.sources import ReplaySource, open_replay
 
         log = open_replay(body.path)
-        pipe = ReplayPipeline(log, seed=s.seed)
+        pipe = LivePipeline(seed=s.seed, source=ReplaySource(log))
         lp.set_pipeline(pipe)
         n = len(log["t"])
         return {

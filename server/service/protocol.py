@@ -14,8 +14,9 @@ Two message types travel from server to client as JSON text:
     ``ts``, a coarser subset of the same samples. ``dropped`` counts the frames this
     client lost (buffer full) since its previous frame.
 
-JSON was measured against a binary (float32) encoding: see the README ("Stream").
-``tests/test_protocol.py`` keeps :data:`SCHEMA` equal to the JS module's ``SCHEMA``.
+JSON was measured against a binary (float32) encoding: see
+docs/live-service.md ("Stream protocol").
+``tests/service/test_protocol.py`` keeps :data:`SCHEMA` equal to the JS module's ``SCHEMA``.
 """
 
 from __future__ import annotations

@@ -32,7 +32,8 @@ EFFECTS = (
     "torque_ripple",
     "backlash",
 )
-# measured (README, "Measured data"): the simulator's direction asymmetry adds a*F_CL in BOTH
+# measured (docs/residual.md, "Simulator logs"): the simulator's direction asymmetry adds
+# a*F_CL in BOTH
 # directions while the axis moves (friction = F_CL (sgn w + a)), the same signal as a
 # constant load torque; the dwell at each reversal does not separate them because the
 # 100/200 Hz cutting force keeps the load vibrating through zero velocity (it never

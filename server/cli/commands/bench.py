@@ -1,6 +1,6 @@
 """Benchmarks: simulated seconds per wall second and per-block cost (medians).
 
-Groups (modules in server/benchmarks/; see bench/README.md):
+Groups (modules in server/experiments/benchmarks/; see docs/benchmarks.md):
   stage                  the stage with its observers and both RLS (issue 2)
   disturbance-observers  seed 002's loops and the stage DFO
   eccentricity           milling with X/Y drives, ESC and the fast tuner

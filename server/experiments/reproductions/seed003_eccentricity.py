@@ -577,7 +577,8 @@ def esc_diagnosis(case: int, seconds: float) -> list[Row]:
                 f"|u - u*| / |u*| after {seconds - ADAPT_START:g} s; {what}",
             )
         )
-    # the plant: our drives place the PID's poles at 18 Hz (README); stiffer servos
+    # the plant: our drives place the PID's poles at 18 Hz
+    # (docs/reproductions/seed003-eccentricity.md); stiffer servos
     for bw in (30.0, 200.0):
         stiff = FeedDriveParams(x=AxisParams(bandwidth_hz=bw), y=AxisParams(bandwidth_hz=bw))
         rows.append(
