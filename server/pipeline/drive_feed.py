@@ -99,6 +99,8 @@ class DriveFeed:
         self.drive_topic = topic(machine, "drive")
         self.meta_topic = topic(machine, "meta")
         self.meta: dict[str, Any] | None = None
+        #: counts the metas that changed what the observers are built from
+        self.meta_generation = 0
         self.counts = dict.fromkeys(COUNTERS, 0)
         self.connected = False
         self.last_error = ""
@@ -112,6 +114,8 @@ class DriveFeed:
         self._pending_break: list[str] = []
         self._client: Any = None
         self._recent: deque[tuple[int, float]] = deque(maxlen=64)
+        #: the publisher's wall clock of the newest block handed out (for latency)
+        self.last_wall: float | None = None
 
     # -- the broker side (paho's network thread) ---------------------------------------
 
@@ -179,9 +183,13 @@ class DriveFeed:
             self.counts["meta_errors"] += 1
             self._say("meta", f"meta skipped: {exc}")
             return
+        keys = ("sample_time", "units", "kind", "nominal", "encoder_resolution")
         with self._lock:
-            if self.meta is not None and meta.get("sample_time") != self.meta.get("sample_time"):
-                self._pending_break.append("meta changed")
+            old = self.meta
+            if old is None or any(old.get(k) != meta.get(k) for k in keys):
+                self.meta_generation += 1
+                if old is not None:
+                    self._pending_break.append("meta changed")
             self.meta = meta
         self._seen_meta.set()
 
@@ -268,6 +276,8 @@ class DriveFeed:
                     break  # the break starts the next take
                 if brk:
                     disc, reasons = True, list(why)
+                if b.wall is not None:
+                    self.last_wall = b.wall
                 k = min(n - got, b.n)
                 t = b.t[:k]
                 ts.append(t)
