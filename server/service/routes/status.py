@@ -5,8 +5,8 @@ from __future__ import annotations
 from fastapi import APIRouter
 from fastapi.responses import PlainTextResponse
 
+from common.jsonsafe import json_safe
 from server.pipeline.live_pipeline import SCENARIOS
-from server.service import protocol
 from server.service.deps import Config, Live
 from server.service.schemas import Health, Scenarios, Snapshot, error_responses
 
@@ -23,7 +23,7 @@ def health(lp: Live, s: Config) -> Health:
             "viser_port": s.viser_port,
             "viser_running": lp.scene is not None,
             "scenario": lp.pipeline.scenario,
-            **protocol._clean(h),
+            **json_safe(h),
         }
     )
 
@@ -42,7 +42,7 @@ def scenarios(lp: Live) -> Scenarios:
 def snapshot(lp: Live) -> Snapshot:
     with lp.lock:
         snap = lp.pipeline.snapshot()
-    return Snapshot.model_validate(protocol._clean({"pipeline": snap, "health": lp.health()}))
+    return Snapshot.model_validate(json_safe({"pipeline": snap, "health": lp.health()}))
 
 
 @router.get(
