@@ -24,6 +24,7 @@ def health(lp: Live, s: Config) -> Health:
             "viser_running": lp.scene is not None,
             "scenario": lp.pipeline.scenario,
             **json_safe(h),
+            **json_safe(lp.broker_status()),
         }
     )
 
@@ -90,6 +91,27 @@ def metrics(lp: Live) -> PlainTextResponse:
             h["stalls"],
         ),
     ]
+    b = lp.broker_status()
+    feed = b.get("feed")
+    if feed is not None:
+        from server.pipeline.drive_feed import COUNTERS
+
+        rows.append(
+            ("cutwatch_feed_connected", "gauge", "broker connection of the drive feed",
+             float(bool(feed["connected"])))
+        )  # fmt: skip
+        rows.append(
+            ("cutwatch_feed_buffered_samples", "gauge", "drive samples waiting for the loop",
+             feed["buffered_samples"])
+        )  # fmt: skip
+        for c in COUNTERS:
+            rows.append((f"cutwatch_feed_{c}_total", "counter", f"drive feed: {c}", feed[c]))
+    out = b.get("estimates_out")
+    if out is not None:
+        rows.append(
+            ("cutwatch_estimates_published_total", "counter", "estimates messages published",
+             out["published"])
+        )  # fmt: skip
     lines = []
     for name, kind, doc, value in rows:
         lines += [f"# HELP {name} {doc}", f"# TYPE {name} {kind}", f"{name} {float(value):g}"]
