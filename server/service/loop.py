@@ -202,7 +202,12 @@ class LiveLoop:
         if settings.source == "mqtt" or settings.mqtt_publish_hz > 0:
             cfg = broker_config(settings)
             if settings.source == "mqtt":
-                self.feed = DriveFeed(cfg, settings.mqtt_machine)
+                self.feed = DriveFeed(
+                    cfg,
+                    settings.mqtt_machine,
+                    max_samples=10**7,
+                    max_seconds=settings.mqtt_buffer_s,
+                )
             if settings.mqtt_publish_hz > 0:
                 self.estimates_out = EstimatesPublisher(
                     cfg, settings.mqtt_machine, settings.mqtt_publish_hz, settings.public_url

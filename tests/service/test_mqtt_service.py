@@ -103,3 +103,50 @@ def test_source_mqtt_without_a_broker_is_refused() -> None:
 
     with pytest.raises(CutwatchError, match="needs a broker"), serve(source="mqtt"):
         pass
+
+
+def test_a_broker_that_goes_away_mid_run_and_comes_back(log: Path) -> None:
+    port = free_port()
+    url = f"mqtt://127.0.0.1:{port}"
+    feed = ["feed", str(log), "--broker", url, "--machine", "m1", "--speed", "4", "--quiet"]
+
+    def wait(hp: str, connected: bool, timeout: float) -> None:
+        deadline = time.monotonic() + timeout
+        while health(hp)["feed"]["connected"] != connected and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert health(hp)["feed"]["connected"] == connected
+
+    with serve(source="mqtt", mqtt_broker=url, mqtt_machine="m1") as hp:
+        with broker(port=port):
+            wait(hp, True, 10)
+            assert main(feed) == 0
+            time.sleep(0.5)
+            before = health(hp)["feed"]["blocks"]
+            assert before > 0
+        wait(hp, False, 10)  # the broker is gone: the service stays up and says so
+        h = health(hp)
+        assert h["status"] == "ok" and h["feed"]["state"] == "broker not connected"
+        with broker(port=port):
+            wait(hp, True, 45)  # paho's backoff: 1 s doubling to 30 s
+            assert main(feed) == 0
+            time.sleep(0.5)
+            h = health(hp)
+    assert h["status"] == "ok" and h["feed"]["blocks"] > before
+    assert h["feed"]["restarts"] >= 1  # the second run of the feeder starts at seq 0
+
+
+def test_a_flood_is_bounded_and_counted(log: Path) -> None:
+    with broker() as bp:
+        url = f"mqtt://127.0.0.1:{bp}"
+        with serve(source="mqtt", mqtt_broker=url, mqtt_machine="m1", mqtt_buffer_s=0.2) as hp:
+            deadline = time.monotonic() + 10
+            while not health(hp)["feed"]["connected"] and time.monotonic() < deadline:
+                time.sleep(0.1)
+            # 4 s of samples as fast as the broker takes them: far faster than real time
+            argv = ["feed", str(log), "--broker", url, "--machine", "m1", "--speed", "0"]
+            assert main([*argv, "--quiet"]) == 0
+            time.sleep(1.0)
+            h = health(hp)
+    assert h["status"] == "ok"
+    assert h["feed"]["dropped_samples"] > 0  # bounded: the oldest went, counted
+    assert h["feed"]["buffered_samples"] <= 0.2 / 4e-4 + 125
