@@ -160,6 +160,10 @@ class AdaptiveObserverForceSource(ObserverForceSource):
         Radius of the commanded identification circle [um].
     window_revs, windows : int
         Revolutions per DFT window; windows in the least-squares window.
+    stop_after : int or None
+        Switch the circle off once both axes have had this many windows of
+        identification (the mass then stays at its last estimate: no excitation, no
+        update, seed 000's PE condition); None keeps it on.
     **kw
         ``resolution``, ``q_hz``, ``current_noise``, ``rng`` of :class:`ObserverForceSource`.
     """
@@ -172,6 +176,7 @@ class AdaptiveObserverForceSource(ObserverForceSource):
         excitation_um: float = 1.0,
         window_revs: int = 8,
         windows: int = 5,
+        stop_after: int | None = None,
         **kw: Any,
     ) -> None:
         from estimators.axis_mass import (
@@ -184,14 +189,20 @@ class AdaptiveObserverForceSource(ObserverForceSource):
         super().__init__(machine, mass_error=mass_error, **kw)
         order = excitation_order(machine.milling.n_flutes, window_revs)
         self.excitation = (excitation_um * 1e-6, order)
+        self.stop_after = stop_after
+        self._excited: MillingMachine | None = None
         dp = machine.drives.params
         self.true_mass = (dp.x.mass, dp.y.mass)
         self._jm = [est.params.J_M for est in self._est]
         self._ident: list[AxisMassIdentifier] = []
         self._ident_state: list[AxisMassState] = []
-        for ax in (dp.x, dp.y):
+        f_nu = order * machine.spindle_rpm / 60.0
+        for ax, g in zip((dp.x, dp.y), machine.drives.response(f_nu), strict=True):
             m0 = ax.mass * (1.0 + mass_error)
+            # PE condition: a quarter of the acceleration the circle gives at this speed
+            acc_exp = excitation_um * 1e-6 * abs(g) * (2.0 * math.pi * f_nu) ** 2
             ip = AxisMassParams(
+                acc_min=max(0.25 * acc_exp, 1e-6),
                 mass0=m0,
                 viscous=ax.viscous,
                 order=order,
@@ -203,6 +214,26 @@ class AdaptiveObserverForceSource(ObserverForceSource):
             idf = AxisMassIdentifier(ip)
             self._ident.append(idf)
             self._ident_state.append(idf.initial_state())
+
+    def attach(self, machine: MillingMachine) -> None:
+        """Put the identification circle on ``machine`` (the one that is cut); it is
+        switched off there again after ``stop_after`` windows."""
+        machine.set_excitation(*self.excitation)
+        self._excited = machine
+
+    def restart(self) -> None:
+        """Identify again from the current estimate (circle back on if attached)."""
+        for i, idf in enumerate(self._ident):
+            st = idf.initial_state()
+            st.mass = self._ident_state[i].mass
+            self._ident_state[i] = st
+        if self._excited is not None:
+            self._excited.set_excitation(*self.excitation)
+
+    @property
+    def identifying(self) -> bool:
+        """Whether the circle is on (when attached)."""
+        return self._excited is not None and self._excited.excitation[0] > 0.0
 
     @property
     def masses(self) -> tuple[float, float]:
@@ -232,6 +263,12 @@ class AdaptiveObserverForceSource(ObserverForceSource):
             # seed000 (2) with the identified mass: J_L = m_hat - J_M (the front end has
             # already taken J_M Q x'' off)
             out.append(cutting_force(trec, irec.mass - self._jm[i], ld.B_L, ld.F_CL))
+        if (
+            self.stop_after is not None
+            and self._excited is not None
+            and min(st.updates for st in self._ident_state) >= self.stop_after
+        ):
+            self._excited.set_excitation(0.0, self.excitation[1])
         return out[0], out[1]
 
 
@@ -457,7 +494,7 @@ class EccentricityLoop:
 __all__ = [
     "AdaptiveObserverForceSource",
     "EccentricityLoop",
-    "ObserverForceSource",
     "ForceSource",
+    "ObserverForceSource",
     "RevolutionLog",
 ]
