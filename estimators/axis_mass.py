@@ -36,6 +36,7 @@ which is what :meth:`AxisMassIdentifier.step` keeps (same estimate, no round-off
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass
 
@@ -198,7 +199,7 @@ class AxisMassIdentifier:
         win = np.floor(ang / (2.0 * math.pi * p.window_revs)).astype(np.int64)
         # sample boundaries where the window index changes
         cuts = np.concatenate([[0], np.nonzero(np.diff(win))[0] + 1, [n]])
-        for i0, i1 in zip(cuts[:-1], cuts[1:], strict=True):
+        for i0, i1 in itertools.pairwise(cuts):
             wi = int(win[i0])
             if wi != st.window:
                 if st.window >= 0 and st.window != st.first and st.sums[6] > 0:
