@@ -1263,15 +1263,15 @@ def rows_estimated_force_adaptive() -> Section:
     for label, make in (
         (
             "exact_fixed",
-            lambda sd: ObserverForceSource(
-                MillingMachine(mp), current_noise=0.05, rng=np.random.default_rng(sd)
+            lambda n: ObserverForceSource(
+                MillingMachine(mp), current_noise=0.05, rng=np.random.default_rng(n)
             ),
         ),
-        ("adaptive", lambda sd: adaptive(0.03, noise=0.05, seed=sd)),
+        ("adaptive", lambda n: adaptive(0.03, noise=0.05, seed=n)),
     ):
         ct, pt = [], []
-        for sd in seeds:
-            trn = run_case(mp, "esc", SECONDS_ESC, force_source=make(sd))
+        for seed_n in seeds:
+            trn = run_case(mp, "esc", SECONDS_ESC, force_source=make(seed_n))
             ct.append(summarize(trn, mp).converge_time)
             pt.append(param_converge_time(trn.loop))
         what = "exact-mass fixed observer" if label == "exact_fixed" else "adaptive, nominal +3 %"
