@@ -234,8 +234,9 @@ def _milling_block(
         ry -= b_m * math.sin(psi + phi_m)
         # beyond the paper: a small identification circle at spindle order ex_order (an
         # observer identifies the axis mass from it; 0 by default)
-        rx += ex_a * math.cos(ex_order * psi)
-        ry += ex_a * math.sin(ex_order * psi)
+        if ex_a != 0.0:
+            rx += ex_a * math.cos(ex_order * psi)
+            ry += ex_a * math.sin(ex_order * psi)
         # seed003 (6): geometric tool centre = carriage + eccentricity (workpiece coordinates)
         px = ax_state[0, 0] + ecc * math.cos(psi + ecc_phase)
         py = ax_state[1, 0] + ecc * math.sin(psi + ecc_phase)
