@@ -106,11 +106,14 @@ def _stop(procs: list[subprocess.Popen[Any]]) -> None:
 def _run(machines: int, seconds: float, progress: bool) -> dict[str, object]:
     from websockets.sync.client import connect
 
-    from server.cli.main import main
-
     work = Path(tempfile.mkdtemp(prefix="cutwatch-bench-fleet-"))
     log = work / "drive.csv"
-    main(["simulate", "--out", str(log), "--seconds", str(seconds + 60)])
+    subprocess.run(
+        _cutwatch("simulate", "--out", str(log), "--seconds", str(seconds + 60)),
+        check=True,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     bport, fport = _free_port(), _free_port()
     url = f"mqtt://127.0.0.1:{bport}"
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
