@@ -1,13 +1,15 @@
 """Benchmarks: simulated seconds per wall second and per-block cost (medians).
 
 Groups (modules server/experiments/benchmarks/bench_<group>.py; see docs/benchmarks.md):
+  broker                 the drive-block wire format: binary against JSON
   disturbance-observers  seed 002's loops and the stage DFO
   eccentricity           milling with X/Y drives, ESC and the fast tuner
+  fleet                  N services on broker feeds and the fleet page (mosquitto)
   live                   the real service with 10 WebSocket clients
   pipeline               the live service's whole pipeline, offline
   residual               residual analysis of 1,000,000 samples (rigid)
   residual-two-inertia   the same for the two-inertia observer
-  stage                  the stage with its observers and both RLS (issue 2)
+  stage                  the stage with its observers and both RLS
   tool-wear              the wear model, observer and life monitor
 
 --json prints {"realtime_factor": x, "realtime_factor_of": "...", "<group>": {...}}:
