@@ -11,7 +11,9 @@ The public surface is the contract the live service builds on:
 - ``.knobs() -> dict[str, Knob]``: live-tweakable parameters with their ranges
 - ``.set_knob(name, value)``: validated; raises ``ParameterError`` naming the field, the
   allowed range and the value; nothing changes on error
-- ``.reset()``; ``.snapshot() -> dict`` (latest values, truths, knob values)
+- ``.reset()``; ``.snapshot() -> dict`` (latest values, truths, knob values, accuracy)
+- ``.accuracy() -> dict``: rolling rms of each force estimate over 1 s and 10 s
+  (:mod:`server.pipeline.accuracy`)
 - ``SCENARIOS``: name -> one-line description
 
 Behind it is :class:`server.pipeline.stage_run.StageRun`: a measurement source
@@ -45,6 +47,7 @@ from estimators.rls import IdentifierParams
 from machine.effects import EFFECT_NAMES, PlantEffects
 from machine.params import ADDED_WEIGHT_INERTIA, preset
 from machine.stage import SEED000_FORCE, SEED001_FORCE, CuttingForce, StageConfig
+from server.pipeline.accuracy import RollingAccuracy
 from server.pipeline.eccentricity_part import ECC_BASE_RPM, ECC_CHANNELS, TUNERS, LiveEccentricity
 from server.pipeline.sources import MeasurementSource, ReplaySource, SimulatorSource, open_replay
 from server.pipeline.stage_harmonics import make_dfo
@@ -122,6 +125,8 @@ CHANNELS: list[Channel] = [
     Channel("x_l", "m", "motion", "table position (load encoder x 10 mm lead)"),
 ] + [Channel(k, u, "eccentricity", lab) for k, (u, lab) in ECC_CHANNELS.items()]
 SCREW_LEAD = 0.01  # m per revolution, for the displayed table position (papers give none)
+#: the force estimates scored by the accuracy panel: every force channel but the truth
+FORCE_ESTIMATES = tuple(c.name for c in CHANNELS if c.group == "force" and c.name != "f_true")
 
 
 def _knobs() -> dict[str, Knob]:
@@ -267,6 +272,9 @@ class LivePipeline:
         self._reset_observers()
         self._new_tool()
         self._install_effects()
+        self._accuracy = RollingAccuracy(
+            FORCE_ESTIMATES, self.sample_time, has_truth=self.source.has_truth
+        )
         # seed 003's milling machine with eccentricity and its tuner (default scenario)
         k = self._knobs
         self._ecc: LiveEccentricity | None = None
@@ -519,8 +527,24 @@ class LivePipeline:
             for k in ("h1_true", "h2_true", "vb_true", "vb_est", "vb_limit", "life_left"):
                 out[k] = np.full(n, math.nan)
         out = {k: np.ascontiguousarray(v, dtype=np.float64) for k, v in out.items()}
+        self._score(out, b.f_true, b.f_ideal)
         self._last = {k: float(v[-1]) for k, v in out.items()}
         return out
+
+    def _score(self, out: dict[str, np.ndarray], f_true: np.ndarray, f_ideal: np.ndarray) -> None:
+        """The block into the rolling accuracy (:mod:`server.pipeline.accuracy`): against
+        the truth, or without one the estimates' agreement with their mean (f_effects
+        left out of it while no effect is installed: it is then f_fixed again)."""
+        if self.source.has_truth:
+            self._accuracy.update(out, f_true, f_ideal)
+        else:
+            skip = () if self._fx is not None else ("f_effects",)
+            self._accuracy.update(out, mean_of=[k for k in FORCE_ESTIMATES if k not in skip])
+
+    def accuracy(self) -> dict[str, object]:
+        """Rolling rms of every force estimate over the last 1 s and 10 s
+        (:meth:`server.pipeline.accuracy.RollingAccuracy.summary`)."""
+        return self._accuracy.summary()
 
     def _discontinuity(self) -> None:
         """The source's next block does not continue the last one (a gap, a restart):
@@ -604,6 +628,7 @@ class LivePipeline:
             "observer_effects": [
                 {"name": e.name, "shape": dict(e.shape), "coef": list(e.coef)} for e in self.effects
             ],
+            "accuracy": self.accuracy(),
         }
         status = self.source.status()
         if status:
