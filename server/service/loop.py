@@ -399,8 +399,10 @@ class LiveLoop:
                 self._pending.clear()
             return
         t, ts, ch = self._decimated()
+        with self.lock:
+            accuracy = self.pipeline.accuracy()  # rolling rms of the force estimates
         body = protocol.data_body(
-            self.seq, time.time(), t, ts, ch, self.health(), self.knob_values()
+            self.seq, time.time(), t, ts, ch, self.health(), self.knob_values(), accuracy
         )
         self.hub.publish(body)
 

@@ -8,11 +8,22 @@ Two message types travel from server to client as JSON text:
 
 ``data`` (at the display rate, ~20 Hz)
     ``{"type": "data", "dropped": n, "seq": k, "wall": unix_s, "t": [...], "ts": [...],
-    "ch": {name: [...]}, "health": {...}, "knobs": {...}}``. Two display grids: a
+    "ch": {name: [...]}, "health": {...}, "knobs": {...}, "accuracy": {...}}``. Two display grids: a
     channel whose ``grid`` is ``"t"`` (the forces) has one value per entry of ``t``; a
     channel on ``"ts"`` (parameters, modes, harmonics: slow signals) one per entry of
     ``ts``, a coarser subset of the same samples. ``dropped`` counts the frames this
     client lost (buffer full) since its previous frame.
+
+``accuracy`` (issue 13): the rolling rms of every force estimate at the frame's last
+sample, one small object rather than more channels (its values change slowly; the page
+shows the latest numbers and keeps their history itself). Keys ``SCHEMA["accuracy"]``:
+``mode`` (``"truth"``: against the true force; ``"agreement"``: a source without truth,
+each estimate against the per-sample mean of the ``mean_of`` estimates), ``windows``
+([1, 10] s), ``span`` (seconds each window really covers), ``rms`` ({estimate: [one value
+per window]}), ``rms_q`` (against the Q(s)-filtered true force, the observers' reachable
+target; empty without truth), ``floor`` (rms of Q(s)F - F; nulls without truth), each
+value to 4 significant digits, null where unknown (see
+:mod:`server.pipeline.accuracy`).
 
 JSON was measured against a binary (float32) encoding: see
 docs/live-service.md ("Stream protocol").
@@ -41,7 +52,7 @@ SCHEMA: dict[str, Any] = {
     "version": VERSION,
     "hello": ["type", "version", "channels", "sample_time", "scenario", "knobs"],
     "channel": ["name", "unit", "group", "label", "grid"],
-    "data": ["type", "dropped", "seq", "wall", "t", "ts", "ch", "health", "knobs"],
+    "data": ["type", "dropped", "seq", "wall", "t", "ts", "ch", "health", "knobs", "accuracy"],
     "fast_groups": sorted(FAST_GROUPS),
     "health": [
         "sim_t",
@@ -54,6 +65,7 @@ SCHEMA: dict[str, Any] = {
         "dropped_total",
         "stalls",
     ],
+    "accuracy": ["mode", "windows", "span", "rms", "rms_q", "floor", "mean_of"],
 }
 
 
@@ -93,10 +105,12 @@ def data_body(
     ch: dict[str, list[float | None]],
     health: dict[str, Any],
     knobs: dict[str, Any],
+    accuracy: dict[str, Any],
 ) -> str:
     """Encode a data frame without its per-client ``dropped`` field (done once per frame).
 
-    ``t``, ``ts`` and ``ch`` must already be JSON-safe lists (see :func:`samples`).
+    ``t``, ``ts`` and ``ch`` must already be JSON-safe lists (see :func:`samples`);
+    ``accuracy`` is the pipeline's summary (rounded here, :func:`accuracy_json`).
 
     :func:`with_dropped` completes it per client.
     """
@@ -108,8 +122,26 @@ def data_body(
         "ch": ch,
         "health": _clean(health),
         "knobs": _clean(knobs),
+        "accuracy": accuracy_json(accuracy),
     }
     return json.dumps(body, allow_nan=False, separators=(",", ":"))
+
+
+def _sig(x: Any, digits: int) -> Any:
+    if isinstance(x, float):
+        return float(f"{x:.{digits}g}") if math.isfinite(x) else None
+    if isinstance(x, dict):
+        return {str(k): _sig(v, digits) for k, v in x.items()}
+    if isinstance(x, list | tuple):
+        return [_sig(v, digits) for v in x]
+    return x
+
+
+def accuracy_json(accuracy: dict[str, Any], digits: int = 4) -> dict[str, Any]:
+    """The pipeline's accuracy summary as sent: floats to ``digits`` significant digits,
+    non-finite ones ``None``."""
+    out: dict[str, Any] = _sig(_clean(accuracy), digits)
+    return out
 
 
 def samples(a: Any, digits: int | None = None) -> list[float | None]:
