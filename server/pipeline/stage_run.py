@@ -2,8 +2,10 @@
 
 One :class:`StageRun` advances the simulated stage block by block and runs, on its
 Measurements only, the fixed-parameter observer (seed 000 Fig. 4), the adaptive observer
-(seed 000 Fig. 3, ordinary RLS) and the switching-RLS observer (seed 001). The Truth is
-used only to build the scoring signals (true force, the ideal estimate Q(s) F_cut).
+(seed 000 Fig. 3, ordinary RLS) and the switching-RLS observer (seed 001), and beside
+them the gated segment identifier (:mod:`estimators.segment_id`: J_L, B_L, F_CL with 95 %
+intervals and excitation flags). The Truth is used only to build the scoring signals
+(true force, the ideal estimate Q(s) F_cut).
 """
 
 from __future__ import annotations
@@ -18,6 +20,13 @@ from common.arrays import F64
 from estimators.filters import lowpass
 from estimators.force_observer import LoadParams, ObserverParams, TorsionEstimator, cutting_force
 from estimators.rls import IdentifierParams, LoadIdentifier
+from estimators.segment_id import (
+    SegmentIdentifier,
+    SegmentIdentifierParams,
+    SegmentRecord,
+    mark_disturbance,
+    restart,
+)
 from machine.stage import Measurements, StageConfig, StageSim, Truth
 
 
@@ -40,6 +49,7 @@ class StageBlock:
     alpha: F64
     excitation_index: float
     resets: int
+    segment: SegmentRecord  # gated segment identifier: estimates, intervals, excited
 
 
 def observer_params_for(cfg: StageConfig, **design: Any) -> ObserverParams:
@@ -74,6 +84,15 @@ class StageRun:
         ip = ident or IdentifierParams(sample_time=cfg.sample_time)
         self.ident = LoadIdentifier(ip, switching=False)
         self.ident_sw = LoadIdentifier(ip, switching=True)
+        self.ident_seg = SegmentIdentifier(
+            SegmentIdentifierParams(
+                nominal=(nom.J_L, nom.B_L, nom.F_CL),
+                sample_time=cfg.sample_time,
+                q_rls_hz=ip.q_rls_hz,
+                q_rls_order=ip.q_rls_order,
+                acc_threshold=ip.acc_threshold,
+            )
+        )
         self._q = lowpass(self.front.params.q_hz, cfg.sample_time, self.front.params.q_order)
         self._reset_estimators()
 
@@ -82,6 +101,7 @@ class StageRun:
         self.s_front = self.front.init_state()
         self.s_ident = self.ident.init_state(nl.J_L, nl.B_L, nl.F_CL)
         self.s_sw = self.ident_sw.init_state(nl.J_L, nl.B_L, nl.F_CL)
+        self.s_seg = self.ident_seg.init_state()
         self._zq = self._q.initial_state()
         self._theta_a = np.array([nl.J_L, nl.B_L, nl.F_CL, 0.0])
         self._theta_s = self._theta_a.copy()
@@ -98,6 +118,10 @@ class StageRun:
         self.s_sw, rs = self.ident_sw.step(
             self.s_sw, rec.t_s, rec.acc_l, rec.vel_l, rec.sgn_l, rec.omega_l
         )
+        t_est = np.concatenate([[self._prev_t], meas.t[:-1]])
+        self.s_seg, rg = self.ident_seg.step(
+            self.s_seg, t_est, rec.t_s, rec.acc_l, rec.vel_l, rec.sgn_l
+        )
         nl = self.nominal_load
         f_fixed = cutting_force(rec, nl.J_L, nl.B_L, nl.F_CL)
         # the observer at sample k uses the parameters identified up to sample k-1
@@ -111,7 +135,6 @@ class StageRun:
         # estimates refer to the previous sample: align truth one sample back
         f_true = np.concatenate([[self._prev_f], truth.f_cut[:-1]])
         f_ideal = np.concatenate([[self._prev_qf], qf[:-1]])
-        t_est = np.concatenate([[self._prev_t], meas.t[:-1]])
         self._prev_f = float(truth.f_cut[-1])
         self._prev_qf = float(qf[-1])
         self._prev_t = float(meas.t[-1])
@@ -131,4 +154,14 @@ class StageRun:
             alpha=rec.alpha,
             excitation_index=ra.excitation_index,
             resets=ra.resets + rs.resets,
+            segment=rg,
         )
+
+    def note_disturbance(self, t: float) -> None:
+        """A known change of the cutting condition at ``t`` (spindle step, tool change):
+        the segment identifier discards the reversal segment around it."""
+        self.s_seg = mark_disturbance(self.s_seg, t)
+
+    def note_restart(self, J_L: bool = False, B_L: bool = False, F_CL: bool = False) -> None:
+        """A known change of load parameters (a fresh workpiece: J_L): they restart."""
+        self.s_seg = restart(self.s_seg, (J_L, B_L, F_CL))
