@@ -42,6 +42,7 @@ class StageBlock:
     f_fixed: F64
     f_adaptive: F64
     f_switching: F64
+    f_segment: F64  # eq. (2) with the gated segment identifier's parameters
     theta_adaptive: F64  # (n, 4) J_L, B_L, F_CL, F_DC
     theta_switching: F64
     mode_adaptive: NDArray[np.int8]
@@ -105,6 +106,7 @@ class StageRun:
         self._zq = self._q.initial_state()
         self._theta_a = np.array([nl.J_L, nl.B_L, nl.F_CL, 0.0])
         self._theta_s = self._theta_a.copy()
+        self._theta_g = self._theta_a[:3].copy()
         self._prev_f = 0.0
         self._prev_qf = 0.0
         self._prev_t = 0.0
@@ -131,6 +133,9 @@ class StageRun:
         self._theta_s = rs.theta[-1].copy()
         f_ad = cutting_force(rec, th_a[:, 0], th_a[:, 1], th_a[:, 2])
         f_sw = cutting_force(rec, th_s[:, 0], th_s[:, 1], th_s[:, 2])
+        th_g = np.vstack([self._theta_g, rg.theta[:-1]])
+        self._theta_g = rg.theta[-1].copy()
+        f_seg = cutting_force(rec, th_g[:, 0], th_g[:, 1], th_g[:, 2])
         qf, self._zq = self._q.run(truth.f_cut, self._zq)
         # estimates refer to the previous sample: align truth one sample back
         f_true = np.concatenate([[self._prev_f], truth.f_cut[:-1]])
@@ -147,6 +152,7 @@ class StageRun:
             f_fixed=f_fixed,
             f_adaptive=f_ad,
             f_switching=f_sw,
+            f_segment=f_seg,
             theta_adaptive=ra.theta,
             theta_switching=rs.theta,
             mode_adaptive=ra.mode,

@@ -46,12 +46,14 @@ import numpy as np
 from common.arrays import F64
 from machine.stage import Trajectory
 from server.experiments.reproduction import Check, Reproduction, Row, format_table
-from server.pipeline.live_pipeline import LivePipeline
+from server.pipeline.live_pipeline import PASS_S, LivePipeline
 
 NAME = "live-identifiability"
 SOURCE = "issue 13 (default live scenario); seed 000 eq. (14), seed 001 Fig. 6"
 SUSPECTS = ("spindle_steps", "wear_dc", "mass_removal", "reversal_force")
-CASES = ("default", *(f"no_{s}" for s in SUSPECTS), "none")
+#: "stepped_wear": the wear force as the issue measured it, in 1 % steps at the pass
+#: starts (every second, so on every reversal) instead of the smooth ramp
+CASES = ("default", *(f"no_{s}" for s in SUSPECTS), "none", "stepped_wear")
 ESTIMATORS = ("adaptive", "switching", "segment")
 PARAMS = ("J_L", "B_L", "F_CL")
 ROWS = [
@@ -101,6 +103,13 @@ class AblatedPipeline(LivePipeline):
         hp = tr.half_period
         m = max(round(0.5 * (t0 + t1) / hp), 1)
         return t1 > m * hp - REV_PRE and t0 < m * hp + REV_POST
+
+    def _wear_begin(self, t0: float) -> None:
+        super()._wear_begin(t0)
+        if "smooth_wear" in self.off and self._gain_ramp[2] == t0:
+            g0, slope, _ = self._gain_ramp
+            mean = g0 + 0.5 * slope * PASS_S
+            self._gain_ramp = (round(mean / 0.01) * 0.01, 0.0, t0)
 
     def _apply(self, t: float) -> None:
         if "wear_dc" in self.off:
@@ -283,7 +292,10 @@ def study(
         rec += dfo_recovery(a["h"], tr.events, 4e-4)
     per_case["default"] = _agg(per_seed)
     for case in CASES[1:]:
-        off = frozenset(SUSPECTS) if case == "none" else frozenset({case[3:]})
+        if case == "stepped_wear":
+            off = frozenset({"smooth_wear"})
+        else:
+            off = frozenset(SUSPECTS) if case == "none" else frozenset({case[3:]})
         tr = run_case(off, seeds[0], ablation_minutes, progress=progress)
         per_case[case] = scores(tr.arrays())
     gl: dict[str, float] = {}
