@@ -14,6 +14,10 @@ Two message types travel from server to client as JSON text:
     ``ts``, a coarser subset of the same samples. ``dropped`` counts the frames this
     client lost (buffer full) since its previous frame.
 
+Identified parameters with intervals (issue 13): for each name in ``SCHEMA["intervals"]``
+the stream carries the estimate, the 95 % interval's bounds and an excited flag (1: the
+data determine it; 0: show it greyed, "not excited", not as a number), on the slow grid.
+
 JSON was measured against a binary (float32) encoding: see the README ("Stream").
 ``tests/test_protocol.py`` keeps :data:`SCHEMA` equal to the JS module's ``SCHEMA``.
 """
@@ -36,6 +40,12 @@ def grid_of(group: str) -> str:
     return "t" if group in FAST_GROUPS else "ts"
 
 
+#: identified parameter -> its channels: estimate, 95 % bounds, excited flag (0/1)
+INTERVALS: dict[str, dict[str, str]] = {
+    q: {"estimate": f"{q}_seg", "lower": f"{q}_lo", "upper": f"{q}_hi", "excited": f"{q}_excited"}
+    for q in ("J_L", "B_L", "F_CL")
+}
+
 SCHEMA: dict[str, Any] = {
     "version": VERSION,
     "hello": ["type", "version", "channels", "sample_time", "scenario", "knobs"],
@@ -53,6 +63,7 @@ SCHEMA: dict[str, Any] = {
         "dropped_total",
         "stalls",
     ],
+    "intervals": INTERVALS,
 }
 
 

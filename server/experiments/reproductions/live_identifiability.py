@@ -71,7 +71,7 @@ DECIM = 25  # scored every 10 ms
 REV_PRE, REV_POST = 1.0, 1.5
 
 
-def _knobs_for(seed: int) -> dict[str, float]:
+def knobs_for(seed: int) -> dict[str, float]:
     """The knob values a seed draws (see the module docstring)."""
     g = np.random.default_rng(10_000 + seed)
     return {
@@ -91,7 +91,7 @@ class AblatedPipeline(LivePipeline):
         self._lifted = False
         super().__init__("default", seed=seed)
         if vary:
-            for k, v in _knobs_for(seed).items():
+            for k, v in knobs_for(seed).items():
                 self.set_knob(k, v)
         if "spindle_steps" in self.off:
             self.set_knob("spindle_changes", False)
