@@ -246,6 +246,7 @@ class LivePipeline:
         self._removed = 0.0  # fraction of the current workpiece removed
         self._clamp_pending = False  # the blank is used up; a fresh one at the next reversal
         self._pending_since = 0.0
+        self._weight = math.nan  # seed 000's weight on the load (none applied yet)
         self._prev_factor = self._spindle_factor(0.0)
         self._last: dict[str, float] = {}
         self._applied: tuple[object, ...] = ()
@@ -360,6 +361,10 @@ class LivePipeline:
         extra = ADDED_WEIGHT_INERTIA if k["weight_on"].value else 0.0
         if self.scenario == "seed000-weight" and t >= 10.0:
             extra = ADDED_WEIGHT_INERTIA
+        if extra != self._weight:  # the weight mounted or removed: a known J_L change
+            if not math.isnan(self._weight):
+                self.run.note_restart(J_L=True)
+            self._weight = extra
         if self.scenario == "default":
             # in steps of REMOVAL_STEP: each change of the plant costs a matrix
             # exponential (~1-7 ms here), too much to pay every 50 ms block
@@ -539,10 +544,16 @@ class LivePipeline:
 
     def _clamp_now(self, t0: float) -> bool:
         """Clamp the pending fresh blank at this block (start ``t0``)? Just before a
-        reversal; if the blocks are too long to hit that instant, at the next block."""
+        reversal without a spindle step near it; if the blocks are too long to hit that
+        instant, once three half periods have passed."""
         hp = self.run.sim.config.trajectory.half_period
-        to_rev = (math.floor(t0 / hp) + 1) * hp - t0
-        return to_rev <= CLAMP_BEFORE_REVERSAL or t0 - self._pending_since > hp
+        rev = (math.floor(t0 / hp) + 1) * hp
+        if rev - t0 > CLAMP_BEFORE_REVERSAL:
+            return t0 - self._pending_since > 3 * hp
+        # not at a reversal whose segment a spindle step spoils (every 60 s here): J_L
+        # would stay unknown until the next one (the DFO then reads a wrong J_L's
+        # acceleration as harmonics, measured: amplitudes 33 % low for 4 s)
+        return self._spindle_factor(rev - 1.0) == self._spindle_factor(rev + 1.0)
 
     def _wear_pass(self, n: int, f_est: np.ndarray, t0: float) -> None:
         """Accumulate the block into the current pass; close the pass every PASS_S."""

@@ -222,7 +222,9 @@ def scores(a: dict[str, F64]) -> dict[str, float]:
 def event_glitches(a: dict[str, F64], events: list[tuple[str, float]]) -> dict[str, float]:
     """At each event: the segment estimate's largest distance from its interval just
     before the event, and the truth's largest distance from the interval, over the 2 s
-    after it, both in units of the interval's width just before / at that time."""
+    after it, both in units of the interval's width just before / at that time. Where
+    the parameter itself changed in those 2 s by more than that width (a fresh blank
+    clamped near a tool change), moving with it is not counted as a glitch."""
     t = a["t"]
     worst: dict[str, list[float]] = {}
     for kind, te in events:
@@ -230,7 +232,7 @@ def event_glitches(a: dict[str, F64], events: list[tuple[str, float]]) -> dict[s
         if k0 < 1:
             continue
         win = (t >= te) & (t <= te + 2.0)
-        for j, q in enumerate(PARAMS):
+        for j in range(len(PARAMS)):
             lo0, hi0 = a["lo"][k0, j], a["hi"][k0, j]
             w0 = hi0 - lo0
             est = a["segment"][win, j]
@@ -238,8 +240,9 @@ def event_glitches(a: dict[str, F64], events: list[tuple[str, float]]) -> dict[s
             tru = a["truth"][win, j]
             lo, hi = a["lo"][win, j], a["hi"][win, j]
             miss = float(np.max(np.maximum(np.maximum(lo - tru, tru - hi), 0.0) / (hi - lo)))
-            if kind == "workpiece" and q == "J_L":
-                # J_L truly changes here (the identifier is told and restarts): only the
+            if np.max(np.abs(tru - a["truth"][k0, j])) > w0:
+                # the parameter itself changed in the window (a fresh blank: J_L; the
+                # identifier is told and restarts): following it is no glitch, only the
                 # truth against the new interval counts
                 exc_ = 0.0
             worst.setdefault(f"{kind}.max_excursion", []).append(exc_)
