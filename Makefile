@@ -8,7 +8,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed-stamp
 
-.PHONY: setup web-deps run test lint typecheck pytest reproduce bench system-deps clean
+.PHONY: setup web-deps run test lint typecheck pytest reproduce bench docs system-deps clean
 
 setup: $(STAMP) web-deps
 
@@ -26,12 +26,16 @@ web-deps:
 	  fi; \
 	fi
 
-# Debian packages for the browser test. Installed only when missing and only as root.
+# Debian packages the tests use: chromium (browser test), mosquitto (the MQTT broker the
+# broker tests start on a free loopback port). Installed only when missing, only as root.
 system-deps:
-	@if [ ! -x /usr/bin/chromium ]; then \
+	@missing=""; \
+	[ -x /usr/bin/chromium ] || missing="$$missing chromium"; \
+	[ -x /usr/sbin/mosquitto ] || missing="$$missing mosquitto"; \
+	if [ -n "$$missing" ]; then \
 	  if [ "$$(id -u)" = "0" ]; then \
-	    (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium) >/dev/null; \
-	  else echo "note: /usr/bin/chromium missing and not root; the browser test will be skipped"; fi; \
+	    (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $$missing) >/dev/null; \
+	  else echo "note: missing$$missing and not root; the tests that need them will be skipped"; fi; \
 	fi
 
 run: setup
@@ -42,6 +46,10 @@ reproduce: setup
 
 bench: setup
 	$(BIN)/cutwatch bench
+
+# the documentation (docs/, mkdocs.yml) as a site in site/; any warning fails the build
+docs: setup
+	$(BIN)/mkdocs build --strict --site-dir site
 
 lint: setup
 	$(BIN)/ruff check .

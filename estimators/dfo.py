@@ -1,6 +1,6 @@
-r"""Harmonic disturbance force observer (DFO) of seed 002 Section 4.3, eq. (5)-(9).
+r"""Harmonic disturbance force observer (DFO) of seed 002 Section 4.3, seed002 (5)-(9).
 
-A disturbance made of sinusoids of known frequencies, eq. (5)-(7),
+A disturbance made of sinusoids of known frequencies, seed002 (5)-(7),
 
 .. math::
 
@@ -16,7 +16,7 @@ amplitude and phase are read off directly. They drive a known linear *channel*
 
     y = P(s)\,\Bigl[u(t - T_d) + \sum_i s_i\Bigr],
 
-and a state observer, eq. (8)-(9), :math:`\dot{\hat x} = F\hat x + G u + L(y - H\hat x)`,
+and a state observer, seed002 (8)-(9), :math:`\dot{\hat x} = F\hat x + G u + L(y - H\hat x)`,
 estimates plant and harmonic states together; the gain ``L`` comes from pole placement.
 
 Two channels are used in cutwatch: the x-axis of seed 002 (``P = A/(s^2 + B s + C)``, the
@@ -42,8 +42,8 @@ from numba import njit
 from numpy.typing import ArrayLike, NDArray
 
 from common.arrays import F64
+from common.linalg import zoh
 from estimators.errors import ParameterError, require_nonnegative, require_positive
-from estimators.filters import zoh
 
 
 def _balance(m: F64) -> F64:
@@ -221,7 +221,7 @@ class DfoParams:
         omegas = 2 * np.pi * np.array(freqs)
         for i, w in enumerate(omegas):
             j = nc + 2 * i
-            # eq. (5)-(7): s' = w c, c' = -w s
+            # seed002 (5)-(7): s' = w c, c' = -w s
             f[j, j + 1] = w
             f[j + 1, j] = -w
         phi, gam_full = zoh(f, g, ts)
@@ -287,7 +287,7 @@ class DfoRecord:
 
     ``d_hat``: the disturbance estimate (sum of harmonics); ``compensation``: the same
     predicted ``lead`` ahead (what is subtracted from the command); ``amplitude`` and
-    ``phase`` (n, K): each harmonic's :math:`A_i` and :math:`\\theta_i` of eq. (5), the
+    ``phase`` (n, K): each harmonic's :math:`A_i` and :math:`\\theta_i` of seed002 (5), the
     phase relative to ``t = k T`` with ``k`` counted from the observer's start;
     ``innovation``: ``y - H x_prior``; ``offset``: the constant part (0 without
     ``include_offset``).
@@ -338,8 +338,9 @@ def _dfo_block(
     n = len(x)
     xp = np.empty(n)
     nh = len(omegas)
+    # x- = Phi x + G_a u[k-D-1] + G_b u[k-D]; x = x- + L (y - H x-) (seed002 (8)-(9))
     for j in range(len(y)):
-        # eq. (8), discrete: prior from the last posterior and the delayed command
+        # seed002 (8), discrete: prior from the last posterior and the delayed command
         for r in range(n):
             acc = 0.0
             for c in range(n):
@@ -347,7 +348,7 @@ def _dfo_block(
             if use_u:
                 acc += ga[r] * u_hist[j] + gb[r] * u_hist[j + 1]
             xp[r] = acc
-        # eq. (9): y_hat = H x
+        # seed002 (9): y_hat = H x
         yh = 0.0
         for r in range(n):
             yh += h[r] * xp[r]

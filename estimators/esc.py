@@ -1,10 +1,11 @@
-r"""Extremum seeking cancellation of tool eccentricity (seed 003, eq. 8-16).
+r"""Extremum seeking cancellation of tool eccentricity (seed003 (8)-(16)).
 
 The cost is the magnitude of the force's spindle-frequency harmonic over the last
-revolution (eq. 8). The modulation radius :math:`a_m` and phase :math:`\theta_m` are
-perturbed sinusoidally once per revolution with phases :math:`\pi/2` apart (eq. 10, 16),
-the cost is high-pass filtered (eq. 12), demodulated by the perturbation (eq. 13-15) and
-integrated with the step sizes :math:`K_a, K_\theta` (eq. 9, 16).
+revolution (seed003 (8)). The modulation radius :math:`a_m` and phase :math:`\theta_m` are
+perturbed sinusoidally once per revolution with phases :math:`\pi/2` apart (seed003 (10), (16)),
+the cost is high-pass filtered (seed003 (12)), demodulated by the perturbation
+(seed003 (13)-(15)) and
+integrated with the step sizes :math:`K_a, K_\theta` (seed003 (9), (16)).
 
 Units follow the paper's Table 1: radius in um, phase in degrees. The estimator sees only
 the measured (or estimated) force and the spindle angle; it never sees the eccentricity.
@@ -14,15 +15,15 @@ Choices where the paper is ambiguous (also written at the lines concerned):
 - **Step-size units.** Table 1 gives :math:`K_a = 45, K_\theta = 50` without units. Here
   the cost is normalised by its value at adaptation start (:math:`j = J/J_0`, so one set
   of gains serves both cases, as the paper states it does), the demodulation multiplies
-  by the perturbation itself (eq. 13, so :math:`\xi \approx \mathrm{diag}(A^2/2)\nabla j`)
-  and :math:`K` is an integrator gain in 1/s (eq. 9), applied once per revolution as
+  by the perturbation itself (seed003 (13), so :math:`\xi \approx \mathrm{diag}(A^2/2)\nabla j`)
+  and :math:`K` is an integrator gain in 1/s (seed003 (9)), applied once per revolution as
   :math:`\alpha_n^k = \alpha_n^{k-1} - K\xi_k T_{rev}`. With this reading the units of
   :math:`\alpha` cancel (:math:`K A^2 \partial j/\partial\alpha` has the unit of
   :math:`\alpha` per second), which is why we take it.
-- **Eq. (16)** adds the perturbation to :math:`\alpha^{k-1}`; read literally the
-  perturbations would accumulate. We add it to the nominal :math:`\alpha_n` (eq. 10).
+- **seed003 (16)** adds the perturbation to :math:`\alpha^{k-1}`; read literally the
+  perturbations would accumulate. We add it to the nominal :math:`\alpha_n` (seed003 (10)).
 - **Signed radius.** :math:`a_m < 0` is allowed and means the circle at
-  :math:`\theta_m + \pi`; the perturbation of eq. (10) takes :math:`a_m` below zero when
+  :math:`\theta_m + \pi`; the perturbation of seed003 (10) takes :math:`a_m` below zero when
   :math:`a_m < A_a` anyway. :math:`|a_m|` is clamped to ``a_max_um`` and the clamp is
   reported. Results are reported as the equivalent positive radius.
 - **Stopping the dither.** The paper notes the dither "can be stopped at the mean value
@@ -47,7 +48,7 @@ from estimators.filters import DiscreteFilter, highpass
 
 
 def spindle_harmonic(force: ArrayLike, angle: ArrayLike) -> complex:
-    r"""The force's harmonic at the spindle frequency over one revolution (eq. 8).
+    r"""The force's harmonic at the spindle frequency over one revolution (seed003 (8)).
 
     .. math:: F_1 = \frac{2}{L}\sum_{n=0}^{L-1} F(nT_s)\, e^{-j\psi_n}
 
@@ -61,7 +62,7 @@ def spindle_harmonic(force: ArrayLike, angle: ArrayLike) -> complex:
     step that falls inside, and the weighted mean is removed. Without this the large mean
     force and the tooth-passing harmonic leak into the 1x bin by an amount that changes
     from one revolution to the next. For an integer :math:`L` every weight is 1 and the
-    mean term sums to zero, so the result is eq. (8) exactly.
+    mean term sums to zero, so the result is seed003 (8) exactly.
 
     Raises
     ------
@@ -91,7 +92,7 @@ def spindle_harmonic(force: ArrayLike, angle: ArrayLike) -> complex:
 
 
 def harmonic_cost(force: ArrayLike, angle: ArrayLike) -> float:
-    """The cost :math:`J` of eq. (8): ``abs(spindle_harmonic(force, angle))``."""
+    """The cost :math:`J` of seed003 (8): ``abs(spindle_harmonic(force, angle))``."""
     return abs(spindle_harmonic(force, angle))
 
 
@@ -109,7 +110,7 @@ class EscParams:
         Phase perturbation amplitude :math:`A_\theta` [deg], in (0, 90].
     psi_a, psi_theta : float
         Perturbation phases :math:`\Psi_a, \Psi_\theta` [rad]; their difference must be an
-        odd multiple of :math:`\pi/2` so the cross term :math:`D_{2,3}` of eq. (14) vanishes.
+        odd multiple of :math:`\pi/2` so the cross term :math:`D_{2,3}` of seed003 (14) vanishes.
     demod_phase : float
         Phase lag [rad] of the radius channel's demodulation signal behind its
         perturbation (Ariyur & Krstic's compensation of the plant's phase at the dither
@@ -117,13 +118,14 @@ class EscParams:
     demod_phase_theta : float or None
         The same for the phase channel; None (default) uses ``demod_phase``. The two
         channels see different lags: in the simulated cut a radius step shows in the cost
-        mostly one revolution late, a phase step mostly at once (README, "Why the ESC is
-        slower than the paper").
+        mostly one revolution late, a phase step mostly at once (see
+        docs/reproductions/seed003-eccentricity.md,
+        "Why the ESC is slower than the paper").
     period_revs : int
-        Perturbation period in revolutions (eq. 16: 4, i.e. :math:`\omega_p = \pi/2` per
+        Perturbation period in revolutions (seed003 (16): 4, i.e. :math:`\omega_p = \pi/2` per
         revolution). Must be >= 3 to be seen by a once-per-revolution cost.
     hpf_cycles_per_rev : float
-        High-pass cut-off (eq. 12) in cycles per revolution, below ``1/period_revs``.
+        High-pass cut-off (seed003 (12)) in cycles per revolution, below ``1/period_revs``.
     a_max_um : float
         Largest modulation radius [um]; the nominal radius is clamped to it.
     freeze_revs : int
@@ -157,7 +159,7 @@ class EscParams:
         require_in("amp_theta_deg", self.amp_theta_deg, 0.0, 90.0, lo_open=True)
         if int(self.period_revs) != self.period_revs or self.period_revs < 3:
             raise ParameterError("period_revs", "an integer >= 3", self.period_revs)
-        # eq. (14)-(15): D_{2,3} vanishes only if cos(Psi_a - Psi_theta) = 0
+        # seed003 (14)-(15): D_{2,3} vanishes only if cos(Psi_a - Psi_theta) = 0
         if (
             not (math.isfinite(self.psi_a) and math.isfinite(self.psi_theta))
             or abs(math.cos(self.psi_a - self.psi_theta)) > 1e-9
@@ -193,7 +195,7 @@ class EscParams:
         require_in("resume_ratio", self.resume_ratio, 1.0, math.inf, lo_open=True)
 
     def hpf(self) -> DiscreteFilter:
-        """The high-pass of eq. (12), sampled once per revolution (time unit: 1 rev)."""
+        """The high-pass of seed003 (12), sampled once per revolution (time unit: 1 rev)."""
         return highpass(self.hpf_cycles_per_rev, 1.0)
 
 
@@ -221,7 +223,7 @@ class EscRecord:
     ``cost`` is :math:`J` of the revolution just measured [force unit]; ``a_um``,
     ``theta_deg`` the modulation to apply during the next revolution (nominal plus
     perturbation); ``grad_a``, ``grad_theta`` the demodulated gradient estimate
-    :math:`\\xi` (eq. 15); ``saturated`` true if the radius was clamped.
+    :math:`\\xi` (seed003 (15)); ``saturated`` true if the radius was clamped.
     """
 
     cost: float
@@ -237,7 +239,7 @@ class EscRecord:
 
 
 class ExtremumSeekingController:
-    """Once-per-revolution ESC of eq. (8)-(16).
+    """Once-per-revolution ESC of seed003 (8)-(16).
 
     Examples
     --------
@@ -285,7 +287,7 @@ class ExtremumSeekingController:
         )
 
     def perturbation(self, k: int, lag: float = 0.0) -> tuple[float, float]:
-        """Eq. (10)/(16): :math:`(A_a\\sin(\\omega_p k + \\Psi_a), A_\\theta\\sin(\\omega_p k
+        """seed003 (10)/(16): :math:`(A_a\\sin(\\omega_p k + \\Psi_a), A_\\theta\\sin(\\omega_p k
         + \\Psi_\\theta))` with :math:`\\omega_p = 2\\pi/` ``period_revs`` per revolution."""
         p = self.params
         wp = 2.0 * math.pi / p.period_revs
@@ -295,7 +297,7 @@ class ExtremumSeekingController:
         )
 
     def demodulation(self, k: int) -> tuple[float, float]:
-        """Eq. (13): the demodulation signals of revolution ``k``, each the perturbation
+        """seed003 (13): the demodulation signals of revolution ``k``, each the perturbation
         delayed by its channel's ``demod_phase`` (0: the perturbation itself)."""
         p = self.params
         th_lag = p.demod_phase if p.demod_phase_theta is None else p.demod_phase_theta
@@ -330,11 +332,11 @@ class ExtremumSeekingController:
             cost = harmonic_cost(force, angle)
         j_ref = state.j_ref if state.j_ref > 0.0 else max(cost, 1e-12)
         j = cost / j_ref
-        # eq. (12): high-pass the (normalised) cost, once-per-revolution samples
+        # seed003 (12): high-pass the (normalised) cost, once-per-revolution samples
         z = np.array(state.hpf_state, dtype=np.float64)
         jh_arr, z = self._hpf.run(np.array([j]), z if state.k > 0 else self._hpf.initial_state(j))
         jh = float(jh_arr[0])
-        # eq. (13)/(15): demodulate by the perturbation applied during this revolution
+        # seed003 (13)/(15): demodulate by the perturbation applied during this revolution
         # (delayed per channel by demod_phase[_theta], 0 in the paper and by default)
         da, dt_ = self.demodulation(state.k)
         ga = jh * da
@@ -357,7 +359,7 @@ class ExtremumSeekingController:
                     frozen = False
                     recent = ()
         if not frozen:
-            # eq. (9)/(16): integrate the gradient estimate with step sizes K (1/s) over
+            # seed003 (9)/(16): integrate the gradient estimate with step sizes K (1/s) over
             # one revolution (see module docstring for the unit choice)
             a_n = a_n - p.k_a * ga * dt
             th_n = th_n - p.k_theta * gt * dt
@@ -383,7 +385,7 @@ class ExtremumSeekingController:
         if frozen:
             a, th = a_n, th_n
         else:
-            # eq. (10)/(16): nominal plus the perturbation of the next revolution
+            # seed003 (10)/(16): nominal plus the perturbation of the next revolution
             na, nt = self.perturbation(k)
             a, th = a_n + na, th_n + nt
         new = replace(

@@ -130,43 +130,6 @@ def highpass(cutoff_hz: float, sample_time: float) -> DiscreteFilter:
     return discretize([1.0, 0.0], [1.0, wc], ts, prewarp_hz=fc)
 
 
-def expm(m: ArrayLike) -> F64:
-    """Matrix exponential of a small matrix (scaling and squaring of a Taylor series).
-
-    Agrees with ``scipy.linalg.expm`` to ~1e-13 on the systems here (tested) at a
-    hundredth of its cost on this machine. :mod:`machine.linalg` keeps the machine's copy
-    (the two layers import nothing of each other).
-    """
-    a = np.asarray(m, dtype=np.float64)
-    norm = float(np.max(np.sum(np.abs(a), axis=1))) if a.size else 0.0
-    j = max(0, math.ceil(math.log2(norm / 0.25))) if norm > 0.25 else 0
-    a = a / 2.0**j
-    out = np.eye(a.shape[0])
-    term = np.eye(a.shape[0])
-    for k in range(1, 20):
-        term = term @ a / k
-        out = out + term
-        if float(np.max(np.abs(term))) <= 1e-18 * float(np.max(np.abs(out))):
-            break
-    for _ in range(j):
-        out = out @ out
-    return np.asarray(out, dtype=np.float64)
-
-
-def zoh(f: ArrayLike, g: ArrayLike, h: float) -> tuple[F64, F64]:
-    r"""Zero-order-hold discretisation of :math:`\dot x = F x + G u` over ``h``:
-    :math:`e^{F h}` and :math:`\int_0^h e^{F r}\,dr\,G` (``G`` keeps its shape)."""
-    fa = np.asarray(f, dtype=np.float64)
-    ga = np.asarray(g, dtype=np.float64)
-    g2 = ga.reshape(fa.shape[0], -1)
-    n, m = g2.shape
-    big = np.zeros((n + m, n + m))
-    big[:n, :n] = fa
-    big[:n, n:] = g2
-    e = expm(big * h)
-    return np.ascontiguousarray(e[:n, :n]), np.ascontiguousarray(e[:n, n:]).reshape(ga.shape)
-
-
 @njit(cache=True)
 def df2t_step(b: F64, a: F64, z: F64, x: float) -> float:  # pragma: no cover
     """One sample of a transposed direct form II filter; updates ``z`` in place."""
@@ -174,6 +137,7 @@ def df2t_step(b: F64, a: F64, z: F64, x: float) -> float:  # pragma: no cover
     if n == 0:
         return b[0] * x
     y = b[0] * x + z[0]
+    # y = b0 x + z0; z_i <- b_{i+1} x - a_{i+1} y + z_{i+1} (transposed direct form II of B(z)/A(z))
     for i in range(n - 1):
         z[i] = b[i + 1] * x - a[i + 1] * y + z[i + 1]
     z[n - 1] = b[n] * x - a[n] * y
@@ -182,5 +146,6 @@ def df2t_step(b: F64, a: F64, z: F64, x: float) -> float:  # pragma: no cover
 
 @njit(cache=True)
 def _df2t_block(b: F64, a: F64, z: F64, x: F64, y: F64) -> None:  # pragma: no cover
+    # y[k] = (B(z)/A(z)) x[k], one df2t_step per sample
     for k in range(len(x)):
         y[k] = df2t_step(b, a, z, x[k])

@@ -1,13 +1,13 @@
-r"""Cutting force observer on a robust torsional-torque estimate (seed 000 eq. (1)-(8)).
+r"""Cutting force observer on a robust torsional-torque estimate (seed000 (1)-(8)).
 
 The observer runs in two parts:
 
 1. :class:`TorsionEstimator` — the front end, shared by every observer variant. From the
    motor torque and the two encoders it forms the motor-side disturbance-observer
-   estimate :math:`\hat T_{sM}` (eq. 3), the shaft-twist estimate :math:`\hat T_{sK}`
-   (eq. 4), mixes them with the minimum-variance ratio :math:`\alpha_M` (eq. 5-8) into
+   estimate :math:`\hat T_{sM}` (seed000 (3)), the shaft-twist estimate :math:`\hat T_{sK}`
+   (seed000 (4)), mixes them with the minimum-variance ratio :math:`\alpha_M` (seed000 (5)-(8)) into
    :math:`\hat T_s`, and filters the load-side signals through Q(s).
-2. :func:`cutting_force` — eq. (2) with a given (possibly time-varying) set of load-side
+2. :func:`cutting_force` — seed000 (2) with a given (possibly time-varying) set of load-side
    parameters. Because Q(s) is linear, :math:`Q\{J_L s\omega_L + B_L\omega_L + F_{CL}
    \mathrm{sgn}\,\omega_L\} = J_L\,Q s\omega_L + B_L\,Q\omega_L + F_{CL}\,Q\,\mathrm{sgn}
    \,\omega_L` for constant parameters; we apply the parameters after the filter, so the
@@ -67,7 +67,7 @@ class ObserverParams:
 
 @dataclass(frozen=True)
 class LoadParams:
-    """Load-side parameters of eq. (1)-(2)."""
+    """Load-side parameters of seed000 (1)-(2)."""
 
     J_L: float
     B_L: float
@@ -91,10 +91,10 @@ class TorsionState:
 class TorsionRecord:
     """Per-sample outputs of the front end."""
 
-    t_s: F64  # robust torsional torque estimate (eq. 5 mix) [N m]
-    t_sm: F64  # motor-side DOB estimate, eq. (3)
-    t_sk: F64  # shaft-twist estimate, eq. (4)
-    alpha: F64  # mixing ratio alpha_M, eq. (5)
+    t_s: F64  # robust torsional torque estimate (seed000 (5) mix) [N m]
+    t_sm: F64  # motor-side DOB estimate, seed000 (3)
+    t_sk: F64  # shaft-twist estimate, seed000 (4)
+    alpha: F64  # mixing ratio alpha_M, seed000 (5)
     acc_l: F64  # Q(s) d omega_L/dt [rad/s^2]
     vel_l: F64  # Q(s) omega_L [rad/s]
     sgn_l: F64  # Q(s) sgn(omega_L)
@@ -114,6 +114,7 @@ def _torsion_kernel(
     JM, BM, FCM, K = pr[1], pr[2], pr[3], pr[4]
     s2J, s2B, s2K, s2F = pr[5], pr[6], pr[7], pr[8]
     var_w, var_dw, var_q = pr[9], pr[10], pr[11]
+    # T_s = alpha T_sM + (1 - alpha) T_sK, alpha = V_K / (V_M + V_K) (seed000 (3)-(8))
     for k in range(len(tau)):
         if prev[6] == 0.0:
             prev[0] = prev[1] = qm[k]
@@ -147,15 +148,15 @@ def _torsion_kernel(
         sgn_l = df2t_step(bq, aq, z[5], sl)
         tau_f = df2t_step(bq, aq, z[6], tq)
         dth_f = df2t_step(bq, aq, z[7], dth)
-        # eq. (3): motor-side disturbance observer
+        # seed000 (3): motor-side disturbance observer
         tsm = tau_f - JM * acc_m - BM * vel_m - FCM * sgn_m
-        # eq. (4): shaft twist times stiffness
+        # seed000 (4): shaft twist times stiffness
         tsk = K * dth_f
-        # eq. (6): error variance of T_sM (modelling + quantisation), on filtered signals
+        # seed000 (6): error variance of T_sM (modelling + quantisation), on filtered signals
         v_m = acc_m * acc_m * s2J + vel_m * vel_m * s2B + JM * JM * var_dw + BM * BM * var_w + s2F
-        # eq. (7): error variance of T_sK; both encoders quantised alike (eq. 8)
+        # seed000 (7): error variance of T_sK; both encoders quantised alike (seed000 (8))
         v_k = dth_f * dth_f * s2K + 2.0 * K * K * var_q
-        # eq. (5): minimum-variance mixing ratio
+        # seed000 (5): minimum-variance mixing ratio
         al = v_k / (v_m + v_k) if (v_m + v_k) > 0 else 0.5
         o_ts[k] = al * tsm + (1.0 - al) * tsk
         o_tsm[k] = tsm
@@ -179,7 +180,7 @@ class TorsionEstimator:
         self.q = lowpass(p.q_hz, p.sample_time, p.q_order)
         qn = p.encoder_resolution
         ts = p.sample_time
-        # eq. (8): quantisation variance q^2/12; q/ts and q/ts^2 as the equivalent
+        # seed000 (8): quantisation variance q^2/12; q/ts and q/ts^2 as the equivalent
         # resolutions of omega and d omega/dt (seed 000 III.B)
         self._pr = np.array(
             [
@@ -219,7 +220,7 @@ class TorsionEstimator:
 
 
 def cutting_force(rec: TorsionRecord, J_L: F64 | float, B_L: F64 | float, F_CL: F64 | float) -> F64:
-    r"""Eq. (2): :math:`\hat F_{cut} = \hat T_s - Q\{J_L s\omega_L + B_L\omega_L +
+    r"""seed000 (2): :math:`\hat F_{cut} = \hat T_s - Q\{J_L s\omega_L + B_L\omega_L +
     F_{CL}\mathrm{sgn}\,\omega_L\}` with parameters per sample (or constants)."""
     return np.asarray(
         rec.t_s

@@ -13,14 +13,14 @@ with :math:`Q(s)` and subtracts that estimate of the input disturbance from the 
 
     \hat d = Q(s)\left[G_n^{-1}(s)\,z - e^{-s T_d} v\right], \qquad v = u_c - \hat d .
 
-The nominal model is eq. (1) as identified, delay included (the command is delayed
+The nominal model is seed002 (1) as identified, delay included (the command is delayed
 inside the observer). Our choice, from a finding: with the delay left out of
 :math:`G_n` the IMBDO reshapes the plant to :math:`G/(1 + Q\Delta)` and the paper's
 cascade gains with the 90 Hz Q-filter become unstable (loop gain 2.5 at the -180 deg
 crossing, 112 Hz); with the delay in the model the IMBDO leaves the loop's reference
 response unchanged, as Section 4.2 says it was designed to.
 
-:math:`Q(s)` has the form the paper cites (its eq. 3 is lost in the text),
+:math:`Q(s)` has the form the paper cites (its seed002 (3) is lost in the text),
 
 .. math::
 
@@ -29,7 +29,7 @@ response unchanged, as Section 4.2 says it was designed to.
 
 with ``n = 3, m = 1`` by default: relative degree 2, equal to the plant's, so
 :math:`Q G_n^{-1}` is proper, and :math:`1 - Q = O(s^2)` rejects constant and ramp
-disturbances. Robust stability (eq. 4): :math:`|Q(j\omega)| < |1/\Delta(j\omega)|` with
+disturbances. Robust stability (seed002 (4)): :math:`|Q(j\omega)| < |1/\Delta(j\omega)|` with
 :math:`\Delta = (G - G_n)/G_n`; :func:`check_q_filter` evaluates it.
 """
 
@@ -52,7 +52,7 @@ Response = Callable[[F64], ComplexArray]
 
 
 class QFilterStabilityError(ParameterError):
-    """The Q-filter crosses the robust-stability bound :math:`|1/\\Delta|` (eq. 4)."""
+    """The Q-filter crosses the robust-stability bound :math:`|1/\\Delta|` (seed002 (4))."""
 
 
 def q_filter_tf(cutoff_hz: float, order: int = 3, numerator_order: int = 1) -> tuple[F64, F64]:
@@ -86,7 +86,7 @@ def continuous_response(
 
 @dataclass(frozen=True)
 class StabilityCheck:
-    """Result of eq. (4): does ``|Q|`` stay below ``|1/Delta|``?
+    """Result of seed002 (4): does ``|Q|`` stay below ``|1/Delta|``?
 
     ``margin`` is ``min_f |1/Delta(f)| / |Q(f)|`` (> 1: below the bound), reached at
     ``f_closest`` [Hz]; ``margin_db`` is the same in dB.
@@ -99,12 +99,12 @@ class StabilityCheck:
 
 
 def inverse_delta(plant: ComplexArray, nominal: ComplexArray) -> F64:
-    r""":math:`|1/\Delta(f)|` of eq. (4), ``Delta = (G - G_n) / G_n`` (inf where Delta = 0)."""
+    r""":math:`|1/\Delta(f)|` of seed002 (4), ``Delta = (G - G_n) / G_n`` (inf where Delta = 0)."""
     g = np.asarray(plant, dtype=np.complex128)
     gn = np.asarray(nominal, dtype=np.complex128)
     if g.shape != gn.shape:
         raise ParameterError("nominal", f"a response shaped like the plant {g.shape}", gn.shape)
-    # eq. (4)
+    # seed002 (4)
     delta = np.abs((g - gn) / gn)
     with np.errstate(divide="ignore"):
         return np.asarray(np.where(delta > 0, 1.0 / np.maximum(delta, 1e-300), np.inf))
@@ -116,7 +116,7 @@ def check_q_filter(
     nominal: ComplexArray | Response,
     q: ComplexArray | Response,
 ) -> StabilityCheck:
-    """Eq. (4) over a frequency grid.
+    """seed002 (4) over a frequency grid.
 
     Parameters
     ----------
@@ -155,7 +155,7 @@ class ImbdoParams:
     Parameters
     ----------
     a, b, c : float
-        Nominal plant eq. (1) without the delay, all > 0.
+        Nominal plant seed002 (1) without the delay, all > 0.
     sample_time : float
         [s].
     cutoff_hz : float
@@ -164,10 +164,10 @@ class ImbdoParams:
         ``n`` and ``m`` of the Q-filter, ``n > m``, ``n - m >= 2`` (the plant's relative
         degree, so that ``Q / G_n`` is proper).
     model_delay : float
-        Delay [s] of the nominal model (eq. 1 as identified, >= 0): the observer compares
+        Delay [s] of the nominal model (seed002 (1) as identified, >= 0): the observer compares
         the inverted position with the command delayed by it.
     delay_uncertainty : float
-        For the eq. (4) check made at construction the true plant is taken as the nominal
+        For the seed002 (4) check made at construction the true plant is taken as the nominal
         one with its delay off by this much [s] (>= 0): ``Delta = exp(-+ s dT) - 1``.
     force : bool
         Build the observer even if the check fails (default: refuse with
@@ -285,6 +285,7 @@ def _imbdo_block(
     dh: F64,
 ) -> None:  # pragma: no cover
     m = len(vh)  # D + 1: vh[m-1] = v[k-1], vh[m-1-i] = v[k-i]
+    # d_hat = Q G_n^-1 z - Q e^{-s T_d} v, v = u_c - d_hat (seed002 section 4.2)
     for k in range(len(z)):
         w = df2t_step(bi, ai, zi, z[k])
         # the command delayed by the model delay D + frac samples; the fraction by linear

@@ -1,4 +1,4 @@
-r"""Identified plant effects as terms of the cutting force observer (seed 000 eq. (2)-(4)).
+r"""Identified plant effects as terms of the cutting force observer (seed000 (2)-(4)).
 
 The residual analysis of a two-inertia log (:mod:`estimators.residual_two_inertia`)
 finds effects the nominal observer lacks; this module puts them *into* the observer, so
@@ -9,17 +9,17 @@ coefficients, on one side of the observer's model:
 =========== ================================= =============================================
 side        families                          where the term acts
 =========== ================================= =============================================
-load        offset, coulomb_asymmetry,        eq. (2): subtracted from the force estimate,
+load        offset, coulomb_asymmetry,        seed000 (2): subtracted from the force estimate,
             stribeck, position_periodic,      like :math:`Q\{J_L s\omega_L + B_L\omega_L +
             inertia, viscous, harmonic, drift F_{CL}\mathrm{sgn}\,\omega_L\}`
-motor       torque_ripple, delay              eq. (3): added to :math:`\hat T_{sM}`
+motor       torque_ripple, delay              seed000 (3): added to :math:`\hat T_{sM}`
                                               (a torque the motor model lacks)
-shaft       backlash                          eq. (4): subtracted from :math:`\hat T_{sK}`
+shaft       backlash                          seed000 (4): subtracted from :math:`\hat T_{sK}`
                                               (a twist :math:`K\Delta\theta` that carries
                                               no torque inside the gap)
 =========== ================================= =============================================
 
-Because the two torsion estimates are mixed by :math:`\alpha_M` (eq. 5), a motor-side
+Because the two torsion estimates are mixed by :math:`\alpha_M` (seed000 (5)), a motor-side
 term changes the force estimate by :math:`\alpha_M Q\{m\}` and a shaft-side term by
 :math:`-(1-\alpha_M) Q\{b\}`. The *residual signature* of an effect (what the analysis
 fits) is therefore, in the force residual :math:`r_F = \hat F - Q F_{ref}` and in the
@@ -265,16 +265,16 @@ def filter_columns(q: DiscreteFilter, x: F64, z: F64 | None = None) -> tuple[F64
 def signature(side: str, qcols: F64, alpha: F64) -> tuple[F64, F64]:
     """Columns of an effect in the force residual and in the twist disagreement.
 
-    ``qcols`` are the Q-filtered basis columns; ``alpha`` the mixing ratio of eq. (5).
+    ``qcols`` are the Q-filtered basis columns; ``alpha`` the mixing ratio of seed000 (5).
     """
     zero = np.zeros_like(qcols)
     if side == "load":
         return qcols, zero
     a = np.asarray(alpha, dtype=np.float64)[:, None]
     if side == "motor":
-        # eq. (3) lacks +m: T_sM is low by Q m; eq. (5) passes alpha of it to the force
+        # seed000 (3) lacks +m: T_sM is low by Q m; seed000 (5) passes alpha of it to the force
         return -a * qcols, qcols
-    # shaft, eq. (4): K*dtheta overstates the torque by Q b; (1 - alpha) of it reaches F
+    # shaft, seed000 (4): K*dtheta overstates the torque by Q b; (1 - alpha) of it reaches F
     return (1.0 - a) * qcols, qcols
 
 
@@ -309,8 +309,9 @@ class EffectsState:
 class EffectsRecord:
     """Per-sample terms of the corrected observer (all at :math:`t_{k-1}`).
 
-    ``f_corr`` is subtracted from eq. (2)'s force; ``t_sm_add`` is added to
-    :math:`\\hat T_{sM}` (eq. 3); ``t_sk_sub`` subtracted from :math:`\\hat T_{sK}` (eq. 4).
+    ``f_corr`` is subtracted from seed000 (2)'s force; ``t_sm_add`` is added to
+    :math:`\\hat T_{sM}` (seed000 (3)); ``t_sk_sub`` subtracted from
+    :math:`\\hat T_{sK}` (seed000 (4)).
     """
 
     f_corr: F64

@@ -58,6 +58,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from common.arrays import F64
+from common.stats import rms
 from estimators.errors import ParameterError, require_in, require_positive
 from estimators.idim import (
     RIGID_NAMES,
@@ -706,11 +707,6 @@ def _subset(sig: Signals, mask: NDArray[np.bool_]) -> Signals:
     return Signals(
         sig.t[mask], sig.q[mask], sig.qd[mask], sig.qdd[mask], sig.qddd[mask], sig.force[mask]
     )
-
-
-def rms(e: F64) -> float:
-    """Root mean square (NaN for an empty array)."""
-    return float(np.sqrt(np.mean(e * e))) if len(e) else math.nan
 
 
 def apply_model(

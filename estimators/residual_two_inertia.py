@@ -14,7 +14,7 @@ channels, both at :math:`t_{k-1}` and filtered by Q(s):
   is trusted): with a constant-mean cutting force, a DC gain error and a constant load
   torque are the same signal. Without ``f_ext`` the residual is the estimate itself over
   the segments the user marks as air cuts (no cutting force there), with no baseline.
-* the twist disagreement :math:`r_S = \hat T_{sK} - \hat T_{sM}` (eq. 4 minus eq. 3):
+* the twist disagreement :math:`r_S = \hat T_{sK} - \hat T_{sM}` (seed000 (4) minus seed000 (3)):
   zero for a plant that matches the nominal model. Motor-side effects (torque ripple)
   and shaft-side effects (backlash) appear there in full, while the force residual sees
   them only through the mixing ratio (:math:`\alpha_M \approx 0.9` on the simulator:

@@ -1,9 +1,9 @@
-r"""Rectangular-window recursive least squares with projection (seed 000 eq. (9)-(15)) and
-its switching variant (seed 001 eq. (11)-(12), Fig. 6).
+r"""Rectangular-window recursive least squares with projection (seed000 (9)-(15)) and
+its switching variant (seed001 (11)-(12), Fig. 6).
 
 Choices where the papers are ambiguous or garbled
 -------------------------------------------------
-* Eq. (11)-(12) as printed update and downdate with the same old regressor and with the
+* seed000 (11)-(12) as printed update and downdate with the same old regressor and with the
   same sign. We implement the rectangular window as intended: a Sherman-Morrison
   *downdate* of the sample leaving the window,
   :math:`P' = P + P\varphi_o\varphi_o^T P/(1 - \varphi_o^T P \varphi_o)`, then an
@@ -13,12 +13,12 @@ Choices where the papers are ambiguous or garbled
   condition held). Updates are skipped when it does not hold (P[k] = P[k-1], seed 000
   III.C); downdating "the sample L steps ago" in time would remove samples that never
   entered.
-* Projection and the window's memory. Eq. (10) forms the increment against the previous
-  estimate; once eq. (13) clips a component, the estimate is no longer the window's
+* Projection and the window's memory. seed000 (10) forms the increment against the previous
+  estimate; once seed000 (13) clips a component, the estimate is no longer the window's
   least-squares solution and that error is carried forward unchanged by the recursion —
   it never leaves the window. We therefore keep the window's information vector beside P
   (both are downdated as samples leave) and take the increment against the solution it
-  defines, :math:`E = P r - \hat\theta[k-1]`; eq. (13) zeroes the components pushing
+  defines, :math:`E = P r - \hat\theta[k-1]`; seed000 (13) zeroes the components pushing
   past a bound and the result is clamped into the box so an update never crosses it.
 * Conditioning. A 40 ms window of low-passed regressors is nearly collinear (sgn and the
   constant are identical between reversals; J_L and the constant while the acceleration
@@ -30,7 +30,7 @@ Choices where the papers are ambiguous or garbled
   exactly the window least-squares solution wherever the window determines it, while
   directions the window does not determine keep their value instead of drifting (or being
   pulled back to a nominal value). Without clipping and with a negligible ridge this is
-  eq. (10) exactly. Regressors are scaled by ``scale`` (the parameters' magnitudes) so
+  seed000 (10) exactly. Regressors are scaled by ``scale`` (the parameters' magnitudes) so
   that P_0 = p0 I is meaningful.
 * Health. After every update P is symmetrised; a downdate denominator <= 1e-9 or a
   non-positive diagonal entry means P lost positive definiteness: the RLS is reset
@@ -59,7 +59,7 @@ class RLSParams:
 
     window: int  # L (seed 000 Table II: 100 samples)
     scale: tuple[float, ...]  # magnitude of each parameter (regressor scaling)
-    lower: tuple[float, ...]  # projection bounds (eq. 13)
+    lower: tuple[float, ...]  # projection bounds (seed000 (13))
     upper: tuple[float, ...]
     p0: float = 100.0  # initial covariance in scaled units (ridge 1/p0)
 
@@ -117,6 +117,7 @@ def rls_init(p: RLSParams, theta0: F64) -> RLSState:
 @njit(cache=True)
 def _reset(P, r, th, meta, p0):  # pragma: no cover
     n = len(th)
+    # P = p0 I, r = theta / p0: the window emptied
     for i in range(n):
         for j in range(n):
             P[i, j] = p0 if i == j else 0.0
@@ -168,7 +169,8 @@ def rls_update(P, r, th, buf_phi, buf_y, meta, phi, y, lo, hi, p0, follow):  # p
     was_reset = 0
     if meta[1] == L:
         h = meta[0]
-        # downdate: the oldest accepted sample leaves the window (eq. 12, sign fixed)
+        # P <- P + P phi_o phi_o^T P / (1 - phi_o^T P phi_o), r <- r - phi_o y_o
+        # downdate: the oldest accepted sample leaves the window (seed000 (12), sign fixed)
         for i in range(n):
             acc = 0.0
             for j in range(n):
@@ -189,7 +191,8 @@ def rls_update(P, r, th, buf_phi, buf_y, meta, phi, y, lo, hi, p0, follow):  # p
                 r[i] -= buf_phi[h, i] * buf_y[h]
             meta[0] = (h + 1) % L
             meta[1] -= 1
-    # update with the new sample (eq. 11)
+    # P <- P - P phi phi^T P / (1 + phi^T P phi), r <- r + phi y
+    # update with the new sample (seed000 (11))
     for i in range(n):
         acc = 0.0
         for j in range(n):
@@ -215,13 +218,14 @@ def rls_update(P, r, th, buf_phi, buf_y, meta, phi, y, lo, hi, p0, follow):  # p
             s = 0.5 * (P[i, j] + P[j, i])
             P[i, j] = s
             P[j, i] = s
-    # eq. (9)-(10): increment towards the window's least-squares solution P r
+    # theta <- clamp(theta + Proj(P r - theta), lo, hi)
+    # seed000 (9)-(10): increment towards the window's least-squares solution P r
     for i in range(n):
         acc = 0.0
         for j in range(n):
             acc += P[i, j] * r[j]
         e = acc - th[i]
-        # eq. (13): discontinuous projection; then clamp so no update crosses a bound
+        # seed000 (13): discontinuous projection; then clamp so no update crosses a bound
         if (th[i] >= hi[i] and e > 0.0) or (th[i] <= lo[i] and e < 0.0):
             e = 0.0
         v = min(max(th[i] + e, lo[i]), hi[i])
@@ -234,7 +238,7 @@ def rls_update(P, r, th, buf_phi, buf_y, meta, phi, y, lo, hi, p0, follow):  # p
 
 @dataclass(frozen=True)
 class IdentifierParams:
-    """Load-side identification on the regression model of seed 000 eq. (14).
+    """Load-side identification on the regression model of seed000 (14).
 
     Parameter order inside: ``[J_L, B_L, F_CL, F_cut_DC]``.
     """
@@ -296,12 +300,14 @@ class IdentRecord:
     mode: NDArray[np.int8]  # 0: no update, 3: 3-parameter model, 4: 4-parameter model
     excited: NDArray[np.bool_]  # the excitation condition held
     resets: int  # covariance resets so far
-    excitation_index: float  # eq. (15) min eigenvalue over the window (block end)
+    excitation_index: float  # seed000 (15) min eigenvalue over the window (block end)
     cov_trace: float
 
 
 @njit(cache=True)
 def _filter_regressors(zf, bq, aq, ts_hat, acc, vel, sgn, out_y, out_phi):  # pragma: no cover
+    # y = Q_RLS{T_s}, phi = [Q_RLS{d omega_L/dt}, Q_RLS{omega_L}, Q_RLS{sgn omega_L}, 1] (seed000
+    #  (14))
     for k in range(len(ts_hat)):
         out_y[k] = df2t_step(bq, aq, zf[0], ts_hat[k])
         out_phi[k, 0] = df2t_step(bq, aq, zf[1], acc[k])
@@ -320,6 +326,8 @@ def _ordinary_kernel(
 ):  # pragma: no cover
     n = len(th)
     ph = np.empty(n)
+    # theta[k] = window RLS update of theta[k-1] with (phi[k], y[k]) if |phi_acc[k]| > thr (seed000
+    #  (15)), else theta[k-1]
     for k in range(len(y)):
         exc = abs(phi[k, 0]) > thr
         o_exc[k] = exc
@@ -369,6 +377,8 @@ def _switching_kernel(
     idx3 = np.array([0, 1, 3])
     ph4 = np.empty(4)
     ph3 = np.empty(3)
+    # theta[k] = update of the model in charge: 4 parameters (seed001 (11)) while a reversal is in
+    #  the window, else 3 (seed001 (12))
     for k in range(len(y)):
         s = 1.0 if rev[k] > 0 else (-1.0 if rev[k] < 0 else 0.0)
         if s != 0.0 and s != sw[3]:
@@ -415,7 +425,7 @@ def _switching_kernel(
             rls_update(P4, r4, th4, bp4, by4, m4, ph4, y[k], lo4, hi4, p0, follow)
             sw[2] = th4[2] * sc4[2]
         elif mode == 3:
-            # eq. (12): y3 = Q_RLS(T_s - F_CL sgn(omega_L)) with the held F_CL
+            # seed001 (12): y3 = Q_RLS(T_s - F_CL sgn(omega_L)) with the held F_CL
             y3 = y[k] - sw[2] * phi[k, 2]
             for i in range(3):
                 ph3[i] = phi[k, idx3[i]] * sc3[i]
@@ -438,7 +448,7 @@ def _switching_kernel(
 
 
 def excitation_index(state: RLSState) -> float:
-    """Eq. (15): smallest eigenvalue of (1/L) sum phi phi^T over the window (scaled).
+    """seed000 (15): smallest eigenvalue of (1/L) sum phi phi^T over the window (scaled).
 
     While the window fills, the mean is over the samples it holds.
     """
@@ -491,7 +501,7 @@ class LoadIdentifier:
     def step(
         self, state: IdentState, t_s: F64, acc_l: F64, vel_l: F64, sgn_l: F64, omega_l: F64
     ) -> tuple[IdentState, IdentRecord]:
-        """One block: filter by Q_RLS (eq. 14), test excitation, update, report."""
+        """One block: filter by Q_RLS (seed000 (14)), test excitation, update, report."""
         p = self.params
         n = len(t_s)
         new = IdentState(

@@ -1,4 +1,4 @@
-r"""Recursive least squares with a forgetting factor (seed 004, eq. (20)-(21)).
+r"""Recursive least squares with a forgetting factor (seed004 (20)-(21)).
 
 Two implementations of the same recursion:
 
@@ -36,15 +36,17 @@ from estimators.errors import ParameterError, require_in, require_positive
 def covariance_update(
     theta: F64, P: F64, phi: F64, y: float, beta: float
 ) -> float:  # pragma: no cover - compiled
-    """One step of eq. (20)-(21) in place; returns the a-priori residual."""
+    """One step of seed004 (20)-(21) in place; returns the a-priori residual."""
     n = len(theta)
     Pphi = P @ phi
     den = beta + phi @ Pphi
     e = float(y - phi @ theta)
-    # eq. (20)
+    # theta <- theta + P phi e / (beta + phi^T P phi), e = y - phi^T theta
+    # seed004 (20)
     for i in range(n):
         theta[i] += Pphi[i] / den * e
-    # eq. (21)
+    # P <- (P - P phi phi^T P / (beta + phi^T P phi)) / beta
+    # seed004 (21)
     for i in range(n):
         for j in range(n):
             P[i, j] = (P[i, j] - Pphi[i] * Pphi[j] / den) / beta
@@ -55,7 +57,7 @@ def covariance_update(
 def ud_update(
     theta: F64, U: F64, D: F64, phi: F64, y: float, beta: float
 ) -> float:  # pragma: no cover - compiled
-    """Eq. (20)-(21) on the factors ``P = U diag(D) U^T`` (Bierman), in place.
+    """seed004 (20)-(21) on the factors ``P = U diag(D) U^T`` (Bierman), in place.
 
     Returns the a-priori residual.
     """
@@ -63,10 +65,12 @@ def ud_update(
     f = U.T @ phi
     v = D * f
     K = np.zeros(n)
-    # eq. (21) denominator beta + phi^T P phi, accumulated column by column
+    # seed004 (21) denominator beta + phi^T P phi, accumulated column by column
     alpha = beta + v[0] * f[0]
     D[0] = D[0] * beta / alpha
     K[0] = v[0]
+    # Bierman: U, D of P - P phi phi^T P / alpha, alpha_j = beta + sum_{i<=j} v_i f_i, f = U^T phi,
+    #  v = D f
     for j in range(1, n):
         alpha_new = alpha + v[j] * f[j]
         D[j] = D[j] * alpha / alpha_new
@@ -78,10 +82,10 @@ def ud_update(
         K[j] = v[j]
         alpha = alpha_new
     e = float(y - phi @ theta)
-    # eq. (20): the gain P phi / (beta + phi^T P phi) is K / alpha
+    # seed004 (20): the gain P phi / (beta + phi^T P phi) is K / alpha
     for i in range(n):
         theta[i] += K[i] / alpha * e
-    # eq. (21): the 1/beta of the forgetting factor
+    # seed004 (21): the 1/beta of the forgetting factor
     for i in range(n):
         D[i] = D[i] / beta
     return e
@@ -100,6 +104,7 @@ def _rls_block(
     thetas: F64,
     resid: F64,
 ) -> None:  # pragma: no cover
+    # theta[k] = RLS-with-forgetting update of theta[k-1] with (Phi[k], y[k]) (seed004 (20)-(21))
     for k in range(len(y)):
         if use_ud:
             resid[k] = ud_update(theta, U, D, Phi[k], y[k], beta)
@@ -117,7 +122,7 @@ class ForgettingRLSParams:
     n : int
         Number of parameters.
     forgetting : float
-        beta of eq. (20)-(21), in (0, 1].
+        beta of seed004 (20)-(21), in (0, 1].
     p0 : float
         Initial covariance ``p0 * I``, > 0.
     method : {"ud", "plain"}
@@ -161,7 +166,7 @@ class ForgettingRLSRecord:
 
 
 class ForgettingRLS:
-    """Block-step RLS with forgetting, eq. (20)-(21), plain or U-D factorised."""
+    """Block-step RLS with forgetting, seed004 (20)-(21), plain or U-D factorised."""
 
     def __init__(self, params: ForgettingRLSParams) -> None:
         self.params = params

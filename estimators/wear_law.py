@@ -5,7 +5,7 @@ the accelerating diffusive wear: before mid-life the curve is nearly straight (t
 decelerating break-in tail hides the accelerating diffusion), after it the rate grows
 by a third. This module extrapolates with the *form* of the paper's wear model instead,
 re-expressed here because ``estimators`` may not import ``machine``. At constant speed
-``v``, feed ``f`` and depth ``d`` eq. (3)-(8) of seed 004 reduce to
+``v``, feed ``f`` and depth ``d`` seed004 (3)-(8) reduce to
 
 .. math::
 
@@ -16,16 +16,16 @@ re-expressed here because ``estimators`` may not import ``machine``. At constant
 
 with the flank wear ``VB = w1 + w2`` and ``C = K14 w_c`` the force lost to the crater.
 Off-line knowledge (the model's constants at the cutting condition): ``tau_1 = l0/v``,
-``A = K3``, ``Theta_0 = 273 + K6 v^n1 f^n2``, ``c_theta = K7`` (eq. (6) with
+``A = K3``, ``Theta_0 = 273 + K6 v^n1 f^n2``, ``c_theta = K7`` (seed004 (6) with
 ``n3 = 1``), ``g_c = K14 K4 v``, ``A_c = K5``, ``c_c = K8 v^n4 f^n5 d^n6``, and
 ``s = K13 d``. Fitted on line: the two scale factors ``kappa`` (abrasive, ``K1
 cos(alpha_r)``) and ``k2`` (diffusive, ``K2 sqrt(v)``) — the magnitudes of the two wear
 mechanisms, which change from tool to tool and batch to batch.
 
-Fit. With ``z`` the measured force ``F/(f d)`` low-passed with ``tau_1`` (eq. (3) is
+Fit. With ``z`` the measured force ``F/(f d)`` low-passed with ``tau_1`` (seed004 (3) is
 linear in ``w1``, so ``w1 = kappa z`` exactly for a sharp tool) and ``W2(tau)`` the
 diffusive land of a sharp tool after the "diffusion time" ``tau = k2 t`` (a table of
-the integral of eq. (4)), the flank wear of pass ``j`` is
+the integral of seed004 (4)), the flank wear of pass ``j`` is
 
 .. math:: VB_j = \kappa \bar z_j + W_2(k_2 t_j),
 
@@ -73,23 +73,23 @@ class WearLawParams:
     depth : float
         Depth of cut [mm].
     tau_abrasive : float
-        Break-in time constant ``l0 / v`` [min] (eq. (3)).
+        Break-in time constant ``l0 / v`` [min] (seed004 (3)).
     kappa0 : float
         Nominal abrasive scale ``K1 cos(alpha_r)`` [mm^3/N] (start of the fit).
     k2_0 : float
         Nominal diffusion rate ``K2 sqrt(v)`` [mm/min] (centre of the search).
     activation : float
-        Activation temperature ``A = K3`` of the diffusive wear [K] (eq. (4)).
+        Activation temperature ``A = K3`` of the diffusive wear [K] (seed004 (4)).
     theta0 : float
-        Tool-work temperature of the sharp tool ``273 + K6 v^n1 f^n2`` [K] (eq. (6)).
+        Tool-work temperature of the sharp tool ``273 + K6 v^n1 f^n2`` [K] (seed004 (6)).
     theta_per_wear : float
-        Temperature rise per mm of diffusive land ``K7`` [K/mm] (eq. (6), ``n3 = 1``).
+        Temperature rise per mm of diffusive land ``K7`` [K/mm] (seed004 (6), ``n3 = 1``).
     crater_gain : float
-        ``K14 K4 v`` [1/min]: the crater's force-loss rate per newton (eq. (5), (8)).
+        ``K14 K4 v`` [1/min]: the crater's force-loss rate per newton (seed004 (5), (8)).
     crater_activation : float
-        ``K5`` [K] (eq. (5)).
+        ``K5`` [K] (seed004 (5)).
     crater_theta_per_newton : float
-        ``K8 v^n4 f^n5 d^n6`` [K/N] (eq. (7)).
+        ``K8 v^n4 f^n5 d^n6`` [K/N] (seed004 (7)).
     activation_rel_sd, crater_rel_sd : float
         Relative 1-sigma uncertainty of ``A`` and of ``crater_gain`` (model-form part of
         the remaining-life S.D.). Choice: 5 % on an activation temperature (it sets the
@@ -146,7 +146,7 @@ class WearLawParams:
 def w2_table(activation: float, theta0: float, theta_per_wear: float) -> F64:
     r"""Diffusion time ``tau`` [mm] at which a sharp tool's diffusive land reaches ``w``.
 
-    Eq. (4), (6): ``dw/dtau = exp(-A/(Theta_0 + c w))`` with ``tau = k2 t``, so
+    seed004 (4), (6): ``dw/dtau = exp(-A/(Theta_0 + c w))`` with ``tau = k2 t``, so
     ``tau(w) = int_0^w exp(A/(Theta_0 + c s)) ds`` (trapezoid on a fine grid of ``w``).
     Returns the ``tau`` grid matching :func:`w_grid`.
     """
@@ -172,13 +172,13 @@ def _law_rhs(
     out: F64,
 ) -> None:
     # q = [tau1, fd, Fs, s, A, theta0, c_theta, g_c, A_c, c_c]
-    # eq. (8)
+    # seed004 (8)
     F = q[2] + q[3] * (x[0] + x[1]) - x[2]
-    # eq. (3)
+    # seed004 (3)
     out[0] = (-x[0] + kappa * F / q[1]) / q[0]
-    # eq. (4), (6) with n3 = 1
+    # seed004 (4), (6) with n3 = 1
     out[1] = k2 * math.exp(-q[4] / (q[5] + q[6] * x[1]))
-    # eq. (5), (7), (8): force lost to the crater (K14 w_c)
+    # seed004 (5), (7), (8): force lost to the crater (K14 w_c)
     if q[7] > 0.0:
         out[2] = q[7] * F * math.exp(-q[8] / (273.0 + q[9] * F))
     else:
@@ -205,6 +205,7 @@ def _crossing_time(
     k4 = np.empty(3)
     xt = np.empty(3)
     t = 0.0
+    # RK4 on dx/dt = f(x) (the reduced law, seed004 (3)-(8)) until w1 + w2 >= vb_limit
     while t < horizon:
         _law_rhs(x, kappa, k2, q, k1)
         for i in range(3):
@@ -261,7 +262,7 @@ class WearLawPredictor:
         )
 
     def crater_rate(self, force: float | F64) -> float | F64:
-        """Force lost to the crater per minute at ``force`` [N/min] (eq. (5), (7), (8))."""
+        """Force lost to the crater per minute at ``force`` [N/min] (seed004 (5), (7), (8))."""
         p = self.params
         F = np.asarray(force, dtype=np.float64)
         if p.crater_gain == 0.0:
@@ -336,7 +337,7 @@ class WearLawPredictor:
             Time, low-passed ``F/(f d)`` and crater force loss at the end of the last
             pass.
         force_sharp : float
-            Force of the sharp tool ``F_s`` [N] (eq. (25)).
+            Force of the sharp tool ``F_s`` [N] (seed004 (25)).
         force_per_flank_wear : float
             ``s`` [N/mm].
         vb_limit : float
@@ -354,7 +355,7 @@ class WearLawPredictor:
         def fit_predict(
             act_sign: int, cscale: float
         ) -> tuple[float, float, float, F64, F64, float]:
-            # the flank wear from the force depends on the crater law assumed (eq. (8))
+            # the flank wear from the force depends on the crater law assumed (seed004 (8))
             y = vb + (cscale - 1.0) * crater_mid / s
             kap, u, sse = self._fit(t_mid, y, zbar, act_sign)
             w2_now = float(self._w2(np.array([math.exp(u) * t_now]), act_sign)[0])

@@ -1,12 +1,12 @@
-r"""Linear models for the wear observer (seed 004, appendix and eq. (11)-(16)).
+r"""Linear models for the wear observer (seed004 appendix and (11)-(16)).
 
-- :func:`linearise_along_path`: the appendix's "gross" linearisation, eq. (A9)-(A14):
+- :func:`linearise_along_path`: the appendix's "gross" linearisation, seed004 (A9)-(A14):
   the Jacobians of a nonlinear model averaged over ``n'`` intervals of the straight
   path from the origin to an end point of the trajectory.
-- :func:`zoh`: zero-order-hold discretisation, eq. (11)-(12).
-- :func:`transfer_function`: the :math:`a_i, b_i` of eq. (13).
-- :func:`observer_form` and :func:`observer_transform`: eq. (15)-(16) and the matrix
-  :math:`T` of eq. (14), :math:`x = T x_0`.
+- :func:`zoh`: zero-order-hold discretisation, seed004 (11)-(12).
+- :func:`transfer_function`: the :math:`a_i, b_i` of seed004 (13).
+- :func:`observer_form` and :func:`observer_transform`: seed004 (15)-(16) and the matrix
+  :math:`T` of seed004 (14), :math:`x = T x_0`.
 
 The estimators never see the simulator: the nonlinear model enters only as a callable
 returning its partial derivatives.
@@ -22,8 +22,8 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from common.arrays import F64
+from common.linalg import expm
 from estimators.errors import ParameterError, require_positive
-from estimators.filters import expm
 
 #: ``jacobian(x, u) -> (df/dx (n, n), df/du (n,), dg/dx (n,), dg/du)``
 Jacobian = Callable[[F64, float], tuple[F64, F64, F64, float]]
@@ -31,7 +31,7 @@ Jacobian = Callable[[F64, float], tuple[F64, F64, F64, float]]
 
 @dataclass(frozen=True, eq=False)
 class LinearModel:
-    """Continuous linear model eq. (A7)-(A8): ``x' = A x + b u``, ``y = c x + D u``."""
+    """Continuous linear model seed004 (A7)-(A8): ``x' = A x + b u``, ``y = c x + D u``."""
 
     A: F64
     b: F64
@@ -41,7 +41,7 @@ class LinearModel:
 
 @dataclass(frozen=True, eq=False)
 class DiscreteModel:
-    """Discrete model eq. (11)-(12): ``x(k+1) = P x(k) + q u(k)``, ``y = c x + D u``."""
+    """Discrete model seed004 (11)-(12): ``x(k+1) = P x(k) + q u(k)``, ``y = c x + D u``."""
 
     P: F64
     q: F64
@@ -59,7 +59,7 @@ def linearise_along_path(
     input_path: Literal["hold", "ramp"] = "hold",
     static_gain: float | None = None,
 ) -> LinearModel:
-    r"""Average the Jacobians along the path from the origin, eq. (A9)-(A14).
+    r"""Average the Jacobians along the path from the origin, seed004 (A9)-(A14).
 
     .. math:: A = \frac{1}{n'} \sum_{i=0}^{n'-1}
               \left.\frac{\partial f'}{\partial x}\right|_{x = i\Delta x,\ u = u_i},
@@ -76,14 +76,14 @@ def linearise_along_path(
     n_intervals : int
         :math:`n'` (the paper uses 200).
     input_path : {"hold", "ramp"}
-        ``"ramp"``: :math:`u_i = i\,u_1/n'` as eq. (A10) writes. ``"hold"``: the input
+        ``"ramp"``: :math:`u_i = i\,u_1/n'` as seed004 (A10) writes. ``"hold"``: the input
         stays at :math:`u_1` while the state runs from the origin. Choice: "hold" is the
-        default because the wear model's eq. (3) divides by the feed, so its Jacobian
+        default because the wear model's seed004 (3) divides by the feed, so its Jacobian
         does not exist at u = 0 (the first point of the ramp) and its average over the
         ramp diverges as n' grows; the feed is a step applied at the start of the cut,
         so the physical trajectory from the sharp tool runs at u = u_1 anyway.
     static_gain : float, optional
-        Use this D instead of eq. (A14) (e.g. the secant ``y(0)/u(0)`` of eq. (25)).
+        Use this D instead of seed004 (A14) (e.g. the secant ``y(0)/u(0)`` of seed004 (25)).
     """
     if int(n_intervals) != n_intervals or n_intervals < 1:
         raise ParameterError("n_intervals", "an integer >= 1", n_intervals)
@@ -92,7 +92,7 @@ def linearise_along_path(
     x1 = np.asarray(x_end, dtype=np.float64).reshape(-1)
     u1 = float(u_end)
     n = int(n_intervals)
-    # eq. (A9), (A10)
+    # seed004 (A9), (A10)
     dx = x1 / n
     du = u1 / n
     nx = len(x1)
@@ -107,14 +107,14 @@ def linearise_along_path(
         b += ju
         c += gx
         D += gu
-    # eq. (A11)-(A14)
+    # seed004 (A11)-(A14)
     return LinearModel(
         A=A / n, b=b / n, c=c / n, D=float(D / n) if static_gain is None else float(static_gain)
     )
 
 
 def zoh(model: LinearModel, sample_time: float) -> DiscreteModel:
-    r"""Zero-order-hold discretisation, eq. (11)-(12).
+    r"""Zero-order-hold discretisation, seed004 (11)-(12).
 
     :math:`P = e^{AT}`, :math:`q = \int_0^T e^{As}\,ds\; b`, from one matrix exponential
     of the augmented matrix ``[[A, b], [0, 0]]``.
@@ -131,7 +131,7 @@ def zoh(model: LinearModel, sample_time: float) -> DiscreteModel:
 
 
 def transfer_function(model: DiscreteModel) -> tuple[F64, F64]:
-    r"""The :math:`a_i, b_i` of eq. (13) (``b_0 = 0``, ``m = n``).
+    r"""The :math:`a_i, b_i` of seed004 (13) (``b_0 = 0``, ``m = n``).
 
     .. math:: \frac{Y(z)}{U(z)} - D = \frac{\sum_{j=1}^n b_j z^{-j}}
               {1 + \sum_{i=1}^n a_i z^{-i}}
@@ -155,22 +155,22 @@ def transfer_function(model: DiscreteModel) -> tuple[F64, F64]:
 
 
 def observer_form(a: ArrayLike, b: ArrayLike) -> tuple[F64, F64, F64]:
-    """Matrices of the observer form, eq. (15)-(16): ``(A_o, b_o, c_o)``."""
+    """Matrices of the observer form, seed004 (15)-(16): ``(A_o, b_o, c_o)``."""
     aa = np.asarray(a, dtype=np.float64).reshape(-1)
     bb = np.asarray(b, dtype=np.float64).reshape(-1)
     n = len(aa)
     Ao = np.zeros((n, n))
-    # eq. (15): first column -a, ones on the super-diagonal
+    # seed004 (15): first column -a, ones on the super-diagonal
     Ao[:, 0] = -aa
     Ao[: n - 1, 1:] = np.eye(n - 1)
     co = np.zeros(n)
-    # eq. (16)
+    # seed004 (16)
     co[0] = 1.0
     return Ao, bb.copy(), co
 
 
 def observer_transform(model: DiscreteModel) -> F64:
-    r"""The matrix :math:`T` of eq. (14), :math:`x = T x_0`.
+    r"""The matrix :math:`T` of seed004 (14), :math:`x = T x_0`.
 
     Both realisations share the output, so their observability matrices satisfy
     :math:`O_o = O\,T`, hence :math:`T = O^{-1} O_o`.

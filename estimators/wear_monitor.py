@@ -5,18 +5,19 @@ dynamometer, or the cutting force estimated from the drive signals — averaged 
 tool pass. Per pass ``j`` (cutting time ``t_j`` on the wear clock [min], mean force
 ``F_j`` [N], feed ``f_j`` [mm/rev]):
 
-1. Static gain, eq. (25) of seed 004: ``D = F_1 / f_1`` on the first pass (sharp tool);
+1. Static gain, seed004 (25): ``D = F_1 / f_1`` on the first pass (sharp tool);
    on a feed change, re-estimated from the change of force over the change of feed
    (section 4.3.1), with an offset that keeps the wear force continuous.
-2. Wear force, eq. (24): ``dy_j = F_j - D f_j``.
+2. Wear force, seed004 (24): ``dy_j = F_j - D f_j``.
 3. Flank wear ``VB_j = dy_j / s`` with ``s = dF/dVB`` [N/mm], the sensitivity of the
-   force to the flank land known off line (eq. (8): ``K13 d``). Choice: the paper's
-   back-transformation ``x = T x0`` (eq. (14)) is too ill-conditioned to use here (see
-   the README, "Tool wear"); the wear force itself is the well-observed quantity. The
+   force to the flank land known off line (seed004 (8): ``K13 d``). Choice: the paper's
+   back-transformation ``x = T x0`` (seed004 (14)) is too ill-conditioned to use here (see
+   docs/reproductions/seed004-tool-wear.md); the wear force itself is the well-observed
+   quantity. The
    crater lowers the force (``-K14 w_c``), so VB is underestimated by
    ``K14 w_c / (K13 d)``.
 4. Trend: with ``law`` given (default of the live machine and the reproduction), the
-   reduced wear law of :mod:`estimators.wear_law` — the form of seed 004's eq. (3)-(8)
+   reduced wear law of :mod:`estimators.wear_law` — the form of seed004 (3)-(8)
    with its two scale factors fitted to the passes after the break-in
    (``t >= trend_start``); the crater's force loss of step 3 then follows the crater
    law driven by the measured force instead of a constant rate. Without ``law``:
@@ -72,7 +73,7 @@ class ToolLifeParams:
     trend_order : int
         1: straight-line trend (default); 2: quadratic. Choice: after the break-in the
         flank wear first decelerates (abrasive tail) and then accelerates (diffusion,
-        eq. (4), (6)); a parabola fitted across the inflection often never reaches the
+        seed004 (4), (6)); a parabola fitted across the inflection often never reaches the
         limit, the straight line is biased (late) but usable.
     crater_force_rate : float
         Force lost to crater wear per minute of cutting [N/min], from the design model
@@ -81,7 +82,7 @@ class ToolLifeParams:
         be separated from the force alone; 0 ignores it. Not used when ``law`` is given
         (the crater law replaces it).
     extrapolate_sharp_force : bool
-        Eq. (25) needs the force of the sharp tool, but a pass mean already contains the
+        seed004 (25) needs the force of the sharp tool, but a pass mean already contains the
         break-in wear of that pass. True: the sharp-tool force is extrapolated back to
         t = 0 from the first two pass means (linear in the pass mid-times); False:
         the first pass mean is used as is.
@@ -146,7 +147,7 @@ class ToolLifeRecord:
     """Per-pass outputs."""
 
     t: F64  # cutting time at the end of each pass [min]
-    wear_force: F64  # dy, eq. (24) [N]
+    wear_force: F64  # dy, seed004 (24) [N]
     static_gain: F64  # D [N/(mm/rev)]
     vb: F64  # flank wear of the pass [mm]
     vb_trend: F64  # trend value at t [mm] (NaN before the trend exists)
@@ -223,12 +224,12 @@ class ToolLifeMonitor:
             tj, Fj, fj = float(ta[j]), float(Fa[j]), float(fa[j])
             feed_changed = misc[4] > 0.5 and abs(fj - misc[2]) > p.feed_tolerance * misc[2]
             if misc[4] < 0.5:
-                # eq. (25): the first pass is cut with a sharp tool
+                # seed004 (25): the first pass is cut with a sharp tool
                 misc[0] = Fj / fj
                 misc[1] = 0.0
                 misc[6] = tj
             elif misc[4] < 1.5 and p.extrapolate_sharp_force and not feed_changed:
-                # eq. (25) with y(0) extrapolated to t = 0 from the first two pass means
+                # seed004 (25) with y(0) extrapolated to t = 0 from the first two pass means
                 m1 = 0.5 * misc[6]
                 m2 = 0.5 * (misc[6] + tj)
                 f0 = misc[3] - (Fj - misc[3]) * m1 / (m2 - m1)
@@ -238,7 +239,7 @@ class ToolLifeMonitor:
                 d_new = (Fj - misc[3]) / (fj - misc[2])
                 misc[1] += (misc[0] - d_new) * misc[2]
                 misc[0] = d_new
-            # eq. (24)
+            # seed004 (24)
             dy = Fj - misc[0] * fj - misc[1]
             lp = p.law
             # the law's constants hold for one feed: passes at another feed use the
@@ -246,7 +247,7 @@ class ToolLifeMonitor:
             law_ok = lp is not None and abs(fj - lp.feed) <= p.feed_tolerance * lp.feed
             if law_ok and lp is not None and self._law is not None:
                 # the wear law's inputs over this pass (force held over the pass):
-                # eq. (3)'s low-pass of F/(f d) and eq. (5)'s crater force loss
+                # seed004 (3)'s low-pass of F/(f d) and seed004 (5)'s crater force loss
                 dt = tj - (misc[5] if misc[4] > 0.5 else 0.0)
                 e = math.exp(-dt / lp.tau_abrasive)
                 u = Fj / (fj * lp.depth)

@@ -2,17 +2,17 @@ r"""Adaptive observer for tool wear from the cutting force (seed 004, section 4)
 
 Per sample ``k`` (feed ``u(k)`` [mm/rev], cutting force ``y(k)`` [N]):
 
-1. Static gain ``D`` (eq. (25)): at the start of the cut (sharp tool, first sample with
+1. Static gain ``D`` (seed004 (25)): at the start of the cut (sharp tool, first sample with
    a feed) ``D = y(0)/u(0)``; on a feed change, re-estimated from the ratio of the
    change in output to the change in input (section 4.3.1).
-2. Static output removed (eq. (24)): ``dy(k) = y(k) - D u(k)`` (plus the offset that
+2. Static output removed (seed004 (24)): ``dy(k) = y(k) - D u(k)`` (plus the offset that
    keeps ``dy`` continuous across a feed change, see :func:`_observer_block`).
-3. RLS with forgetting (eq. (20)-(21)), U-D factorised, on the scaled regressor and
-   parameters of eq. (26)-(29), projected onto the constraints of Table 2.
-4. Deadbeat state observer (eq. (17)-(19), ``g_i = -a_i``) in observer form, with the
+3. RLS with forgetting (seed004 (20)-(21)), U-D factorised, on the scaled regressor and
+   parameters of seed004 (26)-(29), projected onto the constraints of Table 2.
+4. Deadbeat state observer (seed004 (17)-(19), ``g_i = -a_i``) in observer form, with the
    current estimates.
 5. Optionally the observer-form states mapped back to the physical wear states with a
-   transformation ``T`` of eq. (14) known off line (:class:`WearObserverParams.transform`).
+   transformation ``T`` of seed004 (14) known off line (:class:`WearObserverParams.transform`).
 """
 
 from __future__ import annotations
@@ -82,9 +82,9 @@ class WearObserverParams:
         Initial estimate ``[a1, a2, a3, b1, b2, b3]`` (unscaled); must satisfy the
         constraints.
     forgetting : float
-        beta of eq. (20)-(21), in (0, 1]; the paper uses 0.95.
+        beta of seed004 (20)-(21), in (0, 1]; the paper uses 0.95.
     scale_output, scale_input : float
-        s1 and s2 of eq. (28)-(29), non-zero.
+        s1 and s2 of seed004 (28)-(29), non-zero.
     p0 : float or array_like of 6
         Initial covariance of the scaled parameters, ``diag(p0)``. The paper gives no
         value. Choice: a small variance on the a's (the poles near z = 1 are known from
@@ -98,7 +98,7 @@ class WearObserverParams:
     constraints : WearConstraints or None
         Table 2 (default) or None for an unconstrained RLS.
     transform : (3, 3) array or None
-        ``T`` of eq. (14) (``x = T x0``) known off line, to map the observer-form
+        ``T`` of seed004 (14) (``x = T x0``) known off line, to map the observer-form
         states to flank (``x1 + x2``) and crater (``x3``) wear.
     use_ud : bool
         U-D factorised covariance update (True, the paper's choice) or the plain one.
@@ -152,7 +152,7 @@ class WearObserverParams:
 class WearObserverState:
     """Explicit state of the adaptive observer."""
 
-    theta: F64  # scaled parameters eq. (29)
+    theta: F64  # scaled parameters seed004 (29)
     P: F64  # covariance (plain form)
     U: F64  # U-D factors
     Dd: F64
@@ -170,9 +170,9 @@ class WearObserverState:
 class WearObserverRecord:
     """Per-sample outputs of one block."""
 
-    x0_hat: F64  # (n, 3) observer-form state estimate at each sample (eq. (17))
+    x0_hat: F64  # (n, 3) observer-form state estimate at each sample (seed004 (17))
     theta: F64  # (n, 6) unscaled estimates a1, a2, a3, b1, b2, b3
-    dy: F64  # (n,) force with the static value removed, eq. (24)
+    dy: F64  # (n,) force with the static value removed, seed004 (24)
     static_gain: F64  # (n,) D
     residual: F64  # (n,) a-priori RLS residual [N]
     cov_trace: F64  # (n,) trace of P (scaled)
@@ -190,6 +190,7 @@ class WearObserverRecord:
 @njit(cache=True)
 def _project(th: F64, bounds: F64) -> None:  # pragma: no cover - compiled
     # Table 2: box on a1..a3 ...
+    # a_i <- clamp(a_i, Table 2); b_j <- clamp(b_j, [lo_j b1, hi_j b1]) (seed004 (29))
     for i in range(3):
         th[i] = min(max(th[i], bounds[i, 0]), bounds[i, 1])
     # ... and b2, b3 within ratios of b1. Choice: the ratio bounds only make sense for
@@ -207,6 +208,7 @@ def _limit_covariance(
     # same uniform scaling in both forms keeps the U-D and plain updates equivalent
     n = len(Dd)
     m = 0.0
+    # P <- P p_max / max diag(P) when max diag(P) > p_max
     for i in range(n):
         if use_ud:
             s = 0.0
@@ -252,12 +254,14 @@ def _observer_block(
 ) -> None:  # pragma: no cover
     phi = np.empty(6)
     th_u = np.empty(6)
+    # dy = y - D u (seed004 (24)); RLS (seed004 (20)-(21)) on phi(k-1) (seed004 (28)); deadbeat
+    #  x0_hat (seed004 (17)-(19))
     for k in range(len(y)):
         uk = u[k]
         yk = y[k]
         started = misc[4] > 0.5
         if not started and uk > 0.0:
-            # eq. (25): at the start of the cut the tool is sharp, x = 0, y(0) = D u(0)
+            # seed004 (25): at the start of the cut the tool is sharp, x = 0, y(0) = D u(0)
             misc[0] = yk / uk
             misc[1] = 0.0
             misc[4] = 1.0
@@ -270,9 +274,9 @@ def _observer_block(
             d_new = (yk - misc[3]) / (uk - misc[2])
             misc[1] += (misc[0] - d_new) * misc[2]
             misc[0] = d_new
-        # eq. (24): dy(k) = y(k) - D u(k)
+        # seed004 (24): dy(k) = y(k) - D u(k)
         dyk = yk - misc[0] * uk - misc[1] if started else 0.0
-        # eq. (28): scaled regressor phi(k-1)
+        # seed004 (28): scaled regressor phi(k-1)
         nz = False
         for i in range(3):
             phi[i] = -dy_hist[i] / s1
@@ -281,7 +285,7 @@ def _observer_block(
                 nz = True
         res = 0.0
         if started and nz:
-            # eq. (20)-(21) (no update on an all-zero regressor: it carries no
+            # seed004 (20)-(21) (no update on an all-zero regressor: it carries no
             # information and would only inflate P by 1/beta)
             if use_ud:
                 res = ud_update(theta, U, Dd, phi, dyk, beta)
@@ -289,7 +293,7 @@ def _observer_block(
                 res = covariance_update(theta, P, phi, dyk, beta)
             _limit_covariance(P, U, Dd, use_ud, p_max)
             if constrained:
-                # eq. (29): unscale, project on Table 2, rescale
+                # seed004 (29): unscale, project on Table 2, rescale
                 for i in range(3):
                     th_u[i] = theta[i] / s1
                     th_u[3 + i] = theta[3 + i] * s2
@@ -303,7 +307,7 @@ def _observer_block(
         b1 = theta[3] * s2
         b2 = theta[4] * s2
         b3 = theta[5] * s2
-        # record the estimate of x0(k) made at k-1 by eq. (17)
+        # record the estimate of x0(k) made at k-1 by seed004 (17)
         for i in range(3):
             out_x[k, i] = xh[i]
         out_th[k, 0] = a1
@@ -326,8 +330,8 @@ def _observer_block(
             for i in range(6):
                 tr += P[i, i]
         out_tr[k] = tr
-        # eq. (18) without the static part: y_hat = x0_hat_1; eq. (17) with the
-        # deadbeat gains g_i = -a_i (eq. (19) then has all eigenvalues at z = 0)
+        # seed004 (18) without the static part: y_hat = x0_hat_1; seed004 (17) with the
+        # deadbeat gains g_i = -a_i (seed004 (19) then has all eigenvalues at z = 0)
         e = dyk - xh[0]
         x1 = -a1 * xh[0] + xh[1] + b1 * uk - a1 * e
         x2 = -a2 * xh[0] + xh[2] + b2 * uk - a2 * e
@@ -357,7 +361,7 @@ class AdaptiveWearObserver:
         p = self.params
         s1, s2 = float(p.scale_output), float(p.scale_input)
         th = p.theta0.copy()
-        # eq. (29): scaled parameters
+        # seed004 (29): scaled parameters
         th[:3] *= s1
         th[3:] /= s2
         p0 = np.asarray(p.p0, dtype=np.float64)
@@ -453,9 +457,9 @@ class AdaptiveWearObserver:
 def deadbeat_observer_step(
     a: ArrayLike, b: ArrayLike, x0_hat: ArrayLike, u: float, y: float
 ) -> F64:
-    """One step of eq. (17) with the deadbeat gains ``g = -a`` (for fixed parameters).
+    """One step of seed004 (17) with the deadbeat gains ``g = -a`` (for fixed parameters).
 
-    ``y`` is the output with the static part removed (eq. (23)).
+    ``y`` is the output with the static part removed (seed004 (23)).
     """
     aa = np.asarray(a, dtype=np.float64)
     bb = np.asarray(b, dtype=np.float64)
@@ -464,7 +468,7 @@ def deadbeat_observer_step(
     Ao[:, 0] = -aa
     Ao[0, 1] = 1.0
     Ao[1, 2] = 1.0
-    # eq. (17)-(18), g_i = -a_i
+    # seed004 (17)-(18), g_i = -a_i
     return np.asarray(Ao @ x + bb * u + (-aa) * (y - x[0]))
 
 

@@ -3,10 +3,11 @@
 Imports nothing of ours outside this package. Public names of the two-inertia stage
 (seed 000) are re-exported here; the other machines are re-exported as their modules:
 ``xy_axis`` (seed 002), ``milling`` and ``feed_drives`` (seed 003), ``tool_wear``
-(seed 004), and ``linalg`` (the matrix exponential they share).
+(seed 004). The matrix exponential they share with the estimators is
+:mod:`common.linalg`.
 """
 
-from machine import feed_drives, linalg, milling, tool_wear, xy_axis
+from machine import feed_drives, milling, tool_wear, xy_axis
 from machine.effects import EFFECT_NAMES, PlantEffects
 from machine.errors import MachineError, ParameterError
 from machine.params import ADDED_WEIGHT_INERTIA, PRESETS, SAMPLE_TIME, StageParams, preset
@@ -39,7 +40,6 @@ __all__ = [
     "Trajectory",
     "Truth",
     "feed_drives",
-    "linalg",
     "milling",
     "preset",
     "tool_wear",

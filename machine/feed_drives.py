@@ -5,7 +5,7 @@ smoothed Coulomb friction) driven by a motor whose force is ``force_constant`` t
 motor current. A digital PID position loop at the drive's sample rate (5 kHz, as in
 seed 003 section 4) computes the current command from the position error; the current
 loop is taken as ideal (the force follows the command within the sample). The modulation
-of seed 003 eq. (7) is added to the position command, so its amplitude and phase at the
+of seed003 (7) is added to the position command, so its amplitude and phase at the
 spindle frequency are shaped by the closed loop :math:`G(j\omega)` computed by
 :meth:`FeedDrives.response`.
 

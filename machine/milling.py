@@ -5,22 +5,22 @@ The machine simulated here is a spindle carried by two servo axes
 
 1. the spindle angle :math:`\psi` advances by :math:`\omega_{sp} T_s`;
 2. the position command of the axes is the straight feed path plus the circular
-   modulation of eq. (7), :math:`a_m[\cos(\psi+\theta_m), \sin(\psi+\theta_m)]`;
+   modulation of seed003 (7), :math:`a_m[\cos(\psi+\theta_m), \sin(\psi+\theta_m)]`;
 3. the geometric tool centre relative to the workpiece is the carriage position plus the
-   eccentricity vector of eq. (6), :math:`\epsilon[\cos(\psi+\theta_\epsilon),
+   eccentricity vector of seed003 (6), :math:`\epsilon[\cos(\psi+\theta_\epsilon),
    \sin(\psi+\theta_\epsilon)]` — eccentricity and modulation add up here;
 4. the chip of every flute and axial layer is the displacement of the tool centre since
    the previous flute passed the same angle, projected on the edge's radial direction
-   (eq. 4 with the windowing of eq. 5); this is the paper's ``h_n + r_j - r_{j-1}``
+   (seed003 (4) with the windowing of seed003 (5)); this is the paper's ``h_n + r_j - r_{j-1}``
    written in workpiece coordinates, so the modulation and drive errors enter the chip
    the same way the eccentricity does;
 5. linear edge-force law per layer gives the force; the force acts back on the axes.
 
-Geometry (a choice: the paper gives eq. (6)-(7) in a frame where the spindle turns
+Geometry (a choice: the paper gives seed003 (6)-(7) in a frame where the spindle turns
 counter-clockwise, so this frame is used): X is the feed direction, Y the normal
 direction, the spindle turns counter-clockwise, an edge at immersion angle :math:`\phi`
 points along :math:`n(\phi) = [\sin\phi, -\cos\phi]`, so the nominal chip is
-:math:`c\sin\phi` (eq. 4). Up-milling engages :math:`\phi \in [0, \arccos(1-2a_e/D)]`,
+:math:`c\sin\phi` (seed003 (4)). Up-milling engages :math:`\phi \in [0, \arccos(1-2a_e/D)]`,
 down-milling :math:`\phi \in [\arccos(2a_e/D-1), \pi]`.
 
 Cutting coefficients for Al6061-T6 (a choice; the paper does not give them):
@@ -72,15 +72,15 @@ class MillingParams:
     spindle_rpm : float
         Spindle speed [rpm].
     eccentricity : float
-        Eccentricity radius :math:`\epsilon` [m] (eq. 2).
+        Eccentricity radius :math:`\epsilon` [m] (seed003 (2)).
     eccentricity_deg : float
-        Eccentricity phase :math:`\theta_\epsilon` [deg] (eq. 2).
+        Eccentricity phase :math:`\theta_\epsilon` [deg] (seed003 (2)).
     k_tc, k_rc : float
         Tangential and radial cutting coefficients [N/m^2].
     k_te, k_re : float
         Tangential and radial edge coefficients [N/m].
     n_layers : int
-        Axial layers :math:`N_l` of eq. (1).
+        Axial layers :math:`N_l` of seed003 (1).
     """
 
     n_flutes: int = 4
@@ -125,14 +125,14 @@ class MillingParams:
         return self.spindle_rpm / 60.0
 
     def engagement(self) -> tuple[float, float]:
-        r"""Entry and exit angles :math:`(\phi_{st}, \phi_{ex})` [rad] of eq. (5)."""
+        r"""Entry and exit angles :math:`(\phi_{st}, \phi_{ex})` [rad] of seed003 (5)."""
         r = self.radial_immersion
         if self.down_milling:
             return math.acos(2.0 * r - 1.0), math.pi
         return 0.0, math.acos(1.0 - 2.0 * r)
 
     def layer_lags(self) -> F64:
-        r"""Lag angle of each axial layer (eq. 1): :math:`2 z_l \tan\beta / D`, layer mid
+        r"""Lag angle of each axial layer (seed003 (1)): :math:`2 z_l \tan\beta / D`, layer mid
         heights :math:`z_l = (l - 1/2) a_p / N_l`."""
         z = (np.arange(self.n_layers) + 0.5) * self.axial_depth / self.n_layers
         return np.asarray(2.0 * z * math.tan(math.radians(self.helix_deg)) / self.diameter)
@@ -167,16 +167,16 @@ def edge_force(
     p = phi
     if p < 0.0 or p >= two_pi:
         p = phi % two_pi
-    # eq. (5): the window g(phi)
+    # seed003 (5): the window g(phi)
     if p < phi_st or p > phi_ex:
         return 0.0, 0.0
     s = math.sin(p)
     c = math.cos(p)
-    # eq. (4): h = h_n + (r_j - r_{j-1}), as the tool-centre displacement since the
+    # seed003 (4): h = h_n + (r_j - r_{j-1}), as the tool-centre displacement since the
     # previous flute projected on n(phi) = [sin, -cos]; feed alone gives h = c_f sin(phi)
     h = dpx * s - dpy * c
     if h <= 0.0:
-        # the edge is out of the material (the paper's eq. 4 would give a negative chip)
+        # the edge is out of the material (the paper's seed003 (4) would give a negative chip)
         return 0.0, 0.0
     ft = k_tc * dz * h + k_te * dz
     fr = k_rc * dz * h + k_re * dz
@@ -219,16 +219,18 @@ def _milling_block(
     pitch = 2.0 * math.pi / n_flutes
     tau = pitch / omega
     lag_samples = tau / ts
+    # F = sum over flutes j and layers l of the edge force at phi_jl (seed003 (1)-(5)), tool centre
+    #  per seed003 (6)-(7)
     for k in range(n):
         psi = st[0]
-        # eq. (7): circular modulation added to the feed path in the position command
+        # seed003 (7): circular modulation added to the feed path in the position command
         rx = st[1] + a_m * math.cos(psi + theta_m)
         ry = a_m * math.sin(psi + theta_m)
-        # beyond the paper: a counter-rotating circle (with eq. 7 it makes an ellipse,
+        # beyond the paper: a counter-rotating circle (with seed003 (7) it makes an ellipse,
         # which can undo a gain/phase mismatch between the axes)
         rx += b_m * math.cos(psi + phi_m)
         ry -= b_m * math.sin(psi + phi_m)
-        # eq. (6): geometric tool centre = carriage + eccentricity (workpiece coordinates)
+        # seed003 (6): geometric tool centre = carriage + eccentricity (workpiece coordinates)
         px = ax_state[0, 0] + ecc * math.cos(psi + ecc_phase)
         py = ax_state[1, 0] + ecc * math.sin(psi + ecc_phase)
         head = int(st[2])
@@ -249,7 +251,7 @@ def _milling_block(
         p0 = psi % (2.0 * math.pi)
         for j in range(n_flutes):
             for l in range(lags.shape[0]):
-                # eq. (1): immersion of flute j, layer l (wrapped into [0, 2 pi))
+                # seed003 (1): immersion of flute j, layer l (wrapped into [0, 2 pi))
                 phi = p0 - j * pitch - lags[l]
                 while phi < 0.0:
                     phi += 2.0 * math.pi
@@ -383,7 +385,7 @@ class MillingMachine:
         return float(self._s.st[0])
 
     def samples_per_revolution(self) -> float:
-        """:math:`L = 60 / (T_s \\cdot rpm)` of eq. (8) (not necessarily an integer)."""
+        """:math:`L = 60 / (T_s \\cdot rpm)` of seed003 (8) (not necessarily an integer)."""
         return 60.0 / (self.sample_time * self._rpm)
 
     def feed_speed(self) -> float:
@@ -406,7 +408,7 @@ class MillingMachine:
         th = math.radians(p.eccentricity_deg)
         omega = 2.0 * math.pi * self._rpm / 60.0
         hist = np.zeros((hlen, 2))
-        # the past: straight path at the feed rate, eccentric centre turning (eq. 6). The
+        # the past: straight path at the feed rate, eccentric centre turning (seed003 (6)). The
         # kernel writes the sample at t = 0 into index 0 and reads m samples back at
         # (head - m) % hlen, so index hlen - m holds t = -m ts
         for m in range(1, hlen):
@@ -422,7 +424,7 @@ class MillingMachine:
         self._s = _State(st=np.array([0.0, 0.0, 0.0]), ax=ax, hist=hist)
 
     def cancelling_modulation(self, rpm: float | None = None) -> tuple[float, float]:
-        """Truth: the ``(a_m [m], theta_m [rad])`` whose drive response cancels eq. (6).
+        """Truth: the ``(a_m [m], theta_m [rad])`` whose drive response cancels seed003 (6).
 
         At the spindle speed ``rpm`` (default: the current one). The carriage
         moves :math:`G a_m e^{j\\theta_m}` and must equal :math:`-\\epsilon

@@ -31,9 +31,9 @@ from numba import njit
 from numpy.typing import ArrayLike
 
 from common.arrays import F64
+from common.linalg import zoh
 from machine.effects import PlantEffects
 from machine.errors import ParameterError, require_positive
-from machine.linalg import zoh
 from machine.params import ADDED_WEIGHT_INERTIA, ENCODER_BITS, SAMPLE_TIME, StageParams, preset
 
 OMEGA_S = 0.05  # velocity scale of the regularised Coulomb friction [rad/s]
@@ -258,6 +258,9 @@ def _simulate_block(
     h = ts / nsub
     kp, ki, kt_nom = gains[0], gains[1], gains[2]
     n = len(w_ref)
+    # per sample: PI velocity loop tau_m = Kt (K_p e + K_i sum T_s e); per sub-step the two-inertia
+    #  stage J_M dw_M = tau_m - T_s - F_CM sgn w_M, J_L dw_L = T_s - T_cut - friction (seed000 Table
+    #  I)
     for k in range(n):
         tk = t0 + k * ts
         # encoders: quantised angles (floor to the count)

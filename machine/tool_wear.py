@@ -1,4 +1,4 @@
-r"""Dynamic state model of tool wear in turning (seed 004, eq. (3)-(8)).
+r"""Dynamic state model of tool wear in turning (seed004 (3)-(8)).
 
 States :math:`x = [w_{f1}, w_{f2}, w_c]`: abrasive flank wear, diffusive flank wear
 and crater wear [mm]; input: the feed :math:`f` [mm/rev]; output: the cutting force
@@ -20,7 +20,8 @@ values of :data:`DEFAULT_WEAR_PARAMS` are ours; each carries its source or reaso
 beside it. Four of them (``l0``, ``K1``, ``K9`` and ``K11``, with ``n7`` chosen) were
 fitted so that the model, linearised by the paper's appendix method at f = 0.1 and
 0.125 mm/rev, v = 150 m/min, d = 2 mm (end point: the state after 15 min), has the
-discrete parameters of the paper's Table 1 at T = 0.01 min (see the README, "Tool wear").
+discrete parameters of the paper's Table 1 at T = 0.01 min (see
+docs/reproductions/seed004-tool-wear.md).
 """
 
 from __future__ import annotations
@@ -46,68 +47,68 @@ def crater_limit_mm(feed: float) -> float:
 
 @dataclass(frozen=True)
 class WearModelParams:
-    """Constants of eq. (3)-(8). Units: mm, N, m/min, minutes, degrees C, radians."""
+    """Constants of seed004 (3)-(8). Units: mm, N, m/min, minutes, degrees C, radians."""
 
-    # eq. (3): l0/v is the time constant of the abrasive (break-in) flank wear, a
+    # seed004 (3): l0/v is the time constant of the abrasive (break-in) flank wear, a
     # characteristic cut length as in Koren's first-order flank-wear model. Fitted (with
     # K1) to Table 1's pole a3 at both feeds: ~100 m, a break-in time constant of
     # ~0.7 min at 150 m/min, the short initial wear of a carbide insert.
     l0: float = 102.144  # [m]
-    # eq. (3): abrasive land per unit specific cutting pressure [mm / (N/mm^2)]. Fitted:
+    # seed004 (3): abrasive land per unit specific cutting pressure [mm / (N/mm^2)]. Fitted:
     # the product K1 cos(alpha_r) K13 sets how the Table 1 pole moves with the feed
     # (0.9889 -> 0.9881); it gives a steady abrasive land of ~0.15 mm, the break-in
     # land of a P-grade carbide on steel.
     K1: float = 4.50771e-5
     # rake angle: +6 deg, a common positive-rake carbide turning insert [rad]
     alpha_r: float = math.radians(6.0)
-    # eq. (4): diffusion pre-factor [mm/min/(m/min)^0.5]: ~0.05 mm of diffusive flank
+    # seed004 (4): diffusion pre-factor [mm/min/(m/min)^0.5]: ~0.05 mm of diffusive flank
     # wear in 15 min at f = 0.1, v = 150, d = 2; dominant at the heavy condition.
     K2: float = 428.0
-    # eq. (4): activation temperature of diffusion wear of WC-Co against steel [K]
+    # seed004 (4): activation temperature of diffusion wear of WC-Co against steel [K]
     # (Arrhenius, E ~ 100 kJ/mol); chosen so the diffusive part dominates the flank wear
     # under heavy cutting (seed 004 section 3 (ii)).
     K3: float = 1.2e4
-    # eq. (5): crater wear coefficient [mm/(N m/min min)]: crater depth reaches the ISO
+    # seed004 (5): crater wear coefficient [mm/(N m/min min)]: crater depth reaches the ISO
     # KT criterion after the flank criterion at the light condition, before it at the
     # heavy one (section 3 (iii)).
     K4: float = 1.1e-4
-    # eq. (5): activation temperature of crater wear [K]. Usui, Shirakashi & Kitagawa
+    # seed004 (5): activation temperature of crater wear [K]. Usui, Shirakashi & Kitagawa
     # (1978, the paper's ref. [16]) give 5.30e3 K below 1150 K and 2.195e4 K above for
     # carbide on steel; one Arrhenius constant between the two covers 800-1400 C.
     K5: float = 1.2e4
-    # eq. (6): tool-work (flank) temperature, theta ~ v^0.4 f^0.2 (Trigger/Shaw-type
+    # seed004 (6): tool-work (flank) temperature, theta ~ v^0.4 f^0.2 (Trigger/Shaw-type
     # exponents); ~560 C at f = 0.1, v = 150.
     K6: float = 120.0
     n1: float = 0.4
     n2: float = 0.2
-    # eq. (6): heating by the flank wear land, ~+100 C per 0.3 mm of land. n3 = 1 (a
+    # seed004 (6): heating by the flank wear land, ~+100 C per 0.3 mm of land. n3 = 1 (a
     # land that rubs heats in proportion to its width) also keeps the Jacobian finite
     # at w_f2 = 0, where the appendix's linearisation path starts.
     K7: float = 330.0
     n3: float = 1.0
-    # eq. (7): tool-chip temperature ~ F v^0.4 f^-1.3 d^-0.9: with F ~ f^1.5 d (below)
+    # seed004 (7): tool-chip temperature ~ F v^0.4 f^-1.3 d^-0.9: with F ~ f^1.5 d (below)
     # this is ~ v^0.4 f^0.2 d^0.1 (Shaw's chip-tool interface exponents); ~820 C at
     # f = 0.1, v = 150, d = 2.
     K8: float = 0.01955
     n4: float = 0.4
     n5: float = -1.3
     n6: float = -0.9
-    # eq. (8): force vs feed. Kienzle (k_c1.1 ~ 2000 N/mm^2, m_c ~ 0.25) would give
-    # n7 = 0.75, but then the specific force F/(f d) falls with the feed, eq. (3)'s
+    # seed004 (8): force vs feed. Kienzle (k_c1.1 ~ 2000 N/mm^2, m_c ~ 0.25) would give
+    # n7 = 0.75, but then the specific force F/(f d) falls with the feed, seed004 (3)'s
     # abrasive land falls with it and b1 of Table 1 comes out negative (-3.9 instead of
     # +15.7). Table 1's positive b1 that shrinks from f = 0.1 to 0.125 needs F/(f d) to
     # rise with the feed: n7 = 1.5 with K9, K11 fitted (F = 525 N at f = 0.1, d = 2).
     # This is a deviation from real cutting forced by matching Table 1 with the forms of
-    # eq. (3) and (8); see the README ("Tool wear").
+    # seed004 (3) and (8); see docs/reproductions/seed004-tool-wear.md.
     K9: float = 12655.4
     n7: float = 1.5
     K10: float = 0.86  # [1/rad] = 1.5 %/deg rake correction (Kienzle/Koenig)
-    # eq. (8): intercept and speed term (force falls with speed) [N/mm^2, N/mm^2/(m/min)]
+    # seed004 (8): intercept and speed term (force falls with speed) [N/mm^2, N/mm^2/(m/min)]
     K11: float = 71.4557
     K12: float = 0.20
-    # eq. (8): force rise per unit flank land: ~100 N per 0.1 mm land at d = 2 mm
+    # seed004 (8): force rise per unit flank land: ~100 N per 0.1 mm land at d = 2 mm
     K13: float = 498.0  # [N/mm^2]
-    # eq. (8): force drop per unit crater depth (the crater makes the rake more
+    # seed004 (8): force drop per unit crater depth (the crater makes the rake more
     # positive) [N/mm]; small enough that the force rises monotonically with the wear
     # over a tool life at the light condition (needed for monitoring from the force).
     K14: float = 500.0
@@ -170,7 +171,7 @@ class CuttingCondition:
 
 @njit(cache=True)
 def _force(p: F64, x: F64, f: float, v: float, d: float) -> float:
-    # eq. (8)
+    # seed004 (8)
     return (
         (p[16] * f ** p[17] * (1.0 - p[18] * p[2]) - p[19] - p[20] * v) * d
         + p[21] * d * (x[0] + x[1])
@@ -181,15 +182,15 @@ def _force(p: F64, x: F64, f: float, v: float, d: float) -> float:
 @njit(cache=True)
 def _rhs(p: F64, x: F64, f: float, v: float, d: float, out: F64) -> None:
     F = _force(p, x, f, v, d)
-    # eq. (3)
+    # seed004 (3)
     out[0] = (v / p[0]) * (-x[0] + p[1] * math.cos(p[2]) * F / (f * d))
-    # eq. (6); a negative diffusive land is not physical: clamp for the power law
+    # seed004 (6); a negative diffusive land is not physical: clamp for the power law
     theta_f = p[7] * v ** p[8] * f ** p[9] + p[10] * max(x[1], 0.0) ** p[11]
-    # eq. (4)
+    # seed004 (4)
     out[1] = p[3] * math.sqrt(v) * math.exp(-p[4] / (273.0 + theta_f))
-    # eq. (7)
+    # seed004 (7)
     theta_c = p[12] * F * v ** p[13] * f ** p[14] * d ** p[15]
-    # eq. (5)
+    # seed004 (5)
     out[2] = p[5] * F * v * math.exp(-p[6] / (273.0 + theta_c))
 
 
@@ -214,6 +215,7 @@ def _simulate(
     k4 = np.empty(3)
     xt = np.empty(3)
     h = dt / substeps
+    # RK4 on dx/dt = f(x; f, v, d) of seed004 (3)-(8), the feed held over each sample
     for k in range(len(feed)):
         f = feed[k]
         xs[k, :] = x
@@ -254,7 +256,7 @@ class WearTrajectory:
 
 
 class ToolWearModel:
-    """The nonlinear wear model of eq. (3)-(8) for one cutting condition.
+    """The nonlinear wear model of seed004 (3)-(8) for one cutting condition.
 
     Parameters
     ----------
@@ -281,13 +283,13 @@ class ToolWearModel:
         return v
 
     def force(self, x: ArrayLike, feed: float) -> float:
-        """Cutting force eq. (8) [N] at wear state ``x`` [mm] and feed [mm/rev]."""
+        """Cutting force seed004 (8) [N] at wear state ``x`` [mm] and feed [mm/rev]."""
         f = self._check_feed(feed)
         c = self.condition
         return float(_force(self._p, np.asarray(x, dtype=np.float64), f, c.speed, c.depth))
 
     def rates(self, x: ArrayLike, feed: float) -> F64:
-        """Wear rates eq. (3)-(5) [mm/min]."""
+        """Wear rates seed004 (3)-(5) [mm/min]."""
         f = self._check_feed(feed)
         c = self.condition
         out = np.empty(3)
@@ -295,7 +297,7 @@ class ToolWearModel:
         return out
 
     def temperatures(self, x: ArrayLike, feed: float) -> tuple[float, float]:
-        """Tool-work and tool-chip temperatures eq. (6)-(7) [deg C]."""
+        """Tool-work and tool-chip temperatures seed004 (6)-(7) [deg C]."""
         f = self._check_feed(feed)
         p, c = self.params, self.condition
         xa = np.asarray(x, dtype=np.float64)
@@ -323,24 +325,24 @@ class ToolWearModel:
         v, d = c.speed, c.depth
         xa = np.asarray(x, dtype=np.float64)
         F = self.force(xa, f)
-        # eq. (8)
+        # seed004 (8)
         dFdx = np.array([p.K13 * d, p.K13 * d, -p.K14])
         dFdf = p.K9 * p.n7 * f ** (p.n7 - 1.0) * (1.0 - p.K10 * p.alpha_r) * d
         ca = math.cos(p.alpha_r)
         dfdx = np.zeros((3, 3))
         dfdu = np.zeros(3)
-        # eq. (3)
+        # seed004 (3)
         dfdx[0] = (v / p.l0) * p.K1 * ca * dFdx / (f * d)
         dfdx[0, 0] -= v / p.l0
         dfdu[0] = (v / p.l0) * p.K1 * ca * (dFdf * f - F) / (f * f * d)
-        # eq. (4), (6)
+        # seed004 (4), (6)
         w2 = max(float(xa[1]), 0.0)
         theta_f = p.K6 * v**p.n1 * f**p.n2 + p.K7 * w2**p.n3
         r2 = p.K2 * math.sqrt(v) * math.exp(-p.K3 / (273.0 + theta_f))
         dr2 = r2 * p.K3 / (273.0 + theta_f) ** 2
         dfdx[1, 1] = dr2 * p.K7 * p.n3 * w2 ** (p.n3 - 1.0)
         dfdu[1] = dr2 * p.K6 * v**p.n1 * p.n2 * f ** (p.n2 - 1.0)
-        # eq. (5), (7)
+        # seed004 (5), (7)
         geo = p.K8 * v**p.n4 * f**p.n5 * d**p.n6
         theta_c = geo * F
         e = math.exp(-p.K5 / (273.0 + theta_c))
@@ -355,7 +357,7 @@ class ToolWearModel:
     def simulate(
         self, feed: ArrayLike, sample_time: float, *, x0: ArrayLike | None = None, substeps: int = 2
     ) -> WearTrajectory:
-        """Integrate eq. (3)-(5) with the feed held over each sample.
+        """Integrate seed004 (3)-(5) with the feed held over each sample.
 
         Parameters
         ----------

@@ -1,6 +1,6 @@
 r"""The x-axis of the XY positioning table of seed 002, with its cascade P/PI controller.
 
-Plant (seed 002 eq. 1), input voltage :math:`u` [V], output table position :math:`z` [mm]:
+Plant (seed002 (1)), input voltage :math:`u` [V], output table position :math:`z` [mm]:
 
 .. math::
 
@@ -33,10 +33,10 @@ from numba import njit
 from numpy.typing import ArrayLike, NDArray
 
 from common.arrays import F64
+from common.linalg import zoh
 from machine.errors import ParameterError, require_nonnegative, require_positive
-from machine.linalg import zoh
 
-#: Seed 002, Section 2: the identified x-axis (eq. 1).
+#: Seed 002, Section 2: the identified x-axis (seed002 (1)).
 PAPER_A = 78020.0  # mm / (V s^2)
 PAPER_B = 163.0  # 1/s
 PAPER_C = 193.3  # 1/s^2
@@ -71,12 +71,12 @@ def split_delay(delay: float, sample_time: float) -> tuple[int, float]:
 
 @dataclass(frozen=True, eq=False)
 class XYAxisParams:
-    """Seed 002's x-axis plant, eq. (1), sampled at ``sample_time``.
+    """Seed 002's x-axis plant, seed002 (1), sampled at ``sample_time``.
 
     Parameters
     ----------
     a, b, c : float
-        Gain [mm/(V s^2)], damping [1/s] and stiffness [1/s^2] of eq. (1), all > 0.
+        Gain [mm/(V s^2)], damping [1/s] and stiffness [1/s^2] of seed002 (1), all > 0.
     delay : float
         Input delay ``Td`` [s], > 0 and at least one sample (the block closed loop needs
         the measured positions of a block to depend on earlier commands only).
@@ -126,7 +126,7 @@ class XYAxisParams:
         return f, g
 
     def response(self, f_hz: ArrayLike, *, with_delay: bool = True) -> NDArray[np.complex128]:
-        """Continuous frequency response of eq. (1) [mm/V] at ``f_hz``."""
+        """Continuous frequency response of seed002 (1) [mm/V] at ``f_hz``."""
         s = 2j * np.pi * np.asarray(f_hz, dtype=np.float64)
         g = self.a / (s**2 + self.b * s + self.c)
         if with_delay:
@@ -166,6 +166,8 @@ def _plant_block(
 ) -> None:  # pragma: no cover
     x0 = x[0]
     x1 = x[1]
+    # x[k+1] = Phi x[k] + G_a u[k-D-1] + G_b u[k-D] + G_d d[k], z[k] = x_1[k] (seed002 (1), ZOH with
+    #  delay)
     for j in range(len(d)):
         z[j] = x0
         ua = u_hist[j]
@@ -273,6 +275,7 @@ def _cascade_block(
     ref: F64,
     u: F64,
 ) -> tuple[float, float]:  # pragma: no cover
+    # u = K_p e_v + K_i sum(T_s e_v), e_v = K_v (r - z) - dz/dt (seed002 section 4.1 cascade)
     for k in range(len(z)):
         v = (z[k] - z_prev) / ts
         z_prev = z[k]

@@ -8,12 +8,11 @@ found by name, so adding a command never edits this file.
 from __future__ import annotations
 
 import argparse
-import importlib
-import pkgutil
 import sys
 from collections.abc import Sequence
 
 from server.cli import commands
+from server.plugins import plugin_modules, short_name
 
 DESCRIPTION = """\
 cutwatch watches a machining cut through the machine tool's own drive signals: motor
@@ -50,11 +49,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
-    for info in sorted(pkgutil.iter_modules(commands.__path__), key=lambda i: i.name):
-        if info.name.startswith("_"):
-            continue
-        mod = importlib.import_module(f"server.cli.commands.{info.name}")
-        name = getattr(mod, "COMMAND", info.name)
+    for mod in plugin_modules(commands):
+        name = getattr(mod, "COMMAND", short_name(mod))
         p = sub.add_parser(
             name,
             help=mod.HELP,

@@ -8,14 +8,13 @@ on the command line), ``SOURCE`` (seed file and table) and
 
 from __future__ import annotations
 
-import importlib
 import json
 import math
-import pkgutil
-from dataclasses import asdict, dataclass, field
-from pathlib import Path
+from dataclasses import dataclass, field
 from types import ModuleType
-from typing import Protocol
+
+from common.jsonsafe import json_safe
+from server.plugins import plugin_modules
 
 
 @dataclass(frozen=True)
@@ -39,6 +38,10 @@ class Check:
     limit: float
 
 
+#: one section of a reproduction: its rows and its checks, each in order
+Section = tuple[list[Row], list[Check]]
+
+
 @dataclass
 class Reproduction:
     """Result of one reproduction run."""
@@ -49,6 +52,12 @@ class Reproduction:
     checks: list[Check] = field(default_factory=list)
     figures: list[str] = field(default_factory=list)
 
+    def add(self, section: Section) -> None:
+        """Append a section's rows and checks."""
+        rows, checks = section
+        self.rows.extend(rows)
+        self.checks.extend(checks)
+
     def row(self, name: str) -> Row:
         for r in self.rows:
             if r.name == name:
@@ -57,10 +66,7 @@ class Reproduction:
 
     def to_json(self) -> dict[str, object]:
         def clean(x: float | None) -> float | None:
-            if x is None:
-                return None
-            xf = float(x)
-            return xf if math.isfinite(xf) else None
+            return None if x is None else json_safe(float(x))
 
         return {
             "experiment": self.experiment,
@@ -90,15 +96,6 @@ class Reproduction:
     @property
     def all_hold(self) -> bool:
         return all(c.holds for c in self.checks)
-
-
-class ReproductionModule(Protocol):
-    NAME: str
-    SOURCE: str
-
-    def run(
-        self, *, quick: bool = False, plot_dir: Path | None = None, progress: bool = True
-    ) -> Reproduction: ...
 
 
 def _fmt(x: float | None) -> str:
@@ -141,10 +138,7 @@ def discover() -> dict[str, ModuleType]:
     from server.experiments import reproductions
 
     found: dict[str, ModuleType] = {}
-    for info in sorted(pkgutil.iter_modules(reproductions.__path__), key=lambda i: i.name):
-        if info.name.startswith("_"):
-            continue
-        mod = importlib.import_module(f"server.experiments.reproductions.{info.name}")
+    for mod in plugin_modules(reproductions):
         name = getattr(mod, "NAME", None)
         if isinstance(name, str):
             found[name] = mod
@@ -155,4 +149,4 @@ def dumps(rep: Reproduction) -> str:
     return json.dumps(rep.to_json(), indent=2)
 
 
-__all__ = ["Check", "Reproduction", "Row", "asdict", "discover", "dumps", "format_table"]
+__all__ = ["Check", "Reproduction", "Row", "Section", "discover", "dumps", "format_table"]

@@ -12,7 +12,8 @@ Choices
   003's case 1 at the knob's default), including the default scenario's 80 % steps, so the
   tuner has speed changes to track.
 - The tuner sees the dynamometer's X force (as in seed 003's experiment), not an observer:
-  the observer force source costs about 1.7x the CPU (``docs/eccentricity.md`` bench);
+  the observer force source costs about 1.7x the CPU (``docs/live-service.md``,
+  eccentricity);
   with it the ``f1x`` channel (true 1x amplitude) would differ from ``cost``.
 - Switching the tuner or ESC on/off keeps the machine running and restarts the tuner
   from zero modulation at the current time (a new adaptation, as at 1 s in Fig. 3).
@@ -35,9 +36,8 @@ LOG_KEEP = 64
 
 #: milling spindle speed at the live knob's base speed (seed 003 Table 1, case 1)
 ECC_BASE_RPM = 1200.0
-LIVE_BASE_RPM = 3000.0
 #: the ESC of seed 003 Table 1 with the dither stopped after convergence
-#: (docs/eccentricity.md: "ESC details")
+#: (docs/reproductions/seed003-eccentricity.md: "ESC details")
 ESC_LIVE = EscParams(k_a=45.0, k_theta=50.0, amp_a_um=2.0, amp_theta_deg=2.0, freeze_revs=40)
 TUNERS = ("esc", "fast")
 

@@ -2,8 +2,9 @@
 
 The public surface is the contract the live service builds on:
 
-- ``LivePipeline(scenario: str = "default", seed: int = 0)``
-- ``.sample_time`` (s), ``.t`` (simulated time, s)
+- ``LivePipeline(scenario: str = "default", seed: int = 0, source=None)``; a log replay
+  is ``LivePipeline.from_log(path)``
+- ``.sample_time`` (s), ``.t`` (time of the source, s), ``.finished`` (a log has ended)
 - ``.channels() -> list[Channel]``: every per-sample output, with unit and group
 - ``.step(n) -> dict[str, np.ndarray]``: advance ``n`` samples; one float64 array of
   length ``n`` per channel name (plus ``"t"``)
@@ -13,9 +14,13 @@ The public surface is the contract the live service builds on:
 - ``.reset()``; ``.snapshot() -> dict`` (latest values, truths, knob values)
 - ``SCENARIOS``: name -> one-line description
 
-Behind it is :class:`server.pipeline.stage_run.StageRun`: the two-inertia stage of seed 000 with
-the fixed-parameter, adaptive (ordinary RLS) and switching-RLS force observers. The
-estimators see the Measurements only; the truth columns are for display.
+Behind it is :class:`server.pipeline.stage_run.StageRun`: a measurement source
+(:mod:`server.pipeline.sources`; by default the simulated two-inertia stage of seed 000,
+or a replayed log, or a live feed) with the fixed-parameter, adaptive (ordinary RLS) and
+switching-RLS force observers. The estimators see the Measurements only; the truth
+columns are for display (NaN, but for the reference force, from a source without Truth).
+A source's block marked as a discontinuity resets every observer before it is run; a
+block of no samples changes nothing.
 
 Scenario events are scheduled on simulated time, so a run is the same whatever the
 wall-clock speed. The default scenario: the stage reciprocates while milling; the
@@ -37,6 +42,7 @@ a reversal (the table at its stroke end), not in the middle of a stroke.
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -49,6 +55,7 @@ from machine.effects import EFFECT_NAMES, PlantEffects
 from machine.params import ADDED_WEIGHT_INERTIA, preset
 from machine.stage import SEED000_FORCE, SEED001_FORCE, CuttingForce, StageConfig
 from server.pipeline.eccentricity_part import ECC_BASE_RPM, ECC_CHANNELS, TUNERS, LiveEccentricity
+from server.pipeline.sources import MeasurementSource, ReplaySource, SimulatorSource, open_replay
 from server.pipeline.stage_harmonics import make_dfo
 from server.pipeline.stage_run import StageRun
 from server.pipeline.wear_clock import AcceleratedToolWear
@@ -212,13 +219,22 @@ class LivePipeline:
     Parameters
     ----------
     scenario
-        One of :data:`SCENARIOS`.
+        One of :data:`SCENARIOS`, when the source is a simulation.
     seed
         Seed of the simulation's random generator.
+    source
+        Where the measurements come from (:mod:`server.pipeline.sources`). Default: the
+        simulator of ``scenario``. A source the knobs do not apply to (a log, a live
+        feed) runs with its own name as the scenario (``"replay"``) and the observers
+        built from its nominal parameters.
     """
 
-    def __init__(self, scenario: str = "default", seed: int = 0) -> None:
-        if scenario not in SCENARIOS:
+    def __init__(
+        self, scenario: str = "default", seed: int = 0, source: MeasurementSource | None = None
+    ) -> None:
+        if source is not None and not source.knobs_apply:
+            scenario = source.name
+        elif scenario not in SCENARIOS:
             raise ParameterError("scenario", f"one of {sorted(SCENARIOS)}", scenario)
         self.scenario = scenario
         self.seed = seed
@@ -226,10 +242,34 @@ class LivePipeline:
         self.effects: tuple[ObserverEffect, ...] = ()
         if scenario == "seed001-spindle":
             self._knobs["spindle_changes"].value = False
+        cfg, self._ident, self._design = self._base(source)
+        self._force0: CuttingForce = cfg.force
+        self.source = source or SimulatorSource(cfg, seed=seed)
         self.reset()
 
+    @classmethod
+    def from_log(cls, path: str | os.PathLike[str], seed: int = 0) -> LivePipeline:
+        """The live observers fed by a measured log (:func:`server.pipeline.sources.open_replay`
+        checks it); ``finished`` turns true at its last sample.
+
+        Raises
+        ------
+        LogFormatError, CutwatchError
+            The log is missing, unreadable or not a two-inertia log with its nominal
+            parameters.
+        """
+        return cls(seed=seed, source=ReplaySource(open_replay(path)))
+
     # ------------------------------------------------------------------ set-up
-    def _base(self) -> tuple[StageConfig, IdentifierParams, dict[str, float]]:
+    def _base(
+        self, source: MeasurementSource | None
+    ) -> tuple[StageConfig, IdentifierParams, dict[str, float]]:
+        """The scenario's stage, identifier and observer design; for a given source, its
+        sample time and the default design (the stage configuration then only gives the
+        nominal cutting force: the harmonic observer's frequencies)."""
+        if source is not None:
+            ts = source.sample_time
+            return StageConfig(force=SEED000_FORCE), IdentifierParams(sample_time=ts), {}
         if self.scenario == "seed001-spindle":
             p = preset("seed001")
             ident = IdentifierParams(q_rls_hz=40.0, scale=(p.J_L, p.B_L, p.F_CL, 1.0))
@@ -238,11 +278,11 @@ class LivePipeline:
         return StageConfig(params=preset("seed000"), force=SEED000_FORCE), IdentifierParams(), {}
 
     def reset(self) -> None:
-        """Start the simulation and every estimator again from t = 0 (knobs kept)."""
-        cfg, ident, design = self._base()
-        self._force0: CuttingForce = cfg.force
-        self.run = StageRun(cfg, seed=self.seed, ident=ident, observer_design=design)
-        self.sample_time = float(cfg.sample_time)
+        """Start the source (the simulation from t = 0, a log from its first sample) and
+        every estimator again (knobs kept)."""
+        self.source.reset()
+        self.run = StageRun(source=self.source, ident=self._ident, observer_design=self._design)
+        self.sample_time = float(self.source.sample_time)
         self._removed = 0.0  # fraction of the current workpiece removed
         self._clamp_pending = False  # the blank is used up; a fresh one at the next reversal
         self._pending_since = 0.0
@@ -250,17 +290,7 @@ class LivePipeline:
         self._prev_factor = self._spindle_factor(0.0)
         self._last: dict[str, float] = {}
         self._applied: tuple[object, ...] = ()
-        # seed 002's harmonic observer (DFO) through Q(s) (server.pipeline.stage_harmonics), on the
-        # observer with the gated segment identifier's parameters: on the fixed one the
-        # workpiece's unmodelled inertia biases the harmonics (measured: 2.8 N m for a
-        # true 4.0); on the adaptive (RLS) one its J_L moves at every spindle step and the
-        # 100 Hz acceleration times that error reads as a harmonic (measured, 100 s of the
-        # default scenario: amplitude error median 9 % / p90 46 %, and after 5 of 6
-        # spindle steps not within 5 % in 2 s; on the segment parameters: 0.8 % / 3 %,
-        # within 5 % 40-65 ms after every step); retuned, state kept, when the spindle
-        # speed changes
-        self._dfo = make_dfo(self.run.front.params, tuple(cfg.force.frequencies))
-        self._dfo_state = dfo_mod.initial_state(self._dfo)
+        self._reset_observers()
         self._new_tool()
         self._install_effects()
         # seed 003's milling machine with eccentricity and its tuner (default scenario)
@@ -274,6 +304,21 @@ class LivePipeline:
                 enabled=bool(k["esc_on"].value),
             )
         self._apply(0.0)
+
+    def _reset_observers(self) -> None:
+        """The harmonic observer from its initial state at the scenario's nominal
+        frequencies (retuned by the next :meth:`_apply`)."""
+        # seed 002's harmonic observer (DFO) through Q(s) (server.pipeline.stage_harmonics), on the
+        # observer with the gated segment identifier's parameters: on the fixed one the
+        # workpiece's unmodelled inertia biases the harmonics (measured: 2.8 N m for a
+        # true 4.0); on the adaptive (RLS) one its J_L moves at every spindle step and the
+        # 100 Hz acceleration times that error reads as a harmonic (measured, 100 s of the
+        # default scenario: amplitude error median 9 % / p90 46 %, and after 5 of 6
+        # spindle steps not within 5 % in 2 s; on the segment parameters: 0.8 % / 3 %,
+        # within 5 % 40-65 ms after every step); retuned, state kept, when the spindle
+        # speed changes
+        self._dfo = make_dfo(self.run.front.params, tuple(self._force0.frequencies))
+        self._dfo_state = dfo_mod.initial_state(self._dfo)
 
     def _new_tool(self) -> None:
         """A sharp tool: seed 004's wear model on an accelerated clock (default scenario).
@@ -333,8 +378,13 @@ class LivePipeline:
 
     @property
     def t(self) -> float:
-        """Simulated time elapsed: samples produced times the sample time [s]."""
-        return float(self.run.sim.t)
+        """Time elapsed: samples taken from the source times the sample time [s]."""
+        return float(self.source.t)
+
+    @property
+    def finished(self) -> bool:
+        """True once the source hands out no more samples (the end of a replayed log)."""
+        return bool(self.source.finished)
 
     # ------------------------------------------------------------------ scenario
     def _spindle_factor(self, t: float) -> float:
@@ -362,7 +412,7 @@ class LivePipeline:
         if self.scenario == "seed000-weight" and t >= 10.0:
             extra = ADDED_WEIGHT_INERTIA
         if extra != self._weight:  # the weight mounted or removed: a known J_L change
-            if not math.isnan(self._weight):
+            if not math.isnan(self._weight) and self.source.knobs_apply:
                 self.run.note_restart(J_L=True)
             self._weight = extra
         if self.scenario == "default":
@@ -387,7 +437,8 @@ class LivePipeline:
         freqs = tuple(f * freq for f in self._force0.frequencies)
         if freqs != tuple(self._dfo.frequencies):
             self._dfo = self._dfo.with_frequencies(freqs)
-        self.run.sim.reconfigure(
+        # a log or a live feed ignores it (sources.MeasurementSource.knobs_apply)
+        self.source.reconfigure(
             force=replace(self._force0, freq_scale=freq, gain=gain),
             extra_inertia=extra,
             current_noise=noise,
@@ -433,9 +484,12 @@ class LivePipeline:
         """Advance ``n`` samples; return ``"t"`` and every channel, ``n`` values each.
 
         Estimates refer to the previous sample (see :mod:`server.pipeline.stage_run`); ``t`` is the
-        time they refer to, and the truth columns are aligned to it.
+        time they refer to, and the truth columns are aligned to it. A source that has
+        fewer samples (the end of a log, a live feed) gives fewer values, or none: then
+        nothing changes, not even ``t``. A block the source marks as a discontinuity
+        resets every observer first (:meth:`_discontinuity`).
         """
-        t0 = float(self.run.sim.t)
+        t0 = float(self.source.t)
         if self.scenario == "default":
             rate = float(self._knobs["removal_rate"].value) / 100.0
             if self._clamp_pending and self._clamp_now(t0):
@@ -452,7 +506,13 @@ class LivePipeline:
             self.run.note_disturbance(t0)
             self._prev_factor = factor
         self._apply(t0)
-        b = self.run.step(n)
+        block = self.source.step(n)
+        n = block.n
+        if n == 0:
+            return {"t": np.zeros(0)} | {c.name: np.zeros(0) for c in CHANNELS}
+        if block.discontinuity is not None:
+            self._discontinuity()
+        b = self.run.process(block)
         self._dfo_state, dr = dfo_mod.step(self._dfo, self._dfo_state, b.f_segment)
         f_effects = b.f_fixed
         if self._fx is not None:
@@ -462,8 +522,11 @@ class LivePipeline:
             f_effects = b.f_fixed - er.f_corr
         if self.scenario == "default":
             self._wear_pass(n, b.f_adaptive, t0)
-        f = self.run.sim.config.force
-        true_amp = np.asarray(f.amplitudes, dtype=np.float64) * f.gain
+        if isinstance(self.source, SimulatorSource):
+            f = self.source.config.force
+            true_amp = np.asarray(f.amplitudes, dtype=np.float64) * f.gain
+        else:
+            true_amp = np.full(len(self._force0.amplitudes), math.nan)
         th_a, th_s = b.theta_adaptive, b.theta_switching
         sg = b.segment
         spindle = float(self._knobs["spindle_rpm"].value) * self._spindle_factor(t0)
@@ -515,9 +578,24 @@ class LivePipeline:
             out.update(self._ecc.step(out["t"], self.sample_time))
         else:
             out.update({k: np.full(n, math.nan) for k in ECC_CHANNELS})
+        if not self.source.has_truth:
+            # no truth but the reference force: the true harmonics and wear are unknown
+            for k in ("h1_true", "h2_true", "vb_true", "vb_est", "vb_limit", "life_left"):
+                out[k] = np.full(n, math.nan)
         out = {k: np.ascontiguousarray(v, dtype=np.float64) for k, v in out.items()}
         self._last = {k: float(v[-1]) for k, v in out.items()}
         return out
+
+    def _discontinuity(self) -> None:
+        """The source's next block does not continue the last one (a gap, a restart):
+        every observer starts again from its initial state, as in a fresh pipeline; the
+        wear pass under way is not given to the monitor."""
+        self.run.reset_estimators()
+        self._dfo_state = dfo_mod.initial_state(self._dfo)
+        if self._fx is not None:
+            self._fx_state = self._fx.init_state()
+        if self._pass_cut is not None:  # a wear pass is under way: it spans the gap
+            self._pass_steady = False
 
     def _wear_begin(self, t0: float) -> None:
         """Start a pass: advance the wear model over it first, so the stage cuts with the
@@ -598,20 +676,23 @@ class LivePipeline:
         return self._removed
 
     def snapshot(self) -> dict[str, object]:
-        """Latest value of every channel, the true parameters and the knob values."""
-        p = self.run.sim.config.true_params
-        return {
+        """Latest value of every channel, the truth the source knows and the knob values;
+        a source's own status under its name (``"replay"``: path, samples, fed, finished).
+        """
+        truth = self.source.truth_summary()
+        if self.source.has_truth:
+            truth["workpiece_removed"] = self._removed
+        snap: dict[str, object] = {
             "t": self.t,
             "scenario": self.scenario,
             "latest": dict(self._last),
-            "truth": {
-                "J_L": p.J_L,
-                "B_L": p.B_L,
-                "F_CL": p.F_CL,
-                "workpiece_removed": self._removed,
-            },
+            "truth": truth,
             "knobs": {k: v.value for k, v in self._knobs.items()},
             "observer_effects": [
                 {"name": e.name, "shape": dict(e.shape), "coef": list(e.coef)} for e in self.effects
             ],
         }
+        status = self.source.status()
+        if status:
+            snap[self.source.name] = status
+        return snap

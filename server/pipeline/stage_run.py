@@ -1,11 +1,13 @@
-"""Wiring of the stage with its observers: simulation -> front end -> identifiers -> forces.
+"""Wiring of the stage with its observers: source -> front end -> identifiers -> forces.
 
-One :class:`StageRun` advances the simulated stage block by block and runs, on its
-Measurements only, the fixed-parameter observer (seed 000 Fig. 4), the adaptive observer
-(seed 000 Fig. 3, ordinary RLS) and the switching-RLS observer (seed 001), and beside
-them the gated segment identifier (:mod:`estimators.segment_id`: J_L, B_L, F_CL with 95 %
-intervals and excitation flags). The Truth is used only to build the scoring signals
-(true force, the ideal estimate Q(s) F_cut).
+One :class:`StageRun` takes blocks from a measurement source (by default the simulated
+stage; :mod:`server.pipeline.sources`) and runs, on their Measurements only, the
+fixed-parameter observer (seed 000 Fig. 4), the adaptive observer (seed 000 Fig. 3,
+ordinary RLS) and the switching-RLS observer (seed 001), and beside them the gated segment
+identifier (:mod:`estimators.segment_id`: J_L, B_L, F_CL with 95 % intervals and
+excitation flags). The Truth is used only to build the scoring signals (true force, the
+ideal estimate Q(s) F_cut); a source without Truth gives its reference force ``f_ext``
+instead (NaN when none).
 """
 
 from __future__ import annotations
@@ -27,7 +29,10 @@ from estimators.segment_id import (
     mark_disturbance,
     restart,
 )
+from machine.params import StageParams
 from machine.stage import Measurements, StageConfig, StageSim, Truth
+from server.errors import CutwatchError
+from server.pipeline.sources import MeasurementSource, SimulatorSource, SourceBlock, no_truth
 
 
 @dataclass
@@ -54,20 +59,37 @@ class StageBlock:
 
 
 def observer_params_for(cfg: StageConfig, **design: Any) -> ObserverParams:
-    nom = cfg.nominal or cfg.params
+    return _observer_params(cfg.nominal or cfg.params, cfg.sample_time, cfg.encoder_resolution)
+
+
+def _observer_params(
+    nom: StageParams, sample_time: float, encoder_resolution: float, **design: Any
+) -> ObserverParams:
     return ObserverParams(
         J_M=nom.J_M,
         B_M=nom.B_M,
         F_CM=nom.F_CM,
         K=nom.K,
-        sample_time=cfg.sample_time,
-        encoder_resolution=cfg.encoder_resolution,
+        sample_time=sample_time,
+        encoder_resolution=encoder_resolution,
         **design,
     )
 
 
 class StageRun:
-    """The stage and every force observer, advanced together."""
+    """A measurement source and every force observer, advanced together.
+
+    Parameters
+    ----------
+    config, seed
+        The simulated stage's configuration and seed, when ``source`` is not given.
+    ident, observer_design
+        The identifiers' parameters and the observer's design options.
+    source
+        Where the measurements come from (:mod:`server.pipeline.sources`); default a
+        :class:`~server.pipeline.sources.SimulatorSource` of ``config`` and ``seed``.
+        The observers are built from its nominal parameters and sample time.
+    """
 
     def __init__(
         self,
@@ -76,28 +98,48 @@ class StageRun:
         seed: int = 0,
         ident: IdentifierParams | None = None,
         observer_design: dict[str, Any] | None = None,
+        source: MeasurementSource | None = None,
     ) -> None:
-        self.sim = StageSim(config or StageConfig(), seed=seed)
-        cfg = self.sim.config
-        nom = cfg.nominal or cfg.params
+        self.source: MeasurementSource = source or SimulatorSource(config, seed=seed)
+        src = self.source
+        nom = src.nominal
         self.nominal_load = LoadParams(J_L=nom.J_L, B_L=nom.B_L, F_CL=nom.F_CL)
-        self.front = TorsionEstimator(observer_params_for(cfg, **(observer_design or {})))
-        ip = ident or IdentifierParams(sample_time=cfg.sample_time)
+        self.front = TorsionEstimator(
+            _observer_params(
+                nom, src.sample_time, src.encoder_resolution, **(observer_design or {})
+            )
+        )
+        ip = ident or IdentifierParams(sample_time=src.sample_time)
         self.ident = LoadIdentifier(ip, switching=False)
         self.ident_sw = LoadIdentifier(ip, switching=True)
         self.ident_seg = SegmentIdentifier(
             SegmentIdentifierParams(
                 nominal=(nom.J_L, nom.B_L, nom.F_CL),
-                sample_time=cfg.sample_time,
+                sample_time=src.sample_time,
                 q_rls_hz=ip.q_rls_hz,
                 q_rls_order=ip.q_rls_order,
                 acc_threshold=ip.acc_threshold,
             )
         )
-        self._q = lowpass(self.front.params.q_hz, cfg.sample_time, self.front.params.q_order)
-        self._reset_estimators()
+        self._q = lowpass(self.front.params.q_hz, src.sample_time, self.front.params.q_order)
+        self.reset_estimators()
 
-    def _reset_estimators(self) -> None:
+    @property
+    def sim(self) -> StageSim:
+        """The simulated stage, when the source is the simulator.
+
+        Raises
+        ------
+        TypeError
+            The source is not a :class:`~server.pipeline.sources.SimulatorSource`.
+        """
+        if not isinstance(self.source, SimulatorSource):
+            raise TypeError(f"the {self.source.name} source has no simulated stage")
+        return self.source.sim
+
+    def reset_estimators(self) -> None:
+        """Every observer and identifier back to its initial state (the source's nominal
+        parameters), as if the next block were the first."""
         nl = self.nominal_load
         self.s_front = self.front.init_state()
         self.s_ident = self.ident.init_state(nl.J_L, nl.B_L, nl.F_CL)
@@ -114,7 +156,28 @@ class StageRun:
         self._prev_t = 0.0
 
     def step(self, n: int) -> StageBlock:
-        meas, truth = self.sim.step(n)
+        """Take ``n`` samples from the source and run the observers on them.
+
+        Raises
+        ------
+        CutwatchError
+            The source had no sample (a live feed with nothing yet): use
+            :meth:`process` on the source's blocks to handle that case.
+        """
+        block = self.source.step(n)
+        if block.n == 0:
+            raise CutwatchError(f"the {self.source.name} source gave no samples")
+        return self.process(block)
+
+    def process(self, block: SourceBlock) -> StageBlock:
+        """Run the observers on one non-empty block; a block marked as a discontinuity
+        first resets them (:meth:`reset_estimators`)."""
+        meas = block.meas
+        if block.discontinuity is not None:
+            self.reset_estimators()
+            # the filters start again inside whatever segment follows: discarded
+            self.s_seg = mark_disturbance(self.s_seg, float(meas.t[0]))
+        truth = block.truth if block.truth is not None else no_truth(meas)
         self.s_front, rec = self.front.step(self.s_front, meas.tau_m, meas.q_m, meas.q_l)
         self.s_ident, ra = self.ident.step(
             self.s_ident, rec.t_s, rec.acc_l, rec.vel_l, rec.sgn_l, rec.omega_l
@@ -123,8 +186,14 @@ class StageRun:
             self.s_sw, rec.t_s, rec.acc_l, rec.vel_l, rec.sgn_l, rec.omega_l
         )
         t_est = np.concatenate([[self._prev_t], meas.t[:-1]])
+        # the front end's outputs refer to the previous sample (one sample time back)
         self.s_seg, rg = self.ident_seg.step(
-            self.s_seg, t_est, rec.t_s, rec.acc_l, rec.vel_l, rec.sgn_l
+            self.s_seg,
+            meas.t - self.source.sample_time,
+            rec.t_s,
+            rec.acc_l,
+            rec.vel_l,
+            rec.sgn_l,
         )
         nl = self.nominal_load
         f_fixed = cutting_force(rec, nl.J_L, nl.B_L, nl.F_CL)

@@ -11,7 +11,6 @@ import base64
 import html
 import io
 import json
-import math
 import os
 import shutil
 import tempfile
@@ -21,21 +20,10 @@ from typing import Any
 
 import numpy as np
 
+from common.jsonsafe import json_safe
 from estimators.residual import NOT_OFFERED, ResidualResult
 from estimators.residual_two_inertia import NOT_OFFERED_TWO_INERTIA, TwoInertiaResult
 from server.records.measured_log import MeasuredLog
-
-
-def _clean(x: Any) -> Any:
-    if isinstance(x, dict):
-        return {str(k): _clean(v) for k, v in x.items()}
-    if isinstance(x, list | tuple):
-        return [_clean(v) for v in x]
-    if isinstance(x, np.generic):
-        x = x.item()
-    if isinstance(x, float) and not math.isfinite(x):
-        return None
-    return x
 
 
 def describe_structure(u: Mapping[str, Any]) -> str:
@@ -117,7 +105,7 @@ def report_dict(
         )
     if validation is not None:
         rep["validation"] = dict(validation)
-    return _clean(rep)
+    return json_safe(rep)
 
 
 def _png(fig: Any) -> str:

@@ -248,7 +248,7 @@ class LiveLoop:
             self.block_n = max(1, round(self.settings.block_ms * 1e-3 / pipe.sample_time))
             self._pending.clear()
             self._hello_due = True  # sent by the loop thread before its next frame
-            if self.paused and getattr(self.pipeline, "finished", None) is not None:
+            if self.paused and not pipe.source.knobs_apply:  # a log or a live feed
                 self.paused = False
                 self.speed = self.speed or 1.0
             self._anchor()
@@ -297,13 +297,24 @@ class LiveLoop:
                     self._wake.clear()
                     continue
                 with self.lock:
-                    if getattr(self.pipeline, "finished", False):
+                    if self.pipeline.finished:
                         self.paused = True  # a replayed log has ended
                     if self.paused or self._stop.is_set():
                         continue
                     out = self.pipeline.step(self.block_n)
-                    self._pending.append(out)
-                    self.blocks += 1
+                    got = len(out["t"]) > 0
+                    if got:
+                        self._pending.append(out)
+                        self.blocks += 1
+                    else:  # a live feed with nothing yet: time stands; wait, re-anchor
+                        self._anchor()
+                if not got:
+                    self._wake.wait(self.frame_period)
+                    self._wake.clear()
+                    if time.monotonic() - last_frame >= self.frame_period:
+                        last_frame = time.monotonic()
+                        self._publish()
+                    continue
                 if self.scene is not None:
                     p = self.pipeline
                     self.scene.update(p.latest, p.workpiece_removed, p.t)

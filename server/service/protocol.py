@@ -18,8 +18,9 @@ Identified parameters with intervals (issue 13): for each name in ``SCHEMA["inte
 the stream carries the estimate, the 95 % interval's bounds and an excited flag (1: the
 data determine it; 0: show it greyed, "not excited", not as a number), on the slow grid.
 
-JSON was measured against a binary (float32) encoding: see the README ("Stream").
-``tests/test_protocol.py`` keeps :data:`SCHEMA` equal to the JS module's ``SCHEMA``.
+JSON was measured against a binary (float32) encoding: see
+docs/live-service.md ("Stream protocol").
+``tests/service/test_protocol.py`` keeps :data:`SCHEMA` equal to the JS module's ``SCHEMA``.
 """
 
 from __future__ import annotations

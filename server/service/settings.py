@@ -42,7 +42,7 @@ class Settings(BaseSettings):
         default=False,
         description=(
             "offer permessage-deflate on /ws (off: every client would compress the same "
-            "frame again, which cost more CPU than the whole stream; see README)"
+            "frame again, which cost more CPU than the whole stream; see docs/live-service.md)"
         ),
     )
     client_buffer: int = Field(

@@ -21,8 +21,6 @@ import numpy as np
 
 from server.errors import CutwatchError
 
-#: lead of the (drawn) ball screw: 10 mm per revolution (the papers give none)
-SCREW_LEAD = 0.01
 FORCE_SCALE = 0.02  # arrow length per N m of cutting torque [m]
 BLANK = (0.16, 0.12, 0.06)  # workpiece (x, y, z) when fresh [m]
 

@@ -19,20 +19,15 @@ from hypothesis import strategies as st
 
 from estimators.errors import ParameterError
 from estimators.observer_effects import EffectsParams, ObserverEffect, ObserverEffects
+from machine.effects import EFFECT_NAMES
 from server.cli.main import main
 from server.records.measured_log import load_log, write_log
 
 SECONDS = "10"
-EFFECTS = (
-    "none",
-    "offset",
-    "coulomb_asymmetry",
-    "stribeck",
-    "position_periodic",
-    "torque_ripple",
-    "backlash",
-)
-# measured (README, "Measured data"): the simulator's direction asymmetry adds a*F_CL in BOTH
+# every effect the simulator produces, and none
+EFFECTS = ("none", *EFFECT_NAMES)
+# measured (docs/residual.md, "Simulator logs"): the simulator's direction asymmetry adds
+# a*F_CL in BOTH
 # directions while the axis moves (friction = F_CL (sgn w + a)), the same signal as a
 # constant load torque; the dwell at each reversal does not separate them because the
 # 100/200 Hz cutting force keeps the load vibrating through zero velocity (it never

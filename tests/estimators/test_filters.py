@@ -87,7 +87,7 @@ def test_state_space_zoh_agrees_with_scipy() -> None:
     import scipy.linalg
     import scipy.signal
 
-    from estimators.filters import expm, zoh
+    from common.linalg import expm, zoh
 
     rng = np.random.default_rng(4)
     for scale in (1e-3, 0.3, 5.0, 300.0):

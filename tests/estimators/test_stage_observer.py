@@ -143,7 +143,7 @@ def test_every_canonical_effect_runs_and_stays_bounded() -> None:
 def test_small_expm_agrees_with_scipy() -> None:
     import scipy.linalg
 
-    from machine.linalg import expm
+    from common.linalg import expm
 
     rng = np.random.default_rng(2)
     for scale in (1e-3, 0.3, 5.0, 300.0):

@@ -1,7 +1,8 @@
 """The seed 000 / seed 001 reproductions at reduced length, through the real command.
 
 Checks the issue asks for that our runs do not reach are strict xfails carrying the
-measured numbers (README, "Reproduction"): if one starts to hold, the suite says so.
+measured numbers (docs/reproductions/seed000-adaptive-observer.md and
+seed001-switching-rls.md): if one starts to hold, the suite says so.
 """
 
 import json

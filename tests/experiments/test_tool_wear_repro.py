@@ -68,7 +68,7 @@ def test_state_error_within_twice_table4(rep: Reproduction, name: str) -> None:
 @pytest.mark.xfail(
     strict=True,
     reason="measured |mean error of x03| = 1.52 N against the limit 1.50 N (twice Table 4's "
-    "0.75 N); see the README, section 'Tool wear'",
+    "0.75 N); see docs/reproductions/seed004-tool-wear.md",
 )
 def test_state_error_mean_x3_within_twice_table4(rep: Reproduction) -> None:
     c = _check(rep, "state_error.mean.x3 within twice Table 4's")
@@ -133,8 +133,8 @@ def test_cli_json_contract_and_plots(tmp_path: Path) -> None:
         check=False,
     )
     doc = json.loads(out.stdout)
-    # exit status 1: one check fails — exactly the shortfall documented in the README
-    # ("Tool wear"), no other
+    # exit status 1: one check fails — exactly the shortfall documented in
+    # docs/reproductions/seed004-tool-wear.md, no other
     failing = {c["name"] for c in doc["checks"] if not c["holds"]}
     assert failing == {"state_error.mean.x3 within twice Table 4's"}
     assert out.returncode == 1

@@ -338,7 +338,7 @@ def test_esc_converges_to_the_cancelling_modulation(reproduction: dict[str, obje
     "needs 17.6 s (case 1) and 15.4 s (case 2): a true gradient would need ~40/35 s (the "
     "2 deg phase dither is small tangentially) and the revolution-boundary transient "
     "scrambles the estimate; no reading or lag compensation tried reaches 15 s in both "
-    "cases. See the README, section 'Tool eccentricity', 'Why the ESC is slower'",
+    "cases. See docs/reproductions/seed003-eccentricity.md, 'Why the ESC is slower than the paper'",
 )
 def test_esc_converges_within_15_s(reproduction: dict[str, object]) -> None:
     checks = _checks(reproduction)
@@ -401,7 +401,8 @@ def test_dither_lag_of_a_one_revolution_delay_is_a_quarter_period() -> None:
 
 
 def test_a_radius_step_shows_in_the_cost_mostly_one_revolution_late() -> None:
-    """The mechanism behind the slow ESC (README): in case 1 a radius step of the dither
+    """The mechanism behind the slow ESC (docs/reproductions/seed003-eccentricity.md):
+    in case 1 a radius step of the dither
     shows in the cost of its own revolution only partly (drive transient and the
     previous tooth's surface, eq. 4), a phase step almost fully."""
     from machine.milling import MillingMachine

@@ -61,7 +61,8 @@ def test_adaptive_j_l_follows_the_weight() -> None:
             ratio.append(out["J_L_adaptive"] / out["J_L_true"])
     r = np.concatenate(ratio)
     assert out["J_L_true"][-1] == pytest.approx(2.8e-4 + 2.92e-4)
-    # measured: within 2 % once two reversals have passed (README, adaptive-observer)
+    # measured: within 2 % once two reversals have passed
+    # (docs/reproductions/seed000-adaptive-observer.md)
     assert np.median(np.abs(r - 1)) < 0.05
 
 

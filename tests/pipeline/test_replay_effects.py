@@ -16,7 +16,7 @@ from _live import serve
 
 from server.cli.main import main
 from server.pipeline.live_pipeline import LivePipeline
-from server.service.app import parse_effects
+from server.service.routes.replay import parse_effects
 
 
 @pytest.fixture(scope="module")
@@ -79,19 +79,27 @@ def test_residual_path_traversal_refused(api: httpx.Client, path: str) -> None:
 
 @pytest.mark.parametrize("name", ["..", "../secret", "..%2Fsecret", "link", "a/../../secret"])
 def test_report_file_refuses_leaving_the_directory(files: dict[str, Path], name: str) -> None:
-    from server.service.app import _HTTPError, report_file
+    from fastapi import HTTPException
+
+    from server.service.routes.reports import report_file
 
     link = files["reports"] / "link"
     if not link.exists():
         link.symlink_to(files["d"] / "secret")  # a symlink out of the reports directory
-    with pytest.raises(_HTTPError, match=r"no residual report named"):
+    with pytest.raises(HTTPException) as exc:
         report_file(files["reports"], name, "report.html")
+    assert exc.value.status_code == 404
+    (err,) = exc.value.detail
+    assert err["field"] == "name" and err["got"] == name
+    assert err["msg"].startswith("no residual report named")
 
 
 def test_residual_bad_name_message(api: httpx.Client) -> None:
     r = api.get("/residual/.hidden/")
     assert r.status_code == 404
-    assert r.json()["detail"] == "no residual report named '.hidden' (expected a directory name)"
+    (err,) = r.json()["detail"]
+    assert err["msg"] == "no residual report named '.hidden' (expected a directory name)"
+    assert err["field"] == "name" and err["got"] == ".hidden"
 
 
 # ------------------------------------------------------------------ replay
@@ -99,17 +107,20 @@ def test_replay_errors(api: httpx.Client, files: dict[str, Path]) -> None:
     d = files["d"]
     r = api.post("/api/replay", json={"path": str(d / "missing.csv")})
     assert r.status_code == 422
-    assert r.json()["detail"] == f"{d / 'missing.csv'}: no such file (expected a .csv or .mat log)"
+    (err,) = r.json()["detail"]
+    assert err["msg"] == f"{d / 'missing.csv'}: no such file (expected a .csv or .mat log)"
+    assert err["field"] == "path" and err["got"] == str(d / "missing.csv")
     r = api.post("/api/replay", json={"path": str(files["rigid"])})
     assert r.status_code == 422
-    assert r.json()["detail"] == f"{files['rigid']}: kind 'rigid': expected 'two_inertia' " + (
-        "(sidecar key 'kind')"
-    )
+    assert r.json()["detail"][0][
+        "msg"
+    ] == f"{files['rigid']}: kind 'rigid': expected 'two_inertia' " + ("(sidecar key 'kind')")
     r = api.post("/api/replay", json={"path": str(files["nounits"])})
     assert r.status_code == 422
-    assert "units not declared" in r.json()["detail"]
+    assert "units not declared" in r.json()["detail"][0]["msg"]
     r = api.post("/api/replay", json={"file": "x.csv"})
     assert r.status_code == 422
+    assert {e["field"] for e in r.json()["detail"]} == {"file", "path"}  # extra, missing
     assert api.get("/api/scenarios").json()["current"] == "default"  # nothing changed
 
 
@@ -142,16 +153,20 @@ def test_replay_feeds_the_observers_then_stops(api: httpx.Client, files: dict[st
 def test_effects_errors(api: httpx.Client, files: dict[str, Path]) -> None:
     r = api.post("/api/observer-effects", json={})
     assert r.status_code == 422
-    assert r.json()["detail"] == "expected one of 'path' (a report.json) or 'observer_effects'"
+    (err,) = r.json()["detail"]
+    assert err["msg"] == "expected one of 'path' (a report.json) or 'observer_effects'"
+    assert err["field"] == "body"
     r = api.post("/api/observer-effects", json={"path": str(files["d"] / "none.json")})
     assert r.status_code == 422
-    assert "no such file (expected a residual report.json)" in r.json()["detail"]
+    assert "no such file (expected a residual report.json)" in r.json()["detail"][0]["msg"]
+    assert r.json()["detail"][0]["field"] == "path"
     r = api.post("/api/observer-effects", json={"path": str(files["log"])})
     assert r.status_code == 422
-    assert "not a readable JSON report" in r.json()["detail"]
+    assert "not a readable JSON report" in r.json()["detail"][0]["msg"]
     r = api.post("/api/observer-effects", json={"observer_effects": [{"name": "offset"}]})
     assert r.status_code == 422
-    assert r.json()["detail"].startswith("observer_effects[0]: expected {'name': str")
+    assert r.json()["detail"][0]["msg"].startswith("observer_effects[0]: expected {'name': str")
+    assert r.json()["detail"][0]["field"] == "observer_effects[0]"
     r = api.post(
         "/api/observer-effects", json={"observer_effects": [{"name": "gremlin", "coef": []}]}
     )

@@ -14,7 +14,10 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from server.errors import CutwatchError
+from server.service import protocol
 from server.service.app import create_app
+from server.service.errors import error
+from server.service.schemas import ErrorBody, LoopHealth
 from server.service.settings import Settings
 
 JSON = st.recursive(
@@ -36,6 +39,13 @@ BODIES = JSON | st.dictionaries(
 def api() -> Iterator[httpx.Client]:
     with serve() as hp, httpx.Client(base_url=f"http://{hp}", timeout=10) as client:
         yield client
+
+
+@pytest.fixture(scope="module")
+def locked() -> Iterator[httpx.Client]:
+    """A second server, with CUTWATCH_TOKEN set."""
+    with serve(token="s3cret") as hp, httpx.Client(base_url=f"http://{hp}", timeout=10) as c:
+        yield c
 
 
 def sim_t(api: httpx.Client) -> float:
@@ -121,14 +131,16 @@ def test_patch_non_finite_number_is_422_not_500(api: httpx.Client) -> None:
 def test_patch_body_not_an_object(api: httpx.Client, content: bytes) -> None:
     r = api.patch("/api/params", content=content, headers={"content-type": "application/json"})
     assert r.status_code == 422
-    assert r.json()["detail"][0]["loc"][0] == "body"
+    assert r.json()["detail"][0]["field"] == "body"
 
 
 def test_body_size_limited(api: httpx.Client) -> None:
     big = b'{"spindle_rpm": 1500, "pad": "' + b"x" * 20000 + b'"}'
     r = api.patch("/api/params", content=big, headers={"content-type": "application/json"})
     assert r.status_code == 413
-    assert r.json()["detail"] == "request body larger than 16384 bytes"
+    (err,) = r.json()["detail"]
+    assert err["msg"] == "request body larger than 16384 bytes"
+    assert err["field"] == "body" and err["got"] == len(big)
 
     def chunks() -> Iterator[bytes]:  # no Content-Length: counted as it streams
         yield b'{"pad": "'
@@ -138,6 +150,7 @@ def test_body_size_limited(api: httpx.Client) -> None:
 
     r = api.patch("/api/params", content=chunks(), headers={"content-type": "application/json"})
     assert r.status_code == 413
+    assert r.json()["detail"][0]["msg"] == "request body larger than 16384 bytes"
 
 
 @pytest.mark.parametrize(
@@ -256,11 +269,14 @@ def test_token_required_for_mutations_when_set() -> None:
         assert c.get("/api/params").status_code == 200  # reading needs no token
         r = c.patch("/api/params", json={"spindle_rpm": 2000})
         assert r.status_code == 401
-        assert "Bearer" in r.json()["detail"] and r.headers["www-authenticate"] == "Bearer"
+        (err,) = r.json()["detail"]
+        assert "Bearer" in err["msg"] and r.headers["www-authenticate"] == "Bearer"
+        assert err["field"] == "authorization"
         r = c.post(
             "/api/control", json={"action": "pause"}, headers={"Authorization": "Bearer wrong"}
         )
         assert r.status_code == 401
+        assert "wrong" not in r.text  # the token given is never echoed
         r = c.patch(
             "/api/params", json={"spindle_rpm": 2000}, headers={"Authorization": "Bearer s3cret"}
         )
@@ -296,3 +312,123 @@ def test_control_fuzz_never_500(api: httpx.Client, body: object) -> None:
     )
     assert r.status_code in (200, 422), r.text
     api.post("/api/control", json={"action": "speed", "value": 1})  # leave it running
+
+
+JSON_CT = {"content-type": "application/json"}
+# (case, method, path, request keywords, status, the field named by the first entry)
+ERROR_CASES = [
+    ("bad field", "PATCH", "/api/params", {"json": {"spindle_rpm": "fast"}}, 422, "spindle_rpm"),
+    ("unknown field", "PATCH", "/api/params", {"json": {"bogus": 1}}, 422, "bogus"),
+    ("out of range", "PATCH", "/api/params", {"json": {"spindle_rpm": 1e9}}, 422, "spindle_rpm"),
+    ("no field", "PATCH", "/api/params", {"json": {}}, 422, "body"),
+    ("not an object", "PATCH", "/api/params", {"content": b"[NaN]", "headers": JSON_CT}, 422,
+     "body"),
+    ("not JSON", "PATCH", "/api/params", {"content": b"{", "headers": JSON_CT}, 422, "body"),
+    ("bad literal", "POST", "/api/control", {"json": {"action": "jump"}}, 422, "action"),
+    ("missing field", "POST", "/api/control", {"json": {}}, 422, "action"),
+    ("extra field", "POST", "/api/control", {"json": {"action": "pause", "x": 1}}, 422, "x"),
+    ("speed out of range", "POST", "/api/control", {"json": {"action": "speed", "value": 5000}},
+     422, "value"),
+    ("ParameterError", "POST", "/api/observer-effects",
+     {"json": {"observer_effects": [{"name": "gremlin", "coef": []}]}}, 422, "name"),
+    ("CutwatchError", "POST", "/api/replay", {"json": {"path": "/nonexistent/x.csv"}}, 422,
+     "path"),
+    ("wrong token", "PATCH", "/api/params",
+     {"json": {"spindle_rpm": 2000}, "headers": {"Authorization": "Bearer wrong"}}, 401,
+     "authorization"),
+    ("no token", "POST", "/api/control", {"json": {"action": "pause"}}, 401, "authorization"),
+    ("unknown route", "GET", "/api/nothing", {}, 404, "path"),
+    ("wrong method", "DELETE", "/api/health", {}, 405, "method"),
+    ("wrong method (static)", "POST", "/index.html", {}, 405, "method"),
+    ("oversized body", "PATCH", "/api/params",
+     {"content": b"x" * 20000, "headers": JSON_CT}, 413, "body"),
+    ("unknown report", "GET", "/residual/nope/", {}, 404, "name"),
+    ("unknown report.json", "GET", "/residual/nope/report.json", {}, 404, "name"),
+    ("unsafe report name", "GET", "/residual/.hidden/", {}, 404, "name"),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    ("method", "path", "kw", "status", "field"),
+    [c[1:] for c in ERROR_CASES],
+    ids=[c[0] for c in ERROR_CASES],
+)
+def test_every_4xx_has_the_one_body_shape(
+    api: httpx.Client,
+    locked: httpx.Client,
+    method: str,
+    path: str,
+    kw: dict[str, object],
+    status: int,
+    field: str,
+) -> None:
+    client = locked if status == 401 else api
+    r = client.request(method, path, **kw)
+    assert r.status_code == status, r.text
+    assert r.headers["content-type"] == "application/json"
+    body = r.json()
+    assert list(body) == ["detail"]
+    assert isinstance(body["detail"], list) and body["detail"]
+    for e in body["detail"]:
+        assert set(e) == {"field", "allowed", "got", "msg"}, e
+        assert isinstance(e["field"], str) and e["field"]
+        assert isinstance(e["allowed"], str) and e["allowed"]
+        assert isinstance(e["msg"], str) and e["msg"]
+    ErrorBody.model_validate(body)
+    assert body["detail"][0]["field"] == field
+    if status == 405:
+        assert body["detail"][0]["got"] == method
+        allow = "GET" if path.startswith("/api/") else "GET, HEAD"  # a route, a static file
+        assert r.headers["allow"] == allow and body["detail"][0]["allowed"] == f"one of {allow}"
+    if status == 401:
+        assert r.headers["www-authenticate"] == "Bearer"
+        assert "wrong" not in r.text
+
+
+def test_openapi_documents_every_response(api: httpx.Client) -> None:
+    spec = api.get("/openapi.json").json()
+    schemas = spec["components"]["schemas"]
+    error_ref = {"application/json": {"schema": {"$ref": "#/components/schemas/ErrorBody"}}}
+    ops = [(p, m, op) for p, ms in spec["paths"].items() for m, op in ms.items()]
+    assert len(ops) == 14  # 13 paths; /api/params has GET and PATCH, effects GET/POST/DELETE
+    for p, m, op in ops:
+        where = f"{m.upper()} {p}"
+        ok = [c for c in op["responses"] if c.startswith("2")]
+        assert ok, where
+        for c in ok:
+            content = op["responses"][c]["content"]
+            assert content, where
+            for media, entry in content.items():
+                schema = entry.get("schema")
+                assert schema, (where, media)  # not missing, not {}
+                if "$ref" in schema:
+                    target = schemas[schema["$ref"].rsplit("/", 1)[-1]]
+                    assert target.get("properties") or target.get("additionalProperties"), where
+        errors = {c: r for c, r in op["responses"].items() if c.startswith("4")}
+        assert "4XX" in errors, where
+        for c, r in errors.items():
+            assert r["content"] == error_ref, (where, c)
+        if m in ("patch", "post", "delete"):
+            assert "401" in errors, where
+        if "requestBody" in op:
+            assert {"413", "422"} <= set(errors), where
+            assert op["requestBody"]["content"]["application/json"]["schema"], where
+    assert set(schemas["ErrorItem"]["properties"]) == {"field", "allowed", "got", "msg"}
+    assert "HTTPValidationError" not in schemas  # FastAPI's own 422 shape is not offered
+
+
+def test_health_model_matches_the_stream_schema() -> None:
+    # /api/health and /api/snapshot carry the loop's health through LoopHealth: a key
+    # added to the stream's health (protocol.SCHEMA) must be added there too
+    assert list(LoopHealth.model_fields) == protocol.SCHEMA["health"]
+
+
+def test_error_entry_got_is_json() -> None:
+    import numpy as np
+
+    assert error("x", "a number", np.float64(2.5), "m")["got"] == 2.5  # not "np.float64(2.5)"
+    assert error("x", "a number", np.int64(3), "m")["got"] == 3
+    # a client's NaN is echoed as "nan", not null (null would read as "you sent null")
+    assert error("x", "a number", float("nan"), "m")["got"] == "nan"
+    assert error("x", "a number", None, "m")["got"] is None
+    assert error("x", "a list", np.zeros(2), "m")["got"] == "array([0., 0.])"

@@ -154,3 +154,29 @@ def test_viser_scene_renders_and_moves(tmp_path: Path) -> None:
     assert drawn(a) > 0.2
     # the table, screw stripe and spindle move between the two shots
     assert float(np.mean(np.abs(a - b).sum(axis=2) > 30.0)) > 0.002
+
+
+def test_refused_request_shows_the_servers_message() -> None:
+    # the page reads the one error body ({"detail": [{field, allowed, got, msg}]})
+    sync_api = pytest.importorskip("playwright.sync_api")
+    with serve(token="s3cret") as hostport, sync_api.sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=str(CHROMIUM), args=ARGS)
+        try:
+            page = browser.new_page(viewport={"width": 1280, "height": 720})
+            errors: list[str] = []
+            page.on("pageerror", lambda e: errors.append(str(e)))
+            page.goto(f"http://{hostport}/")
+            page.wait_for_selector("#conn[data-state=up]", timeout=15000)
+            page.click("#pause")  # no token: 401
+            page.wait_for_selector("#error:has-text('Bearer')", timeout=5000)
+            assert page.text_content("#error") == (
+                "mutating endpoints need 'Authorization: Bearer <token>' (CUTWATCH_TOKEN)"
+            )
+            page.fill("#token", "s3cret")
+            page.click("#pause")
+            page.wait_for_selector("#simt:has-text('paused')", timeout=5000)
+            assert page.text_content("#error") == ""
+            # an uncaught rejection of the first click is the page's own (call() throws)
+            assert all("Bearer" in e for e in errors)
+        finally:
+            browser.close()

@@ -208,7 +208,7 @@ def _observer_inputs(log: Any) -> tuple[Any, Any]:
             F_CM=nom["F_CM"],
             K=nom["K"],
             sample_time=log.sample_time,
-            # without a declared resolution: the seed's 20-bit encoder (eq. 8 weights only)
+            # without a declared resolution: the seed's 20-bit encoder (seed000 (8) weights only)
             encoder_resolution=2 * math.pi / 2**20 if res is None else float(res),
         )
         lp = LoadParams(J_L=nom["J_L"], B_L=nom["B_L"], F_CL=nom["F_CL"])

@@ -16,8 +16,6 @@ from estimators.force_observer import ObserverParams
 from server.experiments.reproductions import seed002_disturbance_observers as do
 from server.pipeline import stage_harmonics as sh
 
-NAME = "disturbance-observers"
-
 
 def _median_time(fn: object, repeats: int) -> float:
     times = []

@@ -13,8 +13,6 @@ import time
 from server.experiments.reproductions.seed003_eccentricity import ESC_TABLE1, case_params
 from server.pipeline.eccentricity_loop import EccentricityLoop, ObserverForceSource
 
-NAME = "eccentricity"
-
 
 def _rate(make: object, seconds: float, repeats: int) -> float:
     rates = []

@@ -30,7 +30,6 @@ from typing import Any
 import httpx
 import numpy as np
 
-NAME = "live"
 CLIENTS = 10
 TICK = os.sysconf("SC_CLK_TCK")
 

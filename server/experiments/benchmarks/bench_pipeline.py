@@ -15,8 +15,6 @@ import time
 
 from server.pipeline.live_pipeline import LivePipeline
 
-NAME = "pipeline"
-
 
 def _rate(block: int, seconds: float, repeats: int) -> float:
     rates = []

@@ -15,8 +15,6 @@ from pathlib import Path
 
 import numpy as np
 
-NAME = "residual"
-
 
 def _record(n: int, seed: int = 0) -> dict[str, np.ndarray]:
     rng = np.random.default_rng(seed)

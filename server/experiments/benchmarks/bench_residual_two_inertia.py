@@ -13,8 +13,6 @@ import time
 
 import numpy as np
 
-NAME = "residual_two_inertia"
-
 
 def measure(*, repeats: int, quick: bool) -> dict[str, object]:
     """Median wall time of one analysis (seconds) and its real-time factor."""

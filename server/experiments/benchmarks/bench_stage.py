@@ -14,8 +14,6 @@ import numpy as np
 
 from server.pipeline.stage_run import StageRun
 
-NAME = "stage"
-
 
 def _rate(block: int, seconds: float) -> tuple[float, float]:
     r = StageRun()

@@ -23,8 +23,6 @@ from server.pipeline.wear_clock import (
     observer_params,
 )
 
-NAME = "tool-wear"
-
 
 def _median_time(fn: Callable[[], object], repeats: int) -> float:
     times = []

@@ -13,8 +13,6 @@ from tqdm import tqdm
 from common.arrays import F64
 from server.pipeline.stage_run import StageBlock, StageRun
 
-OBSERVERS = ("fixed", "adaptive", "switching")
-
 
 @dataclass
 class RunTrace:
@@ -64,10 +62,6 @@ def run_stage(
         mode_switching=cat("mode_switching"),
         resets=blocks[-1].resets,
     )
-
-
-def rms(x: F64) -> float:
-    return float(np.sqrt(np.mean(np.square(x))))
 
 
 def component(x: F64, t: F64, f_hz: float) -> float:

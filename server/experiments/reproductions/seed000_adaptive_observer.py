@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from common.stats import rms
 from estimators.rls import IdentifierParams
 from machine.params import ADDED_WEIGHT_INERTIA, preset
 from machine.stage import SEED000_FORCE, StageConfig
@@ -21,7 +22,6 @@ from server.experiments.reproductions._stage_common import (
     RunTrace,
     component,
     prefix,
-    rms,
     run_stage,
     settle_time,
 )

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from common.stats import rms
 from estimators.rls import IdentifierParams
 from machine.params import preset
 from machine.stage import SEED001_FORCE, StageConfig
@@ -23,7 +24,6 @@ from server.experiments.reproductions._stage_common import (
     RunTrace,
     component,
     prefix,
-    rms,
     run_stage,
 )
 from server.pipeline.stage_run import StageRun

@@ -1,6 +1,6 @@
 """Seed 002: cascade P/PI, IMBDO, DFO and both on the XY table's x-axis (Tables 1-2).
 
-The x-axis (eq. 1, 1.2 ms delay, simulated exactly at 10 kHz) tracks a 10 mm / 0.5 Hz
+The x-axis (seed002 (1), 1.2 ms delay, simulated exactly at 10 kHz) tracks a 10 mm / 0.5 Hz
 sine under a milling force with harmonics at 26, 52 and 78 Hz, in four configurations:
 P/PI alone, with the IMBDO (Q cut-off 90 Hz), with the DFO, with both (each keeping its
 own gains). Rows: RMSE and MTE of the tracking error (Table 1), the error's FFT peaks at
@@ -104,7 +104,7 @@ def calibrated_force(
 def make_imbdo(
     axis: xa.XYAxisParams, cutoff_hz: float = Q_CUTOFF_HZ, *, force: bool = False
 ) -> imbdo_mod.ImbdoParams:
-    """The IMBDO: nominal model eq. (1) with its delay; checked against a +-Td delay error."""
+    """The IMBDO: nominal model seed002 (1) with its delay; checked against a +-Td delay error."""
     return imbdo_mod.ImbdoParams(
         a=axis.a,
         b=axis.b,
@@ -120,7 +120,7 @@ def make_imbdo(
 def make_dfo(
     axis: xa.XYAxisParams, frequencies: tuple[float, ...] = HARMONICS, *, lead: float = 0.0
 ) -> dfo_mod.DfoParams:
-    """The DFO on the x-axis: channel eq. (1) without delay, the command delayed by Td."""
+    """The DFO on the x-axis: channel seed002 (1) without delay, the command delayed by Td."""
     return dfo_mod.DfoParams(
         frequencies=tuple(frequencies),
         sample_time=axis.sample_time,
@@ -235,7 +235,7 @@ def bandwidth(
 
 
 def delta_bound(axis: xa.XYAxisParams, f: F64) -> F64:
-    """|1/Delta| of eq. (4) for a delay error of +-Td (Fig. 5's bound, our choice)."""
+    """|1/Delta| of seed002 (4) for a delay error of +-Td (Fig. 5's bound, our choice)."""
     gm = axis.response(f, with_delay=False)
     return imbdo_mod.inverse_delta(gm * np.exp(-2j * np.pi * f * axis.delay), gm)
 
@@ -263,7 +263,7 @@ def delay_free_imbdo_loop(
 
 
 def largest_stable_cutoff(axis: xa.XYAxisParams) -> float:
-    """The largest Q cut-off [Hz] (0.5 Hz steps) that keeps eq. (4)."""
+    """The largest Q cut-off [Hz] (0.5 Hz steps) that keeps seed002 (4)."""
     lo, hi = 10.0, 0.45 / axis.sample_time
     for _ in range(40):
         mid = 0.5 * (lo + hi)

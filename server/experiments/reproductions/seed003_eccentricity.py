@@ -2,13 +2,13 @@
 
 Two simulated cuts (Table 1 cases 1 and 2: 4 flutes, 10 mm, 20 % radial immersion, up
 milling, 80 um/tooth, Al6061) on the X/Y feed drives of :mod:`machine.feed_drives`. The
-adaptation starts at 1 s, as in Fig. 3. The extremum seeking controller (eq. 8-16, Table 1
+adaptation starts at 1 s, as in Fig. 3. The extremum seeking controller (seed003 (8)-(16), Table 1
 step sizes and perturbations) runs on the dynamometer force; beside it the fast tuner of
 :mod:`estimators.fast_tuner` runs on the same cases and through a spindle-speed change.
 
 Definitions used by the rows:
 
-- *cost* J: eq. (8) on the feed-direction (X) force, one value per revolution;
+- *cost* J: seed003 (8) on the feed-direction (X) force, one value per revolution;
 - *converge time*: time from adaptation start until the cost stays below 10 % of its
   value in the revolution before adaptation starts;
 - *cost reduction*: mean cost over the last 2 s divided by that initial cost;
@@ -19,7 +19,7 @@ Definitions used by the rows:
 - *cancelling modulation*: the ``(a_m, theta_m)`` whose response through the drives'
   closed loop at the spindle frequency equals minus the eccentricity vector (truth, from
   the drive model; the tuners never see it). The paper's column shows the ideal-drive
-  values of eq. (7): :math:`a_m = \\epsilon`, :math:`\\theta_m = \\theta_\\epsilon + 180`.
+  values of seed003 (7): :math:`a_m = \\epsilon`, :math:`\\theta_m = \\theta_\\epsilon + 180`.
 """
 
 from __future__ import annotations
@@ -36,7 +36,7 @@ from estimators.esc import EscParams, ExtremumSeekingController, harmonic_cost, 
 from estimators.fast_tuner import FastTunerParams
 from machine.feed_drives import AxisParams, FeedDriveParams
 from machine.milling import MillingMachine, MillingParams
-from server.experiments.reproduction import Check, Reproduction, Row
+from server.experiments.reproduction import Check, Reproduction, Row, Section
 from server.pipeline.eccentricity_loop import EccentricityLoop, ForceSource, ObserverForceSource
 
 NAME = "eccentricity"
@@ -81,6 +81,10 @@ ROWS = [
 
 ADAPT_START = 1.0  # [s] "Adaptation start" of Fig. 3
 PAPER_CONVERGE_S = 10.0  # seed 003 section 3: "converges ... in ~10 seconds"
+#: the ESC needs ~20 s plus 2 s of settled tail; the whole run costs a few seconds of wall
+#: time, so quick keeps the full length (the checks need it)
+SECONDS_ESC = 31.0
+SECONDS_FAST = 3.0
 
 
 def case_params(case: int) -> MillingParams:
@@ -159,7 +163,7 @@ def non_tooth_periodic_pp(t: F64, f: F64, psi: F64, t0: float, rpm: float, n_flu
     """Peak-to-peak of the once-per-revolution, not once-per-tooth, part of ``f``.
 
     Over the revolution starting at ``t0``: the harmonics 1 .. ``n_flutes - 1`` of the
-    spindle frequency (eq. 8's DFT at each order) summed into one waveform. This is the
+    spindle frequency (seed003 (8)'s DFT at each order) summed into one waveform. This is the
     uneven load between flutes that eccentricity causes. The raw sampled force is not
     used: its entry/exit edges fall between samples differently on each flute (62.5
     samples per tooth at 1200 rpm), which would add a sampling artefact of several N.
@@ -177,7 +181,7 @@ def non_tooth_periodic_pp(t: F64, f: F64, psi: F64, t0: float, rpm: float, n_flu
 
 
 def last_revolution_1x(tr: Trace) -> float:
-    """|(F1x, F1y)| (eq. 8 on both axes) over the last complete revolution of a run."""
+    """|(F1x, F1y)| (seed003 (8) on both axes) over the last complete revolution of a run."""
     k = math.floor(tr.psi[-1] / (2 * math.pi))
     m = (tr.psi >= 2 * math.pi * (k - 1)) & (tr.psi < 2 * math.pi * k)
     hx = spindle_harmonic(tr.fx[m], tr.psi[m])
@@ -374,7 +378,7 @@ def _plot(plot_dir: Path, name: str, traces: dict[str, Trace]) -> str:
 
 def _one_revolution(m: MillingMachine, a_um: float, theta_deg: float) -> float:
     """Advance ``m`` to its next revolution boundary with the modulation held; the
-    eq. (8) cost of the X force over that revolution."""
+    seed003 (8) cost of the X force over that revolution."""
     psi = m.spindle_angle
     k = math.floor(psi / (2.0 * math.pi) + 1e-9) + 1
     w_ts = 2.0 * math.pi * m.spindle_rpm / 60.0 * m.sample_time
@@ -394,7 +398,7 @@ def first_revolution_response(
     pattern of a non-integer number of samples per revolution cancels; the steady change
     is the mean over revolutions 2-4 (a whole period of that pattern at 1800 rpm).
     1 means the cost of a revolution reflects only that revolution's modulation (a static
-    plant, as eq. 11 assumes); 0 means it shows one revolution late.
+    plant, as seed003 (11) assumes); 0 means it shows one revolution late.
     """
     m, twin = MillingMachine(mp), MillingMachine(mp)
     for mach in (m, twin):
@@ -447,7 +451,7 @@ def static_cone_time(
         th = first_rev[1] * s.theta_deg + (1.0 - first_rev[1]) * prev[1]
         j = j0 * abs(a * np.exp(1j * math.radians(th)) - u_star) / abs(u_star)
         prev = (s.a_um, s.theta_deg)
-        # a pure sinusoid of amplitude j at the spindle frequency: eq. (8) returns j
+        # a pure sinusoid of amplitude j at the spindle frequency: seed003 (8) returns j
         s, rec = ctl.step(s, j * np.cos(ang), ang, rev_time)
         u = rec.a_n_um * np.exp(1j * math.radians(rec.theta_n_deg))
         if abs(u - u_star) / abs(u_star) >= 0.1:
@@ -551,7 +555,7 @@ def esc_diagnosis(case: int, seconds: float) -> list[Row]:
                 "(0.05 elsewhere; the paper gives none)",
             )
         )
-    # eq. (14) allows any Psi_a - Psi_theta = odd multiple of pi/2; eq. (16) takes +pi/2
+    # seed003 (14) allows any Psi_a - Psi_theta = odd multiple of pi/2; seed003 (16) takes +pi/2
     minus = replace(ESC_TABLE1, psi_theta=-0.5 * math.pi)
     rows.append(
         Row(
@@ -577,7 +581,8 @@ def esc_diagnosis(case: int, seconds: float) -> list[Row]:
                 f"|u - u*| / |u*| after {seconds - ADAPT_START:g} s; {what}",
             )
         )
-    # the plant: our drives place the PID's poles at 18 Hz (README); stiffer servos
+    # the plant: our drives place the PID's poles at 18 Hz
+    # (docs/reproductions/seed003-eccentricity.md); stiffer servos
     for bw in (30.0, 200.0):
         stiff = FeedDriveParams(x=AxisParams(bandwidth_hz=bw), y=AxisParams(bandwidth_hz=bw))
         rows.append(
@@ -615,234 +620,246 @@ def esc_diagnosis(case: int, seconds: float) -> list[Row]:
     return rows
 
 
-def run(
-    *, quick: bool = False, plot_dir: Path | None = None, progress: bool = True
-) -> Reproduction:
-    """Both Table 1 cases with ESC and with the fast tuner; checks of issue 6."""
-    rep = Reproduction(NAME, SOURCE)
-    # the ESC needs ~20 s plus 2 s of settled tail; the whole run costs a few seconds of
-    # wall time, so quick keeps the full length (the checks need it)
-    seconds_esc = 31.0
-    seconds_fast = 3.0
-    for case in (1, 2):
-        mp = case_params(case)
-        tr_esc = run_case(mp, "esc", seconds_esc)
-        tr_fast = run_case(mp, "fast", seconds_fast)
-        s = summarize(tr_esc, mp)
-        f = summarize(tr_fast, mp, tail_s=1.0)
-        c = f"case {case}: {mp.spindle_rpm:g} rpm, {mp.axial_depth * 1e3:g} mm"
-        p = f"case{case}"
-        ecc_um = mp.eccentricity * 1e6
-        rep.rows += [
-            Row(
-                f"{p}.converge_time_s",
-                s.converge_time,
-                PAPER_CONVERGE_S,
-                "s",
-                f"{c}; ESC, cost below 10 % of initial and staying",
-            ),
-            Row(
-                f"{p}.cost_reduction",
-                s.cost_reduction,
-                None,
-                "-",
-                "ESC; last 2 s / before adaptation",
-            ),
-            Row(
-                f"{p}.a_m_um",
-                s.a_um,
-                ecc_um,
-                "um",
-                "ESC at the end; paper column: ideal drives (a_m = eps)",
-            ),
-            Row(
-                f"{p}.theta_m_deg",
-                s.theta_deg,
-                (mp.eccentricity_deg + 180.0) % 360.0,
-                "deg",
-                "ESC at the end; paper column: ideal drives (theta_eps + 180)",
-            ),
-            Row(
-                f"{p}.a_m_um.cancelling",
-                s.a_star_um,
-                None,
-                "um",
-                "cancels through our drives' gain",
-            ),
-            Row(
-                f"{p}.theta_m_deg.cancelling",
-                s.theta_star_deg % 360.0,
-                None,
-                "deg",
-                "cancels through our drives' phase",
-            ),
-            Row(f"{p}.param_error", s.param_err, None, "-", "ESC |u - u*| / |u*| at the end"),
-            Row(
-                f"{p}.param_converge_time_s",
-                s.param_time,
-                PAPER_CONVERGE_S,
-                "s",
-                "ESC: within 10 % of the cancelling modulation and staying",
-            ),
-            Row(
-                f"{p}.force_pp.before",
-                s.pp_before,
-                None,
-                "N",
-                "X force, spindle harmonics 1-3, one revolution",
-            ),
-            Row(f"{p}.force_pp.after", s.pp_after, None, "N", "ESC, mean over the last 2 s"),
-            Row(
-                f"{p}.flute_peak_spread.before",
-                s.spread_before,
-                None,
-                "N",
-                "highest - lowest flute peak of F_x; before adaptation",
-            ),
-            Row(
-                f"{p}.flute_peak_spread.after",
-                s.spread_after,
-                None,
-                "N",
-                "ESC, mean over the last 10 revolutions",
-            ),
-            Row(
-                f"{p}.esc.revolutions",
-                s.revolutions,
-                None,
-                "rev",
-                "ESC: revolutions until the cost stays below 10 %",
-            ),
-            Row(
-                f"{p}.fast_tuner.revolutions",
-                f.revolutions,
-                12.5,
-                "rev",
-                "fast tuner; paper column: best published tuner, 10-15 rev",
-            ),
-            Row(
-                f"{p}.fast_tuner.cost_reduction",
-                f.cost_reduction,
-                None,
-                "-",
-                "fast tuner; last 1 s / before adaptation",
-            ),
-            Row(
-                f"{p}.fast_tuner.force_pp.after",
-                f.pp_after,
-                None,
-                "N",
-                "fast tuner, mean over the last 1 s",
-            ),
-            Row(
-                f"{p}.fast_tuner.flute_peak_spread.after",
-                f.spread_after,
-                None,
-                "N",
-                "fast tuner, mean over the last 10 revolutions",
-            ),
-            Row(
-                f"{p}.fast_tuner.flute_peak_spread.ratio",
-                f.spread_after / s.spread_before,
-                14.0 / 101.0,
-                "-",
-                "after / before; paper column: best published tuner 14 N / 101 N",
-            ),
-            Row(
-                f"{p}.fast_tuner.param_error",
-                f.param_err,
-                None,
-                "-",
-                "fast tuner |u - u*| / |u*| at the end",
-            ),
-        ]
-        # sensitivity: Table 1 step sizes doubled (their unit is not given, see esc.py)
-        s2 = summarize(run_case(mp, "esc", seconds_esc, esc=ESC_X2), mp)
-        rep.rows += [
-            Row(
-                f"{p}.esc_gains_x2.param_converge_time_s",
-                s2.param_time,
-                PAPER_CONVERGE_S,
-                "s",
-                "ESC with K_a = 90, K_theta = 100; within 10 % of cancelling",
-            ),
-            Row(
-                f"{p}.esc_gains_x2.converge_time_s",
-                s2.converge_time,
-                PAPER_CONVERGE_S,
-                "s",
-                "ESC with K_a = 90, K_theta = 100; cost below 10 % and staying",
-            ),
-        ]
-        rep.rows += esc_diagnosis(case, seconds_esc + 10.0)
-        rep.checks += [
-            Check(
-                f"{p}.esc_within_10pct_of_cancelling_by_15s",
-                s.param_time <= 15.0,
-                s.param_time,
-                15.0,
-            ),
-            Check(
-                f"{p}.fast_tuner_fewer_revolutions_than_esc",
-                f.revolutions < s.revolutions,
-                f.revolutions,
-                s.revolutions,
-            ),
-            Check(
-                f"{p}.fast_tuner_cost_below_10pct", f.cost_reduction < 0.1, f.cost_reduction, 0.1
-            ),
-        ]
-        if plot_dir is not None:
-            rep.figures.append(
-                _plot(Path(plot_dir), f"case{case}", {"ESC": tr_esc, "fast tuner": tr_fast})
-            )
-    # mismatched axes (Y 40 % heavier, PID placed at 14 Hz): circle vs ellipse
+def rows_case(case: int, plot_dir: Path | None) -> tuple[Section, list[str]]:
+    """One Table 1 case with ESC and with the fast tuner; its figure if ``plot_dir`` is
+    given."""
+    rows: list[Row] = []
+    checks: list[Check] = []
+    seconds_esc, seconds_fast = SECONDS_ESC, SECONDS_FAST
+    mp = case_params(case)
+    tr_esc = run_case(mp, "esc", seconds_esc)
+    tr_fast = run_case(mp, "fast", seconds_fast)
+    s = summarize(tr_esc, mp)
+    f = summarize(tr_fast, mp, tail_s=1.0)
+    c = f"case {case}: {mp.spindle_rpm:g} rpm, {mp.axial_depth * 1e3:g} mm"
+    p = f"case{case}"
+    ecc_um = mp.eccentricity * 1e6
+    rows += [
+        Row(
+            f"{p}.converge_time_s",
+            s.converge_time,
+            PAPER_CONVERGE_S,
+            "s",
+            f"{c}; ESC, cost below 10 % of initial and staying",
+        ),
+        Row(
+            f"{p}.cost_reduction",
+            s.cost_reduction,
+            None,
+            "-",
+            "ESC; last 2 s / before adaptation",
+        ),
+        Row(
+            f"{p}.a_m_um",
+            s.a_um,
+            ecc_um,
+            "um",
+            "ESC at the end; paper column: ideal drives (a_m = eps)",
+        ),
+        Row(
+            f"{p}.theta_m_deg",
+            s.theta_deg,
+            (mp.eccentricity_deg + 180.0) % 360.0,
+            "deg",
+            "ESC at the end; paper column: ideal drives (theta_eps + 180)",
+        ),
+        Row(
+            f"{p}.a_m_um.cancelling",
+            s.a_star_um,
+            None,
+            "um",
+            "cancels through our drives' gain",
+        ),
+        Row(
+            f"{p}.theta_m_deg.cancelling",
+            s.theta_star_deg % 360.0,
+            None,
+            "deg",
+            "cancels through our drives' phase",
+        ),
+        Row(f"{p}.param_error", s.param_err, None, "-", "ESC |u - u*| / |u*| at the end"),
+        Row(
+            f"{p}.param_converge_time_s",
+            s.param_time,
+            PAPER_CONVERGE_S,
+            "s",
+            "ESC: within 10 % of the cancelling modulation and staying",
+        ),
+        Row(
+            f"{p}.force_pp.before",
+            s.pp_before,
+            None,
+            "N",
+            "X force, spindle harmonics 1-3, one revolution",
+        ),
+        Row(f"{p}.force_pp.after", s.pp_after, None, "N", "ESC, mean over the last 2 s"),
+        Row(
+            f"{p}.flute_peak_spread.before",
+            s.spread_before,
+            None,
+            "N",
+            "highest - lowest flute peak of F_x; before adaptation",
+        ),
+        Row(
+            f"{p}.flute_peak_spread.after",
+            s.spread_after,
+            None,
+            "N",
+            "ESC, mean over the last 10 revolutions",
+        ),
+        Row(
+            f"{p}.esc.revolutions",
+            s.revolutions,
+            None,
+            "rev",
+            "ESC: revolutions until the cost stays below 10 %",
+        ),
+        Row(
+            f"{p}.fast_tuner.revolutions",
+            f.revolutions,
+            12.5,
+            "rev",
+            "fast tuner; paper column: best published tuner, 10-15 rev",
+        ),
+        Row(
+            f"{p}.fast_tuner.cost_reduction",
+            f.cost_reduction,
+            None,
+            "-",
+            "fast tuner; last 1 s / before adaptation",
+        ),
+        Row(
+            f"{p}.fast_tuner.force_pp.after",
+            f.pp_after,
+            None,
+            "N",
+            "fast tuner, mean over the last 1 s",
+        ),
+        Row(
+            f"{p}.fast_tuner.flute_peak_spread.after",
+            f.spread_after,
+            None,
+            "N",
+            "fast tuner, mean over the last 10 revolutions",
+        ),
+        Row(
+            f"{p}.fast_tuner.flute_peak_spread.ratio",
+            f.spread_after / s.spread_before,
+            14.0 / 101.0,
+            "-",
+            "after / before; paper column: best published tuner 14 N / 101 N",
+        ),
+        Row(
+            f"{p}.fast_tuner.param_error",
+            f.param_err,
+            None,
+            "-",
+            "fast tuner |u - u*| / |u*| at the end",
+        ),
+    ]
+    checks += [
+        Check(
+            f"{p}.esc_within_10pct_of_cancelling_by_15s",
+            s.param_time <= 15.0,
+            s.param_time,
+            15.0,
+        ),
+        Check(
+            f"{p}.fast_tuner_fewer_revolutions_than_esc",
+            f.revolutions < s.revolutions,
+            f.revolutions,
+            s.revolutions,
+        ),
+        Check(f"{p}.fast_tuner_cost_below_10pct", f.cost_reduction < 0.1, f.cost_reduction, 0.1),
+    ]
+    figures = []
+    if plot_dir is not None:
+        figures.append(_plot(Path(plot_dir), f"case{case}", {"ESC": tr_esc, "fast tuner": tr_fast}))
+    return (rows, checks), figures
+
+
+def rows_esc_gains_x2(case: int) -> Section:
+    """Sensitivity: Table 1 step sizes doubled (their unit is not given, see esc.py)."""
+    mp = case_params(case)
+    p = f"case{case}"
+    rows: list[Row] = []
+    s2 = summarize(run_case(mp, "esc", SECONDS_ESC, esc=ESC_X2), mp)
+    rows += [
+        Row(
+            f"{p}.esc_gains_x2.param_converge_time_s",
+            s2.param_time,
+            PAPER_CONVERGE_S,
+            "s",
+            "ESC with K_a = 90, K_theta = 100; within 10 % of cancelling",
+        ),
+        Row(
+            f"{p}.esc_gains_x2.converge_time_s",
+            s2.converge_time,
+            PAPER_CONVERGE_S,
+            "s",
+            "ESC with K_a = 90, K_theta = 100; cost below 10 % and staying",
+        ),
+    ]
+    return rows, []
+
+
+def rows_mismatch(case: int) -> Section:
+    """Mismatched axes (Y 40 % heavier, PID placed at 14 Hz): circle vs ellipse."""
+    rows: list[Row] = []
+    checks: list[Check] = []
+    seconds_esc, seconds_fast = SECONDS_ESC, SECONDS_FAST
     mis = FeedDriveParams(y=AxisParams(mass=210.0, bandwidth_hz=14.0))
-    for case in (1, 2):
-        mp = case_params(case)
-        base = None
-        for label, tuner, fp, secs in (
-            ("none", "off", None, 2.0),
-            ("esc", "esc", None, seconds_esc),
-            ("fast_tuner", "fast", None, seconds_fast),
-            ("fast_tuner_ellipse", "fast", FastTunerParams(ellipse=True), seconds_fast),
-        ):
-            tr_m = run_case(mp, tuner, secs, fast=fp, drives=mis)
-            r1 = last_revolution_1x(tr_m)
-            if base is None:
-                base = r1
-                continue
-            rep.rows.append(
+    mp = case_params(case)
+    base = None
+    for label, tuner, fp, secs in (
+        ("none", "off", None, 2.0),
+        ("esc", "esc", None, seconds_esc),
+        ("fast_tuner", "fast", None, seconds_fast),
+        ("fast_tuner_ellipse", "fast", FastTunerParams(ellipse=True), seconds_fast),
+    ):
+        tr_m = run_case(mp, tuner, secs, fast=fp, drives=mis)
+        r1 = last_revolution_1x(tr_m)
+        if base is None:
+            base = r1
+            continue
+        rows.append(
+            Row(
+                f"case{case}.mismatch.{label}.residual_1x",
+                r1 / base,
+                None,
+                "-",
+                "|(F1x, F1y)| at the end / without modulation; Y axis 40 % heavier",
+            )
+        )
+        if label == "fast_tuner_ellipse":
+            lg = tr_m.loop.log.arrays()
+            j0 = _initial_cost(tr_m.loop, "cost_true")
+            ci = converge_index(lg["cost_true"], lg["adapting"], j0)
+            first = int(np.nonzero(lg["adapting"] > 0)[0][0])
+            revs = math.inf if ci is None else float(ci - first + 1)
+            rows.append(
                 Row(
-                    f"case{case}.mismatch.{label}.residual_1x",
-                    r1 / base,
+                    f"case{case}.mismatch.fast_tuner_ellipse.revolutions",
+                    revs,
                     None,
-                    "-",
-                    "|(F1x, F1y)| at the end / without modulation; Y axis 40 % heavier",
+                    "rev",
+                    "X cost below 10 % and staying",
                 )
             )
-            if label == "fast_tuner_ellipse":
-                lg = tr_m.loop.log.arrays()
-                j0 = _initial_cost(tr_m.loop, "cost_true")
-                ci = converge_index(lg["cost_true"], lg["adapting"], j0)
-                first = int(np.nonzero(lg["adapting"] > 0)[0][0])
-                revs = math.inf if ci is None else float(ci - first + 1)
-                rep.rows.append(
-                    Row(
-                        f"case{case}.mismatch.fast_tuner_ellipse.revolutions",
-                        revs,
-                        None,
-                        "rev",
-                        "X cost below 10 % and staying",
-                    )
-                )
-                ell = r1 / base
-            if label == "fast_tuner":
-                circ = r1 / base
-        rep.checks.append(
-            Check(f"case{case}.mismatch.ellipse_beats_circle", ell < 0.5 * circ, ell, 0.5 * circ)
-        )
-    # 4(a): the same cut with the force estimated by observers on the X/Y drives
+            ell = r1 / base
+        if label == "fast_tuner":
+            circ = r1 / base
+    checks.append(
+        Check(f"case{case}.mismatch.ellipse_beats_circle", ell < 0.5 * circ, ell, 0.5 * circ)
+    )
+    return rows, checks
+
+
+def rows_estimated_force() -> Section:
+    """4(a): the same cut with the force estimated by observers on the X/Y drives."""
+    rows: list[Row] = []
+    checks: list[Check] = []
+    seconds_esc, seconds_fast = SECONDS_ESC, SECONDS_FAST
     mp = case_params(1)
     for label, me, noise in (
         ("estimated_force", 0.0, 0.0),
@@ -858,7 +875,7 @@ def run(
         cond = "observer nominal mass " + ("exact" if me == 0 else f"+{me:.0%}")
         if noise > 0:
             cond += f", current noise {noise:g} A rms ({noise * 60:g} N)"
-        rep.rows += [
+        rows += [
             Row(
                 f"case1.{label}.converge_time_s",
                 e.converge_time,
@@ -890,7 +907,7 @@ def run(
             ),
         ]
         if label == "estimated_force":
-            rep.checks.append(
+            checks.append(
                 Check(
                     "case1.estimated_force_esc_cost_below_10pct",
                     e.cost_reduction < 0.1,
@@ -898,7 +915,14 @@ def run(
                     0.1,
                 )
             )
-    # through a spindle-speed change: case 1 converged, then 1200 -> 1500 rpm
+    return rows, checks
+
+
+def rows_fast_speed_change(plot_dir: Path | None) -> tuple[Section, list[str]]:
+    """The fast tuner through a spindle-speed change: case 1 converged, then 1200 -> 1500
+    rpm; its figure if ``plot_dir`` is given."""
+    rows: list[Row] = []
+    checks: list[Check] = []
     mp = case_params(1)
     t_change = 3.0
     tr = run_case(mp, "fast", 5.0, rpm_change=(t_change, 1500.0))
@@ -911,7 +935,7 @@ def run(
     if above.size and above[-1] + 1 >= idx.size:
         revs_sc = math.inf
     red_sc = float(lg["cost"][lg["t_end"] > lg["t_end"][-1] - 1.0].mean() / j0)
-    rep.rows += [
+    rows += [
         Row(
             "case1.fast_tuner.speed_change.revolutions",
             revs_sc,
@@ -934,10 +958,18 @@ def run(
             "against the cancelling modulation at 1500 rpm",
         ),
     ]
-    rep.checks.append(
-        Check("case1.fast_tuner_recovers_after_speed_change", red_sc < 0.1, red_sc, 0.1)
-    )
-    # the ESC through the same change, after it has converged and stopped its dither
+    checks.append(Check("case1.fast_tuner_recovers_after_speed_change", red_sc < 0.1, red_sc, 0.1))
+    figures = []
+    if plot_dir is not None:
+        figures.append(_plot(Path(plot_dir), "speed_change", {"fast tuner": tr}))
+    return (rows, checks), figures
+
+
+def rows_esc_speed_change() -> Section:
+    """The ESC through the same change, after it has converged and stopped its dither."""
+    rows: list[Row] = []
+    seconds_esc = SECONDS_ESC
+    mp = case_params(1)
     t_change_esc = seconds_esc
     tr_sc = run_case(mp, "esc", seconds_esc + 20.0, rpm_change=(t_change_esc, 1500.0))
     err = param_error(tr_sc.loop)
@@ -950,7 +982,7 @@ def run(
     else:
         t_sc = float(lg["t_end"][bad[-1]] - t_change_esc)
     i_half = int(np.searchsorted(lg["t_end"], t_change_esc + 0.5))
-    rep.rows += [
+    rows += [
         Row(
             "case1.esc.speed_change.converge_time_s",
             t_sc,
@@ -966,6 +998,26 @@ def run(
             "0.5 s after the change",
         ),
     ]
-    if plot_dir is not None:
-        rep.figures.append(_plot(Path(plot_dir), "speed_change", {"fast tuner": tr}))
+    return rows, []
+
+
+def run(
+    *, quick: bool = False, plot_dir: Path | None = None, progress: bool = True
+) -> Reproduction:
+    """Both Table 1 cases with ESC and with the fast tuner; checks of issue 6."""
+    rep = Reproduction(NAME, SOURCE)
+    figures: list[str] = []
+    for case in (1, 2):
+        section, figs = rows_case(case, plot_dir)
+        rep.add(section)
+        rep.add(rows_esc_gains_x2(case))
+        rep.add((esc_diagnosis(case, SECONDS_ESC + 10.0), []))
+        figures += figs
+    for case in (1, 2):
+        rep.add(rows_mismatch(case))
+    rep.add(rows_estimated_force())
+    section, figs = rows_fast_speed_change(plot_dir)
+    rep.add(section)
+    rep.add(rows_esc_speed_change())
+    rep.figures += figures + figs
     return rep

@@ -3,10 +3,10 @@
 1. Table 1: the wear model (``machine.tool_wear``) cut for 15 min at f = 0.1 and
    0.125 mm/rev (v = 150 m/min, d = 2 mm), linearised along the path from the origin
    to the 15-min state (appendix, n' = 200), ZOH-discretised (T = 0.01 min), a_i, b_i of
-   eq. (13).
+   seed004 (13).
 2. Tables 3 and 4: the adaptive observer (RLS with beta = 0.95, U-D, Table 2
    constraints, deadbeat observer) run on the force of the f = 0.1 cut; "true"
-   observer-form states ``x0 = T(k)^-1 x(k)`` with T (eq. (14)) of the model linearised
+   observer-form states ``x0 = T(k)^-1 x(k)`` with T (seed004 (14)) of the model linearised
    at each time. Table 4's mean and S.D. are over its five times, as the paper's are
    (error = true - estimated, sample S.D.).
 3. Physical wear: ``x = T x0`` with T of the design linearisation.
@@ -20,24 +20,26 @@
 from __future__ import annotations
 
 import itertools
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
 from estimators.wear_monitor import ToolLifeMonitor, ToolLifeParams
-from estimators.wear_observer import AdaptiveWearObserver
+from estimators.wear_observer import AdaptiveWearObserver, WearObserverRecord
 from machine.tool_wear import (
     DEFAULT_WEAR_PARAMS,
     VB_LIMIT_MM,
     CuttingCondition,
     ToolWearModel,
+    WearTrajectory,
     crater_limit_mm,
 )
-from server.experiments.reproduction import Check, Reproduction, Row
+from server.experiments.reproduction import Check, Reproduction, Row, Section
 from server.pipeline.wear_clock import (
     SAMPLE_TIME_MIN,
     AcceleratedToolWear,
+    DesignModel,
     design_linear_model,
     observer_params,
 )
@@ -239,7 +241,7 @@ def _life_run(force_errors: np.ndarray, rng: np.random.Generator) -> dict[str, o
 def _decimated_wear(model: ToolWearModel, tr: object) -> tuple[float, float, float, float]:
     """x = T x0 on a decimated clock, with the exact a, b and T of the current state.
 
-    The best case for eq. (14): no RLS error (the design model's parameters, re-linearised
+    The best case for seed004 (14): no RLS error (the design model's parameters, re-linearised
     at every decimated sample) and a sample period of :data:`DECIMATED_MIN`, where T is
     far better conditioned. Returns cond(T) at the end, the flank and crater relative
     errors at the last decimated sample, and its time [min].
@@ -255,10 +257,10 @@ def _decimated_wear(model: ToolWearModel, tr: object) -> tuple[float, float, flo
     cond, k_last = 0.0, 0
     for k in range(0, len(force), step):
         dm = design_linear_model(model, FEED, states[max(k, 1)], sample_time=DECIMATED_MIN)
-        # eq. (14): the estimate of x(k) from the observer-form state before the update
+        # seed004 (14): the estimate of x(k) from the observer-form state before the update
         x_hat = dm.T @ x0
         cond, k_last = float(np.linalg.cond(dm.T)), k
-        # eq. (17)-(19) with the design model's a, b (deadbeat)
+        # seed004 (17)-(19) with the design model's a, b (deadbeat)
         x0 = deadbeat_observer_step(dm.a, dm.b, x0, FEED, float(force[k] - d_static * FEED))
     xt = states[k_last]
     wf = xt[0] + xt[1]
@@ -330,12 +332,15 @@ def section3_behaviour() -> dict[str, dict[str, float]]:
     return out
 
 
-def _section3(rep: Reproduction) -> None:
+def rows_section3() -> Section:
+    """Section 3: qualitative behaviour under light -> heavy cutting."""
+    rows: list[Row] = []
+    checks: list[Check] = []
     beh = section3_behaviour()
     for name, vals in beh.items():
         f, v, d = CONDITIONS[name]
         cond = f"f={f:g}, v={v:g}, d={d:g}"
-        rep.rows.append(
+        rows.append(
             Row(
                 f"model.{name}.time_to_vb_min",
                 vals["t_vb"],
@@ -344,7 +349,7 @@ def _section3(rep: Reproduction) -> None:
                 f"{cond}: flank VB = 0.3 mm",
             )
         )
-        rep.rows.append(
+        rows.append(
             Row(
                 f"model.{name}.time_to_kt_min",
                 vals["t_kt"],
@@ -353,7 +358,7 @@ def _section3(rep: Reproduction) -> None:
                 f"{cond}: crater KT = 0.06 + 0.3 f mm (ISO 3685)",
             )
         )
-        rep.rows.append(
+        rows.append(
             Row(
                 f"model.{name}.flank_1min_mm",
                 vals["flank_1min"],
@@ -362,7 +367,7 @@ def _section3(rep: Reproduction) -> None:
                 f"{cond}: flank wear after 1 min",
             )
         )
-        rep.rows.append(
+        rows.append(
             Row(
                 f"model.{name}.diffusive_share_5min",
                 vals["diffusive_share_5min"],
@@ -371,7 +376,7 @@ def _section3(rep: Reproduction) -> None:
                 f"{cond}: w_f2 / w_f after 5 min of cutting",
             )
         )
-        rep.rows.append(
+        rows.append(
             Row(
                 f"model.{name}.diffusive_share_at_end",
                 vals["diffusive_share_end"],
@@ -382,7 +387,7 @@ def _section3(rep: Reproduction) -> None:
         )
     names = list(CONDITIONS)
     grows = all(beh[a]["flank_1min"] < beh[b]["flank_1min"] for a, b in itertools.pairwise(names))
-    rep.checks.append(
+    checks.append(
         Check(
             "section 3 (i): wear grows faster under heavier cutting",
             grows,
@@ -392,7 +397,7 @@ def _section3(rep: Reproduction) -> None:
     )
     heavy = beh[names[-1]]
     light = beh[names[0]]
-    rep.checks.append(
+    checks.append(
         Check(
             "section 3 (ii): diffusive part dominates flank wear at heavy (5 min)",
             heavy["diffusive_share_5min"] > max(light["diffusive_share_5min"], 0.5),
@@ -400,7 +405,7 @@ def _section3(rep: Reproduction) -> None:
             0.5,
         )
     )
-    rep.checks.append(
+    checks.append(
         Check(
             "section 3 (iii): crater ends the tool at heavy, flank at light",
             heavy["t_kt"] < heavy["t_vb"] and light["t_vb"] < light["t_kt"],
@@ -408,25 +413,48 @@ def _section3(rep: Reproduction) -> None:
             heavy["t_vb"],
         )
     )
+    return rows, checks
 
 
 def _rel_rms(est: np.ndarray, true: np.ndarray, mask: np.ndarray) -> float:
     return float(np.sqrt(np.mean(((est[mask] - true[mask]) / true[mask]) ** 2)))
 
 
-def run(
-    *, quick: bool = False, plot_dir: Path | None = None, progress: bool = True
-) -> Reproduction:
-    """Run the reproduction (``quick`` evaluates the run-long statistics more sparsely)."""
-    rep = Reproduction(experiment=NAME, source=SOURCE)
-    model = ToolWearModel()
+@dataclass(frozen=True)
+class _ObserverRun:
+    """The adaptive observer on the force of the f = 0.1 cut (Tables 3, 4)."""
 
-    # --- Table 1 -------------------------------------------------------------------
+    model: ToolWearModel
+    n: int
+    tr: WearTrajectory
+    rec: WearObserverRecord
+    end_design: DesignModel
+
+    def true_x0(self, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """True observer-form state ``x0 = T(k)^-1 x(k)`` and a, b of the model
+        linearised at sample ``k``."""
+        dm = design_linear_model(self.model, FEED, self.tr.states[k])
+        return np.linalg.solve(dm.T, self.tr.states[k]), dm.a, dm.b
+
+
+def observer_run(model: ToolWearModel) -> _ObserverRun:
+    n = round(RUN_MIN / SAMPLE_TIME_MIN)
+    tr = model.simulate(np.full(n, FEED), SAMPLE_TIME_MIN)
+    end_design = design_linear_model(model, FEED, tr.states[-1])
+    obs = AdaptiveWearObserver(observer_params(transform=end_design.T))
+    _, rec = obs.step(obs.initial_state(), tr.force, tr.feed)
+    return _ObserverRun(model, n, tr, rec, end_design)
+
+
+def rows_table1(model: ToolWearModel) -> Section:
+    """Table 1: a_i, b_i of the linearised model at both feeds."""
+    rows: list[Row] = []
+    checks: list[Check] = []
     worst = 0.0
     for f, paper in TABLE1.items():
         a, b = _table1(model, f)
         for name, ours, pv in zip(PARAM_NAMES, (*a, *b), paper):
-            rep.rows.append(
+            rows.append(
                 Row(
                     f"params.{_fname(f)}.{name}",
                     float(ours),
@@ -436,24 +464,17 @@ def run(
                 )
             )
             worst = max(worst, abs(ours - pv) / abs(pv))
-    rep.checks.append(
-        Check("table1 parameters within 1 % of the paper's", worst <= 0.01, worst, 0.01)
-    )
+    checks.append(Check("table1 parameters within 1 % of the paper's", worst <= 0.01, worst, 0.01))
 
-    # --- section 3: qualitative behaviour under light -> heavy cutting --------------
-    _section3(rep)
+    return rows, checks
 
-    # --- adaptive observer on the f = 0.1 cut (Tables 3, 4) -------------------------
-    n = round(RUN_MIN / SAMPLE_TIME_MIN)
-    tr = model.simulate(np.full(n, FEED), SAMPLE_TIME_MIN)
-    end_design = design_linear_model(model, FEED, tr.states[-1])
-    obs = AdaptiveWearObserver(observer_params(transform=end_design.T))
-    _, rec = obs.step(obs.initial_state(), tr.force, tr.feed)
 
-    def true_x0(k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        dm = design_linear_model(model, FEED, tr.states[k])
-        return np.linalg.solve(dm.T, tr.states[k]), dm.a, dm.b
-
+def rows_tables34(run: _ObserverRun) -> Section:
+    """Tables 3 and 4 at their five times, and Table 4's error statistics."""
+    rows: list[Row] = []
+    checks: list[Check] = []
+    rec = run.rec
+    true_x0 = run.true_x0
     errs = []
     x01_true: dict[float, float] = {}
     for tm in TABLE_TIMES:
@@ -461,7 +482,7 @@ def run(
         x0, a, b = true_x0(k)
         tn = _tname(tm)
         for name, ours, pv in zip(PARAM_NAMES, (*a, *b), TABLE3_LIN[tm]):
-            rep.rows.append(
+            rows.append(
                 Row(
                     f"table3.{tn}.linear.{name}",
                     float(ours),
@@ -471,7 +492,7 @@ def run(
                 )
             )
         for name, ours, pv in zip(PARAM_NAMES, rec.theta[k], TABLE3_EST[tm]):
-            rep.rows.append(
+            rows.append(
                 Row(
                     f"table3.{tn}.est.{name}",
                     float(ours),
@@ -481,7 +502,7 @@ def run(
                 )
             )
         for i in range(3):
-            rep.rows.append(
+            rows.append(
                 Row(
                     f"table4.{tn}.true.x{i + 1}",
                     float(x0[i]),
@@ -490,7 +511,7 @@ def run(
                     "x0 = T^-1 x",
                 )
             )
-            rep.rows.append(
+            rows.append(
                 Row(
                     f"table4.{tn}.est.x{i + 1}",
                     float(rec.x0_hat[k, i]),
@@ -501,10 +522,10 @@ def run(
             )
         errs.append(x0 - rec.x0_hat[k])
         x01_true[tm] = float(x0[0])
-    # eq. (16): x01 = y - D u, the wear part of the force. Table 4's true x01 falls from
+    # seed004 (16): x01 = y - D u, the wear part of the force. Table 4's true x01 falls from
     # 100.7 N at 4 min to 26.7 N at 12 min: the paper's force is not monotone in time
     # while the wear grows, so it cannot be a monotone function of the flank wear.
-    rep.rows.append(
+    rows.append(
         Row(
             "table4.true.x1.change_4_to_12min",
             x01_true[12.0] - x01_true[4.0],
@@ -516,7 +537,7 @@ def run(
     E = np.array(errs)
     mean, sd = E.mean(axis=0), E.std(axis=0, ddof=1)
     for i in range(3):
-        rep.rows.append(
+        rows.append(
             Row(
                 f"state_error.mean.x{i + 1}",
                 float(mean[i]),
@@ -526,7 +547,7 @@ def run(
             )
         )
     for i in range(3):
-        rep.rows.append(
+        rows.append(
             Row(
                 f"state_error.sd.x{i + 1}",
                 float(sd[i]),
@@ -536,7 +557,7 @@ def run(
             )
         )
     for i in range(3):
-        rep.checks.append(
+        checks.append(
             Check(
                 f"state_error.mean.x{i + 1} within twice Table 4's",
                 abs(mean[i]) <= 2 * abs(TABLE4_MEAN[i]),
@@ -545,7 +566,7 @@ def run(
             )
         )
     for i in range(3):
-        rep.checks.append(
+        checks.append(
             Check(
                 f"state_error.sd.x{i + 1} within twice Table 4's",
                 sd[i] <= 2 * TABLE4_SD[i],
@@ -554,14 +575,26 @@ def run(
             )
         )
 
-    # the same statistics over the whole run (not in the paper), every `stride` samples
-    stride = 50 if quick else 10
-    ks = np.arange(stride - 1, n, stride)
-    x0_run = np.array([true_x0(int(k))[0] for k in ks])
-    E_run = x0_run - rec.x0_hat[ks]
+    return rows, checks
+
+
+def run_states(run: _ObserverRun, stride: int) -> tuple[np.ndarray, np.ndarray]:
+    """Sample indices every ``stride`` samples and the true x0 there."""
+    ks = np.arange(stride - 1, run.n, stride)
+    x0_run = np.array([run.true_x0(int(k))[0] for k in ks])
+    return ks, x0_run
+
+
+def rows_state_error_run(
+    run: _ObserverRun, stride: int, ks: np.ndarray, x0_run: np.ndarray
+) -> Section:
+    """Table 4's statistics over the whole run (not in the paper), every ``stride``
+    samples."""
+    rows: list[Row] = []
+    E_run = x0_run - run.rec.x0_hat[ks]
     for s, vals in (("mean", E_run.mean(axis=0)), ("sd", E_run.std(axis=0, ddof=1))):
         for i in range(3):
-            rep.rows.append(
+            rows.append(
                 Row(
                     f"state_error.run.{s}.x{i + 1}",
                     float(vals[i]),
@@ -571,14 +604,20 @@ def run(
                 )
             )
 
-    # --- physical wear: x = T x0 ------------------------------------------------------
+    return rows, []
+
+
+def rows_wear(run: _ObserverRun) -> Section:
+    """Physical wear: ``x = T x0``."""
+    rows: list[Row] = []
+    rec, tr, n, end_design, model = run.rec, run.tr, run.n, run.end_design, run.model
     assert rec.wear is not None
     k15 = n - 1
     wf_true = tr.states[k15, 0] + tr.states[k15, 1]
     wc_true = tr.states[k15, 2]
     wf_est = rec.wear[k15, 0] + rec.wear[k15, 1]
     wc_est = rec.wear[k15, 2]
-    rep.rows.append(
+    rows.append(
         Row(
             "wear.flank.rel_error.15min",
             float((wf_est - wf_true) / wf_true),
@@ -587,7 +626,7 @@ def run(
             "x = T x0, T of the design linearisation (eq. 14)",
         )
     )
-    rep.rows.append(
+    rows.append(
         Row(
             "wear.crater.rel_error.15min",
             float((wc_est - wc_true) / wc_true),
@@ -596,7 +635,7 @@ def run(
             "x = T x0",
         )
     )
-    rep.rows.append(
+    rows.append(
         Row(
             "wear.transform.cond",
             float(np.linalg.cond(end_design.T)),
@@ -612,7 +651,7 @@ def run(
         ("flank.rel_error", rel_f),
         ("crater.rel_error", rel_c),
     ):
-        rep.rows.append(
+        rows.append(
             Row(
                 f"wear.decimated_{DECIMATED_MIN:g}min.{key}",
                 val,
@@ -622,10 +661,13 @@ def run(
             )
         )
 
-    # --- beyond the paper: sensorless tool life --------------------------------------
-    pass_seconds = PASS_MIN  # at one minute of wear per second
-    ferr = _force_observer_errors(40 if quick else 200, pass_seconds, seed=1)
-    life = _life_run(ferr, np.random.default_rng(7))
+    return rows, []
+
+
+def rows_life(life: dict[str, object], ferr: np.ndarray, pass_seconds: float) -> Section:
+    """Beyond the paper: sensorless tool life, dynamometer and estimated force."""
+    rows: list[Row] = []
+    checks: list[Check] = []
     t = np.asarray(life["t"])
     vb = np.asarray(life["vb"])
     life_min = float(life["life"])  # type: ignore[arg-type]
@@ -634,7 +676,7 @@ def run(
     mask = (t >= 2.0) & (vb <= VB_LIMIT_MM)
     rel_dyn = _rel_rms(dyn["vb"], vb, mask)
     rel_est = _rel_rms(est["vb"], vb, mask)
-    rep.rows.append(
+    rows.append(
         Row(
             "wear.flank.rel_error.dynamometer",
             rel_dyn,
@@ -644,7 +686,7 @@ def run(
             f"{DYNAMOMETER_NOISE_N:g} N noise",
         )
     )
-    rep.rows.append(
+    rows.append(
         Row(
             "wear.flank.rel_error.estimated_force",
             rel_est,
@@ -653,7 +695,7 @@ def run(
             "same, pass-mean force from the seed-000 adaptive observer",
         )
     )
-    rep.rows.append(
+    rows.append(
         Row(
             "force_estimate.pass_rel_error.mean",
             float(np.mean(ferr)),
@@ -662,10 +704,10 @@ def run(
             f"{pass_seconds:g} s passes of the stage at 2.5 kHz",
         )
     )
-    rep.rows.append(
+    rows.append(
         Row("force_estimate.pass_rel_error.sd", float(np.std(ferr)), None, "-", "over passes")
     )
-    rep.rows.append(
+    rows.append(
         Row(
             "life.true_min", life_min, None, "min", f"VB = {VB_LIMIT_MM} mm at f={FEED}, v=150, d=2"
         )
@@ -674,7 +716,7 @@ def run(
     true_rul = life_min - t[j50]
     for key, recd in (("", est), (".dynamometer", dyn)):
         err = float(recd["remaining_life"][j50] - true_rul)
-        rep.rows.append(
+        rows.append(
             Row(
                 f"life.prediction_error_min{key}",
                 err,
@@ -684,7 +726,7 @@ def run(
             )
         )
         if key == "":
-            rep.rows.append(
+            rows.append(
                 Row(
                     "life.prediction_sd_min",
                     float(recd["remaining_life_sd"][j50]),
@@ -696,7 +738,7 @@ def run(
     for flag in ("warning", "alarm"):
         hit = np.flatnonzero(est[flag])
         at = float(t[hit[0]] / life_min) if len(hit) else float("nan")
-        rep.rows.append(
+        rows.append(
             Row(
                 f"life.{flag}_at_fraction",
                 at,
@@ -707,7 +749,7 @@ def run(
         )
     for q in (25, 75):
         jq = int(np.searchsorted(t, q / 100 * life_min))
-        rep.rows.append(
+        rows.append(
             Row(
                 f"life.prediction_error_min.{q}pct",
                 float(est["remaining_life"][jq] - (life_min - t[jq])),
@@ -716,7 +758,7 @@ def run(
                 f"predicted - true remaining life at t = {t[jq]:.1f} min ({q} % of life)",
             )
         )
-        rep.rows.append(
+        rows.append(
             Row(
                 f"life.prediction_sd_min.{q}pct",
                 float(est["remaining_life_sd"][jq]),
@@ -725,47 +767,8 @@ def run(
                 f"predicted S.D. (1 sigma) at {q} % of life",
             )
         )
-    mon_params = life["params"]
-    assert isinstance(mon_params, ToolLifeParams)
-    worst_sigma = 0.0
-    for case, kw in MISMATCH.items():
-        # the monitor keeps the nominal constants (off-line knowledge)
-        life_c, pts = _mismatch_run(kw, ToolLifeMonitor(mon_params))
-        desc = ", ".join(f"{k} x{v / getattr(DEFAULT_WEAR_PARAMS, k):g}" for k, v in kw.items())
-        e50, s50 = pts[LIFE_FRACTIONS.index(0.5)]
-        rep.rows.append(Row(f"life.mismatch.{case}.true_min", life_c, None, "min", desc))
-        rep.rows.append(
-            Row(
-                f"life.mismatch.{case}.prediction_error_min",
-                e50,
-                None,
-                "min",
-                f"{desc}; at 50 % of life, dynamometer without noise",
-            )
-        )
-        rep.rows.append(
-            Row(f"life.mismatch.{case}.prediction_sd_min", s50, None, "min", "1 sigma at 50 %")
-        )
-        worst_sigma = max([worst_sigma] + [abs(e) / sd for e, sd in pts])
-    rep.rows.append(
-        Row(
-            "life.mismatch.max_abs_error_in_sd",
-            worst_sigma,
-            None,
-            "-",
-            f"max |error| / S.D. over {len(MISMATCH)} mismatched tools at 25, 50, 75 % of life",
-        )
-    )
-    rep.checks.append(
-        Check(
-            "remaining life of mismatched tools within 3 sigma (25, 50, 75 % of life)",
-            worst_sigma <= 3.0,
-            worst_sigma,
-            3.0,
-        )
-    )
     k50_ok = abs(float(est["remaining_life"][j50]) - true_rul)
-    rep.checks.append(
+    checks.append(
         Check(
             "remaining life at 50 % of life within 3 sigma",
             k50_ok <= 3 * float(est["remaining_life_sd"][j50]),
@@ -774,8 +777,79 @@ def run(
         )
     )
 
+    return rows, checks
+
+
+def rows_mismatch(life: dict[str, object]) -> Section:
+    """Remaining life of tools whose wear constants differ from the monitor's."""
+    rows: list[Row] = []
+    checks: list[Check] = []
+    mon_params = life["params"]
+    assert isinstance(mon_params, ToolLifeParams)
+    worst_sigma = 0.0
+    for case, kw in MISMATCH.items():
+        # the monitor keeps the nominal constants (off-line knowledge)
+        life_c, pts = _mismatch_run(kw, ToolLifeMonitor(mon_params))
+        desc = ", ".join(f"{k} x{v / getattr(DEFAULT_WEAR_PARAMS, k):g}" for k, v in kw.items())
+        e50, s50 = pts[LIFE_FRACTIONS.index(0.5)]
+        rows.append(Row(f"life.mismatch.{case}.true_min", life_c, None, "min", desc))
+        rows.append(
+            Row(
+                f"life.mismatch.{case}.prediction_error_min",
+                e50,
+                None,
+                "min",
+                f"{desc}; at 50 % of life, dynamometer without noise",
+            )
+        )
+        rows.append(
+            Row(f"life.mismatch.{case}.prediction_sd_min", s50, None, "min", "1 sigma at 50 %")
+        )
+        worst_sigma = max([worst_sigma] + [abs(e) / sd for e, sd in pts])
+    rows.append(
+        Row(
+            "life.mismatch.max_abs_error_in_sd",
+            worst_sigma,
+            None,
+            "-",
+            f"max |error| / S.D. over {len(MISMATCH)} mismatched tools at 25, 50, 75 % of life",
+        )
+    )
+    checks.append(
+        Check(
+            "remaining life of mismatched tools within 3 sigma (25, 50, 75 % of life)",
+            worst_sigma <= 3.0,
+            worst_sigma,
+            3.0,
+        )
+    )
+
+    return rows, checks
+
+
+def run(
+    *, quick: bool = False, plot_dir: Path | None = None, progress: bool = True
+) -> Reproduction:
+    """Run the reproduction (``quick`` evaluates the run-long statistics more sparsely)."""
+    rep = Reproduction(experiment=NAME, source=SOURCE)
+    model = ToolWearModel()
+    rep.add(rows_table1(model))
+    rep.add(rows_section3())
+    obs = observer_run(model)
+    rep.add(rows_tables34(obs))
+    stride = 50 if quick else 10
+    ks, x0_run = run_states(obs, stride)
+    rep.add(rows_state_error_run(obs, stride, ks, x0_run))
+    rep.add(rows_wear(obs))
+    pass_seconds = PASS_MIN  # at one minute of wear per second
+    ferr = _force_observer_errors(40 if quick else 200, pass_seconds, seed=1)
+    life = _life_run(ferr, np.random.default_rng(7))
+    life_rows, life_checks = rows_life(life, ferr, pass_seconds)
+    mismatch_rows, mismatch_checks = rows_mismatch(life)
+    # rows: life then mismatch; checks: the mismatch check first (the order of before)
+    rep.add((life_rows + mismatch_rows, mismatch_checks + life_checks))
     if plot_dir is not None:
-        rep.figures.extend(_plots(Path(plot_dir), tr, rec, ks, x0_run, life))
+        rep.figures.extend(_plots(Path(plot_dir), obs.tr, obs.rec, ks, x0_run, life))
     return rep
 
 

@@ -1,0 +1,26 @@
+"""DESIGN's canonical effect names ("Canonical effect names"), defined once.
+
+The simulator (:data:`machine.effects.EFFECT_NAMES`: what it can produce) and the
+residual analyses (``FAMILIES`` plus ``NOT_OFFERED`` in :mod:`estimators.residual` and
+:mod:`estimators.residual_two_inertia`: what they can fit, and what they decline with a
+reason) use subsets of this list by meaning; ``tests/common/test_effect_names.py`` keeps
+every subset inside it and each analysis's fitted plus declined names equal to it.
+"""
+
+from __future__ import annotations
+
+#: every canonical effect name; ``none`` means "no effect" (a log without any)
+CANONICAL_EFFECT_NAMES: tuple[str, ...] = (
+    "none",
+    "offset",
+    "coulomb_asymmetry",
+    "stribeck",
+    "position_periodic",
+    "torque_ripple",
+    "backlash",
+    "inertia",
+    "viscous",
+    "delay",
+    "harmonic",
+    "drift",
+)

@@ -1,0 +1,188 @@
+"""Publish the live estimates on ``cutwatch/<machine>/estimates`` at a rate the user sets.
+
+:class:`EstimatesPublisher` is fed every block the pipeline produces (:meth:`observe`:
+cheap, no I/O) and publishes one JSON message per period (:meth:`maybe_publish`), built
+from the pipeline's channels by their group, so a new estimator's channels travel without
+code here:
+
+``force``       each force estimate's latest value, and ``level``: the rms of the adaptive
+                observer's estimate over the period (a tooth-passing force oscillates;
+                its rms is the level a person compares);
+``params``      the identified parameters (and their bounds and excited flags when the
+                pipeline streams them);
+``harmonics``   the harmonic observer's amplitudes;
+``wear``        ``VB_mm``, ``VB_limit_mm``, ``remaining_life_min``;
+``alarms``      plain sentences: wear near its limit, a short remaining life, a gap in
+                the drive feed;
+``health``      the loop's health, and the drive feed's counters for a broker source.
+
+Ground truth (``*_true`` channels, the simulator's) is not published: estimates only.
+The broker may be absent: publishing never blocks or raises into the loop; ``health``
+says connected or not.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+from server.pipeline.broker import BrokerConfig, make_client, reason_text, topic
+from server.records.drive_wire import encode_estimates
+
+#: wear alarms: the estimated flank wear at this share of its limit, remaining life below
+WEAR_ALARM_SHARE = 0.9
+LIFE_ALARM_MIN = 2.0
+GROUPS = {"force": "force", "J_L": "params", "B_L": "params", "F_CL": "params"}
+
+
+class EstimatesPublisher:
+    """Build and publish the estimates message (see the module docstring).
+
+    Parameters
+    ----------
+    cfg : BrokerConfig
+    machine : str
+    rate_hz : float
+        Messages per second (> 0).
+    dashboard : str, optional
+        The URL of this service's dashboard, for the fleet page's link.
+    """
+
+    def __init__(
+        self, cfg: BrokerConfig, machine: str, rate_hz: float, dashboard: str | None = None
+    ) -> None:
+        if not (rate_hz > 0 and math.isfinite(rate_hz)):
+            raise ValueError(f"rate_hz: expected a finite value > 0, got {rate_hz}")
+        self.cfg = cfg
+        self.machine = machine
+        self.topic = topic(machine, "estimates")
+        self.period = 1.0 / float(rate_hz)
+        self.dashboard = dashboard
+        self.connected = False
+        self.last_error = ""
+        self.published = 0
+        self._last_pub = -math.inf
+        self._lock = threading.Lock()
+        self._latest: dict[str, float] = {}
+        self._sq = 0.0
+        self._count = 0
+        self._client: Any = None
+
+    def start(self) -> None:
+        c: Any = make_client(self.cfg, client_id=f"cutwatch-estimates-{self.machine}")
+
+        def on_connect(_c: object, _u: object, _f: object, rc: Any, _p: object = None) -> None:
+            failed = getattr(rc, "is_failure", False)
+            self.connected = not failed
+            self.last_error = f"refused: {reason_text(rc)}" if failed else ""
+
+        def on_disconnect(_c: object, _u: object, _f: object, rc: Any, _p: object = None) -> None:
+            self.connected = False
+
+        c.on_connect = on_connect
+        c.on_disconnect = on_disconnect
+        c.connect_async(self.cfg.host, self.cfg.port, keepalive=self.cfg.keepalive)
+        c.loop_start()
+        self._client = c
+
+    def stop(self) -> None:
+        c, self._client = self._client, None
+        if c is not None:
+            c.disconnect()
+            c.loop_stop()
+
+    def observe(self, block: Mapping[str, Any], force_channel: str = "f_adaptive") -> None:
+        """Take one pipeline block (channel name -> samples)."""
+        with self._lock:
+            for k, v in block.items():
+                if k == "t" or k.endswith("_true"):
+                    continue
+                a = np.asarray(v, dtype=np.float64)
+                if a.size:
+                    self._latest[k] = float(a[-1])
+            f = block.get(force_channel)
+            if f is not None:
+                a = np.asarray(f, dtype=np.float64)
+                a = a[np.isfinite(a)]
+                self._sq += float(a @ a)
+                self._count += a.size
+
+    def build(
+        self,
+        now: float,
+        channels: Sequence[Any],
+        t: float,
+        source: str,
+        health: Mapping[str, Any] | None = None,
+        drive_wall: float | None = None,
+        feed_health: Mapping[str, Any] | None = None,
+    ) -> dict[str, Any]:
+        """The message body for the period ending now (and the period restarts)."""
+        with self._lock:
+            latest = dict(self._latest)
+            level = math.sqrt(self._sq / self._count) if self._count else math.nan
+            self._sq, self._count = 0.0, 0
+        groups: dict[str, dict[str, float]] = {"force": {"level": level}, "params": {}}
+        harmonics: dict[str, float] = {}
+        for ch in channels:
+            name, group = ch.name, ch.group
+            if name.endswith("_true") or name not in latest:
+                continue
+            if group in GROUPS:
+                groups[GROUPS[group]][name] = latest[name]
+            elif group == "harmonics":
+                harmonics[name] = latest[name]
+        vb, lim = latest.get("vb_est", math.nan), latest.get("vb_limit", math.nan)
+        life = latest.get("life_left", math.nan)
+        alarms = []
+        if math.isfinite(vb) and math.isfinite(lim) and vb >= WEAR_ALARM_SHARE * lim:
+            alarms.append(f"flank wear {vb:.3f} mm at {100 * vb / lim:.0f} % of its limit")
+        if math.isfinite(life) and life < LIFE_ALARM_MIN:
+            alarms.append(f"remaining tool life {life:.1f} min")
+        if feed_health:
+            if not feed_health.get("connected", True):
+                alarms.append("drive feed: broker not connected")
+        body: dict[str, Any] = {
+            "wall": now,
+            "t": t,
+            "source": source,
+            "force": groups["force"],
+            "params": groups["params"],
+            "harmonics": harmonics,
+            "wear": {"VB_mm": vb, "VB_limit_mm": lim, "remaining_life_min": life},
+            "alarms": alarms,
+            "health": dict(health or {}),
+            "dashboard": self.dashboard,
+            "drive_wall": drive_wall,
+        }
+        if feed_health:
+            body["feed"] = dict(feed_health)
+        return body
+
+    def due(self, now: float) -> bool:
+        return now - self._last_pub >= self.period
+
+    def publish(self, body: Mapping[str, Any], now: float) -> bool:
+        """Send ``body`` (never blocks; False when not connected)."""
+        self._last_pub = now
+        c = self._client
+        if c is None or not self.connected:
+            return False
+        info = c.publish(self.topic, encode_estimates(self.machine, body), qos=0)
+        ok = info.rc == 0
+        self.published += int(ok)
+        return ok
+
+    def health(self) -> dict[str, Any]:
+        return {
+            "topic": self.topic,
+            "broker": self.cfg.describe(),
+            "connected": self.connected,
+            "error": self.last_error,
+            "published": self.published,
+            "rate_hz": 1.0 / self.period,
+        }

@@ -1,0 +1,390 @@
+"""Measurement sources: where the live pipeline's Measurements come from.
+
+A simulated run, a recorded log and (next) a live feed from a real machine are the same
+thing to the observers (DESIGN, "measurement source"): a stream of blocks of
+:class:`machine.stage.Measurements`, with :class:`machine.stage.Truth` beside them only
+when the source is the simulator. :class:`server.pipeline.live_pipeline.LivePipeline`
+consumes any object that satisfies :class:`MeasurementSource`; it never asks which kind
+of source it has.
+
+The interface
+-------------
+name : str
+    ``"simulator"``, ``"replay"``, ``"mqtt"``...: the label the service shows, and the
+    key of :meth:`MeasurementSource.status` in the pipeline's snapshot.
+kind : str
+    The model the observers use; ``"two_inertia"`` (motor and load positions).
+sample_time : float
+    Sample time [s] of every block.
+nominal : machine.params.StageParams
+    The known (nominal) parameters the observers are built from (J_M, B_M, F_CM, K,
+    and the load's J_L, B_L, F_CL the identifiers start from).
+encoder_resolution : float
+    Resolution of the position measurements [rad]; sets the observer's velocity filter.
+has_truth : bool
+    True when blocks carry a :class:`machine.stage.Truth` (the simulator only).
+knobs_apply : bool
+    True when the scenario's knobs change what the source produces (the simulator). A
+    log or a live feed ignores :meth:`MeasurementSource.reconfigure`.
+t : float
+    Time of the next sample, counted from the source's start [s]. Advances by
+    ``sample_time`` per sample handed out (an empty block leaves it), and may jump only
+    at a discontinuity (a live feed's missing samples).
+finished : bool
+    True once the source will hand out no more samples (the end of a log). A live feed
+    that has nothing yet is not finished: its :meth:`MeasurementSource.step` returns an
+    empty block.
+step(n) -> SourceBlock
+    Up to ``n`` next samples: exactly ``n`` from the simulator, fewer at the end of a log,
+    fewer or none when a live feed has not received more. An empty block changes nothing.
+reconfigure(**changes)
+    The scenario's changes of the simulated plant (force, added inertia, noise, plant
+    effects; fields of :class:`machine.stage.StageConfig`) from the next sample on.
+reset()
+    Back to the start: the simulator from t = 0 with its first configuration and seed,
+    a log from its first sample.
+truth_summary() -> dict
+    What the source knows beside the measurements, for the snapshot's ``truth``.
+status() -> dict
+    The source's own progress for the snapshot (empty for the simulator).
+
+A :class:`SourceBlock` holds the block's Measurements, its Truth (or None) and
+``discontinuity``: a reason (``"gap"``, ``"reset"``, ...) when this block does not
+continue the previous one (a missing block, a time jump, a restarted drive). The
+pipeline then resets every observer before it runs the block, so the estimates that
+follow are those of a fresh pipeline on the same data; the observers' state never
+bridges a gap.
+
+Implementations: :class:`SimulatorSource` (the stage of :mod:`machine.stage`) and
+:class:`ReplaySource` (a measured log, checked by :func:`open_replay`).
+
+Replay validation (:func:`open_replay`): the file exists, passes
+:func:`server.records.measured_log.load_log`, is of kind ``two_inertia`` with a ``q_l``
+column, angles in rad, effort in N m (or A with K_t), and its sidecar gives the nominal
+parameters J_M, J_L, K, K_t, B_M, B_L, F_CM, F_CL.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+from common.arrays import F64
+from common.errors import ParameterError
+from machine.params import StageParams
+from machine.stage import SEED000_FORCE, Measurements, StageConfig, StageSim, Truth
+from server.errors import CutwatchError, LogFormatError
+from server.records.measured_log import MeasuredLog, load_log
+
+#: the nominal parameters a replayed log's sidecar must give
+NOMINAL = ("J_M", "J_L", "K", "K_t", "B_M", "B_L", "F_CM", "F_CL")
+
+
+@dataclass(frozen=True)
+class SourceBlock:
+    """One block of a source: the Measurements, the Truth (simulator only) and whether
+    the block continues the previous one.
+
+    Attributes
+    ----------
+    meas : Measurements
+        ``t`` counts from the source's start; ``f_ext`` is the reference force (NaN when
+        the source has none).
+    truth : Truth or None
+        Only the simulator has it.
+    discontinuity : str or None
+        Why this block does not continue the previous one (``"gap"``, ``"reset"``...);
+        the pipeline resets its observers before running it. None: it continues.
+    """
+
+    meas: Measurements
+    truth: Truth | None = None
+    discontinuity: str | None = None
+
+    @property
+    def n(self) -> int:
+        """Number of samples (0: nothing this time)."""
+        return len(self.meas.t)
+
+
+@runtime_checkable
+class MeasurementSource(Protocol):
+    """What the live pipeline needs of a source (see the module docstring)."""
+
+    @property
+    def name(self) -> str: ...
+
+    @property
+    def kind(self) -> str: ...
+
+    @property
+    def sample_time(self) -> float: ...
+
+    @property
+    def nominal(self) -> StageParams: ...
+
+    @property
+    def encoder_resolution(self) -> float: ...
+
+    @property
+    def has_truth(self) -> bool: ...
+
+    @property
+    def knobs_apply(self) -> bool: ...
+
+    @property
+    def t(self) -> float: ...
+
+    @property
+    def finished(self) -> bool: ...
+
+    def step(self, n: int) -> SourceBlock: ...
+
+    def reconfigure(self, **changes: object) -> None: ...
+
+    def reset(self) -> None: ...
+
+    def truth_summary(self) -> dict[str, object]: ...
+
+    def status(self) -> dict[str, object]: ...
+
+
+def empty_measurements() -> Measurements:
+    """A block of zero samples."""
+    z = np.zeros(0)
+    return Measurements(t=z, i_m=z, tau_m=z, q_m=z, q_l=z, f_ext=z)
+
+
+def no_truth(meas: Measurements) -> Truth:
+    """The Truth of a block from a source without one: the reference force ``f_ext`` as
+    the force to compare with (NaN when there is none), everything else NaN."""
+    nan = np.full(len(meas.t), math.nan)
+    return Truth(
+        f_cut=meas.f_ext,
+        omega_m=nan,
+        omega_l=nan,
+        t_s=nan,
+        omega_ref=nan,
+        J_L=nan,
+        B_L=nan,
+        F_CL=nan,
+    )
+
+
+class SimulatorSource:
+    """The simulated stage (:class:`machine.stage.StageSim`) as a source.
+
+    Parameters
+    ----------
+    config
+        The stage's first configuration (the scenario's); :meth:`reset` returns to it.
+    seed
+        Seed of the simulation's random generator (current noise); :meth:`reset` reseeds.
+    """
+
+    name = "simulator"
+    kind = "two_inertia"
+    has_truth = True
+    knobs_apply = True
+    finished = False
+
+    def __init__(self, config: StageConfig | None = None, seed: int = 0) -> None:
+        self._config0 = config or StageConfig()
+        self._seed = seed
+        self.sim = StageSim(self._config0, seed=seed)
+
+    @property
+    def config(self) -> StageConfig:
+        """The configuration in effect (changed by :meth:`reconfigure`)."""
+        return self.sim.config
+
+    @property
+    def sample_time(self) -> float:
+        return float(self.sim.config.sample_time)
+
+    @property
+    def nominal(self) -> StageParams:
+        c = self.sim.config
+        return c.nominal or c.params
+
+    @property
+    def encoder_resolution(self) -> float:
+        return self.sim.config.encoder_resolution
+
+    @property
+    def t(self) -> float:
+        return float(self.sim.t)
+
+    def step(self, n: int) -> SourceBlock:
+        """Exactly ``n`` simulated samples (``n`` >= 1)."""
+        meas, truth = self.sim.step(n)
+        return SourceBlock(meas, truth)
+
+    def reconfigure(self, **changes: object) -> None:
+        """Replace fields of the stage's configuration from the next sample on."""
+        self.sim.reconfigure(**changes)
+
+    def reset(self) -> None:
+        """A fresh stage: t = 0, the first configuration, the seed's generator."""
+        self.sim = StageSim(self._config0, seed=self._seed)
+
+    def truth_summary(self) -> dict[str, object]:
+        """The true load parameters in effect (added inertia included)."""
+        p = self.sim.config.true_params
+        return {"J_L": p.J_L, "B_L": p.B_L, "F_CL": p.F_CL}
+
+    def status(self) -> dict[str, object]:
+        return {}
+
+
+def open_replay(path: str | os.PathLike[str]) -> MeasuredLog:
+    """Load and check a log for replay.
+
+    Raises
+    ------
+    LogFormatError
+        The file is missing or fails the log-format checks.
+    CutwatchError
+        Not a two-inertia log in rad / N m with the nominal parameters.
+    """
+    log = load_log(path, required=("t", "tau_m", "q_m", "q_l"))
+    if log.kind != "two_inertia":
+        raise CutwatchError(
+            f"{log.path}: kind {log.kind!r}: expected 'two_inertia' (sidecar key 'kind')"
+        )
+    if log.units.get("position") != "rad" or log.units.get("effort") != "N m":
+        raise CutwatchError(
+            f"{log.path}: units {log.units!r}: expected position 'rad' and effort 'N m' "
+            "(the live observers work on motor and load angles)"
+        )
+    missing = [k for k in NOMINAL if k not in log.nominal]
+    if missing:
+        raise CutwatchError(
+            f"{log.path}: sidecar 'nominal' lacks {', '.join(missing)} "
+            f"(expected {', '.join(NOMINAL)})"
+        )
+    if len(log["t"]) < 2:
+        raise LogFormatError(f"{log.path}: expected at least 2 samples, found {len(log['t'])}")
+    return log
+
+
+def _log_config(log: MeasuredLog) -> StageConfig:
+    """The sidecar's nominal parameters, sample time and encoder as a stage configuration
+    (the encoder resolution rounded to a whole number of bits, as the observers assume)."""
+    nom = log.nominal
+    try:
+        p = StageParams(**{k: nom[k] for k in NOMINAL}, C_s=nom.get("C_s", 0.0))
+        res = log.sidecar.get("encoder_resolution")
+        bits = 20 if res is None else round(math.log2(2 * math.pi / float(res)))
+        return StageConfig(
+            params=p, force=SEED000_FORCE, sample_time=log.sample_time, encoder_bits=bits
+        )
+    except (ParameterError, TypeError, ValueError) as exc:
+        raise CutwatchError(f"{log.path}: nominal parameters: {exc}") from None
+
+
+class ReplaySource:
+    """A measured two-inertia log as a source: its samples in order, then finished.
+
+    ``t`` counts from the log's first sample in steps of the log's sample time;
+    ``f_ext`` is the log's reference force (NaN when it has none). No Truth; the knobs
+    do not change a recorded log.
+
+    Parameters
+    ----------
+    log
+        From :func:`open_replay`.
+
+    Raises
+    ------
+    CutwatchError
+        The sidecar's nominal parameters are not valid stage parameters.
+    """
+
+    name = "replay"
+    kind = "two_inertia"
+    has_truth = False
+    knobs_apply = False
+
+    def __init__(self, log: MeasuredLog) -> None:
+        self.log = log
+        self._cfg = _log_config(log)
+        self.k = 0
+        self.n = len(log["t"])
+        c = log.columns
+        self._f: F64 = c["f_ext"] if "f_ext" in c else np.full(self.n, math.nan)
+
+    @property
+    def sample_time(self) -> float:
+        return float(self._cfg.sample_time)
+
+    @property
+    def nominal(self) -> StageParams:
+        return self._cfg.params
+
+    @property
+    def encoder_resolution(self) -> float:
+        return self._cfg.encoder_resolution
+
+    @property
+    def t(self) -> float:
+        return self.k * self.sample_time
+
+    @property
+    def remaining(self) -> int:
+        """Samples not handed out yet."""
+        return self.n - self.k
+
+    @property
+    def finished(self) -> bool:
+        return self.remaining <= 0
+
+    def step(self, n: int) -> SourceBlock:
+        """The next ``n`` samples of the log (fewer at its end, none after it)."""
+        a, b = self.k, min(self.k + max(int(n), 0), self.n)
+        self.k = b
+        c = self.log.columns
+        tau = c["tau_m"][a:b]
+        meas = Measurements(
+            t=np.arange(a, b, dtype=np.float64) * self.sample_time,
+            i_m=c["i_m"][a:b] if "i_m" in c else tau / self._cfg.params.K_t,
+            tau_m=tau,
+            q_m=c["q_m"][a:b],
+            q_l=c["q_l"][a:b],
+            f_ext=self._f[a:b],
+        )
+        return SourceBlock(meas)
+
+    def reconfigure(self, **changes: object) -> None:
+        """Knobs do not change a recorded log."""
+
+    def reset(self) -> None:
+        """Back to the log's first sample."""
+        self.k = 0
+
+    def truth_summary(self) -> dict[str, object]:
+        return {"log": str(self.log.path), "samples": self.n}
+
+    def status(self) -> dict[str, object]:
+        return {
+            "path": str(self.log.path),
+            "samples": self.n,
+            "fed": self.k,
+            "finished": self.finished,
+        }
+
+
+__all__ = [
+    "NOMINAL",
+    "MeasurementSource",
+    "ReplaySource",
+    "SimulatorSource",
+    "SourceBlock",
+    "empty_measurements",
+    "no_truth",
+    "open_replay",
+]

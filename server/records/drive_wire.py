@@ -1,0 +1,315 @@
+"""The broker's wire format: drive blocks in, the machine's meta, estimates out.
+
+Three payloads travel on ``cutwatch/<machine>/...`` (docs/broker.md):
+
+``drive`` — one block of uniformly sampled drive signals, binary::
+
+    <header: UTF-8 JSON, one line> b"\\n" <body: the columns, one after another>
+
+    header = {"schema": "cutwatch.drive", "version": 1, "seq": k, "t0": s,
+              "sample_time": s, "n": samples,
+              "columns": [{"name": "tau_m", "dtype": "<f4", "unit": "N m"}, ...]}
+
+  The body holds each column's ``n`` values in the header's order, little-endian
+  (``<f4`` float32 or ``<f8`` float64 per column). Sample ``i`` is at ``t0 + i *
+  sample_time``: time is uniform within a block (DESIGN's log contract), so it costs no
+  column. ``seq`` counts blocks from 0 per publisher run; with ``t0`` it reveals gaps,
+  duplicates and blocks out of order. An optional ``wall`` (the publisher's clock at
+  publishing, unix s) lets the receivers measure latency. Columns: ``q_m`` and one of
+  ``tau_m``/``i_m`` are required; ``q_l`` and ``f_ext`` are optional. Positions should
+  travel as ``<f8``: a float32 angle of 1000 rad resolves only 6e-5 rad, coarser than a
+  20-bit encoder.
+
+``meta`` — retained JSON, the log sidecar's keys (``sample_time``, ``units``, ``kind``,
+``nominal``, ``encoder_resolution``) plus ``schema`` and ``version``.
+
+``estimates`` — JSON, what the service publishes at a rate the user sets.
+
+Every check failure raises :class:`WireError` with a ``kind`` (``schema``, ``version``,
+``units``, ``shape``, ``value``) that the source counts by, and a message naming the
+field, the expected and the found.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from common.arrays import F64
+from server.errors import CutwatchError
+
+DRIVE_SCHEMA = "cutwatch.drive"
+META_SCHEMA = "cutwatch.meta"
+ESTIMATES_SCHEMA = "cutwatch.estimates"
+VERSION = 1
+
+#: the columns a drive block may carry, and the unit family of each
+COLUMN_FAMILY: dict[str, str] = {
+    "tau_m": "effort",
+    "i_m": "current",
+    "q_m": "position",
+    "q_l": "position",
+    "f_ext": "effort",
+}
+UNITS: dict[str, frozenset[str]] = {
+    "effort": frozenset({"N m", "N"}),
+    "current": frozenset({"A"}),
+    "position": frozenset({"rad", "m"}),
+}
+DTYPES: frozenset[str] = frozenset({"<f4", "<f8"})
+#: a block larger than this is refused before parsing (a 50 ms block at 2.5 kHz of five
+#: float64 columns is 5 kB)
+MAX_PAYLOAD = 1 << 20
+MAX_HEADER = 4096
+
+
+class WireError(CutwatchError, ValueError):
+    """A payload does not follow the wire format; ``kind`` says which check failed."""
+
+    def __init__(self, kind: str, msg: str) -> None:
+        self.kind = kind
+        super().__init__(msg)
+
+
+@dataclass(frozen=True)
+class DriveBlock:
+    """One decoded drive block."""
+
+    seq: int
+    t0: float
+    sample_time: float
+    columns: dict[str, F64]
+    units: dict[str, str] = field(default_factory=dict)
+    #: the publisher's wall clock at publishing (unix s), when it sent one
+    wall: float | None = None
+
+    @property
+    def n(self) -> int:
+        return len(self.columns["q_m"])
+
+    @property
+    def t(self) -> F64:
+        return self.t0 + np.arange(self.n, dtype=np.float64) * self.sample_time
+
+    @property
+    def t_end(self) -> float:
+        """Time of the sample after this block's last one."""
+        return self.t0 + self.n * self.sample_time
+
+
+def _unit_ok(name: str, unit: str) -> bool:
+    return unit in UNITS[COLUMN_FAMILY[name]]
+
+
+def encode_drive(
+    seq: int,
+    t0: float,
+    sample_time: float,
+    columns: Mapping[str, Any],
+    units: Mapping[str, str],
+    dtypes: Mapping[str, str] | None = None,
+    wall: float | None = None,
+) -> bytes:
+    """Encode one drive block (see the module docstring for the format).
+
+    ``units`` maps a unit family (``effort``, ``position``, ``current``) or a column name
+    to its unit; ``dtypes`` maps a column to ``<f4``/``<f8`` (default: positions ``<f8``,
+    the rest ``<f4``).
+    """
+    dtypes = dict(dtypes or {})
+    head_cols = []
+    parts = []
+    n = None
+    for name, values in columns.items():
+        if name not in COLUMN_FAMILY:
+            raise WireError("shape", f"column {name!r}: expected one of {sorted(COLUMN_FAMILY)}")
+        fam = COLUMN_FAMILY[name]
+        unit = units.get(name, units.get(fam, "A" if fam == "current" else ""))
+        if not _unit_ok(name, unit):
+            raise WireError(
+                "units", f"column {name!r}: unit expected one of {sorted(UNITS[fam])}, got {unit!r}"
+            )
+        dt = dtypes.get(name, "<f8" if fam == "position" else "<f4")
+        if dt not in DTYPES:
+            raise WireError("shape", f"column {name!r}: dtype expected <f4 or <f8, got {dt!r}")
+        a = np.ascontiguousarray(values, dtype=dt)
+        if a.ndim != 1 or (n is not None and len(a) != n):
+            raise WireError("shape", f"column {name!r}: expected {n} values, got {a.shape}")
+        n = len(a)
+        head_cols.append({"name": name, "dtype": dt, "unit": unit})
+        parts.append(a.tobytes())
+    header = {
+        "schema": DRIVE_SCHEMA,
+        "version": VERSION,
+        "seq": int(seq),
+        "t0": float(t0),
+        "sample_time": float(sample_time),
+        "n": int(n or 0),
+        "columns": head_cols,
+    }
+    if wall is not None:
+        header["wall"] = float(wall)
+    return json.dumps(header, separators=(",", ":")).encode() + b"\n" + b"".join(parts)
+
+
+def _field(header: Mapping[str, Any], name: str, typ: type | tuple[type, ...]) -> Any:
+    if name not in header:
+        raise WireError("schema", f"drive header: field {name!r} missing")
+    v = header[name]
+    if not isinstance(v, typ) or isinstance(v, bool):
+        raise WireError(
+            "schema", f"drive header: field {name!r}: expected {typ}, got {type(v).__name__}"
+        )
+    return v
+
+
+def decode_drive(payload: bytes) -> DriveBlock:
+    """Decode and check one drive block.
+
+    Raises
+    ------
+    WireError
+        With ``kind`` ``schema`` (not a drive block, bad header), ``version`` (another
+        schema version), ``units``, ``shape`` (body length, columns) or ``value``
+        (non-finite samples, bad sample time).
+    """
+    if len(payload) > MAX_PAYLOAD:
+        raise WireError("shape", f"drive block: {len(payload)} bytes, limit {MAX_PAYLOAD}")
+    nl = payload.find(b"\n", 0, MAX_HEADER)
+    if nl < 0:
+        raise WireError("schema", "drive block: no JSON header line in the first 4096 bytes")
+    try:
+        header = json.loads(payload[:nl])
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise WireError("schema", f"drive block: header is not JSON ({exc})") from None
+    if not isinstance(header, dict) or header.get("schema") != DRIVE_SCHEMA:
+        got = header.get("schema") if isinstance(header, dict) else type(header).__name__
+        raise WireError("schema", f"drive header: schema expected {DRIVE_SCHEMA!r}, got {got!r}")
+    version = header.get("version")
+    if version != VERSION:
+        raise WireError("version", f"drive header: version expected {VERSION}, got {version!r}")
+    seq = _field(header, "seq", int)
+    t0 = float(_field(header, "t0", (int, float)))
+    ts = float(_field(header, "sample_time", (int, float)))
+    n = _field(header, "n", int)
+    cols = _field(header, "columns", list)
+    if not (math.isfinite(ts) and ts > 0) or not math.isfinite(t0):
+        raise WireError("value", f"drive header: sample_time {ts!r} / t0 {t0!r} not finite > 0")
+    if n < 0:
+        raise WireError("shape", f"drive header: n expected >= 0, got {n}")
+    body = memoryview(payload)[nl + 1 :]
+    out: dict[str, F64] = {}
+    units: dict[str, str] = {}
+    pos = 0
+    for c in cols:
+        if not isinstance(c, dict):
+            raise WireError("schema", f"drive header: a column entry is {type(c).__name__}")
+        name, dt, unit = c.get("name"), c.get("dtype"), c.get("unit")
+        if name not in COLUMN_FAMILY:
+            raise WireError("schema", f"column {name!r}: expected one of {sorted(COLUMN_FAMILY)}")
+        if name in out:
+            raise WireError("schema", f"column {name!r} appears twice")
+        if dt not in DTYPES:
+            raise WireError("schema", f"column {name!r}: dtype expected <f4 or <f8, got {dt!r}")
+        if not isinstance(unit, str) or not _unit_ok(name, unit):
+            fam = COLUMN_FAMILY[name]
+            raise WireError(
+                "units", f"column {name!r}: unit expected one of {sorted(UNITS[fam])}, got {unit!r}"
+            )
+        size = n * (4 if dt == "<f4" else 8)
+        if pos + size > len(body):
+            raise WireError(
+                "shape", f"drive block: body {len(body)} bytes, columns need more ({name!r})"
+            )
+        a = np.frombuffer(body[pos : pos + size], dtype=dt).astype(np.float64)
+        pos += size
+        if not np.all(np.isfinite(a)) and name != "f_ext":
+            raise WireError("value", f"column {name!r}: non-finite samples")
+        out[name] = a
+        units[name] = unit
+    if pos != len(body):
+        raise WireError("shape", f"drive block: body {len(body)} bytes, columns take {pos}")
+    if "q_m" not in out or not ({"tau_m", "i_m"} & out.keys()):
+        raise WireError(
+            "schema", f"drive block: columns {sorted(out)}: expected q_m and tau_m or i_m"
+        )
+    wall = header.get("wall")
+    wall = float(wall) if isinstance(wall, int | float) and not isinstance(wall, bool) else None
+    return DriveBlock(seq=seq, t0=t0, sample_time=ts, columns=out, units=units, wall=wall)
+
+
+def encode_drive_json(
+    seq: int, t0: float, sample_time: float, columns: Mapping[str, Any], units: Mapping[str, str]
+) -> bytes:
+    """The same block as plain JSON (for the size/speed comparison in ``cutwatch bench``)."""
+    return json.dumps(
+        {
+            "schema": DRIVE_SCHEMA,
+            "version": VERSION,
+            "seq": seq,
+            "t0": t0,
+            "sample_time": sample_time,
+            "units": dict(units),
+            "columns": {k: np.asarray(v, dtype=np.float64).tolist() for k, v in columns.items()},
+        },
+        separators=(",", ":"),
+    ).encode()
+
+
+def decode_drive_json(payload: bytes) -> dict[str, F64]:
+    d = json.loads(payload)
+    return {k: np.asarray(v, dtype=np.float64) for k, v in d["columns"].items()}
+
+
+def encode_meta(sidecar: Mapping[str, Any]) -> bytes:
+    """The retained ``meta`` message: the sidecar's keys plus schema and version."""
+    keys = ("sample_time", "units", "kind", "nominal", "encoder_resolution")
+    body = {k: sidecar[k] for k in keys if k in sidecar}
+    return json.dumps({"schema": META_SCHEMA, "version": VERSION, **body}).encode()
+
+
+def decode_meta(payload: bytes) -> dict[str, Any]:
+    """Decode and check the ``meta`` message (sidecar format)."""
+    try:
+        d = json.loads(payload)
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise WireError("schema", f"meta: not JSON ({exc})") from None
+    if not isinstance(d, dict) or d.get("schema") != META_SCHEMA:
+        raise WireError("schema", f"meta: schema expected {META_SCHEMA!r}")
+    if d.get("version") != VERSION:
+        raise WireError("version", f"meta: version expected {VERSION}, got {d.get('version')!r}")
+    ts = d.get("sample_time")
+    if not isinstance(ts, int | float) or isinstance(ts, bool) or not (ts > 0):
+        raise WireError("value", f"meta: sample_time expected a number > 0, got {ts!r}")
+    units = d.get("units")
+    if not isinstance(units, dict):
+        raise WireError("schema", f"meta: units expected an object, got {units!r}")
+    for fam in ("effort", "position"):
+        if units.get(fam) not in UNITS[fam] | (UNITS["current"] if fam == "effort" else set()):
+            raise WireError("units", f"meta: units.{fam} got {units.get(fam)!r}")
+    return d
+
+
+def encode_estimates(machine: str, body: Mapping[str, Any]) -> bytes:
+    """The ``estimates`` message (JSON; non-finite numbers become null)."""
+    from common.jsonsafe import json_safe
+
+    return json.dumps(
+        {"schema": ESTIMATES_SCHEMA, "version": VERSION, "machine": machine, **json_safe(body)},
+        separators=(",", ":"),
+        allow_nan=False,
+    ).encode()
+
+
+def decode_estimates(payload: bytes) -> dict[str, Any]:
+    d = json.loads(payload)
+    if not isinstance(d, dict) or d.get("schema") != ESTIMATES_SCHEMA:
+        raise WireError("schema", f"estimates: schema expected {ESTIMATES_SCHEMA!r}")
+    if d.get("version") != VERSION:
+        raise WireError("version", f"estimates: version expected {VERSION}")
+    return d

@@ -1,0 +1,180 @@
+"""``POST /api/replay`` (a measured log through the live observers) and the identified
+observer effects (``GET``/``POST``/``DELETE /api/observer-effects``)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+from fastapi import APIRouter
+
+from server.errors import CutwatchError
+from server.service import protocol
+from server.service.deps import Authorised, Config, Live
+from server.service.errors import FieldError
+from server.service.schemas import (
+    Effects,
+    EffectsBody,
+    EffectsInstalled,
+    Replay,
+    ReplayStarted,
+    error_responses,
+)
+
+router = APIRouter(responses=error_responses())
+
+_LOG_RULE = "a two_inertia log on the server's disk (.csv with its .json sidecar, or .mat)"
+
+
+@router.post(
+    "/api/replay",
+    summary="replay a two_inertia log through the live observers",
+    dependencies=[Authorised],
+    response_model=ReplayStarted,
+    responses=error_responses(401, 413, 422),
+)
+def replay(body: Replay, lp: Live, s: Config) -> ReplayStarted:
+    from server.pipeline.live_pipeline import LivePipeline
+    from server.pipeline.sources import ReplaySource, open_replay
+
+    try:
+        log = open_replay(body.path)
+    except CutwatchError as exc:
+        raise FieldError("path", _LOG_RULE, body.path, str(exc)) from None
+    pipe = LivePipeline(seed=s.seed, source=ReplaySource(log))
+    lp.set_pipeline(pipe)
+    n = len(log["t"])
+    return ReplayStarted(
+        scenario="replay",
+        path=str(log.path),
+        samples=n,
+        sample_time=log.sample_time,
+        duration_s=n * log.sample_time,
+        reference_force="f_ext" in log.columns,
+    )
+
+
+@router.get(
+    "/api/observer-effects",
+    summary="effects installed in the live observer",
+    response_model=Effects,
+)
+def get_effects(lp: Live) -> Effects:
+    with lp.lock:
+        return Effects.model_validate({"observer_effects": _effects_json(lp.pipeline.effects)})
+
+
+@router.post(
+    "/api/observer-effects",
+    summary="install identified effects (report.json path or its observer_effects list)",
+    dependencies=[Authorised],
+    response_model=EffectsInstalled,
+    responses=error_responses(401, 413, 422),
+)
+def post_effects(body: EffectsBody, lp: Live) -> EffectsInstalled:
+    effects, skipped = parse_effects(body.path, body.observer_effects)
+    with lp.lock:
+        lp.pipeline.set_observer_effects(effects)
+        return EffectsInstalled.model_validate(
+            {"observer_effects": _effects_json(lp.pipeline.effects), "skipped": skipped}
+        )
+
+
+@router.delete(
+    "/api/observer-effects",
+    summary="remove the installed effects",
+    dependencies=[Authorised],
+    response_model=Effects,
+    responses=error_responses(401),
+)
+def delete_effects(lp: Live) -> Effects:
+    with lp.lock:
+        lp.pipeline.set_observer_effects(())
+    return Effects(observer_effects=[])
+
+
+def _effects_json(effects: Any) -> list[dict[str, Any]]:
+    out: list[dict[str, Any]] = protocol._clean(
+        [{"name": e.name, "side": e.side, "shape": dict(e.shape), "coef": list(e.coef)}
+         for e in effects]
+    )  # fmt: skip
+    return out
+
+
+#: effect families referenced to the log's time axis (a drift from its t0, a harmonic of
+#: its clock's phase); not installed live: the live clock is another one
+LOG_TIME_EFFECTS = ("drift", "harmonic")
+
+_EFFECT_RULE = "{'name': str, 'shape': {str: number}, 'coef': [number, ...]}"
+
+
+def parse_effects(
+    path: str | None, items: list[dict[str, Any]] | None
+) -> tuple[tuple[Any, ...], list[str]]:
+    """Effects from a report.json path or an ``observer_effects`` list, and the names of
+    those skipped (:data:`LOG_TIME_EFFECTS`).
+
+    Raises
+    ------
+    FieldError
+        Neither or both given, unreadable file, or malformed entries.
+    ParameterError
+        An entry that :class:`estimators.observer_effects.ObserverEffect` refuses.
+    """
+    from estimators.observer_effects import ObserverEffect
+
+    if (path is None) == (items is None):
+        raise FieldError(
+            "body",
+            "exactly one of 'path' or 'observer_effects'",
+            "both" if path is not None else "neither",
+            "expected one of 'path' (a report.json) or 'observer_effects'",
+        )
+    if path is not None:
+        p = Path(path)
+        rule = "a residual report.json (cutwatch residual --kind two_inertia)"
+        try:
+            rep = json.loads(p.read_text())
+        except FileNotFoundError:
+            raise FieldError(
+                "path", rule, path, f"{p}: no such file (expected a residual report.json)"
+            ) from None
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise FieldError(
+                "path", rule, path, f"{p}: not a readable JSON report: {exc}"
+            ) from None
+        items = rep.get("observer_effects") if isinstance(rep, dict) else None
+        if not isinstance(items, list):
+            raise FieldError(
+                "path",
+                rule,
+                path,
+                f"{p}: no 'observer_effects' list (expected a report of "
+                "'cutwatch residual --kind two_inertia')",
+            )
+    out = []
+    skipped = []
+    for i, e in enumerate(items or []):
+        shape: Any = e.get("shape", {}) if isinstance(e, dict) else None
+        coef: Any = e.get("coef") if isinstance(e, dict) else None
+        ok = isinstance(e, dict) and isinstance(e.get("name"), str)
+        ok = ok and isinstance(shape, dict) and isinstance(coef, list)
+        ok = ok and all(_is_number(v) for v in coef) and all(_is_number(v) for v in shape.values())
+        if not ok:
+            raise FieldError(
+                f"observer_effects[{i}]",
+                _EFFECT_RULE,
+                e,
+                f"observer_effects[{i}]: expected {_EFFECT_RULE}, got {e!r}"[:300],
+            )
+        if e["name"] in LOG_TIME_EFFECTS:
+            # referenced to the log's own clock: meaningless on the live clock
+            skipped.append(e["name"])
+            continue
+        out.append(ObserverEffect(e["name"], dict(shape), tuple(float(c) for c in coef)))
+    return tuple(out), skipped
+
+
+def _is_number(v: Any) -> bool:
+    return isinstance(v, int | float) and not isinstance(v, bool)

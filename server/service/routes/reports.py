@@ -1,0 +1,88 @@
+"""Residual reports on disk: ``/residual`` (index), ``/residual/{name}/`` and its report.json."""
+
+from __future__ import annotations
+
+import html
+import re
+from pathlib import Path
+
+from fastapi import APIRouter, HTTPException
+from fastapi.responses import FileResponse, HTMLResponse
+
+from server.service.deps import Config
+from server.service.errors import error
+from server.service.schemas import ResidualReport, error_responses
+
+router = APIRouter(responses=error_responses())
+
+_REPORT_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,127}$")
+_NAME_RULE = "a directory name: letters, digits, '.', '_', '-', not starting with '.'"
+
+
+def residual_reports(root: Path) -> list[str]:
+    """Sub-directories of ``root`` holding a report.html, sorted."""
+    if not root.is_dir():
+        return []
+    return sorted(
+        d.name
+        for d in root.iterdir()
+        if _REPORT_NAME.match(d.name) and (d / "report.html").is_file()
+    )
+
+
+def report_file(root: Path, name: str, leaf: str) -> Path:
+    """``root/name/leaf``, refusing any name that would leave ``root``.
+
+    Raises
+    ------
+    HTTPException
+        404 for an unknown or unsafe name (path traversal) or a missing file.
+    """
+    base = root.resolve()
+    if not _REPORT_NAME.match(name) or ".." in name:
+        msg = f"no residual report named {name!r} (expected a directory name)"
+        raise HTTPException(404, detail=[error("name", _NAME_RULE, name, msg)])
+    f = (base / name / leaf).resolve()
+    if not f.is_relative_to(base) or not f.is_file():
+        msg = f"no residual report named {name!r} in {root}"
+        raise HTTPException(404, detail=[error("name", "a report listed at /residual", name, msg)])
+    return f
+
+
+@router.get(
+    "/residual",
+    response_class=HTMLResponse,
+    summary="residual reports on disk",
+    responses=error_responses(json_route=False),
+)
+def residual_index(s: Config) -> HTMLResponse:
+    rows = "".join(
+        f'<li><a href="/residual/{html.escape(n)}/">{html.escape(n)}</a></li>'
+        for n in residual_reports(s.reports_dir)
+    )
+    body = rows or "<li>none yet: <code>cutwatch residual LOG --out DIR</code></li>"
+    return HTMLResponse(
+        "<!doctype html><html><head><meta charset='utf-8'><title>cutwatch residual "
+        f"reports</title></head><body><h1>Residual reports in "
+        f"{html.escape(str(s.reports_dir))}</h1><ul>{body}</ul></body></html>"
+    )
+
+
+@router.get(
+    "/residual/{name}/",
+    response_class=HTMLResponse,
+    summary="one residual report (its report.html)",
+    responses=error_responses(404, json_route=False),
+)
+def residual_report(name: str, s: Config) -> FileResponse:
+    return FileResponse(report_file(s.reports_dir, name, "report.html"))
+
+
+@router.get(
+    "/residual/{name}/report.json",
+    summary="one residual report (its report.json)",
+    response_model=None,
+    responses={200: {"model": ResidualReport}, **error_responses(404)},
+)
+def residual_report_json(name: str, s: Config) -> FileResponse:
+    return FileResponse(report_file(s.reports_dir, name, "report.json"))

@@ -1,0 +1,98 @@
+"""Read-only status: health, scenarios, snapshot, Prometheus metrics."""
+
+from __future__ import annotations
+
+from fastapi import APIRouter
+from fastapi.responses import PlainTextResponse
+
+from server.pipeline.live_pipeline import SCENARIOS
+from server.service import protocol
+from server.service.deps import Config, Live
+from server.service.schemas import Health, Scenarios, Snapshot, error_responses
+
+router = APIRouter(responses=error_responses())
+
+
+@router.get("/api/health", summary="liveness and loop health", response_model=Health)
+def health(lp: Live, s: Config) -> Health:
+    h = lp.health()
+    return Health.model_validate(
+        {
+            "status": "ok" if lp.running else "error",
+            "loop_error": lp.error,
+            "viser_port": s.viser_port,
+            "viser_running": lp.scene is not None,
+            "scenario": lp.pipeline.scenario,
+            **protocol._clean(h),
+        }
+    )
+
+
+@router.get("/api/scenarios", summary="the scenarios the loop can run", response_model=Scenarios)
+def scenarios(lp: Live) -> Scenarios:
+    return Scenarios(current=lp.pipeline.scenario, scenarios=dict(SCENARIOS))
+
+
+@router.get(
+    "/api/snapshot",
+    summary="latest values, truths, knob values and loop health",
+    response_model=Snapshot,
+    response_model_exclude_unset=True,  # "replay" only while replaying, as the pipeline says
+)
+def snapshot(lp: Live) -> Snapshot:
+    with lp.lock:
+        snap = lp.pipeline.snapshot()
+    return Snapshot.model_validate(protocol._clean({"pipeline": snap, "health": lp.health()}))
+
+
+@router.get(
+    "/metrics",
+    response_class=PlainTextResponse,
+    summary="Prometheus metrics",
+    responses=error_responses(json_route=False),
+)
+def metrics(lp: Live) -> PlainTextResponse:
+    h = lp.health()
+    rows = [
+        ("cutwatch_loop_lag_seconds", "gauge", "lateness of the last block", h["lag_ms"] / 1e3),
+        (
+            "cutwatch_loop_lag_p99_seconds",
+            "gauge",
+            "p99 block lateness (last 600 blocks)",
+            h["lag_p99_ms"] / 1e3,
+        ),
+        (
+            "cutwatch_realtime_factor",
+            "gauge",
+            "simulated seconds per wall second",
+            h["realtime_factor"],
+        ),
+        (
+            "cutwatch_speed",
+            "gauge",
+            "requested speed (0 = paused)",
+            0.0 if h["paused"] else h["speed"],
+        ),
+        ("cutwatch_sim_time_seconds", "gauge", "simulated time", h["sim_t"]),
+        ("cutwatch_ws_clients", "gauge", "connected WebSocket clients", h["clients"]),
+        (
+            "cutwatch_ws_dropped_frames_total",
+            "counter",
+            "frames dropped for slow clients",
+            h["dropped_total"],
+        ),
+        ("cutwatch_frames_total", "counter", "frames published", lp.hub.frames_total),
+        ("cutwatch_blocks_total", "counter", "blocks simulated", lp.blocks),
+        (
+            "cutwatch_loop_stalls_total",
+            "counter",
+            "clock re-anchors after a stall",
+            h["stalls"],
+        ),
+    ]
+    lines = []
+    for name, kind, doc, value in rows:
+        lines += [f"# HELP {name} {doc}", f"# TYPE {name} {kind}", f"{name} {float(value):g}"]
+    return PlainTextResponse(
+        "\n".join(lines) + "\n", media_type="text/plain; version=0.0.4; charset=utf-8"
+    )

@@ -1,0 +1,58 @@
+"""``/ws``: the live stream (a hello, then data frames; see ``server.service.protocol``)."""
+
+from __future__ import annotations
+
+import asyncio
+
+from fastapi import APIRouter, WebSocket, WebSocketDisconnect
+
+from server.errors import CutwatchError
+from server.service import protocol
+from server.service.loop import Hub, LiveLoop
+
+router = APIRouter()
+
+
+@router.websocket("/ws")
+async def stream(ws: WebSocket) -> None:
+    lp: LiveLoop = ws.app.state.loop
+    hub: Hub = ws.app.state.hub
+    await ws.accept()
+    try:
+        q = hub.add()
+    except CutwatchError:
+        await ws.close(1001, "shutting down")
+        return
+
+    async def drain() -> None:
+        # read and drop whatever the client sends: its close is seen at once, and the
+        # read side keeps flowing (uvicorn pauses reading until the app receives)
+        try:
+            while (await ws.receive())["type"] != "websocket.disconnect":
+                pass
+        except (WebSocketDisconnect, RuntimeError):
+            pass
+        q.gone = True
+        q.event.set()
+
+    reader = asyncio.create_task(drain())
+    try:
+        await ws.send_text(lp.hello())
+        while True:
+            await q.event.wait()
+            if q.gone:
+                return
+            if q.closed:
+                await ws.close(1001, "server shutting down")
+                return
+            hello, frames, dropped = q.take()
+            if hello is not None:  # the pipeline changed (scenario, replay)
+                await ws.send_text(hello)
+            for body in frames:
+                await ws.send_text(protocol.with_dropped(body, dropped))
+                dropped = 0
+    except (WebSocketDisconnect, RuntimeError):
+        return
+    finally:
+        reader.cancel()
+        hub.remove(q)

@@ -1,0 +1,260 @@
+"""Request and response models of every REST route (what ``/docs`` shows).
+
+Responses whose content the pipeline owns (snapshot, residual report) declare the keys
+known today and let others through (``extra="allow"``), so a key added by the pipeline
+reaches clients rather than being dropped by the response model.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, JsonValue, RootModel
+
+from server.service.settings import MAX_SPEED
+
+# ------------------------------------------------------------------ errors
+
+
+class ErrorItem(BaseModel):
+    """One refused field."""
+
+    field: str = Field(description="the field, header or path part refused ('body': all of it)")
+    allowed: str = Field(description="what it accepts")
+    got: JsonValue = Field(description="what was found (non-finite numbers as 'nan', 'inf')")
+    msg: str = Field(description="one sentence naming the three")
+
+
+class ErrorBody(BaseModel):
+    """The body of every 4xx answer."""
+
+    detail: list[ErrorItem]
+
+
+_ERROR_DOCS = {
+    401: "no or wrong bearer token (CUTWATCH_TOKEN set)",
+    404: "no such report, route or file",
+    405: "method not allowed on this path",
+    413: "request body over the limit (CUTWATCH_MAX_BODY_BYTES)",
+    422: "a field is missing, unknown or out of range; nothing changed",
+}
+
+
+def error_responses(*codes: int, json_route: bool = True) -> dict[int | str, dict[str, Any]]:
+    """OpenAPI ``responses=`` for the given 4xx codes, plus ``4XX`` for any other.
+
+    ``json_route=False`` for routes answering HTML or text: FastAPI would file a
+    ``model`` under the route's own media type, but the error bodies are JSON.
+    """
+    docs: dict[int | str, str] = {c: _ERROR_DOCS[c] for c in codes}
+    docs["4XX"] = "any other client error, same shape"
+    if json_route:
+        return {c: {"model": ErrorBody, "description": d} for c, d in docs.items()}
+    ref = {"$ref": "#/components/schemas/ErrorBody"}  # registered by the JSON routes
+    return {
+        c: {"description": d, "content": {"application/json": {"schema": ref}}}
+        for c, d in docs.items()
+    }
+
+
+# ------------------------------------------------------------------ status
+
+
+class LoopHealth(BaseModel):
+    """The live loop's health (also the ``health`` of every stream frame)."""
+
+    sim_t: float | None = Field(description="simulated time [s]")
+    speed: float | None = Field(description="requested speed (x real time)")
+    paused: bool
+    lag_ms: float | None = Field(description="lateness of the last block [ms]")
+    lag_p99_ms: float | None = Field(description="p99 lateness over the last 600 blocks [ms]")
+    realtime_factor: float | None = Field(description="simulated seconds per wall second")
+    clients: int = Field(description="connected WebSocket clients")
+    dropped_total: int = Field(description="frames dropped for slow clients")
+    stalls: int = Field(description="clock re-anchors after a stall")
+
+
+class Health(LoopHealth):
+    """``GET /api/health``."""
+
+    status: Literal["ok", "error"] = Field(description="'error' once the loop has stopped")
+    loop_error: str | None = Field(description="why the loop stopped, if it did")
+    viser_port: int
+    viser_running: bool
+    scenario: str
+
+
+class Scenarios(BaseModel):
+    """``GET /api/scenarios``."""
+
+    current: str
+    scenarios: dict[str, str] = Field(description="name -> description")
+
+
+class PipelineEffect(BaseModel):
+    """An installed observer effect as the pipeline reports it."""
+
+    name: str
+    shape: dict[str, float | None]
+    coef: list[float | None]
+
+
+class ReplayProgress(BaseModel):
+    """How far a replay has fed its log."""
+
+    path: str
+    samples: int
+    fed: int
+    finished: bool
+
+
+class PipelineSnapshot(BaseModel):
+    """Latest values, truths and knob values of the running pipeline."""
+
+    model_config = ConfigDict(extra="allow")
+    t: float | None = Field(description="simulated (or replayed) time [s]")
+    scenario: str
+    latest: dict[str, float | None] = Field(description="channel -> latest value")
+    truth: dict[str, JsonValue] = Field(description="the true parameters (or the log replayed)")
+    knobs: dict[str, bool | float | str]
+    observer_effects: list[PipelineEffect]
+    replay: ReplayProgress | None = Field(None, description="present while replaying a log")
+
+
+class Snapshot(BaseModel):
+    """``GET /api/snapshot``."""
+
+    pipeline: PipelineSnapshot
+    health: LoopHealth
+
+
+# ------------------------------------------------------------------ params
+
+
+class _KnobBase(BaseModel):
+    unit: str
+    doc: str
+
+
+class NumberKnob(_KnobBase):
+    type: Literal["number"]
+    value: float
+    min: float | None
+    max: float | None
+
+
+class BoolKnob(_KnobBase):
+    type: Literal["bool"]
+    value: bool
+
+
+class ChoiceKnob(_KnobBase):
+    type: Literal["choice"]
+    value: str
+    choices: list[str]
+
+
+KnobOut = Annotated[NumberKnob | BoolKnob | ChoiceKnob, Field(discriminator="type")]
+
+
+class Params(RootModel[dict[str, KnobOut]]):
+    """``GET``/``PATCH /api/params``: every live parameter with its allowed values."""
+
+
+class ParamsPatch(RootModel[dict[str, Any]]):
+    """``PATCH /api/params``: ``{name: value}`` for one or more knobs (all or nothing).
+
+    Each value is checked against its knob (a number in range, true or false, one of the
+    choices); every refused field is listed in the 422.
+    """
+
+    model_config = ConfigDict(
+        json_schema_extra={
+            "additionalProperties": {
+                "anyOf": [{"type": "number"}, {"type": "boolean"}, {"type": "string"}]
+            },
+            "examples": [{"spindle_rpm": 2400, "weight_on": True}],
+        }
+    )
+
+
+# ------------------------------------------------------------------ control
+
+
+class Control(BaseModel):
+    """Body of ``POST /api/control``."""
+
+    model_config = ConfigDict(extra="forbid")
+    action: Literal["pause", "resume", "reset", "speed", "scenario"]
+    value: float | None = Field(None, description=f"speed in [0, {MAX_SPEED:g}] (action speed)")
+    scenario: str | None = Field(None, description="scenario name (action scenario)")
+
+
+class ControlState(BaseModel):
+    """``POST /api/control``: the loop's state after the action."""
+
+    speed: float
+    paused: bool
+    sim_t: float
+    scenario: str
+
+
+# ------------------------------------------------------------------ replay, effects
+
+
+class Replay(BaseModel):
+    """``POST /api/replay``: a measured log on the server's disk."""
+
+    model_config = ConfigDict(extra="forbid")
+    path: str = Field(..., min_length=1, max_length=4096, description="two_inertia log (.csv)")
+
+
+class ReplayStarted(BaseModel):
+    """``POST /api/replay``: the log now feeding the observers."""
+
+    scenario: Literal["replay"]
+    path: str
+    samples: int
+    sample_time: float = Field(description="[s]")
+    duration_s: float
+    reference_force: bool = Field(description="the log has an f_ext column")
+
+
+class EffectsBody(BaseModel):
+    """``POST /api/observer-effects``: a residual report.json, or its effects list."""
+
+    model_config = ConfigDict(extra="forbid")
+    path: str | None = Field(None, max_length=4096, description="a residual report.json")
+    observer_effects: list[dict[str, Any]] | None = Field(
+        None, description="[{name, shape, coef}] as in report.json"
+    )
+
+
+class Effect(PipelineEffect):
+    """An installed observer effect."""
+
+    side: str = Field(description="which side of the two-inertia model it acts on")
+
+
+class Effects(BaseModel):
+    """``GET``/``DELETE /api/observer-effects``."""
+
+    observer_effects: list[Effect]
+
+
+class EffectsInstalled(Effects):
+    """``POST /api/observer-effects``."""
+
+    skipped: list[str] = Field(description="effects on the log's own clock, not installed")
+
+
+class ResidualReport(BaseModel):
+    """``report.json`` of ``cutwatch residual`` (main keys; the file has more)."""
+
+    model_config = ConfigDict(extra="allow")
+    log: str
+    kind: str
+    n_samples: int
+    sample_time: float
+    selected: list[JsonValue]
+    observer_effects: list[JsonValue] | None = None

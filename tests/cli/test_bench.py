@@ -1,0 +1,66 @@
+"""`cutwatch bench`: group names derived one way, the headline realtime_factor is the
+stage group's, the command's docstring lists every group."""
+
+from __future__ import annotations
+
+import json
+import re
+import subprocess
+import sys
+from typing import Any
+
+from server.cli.commands import bench
+
+
+def _bench(*args: str) -> dict[str, Any]:
+    r = subprocess.run(
+        [sys.executable, "-m", "server.cli.main", "bench", *args, "--quick", "--repeats", "1"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert r.returncode == 0, r.stderr
+    doc: dict[str, Any] = json.loads(r.stdout)
+    return doc
+
+
+def test_group_names_are_hyphenated_and_derived_from_the_module_name() -> None:
+    names = list(bench.groups())
+    assert "residual-two-inertia" in names and "tool-wear" in names and "pipeline" in names
+    for name in names:
+        assert re.fullmatch(r"[a-z0-9]+(-[a-z0-9]+)*", name), name
+
+
+def test_the_docstring_lists_exactly_the_groups() -> None:
+    doc = bench.__doc__ or ""
+    block = doc.split("Groups", 1)[1].split("\n\n", 1)[0]
+    listed = [line.split()[0] for line in block.splitlines()[1:] if line.strip()]
+    assert listed == sorted(bench.groups())
+
+
+def test_the_top_level_realtime_factor_is_the_stage_groups() -> None:
+    # pipeline runs first and reports its own realtime_factor: it must not be the headline
+    doc = _bench("pipeline", "stage", "--json")
+    assert doc["realtime_factor"] == doc["stage"]["realtime_factor"]
+    assert doc["realtime_factor"] != doc["pipeline"]["realtime_factor"]
+    assert doc["realtime_factor_of"].startswith("stage: ")
+    assert doc["stage"]["configuration"] in doc["realtime_factor_of"]
+
+
+def test_without_the_stage_group_there_is_no_headline_and_it_says_why() -> None:
+    doc = _bench("pipeline", "--json")
+    assert "realtime_factor" not in doc
+    assert "stage group was not run" in doc["realtime_factor_of"]
+    assert doc["pipeline"]["realtime_factor"] > 0
+
+
+def test_an_unknown_group_is_named_with_the_known_ones() -> None:
+    r = subprocess.run(
+        [sys.executable, "-m", "server.cli.main", "bench", "no-such-group", "--quick"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert r.returncode == 2
+    assert "no-such-group" in r.stderr and "residual-two-inertia" in r.stderr
+    assert "Traceback" not in r.stderr

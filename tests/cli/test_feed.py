@@ -1,0 +1,147 @@
+"""``cutwatch feed`` through a real Mosquitto: what a subscriber receives is the log."""
+
+from __future__ import annotations
+
+import queue
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import paho.mqtt.client as mqtt
+import pytest
+from _broker import broker
+
+from server.cli.main import main
+from server.records.drive_wire import decode_drive, decode_meta
+from server.records.measured_log import load_log
+
+
+@pytest.fixture(scope="module")
+def log(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("feed") / "run.csv"
+    assert main(["simulate", "--out", str(out), "--seconds", "2"]) == 0
+    return out
+
+
+def subscriber(port: int, topics: list[str], auth: tuple[str, str] | None = None) -> tuple:
+    got: queue.Queue[tuple[str, bytes, bool]] = queue.Queue()
+    c = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2)
+    if auth:
+        c.username_pw_set(*auth)
+    c.on_message = lambda _c, _u, m: got.put((m.topic, m.payload, bool(m.retain)))
+    c.connect("127.0.0.1", port)
+    for t in topics:
+        c.subscribe(t, qos=1)
+    c.loop_start()
+    time.sleep(0.3)
+    return c, got
+
+
+def test_feed_carries_the_log_to_a_subscriber(log: Path) -> None:
+    with broker() as port:
+        c, got = subscriber(port, ["cutwatch/m1/#"])
+        try:
+            rc = main(
+                ["feed", str(log), "--broker", f"mqtt://127.0.0.1:{port}", "--machine", "m1",
+                 "--speed", "0", "--quiet"]
+            )  # fmt: skip
+            assert rc == 0
+            msgs = []
+            deadline = time.monotonic() + 10
+            while time.monotonic() < deadline:
+                try:
+                    msgs.append(got.get(timeout=1))
+                except queue.Empty:
+                    break
+        finally:
+            c.loop_stop()
+            c.disconnect()
+    meta = [decode_meta(p) for t, p, _ in msgs if t == "cutwatch/m1/meta"]
+    blocks = [decode_drive(p) for t, p, _ in msgs if t == "cutwatch/m1/drive"]
+    ref = load_log(log)
+    assert meta and meta[0]["kind"] == "two_inertia" and meta[0]["nominal"] == ref.nominal
+    assert [b.seq for b in blocks] == list(range(len(blocks)))
+    n = sum(b.n for b in blocks)
+    assert n == ref.n
+    for k in ("q_m", "q_l"):
+        np.testing.assert_array_equal(np.concatenate([b.columns[k] for b in blocks]), ref[k])
+    tau = np.concatenate([b.columns["tau_m"] for b in blocks])
+    np.testing.assert_array_equal(tau, ref["tau_m"].astype(np.float32))
+    t = np.concatenate([b.t for b in blocks])
+    np.testing.assert_allclose(t, ref["t"] - ref["t"][0], atol=1e-9)
+
+
+def test_feed_paces_at_real_time(log: Path) -> None:
+    with broker() as port:
+        t0 = time.monotonic()
+        rc = main(
+            ["feed", str(log), "--broker", f"mqtt://127.0.0.1:{port}", "--machine", "m1",
+             "--speed", "4", "--quiet"]
+        )  # fmt: skip
+        took = time.monotonic() - t0
+    assert rc == 0
+    assert took >= 2 / 4 * 0.95  # a 2 s log at 4x cannot finish sooner than 0.5 s
+
+
+def test_meta_is_retained_for_a_late_subscriber(log: Path) -> None:
+    with broker() as port:
+        argv = ["feed", str(log), "--broker", f"mqtt://127.0.0.1:{port}", "--machine", "m2"]
+        assert main([*argv, "--speed", "0", "--quiet"]) == 0
+        c, got = subscriber(port, ["cutwatch/m2/meta"])
+        try:
+            topic, payload, retained = got.get(timeout=5)
+        finally:
+            c.loop_stop()
+            c.disconnect()
+    assert topic == "cutwatch/m2/meta" and retained and decode_meta(payload)["sample_time"] > 0
+
+
+def test_wrong_password_and_no_broker_are_clear_errors(
+    log: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    with broker(users={"edge": "right"}) as port:
+        monkeypatch.setenv("CUTWATCH_MQTT_PASSWORD", "wrong")
+        rc = main(
+            ["feed", str(log), "--broker", f"mqtt://127.0.0.1:{port}", "--machine", "m1",
+             "--username", "edge", "--quiet"]
+        )  # fmt: skip
+        assert rc == 2
+        err = capsys.readouterr().err
+        assert "connection refused" in err and "edge@127.0.0.1" in err and "wrong" not in err
+        monkeypatch.setenv("CUTWATCH_MQTT_PASSWORD", "right")
+        rc = main(
+            ["feed", str(log), "--broker", f"mqtt://127.0.0.1:{port}", "--machine", "m1",
+             "--username", "edge", "--speed", "0", "--quiet"]
+        )  # fmt: skip
+        assert rc == 0
+    port = port  # the broker is stopped now: nothing listens
+    rc = main(["feed", str(log), "--broker", f"mqtt://127.0.0.1:{port}", "--machine", "m1"])
+    assert rc == 2
+    assert "cannot connect" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("argv", "match"),
+    [
+        (["--broker", "http://x", "--machine", "m"], "expected mqtt://host"),
+        (["--broker", "mqtt://127.0.0.1:1", "--machine", "a/b"], "machine name 'a/b'"),
+        (["--broker", "mqtt://127.0.0.1:1", "--machine", "m", "--speed", "-1"], "--speed"),
+    ],
+)
+def test_bad_options_name_the_field(
+    log: Path, argv: list[str], match: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert main(["feed", str(log), *argv]) == 2
+    assert match in capsys.readouterr().err
+
+
+def test_help_explains() -> None:
+    out = subprocess.run(
+        [sys.executable, "-m", "server.cli.main", "feed", "--help"],
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout
+    assert "cutwatch/<machine>/drive" in out and "--speed" in out

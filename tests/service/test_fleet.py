@@ -1,0 +1,152 @@
+"""The fleet page through a real broker: rows appear, go stale, recover; the page shows them."""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import threading
+import time
+from collections.abc import Iterator
+
+import httpx
+import paho.mqtt.client as mqtt
+import pytest
+import uvicorn
+from _broker import broker, free_port
+from websockets.sync.client import connect
+
+from server.pipeline.broker import parse_broker_url
+from server.records.drive_wire import encode_estimates
+from server.service.fleet import create_fleet_app
+
+
+@contextlib.contextmanager
+def fleet(broker_port: int, stale_after: float = 1.0) -> Iterator[str]:
+    app = create_fleet_app(parse_broker_url(f"mqtt://127.0.0.1:{broker_port}"), stale_after)
+    port = free_port()
+    server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="error"))
+    th = threading.Thread(target=server.run, daemon=True)
+    th.start()
+    deadline = time.monotonic() + 10
+    while not server.started and time.monotonic() < deadline:
+        time.sleep(0.05)
+    try:
+        yield f"127.0.0.1:{port}"
+    finally:
+        server.should_exit = True
+        th.join(10)
+
+
+def publisher(port: int) -> mqtt.Client:
+    c = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2)
+    c.connect("127.0.0.1", port)
+    c.loop_start()
+    return c
+
+
+def estimate(machine: str, **extra: object) -> bytes:
+    body = {
+        "wall": time.time(),
+        "force": {"level": 12.5},
+        "wear": {"VB_mm": 0.12, "remaining_life_min": 8.5},
+        "alarms": [],
+        "dashboard": f"http://127.0.0.1:9/{machine}",
+        **extra,
+    }
+    return encode_estimates(machine, body)
+
+
+def wait_rows(hp: str, pred, timeout: float = 10.0) -> list[dict]:  # type: ignore[no-untyped-def]
+    deadline = time.monotonic() + timeout
+    rows: list[dict] = []
+    while time.monotonic() < deadline:
+        rows = httpx.get(f"http://{hp}/api/fleet").json()
+        if pred(rows):
+            return rows
+        time.sleep(0.1)
+    raise AssertionError(f"rows never matched: {rows}")
+
+
+def test_rows_appear_go_stale_and_recover() -> None:
+    with broker() as bp, fleet(bp, stale_after=1.0) as hp:
+        time.sleep(0.5)
+        pub = publisher(bp)
+        try:
+            for m in ("mill-1", "mill-2"):
+                pub.publish(f"cutwatch/{m}/estimates", estimate(m))
+            pub.publish("cutwatch/mill-3/estimates", estimate("mill-3", alarms=["tool worn"]))
+            pub.publish("cutwatch/bad/estimates", b"not json")
+            rows = wait_rows(hp, lambda r: len(r) == 3)
+            by = {r["machine"]: r for r in rows}
+            assert by["mill-1"]["status"] == "ok" and by["mill-1"]["force"] == 12.5
+            assert by["mill-1"]["wear_vb_mm"] == 0.12 and by["mill-1"]["remaining_life_min"] == 8.5
+            assert by["mill-3"]["status"] == "alarm" and by["mill-3"]["alarms"] == ["tool worn"]
+            # mill-2 goes silent; mill-1 keeps publishing
+            deadline = time.monotonic() + 1.8
+            while time.monotonic() < deadline:
+                pub.publish("cutwatch/mill-1/estimates", estimate("mill-1"))
+                time.sleep(0.2)
+            by = {r["machine"]: r for r in wait_rows(hp, lambda r: len(r) == 3)}
+            assert by["mill-2"]["status"] == "stale" and by["mill-1"]["status"] == "ok"
+            pub.publish("cutwatch/mill-2/estimates", estimate("mill-2"))
+            wait_rows(hp, lambda r: {x["machine"]: x for x in r}["mill-2"]["status"] == "ok")
+            metrics = httpx.get(f"http://{hp}/metrics").text
+            assert "cutwatch_fleet_malformed_total 1" in metrics
+        finally:
+            pub.loop_stop()
+            pub.disconnect()
+
+
+def test_the_page_is_pushed_each_estimate() -> None:
+    with broker() as bp, fleet(bp) as hp:
+        time.sleep(0.5)
+        pub = publisher(bp)
+        try:
+            with connect(f"ws://{hp}/ws") as ws:
+                first = json.loads(ws.recv(timeout=5))
+                assert first["rows"] == []
+                t0 = time.time()
+                pub.publish("cutwatch/m9/estimates", estimate("m9", drive_wall=t0))
+                while True:
+                    msg = json.loads(ws.recv(timeout=5))
+                    if msg.get("machine") == "m9":
+                        break
+                assert time.time() - t0 < 1.0  # pushed, not polled
+        finally:
+            pub.loop_stop()
+            pub.disconnect()
+
+
+@pytest.mark.browser
+def test_the_fleet_page_in_a_browser(tmp_path_factory: pytest.TempPathFactory) -> None:
+    from pathlib import Path
+
+    from playwright.sync_api import sync_playwright
+
+    if not Path("/usr/bin/chromium").exists():
+        pytest.skip("chromium not installed")
+    with broker() as bp, fleet(bp, stale_after=1.0) as hp:
+        time.sleep(0.5)
+        pub = publisher(bp)
+        try:
+            with sync_playwright() as p:
+                b = p.chromium.launch(
+                    executable_path="/usr/bin/chromium",
+                    args=["--headless", "--no-sandbox", "--disable-gpu",
+                          "--disable-background-networking", "--disable-component-update"],
+                )  # fmt: skip
+                page = b.new_page()
+                page.goto(f"http://{hp}/")
+                page.wait_for_selector("#conn.up")
+                for m in ("a-1", "b-2"):
+                    pub.publish(f"cutwatch/{m}/estimates", estimate(m))
+                page.wait_for_selector("tr[data-machine='b-2']")
+                assert page.locator("tr[data-machine='a-1'] .status").inner_text() == "ok"
+                page.wait_for_selector("tr[data-machine='a-1'].stale", timeout=5000)
+                out = Path("out")
+                out.mkdir(exist_ok=True)
+                page.screenshot(path=str(out / "fleet.png"), full_page=True)
+                b.close()
+        finally:
+            pub.loop_stop()
+            pub.disconnect()
