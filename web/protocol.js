@@ -6,6 +6,14 @@ export const VERSION = 1;
 // channel groups on the fast grid t; every other group is on ts (see server/protocol.py)
 export const FAST_GROUPS = ["force"];
 
+// identified parameter -> its channels: estimate, 95 % bounds, excited flag (1/0; 0: show
+// the parameter greyed, "not excited", not as a number)
+export const INTERVALS = Object.fromEntries(
+  ["J_L", "B_L", "F_CL"].map((q) => [
+    q, { estimate: `${q}_seg`, lower: `${q}_lo`, upper: `${q}_hi`, excited: `${q}_excited` },
+  ]),
+);
+
 export const SCHEMA = {
   version: VERSION,
   hello: ["type", "version", "channels", "sample_time", "scenario", "knobs"],
@@ -16,6 +24,7 @@ export const SCHEMA = {
            "clients", "dropped_total", "stalls"],
   // rolling rms of each force estimate (server/protocol.py): mode "truth" or "agreement"
   accuracy: ["mode", "windows", "span", "rms", "rms_q", "floor", "mean_of"],
+  intervals: INTERVALS,
 };
 
 function missing(obj, fields) {

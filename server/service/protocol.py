@@ -25,6 +25,10 @@ target; empty without truth), ``floor`` (rms of Q(s)F - F; nulls without truth),
 value to 4 significant digits, null where unknown (see
 :mod:`server.pipeline.accuracy`).
 
+Identified parameters with intervals (issue 13): for each name in ``SCHEMA["intervals"]``
+the stream carries the estimate, the 95 % interval's bounds and an excited flag (1: the
+data determine it; 0: show it greyed, "not excited", not as a number), on the slow grid.
+
 JSON was measured against a binary (float32) encoding: see
 docs/live-service.md ("Stream protocol").
 ``tests/service/test_protocol.py`` keeps :data:`SCHEMA` equal to the JS module's ``SCHEMA``.
@@ -48,6 +52,12 @@ def grid_of(group: str) -> str:
     return "t" if group in FAST_GROUPS else "ts"
 
 
+#: identified parameter -> its channels: estimate, 95 % bounds, excited flag (0/1)
+INTERVALS: dict[str, dict[str, str]] = {
+    q: {"estimate": f"{q}_seg", "lower": f"{q}_lo", "upper": f"{q}_hi", "excited": f"{q}_excited"}
+    for q in ("J_L", "B_L", "F_CL")
+}
+
 SCHEMA: dict[str, Any] = {
     "version": VERSION,
     "hello": ["type", "version", "channels", "sample_time", "scenario", "knobs"],
@@ -66,6 +76,7 @@ SCHEMA: dict[str, Any] = {
         "stalls",
     ],
     "accuracy": ["mode", "windows", "span", "rms", "rms_q", "floor", "mean_of"],
+    "intervals": INTERVALS,
 }
 
 

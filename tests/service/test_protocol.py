@@ -159,3 +159,15 @@ def test_samples_rounds_to_significant_digits_relative_to_the_largest() -> None:
     assert protocol.samples([float("inf"), 1.0], 3) == [None, 1.0]
     assert protocol.samples([float("nan")] * 2, 3) == [None, None]
     assert protocol.samples([], 3) == []
+
+
+def test_interval_channels_are_streamed_by_the_live_pipeline() -> None:
+    from server.pipeline.live_pipeline import LivePipeline
+
+    chans = {c.name: c for c in LivePipeline().channels()}
+    for q, names in protocol.INTERVALS.items():
+        assert set(names) == {"estimate", "lower", "upper", "excited"}
+        for name in names.values():
+            assert name in chans, name
+            assert chans[name].group == q  # plotted on the parameter's own chart
+            assert protocol.grid_of(chans[name].group) == "ts"
