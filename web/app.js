@@ -17,7 +17,8 @@ const COLORS = {
 const CHARTS = {
   force: { window: 0.5, series: [["f_true", "true", COLORS.true], ["f_fixed", "fixed", COLORS.fixed],
     ["f_adaptive", "adaptive", COLORS.adaptive], ["f_switching", "switching", COLORS.switching],
-    ["f_dfo", "adaptive + DFO", COLORS.dfo], ["f_effects", "fixed + identified effects", "#56b4e9"]] },
+    ["f_segment", "segment identifier", "#7b3294"], ["f_dfo", "DFO", COLORS.dfo],
+    ["f_effects", "fixed + identified effects", "#56b4e9"]] },
   harmonics: { window: 30, series: [["h1_true", "1st true", COLORS.true],
     ["h1_amp", "1st DFO", COLORS.adaptive], ["h2_true", "2nd true", "#888888"],
     ["h2_amp", "2nd DFO", COLORS.switching]] },

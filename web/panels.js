@@ -21,7 +21,7 @@ export function intervalSeries(q, names, first, intervals = SCHEMA.intervals || 
     series: [
       [iv.estimate, "identified, 95 % band", BAND, undefined, { mask: [ex, 1], width: 2 }],
       [iv.estimate, "not excited", GREY, undefined,
-        { mask: [ex, 0], dash: [6, 4], notExcited: true }],
+        { mask: [ex, 0], dash: [6, 4], width: 2, notExcited: true }],
       [iv.upper, "95 % upper", BAND, undefined, { mask: [ex, 1], width: 0.5 }],
       [iv.lower, "95 % lower", BAND, undefined, { mask: [ex, 1], width: 0.5 }],
     ],

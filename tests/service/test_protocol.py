@@ -171,3 +171,48 @@ def test_interval_channels_are_streamed_by_the_live_pipeline() -> None:
             assert name in chans, name
             assert chans[name].group == q  # plotted on the parameter's own chart
             assert protocol.grid_of(chans[name].group) == "ts"
+
+
+def test_panels_draw_bands_only_for_streamed_interval_channels() -> None:
+    # web/panels.js: a parameter's band series and band from SCHEMA.intervals, or none
+    # when the hello lacks one of its four channels
+    names = [n for iv in protocol.SCHEMA["intervals"].values() for n in iv.values()]
+    code = (
+        "import {intervalSeries, accuracyTable, accuracyTitle} from './panels.js';"
+        "import {readFileSync} from 'node:fs';"
+        "const names = new Set(JSON.parse(readFileSync(0, 'utf8')));"
+        "const all = intervalSeries('J_L', names, 4);"
+        "names.delete('B_L_lo');"
+        "console.log(JSON.stringify({series: all.series.map((s) => [s[0], s[1], s[4].mask]),"
+        " bands: all.bands, excited: all.excited, B_L: intervalSeries('B_L', names, 4)}));"
+    )
+    got = json.loads(run_js(code, json.dumps(names)))
+    assert got["series"] == [
+        ["J_L_seg", "identified, 95 % band", ["J_L_excited", 1]],
+        ["J_L_seg", "not excited", ["J_L_excited", 0]],
+        ["J_L_hi", "95 % upper", ["J_L_excited", 1]],
+        ["J_L_lo", "95 % lower", ["J_L_excited", 1]],
+    ]
+    assert got["bands"][0]["series"] == [6, 7]  # uPlot indices of upper and lower
+    assert got["excited"] == "J_L_excited" and got["B_L"] is None
+
+
+@pytest.mark.parametrize("has_truth", [True, False])
+def test_panels_accuracy_table(has_truth: bool) -> None:
+    acc = json.loads(frames(has_truth)[1])["accuracy"]
+    code = (
+        "import {accuracyTable, accuracyTitle} from './panels.js';"
+        "import {readFileSync} from 'node:fs';"
+        "const acc = JSON.parse(readFileSync(0, 'utf8'));"
+        "console.log(JSON.stringify({title: accuracyTitle(acc), ...accuracyTable(acc)}));"
+    )
+    got = json.loads(run_js(code, json.dumps(acc)))
+    keys = [r["key"] for r in got["rows"]]
+    if has_truth:
+        assert "against the truth" in got["title"]
+        assert keys == ["f_fixed", "f_dfo", "q_floor"] and len(got["head"]) == 5
+        assert got["rows"][0]["cells"][0] == "0.100"
+    else:
+        assert "agreement" in got["title"] and "truth," not in got["title"]
+        assert keys == ["f_fixed", "f_dfo"] and len(got["head"]) == 3
+    assert "(0.1 s so far)" in got["head"][1]  # 125 samples of 0.4 ms: 0.05 s
