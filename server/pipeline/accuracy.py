@@ -169,8 +169,9 @@ class RollingAccuracy:
         really covers (less than the window at the start)."""
         c = self._tot_c.T
         with np.errstate(invalid="ignore", divide="ignore"):
-            out = np.where(c > 0, np.sqrt(np.maximum(self._tot_s.T, 0.0) / c), math.nan)
-        return out, self._tot_n * self.sample_time
+            out: F64 = np.where(c > 0, np.sqrt(np.maximum(self._tot_s.T, 0.0) / c), math.nan)
+        span: F64 = self._tot_n.astype(np.float64) * self.sample_time
+        return out, span
 
     def summary(self) -> dict[str, object]:
         """The numbers the stream, ``/api/snapshot`` and ``/metrics`` show.
