@@ -173,7 +173,7 @@ class RollingAccuracy:
         span: F64 = self._tot_n.astype(np.float64) * self.sample_time
         return out, span
 
-    def summary(self) -> dict[str, object]:
+    def summary(self, digits: int | None = None) -> dict[str, object]:
         """The numbers the stream, ``/api/snapshot`` and ``/metrics`` show.
 
         ``{"mode": "truth" | "agreement", "windows": [s, ...], "span": [s, ...],
@@ -181,18 +181,34 @@ class RollingAccuracy:
         "mean_of": [names]}``: ``rms`` against the truth (mode ``truth``) or against the
         mean of the ``mean_of`` estimates (mode ``agreement``); ``rms_q`` against the
         Q(s)-filtered truth and ``floor`` (Q(s) F - F) only with the truth (else empty
-        and NaN).
+        and NaN). ``digits``: each value rounded to that many significant digits and
+        non-finite ones ``None`` (JSON-safe, for the stream).
         """
         r, span = self.rms()
         k = len(self.names)
-        rows = r.tolist()
+        rows: list[list[float | None]] = _rounded(r, digits) if digits else r.tolist()
         truth = self.has_truth
+        nothing: list[float | None] = [None if digits else math.nan] * len(self.windows)
         return {
             "mode": "truth" if truth else "agreement",
             "windows": list(self.windows),
-            "span": span.tolist(),
+            "span": _rounded(span[None, :], digits)[0] if digits else span.tolist(),
             "rms": dict(zip(self.names, rows[:k], strict=True)),
             "rms_q": dict(zip(self.names, rows[k : 2 * k], strict=True)) if truth else {},
-            "floor": rows[-1] if truth else [math.nan] * len(self.windows),
+            "floor": rows[-1] if truth else nothing,
             "mean_of": [] if truth else list(self.mean_of),
         }
+
+
+def _rounded(a: F64, digits: int) -> list[list[float | None]]:
+    """Each value of a 2-D array to ``digits`` significant digits; non-finite ``None``."""
+    fin = np.isfinite(a)
+    m = np.where(fin & (a != 0.0), np.abs(a), 1.0)
+    scale = 10.0 ** (digits - 1 - np.floor(np.log10(m)))
+    out = np.where(fin, np.rint(np.where(fin, a, 0.0) * scale) / scale, 0.0).tolist()
+    if fin.all():
+        return out
+    return [
+        [v if ok else None for v, ok in zip(row, oks, strict=True)]
+        for row, oks in zip(out, fin.tolist(), strict=True)
+    ]

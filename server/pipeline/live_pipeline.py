@@ -605,10 +605,11 @@ class LivePipeline:
             skip = () if self._fx is not None else ("f_effects",)
             self._accuracy.update(out, mean_of=[k for k in FORCE_ESTIMATES if k not in skip])
 
-    def accuracy(self) -> dict[str, object]:
+    def accuracy(self, digits: int | None = None) -> dict[str, object]:
         """Rolling rms of every force estimate over the last 1 s and 10 s
-        (:meth:`server.pipeline.accuracy.RollingAccuracy.summary`)."""
-        return self._accuracy.summary()
+        (:meth:`server.pipeline.accuracy.RollingAccuracy.summary`; ``digits``: rounded,
+        JSON-safe)."""
+        return self._accuracy.summary(digits)
 
     def _discontinuity(self) -> None:
         """The source's next block does not continue the last one (a gap, a restart):

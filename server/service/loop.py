@@ -400,7 +400,8 @@ class LiveLoop:
             return
         t, ts, ch = self._decimated()
         with self.lock:
-            accuracy = self.pipeline.accuracy()  # rolling rms of the force estimates
+            # rolling rms of the force estimates, rounded and JSON-safe
+            accuracy = self.pipeline.accuracy(digits=protocol.ACCURACY_DIGITS)
         body = protocol.data_body(
             self.seq, time.time(), t, ts, ch, self.health(), self.knob_values(), accuracy
         )

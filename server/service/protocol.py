@@ -45,6 +45,8 @@ VERSION = 1
 FAST_GROUPS = frozenset({"force"})
 #: the slow grid keeps one sample in SLOW_FACTOR of the fast one
 SLOW_FACTOR = 6
+#: significant digits of the ``accuracy`` numbers in a data frame
+ACCURACY_DIGITS = 4
 
 
 def grid_of(group: str) -> str:
@@ -121,7 +123,7 @@ def data_body(
     """Encode a data frame without its per-client ``dropped`` field (done once per frame).
 
     ``t``, ``ts`` and ``ch`` must already be JSON-safe lists (see :func:`samples`);
-    ``accuracy`` is the pipeline's summary (rounded here, :func:`accuracy_json`).
+    ``accuracy`` the pipeline's summary, JSON-safe (rounded to :data:`ACCURACY_DIGITS`).
 
     :func:`with_dropped` completes it per client.
     """
@@ -133,26 +135,9 @@ def data_body(
         "ch": ch,
         "health": _clean(health),
         "knobs": _clean(knobs),
-        "accuracy": accuracy_json(accuracy),
+        "accuracy": accuracy,
     }
     return json.dumps(body, allow_nan=False, separators=(",", ":"))
-
-
-def _sig(x: Any, digits: int) -> Any:
-    if isinstance(x, float):
-        return float(f"{x:.{digits}g}") if math.isfinite(x) else None
-    if isinstance(x, dict):
-        return {str(k): _sig(v, digits) for k, v in x.items()}
-    if isinstance(x, list | tuple):
-        return [_sig(v, digits) for v in x]
-    return x
-
-
-def accuracy_json(accuracy: dict[str, Any], digits: int = 4) -> dict[str, Any]:
-    """The pipeline's accuracy summary as sent: floats to ``digits`` significant digits,
-    non-finite ones ``None``."""
-    out: dict[str, Any] = _sig(_clean(accuracy), digits)
-    return out
 
 
 def samples(a: Any, digits: int | None = None) -> list[float | None]:

@@ -107,3 +107,17 @@ def test_live_pipeline_scores_every_force_estimate_against_the_truth() -> None:
         assert acc["rms_q"][k][0] < acc["rms"][k][0]  # type: ignore[index]
     assert acc["floor"][0] > 0  # type: ignore[index]
     assert p.snapshot()["accuracy"] == acc
+
+
+def test_rounded_summary_for_the_stream() -> None:
+    acc = RollingAccuracy(["a", "b"], DT, has_truth=True, windows=(0.01, 1.0))
+    f = np.linspace(-3.0, 3.0, 20)
+    acc.update({"a": f + 0.0123456, "b": np.full(20, math.nan)}, f, f * 0.5)
+    full, short = acc.summary(), acc.summary(digits=4)
+    assert short["rms"]["a"] == [float(f"{v:.4g}") for v in full["rms"]["a"]]  # type: ignore[index]
+    assert short["rms"]["a"][0] == 0.01235  # type: ignore[index]
+    assert short["rms"]["b"] == [None, None]  # type: ignore[index]
+    assert short["span"] == [0.02, 0.02] and short["floor"] == [  # type: ignore[index]
+        float(f"{v:.4g}")
+        for v in full["floor"]  # type: ignore[attr-defined]
+    ]

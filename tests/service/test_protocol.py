@@ -49,7 +49,7 @@ def accuracy(has_truth: bool) -> dict[str, object]:
     est = {"f_fixed": f + 0.1, "f_dfo": f.copy()}
     est["f_dfo"][3] = float("nan")
     acc.update(est, f, 0.9 * f) if has_truth else acc.update(est)
-    return acc.summary()
+    return acc.summary(digits=protocol.ACCURACY_DIGITS)
 
 
 def frames(has_truth: bool = True) -> list[str]:
