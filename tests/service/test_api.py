@@ -17,7 +17,7 @@ from server.errors import CutwatchError
 from server.service import protocol
 from server.service.app import create_app
 from server.service.errors import error
-from server.service.schemas import ErrorBody, LoopHealth
+from server.service.schemas import Accuracy, ErrorBody, LoopHealth
 from server.service.settings import Settings
 
 JSON = st.recursive(
@@ -455,6 +455,8 @@ def test_health_model_matches_the_stream_schema() -> None:
     # /api/health and /api/snapshot carry the loop's health through LoopHealth: a key
     # added to the stream's health (protocol.SCHEMA) must be added there too
     assert list(LoopHealth.model_fields) == protocol.SCHEMA["health"]
+    # and the force estimates' accuracy through Accuracy
+    assert list(Accuracy.model_fields) == protocol.SCHEMA["accuracy"]
 
 
 def test_error_entry_got_is_json() -> None:
