@@ -316,6 +316,10 @@ def _filter_regressors(zf, bq, aq, ts_hat, acc, vel, sgn, out_y, out_phi):  # pr
         out_phi[k, 3] = 1.0
 
 
+#: Q_RLS on the torsional torque and the three regressors of eq. (14) (public name)
+filter_regressors = _filter_regressors
+
+
 @njit(cache=True)
 def _ordinary_kernel(
     y, phi, thr, sc, P, r, th, bp, by, meta, lo, hi, p0, follow, o_theta, o_mode, o_exc

@@ -1,6 +1,7 @@
 // cutwatch dashboard: WebSocket stream -> uPlot charts; controls through the REST API.
 // The message schema lives in protocol.js (its twin is server/protocol.py).
 import { checkMessage } from "./protocol.js";
+import { accuracyTable, accuracyTitle, intervalSeries } from "./panels.js";
 
 const uPlot = window.uPlot;
 const $ = (id) => document.getElementById(id);
@@ -10,11 +11,14 @@ const COLORS = {
   dfo: "#009e73", mode: "#7b3294", excitation: "#009e73", lag: "#cc3311", rtf: "#0072b2",
 };
 
-// chart id -> {window [s of simulated time], series [[channel, label, color]]}
+// chart id -> {window [s of simulated time], series [[channel, label, color, scale, opts]]};
+// opts.mask = [channel, value]: the series shows only where that channel equals value;
+// opts.dash, opts.width, opts.notExcited: drawing (see makeChart)
 const CHARTS = {
   force: { window: 0.5, series: [["f_true", "true", COLORS.true], ["f_fixed", "fixed", COLORS.fixed],
     ["f_adaptive", "adaptive", COLORS.adaptive], ["f_switching", "switching", COLORS.switching],
-    ["f_dfo", "adaptive + DFO", COLORS.dfo], ["f_effects", "fixed + identified effects", "#56b4e9"]] },
+    ["f_segment", "segment identifier", "#7b3294"], ["f_dfo", "DFO", COLORS.dfo],
+    ["f_effects", "fixed + identified effects", "#56b4e9"]] },
   harmonics: { window: 30, series: [["h1_true", "1st true", COLORS.true],
     ["h1_amp", "1st DFO", COLORS.adaptive], ["h2_true", "2nd true", "#888888"],
     ["h2_amp", "2nd DFO", COLORS.switching]] },
@@ -39,10 +43,13 @@ const CHARTS = {
     ["excitation", "excitation", COLORS.excitation]] },
 };
 const HEALTH_WINDOW = 60; // wall seconds
+const ACCURACY_WINDOW = 60; // s of simulated time in the accuracy history chart
+const BASE_SERIES = Object.fromEntries(Object.entries(CHARTS).map(([id, c]) => [id, c.series]));
 
 const state = {
   ws: null, retry: 0, charts: {}, data: {}, zoomed: {}, channels: [], frames: 0,
   dropped: 0, dirty: false, grid: {}, health: { x: [], lag: [], rtf: [] }, healthChart: null,
+  labels: {}, excited: {}, acc: { chart: null, key: "", data: [[]] },
 };
 
 // ---------------------------------------------------------------- charts
@@ -67,8 +74,13 @@ function makeChart(id, spec) {
         side: 1, size: 50, values: (u, vals) => vals.map(fmt) }] : [])],
     legend: { live: true },
     cursor: { drag: { x: true, y: false } },
-    series: [{ label: "t" }, ...spec.series.map(([, label, color, scale]) => (
-      { label, stroke: color, width: 1.4, points: { show: false }, ...(scale ? { scale } : {}) }))],
+    series: [{ label: "t" }, ...spec.series.map(([, label, color, scale, o = {}]) => ({
+      label, stroke: color, width: o.width ?? 1.4, points: { show: false },
+      ...(scale ? { scale } : {}), ...(o.dash ? { dash: o.dash } : {}),
+      // a parameter the data do not determine is not shown as a number
+      ...(o.notExcited ? { value: (u, v) => (v == null ? "–" : "not excited") } : {}),
+    }))],
+    bands: spec.bands || [],
     hooks: {
       setSelect: [(u) => { if (u.select.width > 0) state.zoomed[id] = true; }],
     },
@@ -108,9 +120,12 @@ function append(frame) {
       for (const arr of d) arr.length = 0;
     }
     d[0].push(...t);
-    spec.series.forEach(([ch], i) => {
+    spec.series.forEach(([ch, , , , o], i) => {
       const v = frame.ch[ch];
-      d[i + 1].push(...(v || t.map(() => null)));
+      const m = o && o.mask && frame.ch[o.mask[0]];
+      if (!v) d[i + 1].push(...t.map(() => null));
+      else if (m) d[i + 1].push(...v.map((x, j) => (m[j] === o.mask[1] ? x : null)));
+      else d[i + 1].push(...v);
     });
     const tmin = t[t.length - 1] - spec.window;
     let cut = 0;
@@ -125,6 +140,7 @@ function redraw() {
   }
   const h = state.health;
   state.healthChart.setData([h.x, h.lag, h.rtf]);
+  if (state.acc.chart) state.acc.chart.setData(state.acc.data);
 }
 
 function resize() {
@@ -132,6 +148,96 @@ function resize() {
     chart.setSize({ width: width($(`chart-${id}`)), height: chart.height });
   }
   state.healthChart.setSize({ width: width($("chart-health")), height: state.healthChart.height });
+  const ac = state.acc.chart;
+  if (ac) ac.setSize({ width: width($("chart-accuracy")), height: ac.height });
+}
+
+// ---------------------------------------------------------------- interval bands
+// On hello: each identified parameter whose interval channels the stream carries gets
+// its band, greyed not-excited estimate and flag (panels.intervalSeries); a chart whose
+// series change is built again.
+function applyIntervals(channels) {
+  const names = new Set(channels.map((c) => c.name));
+  state.excited = {};
+  for (const q of Object.keys(BASE_SERIES)) {
+    const base = BASE_SERIES[q];
+    const iv = intervalSeries(q, names, 1 + base.length);
+    const series = iv ? [...base, ...iv.series] : base;
+    const spec = CHARTS[q];
+    const same = spec.series.length === series.length &&
+      spec.series.every((s, i) => s[0] === series[i][0] && s[1] === series[i][1]);
+    if (iv) state.excited[q] = iv.excited;
+    const flag = document.getElementById(`flag-${q}`);
+    if (flag && !iv) { flag.hidden = true; delete flag.dataset.excited; }
+    if (same) continue;
+    spec.series = series;
+    spec.bands = iv ? iv.bands : [];
+    state.charts[q].destroy();
+    $(`chart-${q}`).replaceChildren();
+    makeChart(q, spec);
+  }
+}
+
+// The latest excited flag of each parameter: "not excited" shown while it is 0.
+function showExcited(frame) {
+  for (const [q, ex] of Object.entries(state.excited)) {
+    const v = frame.ch[ex];
+    const flag = document.getElementById(`flag-${q}`);
+    if (!v || !v.length || !flag) continue;
+    const last = v[v.length - 1];
+    flag.hidden = last !== 0;
+    flag.dataset.excited = String(last);
+  }
+}
+
+// ---------------------------------------------------------------- accuracy panel
+const PALETTE = ["#e69f00", "#0072b2", "#cc3311", "#009e73", "#56b4e9", "#7b3294", "#888888"];
+
+function accuracyChart(acc) {
+  const force = Object.fromEntries(BASE_SERIES.force.map(([ch, label, color]) => [ch, [label, color]]));
+  const names = Object.keys(acc.rms);
+  const el = $("chart-accuracy");
+  if (state.acc.chart) state.acc.chart.destroy();
+  el.replaceChildren();
+  const truth = acc.mode === "truth";
+  const floor = truth ? [{ label: "Q(s)·truth", stroke: "#888888", dash: [5, 4], width: 1.2,
+    points: { show: false } }] : [];
+  state.acc.chart = new uPlot({
+    width: width(el), height: 190, scales: { x: { time: false } },
+    axes: [{ label: "t [s]" }, { label: `rms ${acc.windows[0]} s [N m]`, size: 60,
+      values: (u, vals) => vals.map(fmt) }],
+    legend: { live: true },
+    series: [{ label: "t" }, ...names.map((k, i) => ({
+      label: (force[k] || [state.labels[k] || k])[0],
+      stroke: (force[k] || [null, PALETTE[i % PALETTE.length]])[1],
+      width: 1.4, points: { show: false } })), ...floor],
+  }, [[], ...names.map(() => []), ...floor.map(() => [])], el);
+  state.acc.data = [[], ...names.map(() => []), ...floor.map(() => [])];
+}
+
+function showAccuracy(acc, simT) {
+  const key = `${acc.mode}|${Object.keys(acc.rms).join(",")}`;
+  if (key !== state.acc.key) { state.acc.key = key; accuracyChart(acc); }
+  const title = $("accuracy-title");
+  title.textContent = accuracyTitle(acc);
+  title.dataset.mode = acc.mode;
+  const { head, rows } = accuracyTable(acc, state.labels);
+  const th = head.map((h) => `<th>${h}</th>`).join("");
+  const tr = rows.map((r) => `<tr data-key="${r.key}"><td>${r.label}</td>` +
+    r.cells.map((c, i) => `<td data-col="${i}">${c}</td>`).join("") + "</tr>").join("");
+  $("accuracy").innerHTML = `<thead><tr>${th}</tr></thead><tbody>${tr}</tbody>`;
+  // history of the shortest window's rms, on simulated time
+  const d = state.acc.data;
+  const x = d[0];
+  if (x.length && simT < x[x.length - 1]) for (const a of d) a.length = 0;  // a reset
+  if (x.length && simT === x[x.length - 1]) return;  // paused: the same numbers again
+  x.push(simT);
+  const vals = Object.values(acc.rms).map((v) => v[0]);
+  if (acc.mode === "truth") vals.push(acc.floor[0]);
+  vals.forEach((v, i) => d[i + 1].push(v));
+  let cut = 0;
+  while (cut < x.length && x[cut] < simT - ACCURACY_WINDOW) cut++;
+  if (cut) for (const a of d) a.splice(0, cut);
 }
 
 // ---------------------------------------------------------------- health
@@ -262,6 +368,8 @@ function connect() {
     if (msg.type === "hello") {
       state.channels = msg.channels;
       state.grid = Object.fromEntries(msg.channels.map((c) => [c.name, c.grid]));
+      state.labels = Object.fromEntries(msg.channels.map((c) => [c.name, c.label]));
+      applyIntervals(msg.channels);
       clearData();
       conn.textContent = `live · ${msg.scenario}`;
       conn.className = "conn up";
@@ -275,6 +383,8 @@ function connect() {
     append(msg);
     state.dirty = true;
     showHealth(msg.health);
+    showExcited(msg);
+    showAccuracy(msg.accuracy, msg.health.sim_t);
     syncKnobs(msg.knobs);
     document.body.dataset.frames = String(state.frames);
   };

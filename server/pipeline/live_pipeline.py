@@ -11,7 +11,9 @@ The public surface is the contract the live service builds on:
 - ``.knobs() -> dict[str, Knob]``: live-tweakable parameters with their ranges
 - ``.set_knob(name, value)``: validated; raises ``ParameterError`` naming the field, the
   allowed range and the value; nothing changes on error
-- ``.reset()``; ``.snapshot() -> dict`` (latest values, truths, knob values)
+- ``.reset()``; ``.snapshot() -> dict`` (latest values, truths, knob values, accuracy)
+- ``.accuracy() -> dict``: rolling rms of each force estimate over 1 s and 10 s
+  (:mod:`server.pipeline.accuracy`)
 - ``SCENARIOS``: name -> one-line description
 
 Behind it is :class:`server.pipeline.stage_run.StageRun`: a measurement source
@@ -28,6 +30,15 @@ workpiece (an inertia of the size of seed 000's added weight) loses mass at
 ``removal_rate`` % per second until a fresh blank is clamped; every 15 s the spindle
 speed steps between the knob's value and 80 % of it (force gain and frequencies, as in
 seed 001 Fig. 9).
+
+Identification you can trust (issue 13, ``docs/live-identification.md``): the gated
+segment identifier (:mod:`estimators.segment_id`) streams J_L, B_L, F_CL with 95 %
+interval bounds and an excited flag (channels ``<p>_seg``, ``<p>_lo``, ``<p>_hi``,
+``<p>_excited``). The pipeline tells it what the CNC knows: a spindle step and a tool
+change change the cutting force's DC (the reversal segment around them is discarded), a
+fresh workpiece changes J_L (it restarts). The wear grows the force smoothly (no steps
+at pass boundaries, which fall on the reversals), and a fresh blank is clamped just before
+a reversal (the table at its stroke end), not in the middle of a stroke.
 """
 
 from __future__ import annotations
@@ -45,6 +56,7 @@ from estimators.rls import IdentifierParams
 from machine.effects import EFFECT_NAMES, PlantEffects
 from machine.params import ADDED_WEIGHT_INERTIA, preset
 from machine.stage import SEED000_FORCE, SEED001_FORCE, CuttingForce, StageConfig
+from server.pipeline.accuracy import RollingAccuracy
 from server.pipeline.eccentricity_part import (
     ECC_BASE_RPM,
     ECC_CHANNELS,
@@ -94,13 +106,16 @@ PASS_S = 1.0  # default scenario: one tool-wear pass per second of simulated tim
 #: it every later VB by ~+0.03 mm); later tools start at once (observers settled)
 WEAR_WARMUP_S = 5.0
 VB_LIMIT = 0.3  # flank wear at which the tool is changed [mm] (seed 004's limit)
-WEAR_GAIN_STEP = 0.01  # the wear's force gain on the stage, in steps of 1 %
+#: a fresh blank is clamped this long before a reversal's centre (the table near its
+#: stroke end; the reversal right after it identifies the new J_L)
+CLAMP_BEFORE_REVERSAL = 0.3
 
 CHANNELS: list[Channel] = [
     Channel("f_true", "N m", "force", "true cutting torque"),
     Channel("f_fixed", "N m", "force", "fixed-parameter observer"),
     Channel("f_adaptive", "N m", "force", "adaptive observer (RLS)"),
     Channel("f_switching", "N m", "force", "switching-RLS observer"),
+    Channel("f_segment", "N m", "force", "observer on the gated segment identifier"),
     Channel("J_L_true", "kg m^2", "J_L", "true J_L"),
     Channel("J_L_adaptive", "kg m^2", "J_L", "J_L identified (RLS)"),
     Channel("J_L_switching", "kg m^2", "J_L", "J_L identified (switching RLS)"),
@@ -111,7 +126,7 @@ CHANNELS: list[Channel] = [
     Channel("F_CL_adaptive", "N m", "F_CL", "F_CL identified (RLS)"),
     Channel("F_CL_switching", "N m", "F_CL", "F_CL identified (switching RLS)"),
     Channel("f_effects", "N m", "force", "fixed observer with the identified effects"),
-    Channel("f_dfo", "N m", "force", "harmonic observer (DFO) on the adaptive observer"),
+    Channel("f_dfo", "N m", "force", "harmonic observer (DFO) on the segment observer"),
     Channel("h1_amp", "N m", "harmonics", "1st tooth-passing harmonic, DFO amplitude"),
     Channel("h2_amp", "N m", "harmonics", "2nd tooth-passing harmonic, DFO amplitude"),
     Channel("h1_true", "N m", "harmonics", "1st harmonic, true amplitude"),
@@ -120,6 +135,16 @@ CHANNELS: list[Channel] = [
     Channel("vb_est", "mm", "wear", "flank wear, estimated from the adaptive observer"),
     Channel("vb_limit", "mm", "wear", "flank-wear limit (tool change)"),
     Channel("life_left", "min", "wear", "remaining tool life (wear clock)"),
+    *(
+        Channel(f"{q}_{suffix}", unit, q, f"{q} {what}")
+        for q, unit in (("J_L", "kg m^2"), ("B_L", "N m s/rad"), ("F_CL", "N m"))
+        for suffix, what in (
+            ("seg", "identified (gated segments)"),
+            ("lo", "95 % interval, lower bound"),
+            ("hi", "95 % interval, upper bound"),
+            ("excited", "excited (1) or not determined by the data (0)"),
+        )
+    ),
     Channel("mode_switching", "", "rls", "switching-RLS regressor mode"),
     Channel("excitation", "", "rls", "excitation index of the block"),
     Channel("omega_l", "rad/s", "motion", "load velocity (true)"),
@@ -128,6 +153,8 @@ CHANNELS: list[Channel] = [
     Channel("x_l", "m", "motion", "table position (load encoder x 10 mm lead)"),
 ] + [Channel(k, u, "eccentricity", lab) for k, (u, lab) in ECC_CHANNELS.items()]
 SCREW_LEAD = 0.01  # m per revolution, for the displayed table position (papers give none)
+#: the force estimates scored by the accuracy panel: every force channel but the truth
+FORCE_ESTIMATES = tuple(c.name for c in CHANNELS if c.group == "force" and c.name != "f_true")
 
 
 def _knobs() -> dict[str, Knob]:
@@ -279,11 +306,18 @@ class LivePipeline:
         self.run = StageRun(source=self.source, ident=self._ident, observer_design=self._design)
         self.sample_time = float(self.source.sample_time)
         self._removed = 0.0  # fraction of the current workpiece removed
+        self._clamp_pending = False  # the blank is used up; a fresh one at the next reversal
+        self._pending_since = 0.0
+        self._weight = math.nan  # seed 000's weight on the load (none applied yet)
+        self._prev_factor = self._spindle_factor(0.0)
         self._last: dict[str, float] = {}
         self._applied: tuple[object, ...] = ()
         self._reset_observers()
         self._new_tool()
         self._install_effects()
+        self._accuracy = RollingAccuracy(
+            FORCE_ESTIMATES, self.sample_time, has_truth=self.source.has_truth
+        )
         # seed 003's milling machine with eccentricity and its tuner (default scenario)
         k = self._knobs
         self._ecc: LiveEccentricity | None = None
@@ -302,9 +336,14 @@ class LivePipeline:
         """The harmonic observer from its initial state at the scenario's nominal
         frequencies (retuned by the next :meth:`_apply`)."""
         # seed 002's harmonic observer (DFO) through Q(s) (server.pipeline.stage_harmonics), on the
-        # adaptive observer's output: on the fixed one the workpiece's unmodelled inertia
-        # biases the harmonics (measured: 2.8 N m for a true 4.0; adaptive: 4.06-4.17);
-        # retuned, state kept, when the spindle speed changes
+        # observer with the gated segment identifier's parameters: on the fixed one the
+        # workpiece's unmodelled inertia biases the harmonics (measured: 2.8 N m for a
+        # true 4.0); on the adaptive (RLS) one its J_L moves at every spindle step and the
+        # 100 Hz acceleration times that error reads as a harmonic (measured, 100 s of the
+        # default scenario: amplitude error median 9 % / p90 46 %, and after 5 of 6
+        # spindle steps not within 5 % in 2 s; on the segment parameters: 0.8 % / 3 %,
+        # within 5 % 40-65 ms after every step); retuned, state kept, when the spindle
+        # speed changes
         self._dfo = make_dfo(self.run.front.params, tuple(self._force0.frequencies))
         self._dfo_state = dfo_mod.initial_state(self._dfo)
 
@@ -319,6 +358,10 @@ class LivePipeline:
             wear_minutes_per_second=float(self._knobs["wear_rate"].value)
         )
         self._wear_gain = 1.0
+        # the wear's force gain ramps over each pass (mean over the pass = the pass's
+        # force): (gain at the pass start, slope per second, pass start time)
+        self._gain_ramp = (1.0, 0.0, 0.0)
+        self._first_pass = True
         # force of the sharp tool (eq. (8) at zero wear): the stage's force is scaled by
         # the wear model's force over this one
         self._f_sharp = self._wear.model.force(np.zeros(3), self._wear.feed)
@@ -330,6 +373,9 @@ class LivePipeline:
         self._vb_est = math.nan
         self._life_left = math.nan
         self.tools_changed = getattr(self, "tools_changed", -1) + 1
+        if self.tools_changed > 0:
+            # the CNC knows a tool change: the force's DC steps back to the sharp tool's
+            self.run.note_disturbance(self.t)
 
     def _install_effects(self) -> None:
         fp = self.run.front.params
@@ -386,10 +432,16 @@ class LivePipeline:
         k = self._knobs
         sf = self._spindle_factor(t)
         freq = float(k["spindle_rpm"].value) / BASE_RPM * sf
+        g0, slope, tp = self._gain_ramp
+        self._wear_gain = g0 + slope * max(t - tp, 0.0)
         gain = float(k["feed_scale"].value) * sf * self._wear_gain
         extra = ADDED_WEIGHT_INERTIA if k["weight_on"].value else 0.0
         if self.scenario == "seed000-weight" and t >= 10.0:
             extra = ADDED_WEIGHT_INERTIA
+        if extra != self._weight:  # the weight mounted or removed: a known J_L change
+            if not math.isnan(self._weight) and self.source.knobs_apply:
+                self.run.note_restart(J_L=True)
+            self._weight = extra
         if self.scenario == "default":
             # in steps of REMOVAL_STEP: each change of the plant costs a matrix
             # exponential (~1-7 ms here), too much to pay every 50 ms block
@@ -469,11 +521,19 @@ class LivePipeline:
         t0 = float(self.source.t)
         if self.scenario == "default":
             rate = float(self._knobs["removal_rate"].value) / 100.0
-            self._removed += rate * n * self.sample_time
-            if self._removed >= 1.0:  # a fresh blank is clamped
-                self._removed = 0.0
-        if self.scenario == "default":
+            if self._clamp_pending and self._clamp_now(t0):
+                self._removed = 0.0  # a fresh blank is clamped
+                self._clamp_pending = False
+                self.run.note_restart(J_L=True)
+            elif not self._clamp_pending:
+                self._removed = min(self._removed + rate * n * self.sample_time, 1.0)
+                self._clamp_pending = self._removed >= 1.0
+                self._pending_since = t0
             self._wear_begin(t0)
+        factor = self._spindle_factor(t0)
+        if factor != self._prev_factor:  # a spindle step: the force's DC changes
+            self.run.note_disturbance(t0)
+            self._prev_factor = factor
         self._apply(t0)
         block = self.source.step(n)
         n = block.n
@@ -482,7 +542,7 @@ class LivePipeline:
         if block.discontinuity is not None:
             self._discontinuity()
         b = self.run.process(block)
-        self._dfo_state, dr = dfo_mod.step(self._dfo, self._dfo_state, b.f_adaptive)
+        self._dfo_state, dr = dfo_mod.step(self._dfo, self._dfo_state, b.f_segment)
         f_effects = b.f_fixed
         if self._fx is not None:
             m = b.meas
@@ -497,6 +557,7 @@ class LivePipeline:
         else:
             true_amp = np.full(len(self._force0.amplitudes), math.nan)
         th_a, th_s = b.theta_adaptive, b.theta_switching
+        sg = b.segment
         spindle = float(self._knobs["spindle_rpm"].value) * self._spindle_factor(t0)
         out = {
             # b.t_est, except that the very first estimate refers to t = -dt, not 0 twice
@@ -505,6 +566,7 @@ class LivePipeline:
             "f_fixed": b.f_fixed,
             "f_adaptive": b.f_adaptive,
             "f_switching": b.f_switching,
+            "f_segment": b.f_segment,
             "J_L_true": b.truth.J_L,
             "J_L_adaptive": th_a[:, 0],
             "J_L_switching": th_s[:, 0],
@@ -524,6 +586,16 @@ class LivePipeline:
             "vb_est": np.full(n, self._vb_est),
             "vb_limit": np.full(n, VB_LIMIT),
             "life_left": np.full(n, self._life_left),
+            **{
+                f"{q}_{suffix}": arr[:, j]
+                for j, q in enumerate(("J_L", "B_L", "F_CL"))
+                for suffix, arr in (
+                    ("seg", sg.theta),
+                    ("lo", sg.lower),
+                    ("hi", sg.upper),
+                    ("excited", sg.excited.astype(np.float64)),
+                )
+            },
             "mode_switching": b.mode_switching.astype(np.float64),
             "excitation": np.full(n, float(b.excitation_index)),
             "omega_l": b.truth.omega_l,
@@ -540,8 +612,25 @@ class LivePipeline:
             for k in ("h1_true", "h2_true", "vb_true", "vb_est", "vb_limit", "life_left"):
                 out[k] = np.full(n, math.nan)
         out = {k: np.ascontiguousarray(v, dtype=np.float64) for k, v in out.items()}
+        self._score(out, b.f_true, b.f_ideal)
         self._last = {k: float(v[-1]) for k, v in out.items()}
         return out
+
+    def _score(self, out: dict[str, np.ndarray], f_true: np.ndarray, f_ideal: np.ndarray) -> None:
+        """The block into the rolling accuracy (:mod:`server.pipeline.accuracy`): against
+        the truth, or without one the estimates' agreement with their mean (f_effects
+        left out of it while no effect is installed: it is then f_fixed again)."""
+        if self.source.has_truth:
+            self._accuracy.update(out, f_true, f_ideal)
+        else:
+            skip = () if self._fx is not None else ("f_effects",)
+            self._accuracy.update(out, mean_of=[k for k in FORCE_ESTIMATES if k not in skip])
+
+    def accuracy(self, digits: int | None = None) -> dict[str, object]:
+        """Rolling rms of every force estimate over the last 1 s and 10 s
+        (:meth:`server.pipeline.accuracy.RollingAccuracy.summary`; ``digits``: rounded,
+        JSON-safe)."""
+        return self._accuracy.summary(digits)
 
     def _discontinuity(self) -> None:
         """The source's next block does not continue the last one (a gap, a restart):
@@ -563,9 +652,32 @@ class LivePipeline:
         w.rate = float(self._knobs["wear_rate"].value)
         _, f_true, x = w.cut_pass(PASS_S)
         self._pass_cut = (f_true, x)
-        # in 1 % steps: every change of the stage's force re-runs its matrix exponential
-        # (StageSim.reconfigure), 1-7 ms here; the wear moves the force ~0.5 %/s
-        self._wear_gain = round(f_true / self._f_sharp / WEAR_GAIN_STEP) * WEAR_GAIN_STEP
+        # A ramp over the pass whose mean is the pass's force, continuing the previous
+        # pass's slope: the wear grows the force smoothly. (It was held in 1 % steps at
+        # the pass starts, which fall on the reversals every 4 s: a DC step inside a
+        # reversal reads as Coulomb friction, docs/live-identification.md.) A force
+        # change costs no matrix exponential (StageSim re-discretises only on a plant
+        # change).
+        g = f_true / self._f_sharp
+        g_prev = self._gain_ramp[0] + 0.5 * self._gain_ramp[1] * PASS_S
+        if self._first_pass:
+            g_prev = g  # the first pass of a tool
+            self._first_pass = False
+        slope = (g - g_prev) / PASS_S
+        self._gain_ramp = (g - 0.5 * slope * PASS_S, slope, t0)
+
+    def _clamp_now(self, t0: float) -> bool:
+        """Clamp the pending fresh blank at this block (start ``t0``)? Just before a
+        reversal without a spindle step near it; if the blocks are too long to hit that
+        instant, once three half periods have passed."""
+        hp = self.run.sim.config.trajectory.half_period
+        rev = (math.floor(t0 / hp) + 1) * hp
+        if rev - t0 > CLAMP_BEFORE_REVERSAL:
+            return t0 - self._pending_since > 3 * hp
+        # not at a reversal whose segment a spindle step spoils (every 60 s here): J_L
+        # would stay unknown until the next one (the DFO then reads a wrong J_L's
+        # acceleration as harmonics, measured: amplitudes 33 % low for 4 s)
+        return self._spindle_factor(rev - 1.0) == self._spindle_factor(rev + 1.0)
 
     def _wear_pass(self, n: int, f_est: np.ndarray, t0: float) -> None:
         """Accumulate the block into the current pass; close the pass every PASS_S."""
@@ -625,6 +737,7 @@ class LivePipeline:
             "observer_effects": [
                 {"name": e.name, "shape": dict(e.shape), "coef": list(e.coef)} for e in self.effects
             ],
+            "accuracy": self.accuracy(),
         }
         status = self.source.status()
         if status:

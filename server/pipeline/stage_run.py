@@ -3,9 +3,11 @@
 One :class:`StageRun` takes blocks from a measurement source (by default the simulated
 stage; :mod:`server.pipeline.sources`) and runs, on their Measurements only, the
 fixed-parameter observer (seed 000 Fig. 4), the adaptive observer (seed 000 Fig. 3,
-ordinary RLS) and the switching-RLS observer (seed 001). The Truth is used only to build
-the scoring signals (true force, the ideal estimate Q(s) F_cut); a source without Truth
-gives its reference force ``f_ext`` instead (NaN when none).
+ordinary RLS) and the switching-RLS observer (seed 001), and beside them the gated segment
+identifier (:mod:`estimators.segment_id`: J_L, B_L, F_CL with 95 % intervals and
+excitation flags). The Truth is used only to build the scoring signals (true force, the
+ideal estimate Q(s) F_cut); a source without Truth gives its reference force ``f_ext``
+instead (NaN when none).
 """
 
 from __future__ import annotations
@@ -20,6 +22,13 @@ from common.arrays import F64
 from estimators.filters import lowpass
 from estimators.force_observer import LoadParams, ObserverParams, TorsionEstimator, cutting_force
 from estimators.rls import IdentifierParams, LoadIdentifier
+from estimators.segment_id import (
+    SegmentIdentifier,
+    SegmentIdentifierParams,
+    SegmentRecord,
+    mark_disturbance,
+    restart,
+)
 from machine.params import StageParams
 from machine.stage import Measurements, StageConfig, StageSim, Truth
 from server.errors import CutwatchError
@@ -38,6 +47,7 @@ class StageBlock:
     f_fixed: F64
     f_adaptive: F64
     f_switching: F64
+    f_segment: F64  # eq. (2) with the gated segment identifier's parameters
     theta_adaptive: F64  # (n, 4) J_L, B_L, F_CL, F_DC
     theta_switching: F64
     mode_adaptive: NDArray[np.int8]
@@ -45,6 +55,7 @@ class StageBlock:
     alpha: F64
     excitation_index: float
     resets: int
+    segment: SegmentRecord  # gated segment identifier: estimates, intervals, excited
 
 
 def observer_params_for(cfg: StageConfig, **design: Any) -> ObserverParams:
@@ -101,6 +112,15 @@ class StageRun:
         ip = ident or IdentifierParams(sample_time=src.sample_time)
         self.ident = LoadIdentifier(ip, switching=False)
         self.ident_sw = LoadIdentifier(ip, switching=True)
+        self.ident_seg = SegmentIdentifier(
+            SegmentIdentifierParams(
+                nominal=(nom.J_L, nom.B_L, nom.F_CL),
+                sample_time=src.sample_time,
+                q_rls_hz=ip.q_rls_hz,
+                q_rls_order=ip.q_rls_order,
+                acc_threshold=ip.acc_threshold,
+            )
+        )
         self._q = lowpass(self.front.params.q_hz, src.sample_time, self.front.params.q_order)
         self.reset_estimators()
 
@@ -124,9 +144,13 @@ class StageRun:
         self.s_front = self.front.init_state()
         self.s_ident = self.ident.init_state(nl.J_L, nl.B_L, nl.F_CL)
         self.s_sw = self.ident_sw.init_state(nl.J_L, nl.B_L, nl.F_CL)
+        # the cut engages and every filter starts at t = 0 (a step inside the first
+        # acceleration segment, the start from rest): that segment is discarded
+        self.s_seg = mark_disturbance(self.ident_seg.init_state(), 0.0)
         self._zq = self._q.initial_state()
         self._theta_a = np.array([nl.J_L, nl.B_L, nl.F_CL, 0.0])
         self._theta_s = self._theta_a.copy()
+        self._theta_g = self._theta_a[:3].copy()
         self._prev_f = 0.0
         self._prev_qf = 0.0
         self._prev_t = 0.0
@@ -148,9 +172,11 @@ class StageRun:
     def process(self, block: SourceBlock) -> StageBlock:
         """Run the observers on one non-empty block; a block marked as a discontinuity
         first resets them (:meth:`reset_estimators`)."""
+        meas = block.meas
         if block.discontinuity is not None:
             self.reset_estimators()
-        meas = block.meas
+            # the filters start again inside whatever segment follows: discarded
+            self.s_seg = mark_disturbance(self.s_seg, float(meas.t[0]))
         truth = block.truth if block.truth is not None else no_truth(meas)
         self.s_front, rec = self.front.step(self.s_front, meas.tau_m, meas.q_m, meas.q_l)
         self.s_ident, ra = self.ident.step(
@@ -158,6 +184,16 @@ class StageRun:
         )
         self.s_sw, rs = self.ident_sw.step(
             self.s_sw, rec.t_s, rec.acc_l, rec.vel_l, rec.sgn_l, rec.omega_l
+        )
+        t_est = np.concatenate([[self._prev_t], meas.t[:-1]])
+        # the front end's outputs refer to the previous sample (one sample time back)
+        self.s_seg, rg = self.ident_seg.step(
+            self.s_seg,
+            meas.t - self.source.sample_time,
+            rec.t_s,
+            rec.acc_l,
+            rec.vel_l,
+            rec.sgn_l,
         )
         nl = self.nominal_load
         f_fixed = cutting_force(rec, nl.J_L, nl.B_L, nl.F_CL)
@@ -168,11 +204,13 @@ class StageRun:
         self._theta_s = rs.theta[-1].copy()
         f_ad = cutting_force(rec, th_a[:, 0], th_a[:, 1], th_a[:, 2])
         f_sw = cutting_force(rec, th_s[:, 0], th_s[:, 1], th_s[:, 2])
+        th_g = np.vstack([self._theta_g, rg.theta[:-1]])
+        self._theta_g = rg.theta[-1].copy()
+        f_seg = cutting_force(rec, th_g[:, 0], th_g[:, 1], th_g[:, 2])
         qf, self._zq = self._q.run(truth.f_cut, self._zq)
         # estimates refer to the previous sample: align truth one sample back
         f_true = np.concatenate([[self._prev_f], truth.f_cut[:-1]])
         f_ideal = np.concatenate([[self._prev_qf], qf[:-1]])
-        t_est = np.concatenate([[self._prev_t], meas.t[:-1]])
         self._prev_f = float(truth.f_cut[-1])
         self._prev_qf = float(qf[-1])
         self._prev_t = float(meas.t[-1])
@@ -185,6 +223,7 @@ class StageRun:
             f_fixed=f_fixed,
             f_adaptive=f_ad,
             f_switching=f_sw,
+            f_segment=f_seg,
             theta_adaptive=ra.theta,
             theta_switching=rs.theta,
             mode_adaptive=ra.mode,
@@ -192,4 +231,14 @@ class StageRun:
             alpha=rec.alpha,
             excitation_index=ra.excitation_index,
             resets=ra.resets + rs.resets,
+            segment=rg,
         )
+
+    def note_disturbance(self, t: float) -> None:
+        """A known change of the cutting condition at ``t`` (spindle step, tool change):
+        the segment identifier discards the reversal segment around it."""
+        self.s_seg = mark_disturbance(self.s_seg, t)
+
+    def note_restart(self, J_L: bool = False, B_L: bool = False, F_CL: bool = False) -> None:
+        """A known change of load parameters (a fresh workpiece: J_L): they restart."""
+        self.s_seg = restart(self.s_seg, (J_L, B_L, F_CL))

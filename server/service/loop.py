@@ -481,8 +481,11 @@ class LiveLoop:
                 self._pending.clear()
             return
         t, ts, ch = self._decimated()
+        with self.lock:
+            # rolling rms of the force estimates, rounded and JSON-safe
+            accuracy = self.pipeline.accuracy(digits=protocol.ACCURACY_DIGITS)
         body = protocol.data_body(
-            self.seq, time.time(), t, ts, ch, self.health(), self.knob_values()
+            self.seq, time.time(), t, ts, ch, self.health(), self.knob_values(), accuracy
         )
         self.hub.publish(body)
 

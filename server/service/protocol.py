@@ -8,11 +8,26 @@ Two message types travel from server to client as JSON text:
 
 ``data`` (at the display rate, ~20 Hz)
     ``{"type": "data", "dropped": n, "seq": k, "wall": unix_s, "t": [...], "ts": [...],
-    "ch": {name: [...]}, "health": {...}, "knobs": {...}}``. Two display grids: a
+    "ch": {name: [...]}, "health": {...}, "knobs": {...}, "accuracy": {...}}``. Two display grids: a
     channel whose ``grid`` is ``"t"`` (the forces) has one value per entry of ``t``; a
     channel on ``"ts"`` (parameters, modes, harmonics: slow signals) one per entry of
     ``ts``, a coarser subset of the same samples. ``dropped`` counts the frames this
     client lost (buffer full) since its previous frame.
+
+``accuracy`` (issue 13): the rolling rms of every force estimate at the frame's last
+sample, one small object rather than more channels (its values change slowly; the page
+shows the latest numbers and keeps their history itself). Keys ``SCHEMA["accuracy"]``:
+``mode`` (``"truth"``: against the true force; ``"agreement"``: a source without truth,
+each estimate against the per-sample mean of the ``mean_of`` estimates), ``windows``
+([1, 10] s), ``span`` (seconds each window really covers), ``rms`` ({estimate: [one value
+per window]}), ``rms_q`` (against the Q(s)-filtered true force, the observers' reachable
+target; empty without truth), ``floor`` (rms of Q(s)F - F; nulls without truth), each
+value to 4 significant digits, null where unknown (see
+:mod:`server.pipeline.accuracy`).
+
+Identified parameters with intervals (issue 13): for each name in ``SCHEMA["intervals"]``
+the stream carries the estimate, the 95 % interval's bounds and an excited flag (1: the
+data determine it; 0: show it greyed, "not excited", not as a number), on the slow grid.
 
 JSON was measured against a binary (float32) encoding: see
 docs/live-service.md ("Stream protocol").
@@ -32,6 +47,8 @@ VERSION = 1
 FAST_GROUPS = frozenset({"force"})
 #: the slow grid keeps one sample in SLOW_FACTOR of the fast one
 SLOW_FACTOR = 6
+#: significant digits of the ``accuracy`` numbers in a data frame
+ACCURACY_DIGITS = 4
 
 
 def grid_of(group: str) -> str:
@@ -39,11 +56,17 @@ def grid_of(group: str) -> str:
     return "t" if group in FAST_GROUPS else "ts"
 
 
+#: identified parameter -> its channels: estimate, 95 % bounds, excited flag (0/1)
+INTERVALS: dict[str, dict[str, str]] = {
+    q: {"estimate": f"{q}_seg", "lower": f"{q}_lo", "upper": f"{q}_hi", "excited": f"{q}_excited"}
+    for q in ("J_L", "B_L", "F_CL")
+}
+
 SCHEMA: dict[str, Any] = {
     "version": VERSION,
     "hello": ["type", "version", "channels", "sample_time", "scenario", "knobs"],
     "channel": ["name", "unit", "group", "label", "grid"],
-    "data": ["type", "dropped", "seq", "wall", "t", "ts", "ch", "health", "knobs"],
+    "data": ["type", "dropped", "seq", "wall", "t", "ts", "ch", "health", "knobs", "accuracy"],
     "fast_groups": sorted(FAST_GROUPS),
     "health": [
         "sim_t",
@@ -56,6 +79,8 @@ SCHEMA: dict[str, Any] = {
         "dropped_total",
         "stalls",
     ],
+    "accuracy": ["mode", "windows", "span", "rms", "rms_q", "floor", "mean_of"],
+    "intervals": INTERVALS,
 }
 
 
@@ -82,10 +107,12 @@ def data_body(
     ch: dict[str, list[float | None]],
     health: dict[str, Any],
     knobs: dict[str, Any],
+    accuracy: dict[str, Any],
 ) -> str:
     """Encode a data frame without its per-client ``dropped`` field (done once per frame).
 
-    ``t``, ``ts`` and ``ch`` must already be JSON-safe lists (see :func:`samples`).
+    ``t``, ``ts`` and ``ch`` must already be JSON-safe lists (see :func:`samples`);
+    ``accuracy`` the pipeline's summary, JSON-safe (rounded to :data:`ACCURACY_DIGITS`).
 
     :func:`with_dropped` completes it per client.
     """
@@ -97,6 +124,7 @@ def data_body(
         "ch": ch,
         "health": json_safe(health),
         "knobs": json_safe(knobs),
+        "accuracy": accuracy,
     }
     return json.dumps(body, allow_nan=False, separators=(",", ":"))
 

@@ -120,6 +120,27 @@ class ReplayProgress(BaseModel):
     finished: bool
 
 
+class Accuracy(BaseModel):
+    """Rolling rms of each force estimate (also the ``accuracy`` of every stream frame)."""
+
+    mode: Literal["truth", "agreement"] = Field(
+        description="'truth': against the true force (simulator); 'agreement': no truth "
+        "(a replayed log, a live feed), each estimate against the mean of 'mean_of'"
+    )
+    windows: list[float] = Field(description="window lengths [s]")
+    span: list[float] = Field(description="seconds each window really covers [s]")
+    rms: dict[str, list[float | None]] = Field(
+        description="estimate -> rms error per window [N m] (against the truth or the mean)"
+    )
+    rms_q: dict[str, list[float | None]] = Field(
+        description="estimate -> rms against the Q(s)-filtered true force (empty: no truth)"
+    )
+    floor: list[float | None] = Field(
+        description="rms of the Q(s)-filtered true force against the true force, per window"
+    )
+    mean_of: list[str] = Field(description="the estimates averaged (mode 'agreement')")
+
+
 class PipelineSnapshot(BaseModel):
     """Latest values, truths and knob values of the running pipeline."""
 
@@ -131,6 +152,7 @@ class PipelineSnapshot(BaseModel):
     knobs: dict[str, bool | float | str]
     observer_effects: list[PipelineEffect]
     replay: ReplayProgress | None = Field(None, description="present while replaying a log")
+    accuracy: Accuracy
 
 
 class Snapshot(BaseModel):

@@ -17,7 +17,7 @@ from server.errors import CutwatchError
 from server.service import protocol
 from server.service.app import create_app
 from server.service.errors import error
-from server.service.schemas import ErrorBody, LoopHealth
+from server.service.schemas import Accuracy, ErrorBody, LoopHealth
 from server.service.settings import Settings
 
 JSON = st.recursive(
@@ -228,6 +228,40 @@ def test_snapshot_and_metrics(api: httpx.Client) -> None:
     assert values["cutwatch_blocks_total"] > 0
 
 
+def test_accuracy_in_snapshot_and_metrics(api: httpx.Client) -> None:
+    from server.pipeline.live_pipeline import FORCE_ESTIMATES
+
+    deadline = time.monotonic() + 20
+    while api.get("/api/snapshot").json()["pipeline"]["accuracy"]["span"][0] < 1.0:
+        assert time.monotonic() < deadline, "1 s of simulation not reached"
+        time.sleep(0.2)
+    api.post("/api/control", json={"action": "pause"})
+    try:
+        time.sleep(0.2)
+        acc = api.get("/api/snapshot").json()["pipeline"]["accuracy"]
+        text = api.get("/metrics").text
+    finally:
+        api.post("/api/control", json={"action": "resume"})
+    assert acc["mode"] == "truth" and acc["windows"] == [1.0, 10.0]
+    assert list(acc["rms"]) == list(acc["rms_q"]) == list(FORCE_ESTIMATES)
+    assert acc["span"][0] == pytest.approx(1.0)
+    got = {
+        m[0]: float(m[1])
+        for m in re.findall(r"^cutwatch_force_error_rms\{(.*)\} (\S+)$", text, re.MULTILINE)
+    }
+    assert "# TYPE cutwatch_force_error_rms gauge" in text
+    for est in FORCE_ESTIMATES:
+        for j, w in enumerate(("1s", "10s")):
+            for table, against in ((acc["rms"], "truth"), (acc["rms_q"], "q_truth")):
+                v = table[est][j]
+                assert 0.0 < v < 50.0, (est, w, v)  # finite, non-zero errors in N m
+                key = f'estimate="{est}",window="{w}",against="{against}"'
+                assert got[key] == pytest.approx(v, rel=1e-5)
+    assert got['estimate="q_filtered_truth",window="1s",against="truth"'] == pytest.approx(
+        acc["floor"][0], rel=1e-5
+    )
+
+
 def test_openapi_lists_every_endpoint(api: httpx.Client) -> None:
     paths = api.get("/openapi.json").json()["paths"]
     for p in (
@@ -421,6 +455,8 @@ def test_health_model_matches_the_stream_schema() -> None:
     # /api/health and /api/snapshot carry the loop's health through LoopHealth: a key
     # added to the stream's health (protocol.SCHEMA) must be added there too
     assert list(LoopHealth.model_fields) == protocol.SCHEMA["health"]
+    # and the force estimates' accuracy through Accuracy
+    assert list(Accuracy.model_fields) == protocol.SCHEMA["accuracy"]
 
 
 def test_error_entry_got_is_json() -> None:

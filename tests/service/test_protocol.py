@@ -9,6 +9,7 @@ from pathlib import Path
 
 import pytest
 
+from server.pipeline.accuracy import RollingAccuracy
 from server.service import protocol
 
 WEB = Path(__file__).resolve().parents[2] / "web"
@@ -39,7 +40,19 @@ def test_schema_equal_on_both_sides() -> None:
     assert js == protocol.SCHEMA
 
 
-def frames() -> list[str]:
+def accuracy(has_truth: bool) -> dict[str, object]:
+    """A real rolling-accuracy summary (a NaN sample in it, the 10 s window not full)."""
+    import numpy as np
+
+    acc = RollingAccuracy(["f_fixed", "f_dfo"], 4e-4, has_truth=has_truth)
+    f = np.sin(np.arange(125.0))
+    est = {"f_fixed": f + 0.1, "f_dfo": f.copy()}
+    est["f_dfo"][3] = float("nan")
+    acc.update(est, f, 0.9 * f) if has_truth else acc.update(est)
+    return acc.summary(digits=protocol.ACCURACY_DIGITS)
+
+
+def frames(has_truth: bool = True) -> list[str]:
     hello = protocol.hello(
         [
             {"name": "force_true", "unit": "N", "group": "force", "label": "true", "grid": "t"},
@@ -58,18 +71,20 @@ def frames() -> list[str]:
         {"force_true": protocol.samples([1.0, float("nan")]), "J_L": [2.8e-4]},
         health,
         {"spindle_rpm": 1500.0},
+        accuracy(has_truth),
     )
     return [hello, protocol.with_dropped(body, 7)]
 
 
-def test_js_accepts_what_python_sends() -> None:
+@pytest.mark.parametrize("has_truth", [True, False])
+def test_js_accepts_what_python_sends(has_truth: bool) -> None:
     code = (
         "import {checkMessage} from './protocol.js';"
         "import {readFileSync} from 'node:fs';"
         "const lines = readFileSync(0, 'utf8').trim().split('\\n');"
         "console.log(JSON.stringify(lines.map((l) => checkMessage(l).type)));"
     )
-    assert json.loads(run_js(code, "\n".join(frames()))) == ["hello", "data"]
+    assert json.loads(run_js(code, "\n".join(frames(has_truth)))) == ["hello", "data"]
 
 
 def test_python_frames_follow_schema() -> None:
@@ -77,6 +92,12 @@ def test_python_frames_follow_schema() -> None:
     assert list(hello) == protocol.SCHEMA["hello"]
     assert list(data) == protocol.SCHEMA["data"]
     assert data["dropped"] == 7 and data["ch"]["force_true"] == [1.0, None]
+    acc = data["accuracy"]
+    assert list(acc) == protocol.SCHEMA["accuracy"]
+    assert acc["mode"] == "truth" and acc["windows"] == [1.0, 10.0]
+    assert acc["rms"]["f_fixed"] == [0.1, 0.1]  # 4 significant digits
+    assert acc["span"] == [0.05, 0.05]  # what the windows really cover so far
+    assert json.loads(frames(False)[1])["accuracy"]["floor"] == [None, None]
 
 
 @pytest.mark.parametrize(
@@ -91,15 +112,34 @@ def test_python_frames_follow_schema() -> None:
         ),
         (
             '{"type": "data", "dropped": 0, "seq": 1, "wall": 0, "t": [1, 2], "ts": [1],'
-            ' "ch": {"x": [1, 2]}, "health": {}, "knobs": {}}',
+            ' "ch": {"x": [1, 2]}, "health": {}, "knobs": {},'
+            ' "accuracy": {"mode": "truth", "windows": [1, 10], "span": [0, 0], "rms": {},'
+            ' "rms_q": {}, "floor": [null, null], "mean_of": []}}',
             "health lacks sim_t",
         ),
         (
             '{"type": "data", "dropped": 0, "seq": 1, "wall": 0, "t": [1, 2], "ts": [1],'
             ' "ch": {"x": [1, 2, 3]}, "health": {"sim_t": 0, "speed": 1, "paused": false,'
             ' "lag_ms": 0, "lag_p99_ms": 0, "realtime_factor": 1, "clients": 1,'
-            ' "dropped_total": 0, "stalls": 0}, "knobs": {}}',
+            ' "dropped_total": 0, "stalls": 0}, "knobs": {},'
+            ' "accuracy": {"mode": "truth", "windows": [1, 10], "span": [0, 0], "rms": {},'
+            ' "rms_q": {}, "floor": [null, null], "mean_of": []}}',
             "channel x: 3 samples, t has 2, ts has 1",
+        ),
+        (
+            '{"type": "data", "dropped": 0, "seq": 1, "wall": 0, "t": [], "ts": [],'
+            ' "ch": {}, "health": {"sim_t": 0, "speed": 1, "paused": false,'
+            ' "lag_ms": 0, "lag_p99_ms": 0, "realtime_factor": 1, "clients": 1,'
+            ' "dropped_total": 0, "stalls": 0}, "knobs": {}, "accuracy": {"mode": "truth"}}',
+            "accuracy lacks windows, span, rms, rms_q, floor, mean_of",
+        ),
+        (
+            '{"type": "data", "dropped": 0, "seq": 1, "wall": 0, "t": [], "ts": [],'
+            ' "ch": {}, "health": {"sim_t": 0, "speed": 1, "paused": false,'
+            ' "lag_ms": 0, "lag_p99_ms": 0, "realtime_factor": 1, "clients": 1,'
+            ' "dropped_total": 0, "stalls": 0}, "knobs": {}, "accuracy": {"mode": "x",'
+            ' "windows": [], "span": [], "rms": {}, "rms_q": {}, "floor": [], "mean_of": []}}',
+            "accuracy mode x",
         ),
     ],
 )
@@ -119,3 +159,60 @@ def test_samples_rounds_to_significant_digits_relative_to_the_largest() -> None:
     assert protocol.samples([float("inf"), 1.0], 3) == [None, 1.0]
     assert protocol.samples([float("nan")] * 2, 3) == [None, None]
     assert protocol.samples([], 3) == []
+
+
+def test_interval_channels_are_streamed_by_the_live_pipeline() -> None:
+    from server.pipeline.live_pipeline import LivePipeline
+
+    chans = {c.name: c for c in LivePipeline().channels()}
+    for q, names in protocol.INTERVALS.items():
+        assert set(names) == {"estimate", "lower", "upper", "excited"}
+        for name in names.values():
+            assert name in chans, name
+            assert chans[name].group == q  # plotted on the parameter's own chart
+            assert protocol.grid_of(chans[name].group) == "ts"
+
+
+def test_panels_draw_bands_only_for_streamed_interval_channels() -> None:
+    # web/panels.js: a parameter's band series and band from SCHEMA.intervals, or none
+    # when the hello lacks one of its four channels
+    names = [n for iv in protocol.SCHEMA["intervals"].values() for n in iv.values()]
+    code = (
+        "import {intervalSeries, accuracyTable, accuracyTitle} from './panels.js';"
+        "import {readFileSync} from 'node:fs';"
+        "const names = new Set(JSON.parse(readFileSync(0, 'utf8')));"
+        "const all = intervalSeries('J_L', names, 4);"
+        "names.delete('B_L_lo');"
+        "console.log(JSON.stringify({series: all.series.map((s) => [s[0], s[1], s[4].mask]),"
+        " bands: all.bands, excited: all.excited, B_L: intervalSeries('B_L', names, 4)}));"
+    )
+    got = json.loads(run_js(code, json.dumps(names)))
+    assert got["series"] == [
+        ["J_L_seg", "identified, 95 % band", ["J_L_excited", 1]],
+        ["J_L_seg", "not excited", ["J_L_excited", 0]],
+        ["J_L_hi", "95 % upper", ["J_L_excited", 1]],
+        ["J_L_lo", "95 % lower", ["J_L_excited", 1]],
+    ]
+    assert got["bands"][0]["series"] == [6, 7]  # uPlot indices of upper and lower
+    assert got["excited"] == "J_L_excited" and got["B_L"] is None
+
+
+@pytest.mark.parametrize("has_truth", [True, False])
+def test_panels_accuracy_table(has_truth: bool) -> None:
+    acc = json.loads(frames(has_truth)[1])["accuracy"]
+    code = (
+        "import {accuracyTable, accuracyTitle} from './panels.js';"
+        "import {readFileSync} from 'node:fs';"
+        "const acc = JSON.parse(readFileSync(0, 'utf8'));"
+        "console.log(JSON.stringify({title: accuracyTitle(acc), ...accuracyTable(acc)}));"
+    )
+    got = json.loads(run_js(code, json.dumps(acc)))
+    keys = [r["key"] for r in got["rows"]]
+    if has_truth:
+        assert "against the truth" in got["title"]
+        assert keys == ["f_fixed", "f_dfo", "q_floor"] and len(got["head"]) == 5
+        assert got["rows"][0]["cells"][0] == "0.100"
+    else:
+        assert "agreement" in got["title"] and "truth," not in got["title"]
+        assert keys == ["f_fixed", "f_dfo"] and len(got["head"]) == 3
+    assert "(0.1 s so far)" in got["head"][1]  # 125 samples of 0.4 ms: 0.05 s

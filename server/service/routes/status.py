@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import math
+from typing import Any
+
 from fastapi import APIRouter
 from fastapi.responses import PlainTextResponse
 
@@ -115,6 +118,33 @@ def metrics(lp: Live) -> PlainTextResponse:
     lines = []
     for name, kind, doc, value in rows:
         lines += [f"# HELP {name} {doc}", f"# TYPE {name} {kind}", f"{name} {float(value):g}"]
+    with lp.lock:
+        acc = lp.pipeline.accuracy()
+    lines += _accuracy_lines(acc)
     return PlainTextResponse(
         "\n".join(lines) + "\n", media_type="text/plain; version=0.0.4; charset=utf-8"
     )
+
+
+def _accuracy_lines(acc: dict[str, Any]) -> list[str]:
+    """``cutwatch_force_error_rms{estimate, window, against}``: the rolling rms of each
+    force estimate (``against`` = ``truth``, ``q_truth`` (the Q(s)-filtered true force) or
+    ``mean_of_estimates`` without truth); the Q filter's own error as the estimate
+    ``q_filtered_truth`` against ``truth``. Unknown values (no data yet) are left out."""
+    name = "cutwatch_force_error_rms"
+    lines = [
+        f"# HELP {name} rolling rms error of a force estimate [N m] over the window",
+        f"# TYPE {name} gauge",
+    ]
+    wins = [f"{w:g}s" for w in acc["windows"]]
+    truth = acc["mode"] == "truth"
+    series = [(acc["rms"], "truth" if truth else "mean_of_estimates")]
+    if truth:
+        series += [(acc["rms_q"], "q_truth"), ({"q_filtered_truth": acc["floor"]}, "truth")]
+    for table, against in series:
+        for est, values in table.items():
+            for w, v in zip(wins, values, strict=True):
+                if v is not None and math.isfinite(v):
+                    labels = f'estimate="{est}",window="{w}",against="{against}"'
+                    lines.append(f"{name}{{{labels}}} {v:.6g}")
+    return lines
