@@ -19,8 +19,8 @@ friction_curve        :math:`e^{-(v/v_s)^2} d_+`, :math:`-e^{-(v/v_s)^2} d_-`   
 position_friction     :math:`P_k(x)\,d_+`, :math:`P_k(x)\,d_-`, k = 1..K            K, range
                       (Legendre polynomials: friction varying smoothly along the
                       travel, per direction)
-position_harmonics    :math:`\cos, \sin(2\pi k q / P)` and the same times           P, K
-                      :math:`\mathrm{sign}(v)`, k = 1..K (a force periodic in
+position_harmonics    :math:`\cos, \sin(2\pi k q / P)` and (if supported) the same  P, K
+                      times :math:`\mathrm{sign}(v)`, k = 1..K (a force periodic in
                       position: a part independent of direction — cogging, torque
                       ripple, lead error — and a friction part that follows the
                       direction)
@@ -32,9 +32,12 @@ force_lag             :math:`M \dddot q + F_v a` (a first-order lag T of the for
                       loop: command :math:`= (1 + T s)` force, coefficient = T [s])
 ===================== ============================================================ =========
 
-Orders (K) are chosen by blocked cross-validation of the residual inside the data the
-shape search is given (contiguous blocks in time; the smallest order within 0.5 % of the
-best held-out error), so a family does not grow columns the data cannot support.
+Orders (K, and whether the periodic force has a part that follows the direction) are
+chosen by blocked cross-validation of the residual inside the data the shape search is
+given (contiguous blocks in time; the fewest columns within 0.5 % of the best held-out
+error), so a family does not grow columns the data cannot support. Where the data
+supports only one or two harmonics independent of the direction, ``position_harmonics``
+stands back (no shape): that is DESIGN's ``position_periodic``, offered under its name.
 
 Nothing here imports the residual analysis: the signals are any object with the
 attributes ``t, q, qd, qdd, qddd`` (:class:`Kin`).
@@ -110,14 +113,14 @@ def _lstsq_rss(cols: F64, r: F64) -> float:
     return float(e @ e)
 
 
-def cv_order(cols: F64, sizes: Sequence[int], r: F64, blocks: int = CV_BLOCKS) -> int:
-    """Index into ``sizes`` of the nested column set that predicts ``r`` best held out.
+def cv_select(cols: F64, subsets: Sequence[Sequence[int]], r: F64, blocks: int = CV_BLOCKS) -> int:
+    """Index of the column subset (plus a constant) that predicts ``r`` best held out.
 
-    Order ``i`` uses a constant and the first ``sizes[i]`` columns of ``cols``. ``r`` and
-    the rows of ``cols`` are in time order; each of ``blocks`` contiguous blocks is
-    predicted from the others (normal equations: the other blocks' Gram matrix is the
-    total minus the block's). The smallest order within 0.5 % of the best
-    cross-validated sum of squares wins (parsimony: a hair of gain does not buy columns).
+    ``r`` and the rows of ``cols`` are in time order; each of ``blocks`` contiguous
+    blocks is predicted from the others (normal equations: the other blocks' Gram
+    matrix is the total minus the block's). Among the subsets within 0.5 % of the best
+    cross-validated sum of squares, the one with the fewest columns wins (the first of
+    them in ``subsets`` on a tie): a hair of gain does not buy columns.
     """
     n = len(r)
     x = np.column_stack([np.ones(n), cols])
@@ -127,16 +130,22 @@ def cv_order(cols: F64, sizes: Sequence[int], r: F64, blocks: int = CV_BLOCKS) -
     g_all = sum(g for g, _, _ in grams)
     b_all = sum(b for _, b, _ in grams)
     errs = []
-    for size in sizes:
-        k = size + 1
+    for sub in subsets:
+        k = np.concatenate([[0], 1 + np.asarray(sub, dtype=np.intp)])
         sse = 0.0
         for g, b, rr in grams:
-            gt, bt = (g_all - g)[:k, :k], (b_all - b)[:k]
+            gt, bt = (g_all - g)[np.ix_(k, k)], (b_all - b)[k]
             coef = np.linalg.lstsq(gt, bt, rcond=None)[0]
-            sse += rr - 2.0 * float(coef @ b[:k]) + float(coef @ g[:k, :k] @ coef)
+            sse += rr - 2.0 * float(coef @ b[k]) + float(coef @ g[np.ix_(k, k)] @ coef)
         errs.append(sse)
     best = min(errs)
-    return next(i for i, e in enumerate(errs) if e <= best + 0.005 * abs(best))
+    ok = [i for i, e in enumerate(errs) if e <= best + 0.005 * abs(best)]
+    return min(ok, key=lambda i: (len(subsets[i]), i))
+
+
+def cv_order(cols: F64, sizes: Sequence[int], r: F64, blocks: int = CV_BLOCKS) -> int:
+    """:func:`cv_select` over nested sets: order ``i`` is the first ``sizes[i]`` columns."""
+    return cv_select(cols, [range(k) for k in sizes], r, blocks)
 
 
 # ----------------------------------------------------------------- direction friction
@@ -238,14 +247,13 @@ def _harmonic_cols(shape: Shape, s: Kin) -> F64:
     cols = []
     for k in range(1, int(shape["harmonics"]) + 1):
         c, sn = np.cos(k * w), np.sin(k * w)
-        cols.extend([c, sn, sv * c, sv * sn])
+        cols.extend([c, sn, sv * c, sv * sn] if shape.get("direction", 1.0) else [c, sn])
     return np.column_stack(cols)
 
 
 def _harmonic_names(shape: Shape) -> tuple[str, ...]:
-    return tuple(
-        f"{p}{k}" for k in range(1, int(shape["harmonics"]) + 1) for p in ("c", "s", "dc", "ds")
-    )
+    parts = ("c", "s", "dc", "ds") if shape.get("direction", 1.0) else ("c", "s")
+    return tuple(f"{p}{k}" for k in range(1, int(shape["harmonics"]) + 1) for p in parts)
 
 
 def position_periodogram(q: F64, v: F64, r: F64, bins: int = 1 << 15) -> tuple[F64, F64]:
@@ -292,16 +300,29 @@ def _harmonic_search(
     rss = [_lstsq_rss(_harmonic_cols({"period": p, "harmonics": 1.0}, sub), r) for p in fine]
     period = float(fine[int(np.argmin(rss))])
     cols = _harmonic_cols({"period": period, "harmonics": float(MAX_HARMONICS)}, sub)
-    k = 1 + cv_order(cols, [4 * k for k in range(1, MAX_HARMONICS + 1)], r)
-    return {"period": period, "harmonics": float(k)}
+    # structures: K harmonics independent of the direction, or with a part that follows
+    # it; columns of harmonic k are 4(k-1) + (c, s, dc, ds)
+    ks = range(1, MAX_HARMONICS + 1)
+    common = [[4 * j + i for j in range(k) for i in (0, 1)] for k in ks]
+    both = [list(range(4 * k)) for k in ks]
+    choice = cv_select(cols, common + both, r)
+    k, direction = 1 + choice % MAX_HARMONICS, float(choice >= MAX_HARMONICS)
+    if not direction and k <= 2:
+        # that is the canonical position_periodic (a period, harmonics 1-2): it is offered
+        # under its own name, so this richer family stands back
+        return {"period": math.nan, "harmonics": float(k), "direction": 0.0}
+    return {"period": period, "harmonics": float(k), "direction": direction}
 
 
 def _harmonic_derived(shape: Shape, coef: Mapping[str, float]) -> dict[str, float]:
     out = {}
     for k in range(1, int(shape["harmonics"]) + 1):
         c, s, dc, ds = (coef.get(f"{p}{k}", 0.0) for p in ("c", "s", "dc", "ds"))
-        out[f"amplitude_{k}_pos"] = math.hypot(c + dc, s + ds)
-        out[f"amplitude_{k}_neg"] = math.hypot(c - dc, s - ds)
+        if shape.get("direction", 1.0):
+            out[f"amplitude_{k}_pos"] = math.hypot(c + dc, s + ds)
+            out[f"amplitude_{k}_neg"] = math.hypot(c - dc, s - ds)
+        else:
+            out[f"amplitude_{k}"] = math.hypot(c, s)
     return out
 
 
@@ -449,6 +470,8 @@ FAMILIES: dict[str, Family] = {
 
 #: built and measured on EMPS, not offered by default, with the reason (docs/residual-emps.md)
 NOT_OFFERED: dict[str, str] = {
+    "viscous_asymmetry": "spanned by coulomb_asymmetry (the benchmark's asymmetric variant, "
+    "which reports Fv_pos and Fv_neg): offering both names one effect twice",
     "friction_curve": "on EMPS no better than the symmetric Stribeck family (record halves "
     "1.96 / 2.24 % either way) and worse where the fit has low accelerations (scored at "
     "high |qdd|: 6.8 % against 2.9 %): its per-direction levels rest on the few reversals",
