@@ -210,7 +210,15 @@ def test_position_periodogram_finds_the_period() -> None:
     assert position_periodogram(np.zeros(10), np.zeros(10), np.zeros(10))[0].size == 0
 
 
-EMPS = Path(__file__).resolve().parents[3] / "shared" / "data" / "emps" / "DATA_EMPS.mat"
+# ../shared/data beside the project (a worktree sits one level deeper than main)
+EMPS = next(
+    (
+        p / "shared" / "data" / "emps" / "DATA_EMPS.mat"
+        for p in Path(__file__).resolve().parents
+        if (p / "shared" / "data" / "emps" / "DATA_EMPS.mat").exists()
+    ),
+    Path("DATA_EMPS.mat-not-found"),
+)
 
 
 @pytest.mark.skipif(not EMPS.exists(), reason="EMPS data not present")
