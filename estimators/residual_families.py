@@ -35,7 +35,8 @@ force_lag             :math:`M \dddot q + F_v a` (a first-order lag T of the for
 Orders (K, and whether the periodic force has a part that follows the direction) are
 chosen by blocked cross-validation of the residual inside the data the shape search is
 given (contiguous blocks in time; the fewest columns within 0.5 % of the best held-out
-error), so a family does not grow columns the data cannot support. Where the data
+error), so a family does not grow columns the data cannot support; when no structure
+beats the constant alone, the family has no shape (it is not scored). Where the data
 supports only one or two harmonics independent of the direction, ``position_harmonics``
 stands back (no shape): that is DESIGN's ``position_periodic``, offered under its name.
 
@@ -219,11 +220,12 @@ def _position_friction_search(
     shape = {"q_min": lo, "q_max": hi}
     sub = _Sub(sig, idx)
     full = _position_friction_cols({**shape, "order": float(MAX_LEGENDRE)}, sub)
-    # interleave (P1+, P1-, P2+, P2-, ...) so that each order is a leading column set
+    # interleave (P1+, P1-, P2+, P2-, ...) so that each order is a leading column set;
+    # order 0 (no columns) when no order predicts the held-out blocks better
     m = MAX_LEGENDRE
     cols = full[:, np.ravel(np.column_stack([np.arange(m), m + np.arange(m)]))]
-    order = 1 + cv_order(cols, [2 * k for k in range(1, m + 1)], r)
-    return {**shape, "order": float(order)}
+    order = cv_order(cols, [2 * k for k in range(m + 1)], r)
+    return {**shape, "order": float(order) if order else math.nan}
 
 
 def _position_friction_derived(shape: Shape, coef: Mapping[str, float]) -> dict[str, float]:
@@ -295,17 +297,23 @@ def _harmonic_search(
         return {"period": math.nan, "harmonics": math.nan}
     p0 = float(periods[int(np.argmax(amp))])
     sub = _Sub(sig, idx)
-    # refine by least squares within +-1 % (the padded bin is ~P^2/(4 span) wide)
-    fine = p0 * np.linspace(0.99, 1.01, 81)
-    rss = [_lstsq_rss(_harmonic_cols({"period": p, "harmonics": 1.0}, sub), r) for p in fine]
-    period = float(fine[int(np.argmin(rss))])
+    # refine by least squares over +-2 bins of the 4x padded transform (a bin is
+    # P / (4 span) of the period, relative), then again around the best of that grid
+    step = 2.0 * p0 / (4.0 * float(np.ptp(q)))
+    period = p0
+    for _ in range(3):
+        fine = period * np.linspace(1.0 - step, 1.0 + step, 9)
+        rss = [_lstsq_rss(_harmonic_cols({"period": p, "harmonics": 1.0}, sub), r) for p in fine]
+        period, step = float(fine[int(np.argmin(rss))]), step / 4.0
     cols = _harmonic_cols({"period": period, "harmonics": float(MAX_HARMONICS)}, sub)
     # structures: K harmonics independent of the direction, or with a part that follows
     # it; columns of harmonic k are 4(k-1) + (c, s, dc, ds)
     ks = range(1, MAX_HARMONICS + 1)
     common = [[4 * j + i for j in range(k) for i in (0, 1)] for k in ks]
     both = [list(range(4 * k)) for k in ks]
-    choice = cv_select(cols, common + both, r)
+    choice = cv_select(cols, [*common, *both, []], r)
+    if choice == 2 * MAX_HARMONICS:  # no structure predicts the held-out blocks better
+        return {"period": math.nan, "harmonics": 0.0, "direction": 0.0}
     k, direction = 1 + choice % MAX_HARMONICS, float(choice >= MAX_HARMONICS)
     if not direction and k <= 2:
         # that is the canonical position_periodic (a period, harmonics 1-2): it is offered
@@ -364,9 +372,9 @@ def _delay_search(sig: Kin, r: F64, idx: NDArray[np.intp], nominal: F64 | None) 
         return _lstsq_rss(np.column_stack([col, one]), r)
 
     # a twentieth of a sample (a zero-order hold, a fast current loop) up to 20 samples
-    grid = np.geomspace(0.05 * ts, 20.0 * ts, 48)
+    grid = np.geomspace(0.05 * ts, 20.0 * ts, 24)
     k = int(np.argmin([rss(d) for d in grid]))
-    fine = np.linspace(grid[max(k - 1, 0)], grid[min(k + 1, len(grid) - 1)], 21)
+    fine = np.linspace(grid[max(k - 1, 0)], grid[min(k + 1, len(grid) - 1)], 11)
     return {**base, "delay_s": float(fine[int(np.argmin([rss(d) for d in fine]))])}
 
 
