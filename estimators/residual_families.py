@@ -40,6 +40,11 @@ beats the constant alone, the family has no shape (it is not scored). Where the 
 supports only one or two harmonics independent of the direction, ``position_harmonics``
 stands back (no shape): that is DESIGN's ``position_periodic``, offered under its name.
 
+``force_lag`` is 0 within :data:`LAG_EDGE_S` of both ends of a record (the position
+filter's edge transient, differentiated three times). ``viscous_asymmetry`` and
+``friction_curve`` are built and tested but not offered (:data:`NOT_OFFERED` says why).
+Measured on EMPS: ``docs/residual-emps.md``.
+
 Nothing here imports the residual analysis: the signals are any object with the
 attributes ``t, q, qd, qdd, qddd`` (:class:`Kin`).
 """
