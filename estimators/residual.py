@@ -116,7 +116,7 @@ class ResidualParams:
     min_gain: float = 0.02
     blocks: int = 10
     t_crit: float = 1.833
-    max_effects: int = 6  # a real drive (EMPS) needs 5; the tests below stop earlier
+    max_effects: int = 6  # a cap (the gain and t test stop); a real drive (EMPS) needs 5
     families: tuple[str, ...] = FAMILIES
     idim: IdimParams = field(default_factory=IdimParams)
 
