@@ -24,3 +24,15 @@ CANONICAL_EFFECT_NAMES: tuple[str, ...] = (
     "harmonic",
     "drift",
 )
+
+#: effects of a real drive, beyond DESIGN's list (docs/residual-emps.md): friction that
+#: varies along the travel, a force periodic in position of a searched period with a
+#: direction part, the whole effort acting late, a first-order force-loop lag. The rigid
+#: analysis fits them; DESIGN's list grows by these names (said in the closing note:
+#: the design card lives outside this repository).
+REAL_DRIVE_EFFECT_NAMES: tuple[str, ...] = (
+    "position_friction",
+    "position_harmonics",
+    "drive_delay",
+    "force_lag",
+)

@@ -6,8 +6,9 @@ Public names of the cutting force observer and the identifiers are re-exported h
 other estimators are re-exported as their modules (each with its own ``__all__`` or
 documented public functions): ``dfo`` and ``imbdo`` (seed 002), ``esc`` and
 ``fast_tuner`` (seed 003), ``ud_rls``, ``wear_linear``, ``wear_observer`` and
-``wear_monitor`` (seed 004), ``idim``, ``residual``, ``residual_two_inertia`` and
-``observer_effects`` (the residual loop).
+``wear_monitor`` (seed 004), ``idim``, ``residual``, ``residual_families`` (real-drive
+effect families), ``residual_cv`` (cross-validated figures), ``residual_two_inertia``
+and ``observer_effects`` (the residual loop).
 """
 
 from estimators import (
@@ -18,6 +19,8 @@ from estimators import (
     imbdo,
     observer_effects,
     residual,
+    residual_cv,
+    residual_families,
     residual_two_inertia,
     ud_rls,
     wear_linear,
@@ -73,6 +76,8 @@ __all__ = [
     "lowpass",
     "observer_effects",
     "residual",
+    "residual_cv",
+    "residual_families",
     "residual_two_inertia",
     "rls_init",
     "rls_update",

@@ -59,6 +59,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from common.arrays import F64
 from common.stats import rms
+from estimators import residual_families as _families
 from estimators.errors import ParameterError, require_in, require_positive
 from estimators.idim import (
     RIGID_NAMES,
@@ -79,6 +80,7 @@ FAMILIES: tuple[str, ...] = (
     "harmonic",
     "delay",
     "drift",
+    *_families.NAMES,  # real-drive families (estimators.residual_families)
 )
 #: families of DESIGN not offered for a rigid one-position log, with the reason
 NOT_OFFERED: dict[str, str] = {
@@ -115,7 +117,7 @@ class ResidualParams:
     min_gain: float = 0.02
     blocks: int = 10
     t_crit: float = 1.833
-    max_effects: int = 4
+    max_effects: int = 6  # a cap (the gain and t test stop); a real drive (EMPS) needs 5
     families: tuple[str, ...] = FAMILIES
     idim: IdimParams = field(default_factory=IdimParams)
 
@@ -204,6 +206,8 @@ class ResidualResult:
 
 def effect_columns(effect: Effect, sig: Signals) -> F64:
     """Regressor columns of ``effect`` over the samples of ``sig`` (shape ``(n, k)``)."""
+    if effect.name in _families.FAMILIES:
+        return _families.FAMILIES[effect.name].columns(effect.shape, sig)
     v = sig.qd
     n = len(v)
     name = effect.name
@@ -247,6 +251,10 @@ def _columns_names(name: str) -> tuple[str, ...]:
 
 
 # ------------------------------------------------------------------------ shape search
+
+
+def _finite(shape: dict[str, float]) -> bool:
+    return all(math.isfinite(v) for v in shape.values())
 
 
 def _project_rss(cols: F64, r: F64) -> float:
@@ -329,6 +337,10 @@ def find_shape(
     stride = max(1, int(math.ceil(len(idx) / _SEARCH_SAMPLES)))
     idx = idx[::stride]
     r = residual[idx]
+    if name in _families.FAMILIES:
+        fam = _families.FAMILIES[name]
+        shape_ = fam.search(sig, r, idx, nominal)
+        return Effect(name, shape_, fam.column_names(shape_) if _finite(shape_) else ())
     shape: dict[str, float] = {}
     if name == "stribeck":
         vmax = float(np.max(np.abs(sig.qd[idx])))
@@ -471,6 +483,8 @@ def _effect_params(
     byname = dict(zip(design.names, theta))
     for cn in effect.columns:
         out[cn] = float(byname.get(f"{effect.name}.{cn}", 0.0))
+    if effect.name in _families.FAMILIES:
+        out.update(_families.FAMILIES[effect.name].derived(effect.shape, out))
     if effect.name == "position_periodic":
         out["amplitude_1"] = math.hypot(out["c1"], out["s1"])
         out["amplitude_2"] = math.hypot(out["c2"], out["s2"])

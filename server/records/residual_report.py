@@ -22,6 +22,7 @@ import numpy as np
 
 from common.jsonsafe import json_safe
 from estimators.residual import NOT_OFFERED, ResidualResult
+from estimators.residual_families import FAMILIES as DRIVE_FAMILIES
 from estimators.residual_two_inertia import NOT_OFFERED_TWO_INERTIA, TwoInertiaResult
 from server.records.measured_log import MeasuredLog
 
@@ -35,6 +36,26 @@ def describe_structure(u: Mapping[str, Any]) -> str:
     if "period" in u:
         return f"{u.get('domain', 'position')}: period {u['period']:.4g}, amplitude {amp_s}"
     return ", ".join(f"{k}={v}" for k, v in u.items())
+
+
+#: the physical meaning of each family, shown beside its parameters
+MEANING: dict[str, str] = {
+    "none": "nothing beyond the nominal model",
+    "offset": "a constant effort (a sensor or amplifier offset, gravity on a tilted axis)",
+    "inertia": "mass / inertia not in the nominal model",
+    "viscous": "viscous friction, proportional to speed",
+    "coulomb_asymmetry": "friction that differs by direction: a Coulomb level and a "
+    "viscous coefficient for each direction (Fc_pos/Fc_neg, Fv_pos/Fv_neg)",
+    "stribeck": "friction above the Coulomb level at low speed, fading over the Stribeck "
+    "speed v_s (the same in both directions)",
+    "position_periodic": "a force periodic in position (cogging, screw lead error)",
+    "torque_ripple": "motor torque periodic in the motor angle",
+    "backlash": "lost motion between motor and load at reversals",
+    "harmonic": "a force periodic in time (a vibration, a disturbance at fixed frequency)",
+    "delay": "the effort acts late relative to the motion (command-to-force lag)",
+    "drift": "a slow change over time (warm-up of the lubricant, a thermal drift)",
+    **{name: fam.meaning for name, fam in DRIVE_FAMILIES.items()},
+}
 
 
 def report_dict(
@@ -73,8 +94,16 @@ def report_dict(
                 "t_stat": c.t_stat,
                 "selected": c.selected,
                 "note": c.note,
+                "meaning": MEANING.get(c.name, ""),
             }
             for c in res.candidates
+        ],
+        # the selected effects in order, each with its physical meaning and parameters
+        "effects": [
+            {"name": c.name, "meaning": MEANING.get(c.name, ""), "params": c.params}
+            for e in res.effects
+            for c in res.candidates
+            if c.name == e.name
         ],
         "unexplained": list(res.unexplained),
         # canonical families this kind does not offer, and why
@@ -212,6 +241,11 @@ def report_html(rep: Mapping[str, Any], figures: list[tuple[str, str]]) -> str:
         for k, v in rep["parameters_after"].items()
         if k not in rep["parameters_before"]
     )
+    effects = "".join(
+        f"<tr><td>{_fmt(e['name'])}</td><td>{_fmt(e['meaning'])}</td>"
+        f"<td>{_fmt(', '.join(f'{k}={_fmt(v)}' for k, v in e['params'].items()))}</td></tr>"
+        for e in rep.get("effects", [])
+    )
     unexpl = (
         "".join(f"<li>{_fmt(describe_structure(u))}</li>" for u in rep["unexplained"])
         or "<li>none above the reporting threshold</li>"
@@ -243,6 +277,8 @@ table{{border-collapse:collapse}}td,th{{border:1px solid #ccc;padding:2px 6px}}<
 relerr {_fmt(rep["relerr_before"])} % → {_fmt(rep["relerr_after"])} %.
 Selected: {_fmt(", ".join(rep["selected"]) or "none")}.</p>
 <p>Selection: {_fmt(rep["selection_test"])}.</p>
+<h2>Selected effects</h2><table><tr><th>effect</th><th>physical meaning</th>
+<th>parameters</th></tr>{effects}</table>
 <h2>Parameters</h2><table><tr><th>name</th><th>before</th><th>after</th></tr>{params}</table>
 <h2>Candidates</h2><table><tr><th>name</th><th>selected</th><th>score</th><th>t</th>
 <th>rms before</th><th>rms after</th><th>parameters</th><th>note</th></tr>{rows}</table>

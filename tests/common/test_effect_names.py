@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from common.effects import CANONICAL_EFFECT_NAMES
+from common.effects import CANONICAL_EFFECT_NAMES, REAL_DRIVE_EFFECT_NAMES
 from estimators.observer_effects import COLUMNS, SIDES
 from estimators.residual import FAMILIES, NOT_OFFERED
 from estimators.residual_two_inertia import FAMILIES_TWO_INERTIA, NOT_OFFERED_TWO_INERTIA
@@ -12,7 +12,8 @@ EFFECTS = set(CANONICAL_EFFECT_NAMES) - {"none"}
 
 
 def test_canonical_names_are_unique() -> None:
-    assert len(set(CANONICAL_EFFECT_NAMES)) == len(CANONICAL_EFFECT_NAMES)
+    names = CANONICAL_EFFECT_NAMES + REAL_DRIVE_EFFECT_NAMES
+    assert len(set(names)) == len(names)
 
 
 def test_the_simulator_produces_only_canonical_effects() -> None:
@@ -21,7 +22,7 @@ def test_the_simulator_produces_only_canonical_effects() -> None:
 
 def test_the_rigid_analysis_fits_or_declines_every_canonical_effect() -> None:
     assert not set(FAMILIES) & set(NOT_OFFERED)
-    assert set(FAMILIES) | set(NOT_OFFERED) == EFFECTS
+    assert set(FAMILIES) | set(NOT_OFFERED) == EFFECTS | set(REAL_DRIVE_EFFECT_NAMES)
 
 
 def test_the_two_inertia_analysis_fits_or_declines_every_canonical_effect() -> None:
