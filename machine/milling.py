@@ -203,6 +203,8 @@ def _milling_block(
     theta_m: float,
     b_m: float,
     phi_m: float,
+    ex_a: float,
+    ex_order: float,
     drive: F64,
     st: F64,
     ax_state: F64,
@@ -230,6 +232,11 @@ def _milling_block(
         # which can undo a gain/phase mismatch between the axes)
         rx += b_m * math.cos(psi + phi_m)
         ry -= b_m * math.sin(psi + phi_m)
+        # beyond the paper: a small identification circle at spindle order ex_order (an
+        # observer identifies the axis mass from it; 0 by default)
+        if ex_a != 0.0:
+            rx += ex_a * math.cos(ex_order * psi)
+            ry += ex_a * math.sin(ex_order * psi)
         # seed003 (6): geometric tool centre = carriage + eccentricity (workpiece coordinates)
         px = ax_state[0, 0] + ecc * math.cos(psi + ecc_phase)
         py = ax_state[1, 0] + ecc * math.sin(psi + ecc_phase)
@@ -365,6 +372,7 @@ class MillingMachine:
         self._kc = np.array([p.k_tc, p.k_rc, p.k_te, p.k_re])
         self._window = p.engagement()
         self._rpm = self.milling.spindle_rpm
+        self.excitation: tuple[float, float] = (0.0, 0.0)
         self.reset()
 
     @property
@@ -392,6 +400,17 @@ class MillingMachine:
         """Feed rate [m/s] at the current spindle speed (feed per tooth held)."""
         p = self.milling
         return p.feed_per_tooth * p.n_flutes * self._rpm / 60.0
+
+    def set_excitation(self, amplitude: float, order: float) -> None:
+        """Add (or, with ``amplitude`` 0, remove) an identification circle to the position
+        command of both axes: ``amplitude [cos(order psi), sin(order psi)]`` [m], at the
+        spindle order ``order`` (beyond the paper; an adaptive observer identifies the
+        axis mass from it, see :mod:`estimators.axis_mass`)."""
+        a = require_nonnegative("amplitude", amplitude)
+        if a > self.max_modulation:
+            raise ParameterError("amplitude", f"a value <= {self.max_modulation:g} m", amplitude)
+        o = require_positive("order", order)
+        self.excitation = (float(a), float(o))
 
     def set_spindle_rpm(self, rpm: float) -> None:
         """Change the spindle speed (the feed rate follows, feed per tooth held)."""
@@ -491,6 +510,8 @@ class MillingMachine:
             th,
             b,
             ph,
+            self.excitation[0],
+            self.excitation[1],
             self._drive,
             self._s.st,
             self._s.ax,

@@ -29,8 +29,12 @@ def serve(*, sndbuf: int | None = None, **settings: object) -> Iterator[str]:
     sock.bind(("127.0.0.1", 0))
     port = int(sock.getsockname()[1])
     settings.setdefault("viser", False)  # tests start viser only where they mean to
-    s = Settings(port=port, **settings)  # type: ignore[arg-type]
-    app = create_app(s)
+    try:
+        s = Settings(port=port, **settings)  # type: ignore[arg-type]
+        app = create_app(s)
+    except BaseException:
+        sock.close()
+        raise
     options = uvicorn_options(s)
     del options["workers"]  # one server in this thread
     config = uvicorn.Config(

@@ -33,7 +33,8 @@ const CHARTS = {
   ecc_phase: { window: 60, series: [["ecc_theta_cancel", "cancelling theta_m (true) [deg]", COLORS.true],
     ["ecc_theta_m", "tuner theta_m [deg]", COLORS.adaptive]] },
   ecc_cost: { window: 60, series: [["ecc_cost", "cost, eq. (8) [N]", COLORS.adaptive],
-    ["ecc_f1x", "1x force amplitude, true [N]", COLORS.true]] },
+    ["ecc_f1x", "1x force amplitude, true [N]", COLORS.true],
+    ["ecc_mass_err", "observer X mass error [%]", COLORS.switching, "pct"]] },
   rls: { window: 30, series: [["mode_switching", "mode", COLORS.mode],
     ["excitation", "excitation", COLORS.excitation]] },
 };

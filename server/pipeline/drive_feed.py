@@ -89,13 +89,23 @@ class DriveFeed:
     machine : str
         The machine name (``cutwatch/<machine>/...``).
     max_samples : int
-        Buffer bound; beyond it the oldest samples are dropped (counted).
+        Buffer bound in samples; beyond it the oldest samples are dropped (counted).
+    max_seconds : float, optional
+        The same bound in seconds of the feed's own sampling (the service's
+        ``mqtt_buffer_s``); the smaller of the two applies.
     """
 
-    def __init__(self, cfg: BrokerConfig, machine: str, max_samples: int = 25_000) -> None:
+    def __init__(
+        self,
+        cfg: BrokerConfig,
+        machine: str,
+        max_samples: int = 25_000,
+        max_seconds: float | None = None,
+    ) -> None:
         self.cfg = cfg
         self.machine = machine
         self.max_samples = int(max_samples)
+        self.max_seconds = max_seconds
         self.drive_topic = topic(machine, "drive")
         self.meta_topic = topic(machine, "meta")
         self.meta: dict[str, Any] | None = None
@@ -246,7 +256,10 @@ class DriveFeed:
             self.counts["blocks"] += 1
             self._blocks.append((b, bool(reasons), reasons))
             self._buffered += b.n
-            while self._buffered > self.max_samples and len(self._blocks) > 1:
+            limit = self.max_samples
+            if self.max_seconds is not None:
+                limit = min(limit, max(1, int(self.max_seconds / b.sample_time)))
+            while self._buffered > limit and len(self._blocks) > 1:
                 old, _, _ = self._blocks.popleft()
                 self._buffered -= old.n
                 self.counts["dropped_samples"] += old.n

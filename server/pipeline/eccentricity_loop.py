@@ -17,6 +17,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -135,6 +136,139 @@ class ObserverForceSource:
             self._state[i], trec = self._est[i].step(self._state[i], cur * self._kf[i], q, q)
             ld = self._load[i]
             out.append(cutting_force(trec, ld.J_L, ld.B_L, ld.F_CL))
+        return out[0], out[1]
+
+
+class AdaptiveObserverForceSource(ObserverForceSource):
+    """:class:`ObserverForceSource` whose mass is identified while cutting (seed 000's
+    adaptive observer, on the feed drives).
+
+    Each axis runs :class:`estimators.axis_mass.AxisMassIdentifier` on the observer's
+    Q-filtered motor force, acceleration and velocity at the spindle order of the
+    identification circle, ``N_f + 1/window_revs``; the identified mass replaces the
+    nominal one in seed000 (2) from the next sample on (as seed 000 updates J_L). The
+    circle itself is a machine input: apply :attr:`excitation` with
+    ``MillingMachine.set_excitation`` on the machine that is cut.
+
+    Parameters
+    ----------
+    machine : MillingMachine
+        As for :class:`ObserverForceSource`.
+    mass_error : float
+        Relative error of the observer's nominal (initial) mass.
+    excitation_um : float
+        Radius of the commanded identification circle [um].
+    window_revs, windows : int
+        Revolutions per DFT window; windows in the least-squares window.
+    stop_after : int or None
+        Switch the circle off once both axes have had this many windows of
+        identification (the mass then stays at its last estimate: no excitation, no
+        update, seed 000's PE condition); None keeps it on.
+    **kw
+        ``resolution``, ``q_hz``, ``current_noise``, ``rng`` of :class:`ObserverForceSource`.
+    """
+
+    def __init__(
+        self,
+        machine: MillingMachine,
+        *,
+        mass_error: float = 0.0,
+        excitation_um: float = 1.0,
+        window_revs: int = 8,
+        windows: int = 5,
+        stop_after: int | None = None,
+        **kw: Any,
+    ) -> None:
+        from estimators.axis_mass import (
+            AxisMassIdentifier,
+            AxisMassParams,
+            AxisMassState,
+            excitation_order,
+        )
+
+        super().__init__(machine, mass_error=mass_error, **kw)
+        order = excitation_order(machine.milling.n_flutes, window_revs)
+        self.excitation = (excitation_um * 1e-6, order)
+        self.stop_after = stop_after
+        self._excited: MillingMachine | None = None
+        dp = machine.drives.params
+        self.true_mass = (dp.x.mass, dp.y.mass)
+        self._jm = [est.params.J_M for est in self._est]
+        self._ident: list[AxisMassIdentifier] = []
+        self._ident_state: list[AxisMassState] = []
+        f_nu = order * machine.spindle_rpm / 60.0
+        for ax, g in zip((dp.x, dp.y), machine.drives.response(f_nu), strict=True):
+            m0 = ax.mass * (1.0 + mass_error)
+            # PE condition: a quarter of the acceleration the circle gives at this speed
+            acc_exp = excitation_um * 1e-6 * abs(g) * (2.0 * math.pi * f_nu) ** 2
+            ip = AxisMassParams(
+                acc_min=max(0.25 * acc_exp, 1e-6),
+                mass0=m0,
+                viscous=ax.viscous,
+                order=order,
+                window_revs=window_revs,
+                windows=windows,
+                mass_min=0.5 * m0,
+                mass_max=2.0 * m0,
+            )
+            idf = AxisMassIdentifier(ip)
+            self._ident.append(idf)
+            self._ident_state.append(idf.initial_state())
+
+    def attach(self, machine: MillingMachine) -> None:
+        """Put the identification circle on ``machine`` (the one that is cut); it is
+        switched off there again after ``stop_after`` windows."""
+        machine.set_excitation(*self.excitation)
+        self._excited = machine
+
+    def restart(self) -> None:
+        """Identify again from the current estimate (circle back on if attached)."""
+        for i, idf in enumerate(self._ident):
+            st = idf.initial_state()
+            st.mass = self._ident_state[i].mass
+            self._ident_state[i] = st
+        if self._excited is not None:
+            self._excited.set_excitation(*self.excitation)
+
+    @property
+    def identifying(self) -> bool:
+        """Whether the circle is on (when attached)."""
+        return self._excited is not None and self._excited.excitation[0] > 0.0
+
+    @property
+    def masses(self) -> tuple[float, float]:
+        """The identified masses (X, Y) in effect [kg]."""
+        return self._ident_state[0].mass, self._ident_state[1].mass
+
+    def mass_errors(self) -> tuple[float, float]:
+        """Identified / true mass - 1 of (X, Y) (truth, for scoring)."""
+        mx, my = self.masses
+        return mx / self.true_mass[0] - 1.0, my / self.true_mass[1] - 1.0
+
+    def __call__(self, rec: MillingRecord) -> tuple[F64, F64]:
+        from estimators.force_observer import cutting_force
+
+        out = []
+        for i, (cur, pos) in enumerate(((rec.ix, rec.x), (rec.iy, rec.y))):
+            q = np.round(pos / self.resolution) * self.resolution
+            if self.current_noise > 0.0 and self.rng is not None:
+                cur = cur + self.rng.normal(0.0, self.current_noise, cur.size)
+            self._state[i], trec = self._est[i].step(self._state[i], cur * self._kf[i], q, q)
+            # Q tau: the motor-side DOB (seed000 (3), B_M = F_CM = 0) plus J_M Q x''
+            q_tau = trec.t_sm + self._jm[i] * trec.acc_l
+            self._ident_state[i], irec = self._ident[i].step(
+                self._ident_state[i], trec.acc_l, trec.vel_l, q_tau, rec.psi
+            )
+            ld = self._load[i]
+            # seed000 (2) with the identified mass: J_L = m_hat - J_M (the front end has
+            # already taken J_M Q x'' off)
+            out.append(cutting_force(trec, irec.mass - self._jm[i], ld.B_L, ld.F_CL))
+        if (
+            self.stop_after is not None
+            and self._excited is not None
+            and min(st.updates for st in self._ident_state) >= self.stop_after
+        ):
+            self._excited.set_excitation(0.0, self.excitation[1])
         return out[0], out[1]
 
 
@@ -357,4 +491,10 @@ class EccentricityLoop:
         lg.rpm.append(self.machine.spindle_rpm)
 
 
-__all__ = ["EccentricityLoop", "ForceSource", "RevolutionLog"]
+__all__ = [
+    "AdaptiveObserverForceSource",
+    "EccentricityLoop",
+    "ForceSource",
+    "ObserverForceSource",
+    "RevolutionLog",
+]

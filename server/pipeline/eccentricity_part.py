@@ -11,10 +11,16 @@ Choices
 - The milling spindle follows the live spindle: ``1200 rpm * spindle_rpm / 3000`` (seed
   003's case 1 at the knob's default), including the default scenario's 80 % steps, so the
   tuner has speed changes to track.
-- The tuner sees the dynamometer's X force (as in seed 003's experiment), not an observer:
-  the observer force source costs about 1.7x the CPU (``docs/live-service.md``,
-  eccentricity);
-  with it the ``f1x`` channel (true 1x amplitude) would differ from ``cost``.
+- By default the tuner sees the dynamometer's X force (as in seed 003's experiment): the
+  observer force source costs about 1.7x the CPU (``docs/live-service.md``,
+  eccentricity). The ``ecc_force`` knob gives it the seed-000 observers' force instead
+  (``observer``: fixed mass; ``adaptive``: mass identified at spindle order N_f + 1/8,
+  :class:`server.pipeline.eccentricity_loop.AdaptiveObserverForceSource`), with the
+  observer's nominal mass off by ``ecc_mass_error`` percent; ``f1x`` (true 1x amplitude)
+  then differs from ``cost`` (the estimate's). With the fast tuner the adaptive
+  observer identifies for two windows and then switches its circle off (the circle
+  disturbs the fast tuner's one-revolution phasors; docs/reproductions/seed003-eccentricity.md).
+  Changing either knob rebuilds the observers and restarts the tuner.
 - Switching the tuner or ESC on/off keeps the machine running and restarts the tuner
   from zero modulation at the current time (a new adaptation, as at 1 s in Fig. 3).
 """
@@ -29,7 +35,12 @@ import numpy as np
 from common.arrays import F64
 from estimators.esc import EscParams
 from machine.milling import MillingParams
-from server.pipeline.eccentricity_loop import EccentricityLoop
+from server.pipeline.eccentricity_loop import (
+    AdaptiveObserverForceSource,
+    EccentricityLoop,
+    ForceSource,
+    ObserverForceSource,
+)
 
 #: revolutions of the tuner's log kept in the live service
 LOG_KEEP = 64
@@ -40,6 +51,10 @@ ECC_BASE_RPM = 1200.0
 #: (docs/reproductions/seed003-eccentricity.md: "ESC details")
 ESC_LIVE = EscParams(k_a=45.0, k_theta=50.0, amp_a_um=2.0, amp_theta_deg=2.0, freeze_revs=40)
 TUNERS = ("esc", "fast")
+#: delay of the tuner's start after its force source changed [s]
+OBSERVER_SETTLE_S = 1.0
+#: where the tuner's force comes from
+FORCE_SOURCES = ("dynamometer", "observer", "adaptive")
 
 #: channel name -> (unit, label); all on the slow display grid (group "eccentricity")
 ECC_CHANNELS: dict[str, tuple[str, str]] = {
@@ -53,6 +68,8 @@ ECC_CHANNELS: dict[str, tuple[str, str]] = {
     "ecc_true_deg": ("deg", "true tool eccentricity angle"),
     "ecc_fast_on": ("", "fast tuner running (1) or not (0)"),
     "ecc_esc_on": ("", "ESC running (1) or not (0)"),
+    "ecc_mass_err": ("%", "X mass of the tuner's observer (fixed or identified) vs true"),
+    "ecc_identifying": ("", "adaptive observer's identification circle on (1) or not (0)"),
 }
 
 
@@ -69,6 +86,10 @@ class LiveEccentricity:
         Cancellation on (else the tuner is off and no modulation is applied).
     adapt_start_s : float
         Simulated time at which the first adaptation starts.
+    force : {"dynamometer", "observer", "adaptive"}
+        The tuner's force: true, fixed observer, adaptive observer.
+    mass_error_pct : float
+        Error of the observers' nominal mass [%].
     """
 
     def __init__(
@@ -79,6 +100,8 @@ class LiveEccentricity:
         tuner: str = "esc",
         enabled: bool = True,
         adapt_start_s: float = 1.0,
+        force: str = "dynamometer",
+        mass_error_pct: float = 0.0,
     ) -> None:
         mp = MillingParams(eccentricity=eccentricity_um * 1e-6, eccentricity_deg=eccentricity_deg)
         self.loop = EccentricityLoop(
@@ -87,20 +110,64 @@ class LiveEccentricity:
         self.sample_time = self.loop.machine.sample_time
         self._carry = 0.0
         self._last: dict[str, float] = {}
-        self._key: tuple[float, float, str, float] = (
+        self._key: tuple[float, float, str, float, str, float] = (
             eccentricity_um,
             eccentricity_deg,
             self.loop.tuner,
             ECC_BASE_RPM,
+            "dynamometer",
+            0.0,
         )
         self._cancel = self.loop.machine.cancelling_modulation()
+        self._set_force(force, mass_error_pct)
+
+    def _set_force(self, force: str, mass_error_pct: float) -> None:
+        """Give the tuner the force of ``force`` (observers built from now on)."""
+        lp = self.loop
+        m = lp.machine
+        m.set_excitation(0.0, 1.5)
+        src: ForceSource | None = None
+        me = mass_error_pct / 100.0
+        if force == "observer":
+            src = ObserverForceSource(m, mass_error=me)
+        elif force == "adaptive":
+            # identify, then hold, when the fast tuner runs (module docstring)
+            stop = 2 if lp.tuner == "fast" else None
+            ad = AdaptiveObserverForceSource(m, mass_error=me, stop_after=stop)
+            ad.attach(m)
+            src = ad
+        lp.force_source = src
+        self._key = (*self._key[:4], force, float(mass_error_pct))
+
+    def _mass_error(self) -> tuple[float, float]:
+        """(X mass error [%], circle on) of the tuner's observer; NaN without one."""
+        src = self.loop.force_source
+        if isinstance(src, AdaptiveObserverForceSource):
+            return 100.0 * src.mass_errors()[0], 1.0 if src.identifying else 0.0
+        if isinstance(src, ObserverForceSource):
+            return self._key[5], 0.0
+        return math.nan, 0.0
 
     def configure(
-        self, eccentricity_um: float, eccentricity_deg: float, tuner: str, enabled: bool, rpm: float
+        self,
+        eccentricity_um: float,
+        eccentricity_deg: float,
+        tuner: str,
+        enabled: bool,
+        rpm: float,
+        force: str = "dynamometer",
+        mass_error_pct: float = 0.0,
     ) -> None:
         """Apply the knobs (cheap when nothing changed)."""
         mode = tuner if enabled else "off"
-        key = (float(eccentricity_um), float(eccentricity_deg), mode, float(rpm))
+        key = (
+            float(eccentricity_um),
+            float(eccentricity_deg),
+            mode,
+            float(rpm),
+            str(force),
+            float(mass_error_pct),
+        )
         if key == self._key:
             return
         lp = self.loop
@@ -110,7 +177,8 @@ class LiveEccentricity:
             m.milling = replace(m.milling, eccentricity=key[0] * 1e-6, eccentricity_deg=key[1])
         if key[3] != self._key[3]:
             lp.set_spindle_rpm(key[3])
-        if mode != self._key[2]:
+        new_force = key[4:] != self._key[4:] or (mode != self._key[2] and key[4] != "dynamometer")
+        if mode != self._key[2] or new_force:
             # a new adaptation from zero modulation, starting now
             lp.tuner = mode
             lp.esc_state = lp.esc.initial_state()
@@ -118,8 +186,14 @@ class LiveEccentricity:
             lp.a_um = lp.theta_deg = lp.b_um = lp.phi_deg = 0.0
             lp.a_n_um = lp.theta_n_deg = 0.0
             lp._started = False
-            lp.adapt_start_s = m.t
-        self._key = key
+            # new observers: their first samples start from rest (a spike in the
+            # estimated force) and the adaptive one needs ~2 windows (0.8 s at 1200 rpm)
+            # for the mass, so the tuner starts a second later (its cost reference is
+            # the revolution before it starts)
+            lp.adapt_start_s = m.t + (OBSERVER_SETTLE_S if new_force else 0.0)
+        self._key = (*key[:4], *self._key[4:])
+        if new_force:
+            self._set_force(key[4], key[5])
         self._cancel = m.cancelling_modulation()
 
     def step(self, t: F64, dt: float) -> dict[str, F64]:
@@ -145,6 +219,7 @@ class LiveEccentricity:
             for entries in log.__dict__.values():
                 del entries[:-LOG_KEEP]
         lp = self.loop
+        mass_err, ident = self._mass_error()
         a_c, th_c = self._cancel
         a = out["a_m_um"][idx]
         # a negative radius is the circle at theta + 180 deg (estimators.esc)
@@ -160,6 +235,8 @@ class LiveEccentricity:
             "ecc_true_deg": np.full(n, self._key[1]),
             "ecc_fast_on": np.full(n, 1.0 if lp.tuner == "fast" and lp._started else 0.0),
             "ecc_esc_on": np.full(n, 1.0 if lp.tuner == "esc" and lp._started else 0.0),
+            "ecc_mass_err": np.full(n, mass_err),
+            "ecc_identifying": np.full(n, ident),
         }
         self._last = {k: float(v[-1]) for k, v in res.items()}
         return res
@@ -172,4 +249,4 @@ class LiveEccentricity:
         return self.loop.state()
 
 
-__all__ = ["ECC_CHANNELS", "TUNERS", "LiveEccentricity"]
+__all__ = ["ECC_CHANNELS", "FORCE_SOURCES", "TUNERS", "LiveEccentricity"]

@@ -168,7 +168,8 @@ class EstimatesPublisher:
 
     def publish(self, body: Mapping[str, Any], now: float) -> bool:
         """Send ``body`` (never blocks; False when not connected)."""
-        self._last_pub = now
+        # on the period's grid (a late publish does not push the next one later)
+        self._last_pub = max(self._last_pub + self.period, now - self.period)
         c = self._client
         if c is None or not self.connected:
             return False

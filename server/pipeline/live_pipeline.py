@@ -54,7 +54,13 @@ from estimators.rls import IdentifierParams
 from machine.effects import EFFECT_NAMES, PlantEffects
 from machine.params import ADDED_WEIGHT_INERTIA, preset
 from machine.stage import SEED000_FORCE, SEED001_FORCE, CuttingForce, StageConfig
-from server.pipeline.eccentricity_part import ECC_BASE_RPM, ECC_CHANNELS, TUNERS, LiveEccentricity
+from server.pipeline.eccentricity_part import (
+    ECC_BASE_RPM,
+    ECC_CHANNELS,
+    FORCE_SOURCES,
+    TUNERS,
+    LiveEccentricity,
+)
 from server.pipeline.sources import MeasurementSource, ReplaySource, SimulatorSource, open_replay
 from server.pipeline.stage_harmonics import make_dfo
 from server.pipeline.stage_run import StageRun
@@ -209,6 +215,17 @@ def _knobs() -> dict[str, Knob]:
             "(converges from any phase in ~5 revolutions)",
             choices=TUNERS,
         ),
+        Knob(
+            "ecc_force",
+            "dynamometer",
+            None,
+            None,
+            "",
+            "tuner's force: dynamometer, seed-000 observers (fixed mass) or adaptive "
+            "observers (mass identified at spindle order 4.125)",
+            choices=FORCE_SOURCES,
+        ),
+        Knob("ecc_mass_error", 0.0, -10.0, 10.0, "%", "observers' nominal mass error"),
     ]
     # each plant effect the observers do not model (machine.effects), on/off
     ks += [
@@ -308,6 +325,8 @@ class LivePipeline:
                 float(k["eccentricity_deg"].value),
                 tuner=str(k["tuner"].value),
                 enabled=bool(k["esc_on"].value),
+                force=str(k["ecc_force"].value),
+                mass_error_pct=float(k["ecc_mass_error"].value),
             )
         self._apply(0.0)
 
@@ -441,6 +460,8 @@ class LivePipeline:
                 str(k["tuner"].value),
                 bool(k["esc_on"].value),
                 ECC_BASE_RPM * freq,
+                str(k["ecc_force"].value),
+                float(k["ecc_mass_error"].value),
             )
         noise = float(k["current_noise"].value)
         effects = tuple(e for e in EFFECT_NAMES if k[f"effect_{e}"].value)

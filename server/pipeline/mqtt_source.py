@@ -35,6 +35,7 @@ class MqttSource:
     kind = "two_inertia"
     has_truth = False
     knobs_apply = False
+    paced = False
     finished = False
 
     def __init__(self, feed: DriveFeed) -> None:

@@ -26,6 +26,10 @@ has_truth : bool
 knobs_apply : bool
     True when the scenario's knobs change what the source produces (the simulator). A
     log or a live feed ignores :meth:`MeasurementSource.reconfigure`.
+paced : bool
+    True when the live loop paces the source by its clock (the simulator, a replayed
+    log: ``speed`` applies). A live feed (MQTT) is not paced: it sets its own pace, and
+    the loop takes its samples as they arrive.
 t : float
     Time of the next sample, counted from the source's start [s]. Advances by
     ``sample_time`` per sample handed out (an empty block leaves it), and may jump only
@@ -137,6 +141,9 @@ class MeasurementSource(Protocol):
     def knobs_apply(self) -> bool: ...
 
     @property
+    def paced(self) -> bool: ...
+
+    @property
     def t(self) -> float: ...
 
     @property
@@ -190,6 +197,7 @@ class SimulatorSource:
     kind = "two_inertia"
     has_truth = True
     knobs_apply = True
+    paced = True
     finished = False
 
     def __init__(self, config: StageConfig | None = None, seed: int = 0) -> None:
@@ -309,6 +317,7 @@ class ReplaySource:
     kind = "two_inertia"
     has_truth = False
     knobs_apply = False
+    paced = True
 
     def __init__(self, log: MeasuredLog) -> None:
         self.log = log

@@ -20,7 +20,8 @@ def _json_safe(v: Any) -> Any:
 
     Used for the ``got`` of an error: a non-finite float comes back as ``"nan"`` or
     ``"inf"``, not ``null``, so that a client that sent NaN is not told it sent nothing
-    (deliberate, unlike ``protocol._clean`` where NaN means "no value yet"). A numpy
+    (deliberate, unlike :func:`common.jsonsafe.json_safe`, used for the stream, where NaN
+    means "no value yet"). A numpy
     scalar is its number (it came back as ``"np.float64(...)"`` before).
     """
     if getattr(v, "ndim", None) == 0 and hasattr(v, "item"):  # a numpy scalar: its number

@@ -43,6 +43,8 @@ class MachineRow(BaseModel):
     dashboard: str | None = None
     source: str | None = None
     messages: int = 0
+    #: the drive block's publish time behind this estimate (unix s; for latency)
+    drive_wall: float | None = None
 
 
 class FleetState:
@@ -96,6 +98,7 @@ class FleetState:
             dashboard=d.get("dashboard") if isinstance(d.get("dashboard"), str) else None,
             source=d.get("source") if isinstance(d.get("source"), str) else None,
             messages=count,
+            drive_wall=_num(d.get("drive_wall")),
         )
 
     def rows(self) -> list[MachineRow]:
@@ -184,14 +187,20 @@ def create_fleet_app(cfg: BrokerConfig, stale_after: float = 5.0) -> FastAPI:
         state.listeners.append(entry)
         try:
             await sock.send_text(json.dumps({"rows": [r.model_dump() for r in state.rows()]}))
+            refreshed = time.monotonic()
             while True:
+                # each estimate as it arrives; all rows once a second, so ages and stale
+                # states move even while other machines keep the queue busy
+                wait = max(0.0, refreshed + 1.0 - time.monotonic())
                 try:
-                    row = await asyncio.wait_for(q.get(), timeout=1.0)
+                    row = await asyncio.wait_for(q.get(), timeout=wait)
                     await sock.send_text(row)
-                except TimeoutError:  # refresh ages and stale states once a second
-                    await sock.send_text(
-                        json.dumps({"rows": [r.model_dump() for r in state.rows()]})
-                    )
+                except TimeoutError:
+                    pass
+                if time.monotonic() - refreshed >= 1.0:
+                    refreshed = time.monotonic()
+                    rows = [r.model_dump() for r in state.rows()]
+                    await sock.send_text(json.dumps({"rows": rows}))
         except (WebSocketDisconnect, RuntimeError):
             pass
         finally:

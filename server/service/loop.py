@@ -27,7 +27,11 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from server.errors import CutwatchError
+from server.pipeline.broker import BrokerConfig, parse_broker_url
+from server.pipeline.drive_feed import DriveFeed
+from server.pipeline.estimates_out import EstimatesPublisher
 from server.pipeline.live_pipeline import LivePipeline
+from server.pipeline.mqtt_source import MqttSource
 from server.service import protocol
 from server.service.settings import MAX_SPEED, Settings
 
@@ -37,6 +41,21 @@ if TYPE_CHECKING:
 
 #: significant digits of the displayed samples (relative to each frame's largest value)
 DISPLAY_DIGITS = 5
+
+
+#: how often the loop looks for new samples of a live feed (its latency floor) [s]
+LIVE_POLL_S = 0.01
+
+
+def broker_config(settings: Settings) -> BrokerConfig:
+    """The broker connection of the settings (``mqtt_*``)."""
+    pw = settings.mqtt_password.get_secret_value() if settings.mqtt_password else None
+    return parse_broker_url(
+        settings.mqtt_broker or "",
+        username=settings.mqtt_username,
+        password=pw,
+        cafile=settings.mqtt_cafile,
+    )
 
 
 class ClientQueue:
@@ -176,7 +195,27 @@ class LiveLoop:
     def __init__(self, settings: Settings, hub: Hub) -> None:
         self.settings = settings
         self.hub = hub
-        self.pipeline = LivePipeline(settings.scenario, seed=settings.seed)
+        #: a real machine's drive data from the broker (settings.source == "mqtt")
+        self.feed: DriveFeed | None = None
+        #: the estimates on cutwatch/<machine>/estimates (settings.mqtt_publish_hz > 0)
+        self.estimates_out: EstimatesPublisher | None = None
+        if settings.source == "mqtt" or settings.mqtt_publish_hz > 0:
+            cfg = broker_config(settings)
+            if settings.source == "mqtt":
+                self.feed = DriveFeed(
+                    cfg,
+                    settings.mqtt_machine,
+                    max_samples=10**7,
+                    max_seconds=settings.mqtt_buffer_s,
+                )
+            if settings.mqtt_publish_hz > 0:
+                self.estimates_out = EstimatesPublisher(
+                    cfg, settings.mqtt_machine, settings.mqtt_publish_hz, settings.public_url
+                )
+        if self.feed is not None:
+            self.pipeline = LivePipeline(seed=settings.seed, source=MqttSource(self.feed))
+        else:
+            self.pipeline = LivePipeline(settings.scenario, seed=settings.seed)
         self.lock = threading.RLock()
         self._wake = threading.Event()
         self._stop = threading.Event()
@@ -256,6 +295,10 @@ class LiveLoop:
 
     # ------------------------------------------------------------------ thread
     def start(self) -> None:
+        if self.feed is not None:
+            self.feed.start()
+        if self.estimates_out is not None:
+            self.estimates_out.start()
         self._thread = threading.Thread(target=self._run, name="cutwatch-loop", daemon=True)
         self._thread.start()
 
@@ -264,6 +307,9 @@ class LiveLoop:
         self._wake.set()
         if self._thread is not None:
             self._thread.join(timeout)
+        for part in (self.feed, self.estimates_out):
+            if part is not None:
+                part.stop()
 
     @property
     def running(self) -> bool:
@@ -279,11 +325,17 @@ class LiveLoop:
         last_frame = time.monotonic()
         try:
             while not self._stop.is_set():
+                src = self.pipeline.source
+                if isinstance(src, MqttSource) and src.needs_rebuild:  # a new meta
+                    self.set_pipeline(LivePipeline(seed=self.settings.seed, source=src.renewed()))
                 with self.lock:
                     paused, speed = self.paused, self.speed
                     block_s = self.block_n * self.pipeline.sample_time
                     due = self._wall0 + (self.pipeline.t + block_s - self._sim0) / max(speed, 1e-9)
+                    paced = getattr(self.pipeline.source, "paced", True)
                 now = time.monotonic()
+                if not paced:  # a live feed sets its own pace: take what has arrived
+                    due = now
                 if paused:
                     self.lag_s = 0.0
                     self._wake.wait(self.frame_period)
@@ -309,7 +361,7 @@ class LiveLoop:
                     else:  # a live feed with nothing yet: time stands; wait, re-anchor
                         self._anchor()
                 if not got:
-                    self._wake.wait(self.frame_period)
+                    self._wake.wait(self.frame_period if paced else LIVE_POLL_S)
                     self._wake.clear()
                     if time.monotonic() - last_frame >= self.frame_period:
                         last_frame = time.monotonic()
@@ -318,6 +370,8 @@ class LiveLoop:
                 if self.scene is not None:
                     p = self.pipeline
                     self.scene.update(p.latest, p.workpiece_removed, p.t)
+                if self.estimates_out is not None:
+                    self._estimates(out)
                 done = time.monotonic()
                 lag = max(0.0, done - due)
                 self.lag_s = lag
@@ -333,6 +387,34 @@ class LiveLoop:
         except Exception as exc:  # keep the service up and say why the loop stopped
             self.error = f"{type(exc).__name__}: {exc}"
             raise
+
+    def _estimates(self, out: dict[str, np.ndarray]) -> None:
+        pub = self.estimates_out
+        assert pub is not None
+        pub.observe(out)
+        now = time.time()
+        if pub.due(now):
+            src = self.pipeline.source
+            body = pub.build(
+                now,
+                self.pipeline.channels(),
+                self.pipeline.t,
+                src.name,
+                health=self.health(),
+                drive_wall=src.last_wall if isinstance(src, MqttSource) else None,
+                feed_health=self.feed.health() if self.feed is not None else None,
+            )
+            pub.publish(body, now)
+
+    def broker_status(self) -> dict[str, Any]:
+        """The measurement source, and the broker parts when there are any."""
+        src = self.pipeline.source
+        out: dict[str, Any] = {"source": src.name}
+        if isinstance(src, MqttSource):
+            out["feed"] = src.status()
+        if self.estimates_out is not None:
+            out["estimates_out"] = self.estimates_out.health()
+        return out
 
     # ------------------------------------------------------------------ frames
     def _decimated(

@@ -29,6 +29,8 @@ import json
 import math
 from typing import Any
 
+from common.jsonsafe import json_safe
+
 VERSION = 1
 #: channel groups shown on the fast grid ``t``; every other group goes on ``ts``
 FAST_GROUPS = frozenset({"force"})
@@ -68,19 +70,6 @@ SCHEMA: dict[str, Any] = {
 }
 
 
-def _clean(x: Any) -> Any:
-    """JSON-safe copy: non-finite floats become ``None``, tuples lists."""
-    if isinstance(x, float):
-        return x if math.isfinite(x) else None
-    if isinstance(x, dict):
-        return {str(k): _clean(v) for k, v in x.items()}
-    if isinstance(x, list | tuple):
-        return [_clean(v) for v in x]
-    if hasattr(x, "item"):  # numpy scalar
-        return _clean(x.item())
-    return x
-
-
 def hello(
     channels: list[dict[str, str]], sample_time: float, scenario: str, knobs: dict[str, Any]
 ) -> str:
@@ -93,7 +82,7 @@ def hello(
         "scenario": scenario,
         "knobs": knobs,
     }
-    return json.dumps(_clean(msg), allow_nan=False)
+    return json.dumps(json_safe(msg), allow_nan=False)
 
 
 def data_body(
@@ -117,8 +106,8 @@ def data_body(
         "t": t,
         "ts": ts,
         "ch": ch,
-        "health": _clean(health),
-        "knobs": _clean(knobs),
+        "health": json_safe(health),
+        "knobs": json_safe(knobs),
     }
     return json.dumps(body, allow_nan=False, separators=(",", ":"))
 

@@ -82,6 +82,18 @@ class Health(LoopHealth):
     viser_port: int
     viser_running: bool
     scenario: str
+    source: str = Field(description="where the measurements come from: simulator, replay, mqtt")
+    feed: dict[str, Any] | None = Field(
+        default=None,
+        description=(
+            "the broker feed (source mqtt): state (receiving, waiting for meta, refused, "
+            "broker not connected), the broker's last refusal, and the counters of gaps, "
+            "duplicates, late blocks, restarts, drops and malformed blocks by kind"
+        ),
+    )
+    estimates_out: dict[str, Any] | None = Field(
+        default=None, description="the estimates publisher (mqtt_publish_hz > 0)"
+    )
 
 
 class Scenarios(BaseModel):

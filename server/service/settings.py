@@ -8,6 +8,7 @@ token; see :func:`check_security`).
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Literal
 
 from pydantic import Field, SecretStr
 from pydantic_settings import BaseSettings, SettingsConfigDict
@@ -57,6 +58,41 @@ class Settings(BaseSettings):
     token: SecretStr | None = Field(default=None, description="bearer token for mutating endpoints")
     seed: int = Field(default=0, ge=0, description="seed of the simulation's random generators")
     viser: bool = Field(default=True, description="start the viser 3D view on viser_port")
+    source: Literal["simulator", "mqtt"] = Field(
+        default="simulator",
+        description=(
+            "where the measurements come from: the simulated machine, or a real machine's "
+            "drive blocks on the broker (mqtt_broker, mqtt_machine)"
+        ),
+    )
+    mqtt_broker: str | None = Field(
+        default=None,
+        description="broker URL mqtt://host[:port] or mqtts://host[:port] (docs/broker.md)",
+    )
+    mqtt_machine: str = Field(
+        default="machine-1", description="machine name: topics cutwatch/<machine>/..."
+    )
+    mqtt_username: str | None = Field(default=None, description="broker user name")
+    mqtt_password: SecretStr | None = Field(default=None, description="broker password")
+    mqtt_cafile: Path | None = Field(
+        default=None, description="CA certificate file: connect to the broker with TLS"
+    )
+    mqtt_publish_hz: float = Field(
+        default=0.0,
+        ge=0.0,
+        le=50.0,
+        description="estimates published on cutwatch/<machine>/estimates per second (0: off)",
+    )
+    mqtt_buffer_s: float = Field(
+        default=10.0,
+        gt=0.0,
+        le=600.0,
+        description="drive samples buffered from the broker [s]; older ones are dropped",
+    )
+    public_url: str | None = Field(
+        default=None,
+        description="this dashboard's URL as others reach it (the fleet page links it)",
+    )
     reports_dir: Path = Field(
         default=Path("reports"),
         description="directory whose sub-directories hold residual reports (GET /residual)",
@@ -81,4 +117,9 @@ def check_security(settings: Settings) -> None:
         raise CutwatchError(
             f"binding to {settings.host!r} (not loopback) requires a bearer token: set "
             "CUTWATCH_TOKEN in the environment; refusing to start"
+        )
+    if (settings.source == "mqtt" or settings.mqtt_publish_hz > 0) and not settings.mqtt_broker:
+        what = "source mqtt" if settings.source == "mqtt" else "mqtt_publish_hz > 0"
+        raise CutwatchError(
+            f"{what} needs a broker: set CUTWATCH_MQTT_BROKER (or --broker) to mqtt://host[:port]"
         )

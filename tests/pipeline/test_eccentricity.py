@@ -428,3 +428,134 @@ def test_table1_gains_on_a_static_cone_need_far_more_than_10_s() -> None:
     assert 30.0 < t < 60.0
     fast = EscParams(k_a=4 * 45.0, k_theta=4 * 50.0, freeze_revs=40)
     assert static_cone_time(fast, 12.18, u_star, 0.05, 60.0) < 15.0
+
+
+# ---------------------------------------------------------------- item 7: mass error
+
+
+def _identifier(order: float = 4.125, **kw: float) -> object:
+    from estimators.axis_mass import AxisMassIdentifier, AxisMassParams
+
+    p = {"mass0": 100.0, "viscous": 300.0, "order": order, "window_revs": 8, "windows": 5}
+    p.update(kw)
+    return AxisMassIdentifier(AxisMassParams(**p))  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize("samples_per_rev", [250, 312.5])
+def test_mass_identifier_ignores_every_spindle_harmonic(samples_per_rev: float) -> None:
+    """Motor force = m x'' + b x' + a cut force with a mean, 1x, 4x and 8x 100-1000 times
+    the inertial force at the excitation order: the mass comes out exact."""
+    from estimators.axis_mass import AxisMassIdentifier
+
+    m, b, nu = 150.0, 300.0, 4.125
+    psi = 2 * np.pi * np.arange(int(64 * samples_per_rev)) / samples_per_rev
+    w = 2 * np.pi * 20.0  # rad/s of the spindle
+    x = 0.3e-6 * np.cos(nu * psi + 0.4)  # identification circle's X motion [m]
+    acc = -((nu * w) ** 2) * x
+    vel = -0.3e-6 * nu * w * np.sin(nu * psi + 0.4)
+    cut = 400.0 + 12.0 * np.cos(psi + 0.7) + 60.0 * np.cos(4 * psi) + 9.0 * np.sin(8 * psi)
+    force = m * acc + b * vel + cut
+    idf = _identifier()
+    assert isinstance(idf, AxisMassIdentifier)
+    st = idf.initial_state()
+    for i0 in range(0, psi.size, 97):  # odd block lengths
+        sl = slice(i0, i0 + 97)
+        st, rec = idf.step(st, acc[sl], vel[sl], force[sl], psi[sl])
+    assert st.updates == 6  # 8 windows, the first (start-up) one discarded, the last open
+    assert st.mass == pytest.approx(m, rel=1e-9)
+    assert np.all(rec.mass == st.mass) or rec.mass[-1] == st.mass
+
+
+def test_mass_identifier_does_not_update_without_excitation() -> None:
+    """seed 000's PE condition: no circle, no update (the mass stays at its start)."""
+    from estimators.axis_mass import AxisMassIdentifier
+
+    psi = 2 * np.pi * np.arange(250 * 40) / 250
+    cut = 400.0 + 12.0 * np.cos(psi + 0.7)
+    idf = _identifier(acc_min=1e-3)
+    assert isinstance(idf, AxisMassIdentifier)
+    st, rec = idf.step(idf.initial_state(), 0 * psi, 0 * psi, cut, psi)
+    assert st.updates == 0 and st.mass == 100.0
+    assert np.all(rec.mass == 100.0)
+
+
+@pytest.mark.parametrize(
+    ("kw", "match"),
+    [
+        ({"order": 4.0}, "order"),
+        ({"order": 4.1}, "order"),
+        ({"windows": 0}, "windows"),
+        ({"mass0": -1.0}, "mass0"),
+        ({"mass_min": 200.0, "mass_max": 300.0}, "mass0"),
+    ],
+)
+def test_bad_mass_identifier_parameters_are_named(kw: dict[str, float], match: str) -> None:
+    with pytest.raises(ParameterError, match=match):
+        _identifier(**kw)
+
+
+def test_excitation_is_refused_beyond_the_axis_limit() -> None:
+    from machine.milling import MillingMachine
+
+    with pytest.raises(ParameterError, match="amplitude"):
+        MillingMachine().set_excitation(1e-3, 4.125)
+    with pytest.raises(ParameterError, match="order"):
+        MillingMachine().set_excitation(1e-6, 0.0)
+
+
+def _inf(v: object) -> float:
+    return math.inf if v is None else float(v)  # type: ignore[arg-type]
+
+
+def test_a_3pct_mass_error_leaks_into_the_1x_force(reproduction: dict[str, object]) -> None:
+    """The cause, measured: 3 % of m w^2 times the carriage circle, ~12 % of the
+    eccentricity's 1x force, predicts the fixed observer's modulation error."""
+    rows = _rows(reproduction)
+    p = "case1.estimated_force.mass_error_3pct"
+    w = 2 * np.pi * 20.0
+    assert rows[f"{p}.leak_1x_N"] == pytest.approx(0.03 * 150.0 * w**2 * 20e-6, rel=0.01)
+    assert 0.1 < rows[f"{p}.leak_ratio"] < 0.13
+    assert rows[f"{p}.predicted_param_error"] == pytest.approx(rows[f"{p}.param_error"], rel=0.1)
+
+
+def test_adaptive_observer_converges_with_a_3pct_mass_error(
+    reproduction: dict[str, object],
+) -> None:
+    """The fixed observer with +-3 % never converges; the adaptive one does within 1.5x
+    the exact-mass time, at Table 1's eccentricity phase and at 0 / 315 deg."""
+    rows = _rows(reproduction)
+    checks = _checks(reproduction)
+    e = "case1.estimated_force"
+    t_exact = rows[f"{e}.converge_time_s"]
+    for label in ("mass_error_3pct", "mass_error_minus3pct"):
+        assert _inf(rows[f"{e}.{label}.converge_time_s"]) == math.inf
+        assert rows[f"{e}.{label}.cost_reduction"] > 0.1
+        a = f"{e}.{label}.adaptive_mass"
+        assert _inf(rows[f"{a}.converge_time_s"]) <= 1.5 * t_exact
+        assert rows[f"{a}.cost_reduction"] < 0.1
+        assert rows[f"{a}.param_error"] < 0.05
+        assert abs(rows[f"{a}.mass_error_x"]) < 0.005
+        assert abs(rows[f"{a}.mass_error_y"]) < 0.005
+        assert checks[f"{e}.{label}.adaptive_converges_within_1.5x_exact"]
+    for deg in (0, 315):
+        p = f"{e}.ecc_{deg}deg"
+        assert _inf(rows[f"{p}.mass_error_3pct.converge_time_s"]) == math.inf
+        assert _inf(rows[f"{p}.adaptive_mass.converge_time_s"]) <= 1.5 * _inf(
+            rows[f"{p}.exact.converge_time_s"]
+        )
+    assert rows[f"{e}.mass_error_3pct.adaptive_mass.mass_time_s"] < 1.0
+
+
+def test_adaptive_observer_under_current_noise_matches_the_exact_mass(
+    reproduction: dict[str, object],
+) -> None:
+    """8 seeds of 0.05 A current noise: the adaptive observer (+3 % nominal) reaches the
+    cancelling modulation as often and as fast as the exact-mass fixed one."""
+    rows = _rows(reproduction)
+    p = "case1.estimated_force.mass_error_3pct.adaptive_mass.current_noise"
+    assert rows[f"{p}.adaptive.param_converged"] == 8.0
+    assert rows[f"{p}.adaptive.param_converged"] >= rows[f"{p}.exact_fixed.param_converged"]
+    assert rows[f"{p}.adaptive.param_converge_time_s_median"] <= 1.1 * _inf(
+        rows[f"{p}.exact_fixed.param_converge_time_s_median"]
+    )
+    assert rows[f"{p}.adaptive.converged"] >= rows[f"{p}.exact_fixed.converged"]

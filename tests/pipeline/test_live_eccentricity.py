@@ -123,3 +123,52 @@ def test_the_live_tuner_log_stays_bounded() -> None:
         p.step(125)
     assert p._ecc is not None
     assert 0 < len(p._ecc.loop.log.t_end) <= LOG_KEEP + 30
+
+
+def _live_param_error(force: str, mass_error_pct: float, seconds: float) -> tuple[float, float]:
+    """|u - u*| / |u*| of the live ESC after ``seconds``, and its true 1x / initial."""
+    e = LiveEccentricity(force=force, mass_error_pct=mass_error_pct)
+    dt = 4e-4
+    f1x0 = out = None
+    for i in range(round(seconds / (BLOCK * dt))):
+        out = e.step((i * BLOCK + np.arange(BLOCK)) * dt, dt)
+        if f1x0 is None and np.isfinite(out["ecc_f1x"][-1]):
+            f1x0 = float(out["ecc_f1x"][-1])
+    assert out is not None and f1x0 is not None
+    u = out["ecc_a_m"][-1] * np.exp(1j * np.radians(out["ecc_theta_m"][-1]))
+    us = out["ecc_a_cancel"][-1] * np.exp(1j * np.radians(out["ecc_theta_cancel"][-1]))
+    return float(abs(u - us) / abs(us)), float(out["ecc_f1x"][-1] / f1x0)
+
+
+@pytest.mark.parametrize("mass_error_pct", [3.0, -3.0])
+def test_live_esc_on_the_adaptive_observer_converges_under_a_mass_error(
+    mass_error_pct: float,
+) -> None:
+    """Issue 13 item 7 live: with the observers' mass 3 % off, the ESC on the adaptive
+    observer reaches the cancelling modulation in 30 s; on the fixed one it settles on a
+    wrong modulation (the inertial leak, docs/reproductions/seed003-eccentricity.md)."""
+    err_a, f1x_a = _live_param_error("adaptive", mass_error_pct, 30.0)
+    err_f, f1x_f = _live_param_error("observer", mass_error_pct, 30.0)
+    assert err_a < 0.05 and f1x_a < 0.05
+    assert err_f > 0.08 and f1x_f > 0.08
+
+
+def test_force_source_knobs() -> None:
+    p = LivePipeline()
+    p.set_knob("spindle_changes", False)
+    first = run(p, 0.1)
+    assert np.isnan(first["ecc_mass_err"]).all()  # the dynamometer has no mass
+    p.set_knob("ecc_force", "adaptive")
+    p.set_knob("ecc_mass_error", 3.0)
+    out = run(p, 0.1)
+    assert out["ecc_mass_err"][-1] == pytest.approx(3.0)
+    assert out["ecc_identifying"][-1] == 1.0
+    out = run(p, 1.5)
+    assert abs(out["ecc_mass_err"][-1]) < 0.5
+    with pytest.raises(ParameterError, match=r"ecc_force.*one of dynamometer, observer, adaptive"):
+        p.set_knob("ecc_force", "strain gauge")
+    with pytest.raises(ParameterError, match=r"ecc_mass_error"):
+        p.set_knob("ecc_mass_error", 20.0)
+    p.set_knob("ecc_force", "observer")
+    out = run(p, 0.1)
+    assert out["ecc_mass_err"][-1] == pytest.approx(3.0) and out["ecc_identifying"][-1] == 0.0

@@ -5,6 +5,8 @@ Examples::
     cutwatch serve                       # http://127.0.0.1:8000/
     cutwatch serve --speed 0             # start paused
     CUTWATCH_TOKEN=secret cutwatch serve --host 0.0.0.0
+    cutwatch serve --source mqtt --broker mqtt://127.0.0.1:1883 --machine mill-1 \
+        --publish-hz 10                  # a real machine's drive data from a broker
 
 Options override the ``CUTWATCH_*`` environment variables. Any address other than
 loopback requires ``CUTWATCH_TOKEN`` (mutating endpoints then need
@@ -37,6 +39,18 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="simulated seconds per wall second; 0 = start paused (default 1)",
     )
     p.add_argument("--no-viser", action="store_true", help="do not start the viser 3D view")
+    p.add_argument(
+        "--source",
+        choices=("simulator", "mqtt"),
+        help="measurements from the simulated machine (default) or a broker (--broker)",
+    )
+    p.add_argument("--broker", help="MQTT broker URL mqtt://host[:port] (docs/broker.md)")
+    p.add_argument("--machine", help="machine name on the broker (topics cutwatch/<machine>/...)")
+    p.add_argument(
+        "--publish-hz",
+        type=float,
+        help="publish estimates on cutwatch/<machine>/estimates at this rate (default 0: off)",
+    )
     p.add_argument("--log-level", default="warning", help="uvicorn log level")
 
 
@@ -56,6 +70,10 @@ def build_settings(args: argparse.Namespace) -> Settings:
             "scenario": args.scenario,
             "speed": args.speed,
             "viser": False if args.no_viser else None,
+            "source": args.source,
+            "mqtt_broker": args.broker,
+            "mqtt_machine": args.machine,
+            "mqtt_publish_hz": args.publish_hz,
         }.items()
         if v is not None
     }

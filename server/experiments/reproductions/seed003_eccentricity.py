@@ -37,7 +37,12 @@ from estimators.fast_tuner import FastTunerParams
 from machine.feed_drives import AxisParams, FeedDriveParams
 from machine.milling import MillingMachine, MillingParams
 from server.experiments.reproduction import Check, Reproduction, Row, Section
-from server.pipeline.eccentricity_loop import EccentricityLoop, ForceSource, ObserverForceSource
+from server.pipeline.eccentricity_loop import (
+    AdaptiveObserverForceSource,
+    EccentricityLoop,
+    ForceSource,
+    ObserverForceSource,
+)
 
 NAME = "eccentricity"
 SOURCE = "seed 003 (Bahtiyar, Sencer et al.) Table 1, Fig. 3"
@@ -77,6 +82,14 @@ ROWS = [
     "case1.estimated_force.converge_time_s",
     "case1.estimated_force.cost_reduction",
     "case1.estimated_force[.mass_error_3pct|.current_noise].<param_error|...>",
+    "case1.estimated_force.mass_error_3pct.<leak_1x_N|eccentricity_1x_N|leak_ratio|"
+    "predicted_param_error|mass_from_1x_motion_error>",
+    "case1.estimated_force[.mass_error_<3pct|minus3pct>].adaptive_mass.<converge_time_s|"
+    "cost_reduction|param_error|mass_error_<x|y>|mass_time_s|fast_tuner.*>",
+    "case1.estimated_force.mass_error_minus3pct.<converge_time_s|cost_reduction|param_error>",
+    "case1.estimated_force.adaptive_mass.excitation_<cut_force_N|inertial_force_N|ratio>",
+    "case1.estimated_force.ecc_<0|315>deg.<exact|mass_error_3pct|adaptive_mass>.converge_time_s",
+    "case1.estimated_force.mass_error_3pct.adaptive_mass.current_noise.<converged|...>",
 ]
 
 ADAPT_START = 1.0  # [s] "Adaptation start" of Fig. 3
@@ -129,7 +142,8 @@ def run_case(
     force_source: ForceSource | None = None,
     drives: FeedDriveParams | None = None,
 ) -> Trace:
-    """Run one cut for ``seconds`` with the tuner starting at :data:`ADAPT_START`."""
+    """Run one cut for ``seconds`` with the tuner starting at :data:`ADAPT_START`; an
+    adaptive observer's identification circle is put on the machine cut."""
     loop = EccentricityLoop(
         mp,
         tuner=tuner,
@@ -139,6 +153,8 @@ def run_case(
         force_source=force_source,
         machine=MillingMachine(mp, drives),
     )
+    if isinstance(force_source, AdaptiveObserverForceSource):
+        force_source.attach(loop.machine)
     ts, fxs, fys, psis = [], [], [], []
     changed = False
     while loop.machine.t < seconds:
@@ -918,6 +934,391 @@ def rows_estimated_force() -> Section:
     return rows, checks
 
 
+#: the adaptive observer's identification circle [um] (commanded; the carriage moves
+#: |G| = 0.65 of it at 82.5 Hz, case 1)
+EXCITATION_UM = 1.0
+#: seeds of the current-noise rows of the adaptive observer
+NOISE_SEEDS = 8
+
+
+def _settle_phasors(
+    mp: MillingParams, mass_error: float, u_um: complex, revs: int = 60
+) -> tuple[complex, complex, complex, complex]:
+    """Steady cut with the modulation ``u_um`` held (no tuner): 1x phasors over the last
+    revolution of the true X force, the fixed observer's estimated X force, the X motor
+    force and the X carriage acceleration."""
+    m = MillingMachine(mp)
+    obs = ObserverForceSource(MillingMachine(mp), mass_error=mass_error)
+    a, th = abs(u_um) * 1e-6, math.atan2(u_um.imag, u_um.real)
+    n = round(m.samples_per_revolution())
+    for _ in range(revs):
+        rec = m.step(n, a, th)
+        fx_hat, _ = obs(rec)
+    ts = m.sample_time
+    kf = m.drives.params.x.force_constant
+    # carriage acceleration by central differences (sample k-1), aligned with its angle
+    acc = (rec.x[2:] - 2.0 * rec.x[1:-1] + rec.x[:-2]) / ts**2
+    psi = rec.psi[1:-1]
+    return (
+        spindle_harmonic(rec.fx, rec.psi),
+        spindle_harmonic(fx_hat[1:], rec.psi[:-1]),
+        spindle_harmonic(rec.ix[1:-1] * kf, psi),
+        spindle_harmonic(acc, psi),
+    )
+
+
+def rows_mass_error_leak() -> Section:
+    """Why a 3 % observer mass breaks the ESC: the inertial leak at the spindle frequency.
+
+    At the cancelling modulation the carriage circles at 1x with the eccentricity's radius;
+    an observer with mass m(1 + d) leaves d m x'' in its estimate, at the same frequency
+    and proportional to the modulation. The tuner zeroes the estimated 1x, i.e. the true
+    1x plus the leak; with f0 the 1x force without modulation and L the leak at the
+    cancelling modulation, the force is affine in the modulation, so the modulation found
+    is off by |L / (L - f0)| (the predicted param error).
+    """
+    mp = case_params(1)
+    a_s, th_s = MillingMachine(mp).cancelling_modulation()
+    u_star = a_s * 1e6 * complex(math.cos(th_s), math.sin(th_s))
+    f0_true, _, tau0, acc0 = _settle_phasors(mp, 0.03, 0j)
+    f1_true, f1_est, tau1, acc1 = _settle_phasors(mp, 0.03, u_star)
+    leak = f1_est - f1_true
+    # a regression of the motor force on the 1x acceleration over the modulation's range
+    # (what seed 000's RLS would see here): the cutting force's response to the
+    # modulation is folded into the mass
+    da, dy = acc1 - acc0, tau1 - tau0
+    m_1x = (da.conjugate() * dy).real / abs(da) ** 2
+    m_true = MillingMachine(mp).drives.params.x.mass
+    p = "case1.estimated_force.mass_error_3pct"
+    rows = [
+        Row(
+            f"{p}.leak_1x_N",
+            abs(leak),
+            None,
+            "N",
+            "1x of (estimated - true) X force at the cancelling modulation; fixed observer, "
+            "mass +3 %: 0.03 m w^2 x 20 um",
+        ),
+        Row(
+            f"{p}.eccentricity_1x_N",
+            abs(f0_true),
+            None,
+            "N",
+            "1x of the true X force without modulation (what the ESC must cancel)",
+        ),
+        Row(f"{p}.leak_ratio", abs(leak) / abs(f0_true), None, "-", "leak / eccentricity 1x"),
+        Row(
+            f"{p}.predicted_param_error",
+            abs(leak / (leak - f0_true)),
+            None,
+            "-",
+            "|L / (L - f0)|: the modulation error any tuner zeroing the estimated 1x reaches",
+        ),
+        Row(
+            f"{p}.mass_from_1x_motion_error",
+            m_1x / m_true - 1.0,
+            None,
+            "-",
+            "mass from the 1x motion (LS of the motor force on x'' between no modulation and "
+            "the cancelling one) / true - 1: the cut's response is folded into it",
+        ),
+    ]
+    return rows, []
+
+
+def _excitation_split(mp: MillingParams, revs: int = 48) -> tuple[float, float]:
+    """|true X cutting force| and |m x''| at the excitation order (no modulation, exact
+    observer not needed): what the identification sees of the cut against the inertia."""
+    from estimators.axis_mass import excitation_order
+
+    m = MillingMachine(mp)
+    order = excitation_order(mp.n_flutes, 8)
+    n_rev = round(m.samples_per_revolution())
+    recs = []
+    m.set_excitation(EXCITATION_UM * 1e-6, order)
+    for _ in range(revs):
+        recs.append(m.step(n_rev))
+    last = recs[-8:]
+    x = np.concatenate([r.x for r in last])
+    fx = np.concatenate([r.fx for r in last])
+    psi = np.concatenate([r.psi for r in last])
+    acc = (x[2:] - 2.0 * x[1:-1] + x[:-2]) / m.sample_time**2
+    e = np.exp(-1j * order * psi)
+    k = 2.0 / psi.size
+    f_cut = abs(k * np.dot(fx, e))
+    inert = abs(k * np.dot(acc, e[1:-1])) * m.drives.params.x.mass
+    return float(f_cut), float(inert)
+
+
+def rows_estimated_force_adaptive() -> Section:
+    """Issue 13 item 7: the ESC on the force of the adaptive observer (mass identified
+    at spindle order N_f + 1/8, :mod:`estimators.axis_mass`) under a nominal mass error."""
+    rows: list[Row] = []
+    checks: list[Check] = []
+    mp = case_params(1)
+
+    def adaptive(
+        me: float,
+        mpp: MillingParams = mp,
+        noise: float = 0.0,
+        seed: int = 6,
+        stop_after: int | None = None,
+    ) -> AdaptiveObserverForceSource:
+        rng = np.random.default_rng(seed)
+        return AdaptiveObserverForceSource(
+            MillingMachine(mpp),
+            mass_error=me,
+            excitation_um=EXCITATION_UM,
+            current_noise=noise,
+            rng=rng,
+            stop_after=stop_after,
+        )
+
+    tr_exact = run_case(
+        mp, "esc", SECONDS_ESC, force_source=ObserverForceSource(MillingMachine(mp))
+    )
+    exact = summarize(tr_exact, mp)
+    exact_param_time = param_converge_time(tr_exact.loop)
+    fixed_m3 = summarize(
+        run_case(
+            mp,
+            "esc",
+            SECONDS_ESC,
+            force_source=ObserverForceSource(MillingMachine(mp), mass_error=-0.03),
+        ),
+        mp,
+    )
+    q = "case1.estimated_force.mass_error_minus3pct"
+    rows += [
+        Row(
+            f"{q}.converge_time_s",
+            fixed_m3.converge_time,
+            None,
+            "s",
+            "ESC on the fixed observer's X force, nominal mass -3 %; true cost",
+        ),
+        Row(f"{q}.cost_reduction", fixed_m3.cost_reduction, None, "-", "the same; last 2 s"),
+        Row(f"{q}.param_error", fixed_m3.param_err, None, "-", "the same"),
+    ]
+    results = {}
+    for label, me in (("mass_error_3pct", 0.03), ("mass_error_minus3pct", -0.03)):
+        src = adaptive(me)
+        tr = run_case(mp, "esc", SECONDS_ESC, force_source=src)
+        e = summarize(tr, mp)
+        results[label] = e
+        src_f = adaptive(me)
+        f = summarize(
+            run_case(mp, "fast", SECONDS_FAST, force_source=src_f),
+            mp,
+            tail_s=1.0,
+        )
+        ex, ey = src.mass_errors()
+        p = f"case1.estimated_force.{label}.adaptive_mass"
+        cond = (
+            f"adaptive observer, nominal mass {me:+.0%}, circle {EXCITATION_UM:g} um at order 4.125"
+        )
+        rows += [
+            Row(
+                f"{p}.converge_time_s",
+                e.converge_time,
+                exact.converge_time,
+                "s",
+                f"ESC; {cond}; true cost; paper column: exact-mass observer",
+            ),
+            Row(
+                f"{p}.cost_reduction",
+                e.cost_reduction,
+                exact.cost_reduction,
+                "-",
+                "the same; last 2 s / before adaptation; paper column: exact mass",
+            ),
+            Row(
+                f"{p}.param_error",
+                e.param_err,
+                exact.param_err,
+                "-",
+                "the same; |u - u*| / |u*| at the end; paper column: exact mass",
+            ),
+            Row(
+                f"{p}.param_converge_time_s",
+                param_converge_time(tr.loop),
+                exact_param_time,
+                "s",
+                "the same; within 10 % of the cancelling modulation and staying; paper "
+                "column: exact mass",
+            ),
+            Row(
+                f"{p}.mass_error_x",
+                ex,
+                None,
+                "-",
+                f"identified / true X mass - 1 at the end; {cond}",
+            ),
+            Row(f"{p}.mass_error_y", ey, None, "-", "the same for Y"),
+            Row(
+                f"{p}.fast_tuner.revolutions",
+                f.revolutions,
+                None,
+                "rev",
+                f"fast tuner on the adaptive observer's X/Y force; {cond}",
+            ),
+            Row(
+                f"{p}.fast_tuner.cost_reduction",
+                f.cost_reduction,
+                None,
+                "-",
+                "the same; true cost, last 1 s",
+            ),
+        ]
+    # the circle disturbs the fast tuner's one-revolution phasors (order 4.125 leaks into
+    # them): identify for two windows (to 1.2 s), then switch the circle off and hold
+    src_h = adaptive(0.03, stop_after=2)
+    fh = summarize(run_case(mp, "fast", SECONDS_FAST, force_source=src_h), mp, tail_s=1.0)
+    ph = "case1.estimated_force.mass_error_3pct.adaptive_mass.identify_then_hold"
+    rows += [
+        Row(
+            f"{ph}.fast_tuner.revolutions",
+            fh.revolutions,
+            None,
+            "rev",
+            "fast tuner; circle off after 2 identification windows (1.2 s), mass held",
+        ),
+        Row(f"{ph}.fast_tuner.cost_reduction", fh.cost_reduction, None, "-", "the same"),
+        Row(f"{ph}.mass_error_x", src_h.mass_errors()[0], None, "-", "the same; held X mass"),
+    ]
+    # how fast the mass is found: first time the X mass stays within 0.5 % of the truth
+    src = adaptive(0.03)
+    loop = EccentricityLoop(mp, tuner="off", machine=MillingMachine(mp), force_source=src)
+    src.attach(loop.machine)
+    t_in = math.inf
+    while loop.machine.t < 4.0:
+        loop.run_revolutions(1)
+        ok = abs(src.mass_errors()[0]) < 0.005
+        if ok and not math.isfinite(t_in):
+            t_in = loop.machine.t
+        elif not ok:
+            t_in = math.inf
+    rows.append(
+        Row(
+            "case1.estimated_force.mass_error_3pct.adaptive_mass.mass_time_s",
+            t_in,
+            ADAPT_START,
+            "s",
+            "time from the start until the identified X mass stays within 0.5 % of the truth "
+            "(4 s run); paper column: the ESC's adaptation start",
+        )
+    )
+    f_cut, inert = _excitation_split(mp)
+    rows += [
+        Row(
+            "case1.estimated_force.adaptive_mass.excitation_cut_force_N",
+            f_cut,
+            None,
+            "N",
+            "true X cutting force at order 4.125 with the identification circle on",
+        ),
+        Row(
+            "case1.estimated_force.adaptive_mass.excitation_inertial_force_N",
+            inert,
+            None,
+            "N",
+            "m x'' of the X carriage at order 4.125",
+        ),
+        Row(
+            "case1.estimated_force.adaptive_mass.excitation_ratio",
+            f_cut / inert,
+            None,
+            "-",
+            "cut / inertial at the identification order: bounds the mass bias",
+        ),
+    ]
+    # other eccentricity phases (the ESC converges from these with an exact mass)
+    for deg in (0, 315):
+        mpd = replace(mp, eccentricity_deg=float(deg))
+        for label, src_d in (
+            ("exact", ObserverForceSource(MillingMachine(mpd))),
+            ("mass_error_3pct", ObserverForceSource(MillingMachine(mpd), mass_error=0.03)),
+            ("adaptive_mass", adaptive(0.03, mpd)),
+        ):
+            sd = summarize(run_case(mpd, "esc", SECONDS_ESC, force_source=src_d), mpd)
+            rows.append(
+                Row(
+                    f"case1.estimated_force.ecc_{deg}deg.{label}.converge_time_s",
+                    sd.converge_time,
+                    None,
+                    "s",
+                    f"eccentricity at {deg} deg; ESC on the "
+                    + {
+                        "exact": "exact-mass observer",
+                        "mass_error_3pct": "fixed observer, mass +3 %",
+                        "adaptive_mass": "adaptive observer, nominal mass +3 %",
+                    }[label],
+                )
+            )
+    # with current noise (0.05 A rms): seeds vary the noise; the exact-mass fixed observer
+    # on the same seeds beside it (the ESC's dither freeze makes the cost criterion
+    # statistical even with the exact mass)
+    pn = "case1.estimated_force.mass_error_3pct.adaptive_mass.current_noise"
+    seeds = range(100, 100 + NOISE_SEEDS)
+    for label, make in (
+        (
+            "exact_fixed",
+            lambda n: ObserverForceSource(
+                MillingMachine(mp), current_noise=0.05, rng=np.random.default_rng(n)
+            ),
+        ),
+        ("adaptive", lambda n: adaptive(0.03, noise=0.05, seed=n)),
+    ):
+        ct, pt = [], []
+        for seed_n in seeds:
+            trn = run_case(mp, "esc", SECONDS_ESC, force_source=make(seed_n))
+            ct.append(summarize(trn, mp).converge_time)
+            pt.append(param_converge_time(trn.loop))
+        what = "exact-mass fixed observer" if label == "exact_fixed" else "adaptive, nominal +3 %"
+        rows += [
+            Row(
+                f"{pn}.{label}.converged",
+                float(sum(math.isfinite(t) for t in ct)),
+                float(NOISE_SEEDS),
+                f"of {NOISE_SEEDS}",
+                f"{what}; current noise 0.05 A rms, seeds {seeds[0]}-{seeds[-1]}; cost < 10 % "
+                f"and staying by {SECONDS_ESC - ADAPT_START:g} s",
+            ),
+            Row(
+                f"{pn}.{label}.converge_time_s_median",
+                float(np.median(ct)),
+                None,
+                "s",
+                "the same; median (inf = not converged)",
+            ),
+            Row(
+                f"{pn}.{label}.param_converged",
+                float(sum(math.isfinite(t) for t in pt)),
+                float(NOISE_SEEDS),
+                f"of {NOISE_SEEDS}",
+                "the same; modulation within 10 % of the cancelling one and staying",
+            ),
+            Row(
+                f"{pn}.{label}.param_converge_time_s_median",
+                float(np.median(pt)),
+                None,
+                "s",
+                "the same; median",
+            ),
+        ]
+    limit = 1.5 * exact.converge_time
+    for label, e in results.items():
+        checks.append(
+            Check(
+                f"case1.estimated_force.{label}.adaptive_converges_within_1.5x_exact",
+                e.converge_time <= limit and e.cost_reduction < 0.1,
+                e.converge_time,
+                limit,
+            )
+        )
+    return rows, checks
+
+
 def rows_fast_speed_change(plot_dir: Path | None) -> tuple[Section, list[str]]:
     """The fast tuner through a spindle-speed change: case 1 converged, then 1200 -> 1500
     rpm; its figure if ``plot_dir`` is given."""
@@ -1016,6 +1417,8 @@ def run(
     for case in (1, 2):
         rep.add(rows_mismatch(case))
     rep.add(rows_estimated_force())
+    rep.add(rows_mass_error_leak())
+    rep.add(rows_estimated_force_adaptive())
     section, figs = rows_fast_speed_change(plot_dir)
     rep.add(section)
     rep.add(rows_esc_speed_change())

@@ -9,8 +9,8 @@ from typing import Any
 
 from fastapi import APIRouter
 
+from common.jsonsafe import json_safe
 from server.errors import CutwatchError
-from server.service import protocol
 from server.service.deps import Authorised, Config, Live
 from server.service.errors import FieldError
 from server.service.schemas import (
@@ -95,7 +95,7 @@ def delete_effects(lp: Live) -> Effects:
 
 
 def _effects_json(effects: Any) -> list[dict[str, Any]]:
-    out: list[dict[str, Any]] = protocol._clean(
+    out: list[dict[str, Any]] = json_safe(
         [{"name": e.name, "side": e.side, "shape": dict(e.shape), "coef": list(e.coef)}
          for e in effects]
     )  # fmt: skip

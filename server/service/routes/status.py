@@ -5,8 +5,8 @@ from __future__ import annotations
 from fastapi import APIRouter
 from fastapi.responses import PlainTextResponse
 
+from common.jsonsafe import json_safe
 from server.pipeline.live_pipeline import SCENARIOS
-from server.service import protocol
 from server.service.deps import Config, Live
 from server.service.schemas import Health, Scenarios, Snapshot, error_responses
 
@@ -23,7 +23,8 @@ def health(lp: Live, s: Config) -> Health:
             "viser_port": s.viser_port,
             "viser_running": lp.scene is not None,
             "scenario": lp.pipeline.scenario,
-            **protocol._clean(h),
+            **json_safe(h),
+            **json_safe(lp.broker_status()),
         }
     )
 
@@ -42,7 +43,7 @@ def scenarios(lp: Live) -> Scenarios:
 def snapshot(lp: Live) -> Snapshot:
     with lp.lock:
         snap = lp.pipeline.snapshot()
-    return Snapshot.model_validate(protocol._clean({"pipeline": snap, "health": lp.health()}))
+    return Snapshot.model_validate(json_safe({"pipeline": snap, "health": lp.health()}))
 
 
 @router.get(
@@ -90,6 +91,27 @@ def metrics(lp: Live) -> PlainTextResponse:
             h["stalls"],
         ),
     ]
+    b = lp.broker_status()
+    feed = b.get("feed")
+    if feed is not None:
+        from server.pipeline.drive_feed import COUNTERS
+
+        rows.append(
+            ("cutwatch_feed_connected", "gauge", "broker connection of the drive feed",
+             float(bool(feed["connected"])))
+        )  # fmt: skip
+        rows.append(
+            ("cutwatch_feed_buffered_samples", "gauge", "drive samples waiting for the loop",
+             feed["buffered_samples"])
+        )  # fmt: skip
+        for c in COUNTERS:
+            rows.append((f"cutwatch_feed_{c}_total", "counter", f"drive feed: {c}", feed[c]))
+    out = b.get("estimates_out")
+    if out is not None:
+        rows.append(
+            ("cutwatch_estimates_published_total", "counter", "estimates messages published",
+             out["published"])
+        )  # fmt: skip
     lines = []
     for name, kind, doc, value in rows:
         lines += [f"# HELP {name} {doc}", f"# TYPE {name} {kind}", f"{name} {float(value):g}"]

@@ -1,0 +1,152 @@
+"""The live service on a real machine's feed: drive blocks in through a real Mosquitto,
+the stream and the estimates out, bad input counted, a broker that is not there."""
+
+from __future__ import annotations
+
+import json
+import queue
+import threading
+import time
+from pathlib import Path
+
+import httpx
+import paho.mqtt.client as mqtt
+import pytest
+from _broker import broker, free_port
+from _live import serve
+from websockets.sync.client import connect
+
+from server.cli.main import main
+from server.records.drive_wire import decode_estimates
+
+
+@pytest.fixture(scope="module")
+def log(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("svc") / "run.csv"
+    assert main(["simulate", "--out", str(out), "--seconds", "4"]) == 0
+    return out
+
+
+def health(hp: str) -> dict:
+    return httpx.get(f"http://{hp}/api/health").json()
+
+
+def test_a_feed_streams_through_the_service_and_estimates_come_out(log: Path) -> None:
+    with broker() as bp:
+        url = f"mqtt://127.0.0.1:{bp}"
+        got: queue.Queue[bytes] = queue.Queue()
+        sub = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2)
+        sub.on_message = lambda _c, _u, m: got.put(bytes(m.payload))
+        sub.connect("127.0.0.1", bp)
+        sub.subscribe("cutwatch/m1/estimates")
+        sub.loop_start()
+        try:
+            with serve(source="mqtt", mqtt_broker=url, mqtt_machine="m1", mqtt_publish_hz=10) as hp:
+                deadline = time.monotonic() + 10
+                while not health(hp)["feed"]["connected"] and time.monotonic() < deadline:
+                    time.sleep(0.1)
+                h = health(hp)
+                assert h["source"] == "mqtt" and h["feed"]["state"] == "waiting for meta"
+                feeder = threading.Thread(
+                    target=main,
+                    args=(["feed", str(log), "--broker", url, "--machine", "m1", "--quiet"],),
+                )
+                with connect(f"ws://{hp}/ws") as ws:
+                    feeder.start()
+                    ts: list[float] = []
+                    deadline = time.monotonic() + 20
+                    while time.monotonic() < deadline and (not ts or ts[-1] < 2.0):
+                        msg = json.loads(ws.recv(timeout=10))
+                        if msg["type"] == "hello":
+                            assert msg["scenario"] == "mqtt"
+                        elif msg["t"]:
+                            ts += [t for t in msg["t"] if t is not None]
+                    feeder.join(20)
+                assert ts and ts[-1] >= 2.0 and ts == sorted(ts)
+                h = health(hp)
+                assert h["feed"]["state"] == "receiving" and h["feed"]["blocks"] >= 40
+                assert h["feed"]["gaps"] == 0 and h["estimates_out"]["published"] > 10
+                # bad input: counted, skipped, the loop goes on
+                bad = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2)
+                bad.connect("127.0.0.1", bp)
+                bad.loop_start()
+                bad.publish("cutwatch/m1/drive", b"garbage").wait_for_publish(5)
+                bad.loop_stop()
+                bad.disconnect()
+                time.sleep(0.5)
+                metrics = httpx.get(f"http://{hp}/metrics").text
+                assert "cutwatch_feed_malformed_schema_total 1" in metrics
+                assert health(hp)["status"] == "ok"
+        finally:
+            sub.loop_stop()
+            sub.disconnect()
+    msgs = [decode_estimates(got.get_nowait()) for _ in range(got.qsize())]
+    live = [m for m in msgs if m["source"] == "mqtt" and m["drive_wall"] is not None]
+    assert live, "no estimate carried a drive block's clock"
+    lat = sorted(m["wall"] - m["drive_wall"] for m in live)
+    assert 0 <= lat[len(lat) // 2] < 1.0  # a functional check, not the benchmark
+    assert "f_adaptive" in live[-1]["force"] and live[-1]["force"]["level"] is not None
+
+
+def test_the_service_starts_without_its_broker_and_says_so() -> None:
+    port = free_port()  # nothing listens here
+    with serve(source="mqtt", mqtt_broker=f"mqtt://127.0.0.1:{port}", mqtt_machine="m1") as hp:
+        time.sleep(1.0)
+        h = health(hp)
+        assert h["status"] == "ok" and h["feed"]["connected"] is False
+        assert h["feed"]["state"] in ("waiting for meta", "broker not connected")
+        assert "cutwatch_feed_connected 0" in httpx.get(f"http://{hp}/metrics").text
+
+
+def test_source_mqtt_without_a_broker_is_refused() -> None:
+    from server.errors import CutwatchError
+
+    with pytest.raises(CutwatchError, match="needs a broker"), serve(source="mqtt"):
+        pass
+
+
+def test_a_broker_that_goes_away_mid_run_and_comes_back(log: Path) -> None:
+    port = free_port()
+    url = f"mqtt://127.0.0.1:{port}"
+    feed = ["feed", str(log), "--broker", url, "--machine", "m1", "--speed", "4", "--quiet"]
+
+    def wait(hp: str, connected: bool, timeout: float) -> None:
+        deadline = time.monotonic() + timeout
+        while health(hp)["feed"]["connected"] != connected and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert health(hp)["feed"]["connected"] == connected
+
+    with serve(source="mqtt", mqtt_broker=url, mqtt_machine="m1") as hp:
+        with broker(port=port):
+            wait(hp, True, 10)
+            assert main(feed) == 0
+            time.sleep(0.5)
+            before = health(hp)["feed"]["blocks"]
+            assert before > 0
+        wait(hp, False, 10)  # the broker is gone: the service stays up and says so
+        h = health(hp)
+        assert h["status"] == "ok" and h["feed"]["state"] == "broker not connected"
+        with broker(port=port):
+            wait(hp, True, 45)  # paho's backoff: 1 s doubling to 30 s
+            assert main(feed) == 0
+            time.sleep(0.5)
+            h = health(hp)
+    assert h["status"] == "ok" and h["feed"]["blocks"] > before
+    assert h["feed"]["restarts"] >= 1  # the second run of the feeder starts at seq 0
+
+
+def test_a_flood_is_bounded_and_counted(log: Path) -> None:
+    with broker() as bp:
+        url = f"mqtt://127.0.0.1:{bp}"
+        with serve(source="mqtt", mqtt_broker=url, mqtt_machine="m1", mqtt_buffer_s=0.2) as hp:
+            deadline = time.monotonic() + 10
+            while not health(hp)["feed"]["connected"] and time.monotonic() < deadline:
+                time.sleep(0.1)
+            # 4 s of samples as fast as the broker takes them: far faster than real time
+            argv = ["feed", str(log), "--broker", url, "--machine", "m1", "--speed", "0"]
+            assert main([*argv, "--quiet"]) == 0
+            time.sleep(1.0)
+            h = health(hp)
+    assert h["status"] == "ok"
+    assert h["feed"]["dropped_samples"] > 0  # bounded: the oldest went, counted
+    assert h["feed"]["buffered_samples"] <= 0.2 / 4e-4 + 125
