@@ -48,6 +48,12 @@ from estimators.rls import (
     rls_init,
     rls_update,
 )
+from estimators.segment_id import (
+    SegmentIdentifier,
+    SegmentIdentifierParams,
+    SegmentRecord,
+    SegmentState,
+)
 
 __all__ = [
     "DiscreteFilter",
@@ -61,6 +67,10 @@ __all__ = [
     "ParameterError",
     "RLSParams",
     "RLSState",
+    "SegmentIdentifier",
+    "SegmentIdentifierParams",
+    "SegmentRecord",
+    "SegmentState",
     "TorsionEstimator",
     "TorsionRecord",
     "TorsionState",

@@ -42,13 +42,21 @@ how sure it is:
    old estimate is less certain. An innovation beyond ``gate`` standard deviations is a
    change the model did not expect (a fresh workpiece, a log with no events): the
    parameter restarts from that segment. :func:`restart` does the same on a known event.
-5. **Excitation.** A parameter is *excited* when its 95 % half-width is at most
-   ``excited_rel`` times its estimate (the data determine it to that fraction); before
-   its first segment, after a restart, or when its interval is wider, it is flagged not
-   excited and its interval is the prior (``prior_rel`` of the nominal value).
+5. **Model error.** An error that is the same in every segment does not show in the
+   residual (measured: the cutting force's harmonics during the reversal bias B_L and
+   F_CL). ``model_error`` is a Type B standard uncertainty relative to the estimate,
+   added to each segment's variance and to the streamed variance (it does not average
+   out over segments).
+6. **Excitation.** A parameter is *excited* when its 95 % half-width is at most
+   ``excited_rel`` times its estimate (the data determine it to that fraction). Before
+   its first segment and after a restart it is not excited and its interval is the
+   prior (nominal +- z ``prior_rel`` nominal, clipped at 0); while its own interval is
+   wider than that fraction it keeps its interval and is flagged not excited.
 
-The per-sample work is the Q_RLS filter (numba, shared with :mod:`estimators.rls`); the
-segment fit runs once per segment (every reversal, a few seconds) on whole arrays.
+The per-sample work is the Q_RLS filter (numba, shared with :mod:`estimators.rls`) and
+the output (a numba kernel evaluating the Kalman prediction per sample); the segment fit
+runs once per segment (every reversal, a few seconds) on the segment's samples, kept at
+one in ``decimation``.
 """
 
 from __future__ import annotations

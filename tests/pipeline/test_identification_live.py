@@ -12,6 +12,7 @@ the DFO amplitudes are back within 5 % < 0.2 s after every spindle step.
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 from server.experiments.reproductions.live_identifiability import (
@@ -61,3 +62,18 @@ def test_dfo_back_within_5_percent_after_spindle_steps(run) -> None:
     rec = dfo_recovery(a["h"], tr.events, 4e-4)
     assert rec
     assert all(r < 0.2 for r in rec), rec
+
+
+@pytest.mark.parametrize("scenario", ["default", "seed000-weight", "seed001-spindle"])
+def test_scenario_switch_starts_from_the_prior_not_excited(scenario: str) -> None:
+    # a scenario switch is a fresh pipeline: until its first reversal segment no
+    # parameter claims to be known, and the prior interval holds the truth
+    from server.pipeline.live_pipeline import LivePipeline
+
+    p = LivePipeline(scenario)
+    for _ in range(60):  # 3 s, before the first reversal (4 s)
+        out = p.step(125)
+        for q in ("J_L", "B_L", "F_CL"):
+            assert not out[f"{q}_excited"].any()
+            assert np.all(out[f"{q}_lo"] <= out[f"{q}_true"])
+            assert np.all(out[f"{q}_true"] <= out[f"{q}_hi"])

@@ -336,6 +336,16 @@ def build(minutes: float, seeds: list[int], abl: float, progress: bool) -> Repro
     lows = {q: min(s[f"segment.{q}.coverage"] for s in per_seed) for q in PARAMS}
     for q in PARAMS:
         rep.rows.append(Row(f"default.segment.{q}.coverage_worst_seed", lows[q], None, "", cond_d))
+    # every seed on its own: one seed is one case
+    per_seed_keys = [f"segment.{q}.coverage" for q in PARAMS] + [
+        "segment.J_L.within_10",
+        "segment.F_CL.within_20",
+        "segment.B_L.within_or_unexcited",
+        "segment.B_L.within_30",
+    ]
+    for s, sc in zip(seeds, per_seed, strict=True):
+        for k in per_seed_keys:
+            rep.rows.append(Row(f"default.seed{s}.{k}", sc[k], None, "", f"{minutes:g} min"))
     # issue 13 item 2's targets (mean over seeds)
     for q in PARAMS:
         rep.checks.append(
