@@ -389,6 +389,7 @@ class StageSim:
             self._phi, self._gam = _discrete_linear_part(p, h)
             self._disc_key = key
         self._plant = np.array([p.K, p.C_s, p.F_CM, p.F_CL, p.K_t])
+        self._true_load = (p.J_L, p.B_L, p.F_CL)  # for the Truth of every block
         self._eff = c.effects.vector()
         self._force = c.force.vector()
         # seed 000 IV.A: PI with a double pole at pole_hz on the nominal rigid-body mode:
@@ -427,7 +428,7 @@ class StageSim:
         o_t, o_i, o_qm, o_ql, o_f, o_wm, o_wl, o_ts = outs
         self.k += n
         nom = c.nominal or c.params
-        p = c.true_params
+        j_l, b_l, f_cl = self._true_load  # c.true_params, kept by _prepare
         meas = Measurements(t=o_t, i_m=o_i, tau_m=nom.K_t * o_i, q_m=o_qm, q_l=o_ql, f_ext=o_f)
         truth = Truth(
             f_cut=o_f,
@@ -435,8 +436,8 @@ class StageSim:
             omega_l=o_wl,
             t_s=o_ts,
             omega_ref=w_ref,
-            J_L=np.full(n, p.J_L),
-            B_L=np.full(n, p.B_L),
-            F_CL=np.full(n, p.F_CL),
+            J_L=np.full(n, j_l),
+            B_L=np.full(n, b_l),
+            F_CL=np.full(n, f_cl),
         )
         return meas, truth
