@@ -33,6 +33,7 @@ from estimators.force_observer import (
     TorsionRecord,
     TorsionState,
     cutting_force,
+    cutting_force_lagged,
 )
 from estimators.rls import (
     IdentifierParams,
@@ -62,6 +63,7 @@ __all__ = [
     "TorsionRecord",
     "TorsionState",
     "cutting_force",
+    "cutting_force_lagged",
     "dfo",
     "discretize",
     "esc",

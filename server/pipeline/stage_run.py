@@ -18,7 +18,13 @@ from numpy.typing import NDArray
 
 from common.arrays import F64
 from estimators.filters import lowpass
-from estimators.force_observer import LoadParams, ObserverParams, TorsionEstimator, cutting_force
+from estimators.force_observer import (
+    LoadParams,
+    ObserverParams,
+    TorsionEstimator,
+    cutting_force,
+    cutting_force_lagged,
+)
 from estimators.rls import IdentifierParams, LoadIdentifier
 from machine.params import StageParams
 from machine.stage import Measurements, StageConfig, StageSim, Truth
@@ -162,12 +168,10 @@ class StageRun:
         nl = self.nominal_load
         f_fixed = cutting_force(rec, nl.J_L, nl.B_L, nl.F_CL)
         # the observer at sample k uses the parameters identified up to sample k-1
-        th_a = np.vstack([self._theta_a, ra.theta[:-1]])
-        th_s = np.vstack([self._theta_s, rs.theta[:-1]])
+        f_ad = cutting_force_lagged(rec, self._theta_a, ra.theta)
+        f_sw = cutting_force_lagged(rec, self._theta_s, rs.theta)
         self._theta_a = ra.theta[-1].copy()
         self._theta_s = rs.theta[-1].copy()
-        f_ad = cutting_force(rec, th_a[:, 0], th_a[:, 1], th_a[:, 2])
-        f_sw = cutting_force(rec, th_s[:, 0], th_s[:, 1], th_s[:, 2])
         qf, self._zq = self._q.run(truth.f_cut, self._zq)
         # estimates refer to the previous sample: align truth one sample back
         f_true = np.concatenate([[self._prev_f], truth.f_cut[:-1]])
