@@ -494,9 +494,21 @@ class LoadIdentifier:
         return IdentState(zf=z, rls4=s4, rls3=s3, sw=np.array([1e9, 4.0, F_CL, 0.0]))
 
     def step(
-        self, state: IdentState, t_s: F64, acc_l: F64, vel_l: F64, sgn_l: F64, omega_l: F64
+        self,
+        state: IdentState,
+        t_s: F64,
+        acc_l: F64,
+        vel_l: F64,
+        sgn_l: F64,
+        omega_l: F64,
+        *,
+        excitation: bool = True,
     ) -> tuple[IdentState, IdentRecord]:
-        """One block: filter by Q_RLS (eq. 14), test excitation, update, report."""
+        """One block: filter by Q_RLS (eq. 14), test excitation, update, report.
+
+        ``excitation=False`` skips the record's ``excitation_index`` (NaN then), an
+        eigenvalue problem per block, for a caller that does not read it.
+        """
         p = self.params
         n = len(t_s)
         new = IdentState(
@@ -576,6 +588,6 @@ class LoadIdentifier:
             mode=mode,
             excited=exc,
             resets=resets,
-            excitation_index=excitation_index(a),
+            excitation_index=excitation_index(a) if excitation else math.nan,
             cov_trace=float(np.trace(a.P)),
         )
