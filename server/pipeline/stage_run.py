@@ -162,8 +162,9 @@ class StageRun:
         self.s_ident, ra = self.ident.step(
             self.s_ident, rec.t_s, rec.acc_l, rec.vel_l, rec.sgn_l, rec.omega_l
         )
+        # the excitation index streamed is the ordinary RLS's (StageBlock)
         self.s_sw, rs = self.ident_sw.step(
-            self.s_sw, rec.t_s, rec.acc_l, rec.vel_l, rec.sgn_l, rec.omega_l
+            self.s_sw, rec.t_s, rec.acc_l, rec.vel_l, rec.sgn_l, rec.omega_l, excitation=False
         )
         nl = self.nominal_load
         f_fixed = cutting_force(rec, nl.J_L, nl.B_L, nl.F_CL)
