@@ -354,7 +354,11 @@ class LiveLoop:
             sample_time = self.pipeline.sample_time
         if not blocks:
             return [], [], {}
-        merged = {k: np.concatenate([b[k] for b in blocks]) for k in blocks[0]}
+        # at 1x a frame holds one block (20 Hz frames, 50 ms blocks): no copy then
+        if len(blocks) == 1:
+            merged = dict(blocks[0])
+        else:
+            merged = {k: np.concatenate([b[k] for b in blocks]) for k in blocks[0]}
         # a fixed stride per speed keeps the displayed sample rate steady across frames
         step = math.ceil(self.block_n / self.settings.display_points) * max(
             1, math.ceil(self.speed)
