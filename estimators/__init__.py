@@ -36,6 +36,7 @@ from estimators.force_observer import (
     TorsionRecord,
     TorsionState,
     cutting_force,
+    cutting_force_lagged,
 )
 from estimators.rls import (
     IdentifierParams,
@@ -75,6 +76,7 @@ __all__ = [
     "TorsionRecord",
     "TorsionState",
     "cutting_force",
+    "cutting_force_lagged",
     "dfo",
     "discretize",
     "esc",

@@ -37,7 +37,7 @@ Choices where the paper is ambiguous (also written at the lines concerned):
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -251,6 +251,8 @@ class ExtremumSeekingController:
     def __init__(self, params: EscParams | None = None) -> None:
         self.params = params if params is not None else EscParams()
         self._hpf = self.params.hpf()
+        self._hpf_b: list[float] = self._hpf.b.tolist()
+        self._hpf_a: list[float] = self._hpf.a.tolist()
 
     def initial_state(
         self, a_um: float = 0.0, theta_deg: float = 0.0, cost_ref: float | None = None
@@ -332,10 +334,11 @@ class ExtremumSeekingController:
             cost = harmonic_cost(force, angle)
         j_ref = state.j_ref if state.j_ref > 0.0 else max(cost, 1e-12)
         j = cost / j_ref
-        # seed003 (12): high-pass the (normalised) cost, once-per-revolution samples
-        z = np.array(state.hpf_state, dtype=np.float64)
-        jh_arr, z = self._hpf.run(np.array([j]), z if state.k > 0 else self._hpf.initial_state(j))
-        jh = float(jh_arr[0])
+        # seed003 (12): high-pass the (normalised) cost, once-per-revolution samples: one
+        # sample of the filter's transposed DF-II (filters.df2t_step, the same operations
+        # in the same order, in Python: a kernel call costs more than one sample)
+        z = np.array(state.hpf_state if state.k > 0 else self._hpf.initial_state(j))
+        jh = _df2t_one(self._hpf_b, self._hpf_a, z, j)
         # seed003 (13)/(15): demodulate by the perturbation applied during this revolution
         # (delayed per channel by demod_phase[_theta], 0 in the paper and by default)
         da, dt_ = self.demodulation(state.k)
@@ -374,8 +377,9 @@ class ExtremumSeekingController:
             and len(hist) == p.freeze_revs
             and state.k >= 2 * p.freeze_revs
         ):
-            da = max(h[0] for h in hist) - min(h[0] for h in hist)
-            dth = max(h[1] for h in hist) - min(h[1] for h in hist)
+            ha, hth = zip(*hist, strict=True)
+            da = max(ha) - min(ha)
+            dth = max(hth) - min(hth)
             if da < p.freeze_tol * p.amp_a_um and dth < p.freeze_tol * p.amp_theta_deg:
                 frozen = True
                 frozen_cost = 0.0
@@ -388,8 +392,7 @@ class ExtremumSeekingController:
             # seed003 (10)/(16): nominal plus the perturbation of the next revolution
             na, nt = self.perturbation(k)
             a, th = a_n + na, th_n + nt
-        new = replace(
-            state,
+        new = EscState(
             k=k,
             a_n_um=a_n,
             theta_n_deg=th_n,
@@ -415,6 +418,19 @@ class ExtremumSeekingController:
             frozen=frozen,
         )
         return new, rec
+
+
+def _df2t_one(b: list[float], a: list[float], z: F64, x: float) -> float:
+    """One sample of :func:`estimators.filters.df2t_step` in Python; updates ``z``."""
+    n = len(a) - 1
+    if n == 0:
+        return b[0] * x
+    # y_k = b_0 x_k + z_0;  z_i <- b_(i+1) x_k - a_(i+1) y_k + z_(i+1)
+    y = b[0] * x + float(z[0])
+    for i in range(n - 1):
+        z[i] = b[i + 1] * x - a[i + 1] * y + float(z[i + 1])
+    z[n - 1] = b[n] * x - a[n] * y
+    return y
 
 
 def positive_polar(a_um: float, theta_deg: float) -> tuple[float, float]:

@@ -219,6 +219,44 @@ class TorsionEstimator:
         return new, TorsionRecord(*outs)
 
 
+@njit(cache=True)
+def _cutting_force_lagged(
+    t_s: F64, acc: F64, vel: F64, sgn: F64, theta0: F64, theta: F64, out: F64
+) -> None:  # pragma: no cover
+    for k in range(t_s.shape[0]):
+        th = theta0 if k == 0 else theta[k - 1]
+        # seed 000 (2): F_cut = T_s - (J_L d omega_L/dt + B_L omega_L + F_CL sgn omega_L),
+        # J_L, B_L, F_CL as identified up to the previous sample
+        out[k] = t_s[k] - (th[0] * acc[k] + th[1] * vel[k] + th[2] * sgn[k])
+
+
+def cutting_force_lagged(rec: TorsionRecord, theta0: F64, theta: F64) -> F64:
+    """Eq. (2) with the parameters the identifier held before each sample.
+
+    The same values as ``cutting_force(rec, *np.vstack([theta0, theta[:-1]])[:, :3].T)``
+    (the same operations per sample), without building the shifted parameter arrays.
+
+    Parameters
+    ----------
+    rec : TorsionRecord
+        The front end's record of the block.
+    theta0 : (m,) array
+        ``J_L, B_L, F_CL, ...`` before the block's first sample.
+    theta : (n, m) array
+        The identifier's parameters after each sample of the block (m >= 3).
+    """
+    th0 = np.ascontiguousarray(theta0, dtype=np.float64)
+    th = np.ascontiguousarray(theta, dtype=np.float64)
+    n = len(rec.t_s)
+    if th.ndim != 2 or th.shape[0] != n or th.shape[1] < 3 or th0.shape != th.shape[1:]:
+        raise ParameterError(
+            "theta0/theta", f"shapes (m,) and ({n}, m) with m >= 3", (th0.shape, th.shape)
+        )
+    out = np.empty(n)
+    _cutting_force_lagged(rec.t_s, rec.acc_l, rec.vel_l, rec.sgn_l, th0, th, out)
+    return out
+
+
 def cutting_force(rec: TorsionRecord, J_L: F64 | float, B_L: F64 | float, F_CL: F64 | float) -> F64:
     r"""seed000 (2): :math:`\hat F_{cut} = \hat T_s - Q\{J_L s\omega_L + B_L\omega_L +
     F_{CL}\mathrm{sgn}\,\omega_L\}` with parameters per sample (or constants)."""

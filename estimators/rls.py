@@ -488,6 +488,15 @@ class LoadIdentifier:
         self.q_rls: DiscreteFilter = lowpass(
             params.q_rls_hz, params.sample_time, params.q_rls_order
         )
+        # the kernels' read-only arrays, built once (params are frozen), not per block:
+        # (scale, lower / scale, upper / scale) of the 4- and 3-parameter models
+        r4p, r3p = params.rls4, params.rls3
+        self._sc4 = np.array(r4p.scale)
+        self._lo4 = np.array(r4p.lower) / np.array(r4p.scale)
+        self._hi4 = np.array(r4p.upper) / np.array(r4p.scale)
+        self._sc3 = np.array(r3p.scale)
+        self._lo3 = np.array(r3p.lower) / np.array(r3p.scale)
+        self._hi3 = np.array(r3p.upper) / np.array(r3p.scale)
 
     def init_state(self, J_L: float, B_L: float, F_CL: float, F_dc: float = 0.0) -> IdentState:
         p = self.params
@@ -499,9 +508,21 @@ class LoadIdentifier:
         return IdentState(zf=z, rls4=s4, rls3=s3, sw=np.array([1e9, 4.0, F_CL, 0.0]))
 
     def step(
-        self, state: IdentState, t_s: F64, acc_l: F64, vel_l: F64, sgn_l: F64, omega_l: F64
+        self,
+        state: IdentState,
+        t_s: F64,
+        acc_l: F64,
+        vel_l: F64,
+        sgn_l: F64,
+        omega_l: F64,
+        *,
+        excitation: bool = True,
     ) -> tuple[IdentState, IdentRecord]:
-        """One block: filter by Q_RLS (seed000 (14)), test excitation, update, report."""
+        """One block: filter by Q_RLS (seed000 (14)), test excitation, update, report.
+
+        ``excitation=False`` skips the record's ``excitation_index`` (NaN then), an
+        eigenvalue problem per block, for a caller that does not read it.
+        """
         p = self.params
         n = len(t_s)
         new = IdentState(
@@ -516,17 +537,15 @@ class LoadIdentifier:
         theta = np.empty((n, 4))
         mode = np.empty(n, dtype=np.int8)
         exc = np.empty(n, dtype=np.bool_)
-        r4p = p.rls4
         a = new.rls4
-        lo4 = np.array(r4p.lower) / np.array(r4p.scale)
-        hi4 = np.array(r4p.upper) / np.array(r4p.scale)
+        lo4, hi4 = self._lo4, self._hi4
         follow = 1 if p.ridge == "previous" else 0
         if not self.switching:
             _ordinary_kernel(
                 y,
                 phi,
                 p.acc_threshold,
-                np.array(r4p.scale),
+                self._sc4,
                 a.P,
                 a.r,
                 a.theta,
@@ -535,7 +554,7 @@ class LoadIdentifier:
                 a.meta,
                 lo4,
                 hi4,
-                r4p.p0,
+                p.p0,
                 follow,
                 theta,
                 mode,
@@ -544,18 +563,16 @@ class LoadIdentifier:
             resets = int(a.meta[2])
         else:
             assert new.rls3 is not None and new.sw is not None
-            r3p = p.rls3
             b = new.rls3
-            lo3 = np.array(r3p.lower) / np.array(r3p.scale)
-            hi3 = np.array(r3p.upper) / np.array(r3p.scale)
+            lo3, hi3 = self._lo3, self._hi3
             _switching_kernel(
                 y,
                 phi,
                 np.ascontiguousarray(omega_l),
                 p.acc_threshold,
                 float(p.window),
-                np.array(r4p.scale),
-                np.array(r3p.scale),
+                self._sc4,
+                self._sc3,
                 a.P,
                 a.r,
                 a.theta,
@@ -572,7 +589,7 @@ class LoadIdentifier:
                 b.meta,
                 lo3,
                 hi3,
-                r4p.p0,
+                p.p0,
                 follow,
                 new.sw,
                 theta,
@@ -585,6 +602,6 @@ class LoadIdentifier:
             mode=mode,
             excited=exc,
             resets=resets,
-            excitation_index=excitation_index(a),
+            excitation_index=excitation_index(a) if excitation else math.nan,
             cov_trace=float(np.trace(a.P)),
         )

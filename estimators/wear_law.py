@@ -324,6 +324,7 @@ class WearLawPredictor:
         force_sharp: float,
         force_per_flank_wear: float,
         vb_limit: float,
+        with_sd: bool = True,
     ) -> tuple[float, float, float, float]:
         r"""Fit the history and predict the remaining life.
 
@@ -342,6 +343,9 @@ class WearLawPredictor:
             ``s`` [N/mm].
         vb_limit : float
             Tool-life criterion [mm].
+        with_sd : bool
+            False: skip the spread of the remaining life (returned as NaN); the other
+            three values are the same.
 
         Returns
         -------
@@ -370,6 +374,8 @@ class WearLawPredictor:
         rate = self._rate(kap, k2, x0, q)
         if not math.isfinite(rem):
             return vb_fit, rate, math.inf, math.inf
+        if not with_sd:
+            return vb_fit, rate, rem, math.nan
         # parametric part: LS covariance of (kappa, u = log k2), t* by finite differences
         tau = k2 * t_mid
         w2 = self._w2(tau, 0)

@@ -116,27 +116,51 @@ class Trajectory:
             raise ParameterError("levels", "fractions in (0, 1]", self.levels)
 
     def __call__(self, t: ArrayLike) -> F64:
-        t = np.asarray(t, dtype=np.float64)
-        hp, r, v, dw = self.half_period, self.ramp, self.speed, self.dwell
+        ta = np.asarray(t, dtype=np.float64)
+        out = np.empty(ta.shape)
         lv = np.asarray(self.levels, dtype=np.float64)
+        _trajectory(
+            np.ascontiguousarray(ta).reshape(-1),
+            self.half_period,
+            self.ramp,
+            self.speed,
+            self.dwell,
+            self.start_ramp,
+            lv,
+            out.reshape(-1),
+        )
+        return out
 
-        def plateau(k: F64) -> F64:
-            # segment k (after reversal k): sign (-1)^k, speed level k mod len(levels)
-            kk = np.maximum(k, 0).astype(np.int64)
-            return np.where(kk % 2 == 0, 1.0, -1.0) * v * lv[kk % len(lv)]
 
-        w = plateau(np.floor(t / hp))
+@njit(cache=True)
+def _plateau(k: float, v: float, lv: F64) -> float:  # pragma: no cover
+    # segment k (after reversal k): sign (-1)^k, speed level k mod len(levels)
+    kk = np.int64(max(k, 0.0))
+    return (1.0 if kk % 2 == 0 else -1.0) * v * lv[kk % lv.shape[0]]
+
+
+@njit(cache=True)
+def _trajectory(
+    t: F64, hp: float, r: float, v: float, dw: float, start_ramp: float, lv: F64, out: F64
+) -> None:  # pragma: no cover
+    """The speed reference of :class:`Trajectory` at each ``t`` (one sample at a time,
+    the same operations as the former array expression, so the same values)."""
+    half = 0.5 * r + 0.5 * dw
+    for i in range(t.shape[0]):
+        ti = t[i]
+        w = _plateau(math.floor(ti / hp), v, lv)
         # reversal m (m >= 1) at m*hp: ramp from the previous plateau to rest in r/2,
-        # rest for the dwell, ramp to the next plateau in r/2
-        m = np.round(t / hp)
-        d = t - m * hp
-        half = 0.5 * r + 0.5 * dw
-        before = plateau(m - 1) * np.clip((-0.5 * dw - d) / (0.5 * r), 0.0, 1.0)
-        after = plateau(m) * np.clip((d - 0.5 * dw) / (0.5 * r), 0.0, 1.0)
-        w = np.where((m >= 1) & (np.abs(d) < half), before + after, w)
+        # rest for the dwell, ramp to the next plateau in r/2 (m: nearest, ties to even)
+        m = np.rint(ti / hp)
+        d = ti - m * hp
+        if m >= 1 and abs(d) < half:
+            before = _plateau(m - 1, v, lv) * min(max((-0.5 * dw - d) / (0.5 * r), 0.0), 1.0)
+            after = _plateau(m, v, lv) * min(max((d - 0.5 * dw) / (0.5 * r), 0.0), 1.0)
+            w = before + after
         # start from rest
-        w = np.where(t < self.start_ramp, v * lv[0] * np.clip(t, 0.0, None) / self.start_ramp, w)
-        return np.asarray(w, dtype=np.float64)
+        if ti < start_ramp:
+            w = v * lv[0] * max(ti, 0.0) / start_ramp
+        out[i] = w
 
 
 @dataclass
@@ -392,6 +416,7 @@ class StageSim:
             self._phi, self._gam = _discrete_linear_part(p, h)
             self._disc_key = key
         self._plant = np.array([p.K, p.C_s, p.F_CM, p.F_CL, p.K_t])
+        self._true_load = (p.J_L, p.B_L, p.F_CL)  # for the Truth of every block
         self._eff = c.effects.vector()
         self._force = c.force.vector()
         # seed 000 IV.A: PI with a double pole at pole_hz on the nominal rigid-body mode:
@@ -430,7 +455,7 @@ class StageSim:
         o_t, o_i, o_qm, o_ql, o_f, o_wm, o_wl, o_ts = outs
         self.k += n
         nom = c.nominal or c.params
-        p = c.true_params
+        j_l, b_l, f_cl = self._true_load  # c.true_params, kept by _prepare
         meas = Measurements(t=o_t, i_m=o_i, tau_m=nom.K_t * o_i, q_m=o_qm, q_l=o_ql, f_ext=o_f)
         truth = Truth(
             f_cut=o_f,
@@ -438,8 +463,8 @@ class StageSim:
             omega_l=o_wl,
             t_s=o_ts,
             omega_ref=w_ref,
-            J_L=np.full(n, p.J_L),
-            B_L=np.full(n, p.B_L),
-            F_CL=np.full(n, p.F_CL),
+            J_L=np.full(n, j_l),
+            B_L=np.full(n, b_l),
+            F_CL=np.full(n, f_cl),
         )
         return meas, truth

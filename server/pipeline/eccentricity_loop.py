@@ -272,6 +272,29 @@ class AdaptiveObserverForceSource(ObserverForceSource):
         return out[0], out[1]
 
 
+#: the per-sample outputs of :meth:`EccentricityLoop.step`, in this order
+STEP_KEYS = (
+    "t",
+    "fx",
+    "fy",
+    "fx_used",
+    "fy_used",
+    "x",
+    "y",
+    "ix",
+    "iy",
+    "psi",
+    "a_m_um",
+    "theta_m_deg",
+    "cost",
+)
+
+
+def _joined(parts: list[F64]) -> F64:
+    """The chunks of one revolution as one array (the chunk itself when it is one)."""
+    return parts[0] if len(parts) == 1 else np.concatenate(parts)
+
+
 class EccentricityLoop:
     """Milling with eccentricity, feed drives and a tuner closing the loop per revolution.
 
@@ -356,8 +379,13 @@ class EccentricityLoop:
         return self._advance(n, collect=True)
 
     def _advance(self, n: int, *, collect: bool) -> dict[str, F64]:
-        chunks: list[dict[str, F64]] = []
         left = int(n)
+        if left <= 0:
+            return {}
+        # one array for every output row, filled chunk by chunk (a chunk ends at a
+        # revolution's end or at the block's end): no per-chunk dicts, no concatenation
+        res = np.empty((len(STEP_KEYS), left)) if collect else None
+        off = 0
         while left > 0:
             m = self.samples_to_boundary()
             c = min(m, left)
@@ -372,30 +400,22 @@ class EccentricityLoop:
             est = self.force_source(rec) if self.force_source is not None else (rec.fx, rec.fy)
             self._buf.append(rec)
             self._est.append(est)
-            if collect:
-                chunks.append(
-                    {
-                        "t": rec.t,
-                        "fx": rec.fx,
-                        "fy": rec.fy,
-                        "fx_used": est[0],
-                        "fy_used": est[1],
-                        "x": rec.x,
-                        "y": rec.y,
-                        "ix": rec.ix,
-                        "iy": rec.iy,
-                        "psi": rec.psi,
-                        "a_m_um": np.full(c, self.a_um),
-                        "theta_m_deg": np.full(c, self.theta_deg),
-                        "cost": np.full(c, self.last_cost),
-                    }
-                )
+            if res is not None:
+                r = res[:, off : off + c]
+                for row, v in enumerate(
+                    (rec.t, rec.fx, rec.fy, est[0], est[1], rec.x, rec.y, rec.ix, rec.iy, rec.psi)
+                ):
+                    r[row] = v
+                r[10] = self.a_um
+                r[11] = self.theta_deg
+                r[12] = self.last_cost
+            off += c
             left -= c
             if c == m:
                 self._end_revolution()
-        if not chunks:
+        if res is None:
             return {}
-        return {k: np.concatenate([ch[k] for ch in chunks]) for k in chunks[0]}
+        return dict(zip(STEP_KEYS, res, strict=True))
 
     def state(self) -> dict[str, float | bool | str]:
         """Latest values for a live display: modulation applied and nominal, cost, tuner
@@ -433,11 +453,15 @@ class EccentricityLoop:
             self._advance(self.samples_to_boundary(), collect=False)
 
     def _end_revolution(self) -> None:
-        psi = np.concatenate([r.psi for r in self._buf])
-        fx = np.concatenate([e[0] for e in self._est])
-        fy = np.concatenate([e[1] for e in self._est])
-        fx_true = np.concatenate([r.fx for r in self._buf])
-        fy_true = np.concatenate([r.fy for r in self._buf])
+        buf, est = self._buf, self._est
+        psi = _joined([r.psi for r in buf])
+        # only what this revolution's update reads (the true force is the one used
+        # when the dynamometer is the source; the fast tuner reads both axes)
+        ax = 0 if self.cost_axis == "x" else 1
+        f_cost = _joined([e[ax] for e in est])
+        f_true = f_cost
+        if self.force_source is not None:
+            f_true = _joined([(r.fx, r.fy)[ax] for r in buf])
         t_end = self.machine.t
         rev_time = t_end - self._rev_start_t
         self._buf = []
@@ -446,8 +470,6 @@ class EccentricityLoop:
         self._next_boundary += 2.0 * math.pi
         from estimators.esc import harmonic_cost
 
-        f_cost = fx if self.cost_axis == "x" else fy
-        f_true = fx_true if self.cost_axis == "x" else fy_true
         cost = harmonic_cost(f_cost, psi)
         cost_true = cost if self.force_source is None else harmonic_cost(f_true, psi)
         adapting = self._started
@@ -457,9 +479,8 @@ class EccentricityLoop:
             self.a_n_um, self.theta_n_deg = erec.a_n_um, erec.theta_n_deg
             self.saturated = self.saturated or erec.saturated
         elif adapting and self.tuner == "fast":
-            self.fast_state, frec = self.fast.step(
-                self.fast_state, np.vstack([fx, fy]), psi, rev_time
-            )
+            fxy = np.vstack([_joined([e[0] for e in est]), _joined([e[1] for e in est])])
+            self.fast_state, frec = self.fast.step(self.fast_state, fxy, psi, rev_time)
             self.a_um, self.theta_deg = frec.a_um, frec.theta_deg
             self.b_um, self.phi_deg = frec.b_um, frec.phi_deg
             self.a_n_um, self.theta_n_deg = frec.a_best_um, frec.theta_best_deg

@@ -360,8 +360,10 @@ class LivePipeline:
         the life monitor is fed the force the adaptive observer sees, back in the wear
         model's newtons: ``F_sharp * mean(f_adaptive) / mean(force without wear)``.
         """
+        # life_sd=False: the stream shows VB and the remaining life, not its spread,
+        # which is ~4/5 of the monitor's time per pass (docs/benchmarks.md)
         self._wear = AcceleratedToolWear(
-            wear_minutes_per_second=float(self._knobs["wear_rate"].value)
+            wear_minutes_per_second=float(self._knobs["wear_rate"].value), life_sd=False
         )
         self._wear_gain = 1.0
         # the wear's force gain ramps over each pass (mean over the pass = the pass's

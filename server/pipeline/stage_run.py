@@ -20,7 +20,13 @@ from numpy.typing import NDArray
 
 from common.arrays import F64
 from estimators.filters import lowpass
-from estimators.force_observer import LoadParams, ObserverParams, TorsionEstimator, cutting_force
+from estimators.force_observer import (
+    LoadParams,
+    ObserverParams,
+    TorsionEstimator,
+    cutting_force,
+    cutting_force_lagged,
+)
 from estimators.rls import IdentifierParams, LoadIdentifier
 from estimators.segment_id import (
     SegmentIdentifier,
@@ -182,8 +188,9 @@ class StageRun:
         self.s_ident, ra = self.ident.step(
             self.s_ident, rec.t_s, rec.acc_l, rec.vel_l, rec.sgn_l, rec.omega_l
         )
+        # the excitation index streamed is the ordinary RLS's (StageBlock)
         self.s_sw, rs = self.ident_sw.step(
-            self.s_sw, rec.t_s, rec.acc_l, rec.vel_l, rec.sgn_l, rec.omega_l
+            self.s_sw, rec.t_s, rec.acc_l, rec.vel_l, rec.sgn_l, rec.omega_l, excitation=False
         )
         t_est = np.concatenate([[self._prev_t], meas.t[:-1]])
         # the front end's outputs refer to the previous sample (one sample time back)
@@ -198,15 +205,12 @@ class StageRun:
         nl = self.nominal_load
         f_fixed = cutting_force(rec, nl.J_L, nl.B_L, nl.F_CL)
         # the observer at sample k uses the parameters identified up to sample k-1
-        th_a = np.vstack([self._theta_a, ra.theta[:-1]])
-        th_s = np.vstack([self._theta_s, rs.theta[:-1]])
+        f_ad = cutting_force_lagged(rec, self._theta_a, ra.theta)
+        f_sw = cutting_force_lagged(rec, self._theta_s, rs.theta)
         self._theta_a = ra.theta[-1].copy()
         self._theta_s = rs.theta[-1].copy()
-        f_ad = cutting_force(rec, th_a[:, 0], th_a[:, 1], th_a[:, 2])
-        f_sw = cutting_force(rec, th_s[:, 0], th_s[:, 1], th_s[:, 2])
-        th_g = np.vstack([self._theta_g, rg.theta[:-1]])
+        f_seg = cutting_force_lagged(rec, self._theta_g, rg.theta)
         self._theta_g = rg.theta[-1].copy()
-        f_seg = cutting_force(rec, th_g[:, 0], th_g[:, 1], th_g[:, 2])
         qf, self._zq = self._q.run(truth.f_cut, self._zq)
         # estimates refer to the previous sample: align truth one sample back
         f_true = np.concatenate([[self._prev_f], truth.f_cut[:-1]])

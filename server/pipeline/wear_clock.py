@@ -117,6 +117,9 @@ class AcceleratedToolWear:
         Minutes of wear per second of machine time (1.0: one minute of wear per second).
     warning_fraction, alarm_fraction : float
         Flags of the tool-life monitor (fractions of the predicted tool life).
+    life_sd : bool
+        The monitor computes the remaining life's spread
+        (:attr:`estimators.wear_monitor.ToolLifeParams.life_sd`).
     """
 
     def __init__(
@@ -129,6 +132,7 @@ class AcceleratedToolWear:
         alarm_fraction: float = 0.95,
         trend_start: float = 2.0,
         use_law: bool = True,
+        life_sd: bool = True,
     ) -> None:
         self.model = ToolWearModel(condition=condition)
         self.model.force(np.zeros(3), feed)  # validates the feed (machine ParameterError)
@@ -153,6 +157,7 @@ class AcceleratedToolWear:
                 alarm_fraction=alarm_fraction,
                 trend_start=trend_start,
                 law=wear_law_params(self.model, self.feed) if use_law else None,
+                life_sd=life_sd,
             )
         )
         self.reset()

@@ -323,6 +323,7 @@ class LiveLoop:
             self.pipeline.reset()
             self._anchor()
         last_frame = time.monotonic()
+        next_frame = last_frame  # wall time of the next frame's slot
         try:
             while not self._stop.is_set():
                 src = self.pipeline.source
@@ -381,8 +382,17 @@ class LiveLoop:
                     self.stalls += 1
                     with self.lock:
                         self._anchor()
-                if done - last_frame >= self.frame_period:
+                # frames on their own wall schedule, next_frame += period: not "a period
+                # since the last frame finished", which at 1x (block period = frame
+                # period) skipped every frame whose block finished a little earlier
+                # than the previous one (jitter) and gave ~13 Hz instead of 20 Hz.
+                # A frame is due within half a block's wall time of its slot.
+                tol = 0.5 * min(block_s / max(speed, 1e-9), self.frame_period)
+                if done >= next_frame - tol:
                     last_frame = done
+                    next_frame += self.frame_period
+                    if next_frame < done - tol:  # behind by a period or more: re-anchor
+                        next_frame = done + self.frame_period
                     self._publish()
         except Exception as exc:  # keep the service up and say why the loop stopped
             self.error = f"{type(exc).__name__}: {exc}"
@@ -426,7 +436,11 @@ class LiveLoop:
             sample_time = self.pipeline.sample_time
         if not blocks:
             return [], [], {}
-        merged = {k: np.concatenate([b[k] for b in blocks]) for k in blocks[0]}
+        # at 1x a frame holds one block (20 Hz frames, 50 ms blocks): no copy then
+        if len(blocks) == 1:
+            merged = dict(blocks[0])
+        else:
+            merged = {k: np.concatenate([b[k] for b in blocks]) for k in blocks[0]}
         # a fixed stride per speed keeps the displayed sample rate steady across frames
         step = math.ceil(self.block_n / self.settings.display_points) * max(
             1, math.ceil(self.speed)

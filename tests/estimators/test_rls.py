@@ -6,7 +6,14 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from estimators.errors import ParameterError
-from estimators.rls import IdentifierParams, RLSParams, rls_init, rls_update
+from estimators.rls import (
+    IdentifierParams,
+    LoadIdentifier,
+    RLSParams,
+    excitation_index,
+    rls_init,
+    rls_update,
+)
 
 
 def _feed(p: RLSParams, phi: np.ndarray, y: np.ndarray, theta0: np.ndarray):
@@ -129,3 +136,22 @@ def test_a_failed_downdate_resets_and_keeps_the_new_sample() -> None:
     assert rc == 1
     assert s.meta[1] == 1  # the fresh window holds the new sample
     assert s.buf_y[s.meta[0]] == 3.0
+
+
+@pytest.mark.parametrize("switching", [False, True])
+def test_excitation_off_skips_only_the_excitation_index(switching: bool) -> None:
+    rng = np.random.default_rng(3)
+    n = 400
+    t = np.arange(n) * 4e-4
+    acc = 800.0 * np.sin(2 * np.pi * 3 * t) + rng.normal(0, 5, n)
+    vel = 40.0 * np.cos(2 * np.pi * 3 * t)
+    sgn = np.sign(vel)
+    ts = 2.8e-4 * acc + 2e-3 * vel + 0.15 * sgn
+    ident = LoadIdentifier(IdentifierParams(), switching=switching)
+    s0 = ident.init_state(2.0e-4, 1e-3, 0.1)
+    sa, a = ident.step(s0, ts, acc, vel, sgn, vel)
+    sb, b = ident.step(s0, ts, acc, vel, sgn, vel, excitation=False)
+    assert np.array_equal(a.theta, b.theta) and np.array_equal(a.mode, b.mode)
+    assert np.array_equal(sa.rls4.P, sb.rls4.P) and a.cov_trace == b.cov_trace
+    assert a.excitation_index == excitation_index(sa.rls4) > 0.0
+    assert np.isnan(b.excitation_index)

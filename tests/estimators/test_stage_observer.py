@@ -7,7 +7,14 @@ import pytest
 
 from estimators.errors import ParameterError as EstParameterError
 from estimators.filters import lowpass
-from estimators.force_observer import LoadParams, ObserverParams, TorsionEstimator, cutting_force
+from estimators.force_observer import (
+    LoadParams,
+    ObserverParams,
+    TorsionEstimator,
+    TorsionRecord,
+    cutting_force,
+    cutting_force_lagged,
+)
 from machine.effects import EFFECT_NAMES, PlantEffects
 from machine.errors import ParameterError
 from machine.params import ADDED_WEIGHT_INERTIA, StageParams, preset
@@ -176,3 +183,20 @@ def test_trajectory_dwell_and_levels() -> None:
 def test_bad_trajectory_is_named(kwargs: dict, match: str) -> None:
     with pytest.raises(ParameterError, match=match):
         Trajectory(**kwargs)
+
+
+def test_cutting_force_lagged_is_eq2_with_the_previous_samples_parameters() -> None:
+    rng = np.random.default_rng(5)
+    n = 37
+    rec = TorsionRecord(*(rng.normal(size=n) for _ in range(8)))
+    theta0 = np.array([2.8e-4, 2e-3, 0.15, 0.3])
+    theta = theta0 * (1.0 + 0.1 * rng.normal(size=(n, 4)))
+    th = np.vstack([theta0, theta[:-1]])
+    want = cutting_force(rec, th[:, 0], th[:, 1], th[:, 2])
+    # the same operations per sample: equal, not only close
+    assert np.array_equal(cutting_force_lagged(rec, theta0, theta), want)
+    assert cutting_force_lagged(rec, theta0, theta)[0] == cutting_force(rec, *theta0[:3])[0]
+    with pytest.raises(EstParameterError, match="theta0/theta"):
+        cutting_force_lagged(rec, theta0, theta[:-1])
+    with pytest.raises(EstParameterError, match="theta0/theta"):
+        cutting_force_lagged(rec, theta0[:2], theta[:, :2])

@@ -471,3 +471,20 @@ def test_wear_law_params_reject_bad_input() -> None:
         replace(law, crater_gain=-1.0)
     with pytest.raises(EstParameterError, match=r"n3.*reduced wear law"):
         wear_law_params(ToolWearModel(params=replace(DEFAULT_WEAR_PARAMS, n3=1.5)), 0.1)
+
+
+def test_life_sd_off_skips_only_the_spread() -> None:
+    # life_sd=False (the live pipeline's setting): remaining_life_sd is NaN, every other
+    # output equal to the full monitor's, with the law and with the trend alike
+    t, F, _ = _passes(ToolWearModel(), 0.1)
+    feed = np.full(len(t), 0.1)
+    for law in (wear_law_params(ToolWearModel(), 0.1), None):
+        full = _monitor(law)
+        lean = ToolLifeMonitor(replace(full.params, life_sd=False))
+        _, a = full.step(full.initial_state(), t, F, feed)
+        _, b = lean.step(lean.initial_state(), t, F, feed)
+        for name in ("vb", "vb_trend", "wear_rate", "remaining_life", "life_fraction"):
+            assert np.array_equal(getattr(a, name), getattr(b, name), equal_nan=True), name
+        assert np.array_equal(a.warning, b.warning) and np.array_equal(a.alarm, b.alarm)
+        assert np.isfinite(a.remaining_life_sd).any()
+        assert np.isnan(b.remaining_life_sd).all()
