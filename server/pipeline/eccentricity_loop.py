@@ -57,9 +57,9 @@ class ObserverForceSource:
     TorsionEstimator` and :func:`~estimators.force_observer.cutting_force`) on each feed
     axis, with the motor current times the force constant as effort and the linear scale
     (quantised to ``resolution``) as position. The axes are rigid, so motor and load
-    position are the same signal; the shaft-twist branch (eq. 4) then carries no
-    information, and a very stiff nominal ``K`` makes the minimum-variance mix (eq. 5)
-    use the motor-side disturbance observer (eq. 3) alone. The mass is split evenly
+    position are the same signal; the shaft-twist branch (seed003 (4)) then carries no
+    information, and a very stiff nominal ``K`` makes the minimum-variance mix (seed003 (5))
+    use the motor-side disturbance observer (seed003 (3)) alone. The mass is split evenly
     between the motor and load sides (any split gives the same estimate for a rigid axis).
 
     Parameters
@@ -307,7 +307,7 @@ class EccentricityLoop:
     esc, fast : EscParams, FastTunerParams
         Their parameters.
     cost_axis : {"x", "y"}
-        Force component of the ESC cost (eq. 8). The fast tuner uses both.
+        Force component of the ESC cost (seed003 (8)). The fast tuner uses both.
     adapt_start_s : float
         Time at which the tuner starts (before it: no modulation, as in Fig. 3).
     force_source : callable, optional

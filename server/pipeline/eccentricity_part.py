@@ -62,7 +62,7 @@ ECC_CHANNELS: dict[str, tuple[str, str]] = {
     "ecc_theta_m": ("deg", "modulation phase theta_m applied by the tuner"),
     "ecc_a_cancel": ("um", "true cancelling radius"),
     "ecc_theta_cancel": ("deg", "true cancelling phase"),
-    "ecc_cost": ("N", "tuner's cost: eq. (8) 1x amplitude of F_x, last revolution"),
+    "ecc_cost": ("N", "tuner's cost: seed003 (8) 1x amplitude of F_x, last revolution"),
     "ecc_f1x": ("N", "1x amplitude of the true F_x, last revolution"),
     "ecc_true_um": ("um", "true tool eccentricity radius"),
     "ecc_true_deg": ("deg", "true tool eccentricity angle"),

@@ -102,7 +102,7 @@ WORKPIECE_INERTIA = ADDED_WEIGHT_INERTIA  # a blank as heavy as seed 000's weigh
 REMOVAL_STEP = 0.05  # the workpiece's inertia is updated in steps of 5 % of the blank
 PASS_S = 1.0  # default scenario: one tool-wear pass per second of simulated time
 #: the wear clock of the first tool starts once the observers have settled (their first
-#: second reads ~3 % low, which biased the monitor's sharp-tool force, eq. (25), and with
+#: second reads ~3 % low, which biased the monitor's sharp-tool force, seed004 (25), and with
 #: it every later VB by ~+0.03 mm); later tools start at once (observers settled)
 WEAR_WARMUP_S = 5.0
 VB_LIMIT = 0.3  # flank wear at which the tool is changed [mm] (seed 004's limit)
@@ -370,7 +370,7 @@ class LivePipeline:
         # force): (gain at the pass start, slope per second, pass start time)
         self._gain_ramp = (1.0, 0.0, 0.0)
         self._first_pass = True
-        # force of the sharp tool (eq. (8) at zero wear): the stage's force is scaled by
+        # force of the sharp tool (seed004 (8) at zero wear): the stage's force is scaled by
         # the wear model's force over this one
         self._f_sharp = self._wear.model.force(np.zeros(3), self._wear.feed)
         self._pass_est = self._pass_nom = self._pass_t = 0.0

@@ -53,7 +53,7 @@ class StageBlock:
     f_fixed: F64
     f_adaptive: F64
     f_switching: F64
-    f_segment: F64  # eq. (2) with the gated segment identifier's parameters
+    f_segment: F64  # seed000 (2) with the gated segment identifier's parameters
     theta_adaptive: F64  # (n, 4) J_L, B_L, F_CL, F_DC
     theta_switching: F64
     mode_adaptive: NDArray[np.int8]

@@ -36,7 +36,7 @@ SAMPLE_TIME_MIN = 0.01
 
 @dataclass(frozen=True, eq=False)
 class DesignModel:
-    """Linearised model at an end point: discrete model, a_i, b_i, T of eq. (14)."""
+    """Linearised model at an end point: discrete model, a_i, b_i, T of seed004 (14)."""
 
     discrete: DiscreteModel
     a: F64
@@ -54,7 +54,7 @@ def design_linear_model(
 ) -> DesignModel:
     """Linearise ``model`` along the path from the origin to ``x_end`` at ``feed``.
 
-    ``D`` is the secant ``F(0, f)/f`` that eq. (25) measures.
+    ``D`` is the secant ``F(0, f)/f`` that seed004 (25) measures.
     """
     d_static = model.force(np.zeros(3), feed) / feed
     lm = linearise_along_path(
@@ -81,13 +81,15 @@ def wear_law_params(model: ToolWearModel, feed: float, **kw: float) -> WearLawPa
     """The off-line constants of the reduced wear law (``estimators.wear_law``).
 
     Read from the machine's wear model at its cutting condition and ``feed``: the form
-    of eq. (3)-(8) and every constant except the two scale factors the predictor fits
+    of seed004 (3)-(8) and every constant except the two scale factors the predictor fits
     on line (``kappa0`` and ``k2_0`` are only the nominal start of that fit).
     """
     p, c = model.params, model.condition
     v, d, f = c.speed, c.depth, float(feed)
     if p.n3 != 1.0:
-        raise ParameterError("n3", "1 (the reduced wear law assumes eq. (6) linear in w_f2)", p.n3)
+        raise ParameterError(
+            "n3", "1 (the reduced wear law assumes seed004 (6) linear in w_f2)", p.n3
+        )
     return WearLawParams(
         feed=f,
         depth=d,
@@ -143,7 +145,7 @@ class AcceleratedToolWear:
             )
         self.rate = float(wear_minutes_per_second)
         c = self.model.condition
-        # off-line knowledge of the monitor: dF/dVB = K13 d (eq. (8)), and the force lost
+        # off-line knowledge of the monitor: dF/dVB = K13 d (seed004 (8)), and the force lost
         # to the crater per minute, K14 w_c(t)/t of a 20-min design run at this condition
         s = self.model.params.K13 * c.depth
         design = self.model.simulate(np.full(200, self.feed), 0.1)
