@@ -172,6 +172,13 @@ def _run(machines: int, seconds: float, progress: bool) -> dict[str, object]:
                         raise RuntimeError(f"service :{port} never received: {h['feed']}")
                     time.sleep(0.5)
             time.sleep(2 * STALE_AFTER)  # the fleet page has seen every machine
+            hs = [httpx.get(f"http://127.0.0.1:{p}/api/health", timeout=5).json() for p in ports]
+            out["services.publishing"] = sum(
+                bool(h.get("estimates_out", {}).get("published")) for h in hs
+            )
+            fh = httpx.get(f"http://127.0.0.1:{fport}/api/health", timeout=5).json()
+            out["fleet.connected_at_start"] = bool(fh.get("connected"))
+            out["fleet.machines_at_start"] = int(fh.get("machines", 0))
             pids = {
                 "broker": [broker.pid],
                 "fleet": [fleet.pid],
