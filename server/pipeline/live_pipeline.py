@@ -46,7 +46,13 @@ from machine.effects import EFFECT_NAMES, PlantEffects
 from machine.params import ADDED_WEIGHT_INERTIA, preset
 from machine.stage import SEED000_FORCE, SEED001_FORCE, CuttingForce, StageConfig
 from server.pipeline.eccentricity_part import ECC_BASE_RPM, ECC_CHANNELS, TUNERS, LiveEccentricity
-from server.pipeline.sources import MeasurementSource, ReplaySource, SimulatorSource, open_replay
+from server.pipeline.sources import (
+    MeasurementSource,
+    ReplaySource,
+    SimulatorSource,
+    SourceBlock,
+    open_replay,
+)
 from server.pipeline.stage_harmonics import make_dfo
 from server.pipeline.stage_run import StageRun
 from server.pipeline.wear_clock import AcceleratedToolWear
@@ -261,6 +267,7 @@ class LivePipeline:
         self.source.reset()
         self.run = StageRun(source=self.source, ident=self._ident, observer_design=self._design)
         self.sample_time = float(self.source.sample_time)
+        self.last_block: SourceBlock | None = None
         self._removed = 0.0  # fraction of the current workpiece removed
         self._last: dict[str, float] = {}
         self._applied: tuple[object, ...] = ()
@@ -455,6 +462,7 @@ class LivePipeline:
             self._wear_begin(t0)
         self._apply(t0)
         block = self.source.step(n)
+        self.last_block = block  # the measurements as the source gave them (recording)
         n = block.n
         if n == 0:
             return {"t": np.zeros(0)} | {c.name: np.zeros(0) for c in CHANNELS}
