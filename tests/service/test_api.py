@@ -390,7 +390,9 @@ def test_openapi_documents_every_response(api: httpx.Client) -> None:
     schemas = spec["components"]["schemas"]
     error_ref = {"application/json": {"schema": {"$ref": "#/components/schemas/ErrorBody"}}}
     ops = [(p, m, op) for p, ms in spec["paths"].items() for m, op in ms.items()]
-    assert len(ops) == 14  # 13 paths; /api/params has GET and PATCH, effects GET/POST/DELETE
+    # 13 paths before the data routes; /api/params has GET and PATCH, effects GET/POST/DELETE;
+    # + record, records (list, CSV, sidecar), uploads (POST, GET), analyses (POST, GET, GET id)
+    assert len(ops) == 23
     for p, m, op in ops:
         where = f"{m.upper()} {p}"
         ok = [c for c in op["responses"] if c.startswith("2")]
@@ -412,7 +414,8 @@ def test_openapi_documents_every_response(api: httpx.Client) -> None:
             assert "401" in errors, where
         if "requestBody" in op:
             assert {"413", "422"} <= set(errors), where
-            assert op["requestBody"]["content"]["application/json"]["schema"], where
+            media = "application/octet-stream" if p == "/api/uploads" else "application/json"
+            assert op["requestBody"]["content"][media]["schema"], where
     assert set(schemas["ErrorItem"]["properties"]) == {"field", "allowed", "got", "msg"}
     assert "HTTPValidationError" not in schemas  # FastAPI's own 422 shape is not offered
 

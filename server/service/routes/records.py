@@ -142,7 +142,10 @@ def _recording_csv(st: DataStore, name: str) -> Path:
     "/api/records/{name}",
     summary="download a recording (its CSV)",
     response_class=FileResponse,
-    responses=error_responses(404, json_route=False),
+    responses={
+        200: {"description": "the CSV", "content": {"text/csv": {"schema": {"type": "string"}}}},
+        **error_responses(404, json_route=False),
+    },
 )
 def get_record(name: str, st: Store) -> FileResponse:
     p = _recording_csv(st, name)
@@ -153,7 +156,13 @@ def get_record(name: str, st: Store) -> FileResponse:
     "/api/records/{name}/sidecar",
     summary="a recording's JSON sidecar",
     response_class=FileResponse,
-    responses=error_responses(404, json_route=False),
+    responses={
+        200: {
+            "description": "the sidecar (sample_time, units, kind, nominal, recording...)",
+            "content": {"application/json": {"schema": {"type": "object"}}},
+        },
+        **error_responses(404, json_route=False),
+    },
 )
 def get_record_sidecar(name: str, st: Store) -> FileResponse:
     p = _recording_csv(st, name).with_suffix(".json")
