@@ -160,6 +160,7 @@ class Analyses:
         kind = job.options.get("kind") or _sidecar_kind(log_path)
         bound = max(1, max_steps(kind))
         tail = ""
+        proc: subprocess.Popen[bytes] | None = None
         try:
             proc = subprocess.Popen(
                 self._command(job, log_path, out),
@@ -201,6 +202,8 @@ class Analyses:
         except Exception as exc:  # keep the service up and say why the job failed
             job.state, job.message = "failed", f"{type(exc).__name__}: {exc}"
         finally:
+            if proc is not None and proc.stderr is not None:
+                proc.stderr.close()
             self._proc = None
             job.finished = time.time()
             if out.exists():
