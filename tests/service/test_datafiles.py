@@ -120,7 +120,9 @@ def test_analysis_of_a_name_that_does_not_resolve(api: httpx.Client) -> None:
 
 
 # ------------------------------------------------------------------ uploads
-def test_oversized_upload_is_refused_while_streaming(api: httpx.Client, env: dict[str, Path]) -> None:
+def test_oversized_upload_is_refused_while_streaming(
+    api: httpx.Client, env: dict[str, Path]
+) -> None:
     big = b"t,tau_m,q_m\n" + b"0.0,0.0,0.0\n" * 400_000  # 4.8 MB > 4 MB
     err = one_error(api.post("/api/uploads", params={"name": "big.csv"}, content=big), 413)
     assert err["msg"] == "request body larger than 4000000 bytes"
@@ -146,10 +148,11 @@ def test_a_bad_log_is_refused_with_the_loaders_message_and_removed(
     api: httpx.Client, env: dict[str, Path]
 ) -> None:
     up = env["data"] / "uploads"
-    err = one_error(api.post("/api/uploads", params={"name": "bad.csv"}, content=b"t,x\n0,1\n"), 422)
+    r = api.post("/api/uploads", params={"name": "bad.csv"}, content=b"t,x\n0,1\n")
+    err = one_error(r, 422)
     assert err["msg"] == (
-        "bad.csv: units not declared: expected sidecar key 'units' = {\"effort\": \"N\" | "
-        "\"N m\" | \"A\", \"position\": \"m\" | \"rad\"} (in bad.json or --meta), found None "
+        'bad.csv: units not declared: expected sidecar key \'units\' = {"effort": "N" | '
+        '"N m" | "A", "position": "m" | "rad"} (in bad.json or --meta), found None '
         "(the upload 'bad.csv' was removed)"
     )
     assert not (up / "bad.csv").exists()
