@@ -263,6 +263,10 @@ class EffectsInstalled(Effects):
     """``POST /api/observer-effects``."""
 
     skipped: list[str] = Field(description="effects on the log's own clock, not installed")
+    t: float = Field(
+        description="the live time [s] from which the effects act (the stream's t: compare "
+        "the error before and after it)"
+    )
 
 
 class ResidualReport(BaseModel):

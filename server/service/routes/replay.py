@@ -95,7 +95,11 @@ def post_effects(body: EffectsBody, lp: Live, st: Store) -> EffectsInstalled:
     with lp.lock:
         lp.pipeline.set_observer_effects(effects)
         return EffectsInstalled.model_validate(
-            {"observer_effects": _effects_json(lp.pipeline.effects), "skipped": skipped}
+            {
+                "observer_effects": _effects_json(lp.pipeline.effects),
+                "skipped": skipped,
+                "t": lp.pipeline.t,
+            }
         )
 
 
