@@ -117,7 +117,7 @@ def test_record_round_trip_into_cutwatch_residual(api: httpx.Client, tmp_path: P
         assert p.last_block is not None
         blocks.append(p.last_block.meas)
     ref = np.column_stack([np.concatenate([getattr(m, c) for m in blocks]) for c in COLUMNS])
-    assert np.array_equal(arr, ref[k])  # bit for bit (%.17g)
+    assert np.array_equal(arr, ref[k])  # bit for bit (round-trip text)
 
     # the round trip: cutwatch residual reads the recording
     (tmp_path / "run1.csv").write_bytes(got.content)
