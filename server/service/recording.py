@@ -106,8 +106,12 @@ class Recording:
         return self.result if self.result is not None else self.summary()
 
     def summary(self) -> dict[str, Any]:
-        s = self.recorder.summary()
-        s["active"] = self.active
+        return self._listed(self.recorder.summary(), self.active)
+
+    def _listed(self, s: dict[str, Any], active: bool) -> dict[str, Any]:
+        # seconds as the listing of the files computes them: samples x sample time
+        s["seconds"] = s["samples"] * float(self.recorder.sidecar.get("sample_time", 0.0))
+        s["active"] = active
         return s
 
     def _write(self) -> None:
@@ -131,8 +135,7 @@ class Recording:
                     reason = self.recorder.limit_reason
                     break
         finally:
-            self.result = self.recorder.close(reason)
-            self.result["active"] = False
+            self.result = self._listed(self.recorder.close(reason), False)
             self._done.set()
 
 
