@@ -37,7 +37,10 @@ BODIES = JSON | st.dictionaries(
 
 @pytest.fixture(scope="module")
 def api() -> Iterator[httpx.Client]:
-    with serve() as hp, httpx.Client(base_url=f"http://{hp}", timeout=10) as client:
+    with (
+        serve(upload_max_mb=1) as hp,
+        httpx.Client(base_url=f"http://{hp}", timeout=10) as client,
+    ):
         yield client
 
 
@@ -345,6 +348,19 @@ ERROR_CASES = [
     ("unknown report", "GET", "/residual/nope/", {}, 404, "name"),
     ("unknown report.json", "GET", "/residual/nope/report.json", {}, 404, "name"),
     ("unsafe report name", "GET", "/residual/.hidden/", {}, 404, "name"),
+    ("record: no token", "POST", "/api/record", {"json": {"action": "start"}}, 401,
+     "authorization"),
+    ("upload: no token", "POST", "/api/uploads?name=x.csv", {"content": b"t"}, 401,
+     "authorization"),
+    ("analysis: no token", "POST", "/api/analyses", {"json": {"log": "x"}}, 401,
+     "authorization"),
+    ("not recording", "POST", "/api/record", {"json": {"action": "stop"}}, 409, "action"),
+    ("unknown recording", "GET", "/api/records/nope.csv", {}, 404, "name"),
+    ("unknown log", "POST", "/api/analyses", {"json": {"log": "nope"}}, 422, "name"),
+    ("unknown job", "GET", "/api/analyses/nope", {}, 404, "job_id"),
+    ("upload name", "POST", "/api/uploads?name=../x.csv", {"content": b"t"}, 422, "name"),
+    ("oversized upload", "POST", "/api/uploads?name=x.csv",
+     {"content": b"x" * 2_000_001}, 413, "body"),
 ]  # fmt: skip
 
 
