@@ -37,6 +37,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="simulated seconds per wall second; 0 = start paused (default 1)",
     )
     p.add_argument("--no-viser", action="store_true", help="do not start the viser 3D view")
+    p.add_argument(
+        "--data-dir",
+        help="the service's recordings/, uploads/ and reports/ (default ./data)",
+    )
     p.add_argument("--log-level", default="warning", help="uvicorn log level")
 
 
@@ -56,6 +60,7 @@ def build_settings(args: argparse.Namespace) -> Settings:
             "scenario": args.scenario,
             "speed": args.speed,
             "viser": False if args.no_viser else None,
+            "data_dir": args.data_dir,
         }.items()
         if v is not None
     }
