@@ -196,3 +196,58 @@ def test_the_duration_limit_ends_the_recording(tmp_path: Path) -> None:
     done = rec.wait()
     assert done["samples"] == 30 and done["end"] == "duration limit 0.025 s reached"
     assert load_log(tmp_path / "d.csv").n == 30
+
+
+def test_a_gap_in_a_broker_feed_ends_the_recording_in_the_loop(tmp_path: Path) -> None:
+    """A real Mosquitto carries a log with a hole into the running loop; the recording
+    ends at the hole with every sample before it, and the log stays valid."""
+    from _broker import broker
+
+    from server.pipeline.broker import parse_broker_url
+    from server.pipeline.drive_feed import DriveFeed
+    from server.pipeline.mqtt_source import MqttSource
+    from server.records.drive_wire import encode_drive
+    from server.service.loop import Hub, LiveLoop
+    from server.service.recording import source_sidecar
+    from server.service.settings import Settings
+
+    log = tmp_path / "run.csv"
+    assert main(["simulate", "--out", str(log), "--seconds", "3"]) == 0
+    n = load_log(log).n
+    with broker() as port:
+        url = f"mqtt://127.0.0.1:{port}"
+        feed = DriveFeed(parse_broker_url(url), "m1", max_samples=10**7)
+        feed.start()
+        wait_for(lambda: feed.connected, 10)
+        argv = ["feed", str(log), "--broker", url, "--machine", "m1", "--speed", "0"]
+        assert main([*argv, "--quiet", "--float64"]) == 0
+        wait_for(lambda: feed.buffered == n, 20)
+        feed.stop()
+    blocks = list(feed._blocks)  # a hole: blocks 8..11 never arrived
+    feed._blocks.clear()
+    feed._buffered = 0
+    feed._next_seq = None
+    for b, _, _ in [x for i, x in enumerate(blocks) if not 8 <= i < 12]:
+        feed.push(encode_drive(b.seq, b.t0, b.sample_time, b.columns, {"effort": "N m",
+                  "position": "rad"}, {k: "<f8" for k in b.columns}))  # fmt: skip
+    before_gap = sum(len(b.columns["q_m"]) for b, _, _ in blocks[:8])
+
+    lp = LiveLoop(Settings(viser=False, speed=10, data_dir=tmp_path), Hub(4))
+    lp.start()
+    try:
+        with lp.lock:  # the recording from the pipeline's first block on
+            lp.set_pipeline(LivePipeline(source=MqttSource(feed)))
+            side = source_sidecar(lp.pipeline.source, lp.pipeline.scenario)
+            lp.recording = rec = Recording(
+                tmp_path / "feed.csv", side, max_bytes=1e9, max_seconds=1e9
+            )
+        done = rec.wait(30)
+    finally:
+        lp.stop()
+    assert done["end"] == "source discontinuity (4 block(s) missing)" and not done["active"]
+    assert done["samples"] == before_gap
+    got = load_log(tmp_path / "feed.csv")
+    ref = load_log(log)
+    assert got.n == before_gap and "f_ext" in got.columns
+    for c in ("tau_m", "q_m", "q_l", "f_ext"):
+        np.testing.assert_array_equal(got[c], ref[c][:before_gap], err_msg=c)
