@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import socket
+import tempfile
 import threading
 import time
 from collections.abc import Iterator
@@ -29,11 +30,18 @@ def serve(*, sndbuf: int | None = None, **settings: object) -> Iterator[str]:
     sock.bind(("127.0.0.1", 0))
     port = int(sock.getsockname()[1])
     settings.setdefault("viser", False)  # tests start viser only where they mean to
+    # the service's data areas in a temporary directory, never ./data of the checkout
+    tmp = None
+    if "data_dir" not in settings:
+        tmp = tempfile.TemporaryDirectory(prefix="cutwatch-data-")
+        settings["data_dir"] = tmp.name
     try:
         s = Settings(port=port, **settings)  # type: ignore[arg-type]
         app = create_app(s)
     except BaseException:
         sock.close()
+        if tmp is not None:
+            tmp.cleanup()
         raise
     options = uvicorn_options(s)
     del options["workers"]  # one server in this thread
@@ -58,3 +66,5 @@ def serve(*, sndbuf: int | None = None, **settings: object) -> Iterator[str]:
         server.should_exit = True
         thread.join(10)
         sock.close()
+        if tmp is not None:
+            tmp.cleanup()

@@ -381,6 +381,7 @@ function connect() {
     state.frames += 1;
     state.dropped += msg.dropped;
     append(msg);
+    window.dispatchEvent(new CustomEvent("cutwatch:frame", { detail: msg })); // loop.js
     state.dirty = true;
     showHealth(msg.health);
     showExcited(msg);

@@ -64,7 +64,13 @@ from server.pipeline.eccentricity_part import (
     TUNERS,
     LiveEccentricity,
 )
-from server.pipeline.sources import MeasurementSource, ReplaySource, SimulatorSource, open_replay
+from server.pipeline.sources import (
+    MeasurementSource,
+    ReplaySource,
+    SimulatorSource,
+    SourceBlock,
+    open_replay,
+)
 from server.pipeline.stage_harmonics import make_dfo
 from server.pipeline.stage_run import StageRun
 from server.pipeline.wear_clock import AcceleratedToolWear
@@ -310,6 +316,7 @@ class LivePipeline:
         self.source.reset()
         self.run = StageRun(source=self.source, ident=self._ident, observer_design=self._design)
         self.sample_time = float(self.source.sample_time)
+        self.last_block: SourceBlock | None = None
         self._removed = 0.0  # fraction of the current workpiece removed
         self._removed_applied = 0.0  # the removal the plant has (steps, mid-stroke)
         self._clamp_pending = False  # the blank is nearly used up; a fresh one is due
@@ -554,6 +561,7 @@ class LivePipeline:
             self._prev_factor = factor
         self._apply(t0)
         block = self.source.step(n)
+        self.last_block = block  # the measurements as the source gave them (recording)
         n = block.n
         if n == 0:
             return {"t": np.zeros(0)} | {c.name: np.zeros(0) for c in CHANNELS}

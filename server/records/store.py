@@ -40,14 +40,17 @@ def check_name(name: str) -> bool:
 
 @dataclass(frozen=True)
 class DataStore:
-    """The root holding ``recordings/``, ``uploads/`` and ``reports/`` (made on demand)."""
+    """The root holding ``recordings/``, ``uploads/`` and ``reports/`` (made on demand;
+    ``reports`` may point the reports area elsewhere)."""
 
     root: Path
+    #: the reports area when it lies elsewhere (the service's ``reports_dir``)
+    reports: Path | None = None
 
     def area(self, area: str) -> Path:
         if area not in AREAS:
             raise ValueError(f"area {area!r}: expected one of {AREAS}")
-        d = self.root / area
+        d = self.reports if area == "reports" and self.reports is not None else self.root / area
         d.mkdir(parents=True, exist_ok=True)
         return d
 

@@ -26,6 +26,8 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from common.errors import ParameterError
 from server.errors import CutwatchError
 from server.pipeline.live_pipeline import SCENARIOS
+from server.records.store import DataStore
+from server.service.analysis import Analyses
 from server.service.errors import FieldError, _sanitise, error
 from server.service.loop import Hub, LiveLoop
 from server.service.middleware import BodyLimit
@@ -68,6 +70,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         try:
             yield
         finally:
+            app.state.analyses.close()
             hub.close()
             await asyncio.to_thread(loop.stop)
             if loop.scene is not None:
@@ -81,6 +84,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         'answers {"detail": [{"field", "allowed", "got", "msg"}]} (schema ErrorBody).',
     )
     app.state.settings = s
+    app.state.store = DataStore(s.data_dir, reports=s.reports_dir)
+    app.state.analyses = Analyses(app.state.store)
     app.exception_handler(RequestValidationError)(_validation_error)
     app.exception_handler(ParameterError)(_parameter_error)
     app.exception_handler(CutwatchError)(_cutwatch_error)
@@ -91,7 +96,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         app.mount("/vendor/uplot", StaticFiles(directory=UPLOT_DIR), name="uplot")
     if WEB_DIR.is_dir():
         app.mount("/", StaticFiles(directory=WEB_DIR, html=True), name="web")
-    app.add_middleware(BodyLimit, limit=s.max_body_bytes)
+    app.add_middleware(
+        BodyLimit, limit=s.max_body_bytes, paths={"/api/uploads": s.upload_max_bytes}
+    )
     return app
 
 

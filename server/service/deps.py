@@ -1,4 +1,4 @@
-"""FastAPI dependencies: the live loop, the settings, the bearer token."""
+"""FastAPI dependencies: the live loop, the settings, the data store, the bearer token."""
 
 from __future__ import annotations
 
@@ -7,6 +7,7 @@ from typing import Annotated
 
 from fastapi import Depends, HTTPException, Request
 
+from server.records.store import DataStore
 from server.service.errors import error
 from server.service.loop import LiveLoop
 from server.service.settings import Settings
@@ -24,8 +25,21 @@ def settings(request: Request) -> Settings:
     return s
 
 
+def data_store(request: Request) -> DataStore:
+    """The app's :class:`DataStore` (recordings, uploads, reports by name)."""
+    st: DataStore = request.app.state.store
+    return st
+
+
 Live = Annotated[LiveLoop, Depends(live_loop)]
 Config = Annotated[Settings, Depends(settings)]
+Store = Annotated[DataStore, Depends(data_store)]
+
+
+def conflict(field: str, allowed: str, got: object, msg: str) -> HTTPException:
+    """A 409 (the request does not fit the service's state) in the one error shape."""
+    return HTTPException(409, detail=[error(field, allowed, got, msg)])
+
 
 AUTH_MSG = "mutating endpoints need 'Authorization: Bearer <token>' (CUTWATCH_TOKEN)"
 

@@ -36,6 +36,7 @@ from server.service import protocol
 from server.service.settings import MAX_SPEED, Settings
 
 if TYPE_CHECKING:
+    from server.service.recording import Recording
     from server.service.viser_scene import StageScene
 
 
@@ -235,6 +236,7 @@ class LiveLoop:
         self._pending: list[dict[str, np.ndarray]] = []
         self._hello_due = False  # the pipeline changed: clients need a new hello
         self.scene: StageScene | None = None  # the viser view, if started
+        self.recording: Recording | None = None  # POST /api/record
         self._anchor()
 
     # ------------------------------------------------------------------ control
@@ -268,6 +270,7 @@ class LiveLoop:
     def reset(self) -> None:
         """Restart the simulation and every estimator from t = 0 (knob values kept)."""
         with self.lock:
+            self.end_recording("the pipeline was reset")
             self.pipeline.reset()
             self._pending.clear()
             self._anchor()
@@ -281,6 +284,7 @@ class LiveLoop:
         """Run ``pipe`` from now on (a scenario, or a log replay); installed observer
         effects carry over. Not paused: a replay starts at once."""
         with self.lock:
+            self.end_recording("the pipeline changed")
             if self.pipeline.effects:
                 pipe.set_observer_effects(self.pipeline.effects)
             self.pipeline = pipe
@@ -307,9 +311,20 @@ class LiveLoop:
         self._wake.set()
         if self._thread is not None:
             self._thread.join(timeout)
+        rec = self.end_recording("the service stopped")
+        if rec is not None:
+            rec.wait(timeout)  # every block handed over is written before exit
         for part in (self.feed, self.estimates_out):
             if part is not None:
                 part.stop()
+
+    def end_recording(self, reason: str) -> Recording | None:
+        """End the recording in progress, if any (its writer finishes the file)."""
+        with self.lock:
+            rec, self.recording = self.recording, None
+        if rec is not None:
+            rec.end(reason)
+        return rec
 
     @property
     def running(self) -> bool:
@@ -352,10 +367,13 @@ class LiveLoop:
                 with self.lock:
                     if self.pipeline.finished:
                         self.paused = True  # a replayed log has ended
+                        self.end_recording("the source has finished")
                     if self.paused or self._stop.is_set():
                         continue
                     out = self.pipeline.step(self.block_n)
                     got = len(out["t"]) > 0
+                    if got and self.recording is not None and self.pipeline.last_block is not None:
+                        self.recording.feed(self.pipeline.last_block)  # a queue put
                     if got:
                         self._pending.append(out)
                         self.blocks += 1

@@ -20,22 +20,24 @@ class BodyLimit:
     arrive. The 413 has the service's one error body (``server.service.errors``).
     """
 
-    def __init__(self, app: ASGIApp, limit: int) -> None:
+    def __init__(self, app: ASGIApp, limit: int, paths: dict[str, int] | None = None) -> None:
         self.app = app
         self.limit = limit
+        self.paths = dict(paths or {})  # path -> its own limit (uploads)
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] != "http":
             await self.app(scope, receive, send)
             return
+        limit = self.paths.get(scope.get("path", ""), self.limit)
         for k, v in scope.get("headers", []):
             if k == b"content-length":
                 try:
                     size: int | str = int(v)
                 except ValueError:
                     size = v.decode("latin-1")[:80]
-                if not isinstance(size, int) or size > self.limit:
-                    await self._reject(send, size)
+                if not isinstance(size, int) or size > limit:
+                    await self._reject(send, size, limit)
                     return
         seen = 0
         rejected = False
@@ -48,9 +50,9 @@ class BodyLimit:
             msg = await receive()
             if msg["type"] == "http.request":
                 seen += len(msg.get("body", b""))
-                if seen > self.limit:
+                if seen > limit:
                     rejected = True
-                    await self._reject(send, seen)
+                    await self._reject(send, seen, limit)
                     return {"type": "http.disconnect"}
             return msg
 
@@ -60,9 +62,8 @@ class BodyLimit:
 
         await self.app(scope, counted, guarded_send)
 
-    async def _reject(self, send: Send, got: int | str) -> None:
+    async def _reject(self, send: Send, got: int | str, limit: int) -> None:
         # got: the declared Content-Length, or the bytes received before refusing
-        limit = self.limit
         msg = f"request body larger than {limit} bytes"
         item = error("body", f"at most {limit} bytes", got, msg)
         body = json.dumps({"detail": [item]}).encode()

@@ -35,7 +35,8 @@ _ERROR_DOCS = {
     401: "no or wrong bearer token (CUTWATCH_TOKEN set)",
     404: "no such report, route or file",
     405: "method not allowed on this path",
-    413: "request body over the limit (CUTWATCH_MAX_BODY_BYTES)",
+    409: "the request does not fit the service's state (nothing runs, already recording...)",
+    413: "request body over the limit (CUTWATCH_MAX_BODY_BYTES; uploads: CUTWATCH_UPLOAD_MAX_MB)",
     422: "a field is missing, unknown or out of range; nothing changed",
 }
 
@@ -237,17 +238,28 @@ class ControlState(BaseModel):
 
 
 class Replay(BaseModel):
-    """``POST /api/replay``: a measured log on the server's disk."""
+    """``POST /api/replay``: a measured log of the service's data areas, by name."""
 
     model_config = ConfigDict(extra="forbid")
-    path: str = Field(..., min_length=1, max_length=4096, description="two_inertia log (.csv)")
+    name: str | None = Field(
+        None,
+        max_length=128,
+        description="a two_inertia log in the recordings or uploads (.csv optional)",
+    )
+    area: Literal["recordings", "uploads"] | None = Field(
+        None, description="where to look (default: recordings, then uploads)"
+    )
+    path: str | None = Field(
+        None, max_length=4096, description="refused (422): files are named, never given by path"
+    )
 
 
 class ReplayStarted(BaseModel):
     """``POST /api/replay``: the log now feeding the observers."""
 
     scenario: Literal["replay"]
-    path: str
+    name: str
+    area: str
     samples: int
     sample_time: float = Field(description="[s]")
     duration_s: float
@@ -255,12 +267,17 @@ class ReplayStarted(BaseModel):
 
 
 class EffectsBody(BaseModel):
-    """``POST /api/observer-effects``: a residual report.json, or its effects list."""
+    """``POST /api/observer-effects``: a residual report (by name), or its effects list."""
 
     model_config = ConfigDict(extra="forbid")
-    path: str | None = Field(None, max_length=4096, description="a residual report.json")
+    report: str | None = Field(
+        None, max_length=128, description="the name of a residual report (GET /residual)"
+    )
     observer_effects: list[dict[str, Any]] | None = Field(
         None, description="[{name, shape, coef}] as in report.json"
+    )
+    path: str | None = Field(
+        None, max_length=4096, description="refused (422): reports are named, never given by path"
     )
 
 
@@ -280,6 +297,10 @@ class EffectsInstalled(Effects):
     """``POST /api/observer-effects``."""
 
     skipped: list[str] = Field(description="effects on the log's own clock, not installed")
+    t: float = Field(
+        description="the live time [s] from which the effects act (the stream's t: compare "
+        "the error before and after it)"
+    )
 
 
 class ResidualReport(BaseModel):
@@ -292,3 +313,116 @@ class ResidualReport(BaseModel):
     sample_time: float
     selected: list[JsonValue]
     observer_effects: list[JsonValue] | None = None
+
+
+# ------------------------------------------------------------------ data: records, uploads
+
+_NAME_DOC = "a plain name: 1-128 of A-Z a-z 0-9 _ . - starting with a letter or digit"
+
+
+class RecordBody(BaseModel):
+    """``POST /api/record``: start or stop recording the live source."""
+
+    model_config = ConfigDict(extra="forbid")
+    action: Literal["start", "stop"]
+    name: str | None = Field(
+        None,
+        max_length=128,
+        description=f"start: the recording's name ({_NAME_DOC}; '.csv' added when missing); "
+        "default rec-<UTC time>.csv",
+    )
+
+
+class RecordInfo(BaseModel):
+    """One recording (in progress or on disk)."""
+
+    name: str = Field(description="file name in the recordings area (GET /api/records/{name})")
+    samples: int | None
+    seconds: float | None = Field(description="duration of the samples written [s]")
+    bytes: int | None = Field(description="size of the CSV [bytes]")
+    active: bool = Field(description="still recording")
+    end: str | None = Field(None, description="why it ended (stopped, a limit, a gap...)")
+
+
+class RecordState(BaseModel):
+    """``POST /api/record``: the recording started or stopped."""
+
+    recording: RecordInfo
+
+
+class Records(BaseModel):
+    """``GET /api/records``: the recordings area, the one in progress first."""
+
+    records: list[RecordInfo]
+
+
+class UploadInfo(BaseModel):
+    """One uploaded file."""
+
+    name: str
+    bytes: int
+    kind: Literal["log", "sidecar"]
+    checked: bool | None = Field(
+        None, description="log: passed the log loader's checks (with its sidecar, if any)"
+    )
+    samples: int | None = None
+    sample_time: float | None = None
+    log_kind: str | None = Field(None, description="rigid or two_inertia (sidecar key 'kind')")
+
+
+class Uploads(BaseModel):
+    """``GET /api/uploads``."""
+
+    uploads: list[UploadInfo]
+
+
+# ------------------------------------------------------------------ analyses
+
+
+class AnalysisBody(BaseModel):
+    """``POST /api/analyses``: run ``cutwatch residual`` on a recording or an upload."""
+
+    model_config = ConfigDict(extra="forbid")
+    log: str = Field(..., min_length=1, max_length=128, description="the log's name")
+    area: Literal["recordings", "uploads"] | None = Field(
+        None, description="where the log is (default: recordings, then uploads)"
+    )
+    report: str | None = Field(
+        None,
+        max_length=120,
+        description=f"the report's name ({_NAME_DOC}); default: the log's stem "
+        "(-2, -3... when taken)",
+    )
+    holdout: float | None = Field(
+        None, ge=0.1, le=0.5, description="fraction held out at the end (--holdout)"
+    )
+    kind: Literal["rigid", "two_inertia"] | None = Field(
+        None, description="the model (--kind; default: the sidecar's)"
+    )
+
+
+class AnalysisJob(BaseModel):
+    """``POST /api/analyses`` and ``GET /api/analyses/{id}``: one analysis job."""
+
+    id: str
+    log: str
+    area: str
+    report: str = Field(description="the report's name once done (GET /residual/{report}/)")
+    options: dict[str, JsonValue]
+    state: Literal["queued", "running", "done", "failed"]
+    progress: float = Field(description="0..1 (steps seen over the most the analysis can take)")
+    step: str = Field(description="the analysis step under way")
+    message: str = Field(description="why it failed (the command's message)")
+    started: float = Field(description="[s since the epoch]")
+    finished: float | None
+    selected: list[str] = Field(description="effects the report selected")
+    observer_effects: int = Field(description="effects installable in the live observer")
+    rms_before: float | None
+    rms_after: float | None
+    report_url: str | None
+
+
+class AnalysisJobs(BaseModel):
+    """``GET /api/analyses``: the recent jobs, newest last."""
+
+    jobs: list[AnalysisJob]

@@ -93,10 +93,38 @@ class Settings(BaseSettings):
         default=None,
         description="this dashboard's URL as others reach it (the fleet page links it)",
     )
-    reports_dir: Path = Field(
-        default=Path("reports"),
-        description="directory whose sub-directories hold residual reports (GET /residual)",
+    data_dir: Path = Field(
+        default=Path("data"),
+        description=(
+            "the service's data: recordings/, uploads/ and reports/ (made on demand); "
+            "replay, analysis and effect installs read files only from here, by name"
+        ),
     )
+    reports_dir: Path | None = Field(
+        default=None,
+        description=(
+            "the reports area (sub-directories holding residual reports, GET /residual); "
+            "default: data_dir/reports"
+        ),
+    )
+    record_max_mb: float = Field(
+        default=200.0, gt=0.0, le=100_000.0, description="largest recording [MB] (then it stops)"
+    )
+    record_max_minutes: float = Field(
+        default=60.0, gt=0.0, le=10_080.0, description="longest recording [min] (then it stops)"
+    )
+    upload_max_mb: float = Field(
+        default=100.0, gt=0.0, le=100_000.0, description="largest uploaded file [MB] (413 above)"
+    )
+
+    @property
+    def reports_area(self) -> Path:
+        """Where residual reports live: ``reports_dir`` if set, else ``data_dir/reports``."""
+        return self.reports_dir if self.reports_dir is not None else self.data_dir / "reports"
+
+    @property
+    def upload_max_bytes(self) -> int:
+        return int(self.upload_max_mb * 1e6)
 
 
 def is_loopback(host: str) -> bool:

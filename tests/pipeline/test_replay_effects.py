@@ -22,17 +22,21 @@ from server.service.routes.replay import parse_effects
 @pytest.fixture(scope="module")
 def files(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     d = tmp_path_factory.mktemp("replay")
-    log = d / "off.csv"
+    uploads = d / "data" / "uploads"  # the service's data areas (CUTWATCH_DATA_DIR)
+    uploads.mkdir(parents=True)
+    log = uploads / "off.csv"
     assert main(["simulate", "--out", str(log), "--seconds", "6", "--effect", "offset"]) == 0
-    reports = d / "reports"
+    reports = d / "reports"  # elsewhere: CUTWATCH_REPORTS_DIR overrides data/reports
     rep = reports / "off"
     assert main(["residual", str(log), "--kind", "two_inertia", "--out", str(rep), "--quiet"]) == 0
-    rigid = d / "rigid.csv"
+    rigid = uploads / "rigid.csv"
     rigid.write_text(log.read_text())
     side = json.loads(log.with_suffix(".json").read_text())
-    (d / "rigid.json").write_text(json.dumps({**side, "kind": "rigid"}))
-    nounits = d / "nounits.csv"
+    (uploads / "rigid.json").write_text(json.dumps({**side, "kind": "rigid"}))
+    nounits = uploads / "nounits.csv"
     nounits.write_text(log.read_text())
+    (reports / "notjson").mkdir()
+    (reports / "notjson" / "report.json").write_text("{not json")
     (d / "secret").mkdir()
     (d / "secret" / "report.html").write_text("not a report")
     return {"log": log, "reports": reports, "report": rep / "report.json", "d": d, "rigid": rigid,
@@ -42,7 +46,7 @@ def files(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
 @pytest.fixture(scope="module")
 def api(files: dict[str, Path]) -> Iterator[httpx.Client]:
     with (
-        serve(reports_dir=files["reports"]) as hp,
+        serve(data_dir=files["d"] / "data", reports_dir=files["reports"]) as hp,
         httpx.Client(base_url=f"http://{hp}", timeout=20) as c,
     ):
         yield c
@@ -104,30 +108,38 @@ def test_residual_bad_name_message(api: httpx.Client) -> None:
 
 # ------------------------------------------------------------------ replay
 def test_replay_errors(api: httpx.Client, files: dict[str, Path]) -> None:
-    d = files["d"]
-    r = api.post("/api/replay", json={"path": str(d / "missing.csv")})
+    r = api.post("/api/replay", json={"name": "missing.csv"})
     assert r.status_code == 422
     (err,) = r.json()["detail"]
-    assert err["msg"] == f"{d / 'missing.csv'}: no such file (expected a .csv or .mat log)"
-    assert err["field"] == "path" and err["got"] == str(d / "missing.csv")
-    r = api.post("/api/replay", json={"path": str(files["rigid"])})
+    assert err["msg"] == (
+        "recordings or uploads: no item named 'missing.csv' (expected the name of one of the "
+        "service's recordings or uploads, as listed by the API; paths are not accepted)"
+    )
+    assert err["field"] == "name" and err["got"] == "missing.csv"
+    r = api.post("/api/replay", json={"name": "rigid"})
     assert r.status_code == 422
-    assert r.json()["detail"][0][
-        "msg"
-    ] == f"{files['rigid']}: kind 'rigid': expected 'two_inertia' " + ("(sidecar key 'kind')")
-    r = api.post("/api/replay", json={"path": str(files["nounits"])})
+    assert r.json()["detail"][0]["msg"] == (
+        "rigid.csv: kind 'rigid': expected 'two_inertia' (sidecar key 'kind')"
+    )  # the file's name, not its place on the server
+    r = api.post("/api/replay", json={"name": "nounits.csv", "area": "uploads"})
     assert r.status_code == 422
     assert "units not declared" in r.json()["detail"][0]["msg"]
+    assert str(files["d"]) not in r.text
     r = api.post("/api/replay", json={"file": "x.csv"})
     assert r.status_code == 422
-    assert {e["field"] for e in r.json()["detail"]} == {"file", "path"}  # extra, missing
+    assert {e["field"] for e in r.json()["detail"]} == {"file"}  # extra
+    r = api.post("/api/replay", json={"path": str(files["log"])})
+    assert r.status_code == 422
+    assert r.json()["detail"][0]["field"] == "path"
+    assert r.json()["detail"][0]["msg"].startswith("paths are not accepted")
     assert api.get("/api/scenarios").json()["current"] == "default"  # nothing changed
 
 
 def test_replay_feeds_the_observers_then_stops(api: httpx.Client, files: dict[str, Path]) -> None:
-    r = api.post("/api/replay", json={"path": str(files["log"])})
+    r = api.post("/api/replay", json={"name": "off"})
     assert r.status_code == 200, r.text
     body = r.json()
+    assert body["name"] == "off.csv" and body["area"] == "uploads"
     assert body["samples"] == 15000 and body["duration_s"] == pytest.approx(6.0)
     assert api.post("/api/control", json={"action": "speed", "value": 20}).status_code == 200
     snap = wait_for(
@@ -154,15 +166,19 @@ def test_effects_errors(api: httpx.Client, files: dict[str, Path]) -> None:
     r = api.post("/api/observer-effects", json={})
     assert r.status_code == 422
     (err,) = r.json()["detail"]
-    assert err["msg"] == "expected one of 'path' (a report.json) or 'observer_effects'"
+    assert err["msg"] == "expected one of 'report' (a residual report's name) or 'observer_effects'"
     assert err["field"] == "body"
-    r = api.post("/api/observer-effects", json={"path": str(files["d"] / "none.json")})
+    r = api.post("/api/observer-effects", json={"report": "none"})
     assert r.status_code == 422
-    assert "no such file (expected a residual report.json)" in r.json()["detail"][0]["msg"]
-    assert r.json()["detail"][0]["field"] == "path"
-    r = api.post("/api/observer-effects", json={"path": str(files["log"])})
+    assert r.json()["detail"][0]["msg"].startswith("reports: no item named 'none'")
+    assert r.json()["detail"][0]["field"] == "report"
+    r = api.post("/api/observer-effects", json={"report": "notjson"})
     assert r.status_code == 422
-    assert "not a readable JSON report" in r.json()["detail"][0]["msg"]
+    assert "report 'notjson': not a readable JSON report" in r.json()["detail"][0]["msg"]
+    assert str(files["d"]) not in r.text
+    r = api.post("/api/observer-effects", json={"path": str(files["report"])})
+    assert r.status_code == 422
+    assert r.json()["detail"][0]["msg"].startswith("paths are not accepted")
     r = api.post("/api/observer-effects", json={"observer_effects": [{"name": "offset"}]})
     assert r.status_code == 422
     assert r.json()["detail"][0]["msg"].startswith("observer_effects[0]: expected {'name': str")
@@ -181,7 +197,7 @@ def test_effects_errors(api: httpx.Client, files: dict[str, Path]) -> None:
 
 
 def test_effects_install_and_remove(api: httpx.Client, files: dict[str, Path]) -> None:
-    r = api.post("/api/observer-effects", json={"path": str(files["report"])})
+    r = api.post("/api/observer-effects", json={"report": "off"})
     assert r.status_code == 200, r.text
     names = [e["name"] for e in r.json()["observer_effects"]]
     assert "offset" in names and "drift" not in names

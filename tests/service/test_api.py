@@ -37,7 +37,10 @@ BODIES = JSON | st.dictionaries(
 
 @pytest.fixture(scope="module")
 def api() -> Iterator[httpx.Client]:
-    with serve() as hp, httpx.Client(base_url=f"http://{hp}", timeout=10) as client:
+    with (
+        serve(upload_max_mb=1) as hp,
+        httpx.Client(base_url=f"http://{hp}", timeout=10) as client,
+    ):
         yield client
 
 
@@ -379,6 +382,19 @@ ERROR_CASES = [
     ("unknown report", "GET", "/residual/nope/", {}, 404, "name"),
     ("unknown report.json", "GET", "/residual/nope/report.json", {}, 404, "name"),
     ("unsafe report name", "GET", "/residual/.hidden/", {}, 404, "name"),
+    ("record: no token", "POST", "/api/record", {"json": {"action": "start"}}, 401,
+     "authorization"),
+    ("upload: no token", "POST", "/api/uploads?name=x.csv", {"content": b"t"}, 401,
+     "authorization"),
+    ("analysis: no token", "POST", "/api/analyses", {"json": {"log": "x"}}, 401,
+     "authorization"),
+    ("not recording", "POST", "/api/record", {"json": {"action": "stop"}}, 409, "action"),
+    ("unknown recording", "GET", "/api/records/nope.csv", {}, 404, "name"),
+    ("unknown log", "POST", "/api/analyses", {"json": {"log": "nope"}}, 422, "name"),
+    ("unknown job", "GET", "/api/analyses/nope", {}, 404, "job_id"),
+    ("upload name", "POST", "/api/uploads?name=../x.csv", {"content": b"t"}, 422, "name"),
+    ("oversized upload", "POST", "/api/uploads?name=x.csv",
+     {"content": b"x" * 2_000_001}, 413, "body"),
 ]  # fmt: skip
 
 
@@ -424,7 +440,9 @@ def test_openapi_documents_every_response(api: httpx.Client) -> None:
     schemas = spec["components"]["schemas"]
     error_ref = {"application/json": {"schema": {"$ref": "#/components/schemas/ErrorBody"}}}
     ops = [(p, m, op) for p, ms in spec["paths"].items() for m, op in ms.items()]
-    assert len(ops) == 14  # 13 paths; /api/params has GET and PATCH, effects GET/POST/DELETE
+    # 13 paths before the data routes; /api/params has GET and PATCH, effects GET/POST/DELETE;
+    # + record, records (list, CSV, sidecar), uploads (POST, GET), analyses (POST, GET, GET id)
+    assert len(ops) == 23
     for p, m, op in ops:
         where = f"{m.upper()} {p}"
         ok = [c for c in op["responses"] if c.startswith("2")]
@@ -446,7 +464,8 @@ def test_openapi_documents_every_response(api: httpx.Client) -> None:
             assert "401" in errors, where
         if "requestBody" in op:
             assert {"413", "422"} <= set(errors), where
-            assert op["requestBody"]["content"]["application/json"]["schema"], where
+            media = "application/octet-stream" if p == "/api/uploads" else "application/json"
+            assert op["requestBody"]["content"][media]["schema"], where
     assert set(schemas["ErrorItem"]["properties"]) == {"field", "allowed", "got", "msg"}
     assert "HTTPValidationError" not in schemas  # FastAPI's own 422 shape is not offered
 

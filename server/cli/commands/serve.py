@@ -51,6 +51,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         type=float,
         help="publish estimates on cutwatch/<machine>/estimates at this rate (default 0: off)",
     )
+    p.add_argument(
+        "--data-dir",
+        help="the service's recordings/, uploads/ and reports/ (default ./data)",
+    )
     p.add_argument("--log-level", default="warning", help="uvicorn log level")
 
 
@@ -74,6 +78,7 @@ def build_settings(args: argparse.Namespace) -> Settings:
             "mqtt_broker": args.broker,
             "mqtt_machine": args.machine,
             "mqtt_publish_hz": args.publish_hz,
+            "data_dir": args.data_dir,
         }.items()
         if v is not None
     }

@@ -4,7 +4,17 @@ from __future__ import annotations
 
 from fastapi import APIRouter
 
-from server.service.routes import control, params, replay, reports, status, stream
+from server.service.routes import (
+    analyses,
+    control,
+    params,
+    records,
+    replay,
+    reports,
+    status,
+    stream,
+    uploads,
+)
 
 ROUTERS: tuple[APIRouter, ...] = (
     status.router,
@@ -12,5 +22,8 @@ ROUTERS: tuple[APIRouter, ...] = (
     control.router,
     reports.router,
     replay.router,
+    records.router,
+    uploads.router,
+    analyses.router,
     stream.router,
 )

@@ -11,7 +11,8 @@ from fastapi import APIRouter
 
 from common.jsonsafe import json_safe
 from server.errors import CutwatchError
-from server.service.deps import Authorised, Config, Live
+from server.service.datafiles import find_log, find_report, refuse_path, scrub
+from server.service.deps import Authorised, Config, Live, Store
 from server.service.errors import FieldError
 from server.service.schemas import (
     Effects,
@@ -24,30 +25,37 @@ from server.service.schemas import (
 
 router = APIRouter(responses=error_responses())
 
-_LOG_RULE = "a two_inertia log on the server's disk (.csv with its .json sidecar, or .mat)"
+_LOG_RULE = "a two_inertia log (.csv with its .json sidecar, or .mat) in the data areas"
 
 
 @router.post(
     "/api/replay",
-    summary="replay a two_inertia log through the live observers",
+    summary="replay a two_inertia log (a recording or an upload, by name) through the live "
+    "observers",
     dependencies=[Authorised],
     response_model=ReplayStarted,
     responses=error_responses(401, 413, 422),
 )
-def replay(body: Replay, lp: Live, s: Config) -> ReplayStarted:
+def replay(body: Replay, lp: Live, s: Config, st: Store) -> ReplayStarted:
     from server.pipeline.live_pipeline import LivePipeline
     from server.pipeline.sources import ReplaySource, open_replay
 
+    if body.path is not None:
+        raise refuse_path(body.path)
+    if body.name is None:
+        raise FieldError("name", _LOG_RULE, None, f"name: expected {_LOG_RULE}")
+    area, p = find_log(st, body.name, body.area)
     try:
-        log = open_replay(body.path)
+        log = open_replay(p)
+        pipe = LivePipeline(seed=s.seed, source=ReplaySource(log))
     except CutwatchError as exc:
-        raise FieldError("path", _LOG_RULE, body.path, str(exc)) from None
-    pipe = LivePipeline(seed=s.seed, source=ReplaySource(log))
+        raise FieldError("name", _LOG_RULE, body.name, scrub(str(exc), p, p.name)) from None
     lp.set_pipeline(pipe)
     n = len(log["t"])
     return ReplayStarted(
         scenario="replay",
-        path=str(log.path),
+        name=p.name,
+        area=area,
         samples=n,
         sample_time=log.sample_time,
         duration_s=n * log.sample_time,
@@ -67,17 +75,31 @@ def get_effects(lp: Live) -> Effects:
 
 @router.post(
     "/api/observer-effects",
-    summary="install identified effects (report.json path or its observer_effects list)",
+    summary="install identified effects (a residual report by name, or its observer_effects)",
     dependencies=[Authorised],
     response_model=EffectsInstalled,
     responses=error_responses(401, 413, 422),
 )
-def post_effects(body: EffectsBody, lp: Live) -> EffectsInstalled:
-    effects, skipped = parse_effects(body.path, body.observer_effects)
+def post_effects(body: EffectsBody, lp: Live, st: Store) -> EffectsInstalled:
+    if body.path is not None:
+        raise refuse_path(body.path, "report")
+    if (body.report is None) == (body.observer_effects is None):
+        raise FieldError(
+            "body",
+            "exactly one of 'report' or 'observer_effects'",
+            "both" if body.report is not None else "neither",
+            "expected one of 'report' (a residual report's name) or 'observer_effects'",
+        )
+    path = find_report(st, body.report) if body.report is not None else None
+    effects, skipped = parse_effects(path, body.observer_effects)
     with lp.lock:
         lp.pipeline.set_observer_effects(effects)
         return EffectsInstalled.model_validate(
-            {"observer_effects": _effects_json(lp.pipeline.effects), "skipped": skipped}
+            {
+                "observer_effects": _effects_json(lp.pipeline.effects),
+                "skipped": skipped,
+                "t": lp.pipeline.t,
+            }
         )
 
 
@@ -110,15 +132,15 @@ _EFFECT_RULE = "{'name': str, 'shape': {str: number}, 'coef': [number, ...]}"
 
 
 def parse_effects(
-    path: str | None, items: list[dict[str, Any]] | None
+    path: str | Path | None, items: list[dict[str, Any]] | None
 ) -> tuple[tuple[Any, ...], list[str]]:
-    """Effects from a report.json path or an ``observer_effects`` list, and the names of
-    those skipped (:data:`LOG_TIME_EFFECTS`).
+    """Effects from a report.json (resolved by the caller inside the reports area) or an
+    ``observer_effects`` list, and the names of those skipped (:data:`LOG_TIME_EFFECTS`).
 
     Raises
     ------
     FieldError
-        Neither or both given, unreadable file, or malformed entries.
+        Neither or both given, unreadable report, or malformed entries.
     ParameterError
         An entry that :class:`estimators.observer_effects.ObserverEffect` refuses.
     """
@@ -127,30 +149,28 @@ def parse_effects(
     if (path is None) == (items is None):
         raise FieldError(
             "body",
-            "exactly one of 'path' or 'observer_effects'",
+            "exactly one of 'report' or 'observer_effects'",
             "both" if path is not None else "neither",
-            "expected one of 'path' (a report.json) or 'observer_effects'",
+            "expected one of 'report' (a residual report's name) or 'observer_effects'",
         )
     if path is not None:
         p = Path(path)
-        rule = "a residual report.json (cutwatch residual --kind two_inertia)"
+        name = p.parent.name
+        rule = "a residual report of 'cutwatch residual --kind two_inertia'"
         try:
             rep = json.loads(p.read_text())
-        except FileNotFoundError:
-            raise FieldError(
-                "path", rule, path, f"{p}: no such file (expected a residual report.json)"
-            ) from None
         except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
             raise FieldError(
-                "path", rule, path, f"{p}: not a readable JSON report: {exc}"
-            ) from None
+                "report", rule, name, f"report {name!r}: not a readable JSON report: "
+                + scrub(str(exc), p, "report.json")
+            ) from None  # fmt: skip
         items = rep.get("observer_effects") if isinstance(rep, dict) else None
         if not isinstance(items, list):
             raise FieldError(
-                "path",
+                "report",
                 rule,
-                path,
-                f"{p}: no 'observer_effects' list (expected a report of "
+                name,
+                f"report {name!r}: no 'observer_effects' list (expected a report of "
                 "'cutwatch residual --kind two_inertia')",
             )
     out = []

@@ -58,13 +58,13 @@ def report_file(root: Path, name: str, leaf: str) -> Path:
 def residual_index(s: Config) -> HTMLResponse:
     rows = "".join(
         f'<li><a href="/residual/{html.escape(n)}/">{html.escape(n)}</a></li>'
-        for n in residual_reports(s.reports_dir)
+        for n in residual_reports(s.reports_area)
     )
     body = rows or "<li>none yet: <code>cutwatch residual LOG --out DIR</code></li>"
     return HTMLResponse(
         "<!doctype html><html><head><meta charset='utf-8'><title>cutwatch residual "
         f"reports</title></head><body><h1>Residual reports in "
-        f"{html.escape(str(s.reports_dir))}</h1><ul>{body}</ul></body></html>"
+        f"{html.escape(str(s.reports_area))}</h1><ul>{body}</ul></body></html>"
     )
 
 
@@ -75,7 +75,7 @@ def residual_index(s: Config) -> HTMLResponse:
     responses=error_responses(404, json_route=False),
 )
 def residual_report(name: str, s: Config) -> FileResponse:
-    return FileResponse(report_file(s.reports_dir, name, "report.html"))
+    return FileResponse(report_file(s.reports_area, name, "report.html"))
 
 
 @router.get(
@@ -85,4 +85,4 @@ def residual_report(name: str, s: Config) -> FileResponse:
     responses={200: {"model": ResidualReport}, **error_responses(404)},
 )
 def residual_report_json(name: str, s: Config) -> FileResponse:
-    return FileResponse(report_file(s.reports_dir, name, "report.json"))
+    return FileResponse(report_file(s.reports_area, name, "report.json"))

@@ -1,0 +1,171 @@
+"""Recording the live source: ``POST /api/record``, ``GET /api/records`` and the files.
+
+A recording is a measured log in DESIGN's format (CSV + JSON sidecar) in the
+recordings area of the data directory; it is what the residual loop reads next
+(``POST /api/analyses``, ``cutwatch residual``).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import time
+from pathlib import Path
+from typing import Any
+
+from fastapi import APIRouter, HTTPException
+from fastapi.responses import FileResponse
+
+from server.records.store import DataStore, NotFound, check_name
+from server.service.deps import Authorised, Config, Live, Store, conflict
+from server.service.errors import FieldError, error
+from server.service.loop import LiveLoop
+from server.service.recording import Recording, default_name, source_sidecar
+from server.service.schemas import RecordBody, RecordInfo, Records, RecordState, error_responses
+
+router = APIRouter(responses=error_responses())
+
+_NAME_RULE = "a plain name: 1-128 of A-Z a-z 0-9 _ . - starting with a letter or digit, '.csv'"
+
+
+def not_found(exc: NotFound) -> HTTPException:
+    """A 404 in the one error shape; the same answer whatever lies on the host."""
+    allowed = f"the name of one of the service's {exc.area}"
+    return HTTPException(404, detail=[error("name", allowed, exc.name, str(exc))])
+
+
+def nothing_runs(lp: LiveLoop) -> str | None:
+    """Why nothing runs to record (None: the loop runs a source)."""
+    if not lp.running:
+        why = f" ({lp.error})" if lp.error else ""
+        return f"nothing runs: the live loop has stopped{why}"
+    if lp.pipeline.finished:
+        return "nothing runs: the replayed log has ended (start a scenario or a replay)"
+    if lp.paused:
+        return "nothing runs: the loop is paused (resume it: POST /api/control)"
+    return None
+
+
+def _record_name(name: str | None) -> str:
+    n = default_name(time.time()) if name is None else name.strip()
+    if "." not in n:
+        n += ".csv"
+    if not (check_name(n) and n.endswith(".csv")):
+        raise FieldError("name", _NAME_RULE, name, f"name {name!r}: expected {_NAME_RULE}")
+    return n
+
+
+@router.post(
+    "/api/record",
+    summary="start or stop recording what the live source delivers",
+    dependencies=[Authorised],
+    response_model=RecordState,
+    responses=error_responses(401, 409, 413, 422),
+)
+async def record(body: RecordBody, lp: Live, s: Config, st: Store) -> RecordState:
+    if body.action == "stop":
+        if body.name is not None:
+            raise FieldError("name", "no name with action 'stop'", body.name, "stop takes no name")
+        with lp.lock:
+            rec = lp.recording
+            if rec is None or not rec.active:
+                ended = "" if rec is None else rec.recorder.end_reason or rec.recorder.limit_reason
+                why = f" (the last recording ended: {ended})" if ended else ""
+                raise conflict("action", "'start' first", "stop", f"not recording{why}")
+        lp.end_recording("stopped")
+        done = await asyncio.to_thread(rec.wait)
+        return RecordState(recording=RecordInfo.model_validate(done))
+    name = _record_name(body.name)
+    path = st.new_path("recordings", name)
+    with lp.lock:
+        idle = nothing_runs(lp)
+        if idle is not None:
+            raise conflict("action", "'start' while the loop runs a source", "start", idle)
+        if lp.recording is not None and lp.recording.active:
+            raise conflict(
+                "action",
+                "'stop' first",
+                "start",
+                f"already recording {lp.recording.name!r}: stop it first",
+            )
+        if path.exists() or path.with_suffix(".json").exists():
+            raise conflict("name", "a name not taken", name, f"recording {name!r} exists already")
+        side = source_sidecar(lp.pipeline.source, lp.pipeline.scenario)
+        lp.recording = Recording(
+            path,
+            side,
+            max_bytes=s.record_max_mb * 1e6,
+            max_seconds=s.record_max_minutes * 60.0,
+        )
+        return RecordState(recording=RecordInfo.model_validate(lp.recording.summary()))
+
+
+def recordings(st: DataStore, lp: LiveLoop) -> list[dict[str, Any]]:
+    """The recording in progress (if any) and those on disk, newest first."""
+    out: list[dict[str, Any]] = []
+    rec = lp.recording
+    if rec is not None and rec.active:
+        out.append(rec.summary())
+    files = sorted(st.list("recordings", "*.csv"), key=lambda p: p.stat().st_mtime, reverse=True)
+    out.extend(_on_disk(p) for p in files if p.name not in {o["name"] for o in out})
+    return out
+
+
+def _on_disk(p: Path) -> dict[str, Any]:
+    info: dict[str, Any] = {"name": p.name, "samples": None, "seconds": None, "active": False}
+    info["bytes"] = p.stat().st_size
+    try:
+        side = json.loads(p.with_suffix(".json").read_text())
+        n = int(side["recording"]["samples"])
+        info.update(samples=n, seconds=n * float(side["sample_time"]), end=side["recording"]["end"])
+    except (OSError, ValueError, KeyError, TypeError):
+        info["end"] = "no readable sidecar"
+    return info
+
+
+@router.get("/api/records", summary="recordings (in progress and on disk)", response_model=Records)
+def list_records(lp: Live, st: Store) -> Records:
+    return Records.model_validate({"records": recordings(st, lp)})
+
+
+def _recording_csv(st: DataStore, name: str) -> Path:
+    try:
+        p = st.resolve("recordings", name, suffixes=(".csv",))
+    except NotFound as exc:
+        raise not_found(exc) from None
+    if p.suffix != ".csv" or not p.is_file():
+        raise not_found(NotFound("recordings", name))
+    return p
+
+
+@router.get(
+    "/api/records/{name}",
+    summary="download a recording (its CSV)",
+    response_class=FileResponse,
+    responses={
+        200: {"description": "the CSV", "content": {"text/csv": {"schema": {"type": "string"}}}},
+        **error_responses(404, json_route=False),
+    },
+)
+def get_record(name: str, st: Store) -> FileResponse:
+    p = _recording_csv(st, name)
+    return FileResponse(p, media_type="text/csv", filename=p.name)
+
+
+@router.get(
+    "/api/records/{name}/sidecar",
+    summary="a recording's JSON sidecar",
+    response_class=FileResponse,
+    responses={
+        200: {
+            "description": "the sidecar (sample_time, units, kind, nominal, recording...)",
+            "content": {"application/json": {"schema": {"type": "object"}}},
+        },
+        **error_responses(404, json_route=False),
+    },
+)
+def get_record_sidecar(name: str, st: Store) -> FileResponse:
+    p = _recording_csv(st, name).with_suffix(".json")
+    if not p.is_file():
+        raise not_found(NotFound("recordings", name))
+    return FileResponse(p, media_type="application/json", filename=p.name)
