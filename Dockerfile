@@ -39,8 +39,11 @@ COPY common ./common
 COPY machine ./machine
 COPY estimators ./estimators
 COPY server ./server
+# then without what only installs or tests need: pip, setuptools, the packages' own test
+# suites (71 MB: scipy, numpy, numba, matplotlib)
 RUN /opt/venv/bin/pip install ${PIP_CERT:+--cert "$PIP_CERT"} --no-deps -e . \
-    && /opt/venv/bin/pip uninstall -y pip \
+    && /opt/venv/bin/pip uninstall -q -y setuptools pip \
+    && find /opt/venv -type d -name tests -prune -exec rm -rf {} + \
     && rm -rf build *.egg-info
 
 # --- the service: Python from Debian, the venv and the code; no pip, npm or compilers
@@ -50,12 +53,17 @@ RUN apt-get update \
     && rm -rf /var/lib/apt/lists/* \
     && useradd --create-home --uid 10001 --user-group --shell /usr/sbin/nologin cutwatch
 ENV PATH=/opt/venv/bin:$PATH PYTHONUNBUFFERED=1 PYTHONDONTWRITEBYTECODE=1 \
-    NUMBA_CACHE_DIR=/tmp/numba-cache MPLCONFIGDIR=/tmp/matplotlib
+    NUMBA_CACHE_DIR=/opt/numba-cache MPLCONFIGDIR=/tmp/matplotlib
 COPY --from=venv /opt/venv /opt/venv
 COPY --from=venv /app /app
 COPY web /app/web
 COPY --from=web /web/node_modules/uplot /app/web/node_modules/uplot
 WORKDIR /app
+# the numba kernels of the live scenarios compiled once here, not at every start (the
+# cache is keyed by CPU: another CPU recompiles into it, hence writable by any user)
+RUN python -c "from server.pipeline.live_pipeline import SCENARIOS, LivePipeline; \
+[LivePipeline(name).step(125) for name in SCENARIOS for _ in range(3)]" \
+    && chmod -R a+rwX /opt/numba-cache
 USER cutwatch
 EXPOSE 8000 8080
 HEALTHCHECK --interval=15s --timeout=5s --start-period=60s --retries=3 \
