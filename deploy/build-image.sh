@@ -12,9 +12,12 @@ CA=/etc/ssl/certs/ca-certificates.crt
 need_root buildah debootstrap
 deploy/base-image.sh
 # chroot isolation: no user namespaces or runc needed, RUN steps use the host's network.
-# docker format: OCI image configs have no HEALTHCHECK. --layers: steps whose inputs did
-# not change are reused (a code change rebuilds from its COPY on). The host's CA bundle is mounted
+# docker format: OCI image configs have no HEALTHCHECK. No --layers: on vfs every cached
+# step is a full copy of its file system (a fully cached rebuild wrote 15 GB and was
+# slower than building afresh). The host's CA bundle is mounted
 # for pip/npm (a TLS-inspecting proxy's CA is in it); it does not end up in the image.
-bh bud --isolation chroot --pull-never --format docker --layers \
+bh bud --isolation chroot --pull-never --format docker \
     -v "$CA:/host-ca.crt:ro" --build-arg PIP_CERT=/host-ca.crt \
     -t "$IMAGE" .
+# the image this one replaced, now untagged
+bh rmi --prune >/dev/null 2>&1 || true
