@@ -8,7 +8,8 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed-stamp
 
-.PHONY: setup web-deps run test lint typecheck pytest reproduce bench docs system-deps clean
+.PHONY: setup web-deps run test lint typecheck pytest reproduce bench docs system-deps clean \
+        image run-image test-image
 
 setup: $(STAMP) web-deps
 
@@ -63,6 +64,19 @@ pytest: setup system-deps
 	$(BIN)/python -m pytest
 
 test: lint typecheck pytest
+
+# The container image (Dockerfile), built and run without a daemon by buildah (as root;
+# installs buildah and debootstrap when missing). docs/deploy.md has the Docker commands.
+image:
+	deploy/build-image.sh
+
+# PORT (8000), VISER_PORT (8080), CUTWATCH_TOKEN (generated when unset); Ctrl-C stops it
+run-image:
+	deploy/run-image.sh
+
+# builds the image and runs it (tests/deploy, marked `image`; not part of `make test`)
+test-image: setup
+	$(BIN)/python -m pytest -m image tests/deploy
 
 clean:
 	rm -rf $(VENV) web/node_modules
