@@ -140,7 +140,10 @@ class MqttSource:
             self._t0 = t0 - self._t
         elif disc is not None and t0 - self._t0 < self._t:
             self._t0 = t0 - self._t  # the publisher restarted: time goes on, never back
-        t = take.t - self._t0  # across a gap it jumps forward with the feed's time
+        # on the sample grid, as a replayed log's (sample index x sample time); across a
+        # gap the index jumps forward with the feed's time
+        k0 = round((t0 - self._t0) / ts)
+        t = (k0 + np.arange(take.n, dtype=np.float64)) * ts
         self._t = float(t[-1] + ts)
         self._taken += take.n
         f = c.get("f_ext")
