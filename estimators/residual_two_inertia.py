@@ -518,6 +518,10 @@ def analyse_two_inertia(
         best_mse = min(tr[0] for tr in trials)
         # parsimony: among candidates within `tie` of the best reduction, the fewest columns
         reduction = mse_cur - best_mse
+        if not reduction > 0.0:
+            # no candidate lowers the held-out error this round (the 'near' set below
+            # would be empty for a negative reduction)
+            break
         near = [tr for tr in trials if mse_cur - tr[0] >= (1.0 - params.tie) * reduction]
         choice = min(near, key=lambda tr: (tr[1], tr[0]))
         mse1, _, name, shape, fr, cf, cs, tstat = choice

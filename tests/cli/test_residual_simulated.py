@@ -328,3 +328,17 @@ def test_missing_nominal(
         capsys,
         r"nn\.csv: kind 'two_inertia' needs the nominal parameters .*; missing K, J_L",
     )
+
+
+def test_holdout_half_on_stribeck_is_a_result_not_a_crash(
+    logs: dict[str, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Regression (issue 12): ``--holdout 0.5`` on the 10 s Stribeck log raised
+    ``ValueError: min() arg is an empty sequence`` when no candidate lowered the error."""
+    out = tmp_path / "rep"
+    argv = ["residual", str(logs["stribeck"]), "--holdout", "0.5", "--out", str(out), "--quiet"]
+    assert main(argv) == 0
+    assert "Traceback" not in capsys.readouterr().err
+    rep = json.loads((out / "report.json").read_text())
+    assert rep["holdout"]["start"] == pytest.approx(5.0, abs=0.05)
+    assert rep["rms_after"] <= rep["rms_before"]
