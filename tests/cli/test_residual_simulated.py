@@ -156,7 +156,9 @@ def test_air_cut_without_f_ext(tmp_path: Path) -> None:
 def test_validate_on_a_second_record(logs: dict[str, Path], tmp_path: Path) -> None:
     other = tmp_path / "other.csv"
     argv = ["simulate", "--out", str(other), "--seconds", "5", "--effect", "position_periodic"]
-    assert main([*argv, "--seed", "1", "--current-noise", "0.01"]) == 0
+    # a second record of the same machine: another motion program, the same effect
+    argv += ["--seed", "1", "--vary", "motion,noise", "--current-noise", "0.01"]
+    assert main(argv) == 0
     out = tmp_path / "rep"
     src = str(logs["position_periodic"])
     assert main(["residual", src, "--validate", str(other), "--out", str(out), "--quiet"]) == 0
