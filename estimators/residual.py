@@ -78,6 +78,9 @@ from estimators.residual_selection import (
     verdict,
 )
 
+# ---- THE CANDIDATE LIST of analyse_rigid (the one place to register a family: its name
+# here, its columns in effect_columns/_columns_names, its shape search in find_shape;
+# families with a shape go into _SHAPED_RIGID so the folds search it again) ----
 FAMILIES: tuple[str, ...] = (
     "offset",
     "inertia",
@@ -656,9 +659,8 @@ def analyse_rigid(
     folds = make_folds(len(t_dec), split, sp.folds, _guard_rows(sample_time, p))
     # full-rate sample -> its decimated row (for the shape searches inside a fold)
     row_of = np.clip(np.searchsorted(t_dec, sig.t), 0, len(t_dec) - 1)
-    # THE CANDIDATE LIST: the families offered to the selection, in this order (one
-    # place; new families are registered in FAMILIES and effect_columns/find_shape)
-    offered = [f for f in params.families]
+    # the candidate list: params.families (default FAMILIES, the one marked place above)
+    offered = list(params.families)
     while len(selected) < params.max_effects:
         say(f"cross-validation round {len(selected) + 1}")
         resid_full = sig.force - design.x_full @ theta

@@ -344,3 +344,19 @@ def test_holdout_half_on_stribeck_is_a_result_not_a_crash(
     rep = json.loads((out / "report.json").read_text())
     assert rep["holdout"]["start"] == pytest.approx(5.0, abs=0.05)
     assert rep["rms_after"] <= rep["rms_before"]
+
+
+def test_ambiguity_is_reported_not_guessed(reports: dict[str, dict]) -> None:
+    """Issue 12 item 3: the simulator's coulomb_asymmetry is an offset while the load
+    moves and never sticks; the report names both and the separating excitation."""
+    rep = reports["coulomb_asymmetry"]
+    groups = rep["indistinguishable"]
+    assert any(set(g["families"]) == {"offset", "coulomb_asymmetry"} for g in groups), groups
+    g = next(g for g in groups if "coulomb_asymmetry" in g["families"])
+    assert g["installed"] == rep["selected"][0]
+    assert "stick" in g["excitation"]
+    page = (Path(rep["_dir"]) / "report.html").read_text()
+    assert "Indistinguishable on this record" in page and "To tell them apart" in page
+    # an effect-free log and a clear single effect name no ambiguity
+    assert reports["none"]["indistinguishable"] == []
+    assert reports["torque_ripple"]["indistinguishable"] == []

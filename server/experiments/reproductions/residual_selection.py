@@ -265,7 +265,15 @@ def _plot(table: dict[tuple[str, str, float], dict[str, float]], plot_dir: Path)
         data = np.array(
             [[table.get((k[0], k[1], ln), {}).get(m, np.nan) for ln in lengths] for k in keys]
         )
-        ax.imshow(data, cmap=cmap, vmin=0.0, vmax=1.0, aspect="auto")
+        colour = data.copy()
+        for i, k in enumerate(keys):
+            if k[1] == "none":
+                if m == "median_ratio":  # nothing to explain: no ratio
+                    data[i] = np.nan
+                    colour[i] = np.nan
+                elif m == "nothing":  # on none, nothing selected is the right answer
+                    colour[i] = 1.0 - colour[i]
+        ax.imshow(colour, cmap=cmap, vmin=0.0, vmax=1.0, aspect="auto")
         for i in range(data.shape[0]):
             for j in range(data.shape[1]):
                 v = data[i, j]
