@@ -44,7 +44,7 @@ def test_rows_and_checks_follow_the_contract(quick: tuple[dict, Path]) -> None:
 # are in docs/residual-selection.md): Stribeck friction in the simulator acts as pulses
 # where the vibrating load crosses zero speed within a sample; the family is found on
 # 2 of 3 quick seeds (seed 2: nothing selected) and removes little of the error in its
-# speed band (median ratio 0.80 at 10 s). The simulator's direction asymmetry is the
+# speed band (median ratio 0.98 over the 3 quick seeds). The simulator's direction asymmetry is the
 # same signal as an offset while the load never sticks: the report names both as
 # indistinguishable and installs the offset, whose held-out ratio is 0.60 (not 0.5).
 KNOWN_MISSES = {
