@@ -7,16 +7,14 @@ parameters (period, frequency, velocity scale) are found from the data of the fi
 part; its *linear* coefficients are refitted jointly with the nominal parameters. A
 candidate is scored by the error on the held-out part only.
 
-Greedy selection (stated test): at each round the candidate with the lowest held-out
-mean square error is accepted when
-
-* its held-out mean square error is at least ``min_gain`` (2 %) below the current
-  model's, and
-* the reduction is significant in a one-sided paired t-test over ``blocks`` (10)
-  contiguous blocks of the held-out segment (per block: mean of
-  :math:`e_{before}^2 - e_{after}^2`; :math:`t > t_{crit}` = 1.833, the 95 % quantile
-  of Student's t with 9 degrees of freedom). Blocks rather than samples because the
-  residual is strongly autocorrelated.
+Greedy selection from cross-validation over the fitting part (the rule, its numbers and
+its reasons: :mod:`estimators.residual_selection` and docs/residual-selection.md): per
+round, every candidate is scored by blocked K-fold cross-validation with its shape
+searched again inside each training fold; the effect it removes on its support, relative
+to the floor, is tested across groups of support rows (Holm over the round's candidates)
+and must reach a minimum size. The best accepted candidate is added; same-signal rivals
+are reported as indistinguishable. The held-out end takes no part in the selection: it
+is the final report figure (``rms_*``, ``relerr_*``).
 
 Selection stops when no candidate passes or after ``max_effects`` effects. What is left
 is summarised as ``unexplained`` structure: the largest peak of the residual's spectrum
@@ -52,7 +50,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -60,7 +58,7 @@ from numpy.typing import ArrayLike, NDArray
 from common.arrays import F64
 from common.stats import rms
 from estimators import residual_families as _families
-from estimators.errors import ParameterError, require_in, require_positive
+from estimators.errors import ParameterError, require_in
 from estimators.idim import (
     RIGID_NAMES,
     IdimParams,
@@ -69,7 +67,22 @@ from estimators.idim import (
     kinematics,
     rigid_regressor,
 )
+from estimators.residual_selection import (
+    Fold,
+    OutOfFold,
+    SelectionParams,
+    Verdict,
+    ambiguity,
+    correlation,
+    holm,
+    make_folds,
+    support,
+    verdict,
+)
 
+# ---- THE CANDIDATE LIST of analyse_rigid (the one place to register a family: its name
+# here, its columns in effect_columns/_columns_names, its shape search in find_shape;
+# families with a shape go into _SHAPED_RIGID so the folds search it again) ----
 FAMILIES: tuple[str, ...] = (
     "offset",
     "inertia",
@@ -99,34 +112,29 @@ class ResidualParams:
     ----------
     holdout_fraction : float
         Fraction of the record, at its end, held out for scoring (0.05 ... 0.7).
-    min_gain : float
-        Least relative reduction of the held-out mean square error to accept an effect.
     blocks : int
-        Contiguous blocks of the held-out segment for the paired t-test (>= 3).
-    t_crit : float
-        Critical t value of the one-sided test (default: 95 %, 9 degrees of freedom).
+        Sets the least record length (40 decimated samples per block, >= 3).
     max_effects : int
         Most effects added.
     families : tuple of str
         Families offered (subset of :data:`FAMILIES`).
     idim : IdimParams
         Filtering / decimation of the IDIM-LS pipeline.
+    selection : SelectionParams
+        The cross-validated decision rule.
     """
 
     holdout_fraction: float = 0.3
-    min_gain: float = 0.02
     blocks: int = 10
-    t_crit: float = 1.833
-    max_effects: int = 6  # a cap (the gain and t test stop); a real drive (EMPS) needs 5
+    max_effects: int = 6  # a cap; a real drive (EMPS) needs 5
     families: tuple[str, ...] = FAMILIES
     idim: IdimParams = field(default_factory=IdimParams)
+    selection: SelectionParams = field(default_factory=SelectionParams)
 
     def __post_init__(self) -> None:
         require_in("holdout_fraction", self.holdout_fraction, 0.05, 0.7)
-        require_in("min_gain", self.min_gain, 0.0, 1.0)
         if not isinstance(self.blocks, int) or self.blocks < 3:
             raise ParameterError("blocks", "an integer >= 3", self.blocks)
-        require_positive("t_crit", self.t_crit)
         if not isinstance(self.max_effects, int) or not 0 <= self.max_effects <= len(FAMILIES):
             raise ParameterError(
                 "max_effects", f"an integer in [0, {len(FAMILIES)}]", self.max_effects
@@ -169,6 +177,11 @@ class CandidateScore:
     t_stat: float
     selected: bool
     note: str = ""
+    cv_effect: float = math.nan  # mean per-fold share of the floor removed on the support
+    p_value: float = math.nan  # one-sided across folds (before Holm)
+    folds_used: int = 0  # folds with enough support
+    support_fraction: float = math.nan  # mean share of validation rows on the support
+    passed: bool = False  # passed Holm and the minimum effect size at its last round
 
 
 @dataclass(frozen=True, eq=False)
@@ -199,6 +212,8 @@ class ResidualResult:
     residual_after_dec: F64
     q_dec: F64
     qd_dec: F64
+    indistinguishable: tuple[dict[str, object], ...] = ()
+    selection: SelectionParams = field(default_factory=SelectionParams)
 
 
 # ----------------------------------------------------------------------------- columns
@@ -291,8 +306,9 @@ def _search_period(q: F64, r: F64, dq_min: float) -> tuple[float, float]:
     return float(fine[j]), float(fv[j])
 
 
-def search_frequency(t: F64, r: F64) -> tuple[float, float]:
-    """Frequency [Hz] and amplitude of the largest spectral peak of ``r`` (zero-padded FFT)."""
+def search_frequency(t: F64, r: F64, f_max: float = math.inf) -> tuple[float, float]:
+    """Frequency [Hz] and amplitude of the largest spectral peak of ``r`` (zero-padded FFT)
+    at or below ``f_max``."""
     n = len(r)
     if n < 16:
         return math.nan, 0.0
@@ -303,8 +319,22 @@ def search_frequency(t: F64, r: F64) -> tuple[float, float]:
     f = np.fft.rfftfreq(nfft, dt)
     # skip the lowest bins (below three cycles over the record: that is drift, not harmonic)
     spec[f < 3.0 / (n * dt)] = 0.0
+    spec[f > f_max] = 0.0
     k = int(np.argmax(spec))
     return float(f[k]), float(spec[k])
+
+
+def gap_filled(t: F64, r: F64, mask: NDArray[np.bool_]) -> tuple[F64, F64]:
+    """``t`` and ``r`` over the span of the ``mask`` samples, ``r`` minus its mean there
+    and zero outside the mask: a spectrum of training rows with a validation fold cut
+    out keeps its time axis (dropping the rows would make the phase jump at the gap)."""
+    idx = np.flatnonzero(mask)
+    if len(idx) == 0:
+        return t[:0], r[:0]
+    a, b = int(idx[0]), int(idx[-1]) + 1
+    m = mask[a:b]
+    rr = np.where(m, r[a:b] - float(np.mean(r[idx])), 0.0)
+    return t[a:b], np.asarray(rr, dtype=np.float64)
 
 
 def _nominal_effort(shape: dict[str, float], sig: Signals) -> F64:
@@ -328,13 +358,17 @@ def find_shape(
     residual: F64,
     mask: NDArray[np.bool_],
     nominal: F64 | None = None,
+    max_samples: int = _SEARCH_SAMPLES,
+    decimation: int = 1,
 ) -> Effect:
-    """Fix the shape parameters of family ``name`` from the residual on ``mask`` samples.
+    """Fix the shape parameters of family ``name`` from the residual on ``mask`` samples
+    (searched on at most ``max_samples`` of them, evenly spaced).
 
-    ``nominal`` (M, Fv, Fc, offset of the current model) is needed by ``delay``.
+    ``nominal`` (M, Fv, Fc, offset of the current model) is needed by ``delay``;
+    ``decimation`` (of the regressor) bounds the harmonic's frequency.
     """
     idx = np.flatnonzero(mask)
-    stride = max(1, int(math.ceil(len(idx) / _SEARCH_SAMPLES)))
+    stride = max(1, int(math.ceil(len(idx) / max_samples)))
     idx = idx[::stride]
     r = residual[idx]
     if name in _families.FAMILIES:
@@ -359,9 +393,11 @@ def find_shape(
         period, _ = _search_period(sig.q[idx], r - r.mean(), dq)
         shape = {"period": period}
     elif name == "harmonic":
-        tt = sig.t[np.flatnonzero(mask)]
-        rr = residual[np.flatnonzero(mask)]
-        freq, _ = search_frequency(tt, rr)
+        tt, rr = gap_filled(sig.t, residual, mask)
+        # below the anti-alias filter of the decimation (the regressor is decimated:
+        # a column above it is filtered away and its coefficient is meaningless)
+        fs = 1.0 / float(np.median(np.diff(sig.t)))
+        freq, _ = search_frequency(tt, rr, f_max=0.9 * 0.4 * fs / decimation)
         if math.isfinite(freq) and freq > 0:
             # refine within +-1 bin of the padded FFT by least squares on the residual
             df = 1.0 / (4.0 * max(float(tt[-1] - tt[0]), 1e-12))
@@ -633,15 +669,23 @@ def analyse_rigid(
     selected: tuple[Effect, ...] = ()
     design, theta, e_cur = design0, theta0, e0
     scores: dict[str, CandidateScore] = {}
-    offered = [f for f in params.families]
+    ambiguous: list[dict[str, object]] = []
+    sp = params.selection
+    folds = make_folds(len(t_dec), split, sp.folds, _guard_rows(sample_time, p))
+    # full-rate sample -> its decimated row (for the shape searches inside a fold)
+    row_of = np.clip(np.searchsorted(t_dec, sig.t), 0, len(t_dec) - 1)
+    # the candidate list: params.families (default FAMILIES, the one marked place above)
+    offered = list(params.families)
     while len(selected) < params.max_effects:
+        say(f"cross-validation round {len(selected) + 1}")
         resid_full = sig.force - design.x_full @ theta
-        best: tuple[float, Effect, _Design, F64, F64, float] | None = None
+        before = [_fit(design, y_dec, fd.train)[0] for fd in folds]
+        trials: list[_RigidTrial] = []
         for name in offered:
             if any(e.name == name for e in selected):
                 continue
             say(f"candidate {name}")
-            eff = find_shape(name, sig, resid_full, fit_full, theta[:4])
+            eff = find_shape(name, sig, resid_full, fit_full, theta[:4], decimation=p.decimation)
             if any(not math.isfinite(v) for v in eff.shape.values()):
                 scores[name] = CandidateScore(
                     name, eff.shape, rms(e_cur), rms(e_cur), 0.0, 0.0, False, "no shape found"
@@ -652,40 +696,74 @@ def analyse_rigid(
             e1 = y_dec[hold] - d.x_dec[hold] @ th
             added = int(keep[len(design.names) :].sum())
             gain = 1.0 - float(np.mean(e1**2)) / max(float(np.mean(e_cur**2)), 1e-300)
-            tstat = _block_t(e_cur, e1, params.blocks)
-            note = "" if added else "spanned by the current model (nothing new)"
+            pars = _effect_params(eff, d, th)
+            if not added:
+                scores[name] = CandidateScore(
+                    name, pars, rms(e_cur), rms(e1), gain, 0.0, False,
+                    "spanned by the current model (nothing new)",
+                )  # fmt: skip
+                continue
+            nc = len(design.names)
+            ver = _rigid_oof(design.x_dec, d.x_dec[:, nc:], y_dec, folds, before, sp)
+            note = ""
+            if name in _SHAPED_RIGID:
+                if (
+                    math.isfinite(ver.mean_effect)
+                    and ver.mean_effect >= 0.5 * sp.min_effect
+                    and ver.p_value < 0.5
+                ):
+                    cand_k = []
+                    for fd, th_k in zip(folds, before):
+                        r_k = sig.force - design.x_full @ th_k
+                        tr_full = fd.train[row_of]
+                        e_k = find_shape(
+                            name, sig, r_k, tr_full, th_k[:4], _FOLD_SEARCH, p.decimation
+                        )
+                        if any(not math.isfinite(v) for v in e_k.shape.values()):
+                            e_k = eff
+                        cand_k.append(decimate(effect_columns(e_k, sig), p))
+                    ver = _rigid_oof(design.x_dec, cand_k, y_dec, folds, before, sp)
+                else:
+                    note = "screened out (shape of the whole fitting part; not re-searched)"
+            term = d.x_dec[fit][:, nc:] @ th[nc:]
+            trials.append(_RigidTrial(name, eff, d, th, e1, ver, term, len(eff.columns)))
             scores[name] = CandidateScore(
-                name, _effect_params(eff, d, th), rms(e_cur), rms(e1), gain, tstat, False, note
+                name, pars, rms(e_cur), rms(e1), gain, ver.t_stat, False, note,
+                cv_effect=ver.mean_effect, p_value=ver.p_value, folds_used=ver.folds_used,
+                support_fraction=ver.support_fraction,
+            )  # fmt: skip
+        if not trials:
+            break
+        passes = holm([tr.verdict.p_value for tr in trials], sp.alpha)
+        accepted = [
+            tr for tr, ok in zip(trials, passes) if ok and tr.verdict.mean_effect >= sp.min_effect
+        ]
+        for tr in trials:
+            scores[tr.name] = replace(scores[tr.name], passed=tr in accepted)
+        if not accepted:
+            break
+        best = max(accepted, key=lambda tr: tr.verdict.total_reduction)
+        same = [
+            tr
+            for tr in accepted
+            if tr is best
+            or (
+                correlation(tr.term, best.term) >= sp.same_signal
+                and tr.verdict.total_reduction >= (1.0 - sp.tie) * best.verdict.total_reduction
             )
-            if added and (best is None or float(np.mean(e1**2)) < best[0]):
-                best = (float(np.mean(e1**2)), eff, d, th, e1, tstat)
-        if best is None:
-            break
-        mse1, eff, d, th, e1, tstat = best
-        gain = 1.0 - mse1 / max(float(np.mean(e_cur**2)), 1e-300)
-        if gain < params.min_gain or tstat < params.t_crit:
-            break
-        selected = (*selected, eff)
-        design, theta, e_cur = d, th, e1
-        sc = scores[eff.name]
-        scores[eff.name] = CandidateScore(
-            sc.name, sc.params, sc.rms_before, sc.rms_after, sc.score, sc.t_stat, True, sc.note
-        )
+        ]
+        choice = min(same, key=lambda tr: (tr.ncols, -tr.verdict.total_reduction))
+        if len(same) > 1:
+            ambiguous.append(ambiguity([tr.name for tr in same], choice.name, sp.same_signal))
+        selected = (*selected, choice.effect)
+        design, theta, e_cur = choice.design, choice.theta, choice.e_hold
+        scores[choice.name] = replace(scores[choice.name], selected=True)
     # final joint parameters of the selected effects
     final_scores = []
     for sc in scores.values():
         if sc.selected:
             eff = next(e for e in selected if e.name == sc.name)
-            sc = CandidateScore(
-                sc.name,
-                _effect_params(eff, design, theta),
-                sc.rms_before,
-                sc.rms_after,
-                sc.score,
-                sc.t_stat,
-                True,
-                sc.note,
-            )
+            sc = replace(sc, params=_effect_params(eff, design, theta))
         final_scores.append(sc)
     say("unexplained structure")
     resid_after_full = sig.force - design.x_full @ theta
@@ -714,7 +792,70 @@ def analyse_rigid(
         residual_after_dec=y_dec - design.x_dec @ theta,
         q_dec=sig.q[di],
         qd_dec=sig.qd[di],
+        indistinguishable=tuple(ambiguous),
+        selection=sp,
     )
+
+
+#: families with shape parameters (searched again inside each training fold)
+_SHAPED_RIGID = frozenset({"stribeck", "position_periodic", "harmonic", "delay"})
+#: samples of a shape search inside a fold
+_FOLD_SEARCH = 20_000
+
+
+@dataclass(frozen=True, eq=False)
+class _RigidTrial:
+    name: str
+    effect: Effect
+    design: _Design
+    theta: F64
+    e_hold: F64
+    verdict: Verdict
+    term: F64
+    ncols: int
+
+
+def _guard_rows(sample_time: float, p: IdimParams) -> int:
+    """Decimated rows around a validation fold left out of training: ten time constants
+    of the slowest filter of the IDIM pipeline (position low-pass or anti-alias)."""
+    fs = 1.0 / sample_time
+    slowest = min(p.cutoff_hz, 0.4 * fs / p.decimation)
+    return int(math.ceil(10.0 / (2.0 * math.pi * slowest) / (sample_time * p.decimation))) + 2
+
+
+def _rigid_oof(
+    x_cur: F64,
+    cand: F64 | list[F64],
+    y: F64,
+    folds: list[Fold],
+    before: list[F64],
+    sp: SelectionParams,
+) -> Verdict:
+    """Out-of-fold errors before/after the candidate columns (one matrix, or one per
+    fold when its shape was searched inside the fold) and the verdict."""
+    n_fit = int(sum(int(fd.val.sum()) for fd in folds))
+    sq0, sq1 = np.empty(n_fit), np.empty(n_fit)
+    supp = np.zeros(n_fit, dtype=bool)
+    nc = x_cur.shape[1]
+    for k, (fd, th0) in enumerate(zip(folds, before)):
+        c = cand[k] if isinstance(cand, list) else cand
+        x = np.hstack([x_cur, c])
+        keep = _independent(x, nc, fd.train)
+        th = np.zeros(x.shape[1])
+        # unit-norm columns and a relative cut-off: a candidate nearly spanned by the
+        # nominal columns on the training rows (a harmonic at the motion's frequency)
+        # must not get huge opposite coefficients that explode on the validation fold
+        xt = x[fd.train][:, keep]
+        nrm = np.linalg.norm(xt, axis=0)
+        nrm[nrm == 0.0] = 1.0
+        sol, *_ = np.linalg.lstsq(xt / nrm, y[fd.train], rcond=1e-6)
+        th[keep] = sol / nrm
+        term = c @ th[nc:]
+        v = np.flatnonzero(fd.val)
+        sq0[v] = (y[v] - x_cur[v] @ th0) ** 2
+        sq1[v] = (y[v] - x[v] @ th) ** 2
+        supp[v] = support(term[fd.train], term[v], sp.support_level)
+    return verdict(OutOfFold(sq0, sq1, supp), sp.blocks)
 
 
 def _subset(sig: Signals, mask: NDArray[np.bool_]) -> Signals:

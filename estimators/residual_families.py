@@ -298,6 +298,17 @@ def _harmonic_search(
 ) -> dict[str, float]:
     q, v = sig.q[idx], sig.qd[idx]
     periods, amp = position_periodogram(q, v, r)
+    # a period the drive's data can carry: at the fast end of the motion (90th
+    # percentile of |v|) it passes at no more than a tenth of the sampling rate (the
+    # bandwidth of the IDIM's position filter, 100 Hz at 1 kHz); shorter periods are
+    # aliases and quantisation, not a force (the EMPS halves picked 0.125 mm = 1 kHz at
+    # the top speed before this bound)
+    ts = float(np.median(np.diff(sig.t))) if len(sig.t) > 1 else math.nan
+    moving = np.abs(v[np.abs(v) > 0])
+    if math.isfinite(ts) and ts > 0 and moving.size:
+        p_min = float(np.percentile(moving, 90)) * 10.0 * ts
+        keep = periods >= p_min
+        periods, amp = periods[keep], amp[keep]
     if len(periods) == 0:
         return {"period": math.nan, "harmonics": math.nan}
     p0 = float(periods[int(np.argmax(amp))])

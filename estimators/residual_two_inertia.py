@@ -22,12 +22,14 @@ channels, both at :math:`t_{k-1}` and filtered by Q(s):
 
 The held-out error is the rms over both channels,
 :math:`\sqrt{\overline{(e_F^2 + e_S^2)}/2}`; the rms of each channel is reported too.
-Selection is greedy as in :mod:`estimators.residual` (held-out mean square error at
-least ``min_gain`` lower and a one-sided paired t-test over ``blocks`` contiguous
-held-out blocks, t > ``t_crit``). Where two candidates reduce the held-out error within
-``tie`` (1 %) of each other, the one with fewer columns is taken (on the simulator an
-offset and a direction-independent Coulomb asymmetry are the same signal while the
-axis moves; the simpler name is reported). The selected effects become
+Selection is greedy with the cross-validated rule of :mod:`estimators.residual_selection`
+(as :mod:`estimators.residual`; the folds cut the valid rows of both channels alike).
+The observer's own discretisation floor is part of the nominal model: a baseline column
+for the sampling error of eq. (2)'s Coulomb term (the sign of a velocity that crosses
+zero within a sample). Where two candidates are the same signal on the record, the
+one with fewer columns is installed and both are named as indistinguishable (on the
+simulator an offset and a direction-independent Coulomb asymmetry are the same signal
+while the axis moves and never sticks). The selected effects become
 :class:`estimators.observer_effects.ObserverEffect` terms; the corrected force
 ``f_hat_after`` is computed by :class:`estimators.observer_effects.ObserverEffects`, the
 same code the live observers call per block.
@@ -37,13 +39,13 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from common.arrays import F64
-from estimators.errors import ParameterError, require_in, require_positive
+from estimators.errors import ParameterError, require_in
 from estimators.filters import DiscreteFilter, lowpass
 from estimators.force_observer import (
     LoadParams,
@@ -62,14 +64,28 @@ from estimators.observer_effects import (
     kinematics,
     raw_basis,
     signature,
+    stribeck_basis,
 )
 from estimators.residual import (
     CandidateScore,
     Signals,
-    block_t,
+    _project_rss,
+    gap_filled,
     rms,
     search_frequency,
     unexplained_structure,
+)
+from estimators.residual_selection import (
+    Fold,
+    OutOfFold,
+    SelectionParams,
+    Verdict,
+    ambiguity,
+    correlation,
+    holm,
+    make_folds,
+    support,
+    verdict,
 )
 
 FAMILIES_TWO_INERTIA: tuple[str, ...] = (
@@ -94,7 +110,7 @@ NOT_OFFERED_TWO_INERTIA: dict[str, str] = {
 }
 #: torque history kept for delay terms [s]
 _MAX_DELAY = 0.05
-_SEARCH_SAMPLES = 50_000
+_SEARCH_SAMPLES = 20_000  # rows of a shape search over the whole fitting part
 #: taps of the reference calibration filter (samples around t[k-1])
 _REF_TAPS: tuple[int, ...] = (-2, -1, 1, 2)
 
@@ -104,22 +120,17 @@ class TwoInertiaParams:
     """Settings of the two-inertia residual analysis (see :class:`ResidualParams`)."""
 
     holdout_fraction: float = 0.3
-    min_gain: float = 0.02
     blocks: int = 10
-    t_crit: float = 1.833
     max_effects: int = 4
-    tie: float = 0.01
     warmup_s: float = 0.02
     families: tuple[str, ...] = FAMILIES_TWO_INERTIA
+    selection: SelectionParams = field(default_factory=SelectionParams)
 
     def __post_init__(self) -> None:
         require_in("holdout_fraction", self.holdout_fraction, 0.05, 0.7)
-        require_in("min_gain", self.min_gain, 0.0, 1.0)
-        require_in("tie", self.tie, 0.0, 0.5)
         require_in("warmup_s", self.warmup_s, 0.0, 10.0)
         if not isinstance(self.blocks, int) or self.blocks < 3:
             raise ParameterError("blocks", "an integer >= 3", self.blocks)
-        require_positive("t_crit", self.t_crit)
         nf = len(FAMILIES_TWO_INERTIA)
         if not isinstance(self.max_effects, int) or not 0 <= self.max_effects <= nf:
             raise ParameterError("max_effects", f"an integer in [0, {nf}]", self.max_effects)
@@ -166,6 +177,12 @@ class TwoInertiaResult:
     q_dec: F64
     qd_dec: F64
     reference: str
+    indistinguishable: tuple[dict[str, object], ...] = ()
+    selection: SelectionParams = field(default_factory=SelectionParams)
+    # per held-out row: squared error over both channels (mean of the two), load speed
+    hold_sq_before: F64 = field(default_factory=lambda: np.zeros(0))
+    hold_sq_after: F64 = field(default_factory=lambda: np.zeros(0))
+    hold_speed: F64 = field(default_factory=lambda: np.zeros(0))
 
 
 @dataclass(frozen=True, eq=False)
@@ -193,8 +210,8 @@ def _side(name: str) -> str:
 
 
 def _proj_rss(cols: F64, r: F64) -> float:
-    coef, *_ = np.linalg.lstsq(cols, r, rcond=None)
-    return float(np.sum((r - cols @ coef) ** 2))
+    # normal equations (a few well-scaled columns; lstsq on 50k rows was the search's cost)
+    return _project_rss(cols, r)
 
 
 def _period_search(q: F64, r: F64, angular: bool) -> float:
@@ -234,10 +251,12 @@ def find_shape_two_inertia(
     r_s: F64,
     fit: NDArray[np.bool_],
     angular: bool,
+    max_rows: int = 50_000,
 ) -> dict[str, float]:
-    """Shape parameters of family ``name`` from the current residuals on the fit rows."""
+    """Shape parameters of family ``name`` from the current residuals on the fit rows
+    (searched on at most ``max_rows`` of them, evenly spaced)."""
     rows = np.flatnonzero(fit)
-    stride = max(1, int(math.ceil(len(rows) / _SEARCH_SAMPLES)))
+    stride = max(1, int(math.ceil(len(rows) / max_rows)))
     rows = rows[::stride]
     gi = d.idx[rows]  # record indices
     kin = d.kin
@@ -248,7 +267,7 @@ def find_shape_two_inertia(
             return {"v_s": math.nan}
         best = (math.inf, math.nan)
         for vs in np.geomspace(vmax * 1e-3, vmax * 0.5, 30):
-            c = np.sign(w) * np.exp(-((w / vs) ** 2))
+            c = stribeck_basis(w, kin.a_l[gi], kin.sample_time, float(vs))
             val = _proj_rss(np.column_stack([c, np.ones(len(w))]), r_f[rows])
             if val < best[0]:
                 best = (val, float(vs))
@@ -277,8 +296,9 @@ def find_shape_two_inertia(
                 best = (val, float(gap))
         return {"gap": best[1]}
     if name == "harmonic":
-        allr = np.flatnonzero(fit)
-        return {"frequency": search_frequency(kin.t[d.idx[allr]], r_f[allr])[0]}
+        # rows are consecutive samples (air-cut masks aside): fill the fold's gap
+        tt, rr = gap_filled(kin.t[d.idx], r_f, fit)
+        return {"frequency": search_frequency(tt, rr)[0]}
     if name == "drift":
         tt = kin.t[d.idx[np.flatnonzero(fit)]]
         return {"t0": float(tt[0]), "span": float(max(tt[-1] - tt[0], 1e-12))}
@@ -309,16 +329,26 @@ def _fit(
     sel: slice | NDArray[np.intp] = rows
     if len(rows) and rows[-1] - rows[0] + 1 == len(rows):
         sel = slice(int(rows[0]), int(rows[-1]) + 1)
+    g, rhs = _gram(xf, xs, y_f, y_s, sel)
+    theta, keep = _solve_gram(g, rhs, nb)
+    return _Fit(theta, keep, y_f - xf @ theta, y_s - xs @ theta)
+
+
+def _gram(xf: F64, xs: F64, y_f: F64, y_s: F64, sel: slice | NDArray[np.intp]) -> tuple[F64, F64]:
+    """Gram matrix and right-hand side of both channels over the rows ``sel``."""
     af, as_ = xf[sel], xs[sel]
-    g = af.T @ af + as_.T @ as_
-    rhs = af.T @ y_f[sel] + as_.T @ y_s[sel]
+    return af.T @ af + as_.T @ as_, af.T @ y_f[sel] + as_.T @ y_s[sel]
+
+
+def _solve_gram(g: F64, rhs: F64, nb: int) -> tuple[F64, NDArray[np.bool_]]:
+    """Solve the normal equations on norm-scaled columns, dropping spanned columns."""
     nrm = np.sqrt(np.maximum(np.diag(g), 0.0))
     scale = np.where(nrm > 0, 1.0 / np.where(nrm > 0, nrm, 1.0), 0.0)
     gs = g * np.outer(scale, scale)
     bs = rhs * scale
-    keep = np.zeros(xf.shape[1], dtype=bool)
+    keep = np.zeros(g.shape[0], dtype=bool)
     keep[:nb] = nrm[:nb] > 0
-    for j in range(nb, xf.shape[1]):
+    for j in range(nb, g.shape[0]):
         if nrm[j] == 0.0:
             continue
         k = np.flatnonzero(keep)
@@ -329,12 +359,12 @@ def _fit(
             if float(gs[j, j] - v @ sol) <= 1e-12:
                 continue
         keep[j] = True
-    theta = np.zeros(xf.shape[1])
+    theta = np.zeros(g.shape[0])
     k = np.flatnonzero(keep)
     if len(k):
         sol, *_ = np.linalg.lstsq(gs[np.ix_(k, k)], bs[k], rcond=None)
         theta[k] = sol * scale[k]
-    return _Fit(theta, keep, y_f - xf @ theta, y_s - xs @ theta)
+    return theta, keep
 
 
 def _mse(e_f: F64, e_s: F64) -> float:
@@ -398,6 +428,14 @@ def _prepare(
     # without any effect), and a unit-DC FIR on the torque (explains the effect-free
     # disagreement 0.0308 -> 0.003 N m, but then the force channel's own 0.008 N m
     # structure passes the test on the effect-free log, and it absorbs a 3-sample delay)
+    # the observer's own discretisation floor, part of the nominal model (issue 12 item
+    # 2): eq. (2) takes F_CL sgn(w) at the sample's mean velocity, while a load that
+    # vibrates through zero speed within a sample feels the sign's average along it.
+    # One column, Q{avg sgn - sgn}, coefficient fitted with the baseline (about -F_CL);
+    # without it, Stribeck-shaped terms fitted this floor on effect-free records
+    sgn_err = stribeck_basis(kin.w_l, kin.a_l, ts, math.inf) - np.sign(kin.w_l)
+    floor_col, _ = filter_columns(q, sgn_err[:, None])
+    base = np.hstack([base, floor_col[idx]])
     base_f = base
     base_s = np.zeros_like(base)
     data = _Data(idx, kin, alpha, base_f, base_s, f_hat_rel[idx], r_s[idx], norm_ref)
@@ -479,15 +517,24 @@ def analyse_two_inertia(
     hold = ~fit
     qf = lowpass(observer.q_hz, observer.sample_time, observer.q_order)
     empty = np.zeros((m, 0))
-    f0 = _fit((d.base_f, d.base_s), empty, empty, d.y_f, d.y_s, fit)
+    base = (d.base_f, d.base_s)
+    f0 = _fit(base, empty, empty, d.y_f, d.y_s, fit)
     cur, cf_cur, cs_cur = f0, empty, empty
+    sp = params.selection
+    # guard rows around a validation fold: the memory of Q(s) and of the observer's
+    # own filters (ten time constants of Q), at least the warm-up
+    guard_s = max(params.warmup_s, 10.0 / (2.0 * math.pi * observer.q_hz))
+    guard = int(math.ceil(guard_s / observer.sample_time))
+    folds = make_folds(m, split, sp.folds, guard)
     selected: list[tuple[str, dict[str, float]]] = []
     scores: dict[str, CandidateScore] = {}
+    ambiguous: list[dict[str, object]] = []
     while len(selected) < params.max_effects:
-        mse_cur = _mse(cur.e_f[hold], cur.e_s[hold])
-        trials: list[tuple[float, int, str, dict[str, float], _Fit, F64, F64, float]] = []
+        say(f"cross-validation round {len(selected) + 1}")
+        before = _fold_before(d, folds, cf_cur, cs_cur)
+        trials: list[_Trial] = []
         for name in params.families:
-            if any(s[0] == name for s in selected):
+            if any(s_[0] == name for s_ in selected):
                 continue
             say(f"candidate {name}")
             shape = find_shape_two_inertia(name, d, cur.e_f, cur.e_s, fit, angular)
@@ -498,38 +545,82 @@ def analyse_two_inertia(
                 )  # fmt: skip
                 continue
             cf, cs = _columns(d, name, shape, qf)
-            cf_all, cs_all = np.hstack([cf_cur, cf]), np.hstack([cs_cur, cs])
-            fr = _fit((d.base_f, d.base_s), cf_all, cs_all, d.y_f, d.y_s, fit)
+            fr = _fit(base, np.hstack([cf_cur, cf]), np.hstack([cs_cur, cs]), d.y_f, d.y_s, fit)
             added = int(fr.keep[-cf.shape[1] :].sum())
+            mse_cur = _mse(cur.e_f[hold], cur.e_s[hold])
             mse1 = _mse(fr.e_f[hold], fr.e_s[hold])
             gain = 1.0 - mse1 / max(mse_cur, 1e-300)
-            dd = (cur.e_f[hold] ** 2 + cur.e_s[hold] ** 2) - (fr.e_f[hold] ** 2 + fr.e_s[hold] ** 2)
-            tstat = block_t(dd, params.blocks)
             coefs = fr.theta[-cf.shape[1] :]
             pars = {**shape, **dict(zip(COLUMNS[name], map(float, coefs)))}
-            note = "" if added else "spanned by the current model (nothing new)"
+            if not added:
+                scores[name] = CandidateScore(
+                    name, pars, _rms2(cur, hold), math.sqrt(mse1), gain, 0.0, False,
+                    "spanned by the current model (nothing new)",
+                )  # fmt: skip
+                continue
+            # screen with the shape of the whole fitting part (optimistic: the shape saw
+            # the validation folds); a candidate that fails even this is not re-searched
+            ver = _fold_scores(d, folds, before, cf_cur, cs_cur, (cf, cs), sp)
+            note = ""
+            if (
+                name in _SHAPED
+                and math.isfinite(ver.mean_effect)
+                and ver.mean_effect >= 0.5 * sp.min_effect
+                and ver.p_value < 0.5
+            ):
+                cols_k = []
+                xf_cur = np.hstack([d.base_f, cf_cur])
+                xs_cur = np.hstack([d.base_s, cs_cur])
+                for fd, b0 in zip(folds, before):
+                    # the current model fitted without the fold: its residual there
+                    r_f = d.y_f - xf_cur @ b0.theta
+                    r_s = d.y_s - xs_cur @ b0.theta
+                    sh_k = find_shape_two_inertia(
+                        name, d, r_f, r_s, fd.train, angular, _FOLD_SEARCH_SAMPLES
+                    )
+                    if any(not math.isfinite(v) for v in sh_k.values()):
+                        sh_k = shape
+                    cols_k.append(_columns(d, name, sh_k, qf))
+                ver = _fold_scores(d, folds, before, cf_cur, cs_cur, cols_k, sp)
+            elif name in _SHAPED:
+                note = "screened out (shape of the whole fitting part; not re-searched)"
+            term = _stacked_term(fr, cf, cs)
+            trials.append(_Trial(name, shape, fr, cf, cs, ver, term))
             scores[name] = CandidateScore(
-                name, pars, _rms2(cur, hold), math.sqrt(mse1), gain, tstat, False, note
-            )
-            if added:
-                trials.append((mse1, cf.shape[1], name, shape, fr, cf, cs, tstat))
+                name, pars, _rms2(cur, hold), math.sqrt(mse1), gain, ver.t_stat, False, note,
+                cv_effect=ver.mean_effect, p_value=ver.p_value, folds_used=ver.folds_used,
+                support_fraction=ver.support_fraction,
+            )  # fmt: skip
         if not trials:
             break
-        best_mse = min(tr[0] for tr in trials)
-        # parsimony: among candidates within `tie` of the best reduction, the fewest columns
-        reduction = mse_cur - best_mse
-        near = [tr for tr in trials if mse_cur - tr[0] >= (1.0 - params.tie) * reduction]
-        choice = min(near, key=lambda tr: (tr[1], tr[0]))
-        mse1, _, name, shape, fr, cf, cs, tstat = choice
-        gain = 1.0 - mse1 / max(mse_cur, 1e-300)
-        if gain < params.min_gain or tstat < params.t_crit:
+        passes = holm([tr.verdict.p_value for tr in trials], sp.alpha)
+        accepted = [
+            tr for tr, ok in zip(trials, passes) if ok and tr.verdict.mean_effect >= sp.min_effect
+        ]
+        for tr, ok in zip(trials, passes):
+            scores[tr.name] = replace(scores[tr.name], passed=bool(ok) and tr in accepted)
+        if not accepted:
             break
-        selected.append((name, shape))
-        cur, cf_cur, cs_cur = fr, np.hstack([cf_cur, cf]), np.hstack([cs_cur, cs])
-        sc = scores[name]
-        scores[name] = CandidateScore(
-            sc.name, sc.params, sc.rms_before, sc.rms_after, sc.score, sc.t_stat, True, sc.note
-        )
+        best = max(accepted, key=lambda tr: tr.verdict.total_reduction)
+        same = [
+            tr
+            for tr in accepted
+            if tr is best
+            or (
+                correlation(tr.term, best.term) >= sp.same_signal
+                and tr.verdict.total_reduction >= (1.0 - sp.tie) * best.verdict.total_reduction
+            )
+        ]
+        # the same signal on this record: the family with fewer columns is installed (it
+        # carries the signal as well), both are named as indistinguishable here
+        choice = min(same, key=lambda tr: (tr.cf.shape[1], -tr.verdict.total_reduction))
+        if len(same) > 1:
+            ambiguous.append(ambiguity([tr.name for tr in same], choice.name, sp.same_signal))
+        selected.append((choice.name, choice.shape))
+        cur = choice.fit
+        cf_cur = np.hstack([cf_cur, choice.cf])
+        cs_cur = np.hstack([cs_cur, choice.cs])
+        scores[choice.name] = replace(scores[choice.name], selected=True)
     # the selected effects with their joint coefficients, as observer terms
     nb = d.base_f.shape[1]
     effects: list[ObserverEffect] = []
@@ -545,9 +636,7 @@ def analyse_two_inertia(
         if sc.selected:
             eff = next(e for e in effects if e.name == sc.name)
             pars = {**eff.shape, **dict(zip(COLUMNS[eff.name], eff.coef))}
-            sc = CandidateScore(
-                sc.name, pars, sc.rms_before, sc.rms_after, sc.score, sc.t_stat, True, sc.note
-            )
+            sc = replace(sc, params=pars)
         final_scores.append(sc)
     say("observer with the effects")
     f_after = f_hat.copy()
@@ -593,7 +682,115 @@ def analyse_two_inertia(
         q_dec=kin.q_l[d.idx][sl],
         qd_dec=kin.w_l[d.idx][sl],
         reference="f_ext" if fe is not None else "air cut",
+        indistinguishable=tuple(ambiguous),
+        selection=sp,
+        hold_sq_before=0.5 * (f0.e_f[hold] ** 2 + f0.e_s[hold] ** 2),
+        hold_sq_after=0.5 * (cur.e_f[hold] ** 2 + cur.e_s[hold] ** 2),
+        hold_speed=kin.w_l[d.idx[hold]],
     )
+
+
+#: families with shape parameters (searched again inside each training fold)
+_SHAPED = frozenset({"stribeck", "position_periodic", "torque_ripple", "backlash", "harmonic"})
+#: samples of a shape search inside a fold
+_FOLD_SEARCH_SAMPLES = 10_000
+
+
+@dataclass(frozen=True, eq=False)
+class _Trial:
+    name: str
+    shape: dict[str, float]
+    fit: _Fit
+    cf: F64
+    cs: F64
+    verdict: Verdict
+    term: F64
+
+
+def _stacked_term(fr: _Fit, cf: F64, cs: F64) -> F64:
+    """The candidate's fitted term in both channels (its last columns), stacked."""
+    k = cf.shape[1]
+    beta = fr.theta[-k:]
+    return np.concatenate([cf @ beta, cs @ beta])
+
+
+def _fold_fits(
+    d: _Data, folds: list[Fold], cf: F64, cs: F64
+) -> list[tuple[F64, NDArray[np.bool_]]]:
+    """Coefficients per fold (training rows = fitting part minus the fold and its
+    guards): the Gram matrix of the fitting part minus that of the excluded range."""
+    nb = d.base_f.shape[1]
+    xf = np.hstack([d.base_f, cf])
+    xs = np.hstack([d.base_s, cs])
+    n_fit = folds[0].n_fit
+    g_all, r_all = _gram(xf, xs, d.y_f, d.y_s, slice(0, n_fit))
+    out = []
+    for fd in folds:
+        g_ex, r_ex = _gram(xf, xs, d.y_f, d.y_s, slice(fd.lo, fd.hi))
+        out.append(_solve_gram(g_all - g_ex, r_all - r_ex, nb))
+    return out
+
+
+def _fold_before(d: _Data, folds: list[Fold], cf_cur: F64, cs_cur: F64) -> list[_FoldErr]:
+    """The current model's out-of-fold errors on each validation fold."""
+    out = []
+    xf = np.hstack([d.base_f, cf_cur])
+    xs = np.hstack([d.base_s, cs_cur])
+    for fd, (th, _) in zip(folds, _fold_fits(d, folds, cf_cur, cs_cur)):
+        v = slice(fd.a, fd.b)
+        out.append(_FoldErr(th, d.y_f[v] - xf[v] @ th, d.y_s[v] - xs[v] @ th))
+    return out
+
+
+@dataclass(frozen=True, eq=False)
+class _FoldErr:
+    theta: F64
+    e_f: F64  # on the validation fold's rows
+    e_s: F64
+
+
+def _fold_scores(
+    d: _Data,
+    folds: list[Fold],
+    before: list[_FoldErr],
+    cf_cur: F64,
+    cs_cur: F64,
+    cols: list[tuple[F64, F64]] | tuple[F64, F64],
+    sp: SelectionParams,
+) -> Verdict:
+    """Out-of-fold errors before/after the candidate and its support; the verdict.
+
+    ``cols``: the candidate's columns, one pair for every fold, or one pair per fold
+    when its shape was searched inside each training fold."""
+    n_fit = folds[0].n_fit
+    sq0, sq1 = np.empty(n_fit), np.empty(n_fit)
+    supp = np.zeros(n_fit, dtype=bool)
+    if isinstance(cols, tuple):
+        cf, cs = cols
+        fits = _fold_fits(d, folds, np.hstack([cf_cur, cf]), np.hstack([cs_cur, cs]))
+        pairs = [(cf, cs)] * len(folds)
+    else:
+        pairs = cols
+        fits = [
+            _fold_fits(d, [fd], np.hstack([cf_cur, cf]), np.hstack([cs_cur, cs]))[0]
+            for fd, (cf, cs) in zip(folds, cols)
+        ]
+    for fd, b0, (cf, cs), (th, _) in zip(folds, before, pairs, fits):
+        k = cf.shape[1]
+        beta = th[-k:]
+        v = slice(fd.a, fd.b)
+        xf = np.hstack([d.base_f[v], cf_cur[v], cf[v]])
+        xs = np.hstack([d.base_s[v], cs_cur[v], cs[v]])
+        e_f = d.y_f[v] - xf @ th
+        e_s = d.y_s[v] - xs @ th
+        # the candidate's term on the training rows (every 4th: a percentile only)
+        tr = np.flatnonzero(fd.train)[::4]
+        term_tr = np.hypot(cf[tr] @ beta, cs[tr] @ beta)
+        term_v = np.hypot(cf[v] @ beta, cs[v] @ beta)
+        sq0[v] = 0.5 * (b0.e_f**2 + b0.e_s**2)
+        sq1[v] = 0.5 * (e_f**2 + e_s**2)
+        supp[v] = support(term_tr, term_v, sp.support_level)
+    return verdict(OutOfFold(sq0, sq1, supp), sp.blocks)
 
 
 def _rms2(fr: _Fit, hold: NDArray[np.bool_]) -> float:
@@ -601,7 +798,8 @@ def _rms2(fr: _Fit, hold: NDArray[np.bool_]) -> float:
 
 
 def _base_names(nb: int) -> tuple[str, ...]:
-    return tuple(f"ref_tap[{j:+d}]" for j in _REF_TAPS)[:nb]
+    taps = tuple(f"ref_tap[{j:+d}]" for j in _REF_TAPS)[: max(nb - 1, 0)]
+    return (*taps, "coulomb_sampling_floor")[:nb]
 
 
 def _shift(x: F64, j: int) -> F64:

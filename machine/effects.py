@@ -39,12 +39,21 @@ class PlantEffects:
     torque_ripple: float = 0.15  # motor torque ripple amplitude [N m]
     torque_ripple_order: int = 6  # ripple periods per motor revolution
     backlash: float = 2e-4  # total gap of the transmission [rad]
+    position_phase: float = 0.0  # phase of the position-periodic torque [rad]
+    torque_ripple_phase: float = 0.0  # phase of the torque ripple [rad]
 
     def __post_init__(self) -> None:
         bad = sorted(set(self.enabled) - set(EFFECT_NAMES))
         if bad:
             raise ParameterError("effects", f"names from {list(EFFECT_NAMES)}", bad[0])
-        for name in ("offset", "stribeck", "position_periodic", "torque_ripple"):
+        for name in (
+            "offset",
+            "stribeck",
+            "position_periodic",
+            "torque_ripple",
+            "position_phase",
+            "torque_ripple_phase",
+        ):
             v = float(getattr(self, name))
             if not math.isfinite(v):
                 raise ParameterError(name, "a finite value", v)
@@ -58,6 +67,32 @@ class PlantEffects:
             or self.torque_ripple_order < 1
         ):
             raise ParameterError("torque_ripple_order", "an integer >= 1", self.torque_ripple_order)
+
+    def varied(self, rng: np.random.Generator) -> PlantEffects:
+        """A copy with magnitudes and shapes drawn around these values (one Monte Carlo case).
+
+        Magnitudes (offset, Stribeck level and velocity, position-periodic and ripple
+        amplitudes, backlash gap) are scaled by a factor uniform in [0.7, 1.3]; the
+        direction asymmetry is scaled the same way (kept below 0.95); the phases of the
+        periodic effects are uniform in [0, 2 pi). Periods and the ripple order are kept
+        (they are properties of the mechanics, not of a record).
+        """
+
+        def scaled(name: str) -> float:
+            return float(getattr(self, name)) * float(rng.uniform(0.7, 1.3))
+
+        return replace(
+            self,
+            offset=scaled("offset"),
+            coulomb_asymmetry=min(scaled("coulomb_asymmetry"), 0.95),
+            stribeck=scaled("stribeck"),
+            stribeck_velocity=scaled("stribeck_velocity"),
+            position_periodic=scaled("position_periodic"),
+            torque_ripple=scaled("torque_ripple"),
+            backlash=scaled("backlash"),
+            position_phase=float(rng.uniform(0.0, 2 * math.pi)),
+            torque_ripple_phase=float(rng.uniform(0.0, 2 * math.pi)),
+        )
 
     def with_enabled(self, *names: str) -> PlantEffects:
         return replace(self, enabled=frozenset(names))
@@ -90,5 +125,7 @@ class PlantEffects:
                 m("torque_ripple"),
                 float(self.torque_ripple_order),
                 m("backlash"),
+                float(self.position_phase),
+                float(self.torque_ripple_phase),
             ]
         )

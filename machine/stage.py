@@ -277,6 +277,7 @@ def _simulate_block(
     K, Cs, FCM, FCL, Kt = plant[0], plant[1], plant[2], plant[3], plant[4]
     off, asym, strb, vstr = eff[0], eff[1], eff[2], eff[3]
     pp_a, pp_per, rip_a, rip_n, gap = eff[4], eff[5], eff[6], eff[7], eff[8]
+    pp_ph, rip_ph = eff[9], eff[10]
     f_off, f_gain, f_t0 = force[0], force[1], force[2]
     nh = (len(force) - 3) // 2
     h = ts / nsub
@@ -333,10 +334,10 @@ def _simulate_block(
             fcl += strb * math.exp(-((wl / vstr) ** 2)) * sl
             u_l = -fc - fcl - off
             if pp_a != 0.0:
-                u_l -= pp_a * math.sin(2.0 * math.pi * x[2] / pp_per)
+                u_l -= pp_a * math.sin(2.0 * math.pi * x[2] / pp_per + pp_ph)
             u_m = tm - FCM * sm
             if rip_a != 0.0:
-                u_m += rip_a * math.sin(rip_n * x[0])
+                u_m += rip_a * math.sin(rip_n * x[0] + rip_ph)
             dth = x[0] - x[2]
             if gap > 0.0:
                 # dead zone of total width gap: the linear part applies K*dth; correct it

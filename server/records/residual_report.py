@@ -58,6 +58,24 @@ MEANING: dict[str, str] = {
 }
 
 
+def selection_text(res: ResidualResult | TwoInertiaResult) -> str:
+    """The decision rule, in one sentence with its numbers (docs/residual-selection.md)."""
+    sp = res.selection
+    return (
+        f"greedy; per round, blocked {sp.folds}-fold cross-validation over the fitting "
+        "part (contiguous folds, guard gaps of the filters' memory, shapes searched again "
+        "inside each training fold); effect = out-of-fold mean-square reduction on the "
+        f"candidate's support (rows where its term is >= {sp.support_level:g} of its "
+        "99th percentile) relative to the floor (out-of-fold mean square over all "
+        f"fitting rows); one-sided t-test over {sp.blocks} groups of support rows, "
+        f"Holm-corrected over the round's candidates at {sp.alpha:g}; accepted when it "
+        f"passes and the effect is >= {sp.min_effect:g}; the largest out-of-fold "
+        "reduction is added; candidates whose terms correlate >= "
+        f"{sp.same_signal:g} with it and remove within {sp.tie:.0%} as much are named "
+        "indistinguishable (the one with fewer columns is installed)"
+    )
+
+
 def report_dict(
     log: MeasuredLog,
     res: ResidualResult | TwoInertiaResult,
@@ -95,6 +113,11 @@ def report_dict(
                 "selected": c.selected,
                 "note": c.note,
                 "meaning": MEANING.get(c.name, ""),
+                "cv_effect": c.cv_effect,
+                "p_value": c.p_value,
+                "passed": c.passed,
+                "support_fraction": c.support_fraction,
+                "blocks_tested": c.folds_used,
             }
             for c in res.candidates
         ],
@@ -111,13 +134,11 @@ def report_dict(
         "parameters_before": dict(zip(res.names_before, map(float, res.theta_before))),
         "parameters_after": dict(zip(res.names_after, map(float, res.theta_after))),
         "units": log.units,
-        "selection_test": (
-            "greedy; accept the best candidate when its held-out mean square "
-            "error is >= 2 % lower and a one-sided paired t-test over 10 "
-            "contiguous held-out blocks gives t > 1.833 (95 %, 9 dof)"
-        ),
+        "indistinguishable": [dict(a) for a in res.indistinguishable],
+        "selection_test": selection_text(res),
         "score": "relative reduction of the held-out mean square error (1 - mse_after/"
-        "mse_before) at the round the candidate was last scored",
+        "mse_before) at the round the candidate was last scored (report figure only: the "
+        "held-out end takes no part in the selection)",
     }
     if isinstance(res, TwoInertiaResult):
         rep["rms_force_before"] = res.rms_force_before
@@ -128,10 +149,6 @@ def report_dict(
             {"name": e.name, "side": e.side, "shape": dict(e.shape), "coef": list(e.coef)}
             for e in res.effects
         ]
-        rep["selection_test"] += (
-            "; mean square error over both channels; among candidates within 1 % of the "
-            "best reduction the one with fewer columns"
-        )
     if validation is not None:
         rep["validation"] = dict(validation)
     return json_safe(rep)
@@ -225,6 +242,8 @@ def report_html(rep: Mapping[str, Any], figures: list[tuple[str, str]]) -> str:
     """A self-contained page: numbers, candidate table, figures (PNG as base64)."""
     rows = "".join(
         f"<tr><td>{_fmt(c['name'])}</td><td>{'yes' if c['selected'] else ''}</td>"
+        f"<td>{_fmt(c['cv_effect'])}</td><td>{_fmt(c['p_value'])}</td>"
+        f"<td>{'yes' if c['passed'] else ''}</td>"
         f"<td>{_fmt(c['score'])}</td><td>{_fmt(c['t_stat'])}</td>"
         f"<td>{_fmt(c['rms_before'])}</td><td>{_fmt(c['rms_after'])}</td>"
         f"<td>{_fmt(', '.join(f'{k}={_fmt(v)}' for k, v in c['params'].items()))}</td>"
@@ -261,6 +280,12 @@ def report_html(rep: Mapping[str, Any], figures: list[tuple[str, str]]) -> str:
             f"{_fmt(v['rms_after'])}; relerr {_fmt(v['relerr_before'])} % → "
             f"{_fmt(v['relerr_after'])} %</p>"
         )
+    ambig = "".join(
+        f"<p><b>Indistinguishable on this record: {_fmt(' and '.join(a['families']))}</b> "
+        f"({_fmt(a['installed'])} installed). {_fmt(a['why'])}. To tell them apart: "
+        f"{_fmt(a['excitation'])}.</p>"
+        for a in rep.get("indistinguishable", [])
+    )
     figs = "".join(
         f"<h3>{html.escape(t)}</h3><img alt='{html.escape(t)}' src='data:image/png;base64,{b}'>"
         for t, b in figures
@@ -280,7 +305,9 @@ Selected: {_fmt(", ".join(rep["selected"]) or "none")}.</p>
 <h2>Selected effects</h2><table><tr><th>effect</th><th>physical meaning</th>
 <th>parameters</th></tr>{effects}</table>
 <h2>Parameters</h2><table><tr><th>name</th><th>before</th><th>after</th></tr>{params}</table>
-<h2>Candidates</h2><table><tr><th>name</th><th>selected</th><th>score</th><th>t</th>
+{ambig}
+<h2>Candidates</h2><table><tr><th>name</th><th>selected</th><th>CV effect</th>
+<th>p</th><th>passed</th><th>held-out score</th><th>t</th>
 <th>rms before</th><th>rms after</th><th>parameters</th><th>note</th></tr>{rows}</table>
 <h2>Unexplained structure</h2><ul>{unexpl}</ul>
 {val}

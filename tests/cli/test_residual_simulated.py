@@ -151,7 +151,9 @@ def test_air_cut_without_f_ext(tmp_path: Path) -> None:
 def test_validate_on_a_second_record(logs: dict[str, Path], tmp_path: Path) -> None:
     other = tmp_path / "other.csv"
     argv = ["simulate", "--out", str(other), "--seconds", "5", "--effect", "position_periodic"]
-    assert main([*argv, "--seed", "1", "--current-noise", "0.01"]) == 0
+    # a second record of the same machine: another motion program, the same effect
+    argv += ["--seed", "1", "--vary", "motion,noise", "--current-noise", "0.01"]
+    assert main(argv) == 0
     out = tmp_path / "rep"
     src = str(logs["position_periodic"])
     assert main(["residual", src, "--validate", str(other), "--out", str(out), "--quiet"]) == 0
@@ -323,3 +325,33 @@ def test_missing_nominal(
         capsys,
         r"nn\.csv: kind 'two_inertia' needs the nominal parameters .*; missing K, J_L",
     )
+
+
+def test_holdout_half_on_stribeck_is_a_result_not_a_crash(
+    logs: dict[str, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Regression (issue 12): ``--holdout 0.5`` on the 10 s Stribeck log raised
+    ``ValueError: min() arg is an empty sequence`` when no candidate lowered the error."""
+    out = tmp_path / "rep"
+    argv = ["residual", str(logs["stribeck"]), "--holdout", "0.5", "--out", str(out), "--quiet"]
+    assert main(argv) == 0
+    assert "Traceback" not in capsys.readouterr().err
+    rep = json.loads((out / "report.json").read_text())
+    assert rep["holdout"]["start"] == pytest.approx(5.0, abs=0.05)
+    assert rep["rms_after"] <= rep["rms_before"]
+
+
+def test_ambiguity_is_reported_not_guessed(reports: dict[str, dict]) -> None:
+    """Issue 12 item 3: the simulator's coulomb_asymmetry is an offset while the load
+    moves and never sticks; the report names both and the separating excitation."""
+    rep = reports["coulomb_asymmetry"]
+    groups = rep["indistinguishable"]
+    assert any(set(g["families"]) == {"offset", "coulomb_asymmetry"} for g in groups), groups
+    g = next(g for g in groups if "coulomb_asymmetry" in g["families"])
+    assert g["installed"] == rep["selected"][0]
+    assert "stick" in g["excitation"]
+    page = (Path(rep["_dir"]) / "report.html").read_text()
+    assert "Indistinguishable on this record" in page and "To tell them apart" in page
+    # an effect-free log and a clear single effect name no ambiguity
+    assert reports["none"]["indistinguishable"] == []
+    assert reports["torque_ripple"]["indistinguishable"] == []

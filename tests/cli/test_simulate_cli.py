@@ -6,7 +6,9 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
+from server.cli.main import main
 from server.records.measured_log import load_log
 
 
@@ -78,3 +80,32 @@ def test_simulate_refuses_bad_input(tmp_path: Path) -> None:
     )
     assert r.returncode == 2
     assert "invalid choice: 'gravity'" in r.stderr
+
+
+def test_seed_varies_motion_noise_and_effect(tmp_path: Path) -> None:
+    """--seed draws a Monte Carlo case; without it the log is the fixed default one."""
+    from server.records.measured_log import load_log
+
+    paths = {}
+    for name, extra in (("a", []), ("b", []), ("s1", ["--seed", "1"]), ("s2", ["--seed", "2"])):
+        paths[name] = tmp_path / f"{name}.csv"
+        argv = ["simulate", "--out", str(paths[name]), "--seconds", "1", *extra]
+        assert main([*argv, "--effect", "position_periodic"]) == 0
+    assert paths["a"].read_bytes() == paths["b"].read_bytes()
+    s1, s2 = (json.loads(paths[k].with_suffix(".json").read_text()) for k in ("s1", "s2"))
+    assert s1["trajectory"] != s2["trajectory"]
+    t1, t2 = (json.loads(paths[k].with_suffix(".truth.json").read_text()) for k in ("s1", "s2"))
+    p1, p2 = t1["effect_parameters"], t2["effect_parameters"]
+    assert p1["position_phase"] != p2["position_phase"]
+    assert 0.7 * 0.2 <= p1["position_periodic"] <= 1.3 * 0.2
+    assert 0.01 <= t1["current_noise"] <= 0.05
+    q1, q2 = load_log(paths["s1"])["q_l"], load_log(paths["s2"])["q_l"]
+    assert not np.allclose(q1, q2)
+
+
+def test_bad_vary(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    argv = ["simulate", "--out", str(tmp_path / "x.csv"), "--seed", "1", "--vary", "speed"]
+    assert main(argv) == 2
+    assert "--vary: expected names among motion, noise, effect, got 'speed'" in (
+        capsys.readouterr().err
+    )

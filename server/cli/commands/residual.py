@@ -279,6 +279,11 @@ def _summary(args: argparse.Namespace, log: Any, rep: Any, validation: Any) -> N
         f"{log.units['effort']}, relerr {rep['relerr_before']:.3f} % -> "
         f"{rep['relerr_after']:.3f} %; selected: {', '.join(rep['selected']) or 'none'}"
     )
+    for a in rep.get("indistinguishable", []):
+        print(
+            f"  indistinguishable on this record: {' and '.join(a['families'])} "
+            f"({a['installed']} installed); to tell them apart: {a['excitation']}"
+        )
     for u in rep["unexplained"]:
         print(f"  unexplained: {describe_structure(u)}")
     if validation is not None:

@@ -46,98 +46,94 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--weight", action="store_true", help="add the weight of seed 000 Fig. 7(b)")
     p.add_argument("--no-force", action="store_true", help="air cut: no cutting force")
-    p.add_argument("--speed", type=float, default=30.0, help="plateau speed [rad/s]")
     p.add_argument(
-        "--half-period", type=float, default=2.0, help="time between velocity reversals [s]"
+        "--speed", type=float, default=None, help="plateau speed [rad/s] (30; --seed: 20..40)"
     )
     p.add_argument(
-        "--dwell", type=float, default=0.3, help="rest at each reversal [s] (0: no stop)"
+        "--half-period",
+        type=float,
+        default=None,
+        help="time between velocity reversals [s] (2; --seed: 1.5..2.5)",
     )
     p.add_argument(
-        "--levels", default="1,0.5,0.25", help="plateau speeds as fractions of --speed, in turn"
+        "--dwell",
+        type=float,
+        default=None,
+        help="rest at each reversal [s] (0: no stop) (0.3; --seed: 0.15..0.45)",
     )
-    p.add_argument("--seed", type=int, default=0, help="random seed (current noise)")
-    p.add_argument("--current-noise", type=float, default=0.0, help="current noise rms [A]")
+    p.add_argument(
+        "--levels",
+        default=None,
+        help="plateau speeds as fractions of --speed, in turn (1,0.5,0.25; --seed: 1, "
+        "0.4..0.7, 0.15..0.35 in random order)",
+    )
+    p.add_argument(
+        "--seed",
+        type=int,
+        default=None,
+        help="draw one Monte Carlo case: the motion program (speed, reversal timing, "
+        "dwell, levels), the current noise and the effects' magnitudes (x 0.7..1.3) and "
+        "phases; options given explicitly win. Without it: the fixed default log",
+    )
+    p.add_argument(
+        "--vary",
+        default="motion,noise,effect",
+        help="what --seed draws (comma list of motion, noise, effect); e.g. motion,noise "
+        "for a second record of the same machine",
+    )
+    p.add_argument(
+        "--current-noise",
+        type=float,
+        default=None,
+        help="current noise rms [A] (0; --seed: 0.01..0.05)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
-    import numpy as np
     from tqdm import tqdm
 
-    from machine.effects import PlantEffects
-    from machine.params import preset
-    from machine.stage import (
-        SEED000_FORCE,
-        SEED001_FORCE,
-        CuttingForce,
-        StageConfig,
-        StageSim,
-        Trajectory,
-    )
     from server.errors import CutwatchError
+    from server.experiments.residual_logs import simulate_stage, stage_case
     from server.records.measured_log import write_log
 
     if not (0 < args.seconds <= 3600):
         raise CutwatchError(f"--seconds: expected a value in (0, 3600], got {args.seconds}")
-    force = SEED000_FORCE if args.preset == "seed000" else SEED001_FORCE
-    if args.no_force:
-        force = CuttingForce(offset=0.0, amplitudes=(0.0,), frequencies=(100.0,))
-    try:
-        levels = tuple(float(x) for x in str(args.levels).split(","))
-    except ValueError:
-        raise CutwatchError(
-            f"--levels: expected comma-separated fractions in (0, 1], got {args.levels!r}"
-        ) from None
-    traj = Trajectory(
-        speed=args.speed, half_period=args.half_period, dwell=args.dwell, levels=levels
-    )
-    cfg = StageConfig(
-        params=preset(args.preset),
-        force=force,
-        trajectory=traj,
-        effects=PlantEffects().with_enabled(*args.effect),
+    levels = None
+    if args.levels is not None:
+        try:
+            levels = tuple(float(x) for x in str(args.levels).split(","))
+        except ValueError:
+            raise CutwatchError(
+                f"--levels: expected comma-separated fractions in (0, 1], got {args.levels!r}"
+            ) from None
+    vary = frozenset(v.strip() for v in str(args.vary).split(",") if v.strip())
+    bad = sorted(vary - {"motion", "noise", "effect"})
+    if bad:
+        raise CutwatchError(f"--vary: expected names among motion, noise, effect, got {bad[0]!r}")
+    case = stage_case(
+        args.effect,
+        args.seed,
+        speed=args.speed,
+        half_period=args.half_period,
+        dwell=args.dwell,
+        levels=levels,
         current_noise=args.current_noise,
+        vary=vary,
     )
-    sim = StageSim(cfg, seed=args.seed)
-    if args.weight:
-        sim.set_weight(True)
-    block = 2500
-    n_total = int(round(args.seconds / cfg.sample_time))
-    cols: dict[str, list[np.ndarray]] = {
-        k: [] for k in ("t", "tau_m", "i_m", "q_m", "q_l", "f_ext")
-    }
+    n_total = int(round(args.seconds / 4e-4))
     with tqdm(total=n_total, desc="simulate", unit="sample", unit_scale=True) as bar:
-        done = 0
-        while done < n_total:
-            n = min(block, n_total - done)
-            m, _ = sim.step(n)
-            for k in cols:
-                cols[k].append(getattr(m, k))
-            done += n
-            bar.update(n)
-    nom = cfg.params
-    sidecar = {
-        "sample_time": cfg.sample_time,
-        "units": {"effort": "N m", "position": "rad", "current": "A"},
-        "kind": "two_inertia",
-        "nominal": nom.as_dict(),
-        "encoder_resolution": cfg.encoder_resolution,
-        "source": f"cutwatch simulate --preset {args.preset}",
-        "trajectory": {
-            "speed": args.speed,
-            "half_period": args.half_period,
-            "dwell": args.dwell,
-            "levels": list(levels),
-        },
-    }
-    write_log(args.out, {k: np.concatenate(v) for k, v in cols.items()}, sidecar)
-    truth = {
-        "params": sim.config.true_params.as_dict(),
-        "effects": sorted(args.effect),
-        "effect_parameters": {k: getattr(cfg.effects, k) for k in args.effect},
-        "weight": bool(args.weight),
-    }
+        cols, sidecar, truth = simulate_stage(
+            case,
+            args.seconds,
+            seed=args.seed,
+            preset_name=args.preset,
+            weight=args.weight,
+            no_force=args.no_force,
+            on_block=bar.update,
+        )
+    write_log(args.out, cols, sidecar)
     truth_path = args.out.with_suffix(".truth.json")
     truth_path.write_text(json.dumps(truth, indent=2))
-    print(f"wrote {args.out} ({n_total} samples), {args.out.with_suffix('.json')}, {truth_path}")
+    n = len(cols["t"])
+    print(f"wrote {args.out} ({n} samples), {args.out.with_suffix('.json')}, {truth_path}")
     return 0
