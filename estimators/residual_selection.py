@@ -223,6 +223,11 @@ SUPPORT_TEXT: dict[str, str] = {
     "harmonic": "periodic in time",
     "drift": "growing with time",
     "delay": "where the effort changes quickly",
+    # the real-drive families (estimators.residual_families)
+    "position_friction": "while moving, varying smoothly along the travel, per direction",
+    "position_harmonics": "periodic in the position, with a part that follows the direction",
+    "drive_delay": "where the whole effort changes quickly (it acts late)",
+    "force_lag": "where the effort changes quickly (a first-order lag of the force loop)",
 }
 
 #: excitation that separates two families, by pair
@@ -231,6 +236,14 @@ SEPARATING: dict[frozenset[str], str] = {
         "rests where the load really sticks (no vibration through zero speed, e.g. an "
         "air move without cutting force, dwell of a second or more): an offset acts at "
         "rest, friction only while moving; or one direction only at several speeds"
+    ),
+    frozenset({"delay", "force_lag"}): (
+        "a step or a square wave added to the command: a pure delay shifts the whole "
+        "response, a first-order lag rounds it"
+    ),
+    frozenset({"drive_delay", "force_lag"}): (
+        "a step or a square wave added to the command: a pure delay shifts the whole "
+        "response, a first-order lag rounds it"
     ),
     frozenset({"stribeck", "coulomb_asymmetry"}): (
         "plateaus at several low speeds in each direction: a Stribeck term decays with "
