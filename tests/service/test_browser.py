@@ -242,9 +242,11 @@ def test_accuracy_panel_shows_agreement_on_a_replayed_log(tmp_path: Path) -> Non
     from server.cli.main import main
     from server.pipeline.live_pipeline import FORCE_ESTIMATES
 
-    log = tmp_path / "run.csv"
+    data = tmp_path / "data"
+    log = data / "recordings" / "run.csv"  # the service reads logs by name, from its areas
+    log.parent.mkdir(parents=True)
     assert main(["simulate", "--out", str(log), "--seconds", "12"]) == 0
-    with serve() as hostport, sync_api.sync_playwright() as p:
+    with serve(data_dir=data) as hostport, sync_api.sync_playwright() as p:
         browser = p.chromium.launch(executable_path=str(CHROMIUM), args=ARGS)
         try:
             page = browser.new_page(viewport={"width": 1280, "height": 900})
@@ -252,7 +254,7 @@ def test_accuracy_panel_shows_agreement_on_a_replayed_log(tmp_path: Path) -> Non
             page.on("pageerror", lambda e: errors.append(str(e)))
             page.goto(f"http://{hostport}/")
             page.wait_for_selector("#accuracy-title[data-mode=truth]", timeout=20000)
-            r = httpx.post(f"http://{hostport}/api/replay", json={"path": str(log)}, timeout=20)
+            r = httpx.post(f"http://{hostport}/api/replay", json={"name": "run"}, timeout=20)
             assert r.status_code == 200, r.text
             watch_accuracy(page, "agreement", FORCE_ESTIMATES)
             title = page.text_content("#accuracy-title") or ""
@@ -328,16 +330,48 @@ def test_interval_bands_and_the_not_excited_state(tmp_path: Path) -> None:
 
             r = httpx.patch(f"http://{hostport}/api/params", json={"weight_on": True})
             assert r.status_code == 200
-            page.wait_for_selector("#flag-J_L:visible", timeout=10000)
-            assert page.text_content("#flag-J_L") == "not excited" and excited("J_L") == "0"
-            assert "not excited" in (page.text_content("#chart-J_L .u-legend") or "")
-            # the estimate drawn greyed (dashed) while it is not determined
+
+            # flag shown, its text, its state and the legend read in one go (frames keep
+            # arriving between separate reads on a loaded machine)
+            def flag_state() -> list[Any]:
+                return list(
+                    page.evaluate(
+                        "() => { const e = document.querySelector('#flag-J_L');"
+                        " const l = document.querySelector('#chart-J_L .u-legend');"
+                        " return [!e.hidden && e.offsetParent !== null, e.textContent,"
+                        " e.dataset.excited, l ? l.textContent : '']; }"
+                    )
+                )
+
             wait_for(
                 lambda: (
-                    colour_pixels(page, "#chart-J_L canvas", GREY_RGB, tol=4) > grey_before + 30
+                    flag_state()[:3] == [True, "not excited", "0"]
+                    and "not excited" in flag_state()[3]
                 ),
-                timeout=15,  # a loaded machine draws late (5 s failed once at load ~12)
+                timeout=10,
             )
+
+            # the estimate drawn greyed (dashed) while it is not determined: the whole
+            # not-excited stretch (until the next clean reversal determines J_L again, about
+            # 2.6 s of simulated time) stays grey in the chart's history; held still (paused)
+            # so that a loaded machine's late drawing cannot miss it
+            wait_for(lambda: excited("J_L") == "1", timeout=30)
+            # and once more (the weight taken off): two stretches, about 20 grey pixels each
+            # on this chart (one stretch measured +22 pixels after the merges shortened it)
+            r = httpx.patch(f"http://{hostport}/api/params", json={"weight_on": False})
+            assert r.status_code == 200
+            wait_for(lambda: excited("J_L") == "0", timeout=10)
+            wait_for(lambda: excited("J_L") == "1", timeout=30)
+            pause = {"action": "pause"}
+            assert httpx.post(f"http://{hostport}/api/control", json=pause).status_code == 200
+            grey = [colour_pixels(page, "#chart-J_L canvas", GREY_RGB, tol=4)]
+            deadline = time.monotonic() + 15
+            while grey[-1] <= grey_before + 30 and time.monotonic() < deadline:
+                time.sleep(0.2)
+                grey.append(colour_pixels(page, "#chart-J_L canvas", GREY_RGB, tol=4))
+            assert grey[-1] > grey_before + 30, (grey_before, grey[-5:])
+            resume = {"action": "resume"}
+            assert httpx.post(f"http://{hostport}/api/control", json=resume).status_code == 200
             page.locator("section:has(#chart-J_L)").screenshot(
                 path=str(out / "band-not-excited.png")
             )
