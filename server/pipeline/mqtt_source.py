@@ -25,7 +25,7 @@ from common.errors import ParameterError
 from machine.params import StageParams, preset
 from machine.stage import SEED000_FORCE, Measurements, StageConfig
 from server.pipeline.drive_feed import DriveFeed
-from server.pipeline.sources import NOMINAL, SourceBlock, empty_measurements
+from server.pipeline.sources import NOMINAL, SourceBlock, empty_measurements, nominal_config
 
 
 class MqttSource:
@@ -74,14 +74,8 @@ class MqttSource:
             )
             return
         try:
-            p = StageParams(**{k: float(nom[k]) for k in NOMINAL}, C_s=float(nom.get("C_s", 0.0)))
-            res = meta.get("encoder_resolution")
-            bits = 20 if res is None else round(math.log2(2 * math.pi / float(res)))
-            self._cfg = StageConfig(
-                params=p,
-                force=SEED000_FORCE,
-                sample_time=float(meta["sample_time"]),
-                encoder_bits=bits,
+            self._cfg = nominal_config(
+                nom, float(meta["sample_time"]), meta.get("encoder_resolution")
             )
         except (ParameterError, TypeError, ValueError) as exc:
             self.problem = f"meta nominal parameters: {exc}"

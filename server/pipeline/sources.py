@@ -72,8 +72,9 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Protocol, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -280,18 +281,34 @@ def open_replay(path: str | os.PathLike[str]) -> MeasuredLog:
     return log
 
 
+def nominal_config(
+    nominal: Mapping[str, Any], sample_time: float, encoder_resolution: float | None
+) -> StageConfig:
+    """A sidecar's (or a broker meta's) nominal parameters, sample time and encoder as a
+    stage configuration for the observers (the encoder resolution rounded to a whole
+    number of bits, as the observers assume).
+
+    Raises
+    ------
+    ParameterError, TypeError, ValueError
+        A parameter is missing, not a number or out of its range.
+    """
+    p = StageParams(**{k: float(nominal[k]) for k in NOMINAL}, C_s=float(nominal.get("C_s", 0.0)))
+    bits = (
+        20
+        if encoder_resolution is None
+        else round(math.log2(2 * math.pi / float(encoder_resolution)))
+    )
+    return StageConfig(
+        params=p, force=SEED000_FORCE, sample_time=float(sample_time), encoder_bits=bits
+    )
+
+
 def _log_config(log: MeasuredLog) -> StageConfig:
-    """The sidecar's nominal parameters, sample time and encoder as a stage configuration
-    (the encoder resolution rounded to a whole number of bits, as the observers assume)."""
-    nom = log.nominal
+    """The log's stage configuration (:func:`nominal_config`)."""
     try:
-        p = StageParams(**{k: nom[k] for k in NOMINAL}, C_s=nom.get("C_s", 0.0))
-        res = log.sidecar.get("encoder_resolution")
-        bits = 20 if res is None else round(math.log2(2 * math.pi / float(res)))
-        return StageConfig(
-            params=p, force=SEED000_FORCE, sample_time=log.sample_time, encoder_bits=bits
-        )
-    except (ParameterError, TypeError, ValueError) as exc:
+        return nominal_config(log.nominal, log.sample_time, log.sidecar.get("encoder_resolution"))
+    except (ParameterError, TypeError, ValueError, KeyError) as exc:
         raise CutwatchError(f"{log.path}: nominal parameters: {exc}") from None
 
 
@@ -395,5 +412,6 @@ __all__ = [
     "SourceBlock",
     "empty_measurements",
     "no_truth",
+    "nominal_config",
     "open_replay",
 ]
