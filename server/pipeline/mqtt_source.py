@@ -22,13 +22,19 @@ from typing import Any
 import numpy as np
 
 from common.errors import ParameterError
-from machine.params import StageParams, preset
+from machine.params import preset
 from machine.stage import SEED000_FORCE, Measurements, StageConfig
 from server.pipeline.drive_feed import DriveFeed
-from server.pipeline.sources import NOMINAL, SourceBlock, empty_measurements, nominal_config
+from server.pipeline.sources import (
+    NOMINAL,
+    ConfiguredSource,
+    SourceBlock,
+    empty_measurements,
+    nominal_config,
+)
 
 
-class MqttSource:
+class MqttSource(ConfiguredSource):
     """The live feed of one machine (see the module docstring)."""
 
     name = "mqtt"
@@ -83,18 +89,6 @@ class MqttSource:
         self.ready = True
 
     # -- MeasurementSource -------------------------------------------------------------
-
-    @property
-    def sample_time(self) -> float:
-        return float(self._cfg.sample_time)
-
-    @property
-    def nominal(self) -> StageParams:
-        return self._cfg.params
-
-    @property
-    def encoder_resolution(self) -> float:
-        return self._cfg.encoder_resolution
 
     @property
     def t(self) -> float:

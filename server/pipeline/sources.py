@@ -312,7 +312,26 @@ def _log_config(log: MeasuredLog) -> StageConfig:
         raise CutwatchError(f"{log.path}: nominal parameters: {exc}") from None
 
 
-class ReplaySource:
+class ConfiguredSource:
+    """What a source built from nominal parameters answers from its stage configuration
+    (:func:`nominal_config`): the sample time, the nominal parameters, the encoder."""
+
+    _cfg: StageConfig
+
+    @property
+    def sample_time(self) -> float:
+        return float(self._cfg.sample_time)
+
+    @property
+    def nominal(self) -> StageParams:
+        return self._cfg.params
+
+    @property
+    def encoder_resolution(self) -> float:
+        return self._cfg.encoder_resolution
+
+
+class ReplaySource(ConfiguredSource):
     """A measured two-inertia log as a source: its samples in order, then finished.
 
     ``t`` counts from the log's first sample in steps of the log's sample time;
@@ -343,18 +362,6 @@ class ReplaySource:
         self.n = len(log["t"])
         c = log.columns
         self._f: F64 = c["f_ext"] if "f_ext" in c else np.full(self.n, math.nan)
-
-    @property
-    def sample_time(self) -> float:
-        return float(self._cfg.sample_time)
-
-    @property
-    def nominal(self) -> StageParams:
-        return self._cfg.params
-
-    @property
-    def encoder_resolution(self) -> float:
-        return self._cfg.encoder_resolution
 
     @property
     def t(self) -> float:
@@ -406,6 +413,7 @@ class ReplaySource:
 
 __all__ = [
     "NOMINAL",
+    "ConfiguredSource",
     "MeasurementSource",
     "ReplaySource",
     "SimulatorSource",
