@@ -855,7 +855,7 @@ def _rigid_oof(
         sq0[v] = (y[v] - x_cur[v] @ th0) ** 2
         sq1[v] = (y[v] - x[v] @ th) ** 2
         supp[v] = support(term[fd.train], term[v], sp.support_level)
-    return verdict(OutOfFold(sq0, sq1, supp), sp.blocks)
+    return verdict(OutOfFold(sq0, sq1, supp), sp.blocks, test=sp.test)
 
 
 def _subset(sig: Signals, mask: NDArray[np.bool_]) -> Signals:

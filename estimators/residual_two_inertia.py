@@ -183,6 +183,10 @@ class TwoInertiaResult:
     hold_sq_before: F64 = field(default_factory=lambda: np.zeros(0))
     hold_sq_after: F64 = field(default_factory=lambda: np.zeros(0))
     hold_speed: F64 = field(default_factory=lambda: np.zeros(0))
+    #: squared force-channel error alone over the held-out rows (where a load-side
+    #: effect acts: its twist column is zero)
+    hold_sq_force_before: F64 = field(default_factory=lambda: np.zeros(0))
+    hold_sq_force_after: F64 = field(default_factory=lambda: np.zeros(0))
 
 
 @dataclass(frozen=True, eq=False)
@@ -687,6 +691,8 @@ def analyse_two_inertia(
         hold_sq_before=0.5 * (f0.e_f[hold] ** 2 + f0.e_s[hold] ** 2),
         hold_sq_after=0.5 * (cur.e_f[hold] ** 2 + cur.e_s[hold] ** 2),
         hold_speed=kin.w_l[d.idx[hold]],
+        hold_sq_force_before=f0.e_f[hold] ** 2,
+        hold_sq_force_after=cur.e_f[hold] ** 2,
     )
 
 
@@ -790,7 +796,7 @@ def _fold_scores(
         sq0[v] = 0.5 * (b0.e_f**2 + b0.e_s**2)
         sq1[v] = 0.5 * (e_f**2 + e_s**2)
         supp[v] = support(term_tr, term_v, sp.support_level)
-    return verdict(OutOfFold(sq0, sq1, supp), sp.blocks)
+    return verdict(OutOfFold(sq0, sq1, supp), sp.blocks, test=sp.test)
 
 
 def _rms2(fr: _Fit, hold: NDArray[np.bool_]) -> float:

@@ -19,8 +19,18 @@ the default) and phase. Rows per kind, family and length:
   not named indistinguishable from it) selected; on ``none`` that is the false-positive
   rate;
 * ``median_ratio``: median over seeds of the held-out rms after / before, measured where
-  the effect acts (Stribeck: load or axis speed below twice its Stribeck velocity;
-  every other family: the whole held-out end).
+  the effect acts: in time, Stribeck only below twice its Stribeck velocity (every other
+  family: the whole held-out end); in the two-inertia observer, a load-side family
+  (offset, coulomb_asymmetry, stribeck, position_periodic) only in the force estimate,
+  since its twist column is zero, a motor- or shaft-side one (torque_ripple, backlash)
+  in both channels. ``median_ratio_both_channels`` keeps the mean of both channels for
+  every family (the measure before this distinction);
+* ``median_effect_free_ratio``: the same seeds' records without the effect through the
+  nominal model, their rms there over the effect records' nominal rms: where a perfect
+  model of the effect alone lands (the nominal model's own floor).
+
+The full run keeps each finished case in a JSON-lines cache keyed by the hash of the
+code it depends on (:func:`cache_path`), so an interrupted run resumes.
 
 Checks (DESIGN's and the issue's targets, every length): right first (or rightly
 indistinguishable) >= 95 %, false positives on ``none`` <= 5 %, spurious extras
@@ -29,9 +39,13 @@ indistinguishable) >= 95 %, false positives on ``none`` <= 5 %, spurious extras
 
 from __future__ import annotations
 
+import functools
+import hashlib
+import json
 import math
 import multiprocessing as mp
 import os
+import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -79,6 +93,8 @@ ROWS = (
     "KIND.FAMILY.LEN.spurious_extras",
     "KIND.none.LEN.false_positives",
     "KIND.FAMILY.LEN.median_ratio",
+    "KIND.FAMILY.LEN.median_effect_free_ratio",
+    "two_inertia.FAMILY.LEN.median_ratio_both_channels",
 )
 
 TARGET_RIGHT = 0.95
@@ -101,52 +117,110 @@ def _ratio(sq0: np.ndarray, sq1: np.ndarray) -> float:
     return math.sqrt(float(np.mean(sq1)) / float(np.mean(sq0)))
 
 
-def run_case(case: Case) -> dict[str, Any]:
-    """Generate and analyse one case; the selection, the ambiguity and the ratio."""
-    t0 = time.perf_counter()
-    if case.kind == "rigid":
-        from estimators.residual import analyse_rigid
+def _rigid(family: str, seconds: float, seed: int, max_effects: int | None = None) -> Any:
+    from dataclasses import replace
 
-        n = int(round(case.seconds * 1000))
-        cols = rigid_log(case.family, n, case.seed)
-        res = analyse_rigid(cols["q_m"], cols["tau_m"], cols["t"], 1e-3)
-        hold = res.t_dec >= res.holdout_start
-        where = hold.copy()
-        if case.family == "stribeck":
-            where &= np.abs(res.qd_dec) < 2.0 * RIGID_STRIBECK_V
+    from estimators.residual import ResidualParams, analyse_rigid
+
+    params = ResidualParams()
+    if max_effects is not None:
+        params = replace(params, max_effects=max_effects)
+    cols = rigid_log(family, int(round(seconds * 1000)), seed)
+    return analyse_rigid(cols["q_m"], cols["tau_m"], cols["t"], 1e-3, params)
+
+
+def _rigid_where(res: Any, family: str) -> np.ndarray:
+    where = np.asarray(res.t_dec >= res.holdout_start)
+    if family == "stribeck":
+        where = where & (np.abs(res.qd_dec) < 2.0 * RIGID_STRIBECK_V)
+    return where
+
+
+def _stage(family: str, seconds: float, seed: int, max_effects: int | None = None) -> Any:
+    from estimators.force_observer import LoadParams, ObserverParams
+    from estimators.residual_two_inertia import TwoInertiaParams, analyse_two_inertia
+
+    effects = [] if family == "none" else [family]
+    cols, side, _ = simulate_stage(stage_case(effects, seed), seconds, seed=seed)
+    nom = side["nominal"]
+    op = ObserverParams(
+        J_M=nom["J_M"],
+        B_M=nom["B_M"],
+        F_CM=nom["F_CM"],
+        K=nom["K"],
+        sample_time=side["sample_time"],
+        encoder_resolution=side["encoder_resolution"],
+    )
+    lp = LoadParams(J_L=nom["J_L"], B_L=nom["B_L"], F_CL=nom["F_CL"])
+    params = TwoInertiaParams()
+    if max_effects is not None:
+        params = TwoInertiaParams(max_effects=max_effects)
+    return analyse_two_inertia(
+        cols["t"], cols["tau_m"], cols["q_m"], cols["q_l"], op, lp, f_ext=cols["f_ext"],
+        params=params,
+    )  # fmt: skip
+
+
+@functools.lru_cache(maxsize=4)
+def _twin(kind: str, seconds: float, seed: int) -> Any:
+    """The same seed's record without any effect through the nominal model only (the
+    cases of one seed run next to each other, so a worker reuses it)."""
+    if kind == "rigid":
+        return _rigid("none", seconds, seed, max_effects=0)
+    return _stage("none", seconds, seed, max_effects=0)
+
+
+def _stage_sq(res: Any, family: str, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Squared held-out errors before/after where ``family`` acts, and over both channels.
+
+    Where: a load-side family (its twist column is zero, ``SIDES``) acts on the force
+    estimate only, so its ratio is the force channel's; motor- and shaft-side families
+    act on both channels. Stribeck: only rows below twice its Stribeck velocity.
+    """
+    from estimators.observer_effects import SIDES
+
+    where = np.ones(len(res.hold_sq_before), dtype=bool)
+    if family == "stribeck":
+        vs = float(stage_case(["stribeck"], seed).effects.stribeck_velocity)
+        where = np.abs(res.hold_speed) < 2.0 * vs
+    if SIDES.get(family, "load") == "load":
+        return res.hold_sq_force_before[where], res.hold_sq_force_after[where], where
+    return res.hold_sq_before[where], res.hold_sq_after[where], where
+
+
+def run_case(case: Case) -> dict[str, Any]:
+    """Generate and analyse one case: the selection, the ambiguity, the held-out ratio
+    where the effect acts, and the attainable ratio.
+
+    The effect-free ratio is where a perfect model of the effect alone would land: the
+    same seed's record *without* the effect (same motion and noise) through the nominal
+    model, its held-out rms where the effect would act over the effect record's nominal
+    rms there (the nominal model's own floor: noise, the observer's error). A fitted
+    effect can go below it when it also absorbs some of that floor.
+    """
+    t0 = time.perf_counter()
+    floor = math.nan
+    both = math.nan
+    if case.kind == "rigid":
+        res = _rigid(case.family, case.seconds, case.seed)
+        where = _rigid_where(res, case.family)
         sq0 = res.residual_before_dec[where] ** 2
         sq1 = res.residual_after_dec[where] ** 2
-        selected = [e.name for e in res.effects]
-        groups = [[str(f) for f in a["families"]] for a in res.indistinguishable]  # type: ignore[attr-defined]
-        installed = [str(a["installed"]) for a in res.indistinguishable]
+        if case.family != "none":
+            twin = _twin("rigid", case.seconds, case.seed)
+            tw = _rigid_where(twin, case.family)
+            floor = _ratio(sq0, twin.residual_before_dec[tw] ** 2)
     else:
-        from estimators.force_observer import LoadParams, ObserverParams
-        from estimators.residual_two_inertia import analyse_two_inertia
-
-        effects = [] if case.family == "none" else [case.family]
-        sc = stage_case(effects, case.seed)
-        cols, side, truth = simulate_stage(sc, case.seconds, seed=case.seed)
-        nom = side["nominal"]
-        op = ObserverParams(
-            J_M=nom["J_M"],
-            B_M=nom["B_M"],
-            F_CM=nom["F_CM"],
-            K=nom["K"],
-            sample_time=side["sample_time"],
-            encoder_resolution=side["encoder_resolution"],
-        )
-        lp = LoadParams(J_L=nom["J_L"], B_L=nom["B_L"], F_CL=nom["F_CL"])
-        res2 = analyse_two_inertia(
-            cols["t"], cols["tau_m"], cols["q_m"], cols["q_l"], op, lp, f_ext=cols["f_ext"]
-        )
-        where = np.ones(len(res2.hold_sq_before), dtype=bool)
-        if case.family == "stribeck":
-            vs = float(truth["effect_parameters"]["stribeck_velocity"])
-            where = np.abs(res2.hold_speed) < 2.0 * vs
-        sq0, sq1 = res2.hold_sq_before[where], res2.hold_sq_after[where]
-        selected = [e.name for e in res2.effects]
-        groups = [[str(f) for f in a["families"]] for a in res2.indistinguishable]  # type: ignore[attr-defined]
-        installed = [str(a["installed"]) for a in res2.indistinguishable]
+        res = _stage(case.family, case.seconds, case.seed)
+        sq0, sq1, where = _stage_sq(res, case.family, case.seed)
+        both = _ratio(res.hold_sq_before[where], res.hold_sq_after[where])
+        if case.family != "none":
+            twin = _twin("two_inertia", case.seconds, case.seed)
+            f0, _, _ = _stage_sq(twin, case.family, case.seed)
+            floor = _ratio(sq0, f0)
+    selected = [e.name for e in res.effects]
+    groups = [[str(f) for f in a["families"]] for a in res.indistinguishable]
+    installed = [str(a["installed"]) for a in res.indistinguishable]
     return {
         "kind": case.kind,
         "family": case.family,
@@ -156,6 +230,8 @@ def run_case(case: Case) -> dict[str, Any]:
         "groups": groups,
         "installed": installed,
         "ratio": _ratio(sq0, sq1),
+        "ratio_both_channels": both,
+        "effect_free_ratio": floor,
         "elapsed": time.perf_counter() - t0,
     }
 
@@ -192,10 +268,11 @@ def _cases(quick: bool) -> list[Case]:
     out = []
     for kind, fams in (("two_inertia", STAGE_FAMILIES), ("rigid", RIGID_FAMILIES)):
         for sec in lengths:
-            for fam in fams:
-                for s in range(1, seeds + 1):
+            for s in range(1, seeds + 1):
+                for fam in fams:
                     out.append(Case(kind, fam, sec, s))
-    # longest first: the pool's tail is then short cases
+    # longest first: the pool's tail is then short cases (stable: a seed's families
+    # stay next to each other)
     out.sort(key=lambda c: -(c.seconds * (2.5 if c.kind == "two_inertia" else 1.0)))
     return out
 
@@ -206,25 +283,100 @@ def _init_worker() -> None:
     warnings.simplefilter("ignore")
 
 
-def run_cases(cases: list[Case], *, progress: bool, workers: int = WORKERS) -> list[dict[str, Any]]:
-    """Analyse every case with at most ``workers`` processes (spawned, one BLAS thread)."""
+#: the code a case's outcome depends on (its hash keys the case cache)
+_CODE = (
+    "estimators",
+    "machine",
+    "common",
+    "server/experiments/residual_logs.py",
+    "server/experiments/reproductions/residual_selection.py",
+)
+
+
+def code_version() -> str:
+    """Hash of the sources a case's outcome depends on (estimators, machine, the logs)."""
+    root = Path(__file__).resolve().parents[3]
+    h = hashlib.sha256()
+    for rel in _CODE:
+        p = root / rel
+        for f in sorted(p.rglob("*.py")) if p.is_dir() else [p]:
+            h.update(str(f.relative_to(root)).encode())
+            h.update(f.read_bytes())
+    return h.hexdigest()[:16]
+
+
+def cache_path() -> Path:
+    """Where the full run keeps finished cases: ``$CUTWATCH_CACHE_DIR`` or
+    ``~/.cache/cutwatch``, one JSON-lines file per code version."""
+    base = os.environ.get("CUTWATCH_CACHE_DIR") or str(Path.home() / ".cache" / "cutwatch")
+    return Path(base) / NAME / f"{code_version()}.jsonl"
+
+
+def _key(c: Case | dict[str, Any]) -> tuple[str, str, float, int]:
+    if isinstance(c, Case):
+        return (c.kind, c.family, float(c.seconds), int(c.seed))
+    return (str(c["kind"]), str(c["family"]), float(c["seconds"]), int(c["seed"]))
+
+
+def _load_cache(path: Path) -> dict[tuple[str, str, float, int], dict[str, Any]]:
+    out: dict[tuple[str, str, float, int], dict[str, Any]] = {}
+    if not path.is_file():
+        return out
+    for line in path.read_text().splitlines():
+        try:
+            r = json.loads(line)
+            out[_key(r)] = r
+        except (ValueError, KeyError, TypeError):
+            continue  # a line cut short by an interrupted run
+    return out
+
+
+def run_cases(
+    cases: list[Case], *, progress: bool, workers: int = WORKERS, cache: Path | None = None
+) -> list[dict[str, Any]]:
+    """Analyse every case with at most ``workers`` processes (spawned, one BLAS thread).
+
+    With ``cache`` (a JSON-lines file), cases found there are not run again and every
+    finished case is appended at once: an interrupted run resumes where it stopped.
+    """
     from tqdm import tqdm
+
+    done = _load_cache(cache) if cache is not None else {}
+    results: list[dict[str, Any]] = [done[_key(c)] for c in cases if _key(c) in done]
+    cases = [c for c in cases if _key(c) not in done]
+    sink = None
+    if cache is not None:
+        cache.parent.mkdir(parents=True, exist_ok=True)
+        sink = cache.open("a")
+        if results and progress:
+            print(f"{NAME}: {len(results)} cases from {cache}", file=sys.stderr)
+
+    def keep(r: dict[str, Any]) -> None:
+        results.append(r)
+        if sink is not None:
+            sink.write(json.dumps(r) + "\n")
+            sink.flush()
 
     # one BLAS thread per worker: two workers on a 2-core machine
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     os.environ.setdefault("OMP_NUM_THREADS", "1")
-    results: list[dict[str, Any]] = []
-    with tqdm(total=len(cases), desc=NAME, unit="case", disable=not progress, leave=False) as bar:
-        if workers <= 1:
-            for c in cases:
-                results.append(run_case(c))
-                bar.update(1)
-        else:
-            ctx = mp.get_context("spawn")
-            with ctx.Pool(min(workers, WORKERS), initializer=_init_worker) as pool:
-                for r in pool.imap_unordered(run_case, cases):
-                    results.append(r)
+    try:
+        with tqdm(
+            total=len(cases), desc=NAME, unit="case", disable=not progress, leave=False
+        ) as bar:
+            if workers <= 1 or len(cases) <= 1:
+                for c in cases:
+                    keep(run_case(c))
                     bar.update(1)
+            else:
+                ctx = mp.get_context("spawn")
+                with ctx.Pool(min(workers, WORKERS), initializer=_init_worker) as pool:
+                    for r in pool.imap_unordered(run_case, cases, chunksize=1):
+                        keep(r)
+                        bar.update(1)
+    finally:
+        if sink is not None:
+            sink.close()
     return results
 
 
@@ -236,10 +388,16 @@ def summarise(results: list[dict[str, Any]]) -> dict[tuple[str, str, float], dic
     out = {}
     for key, rs in groups.items():
         sc = [score(r) for r in rs]
-        ratios = [r["ratio"] for r in rs if math.isfinite(r["ratio"])]
+
+        def med(k: str, rs: list[dict[str, Any]] = rs) -> float:
+            v = [float(r[k]) for r in rs if k in r and math.isfinite(float(r[k]))]
+            return float(np.median(v)) if v else math.nan
+
         out[key] = {
             **{k: float(np.mean([s[k] for s in sc])) for k in sc[0]},
-            "median_ratio": float(np.median(ratios)) if ratios else math.nan,
+            "median_ratio": med("ratio"),
+            "median_effect_free_ratio": med("effect_free_ratio"),
+            "median_ratio_both_channels": med("ratio_both_channels"),
             "seeds": float(len(rs)),
             "seconds_per_case": float(np.mean([r["elapsed"] for r in rs])),
         }
@@ -259,8 +417,9 @@ def _plot(table: dict[tuple[str, str, float], dict[str, float]], plot_dir: Path)
         ("nothing", "nothing selected", "RdYlGn_r"),
         ("spurious", "spurious extras / false positives", "RdYlGn_r"),
         ("median_ratio", "median held-out ratio (where the effect acts)", "RdYlGn_r"),
+        ("median_effect_free_ratio", "the same without the effect (its floor)", "RdYlGn_r"),
     )
-    fig, axes = plt.subplots(1, 4, figsize=(17, 0.42 * len(keys) + 2.2), sharey=True)
+    fig, axes = plt.subplots(1, 5, figsize=(21, 0.42 * len(keys) + 2.2), sharey=True)
     for ax, (m, title, cmap) in zip(axes, metrics):
         data = np.array(
             [[table.get((k[0], k[1], ln), {}).get(m, np.nan) for ln in lengths] for k in keys]
@@ -268,7 +427,7 @@ def _plot(table: dict[tuple[str, str, float], dict[str, float]], plot_dir: Path)
         colour = data.copy()
         for i, k in enumerate(keys):
             if k[1] == "none":
-                if m == "median_ratio":  # nothing to explain: no ratio
+                if m.startswith("median"):  # nothing to explain: no ratio
                     data[i] = np.nan
                     colour[i] = np.nan
                 elif m == "nothing":  # on none, nothing selected is the right answer
@@ -280,7 +439,7 @@ def _plot(table: dict[tuple[str, str, float], dict[str, float]], plot_dir: Path)
                 txt = (
                     "-"
                     if not np.isfinite(v)
-                    else (f"{v:.2f}" if m == "median_ratio" else f"{100 * v:.0f}")
+                    else (f"{v:.2f}" if m.startswith("median") else f"{100 * v:.0f}")
                 )
                 ax.text(j, i, txt, ha="center", va="center", fontsize=8)
         ax.set_xticks(range(len(lengths)), [f"{ln:g} s" for ln in lengths])
@@ -317,6 +476,25 @@ def build(table: dict[tuple[str, str, float], dict[str, float]]) -> Reproduction
         rep.rows.append(Row(f"{base}.{name}", 100 * v["spurious"], None, "%", cond))
         if fam != "none":
             rep.rows.append(Row(f"{base}.median_ratio", v["median_ratio"], None, "-", cond))
+            rep.rows.append(
+                Row(
+                    f"{base}.median_effect_free_ratio",
+                    v["median_effect_free_ratio"],
+                    None,
+                    "-",
+                    cond + "; the same seeds without the effect, nominal model",
+                )
+            )
+            if kind == "two_inertia":
+                rep.rows.append(
+                    Row(
+                        f"{base}.median_ratio_both_channels",
+                        v["median_ratio_both_channels"],
+                        None,
+                        "-",
+                        cond + "; force and twist channels together",
+                    )
+                )
         # checks: the issue's targets
         if fam == "none":
             rep.checks.append(
@@ -354,8 +532,12 @@ def build(table: dict[tuple[str, str, float], dict[str, float]]) -> Reproduction
 def run(
     *, quick: bool = False, plot_dir: Path | None = None, progress: bool = True
 ) -> Reproduction:
-    """The Monte Carlo (``quick``: 3 seeds of 10 s records, the same checks)."""
-    results = run_cases(_cases(quick), progress=progress)
+    """The Monte Carlo (``quick``: 3 seeds of 10 s records, the same checks).
+
+    The full run keeps every finished case in :func:`cache_path` (keyed by the code's
+    hash) and resumes from it; ``--quick`` always computes.
+    """
+    results = run_cases(_cases(quick), progress=progress, cache=None if quick else cache_path())
     table = summarise(results)
     rep = build(table)
     if plot_dir is not None:
