@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from server.cli.main import main
@@ -83,3 +84,41 @@ def test_score_counts_indistinguishable_only_when_named() -> None:
     none = rs.score({"family": "none", "selected": ["stribeck"], "groups": [], "installed": []})
     assert none["spurious"] == 1.0 and none["right_first"] == 0.0
     assert json.dumps(none)
+
+
+def test_full_run_resumes_from_its_cache(tmp_path: Path) -> None:
+    cache = tmp_path / "cases.jsonl"
+    first = rs.Case("rigid", "none", 10.0, 1)
+    second = rs.Case("rigid", "none", 10.0, 2)
+    # a finished case (marked, so a recomputation would show) and a line cut short
+    marked = {"kind": "rigid", "family": "none", "seconds": 10.0, "seed": 1,
+              "selected": ["marker"], "groups": [], "installed": [], "ratio": 1.0,
+              "elapsed": 0.0}  # fmt: skip
+    cache.write_text(json.dumps(marked) + "\n" + '{"kind": "rigid", "fam')
+    out = rs.run_cases([first, second], progress=False, workers=1, cache=cache)
+    by_seed = {r["seed"]: r for r in out}
+    assert by_seed[1]["selected"] == ["marker"]  # taken from the cache, not run again
+    assert by_seed[2]["selected"] == [] and by_seed[2]["elapsed"] > 0.0
+    kept = rs._load_cache(cache)
+    assert set(kept) == {rs._key(first), rs._key(second)}
+    assert len(rs.code_version()) == 16
+
+
+def test_ratio_is_taken_where_the_family_acts() -> None:
+    from types import SimpleNamespace
+
+    both0, both1 = np.array([4.0, 4.0]), np.array([1.0, 1.0])
+    force0, force1 = np.array([9.0, 9.0]), np.array([1.0, 1.0])
+    res = SimpleNamespace(
+        hold_sq_before=both0, hold_sq_after=both1, hold_sq_force_before=force0,
+        hold_sq_force_after=force1, hold_speed=np.array([0.0, 100.0]),
+    )  # fmt: skip
+    # a load-side family: the force estimate only (its twist column is zero)
+    sq0, sq1, where = rs._stage_sq(res, "coulomb_asymmetry", 1)
+    assert rs._ratio(sq0, sq1) == pytest.approx(1.0 / 3.0) and where.all()
+    # a shaft-side family: both channels
+    sq0, sq1, _ = rs._stage_sq(res, "backlash", 1)
+    assert rs._ratio(sq0, sq1) == pytest.approx(0.5)
+    # Stribeck: only its speed band
+    _, _, where = rs._stage_sq(res, "stribeck", 1)
+    assert where.tolist() == [True, False]

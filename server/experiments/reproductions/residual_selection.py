@@ -347,7 +347,12 @@ def run_cases(
     sink = None
     if cache is not None:
         cache.parent.mkdir(parents=True, exist_ok=True)
+        cut = (
+            cache.is_file() and cache.stat().st_size > 0 and not cache.read_bytes().endswith(b"\n")
+        )
         sink = cache.open("a")
+        if cut:  # the last line of an interrupted run: start on a fresh line
+            sink.write("\n")
         if results and progress:
             print(f"{NAME}: {len(results)} cases from {cache}", file=sys.stderr)
 
