@@ -54,6 +54,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from scipy.optimize import minimize_scalar
 
 from common.arrays import F64
 from common.stats import rms
@@ -352,6 +353,32 @@ def _delay_column(shape: dict[str, float], sig: Signals) -> F64:
     return np.asarray(np.interp(sig.t - shape["delay_s"], sig.t, p) - p, dtype=np.float64)
 
 
+def refine_grid(cost: Callable[[float], float], grid: F64, *, log: bool = False) -> float:
+    """The minimiser of ``cost`` over ``grid``, refined between the grid neighbours of the
+    best point (bounded Brent search, in log scale with ``log``).
+
+    A coarse grid alone leaves a shape error (a 10 ms delay on a 17 % geometric grid is
+    off by up to 8 %) whose residual then passes as a second "effect" (a drive delay
+    after the delay, on long records)."""
+    vals = np.array([cost(float(g)) for g in grid])
+    if not np.any(np.isfinite(vals)):
+        return math.nan
+    k = int(np.nanargmin(vals))
+    lo, hi = float(grid[max(k - 1, 0)]), float(grid[min(k + 1, len(grid) - 1)])
+    if not hi > lo:
+        return float(grid[k])
+    if log:
+        res = minimize_scalar(
+            lambda u: cost(math.exp(u)), bounds=(math.log(lo), math.log(hi)), method="bounded",
+            options={"xatol": 1e-3},
+        )  # fmt: skip
+        x = math.exp(float(res.x))
+    else:
+        res = minimize_scalar(cost, bounds=(lo, hi), method="bounded")
+        x = float(res.x)
+    return x if float(res.fun) <= float(vals[k]) else float(grid[k])
+
+
 def find_shape(
     name: str,
     sig: Signals,
@@ -381,13 +408,13 @@ def find_shape(
         sub = Signals(
             sig.t[idx], sig.q[idx], sig.qd[idx], sig.qdd[idx], sig.qddd[idx], sig.force[idx]
         )
-        best = (math.inf, vmax * 0.1)
-        for vs in np.geomspace(max(vmax * 1e-3, 1e-12), vmax * 0.5, 40):
+
+        def rss_vs(vs: float) -> float:
             cols = effect_columns(Effect("stribeck", {"v_s": float(vs)}, ()), sub)
-            val = _project_rss(np.column_stack([cols, np.ones(len(idx))]), r)
-            if val < best[0]:
-                best = (val, float(vs))
-        shape = {"v_s": best[1]}
+            return _project_rss(np.column_stack([cols, np.ones(len(idx))]), r)
+
+        grid = np.geomspace(max(vmax * 1e-3, 1e-12), vmax * 0.5, 40)
+        shape = {"v_s": refine_grid(rss_vs, grid, log=True)}
     elif name == "position_periodic":
         dq = float(np.median(np.abs(np.diff(sig.q)))) if len(sig.q) > 1 else 0.0
         period, _ = _search_period(sig.q[idx], r - r.mean(), dq)
@@ -418,16 +445,15 @@ def find_shape(
         span = float(sig.t[-1] - sig.t[0])
         # lags from one sample to 5 % of the record (at most 0.5 s)
         grid = np.geomspace(ts, max(min(0.5, 0.05 * span), 2 * ts), 40)
-        best = (math.inf, math.nan)
         p_full = _nominal_effort(base, sig)
         t_sub = sig.t[idx]
-        for d in grid:
+
+        def rss_d(d: float) -> float:
             # the column of _delay_column, evaluated on the search samples only
             col = np.interp(t_sub - d, sig.t, p_full) - p_full[idx]
-            val = _project_rss(np.column_stack([col, np.ones(len(idx))]), r)
-            if val < best[0]:
-                best = (val, float(d))
-        shape = {**base, "delay_s": best[1]}
+            return _project_rss(np.column_stack([col, np.ones(len(idx))]), r)
+
+        shape = {**base, "delay_s": refine_grid(rss_d, grid, log=True)}
     elif name == "drift":
         tt = sig.t[np.flatnonzero(mask)]
         shape = {"t0": float(tt[0]), "span": float(max(tt[-1] - tt[0], 1e-12))}

@@ -71,6 +71,7 @@ from estimators.residual import (
     Signals,
     _project_rss,
     gap_filled,
+    refine_grid,
     rms,
     search_frequency,
     unexplained_structure,
@@ -256,9 +257,12 @@ def find_shape_two_inertia(
     fit: NDArray[np.bool_],
     angular: bool,
     max_rows: int = 50_000,
+    q_hz: float = 250.0,
+    q_order: int = 1,
 ) -> dict[str, float]:
     """Shape parameters of family ``name`` from the current residuals on the fit rows
-    (searched on at most ``max_rows`` of them, evenly spaced)."""
+    (searched on at most ``max_rows`` of them, evenly spaced). ``q_hz``, ``q_order``: the
+    observer's Q(s), through which a load-side basis reaches the force residual."""
     rows = np.flatnonzero(fit)
     stride = max(1, int(math.ceil(len(rows) / max_rows)))
     rows = rows[::stride]
@@ -269,13 +273,16 @@ def find_shape_two_inertia(
         vmax = float(np.max(np.abs(w))) if len(w) else 0.0
         if vmax <= 0:
             return {"v_s": math.nan}
-        best = (math.inf, math.nan)
-        for vs in np.geomspace(vmax * 1e-3, vmax * 0.5, 30):
-            c = stribeck_basis(w, kin.a_l[gi], kin.sample_time, float(vs))
-            val = _proj_rss(np.column_stack([c, np.ones(len(w))]), r_f[rows])
-            if val < best[0]:
-                best = (val, float(vs))
-        return {"v_s": best[1]}
+        qf = lowpass(q_hz, kin.sample_time, q_order)
+
+        def rss(vs: float) -> float:
+            # the column as the fit sees it: the basis through Q(s), like the residual
+            c, _ = filter_columns(
+                qf, stribeck_basis(kin.w_l, kin.a_l, kin.sample_time, float(vs))[:, None]
+            )
+            return _proj_rss(np.column_stack([c[gi, 0], np.ones(len(gi))]), r_f[rows])
+
+        return {"v_s": refine_grid(rss, np.geomspace(vmax * 1e-3, vmax * 0.5, 30), log=True)}
     if name == "position_periodic":
         return {"period": _period_search(kin.q_l[gi], r_f[rows], angular)}
     if name == "torque_ripple":
@@ -541,7 +548,10 @@ def analyse_two_inertia(
             if any(s_[0] == name for s_ in selected):
                 continue
             say(f"candidate {name}")
-            shape = find_shape_two_inertia(name, d, cur.e_f, cur.e_s, fit, angular)
+            shape = find_shape_two_inertia(
+                name, d, cur.e_f, cur.e_s, fit, angular, q_hz=observer.q_hz,
+                q_order=observer.q_order,
+            )  # fmt: skip
             if any(not math.isfinite(v) for v in shape.values()):
                 scores[name] = CandidateScore(
                     name, shape, _rms2(cur, hold), _rms2(cur, hold), 0.0, 0.0, False,
@@ -580,8 +590,9 @@ def analyse_two_inertia(
                     r_f = d.y_f - xf_cur @ b0.theta
                     r_s = d.y_s - xs_cur @ b0.theta
                     sh_k = find_shape_two_inertia(
-                        name, d, r_f, r_s, fd.train, angular, _FOLD_SEARCH_SAMPLES
-                    )
+                        name, d, r_f, r_s, fd.train, angular, _FOLD_SEARCH_SAMPLES,
+                        q_hz=observer.q_hz, q_order=observer.q_order,
+                    )  # fmt: skip
                     if any(not math.isfinite(v) for v in sh_k.values()):
                         sh_k = shape
                     cols_k.append(_columns(d, name, sh_k, qf))
