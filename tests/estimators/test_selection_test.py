@@ -59,3 +59,36 @@ def test_unknown_test_is_refused_with_the_field_named() -> None:
     with pytest.raises(ParameterError) as e:
         SelectionParams(test="ks")
     assert "test" in str(e.value) and "signed_rank" in str(e.value)
+
+
+def _event_gain(rng: np.random.Generator) -> np.ndarray:
+    g = rng.uniform(0.0, 0.3, N_GROUPS)
+    g[rng.choice(N_GROUPS, 4, replace=False)] = rng.uniform(8.0, 10.0, 4)
+    return g
+
+
+def _modulated_gain(rng: np.random.Generator) -> np.ndarray:
+    # a gain that follows an envelope through zero, a few groups slightly negative (the
+    # shape of an amplitude-modulated 23 Hz torque: p 0.0016 by t, 0.0077 by rank)
+    env = 1.0 + np.sin(2.0 * np.pi * (np.arange(N_GROUPS) / N_GROUPS + rng.uniform()))
+    return 0.6 * env - 0.27 + rng.normal(0.0, 0.05, N_GROUPS)
+
+
+def test_default_pair_keeps_the_power_of_either_test() -> None:
+    """The default (2 min(p_t, p_W)) finds both shapes of gain; each single test loses one."""
+    alpha = 0.05 / 9
+    seeds = 50
+    found: dict[str, dict[str, int]] = {
+        k: {"t_or_rank": 0, "signed_rank": 0, "t": 0} for k in ("event", "modulated")
+    }
+    for seed in range(seeds):
+        for kind, make in (("event", _event_gain), ("modulated", _modulated_gain)):
+            rng = np.random.default_rng([9, seed])
+            oof = _oof(make(rng), rng)
+            for test in found[kind]:
+                found[kind][test] += verdict(oof, N_GROUPS, test=test).p_value < alpha
+    for kind in found:
+        assert found[kind]["t_or_rank"] / seeds >= 0.9, (kind, found)
+    assert found["event"]["t"] / seeds <= 0.5, found
+    assert found["modulated"]["signed_rank"] / seeds <= 0.8, found
+    assert SelectionParams().test == "t_or_rank"
