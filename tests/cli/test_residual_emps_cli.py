@@ -4,11 +4,11 @@ honest proxy of the withheld record through the real command.
 The proxy: the first two back-and-forth cycles of DATA_EMPS.mat (t < 12.48 s) and the
 last two are written as two CSV logs; the command fits on one and ``--validate``s on the
 other (a record it has never seen, scored with its own measured position, as the
-withheld record is). Measured with the greedy selection of this branch: 4.26 % -> 3.02 %
-(cycles 1-2 on 3-4; coulomb_asymmetry and force_lag selected: on a 7.5 s fitting part
-the round-3 leader, stribeck, fails the held-out t test and selection stops, although
-position_friction passes it). With the structure selected on the whole record the same
-split gives 4.27 % -> 1.96 % (docs/residual-emps.md).
+withheld record is). Measured with the cross-validated selection and its signed-rank
+test: cycles 1-2 select coulomb_asymmetry, force_lag, stribeck and position_friction, and
+cycles 3-4 are predicted at 4.265 % -> 2.191 % (with Student's t only force_lag passed:
+4.13 %). With the structure selected on the whole record the same split gives 4.27 % ->
+1.96 % (docs/residual-emps.md).
 """
 
 from __future__ import annotations
@@ -75,16 +75,6 @@ def test_emps_report_lists_effects_with_meaning_and_validates(tmp_path: Path) ->
     assert "Selected effects" in page and "physical meaning" in page
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason=(
-        "not reached with the cross-validated selection: on the 12 s half (cycles 1-2) only "
-        "force_lag passes (stribeck p = 0.028 and coulomb_asymmetry p = 0.012 fail Holm over "
-        "13 candidates with 20 groups), so cycles 3-4 go 4.26 % -> 4.13 % (3 %); the old "
-        "held-out-end rule took two effects here, 4.26 % -> 3.02 % (29 %). On the whole "
-        "record the selection takes four effects (held-out 4.46 % -> 2.89 %)."
-    ),
-)
 def test_emps_first_half_predicts_the_second_15_percent_better(tmp_path: Path) -> None:
     first, second = _halves(tmp_path)
     out = tmp_path / "out"
