@@ -336,5 +336,6 @@ def ambiguity(names: list[str], installed: str, same_signal: float) -> dict[str,
             f"{same_signal:g}) and remove the same error; "
             + "; ".join(f"{n} acts {SUPPORT_TEXT.get(n, '?')}" for n in names)
         ),
-        "excitation": "; ".join(separating_excitation(installed, o) for o in others),
+        # one text per separating excitation (a pair of lag families shares one)
+        "excitation": "; ".join(dict.fromkeys(separating_excitation(installed, o) for o in others)),
     }

@@ -41,17 +41,23 @@ def test_rows_and_checks_follow_the_contract(quick: tuple[dict, Path]) -> None:
     assert (plots / "residual_selection.png").stat().st_size > 10_000
 
 
-# targets the selection does not reach on the simulator (measured; the full run's numbers
-# are in docs/residual-selection.md): Stribeck friction in the simulator acts as pulses
-# where the vibrating load crosses zero speed within a sample; the family is found on
-# 2 of 3 quick seeds (seed 2: nothing selected) and removes little of the error in its
-# speed band (median ratio 0.98 over the 3 quick seeds). The simulator's direction asymmetry is the
-# same signal as an offset while the load never sticks: the report names both as
-# indistinguishable and installs the offset, whose held-out ratio is 0.60 (not 0.5).
+# the quick run's misses (3 seeds, so one case is 33 %; the full run's 20 seeds per case
+# are in docs/residual-selection.md, where 113 of 114 checks hold):
+# - seed 1's motion program (35 rad/s, 0.21 s dwell, the noisiest current of the three)
+#   makes the simulator's regularised Coulomb law (tanh(w / 0.05 rad/s) against the
+#   observer's sgn) read as a negative Stribeck term (F_s = -0.10 N m, v_s = 0.63 rad/s,
+#   0.28 of the floor against the 0.25 minimum): a false positive on none and an extra
+#   after offset / coulomb_asymmetry. Full run: 1 of 20 at 10 s and at 100 s (5 %, the
+#   limit), 0 of 20 at 30 s;
+# - seed 2's Stribeck is not found at 10 s (p 0.03 on a 7 s fitting part; full run 19 of
+#   20 at 10 and 30 s, 20 of 20 at 100 s), and its in-band ratio over the quick seeds is
+#   0.84 (full run 0.54 at 10 s, the one miss there; 0.47 at 30 s, 0.45 at 100 s).
 KNOWN_MISSES = {
+    "two_inertia.none.10s.false_positives <= 5 %",
+    "two_inertia.offset.10s.spurious_extras <= 5 %",
+    "two_inertia.coulomb_asymmetry.10s.spurious_extras <= 5 %",
     "two_inertia.stribeck.10s.right_first (or rightly indistinguishable) >= 95 %",
     "two_inertia.stribeck.10s.median_ratio <= 0.5",
-    "two_inertia.coulomb_asymmetry.10s.median_ratio <= 0.5",
 }
 
 

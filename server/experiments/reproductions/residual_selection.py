@@ -283,18 +283,21 @@ def _init_worker() -> None:
     warnings.simplefilter("ignore")
 
 
-#: the code a case's outcome depends on (its hash keys the case cache)
+#: the code a case's outcome depends on (its hash keys the case cache): these packages
+#: and files, and the functions of this module that make a case (not its table or plot)
 _CODE = (
     "estimators",
     "machine",
     "common",
     "server/experiments/residual_logs.py",
-    "server/experiments/reproductions/residual_selection.py",
 )
 
 
 def code_version() -> str:
-    """Hash of the sources a case's outcome depends on (estimators, machine, the logs)."""
+    """Hash of the sources a case's outcome depends on (estimators, machine, the logs and
+    the case functions of this module)."""
+    import inspect
+
     root = Path(__file__).resolve().parents[3]
     h = hashlib.sha256()
     for rel in _CODE:
@@ -302,6 +305,9 @@ def code_version() -> str:
         for f in sorted(p.rglob("*.py")) if p.is_dir() else [p]:
             h.update(str(f.relative_to(root)).encode())
             h.update(f.read_bytes())
+    for fn in (_ratio, _rigid, _rigid_where, _stage, _twin, _stage_sq, run_case):
+        h.update(inspect.getsource(fn).encode())
+    h.update(repr((RIGID_STRIBECK_V, RIGID_FAMILIES, STAGE_FAMILIES)).encode())
     return h.hexdigest()[:16]
 
 
@@ -367,7 +373,7 @@ def run_cases(
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     try:
         with tqdm(
-            total=len(cases), desc=NAME, unit="case", disable=not progress, leave=False
+            total=len(cases), desc=NAME, unit="case", disable=not progress or not cases, leave=False
         ) as bar:
             if workers <= 1 or len(cases) <= 1:
                 for c in cases:
@@ -409,6 +415,19 @@ def summarise(results: list[dict[str, Any]]) -> dict[tuple[str, str, float], dic
     return out
 
 
+def _misses(metric: str, family: str, v: float) -> bool:
+    """Whether this cell of the heatmap misses one of the checks' targets."""
+    if not math.isfinite(v):
+        return False
+    if metric == "right_or_indistinguishable":
+        return family != "none" and v < TARGET_RIGHT
+    if metric == "spurious":
+        return v > (TARGET_FP if family == "none" else TARGET_SPURIOUS)
+    if metric == "median_ratio":
+        return family != "none" and not v <= TARGET_RATIO
+    return False
+
+
 def _plot(table: dict[tuple[str, str, float], dict[str, float]], plot_dir: Path) -> str:
     import matplotlib
 
@@ -446,11 +465,24 @@ def _plot(table: dict[tuple[str, str, float], dict[str, float]], plot_dir: Path)
                     if not np.isfinite(v)
                     else (f"{v:.2f}" if m.startswith("median") else f"{100 * v:.0f}")
                 )
-                ax.text(j, i, txt, ha="center", va="center", fontsize=8)
+                missed = _misses(m, keys[i][1], v)
+                ax.text(
+                    j, i, txt + (" ✗" if missed else ""), ha="center", va="center", fontsize=8,
+                    fontweight="bold" if missed else "normal",
+                )  # fmt: skip
+                if missed:  # a check of the issue's targets that does not hold
+                    ax.add_patch(
+                        plt.Rectangle(
+                            (j - 0.5, i - 0.5), 1, 1, fill=False, edgecolor="red", linewidth=2
+                        )
+                    )
         ax.set_xticks(range(len(lengths)), [f"{ln:g} s" for ln in lengths])
         ax.set_title(title, fontsize=9)
     axes[0].set_yticks(range(len(keys)), [f"{k[0]}.{k[1]}" for k in keys], fontsize=8)
-    fig.suptitle("residual selection, Monte Carlo (% of seeds; ratio: rms after / before)")
+    fig.suptitle(
+        "residual selection, Monte Carlo (% of seeds; ratio: rms after / before; "
+        "red ✗: a target missed)"
+    )
     fig.tight_layout()
     plot_dir.mkdir(parents=True, exist_ok=True)
     path = plot_dir / "residual_selection.png"
