@@ -38,7 +38,7 @@ same code the live observers call per block.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -380,6 +380,33 @@ def _solve_gram(g: F64, rhs: F64, nb: int) -> tuple[F64, NDArray[np.bool_]]:
 
 def _mse(e_f: F64, e_s: F64) -> float:
     return float(np.mean(e_f * e_f + e_s * e_s)) / 2.0
+
+
+def nominal_observer(
+    nominal: Mapping[str, float], sample_time: float, encoder_resolution: float | None = None
+) -> tuple[ObserverParams, LoadParams]:
+    """The observer and load parameters of a log's nominal model (J_M, B_M, F_CM, K, J_L,
+    B_L, F_CL); without a declared encoder resolution, the seed's 20-bit encoder (it only
+    weights seed000 (8)).
+
+    Raises
+    ------
+    KeyError, ParameterError, TypeError, ValueError
+        A parameter is missing, not a number or out of its range.
+    """
+    res = 2 * math.pi / 2**20 if encoder_resolution is None else float(encoder_resolution)
+    op = ObserverParams(
+        J_M=float(nominal["J_M"]),
+        B_M=float(nominal["B_M"]),
+        F_CM=float(nominal["F_CM"]),
+        K=float(nominal["K"]),
+        sample_time=float(sample_time),
+        encoder_resolution=res,
+    )
+    lp = LoadParams(
+        J_L=float(nominal["J_L"]), B_L=float(nominal["B_L"]), F_CL=float(nominal["F_CL"])
+    )
+    return op, lp
 
 
 def observer_front(

@@ -184,7 +184,7 @@ def parse_air_cuts(specs: list[str], t: Any, where: str) -> Any:
 
 def _observer_inputs(log: Any) -> tuple[Any, Any]:
     from estimators.errors import ParameterError
-    from estimators.force_observer import LoadParams, ObserverParams
+    from estimators.residual_two_inertia import nominal_observer
     from server.errors import CutwatchError
 
     if "q_l" not in log.columns:
@@ -199,19 +199,9 @@ def _observer_inputs(log: Any) -> tuple[Any, Any]:
             f"{', '.join(_NOMINAL)} in the sidecar (or --meta '{{\"nominal\": ...}}'); "
             f"missing {', '.join(missing)}"
         )
-    nom = log.nominal
     res = log.sidecar.get("encoder_resolution")
     try:
-        op = ObserverParams(
-            J_M=nom["J_M"],
-            B_M=nom["B_M"],
-            F_CM=nom["F_CM"],
-            K=nom["K"],
-            sample_time=log.sample_time,
-            # without a declared resolution: the seed's 20-bit encoder (seed000 (8) weights only)
-            encoder_resolution=2 * math.pi / 2**20 if res is None else float(res),
-        )
-        lp = LoadParams(J_L=nom["J_L"], B_L=nom["B_L"], F_CL=nom["F_CL"])
+        op, lp = nominal_observer(log.nominal, log.sample_time, res)
     except (ParameterError, TypeError, ValueError) as exc:
         raise CutwatchError(f"{log.path}: nominal parameters: {exc}") from None
     return op, lp

@@ -137,21 +137,15 @@ def _rigid_where(res: Any, family: str) -> np.ndarray:
 
 
 def _stage(family: str, seconds: float, seed: int, max_effects: int | None = None) -> Any:
-    from estimators.force_observer import LoadParams, ObserverParams
-    from estimators.residual_two_inertia import TwoInertiaParams, analyse_two_inertia
+    from estimators.residual_two_inertia import (
+        TwoInertiaParams,
+        analyse_two_inertia,
+        nominal_observer,
+    )
 
     effects = [] if family == "none" else [family]
     cols, side, _ = simulate_stage(stage_case(effects, seed), seconds, seed=seed)
-    nom = side["nominal"]
-    op = ObserverParams(
-        J_M=nom["J_M"],
-        B_M=nom["B_M"],
-        F_CM=nom["F_CM"],
-        K=nom["K"],
-        sample_time=side["sample_time"],
-        encoder_resolution=side["encoder_resolution"],
-    )
-    lp = LoadParams(J_L=nom["J_L"], B_L=nom["B_L"], F_CL=nom["F_CL"])
+    op, lp = nominal_observer(side["nominal"], side["sample_time"], side["encoder_resolution"])
     params = TwoInertiaParams()
     if max_effects is not None:
         params = TwoInertiaParams(max_effects=max_effects)
