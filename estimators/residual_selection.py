@@ -270,6 +270,11 @@ SUPPORT_TEXT: dict[str, str] = {
     "force_lag": "where the effort changes quickly (a first-order lag of the force loop)",
 }
 
+#: what tells a pure delay from a first-order lag (both lag families against force_lag)
+_DELAY_OR_LAG = (
+    "a step or a square wave added to the command: a pure delay shifts the whole "
+    "response, a first-order lag rounds it"
+)
 #: excitation that separates two families, by pair
 SEPARATING: dict[frozenset[str], str] = {
     frozenset({"offset", "coulomb_asymmetry"}): (
@@ -277,14 +282,8 @@ SEPARATING: dict[frozenset[str], str] = {
         "air move without cutting force, dwell of a second or more): an offset acts at "
         "rest, friction only while moving; or one direction only at several speeds"
     ),
-    frozenset({"delay", "force_lag"}): (
-        "a step or a square wave added to the command: a pure delay shifts the whole "
-        "response, a first-order lag rounds it"
-    ),
-    frozenset({"drive_delay", "force_lag"}): (
-        "a step or a square wave added to the command: a pure delay shifts the whole "
-        "response, a first-order lag rounds it"
-    ),
+    frozenset({"delay", "force_lag"}): _DELAY_OR_LAG,
+    frozenset({"drive_delay", "force_lag"}): _DELAY_OR_LAG,
     frozenset({"stribeck", "coulomb_asymmetry"}): (
         "plateaus at several low speeds in each direction: a Stribeck term decays with "
         "speed, direction-dependent friction does not"

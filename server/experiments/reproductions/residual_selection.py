@@ -53,6 +53,7 @@ from typing import Any
 
 import numpy as np
 
+from machine.effects import EFFECT_NAMES
 from server.experiments.reproduction import Check, Reproduction, Row
 from server.experiments.residual_logs import (
     RIGID_EFFECTS,
@@ -68,15 +69,8 @@ SOURCE = (
 )
 
 RIGID_FAMILIES: tuple[str, ...] = ("none", *RIGID_EFFECTS)
-STAGE_FAMILIES: tuple[str, ...] = (
-    "none",
-    "offset",
-    "coulomb_asymmetry",
-    "stribeck",
-    "position_periodic",
-    "torque_ripple",
-    "backlash",
-)
+#: every effect the simulator can produce (machine.effects.EFFECT_NAMES), plus none
+STAGE_FAMILIES: tuple[str, ...] = ("none", *EFFECT_NAMES)
 LENGTHS: tuple[float, ...] = (10.0, 30.0, 100.0)
 SEEDS = 20
 QUICK_LENGTHS: tuple[float, ...] = (10.0,)
