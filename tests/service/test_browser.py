@@ -4,26 +4,15 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
+from _browser import ARGS, MARKS, chromium_page, wait_for
 from _live import serve
 
-CHROMIUM = Path("/usr/bin/chromium")
-ARGS = [
-    "--headless",
-    "--no-sandbox",
-    "--disable-gpu",
-    "--disable-background-networking",
-    "--disable-component-update",
-]
-
-pytestmark = [
-    pytest.mark.browser,
-    pytest.mark.skipif(not CHROMIUM.exists(), reason="/usr/bin/chromium is not installed"),
-]
+pytestmark = MARKS
 
 
 @pytest.fixture(scope="module")
@@ -32,92 +21,67 @@ def hp() -> Iterator[str]:
         yield hostport
 
 
-def wait_for(pred: Callable[[], object], timeout: float = 15.0) -> None:
-    deadline = time.monotonic() + timeout
-    while not pred():
-        if time.monotonic() > deadline:
-            raise AssertionError("condition not reached in time")
-        time.sleep(0.1)
-
-
 def test_dashboard_moves_and_pauses(hp: str, tmp_path: Path) -> None:
-    sync_api = pytest.importorskip("playwright.sync_api")
-    with sync_api.sync_playwright() as p:
-        browser = p.chromium.launch(executable_path=str(CHROMIUM), args=ARGS)
-        try:
-            page = browser.new_page(viewport={"width": 1280, "height": 720})
-            errors: list[str] = []
-            page.on("pageerror", lambda e: errors.append(str(e)))
-            page.goto(f"http://{hp}/")
-            page.wait_for_selector("#conn[data-state=up]", timeout=15000)
+    with chromium_page(1280, 720) as (page, errors):
+        page.goto(f"http://{hp}/")
+        page.wait_for_selector("#conn[data-state=up]", timeout=15000)
 
-            def sim_t() -> float:
-                return float(page.get_attribute("#simt", "data-sim-t") or "nan")
+        def sim_t() -> float:
+            return float(page.get_attribute("#simt", "data-sim-t") or "nan")
 
-            def frames() -> int:
-                return int(page.get_attribute("body", "data-frames") or 0)
+        def frames() -> int:
+            return int(page.get_attribute("body", "data-frames") or 0)
 
-            wait_for(lambda: frames() > 10)
-            t0 = sim_t()
-            wait_for(lambda: sim_t() > t0 + 0.3)  # the charts' time axis moves
-            # the force chart has drawn data: its canvas is not blank
-            drawn = page.evaluate(
-                "() => { const c = document.querySelector('#chart-force canvas');"
-                " const d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;"
-                " let n = 0; for (let i = 3; i < d.length; i += 4) if (d[i]) n++; return n; }"
-            )
-            assert drawn > 1000
-            page.screenshot(path=str(tmp_path / "dashboard-running.png"))
-            shot0 = page.locator("#chart-force canvas").screenshot()
-            time.sleep(0.5)
-            assert page.locator("#chart-force canvas").screenshot() != shot0  # it moves
+        wait_for(lambda: frames() > 10)
+        t0 = sim_t()
+        wait_for(lambda: sim_t() > t0 + 0.3)  # the charts' time axis moves
+        # the force chart has drawn data: its canvas is not blank
+        drawn = page.evaluate(
+            "() => { const c = document.querySelector('#chart-force canvas');"
+            " const d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;"
+            " let n = 0; for (let i = 3; i < d.length; i += 4) if (d[i]) n++; return n; }"
+        )
+        assert drawn > 1000
+        page.screenshot(path=str(tmp_path / "dashboard-running.png"))
+        shot0 = page.locator("#chart-force canvas").screenshot()
+        time.sleep(0.5)
+        assert page.locator("#chart-force canvas").screenshot() != shot0  # it moves
 
-            page.click("#pause")
-            page.wait_for_selector("#simt:has-text('paused')", timeout=5000)
-            t_paused = sim_t()
-            time.sleep(0.3)  # a frame built before the pause may still arrive
-            still = page.locator("#chart-force canvas").screenshot()
-            time.sleep(1.0)
-            assert sim_t() == t_paused
-            assert page.locator("#chart-force canvas").screenshot() == still  # it stopped
-            assert page.is_disabled("#pause") and not page.is_disabled("#resume")
-            shot = Path("out") / "dashboard.png"
-            shot.parent.mkdir(exist_ok=True)
-            page.screenshot(path=str(shot), full_page=True)
-            assert shot.stat().st_size > 10_000
+        page.click("#pause")
+        page.wait_for_selector("#simt:has-text('paused')", timeout=5000)
+        t_paused = sim_t()
+        time.sleep(0.3)  # a frame built before the pause may still arrive
+        still = page.locator("#chart-force canvas").screenshot()
+        time.sleep(1.0)
+        assert sim_t() == t_paused
+        assert page.locator("#chart-force canvas").screenshot() == still  # it stopped
+        assert page.is_disabled("#pause") and not page.is_disabled("#resume")
+        shot = Path("out") / "dashboard.png"
+        shot.parent.mkdir(exist_ok=True)
+        page.screenshot(path=str(shot), full_page=True)
+        assert shot.stat().st_size > 10_000
 
-            page.click("#resume")
-            wait_for(lambda: sim_t() > t_paused + 0.2)
-            assert errors == []
-        finally:
-            browser.close()
+        page.click("#resume")
+        wait_for(lambda: sim_t() > t_paused + 0.2)
+        assert errors == []
 
 
 def test_knob_change_through_the_page(hp: str) -> None:
     import httpx
 
-    sync_api = pytest.importorskip("playwright.sync_api")
-    with sync_api.sync_playwright() as p:
-        browser = p.chromium.launch(executable_path=str(CHROMIUM), args=ARGS)
-        try:
-            page = browser.new_page(viewport={"width": 1280, "height": 720})
-            page.goto(f"http://{hp}/")
-            page.wait_for_selector("#knob-weight_on", timeout=15000)
-            page.check("#knob-weight_on")
-            wait_for(lambda: httpx.get(f"http://{hp}/api/params").json()["weight_on"]["value"])
-            # the tuner is a choice: a select, through PATCH
-            page.select_option("#knob-tuner", "fast")
-            wait_for(
-                lambda: httpx.get(f"http://{hp}/api/params").json()["tuner"]["value"] == "fast"
-            )
-            assert page.locator("#chart-ecc_radius canvas").count() == 1
-        finally:
-            browser.close()
+    with chromium_page(1280, 720) as (page, _errors):
+        page.goto(f"http://{hp}/")
+        page.wait_for_selector("#knob-weight_on", timeout=15000)
+        page.check("#knob-weight_on")
+        wait_for(lambda: httpx.get(f"http://{hp}/api/params").json()["weight_on"]["value"])
+        # the tuner is a choice: a select, through PATCH
+        page.select_option("#knob-tuner", "fast")
+        wait_for(lambda: httpx.get(f"http://{hp}/api/params").json()["tuner"]["value"] == "fast")
+        assert page.locator("#chart-ecc_radius canvas").count() == 1
 
 
 def test_viser_scene_renders_and_moves(tmp_path: Path) -> None:
     # WebGL in software (SwiftShader): the 3D view is drawn, and the stage moves in it
-    sync_api = pytest.importorskip("playwright.sync_api")
     import io
     import socket
 
@@ -128,31 +92,26 @@ def test_viser_scene_renders_and_moves(tmp_path: Path) -> None:
         s.bind(("127.0.0.1", 0))
         vp = int(s.getsockname()[1])
     gl = [*ARGS, "--use-angle=swiftshader", "--enable-unsafe-swiftshader"]
-    with serve(viser=True, viser_port=vp), sync_api.sync_playwright() as p:
-        browser = p.chromium.launch(executable_path=str(CHROMIUM), args=gl)
-        try:
-            page = browser.new_page(viewport={"width": 1280, "height": 720})
-            page.goto(f"http://127.0.0.1:{vp}/")
-            page.wait_for_selector("canvas", timeout=20000)
+    with serve(viser=True, viser_port=vp), chromium_page(1280, 720, args=gl) as (page, _errors):
+        page.goto(f"http://127.0.0.1:{vp}/")
+        page.wait_for_selector("canvas", timeout=20000)
 
-            def shot() -> np.ndarray:
-                png = page.screenshot(clip={"x": 320, "y": 150, "width": 600, "height": 500})
-                return np.asarray(Image.open(io.BytesIO(png)).convert("RGB"), dtype=float)
+        def shot() -> np.ndarray:
+            png = page.screenshot(clip={"x": 320, "y": 150, "width": 600, "height": 500})
+            return np.asarray(Image.open(io.BytesIO(png)).convert("RGB"), dtype=float)
 
-            # the stage's bed (90, 96, 110 with shading) covers a good part of the view
-            def drawn(img: np.ndarray) -> float:
-                return float(np.mean(np.abs(img - 255.0).sum(axis=2) > 60.0))
+        # the stage's bed (90, 96, 110 with shading) covers a good part of the view
+        def drawn(img: np.ndarray) -> float:
+            return float(np.mean(np.abs(img - 255.0).sum(axis=2) > 60.0))
 
-            wait_for(lambda: drawn(shot()) > 0.2, timeout=30.0)
-            a = shot()
-            time.sleep(1.0)
-            b = shot()
-            page.screenshot(path=str(tmp_path / "viser.png"))
-            out = Path("out")
-            out.mkdir(exist_ok=True)
-            page.screenshot(path=str(out / "viser.png"))
-        finally:
-            browser.close()
+        wait_for(lambda: drawn(shot()) > 0.2, timeout=30.0)
+        a = shot()
+        time.sleep(1.0)
+        b = shot()
+        page.screenshot(path=str(tmp_path / "viser.png"))
+        out = Path("out")
+        out.mkdir(exist_ok=True)
+        page.screenshot(path=str(out / "viser.png"))
     assert drawn(a) > 0.2
     # the table, screw stripe and spindle move between the two shots
     assert float(np.mean(np.abs(a - b).sum(axis=2) > 30.0)) > 0.002
@@ -160,28 +119,20 @@ def test_viser_scene_renders_and_moves(tmp_path: Path) -> None:
 
 def test_refused_request_shows_the_servers_message() -> None:
     # the page reads the one error body ({"detail": [{field, allowed, got, msg}]})
-    sync_api = pytest.importorskip("playwright.sync_api")
-    with serve(token="s3cret") as hostport, sync_api.sync_playwright() as p:
-        browser = p.chromium.launch(executable_path=str(CHROMIUM), args=ARGS)
-        try:
-            page = browser.new_page(viewport={"width": 1280, "height": 720})
-            errors: list[str] = []
-            page.on("pageerror", lambda e: errors.append(str(e)))
-            page.goto(f"http://{hostport}/")
-            page.wait_for_selector("#conn[data-state=up]", timeout=15000)
-            page.click("#pause")  # no token: 401
-            page.wait_for_selector("#error:has-text('Bearer')", timeout=5000)
-            assert page.text_content("#error") == (
-                "mutating endpoints need 'Authorization: Bearer <token>' (CUTWATCH_TOKEN)"
-            )
-            page.fill("#token", "s3cret")
-            page.click("#pause")
-            page.wait_for_selector("#simt:has-text('paused')", timeout=5000)
-            assert page.text_content("#error") == ""
-            # an uncaught rejection of the first click is the page's own (call() throws)
-            assert all("Bearer" in e for e in errors)
-        finally:
-            browser.close()
+    with serve(token="s3cret") as hostport, chromium_page(1280, 720) as (page, errors):
+        page.goto(f"http://{hostport}/")
+        page.wait_for_selector("#conn[data-state=up]", timeout=15000)
+        page.click("#pause")  # no token: 401
+        page.wait_for_selector("#error:has-text('Bearer')", timeout=5000)
+        assert page.text_content("#error") == (
+            "mutating endpoints need 'Authorization: Bearer <token>' (CUTWATCH_TOKEN)"
+        )
+        page.fill("#token", "s3cret")
+        page.click("#pause")
+        page.wait_for_selector("#simt:has-text('paused')", timeout=5000)
+        assert page.text_content("#error") == ""
+        # an uncaught rejection of the first click is the page's own (call() throws)
+        assert all("Bearer" in e for e in errors)
 
 
 def accuracy_numbers(page: Any) -> dict[str, list[float]]:
@@ -207,36 +158,27 @@ def watch_accuracy(page: Any, mode: str, estimates: tuple[str, ...]) -> None:
 
 
 def test_accuracy_panel_against_the_truth(hp: str) -> None:
-    sync_api = pytest.importorskip("playwright.sync_api")
     from server.pipeline.live_pipeline import FORCE_ESTIMATES
 
-    with sync_api.sync_playwright() as p:
-        browser = p.chromium.launch(executable_path=str(CHROMIUM), args=ARGS)
-        try:
-            page = browser.new_page(viewport={"width": 1280, "height": 900})
-            errors: list[str] = []
-            page.on("pageerror", lambda e: errors.append(str(e)))
-            page.goto(f"http://{hp}/")
-            watch_accuracy(page, "truth", FORCE_ESTIMATES)
-            title = page.text_content("#accuracy-title") or ""
-            assert "against the truth" in title and "Q(s)" in title
-            nums = accuracy_numbers(page)
-            # with the truth: 1 s, 10 s against it, then against Q(s) truth; the Q filter's
-            # own error is a row; the Q-limited observers are closer to Q(s)F than to F
-            assert all(len(nums[k]) == 4 for k in FORCE_ESTIMATES)
-            assert nums["q_floor"][0] > 0.0
-            assert nums["f_adaptive"][2] < nums["f_adaptive"][0]
-            wait_for(lambda: page.locator("#chart-accuracy canvas").count() == 1)
-            out = Path("out")
-            out.mkdir(exist_ok=True)
-            page.locator("#accuracy-panel").screenshot(path=str(out / "accuracy-truth.png"))
-            assert errors == []
-        finally:
-            browser.close()
+    with chromium_page(1280, 900) as (page, errors):
+        page.goto(f"http://{hp}/")
+        watch_accuracy(page, "truth", FORCE_ESTIMATES)
+        title = page.text_content("#accuracy-title") or ""
+        assert "against the truth" in title and "Q(s)" in title
+        nums = accuracy_numbers(page)
+        # with the truth: 1 s, 10 s against it, then against Q(s) truth; the Q filter's
+        # own error is a row; the Q-limited observers are closer to Q(s)F than to F
+        assert all(len(nums[k]) == 4 for k in FORCE_ESTIMATES)
+        assert nums["q_floor"][0] > 0.0
+        assert nums["f_adaptive"][2] < nums["f_adaptive"][0]
+        wait_for(lambda: page.locator("#chart-accuracy canvas").count() == 1)
+        out = Path("out")
+        out.mkdir(exist_ok=True)
+        page.locator("#accuracy-panel").screenshot(path=str(out / "accuracy-truth.png"))
+        assert errors == []
 
 
 def test_accuracy_panel_shows_agreement_on_a_replayed_log(tmp_path: Path) -> None:
-    sync_api = pytest.importorskip("playwright.sync_api")
     import httpx
 
     from server.cli.main import main
@@ -246,30 +188,23 @@ def test_accuracy_panel_shows_agreement_on_a_replayed_log(tmp_path: Path) -> Non
     log = data / "recordings" / "run.csv"  # the service reads logs by name, from its areas
     log.parent.mkdir(parents=True)
     assert main(["simulate", "--out", str(log), "--seconds", "12"]) == 0
-    with serve(data_dir=data) as hostport, sync_api.sync_playwright() as p:
-        browser = p.chromium.launch(executable_path=str(CHROMIUM), args=ARGS)
-        try:
-            page = browser.new_page(viewport={"width": 1280, "height": 900})
-            errors: list[str] = []
-            page.on("pageerror", lambda e: errors.append(str(e)))
-            page.goto(f"http://{hostport}/")
-            page.wait_for_selector("#accuracy-title[data-mode=truth]", timeout=20000)
-            r = httpx.post(f"http://{hostport}/api/replay", json={"name": "run"}, timeout=20)
-            assert r.status_code == 200, r.text
-            watch_accuracy(page, "agreement", FORCE_ESTIMATES)
-            title = page.text_content("#accuracy-title") or ""
-            assert "agreement" in title and "no truth" in title and "truth," not in title
-            nums = accuracy_numbers(page)
-            assert "q_floor" not in nums  # no truth: no Q(s) truth either
-            assert all(len(nums[k]) == 2 for k in FORCE_ESTIMATES)
-            snap = httpx.get(f"http://{hostport}/api/snapshot").json()["pipeline"]["accuracy"]
-            assert snap["mode"] == "agreement" and "f_effects" not in snap["mean_of"]
-            out = Path("out")
-            out.mkdir(exist_ok=True)
-            page.locator("#accuracy-panel").screenshot(path=str(out / "accuracy-agreement.png"))
-            assert errors == []
-        finally:
-            browser.close()
+    with serve(data_dir=data) as hostport, chromium_page(1280, 900) as (page, errors):
+        page.goto(f"http://{hostport}/")
+        page.wait_for_selector("#accuracy-title[data-mode=truth]", timeout=20000)
+        r = httpx.post(f"http://{hostport}/api/replay", json={"name": "run"}, timeout=20)
+        assert r.status_code == 200, r.text
+        watch_accuracy(page, "agreement", FORCE_ESTIMATES)
+        title = page.text_content("#accuracy-title") or ""
+        assert "agreement" in title and "no truth" in title and "truth," not in title
+        nums = accuracy_numbers(page)
+        assert "q_floor" not in nums  # no truth: no Q(s) truth either
+        assert all(len(nums[k]) == 2 for k in FORCE_ESTIMATES)
+        snap = httpx.get(f"http://{hostport}/api/snapshot").json()["pipeline"]["accuracy"]
+        assert snap["mode"] == "agreement" and "f_effects" not in snap["mean_of"]
+        out = Path("out")
+        out.mkdir(exist_ok=True)
+        page.locator("#accuracy-panel").screenshot(path=str(out / "accuracy-agreement.png"))
+        assert errors == []
 
 
 def colour_pixels(page: Any, selector: str, rgb: tuple[int, int, int], tol: int = 14) -> int:
@@ -297,89 +232,78 @@ def test_interval_bands_and_the_not_excited_state(tmp_path: Path) -> None:
     # the real stream: the segment identifier's J_L is excited after the first reversals;
     # seed 000's weight put on (a known J_L change) restarts it: "not excited" until the
     # next reversal determines it again
-    sync_api = pytest.importorskip("playwright.sync_api")
     import httpx
 
     from server.service.protocol import INTERVALS
 
-    with serve() as hostport, sync_api.sync_playwright() as p:
-        browser = p.chromium.launch(executable_path=str(CHROMIUM), args=ARGS)
-        try:
-            page = browser.new_page(viewport={"width": 1280, "height": 900})
-            errors: list[str] = []
-            page.on("pageerror", lambda e: errors.append(str(e)))
-            page.goto(f"http://{hostport}/")
-            page.wait_for_selector("#conn[data-state=up]", timeout=20000)
-            for q in INTERVALS:  # every parameter's chart has its band series
-                legend = page.text_content(f"#chart-{q} .u-legend") or ""
-                assert "95 % upper" in legend and "not excited" in legend, legend
+    with serve() as hostport, chromium_page(1280, 900) as (page, errors):
+        page.goto(f"http://{hostport}/")
+        page.wait_for_selector("#conn[data-state=up]", timeout=20000)
+        for q in INTERVALS:  # every parameter's chart has its band series
+            legend = page.text_content(f"#chart-{q} .u-legend") or ""
+            assert "95 % upper" in legend and "not excited" in legend, legend
 
-            def excited(q: str) -> str | None:
-                return page.get_attribute(f"#flag-{q}", "data-excited")
+        def excited(q: str) -> str | None:
+            return page.get_attribute(f"#flag-{q}", "data-excited")
 
-            wait_for(lambda: all(excited(q) == "1" for q in INTERVALS), timeout=30)
-            assert all(page.is_hidden(f"#flag-{q}") for q in INTERVALS)
-            # the band grows as the stream goes on (J_L's is a few pixels high: +-4 %);
-            # without the band, 7 pixels of this colour were measured (anti-aliasing)
-            for q in INTERVALS:
-                wait_for(lambda q=q: colour_pixels(page, f"#chart-{q} canvas", BAND_RGB) > 150)
-            out = Path("out")
-            out.mkdir(exist_ok=True)
-            page.locator("#chart-J_L").screenshot(path=str(out / "band-excited.png"))
-            grey_before = colour_pixels(page, "#chart-J_L canvas", GREY_RGB, tol=4)
+        wait_for(lambda: all(excited(q) == "1" for q in INTERVALS), timeout=30)
+        assert all(page.is_hidden(f"#flag-{q}") for q in INTERVALS)
+        # the band grows as the stream goes on (J_L's is a few pixels high: +-4 %);
+        # without the band, 7 pixels of this colour were measured (anti-aliasing)
+        for q in INTERVALS:
+            wait_for(lambda q=q: colour_pixels(page, f"#chart-{q} canvas", BAND_RGB) > 150)
+        out = Path("out")
+        out.mkdir(exist_ok=True)
+        page.locator("#chart-J_L").screenshot(path=str(out / "band-excited.png"))
+        grey_before = colour_pixels(page, "#chart-J_L canvas", GREY_RGB, tol=4)
 
-            r = httpx.patch(f"http://{hostport}/api/params", json={"weight_on": True})
-            assert r.status_code == 200
+        r = httpx.patch(f"http://{hostport}/api/params", json={"weight_on": True})
+        assert r.status_code == 200
 
-            # flag shown, its text, its state and the legend read in one go (frames keep
-            # arriving between separate reads on a loaded machine)
-            def flag_state() -> list[Any]:
-                return list(
-                    page.evaluate(
-                        "() => { const e = document.querySelector('#flag-J_L');"
-                        " const l = document.querySelector('#chart-J_L .u-legend');"
-                        " return [!e.hidden && e.offsetParent !== null, e.textContent,"
-                        " e.dataset.excited, l ? l.textContent : '']; }"
-                    )
+        # flag shown, its text, its state and the legend read in one go (frames keep
+        # arriving between separate reads on a loaded machine)
+        def flag_state() -> list[Any]:
+            return list(
+                page.evaluate(
+                    "() => { const e = document.querySelector('#flag-J_L');"
+                    " const l = document.querySelector('#chart-J_L .u-legend');"
+                    " return [!e.hidden && e.offsetParent !== null, e.textContent,"
+                    " e.dataset.excited, l ? l.textContent : '']; }"
                 )
-
-            wait_for(
-                lambda: (
-                    flag_state()[:3] == [True, "not excited", "0"]
-                    and "not excited" in flag_state()[3]
-                ),
-                timeout=10,
             )
 
-            # the estimate drawn greyed (dashed) while it is not determined: the whole
-            # not-excited stretch (until the next clean reversal determines J_L again, about
-            # 2.6 s of simulated time) stays grey in the chart's history; held still (paused)
-            # so that a loaded machine's late drawing cannot miss it
-            wait_for(lambda: excited("J_L") == "1", timeout=30)
-            # and once more (the weight taken off): two stretches, about 20 grey pixels each
-            # on this chart (one stretch measured +22 pixels after the merges shortened it)
-            r = httpx.patch(f"http://{hostport}/api/params", json={"weight_on": False})
-            assert r.status_code == 200
-            wait_for(lambda: excited("J_L") == "0", timeout=10)
-            wait_for(lambda: excited("J_L") == "1", timeout=30)
-            pause = {"action": "pause"}
-            assert httpx.post(f"http://{hostport}/api/control", json=pause).status_code == 200
-            grey = [colour_pixels(page, "#chart-J_L canvas", GREY_RGB, tol=4)]
-            deadline = time.monotonic() + 15
-            while grey[-1] <= grey_before + 30 and time.monotonic() < deadline:
-                time.sleep(0.2)
-                grey.append(colour_pixels(page, "#chart-J_L canvas", GREY_RGB, tol=4))
-            assert grey[-1] > grey_before + 30, (grey_before, grey[-5:])
-            resume = {"action": "resume"}
-            assert httpx.post(f"http://{hostport}/api/control", json=resume).status_code == 200
-            page.locator("section:has(#chart-J_L)").screenshot(
-                path=str(out / "band-not-excited.png")
-            )
-            # B_L and F_CL are not restarted by the weight: still excited
-            assert excited("B_L") == "1" and excited("F_CL") == "1"
-            wait_for(lambda: excited("J_L") == "1", timeout=30)  # determined again
-            assert page.is_hidden("#flag-J_L")
-            page.screenshot(path=str(out / "dashboard-bands.png"), full_page=True)
-            assert errors == []
-        finally:
-            browser.close()
+        wait_for(
+            lambda: (
+                flag_state()[:3] == [True, "not excited", "0"] and "not excited" in flag_state()[3]
+            ),
+            timeout=10,
+        )
+
+        # the estimate drawn greyed (dashed) while it is not determined: the whole
+        # not-excited stretch (until the next clean reversal determines J_L again, about
+        # 2.6 s of simulated time) stays grey in the chart's history; held still (paused)
+        # so that a loaded machine's late drawing cannot miss it
+        wait_for(lambda: excited("J_L") == "1", timeout=30)
+        # and once more (the weight taken off): two stretches, about 20 grey pixels each
+        # on this chart (one stretch measured +22 pixels after the merges shortened it)
+        r = httpx.patch(f"http://{hostport}/api/params", json={"weight_on": False})
+        assert r.status_code == 200
+        wait_for(lambda: excited("J_L") == "0", timeout=10)
+        wait_for(lambda: excited("J_L") == "1", timeout=30)
+        pause = {"action": "pause"}
+        assert httpx.post(f"http://{hostport}/api/control", json=pause).status_code == 200
+        grey = [colour_pixels(page, "#chart-J_L canvas", GREY_RGB, tol=4)]
+        deadline = time.monotonic() + 15
+        while grey[-1] <= grey_before + 30 and time.monotonic() < deadline:
+            time.sleep(0.2)
+            grey.append(colour_pixels(page, "#chart-J_L canvas", GREY_RGB, tol=4))
+        assert grey[-1] > grey_before + 30, (grey_before, grey[-5:])
+        resume = {"action": "resume"}
+        assert httpx.post(f"http://{hostport}/api/control", json=resume).status_code == 200
+        page.locator("section:has(#chart-J_L)").screenshot(path=str(out / "band-not-excited.png"))
+        # B_L and F_CL are not restarted by the weight: still excited
+        assert excited("B_L") == "1" and excited("F_CL") == "1"
+        wait_for(lambda: excited("J_L") == "1", timeout=30)  # determined again
+        assert page.is_hidden("#flag-J_L")
+        page.screenshot(path=str(out / "dashboard-bands.png"), full_page=True)
+        assert errors == []

@@ -5,28 +5,17 @@ live observer with one click, and read the live error before and after."""
 
 from __future__ import annotations
 
-import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 
 import httpx
 import pytest
+from _browser import MARKS, chromium_page, wait_for
 from _live import serve
 
-CHROMIUM = Path("/usr/bin/chromium")
-ARGS = [
-    "--headless",
-    "--no-sandbox",
-    "--disable-gpu",
-    "--disable-background-networking",
-    "--disable-component-update",
-]
 OUT = Path(__file__).resolve().parents[2] / "out"
 
-pytestmark = [
-    pytest.mark.browser,
-    pytest.mark.skipif(not CHROMIUM.exists(), reason="/usr/bin/chromium is not installed"),
-]
+pytestmark = MARKS
 
 
 @pytest.fixture(scope="module")
@@ -37,86 +26,70 @@ def hp(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
         yield h
 
 
-def wait_for(pred: Callable[[], object], timeout: float = 30.0) -> None:
-    deadline = time.monotonic() + timeout
-    while not pred():
-        if time.monotonic() > deadline:
-            raise AssertionError("condition not reached in time")
-        time.sleep(0.1)
-
-
 def test_record_analyse_install_from_the_dashboard(hp: str) -> None:
-    sync_api = pytest.importorskip("playwright.sync_api")
     with httpx.Client(base_url=f"http://{hp}", timeout=30) as api:  # the plant's effect on
         assert api.patch("/api/params", json={"effect_coulomb_asymmetry": True}).is_success
         assert api.post("/api/control", json={"action": "reset"}).is_success
-    with sync_api.sync_playwright() as p:
-        browser = p.chromium.launch(executable_path=str(CHROMIUM), args=ARGS)
-        try:
-            page = browser.new_page(viewport={"width": 1280, "height": 1400})
-            errors: list[str] = []
-            page.on("pageerror", lambda e: errors.append(str(e)))
-            page.goto(f"http://{hp}/")
-            page.wait_for_selector("#conn[data-state=up]", timeout=30000)
+    with chromium_page(1280, 1400) as (page, errors):
+        page.goto(f"http://{hp}/")
+        page.wait_for_selector("#conn[data-state=up]", timeout=30000)
 
-            def text(sel: str) -> str:
-                return page.locator(sel).inner_text()
+        def text(sel: str) -> str:
+            return page.locator(sel).inner_text()
 
-            def value(sel: str) -> float:
-                return float(page.get_attribute(sel, "data-value") or "nan")
+        def value(sel: str) -> float:
+            return float(page.get_attribute(sel, "data-value") or "nan")
 
-            # record a few seconds of the live run
-            page.click("#record")
-            page.wait_for_selector("#record[data-state=recording]", timeout=10000)
-            wait_for(lambda: "recording rec-" in text("#record-status"))
-            wait_for(lambda: float(text("#record-status").split(": ")[1].split(" s")[0]) > 6.0)
-            page.click("#record")
-            page.wait_for_selector("#record[data-state=idle]", timeout=10000)
-            assert "recorded rec-" in text("#record-status")
-            assert page.locator("#loop-log").input_value().startswith('{"log":"rec-')
+        # record a few seconds of the live run
+        page.click("#record")
+        page.wait_for_selector("#record[data-state=recording]", timeout=10000)
+        wait_for(lambda: "recording rec-" in text("#record-status"), 30)
+        wait_for(lambda: float(text("#record-status").split(": ")[1].split(" s")[0]) > 6.0, 30)
+        page.click("#record")
+        page.wait_for_selector("#record[data-state=idle]", timeout=10000)
+        assert "recorded rec-" in text("#record-status")
+        assert page.locator("#loop-log").input_value().startswith('{"log":"rec-')
 
-            # analyse it in the background: the progress moves, the report opens
-            page.click("#analyse")
-            seen: list[float] = []
+        # analyse it in the background: the progress moves, the report opens
+        page.click("#analyse")
+        seen: list[float] = []
 
-            def finished() -> bool:
-                seen.append(float(page.get_attribute("#analysis-progress", "value") or 0))
-                return page.get_attribute("#analysis-progress", "data-state") in ("done", "failed")
-
-            wait_for(finished, 300)
+        def finished() -> bool:
             seen.append(float(page.get_attribute("#analysis-progress", "value") or 0))
-            status = text("#analysis-status")
-            assert status.startswith("done: rec-"), status
-            assert "offset" in status or "coulomb_asymmetry" in status, status
-            assert seen == sorted(seen) and seen[-1] == 1.0
-            assert any(0 < v < 1 for v in seen), seen  # progress shown under way
-            with page.expect_popup() as pop:
-                page.click("#report-link")
-            report = pop.value
-            report.wait_for_load_state()
-            assert "/residual/rec-" in report.url and report.locator("table").count() > 0
-            report.close()
+            return page.get_attribute("#analysis-progress", "data-state") in ("done", "failed")
 
-            # install with one click; the live error before and after
-            wait_for(lambda: value("#err-now-effects-level") > 0, 10)
-            page.click("#install")
-            page.wait_for_selector("#installed:has-text('installed: ')", timeout=10000)
-            assert "offset" in text("#installed") or "coulomb" in text("#installed")
-            wait_for(lambda: value("#err-after-effects-level") > 0, 60)
-            before = {k: value(f"#err-before-{k}") for k in ("fixed", "effects", "fixed-level",
-                                                               "effects-level")}  # fmt: skip
-            after = {k: value(f"#err-after-{k}") for k in before}
-            page.locator("#loop-panel").scroll_into_view_if_needed()
-            OUT.mkdir(exist_ok=True)
-            page.screenshot(path=str(OUT / "dashboard-residual-loop.png"), full_page=True)
-            print(f"live error before {before}, after {after}")
-            # before the install the corrected channel is the fixed observer's
-            assert before["effects"] == pytest.approx(before["fixed"], rel=1e-6)
-            # after: the level of the error (what the effect shifts) falls by far, the
-            # fixed observer's stays
-            assert after["effects-level"] < 0.3 * before["effects-level"]
-            assert after["fixed-level"] > 0.5 * before["fixed-level"]
-            assert after["effects"] < after["fixed"]
-            assert not errors, errors
-        finally:
-            browser.close()
+        wait_for(finished, 300)
+        seen.append(float(page.get_attribute("#analysis-progress", "value") or 0))
+        status = text("#analysis-status")
+        assert status.startswith("done: rec-"), status
+        assert "offset" in status or "coulomb_asymmetry" in status, status
+        assert seen == sorted(seen) and seen[-1] == 1.0
+        assert any(0 < v < 1 for v in seen), seen  # progress shown under way
+        with page.expect_popup() as pop:
+            page.click("#report-link")
+        report = pop.value
+        report.wait_for_load_state()
+        assert "/residual/rec-" in report.url and report.locator("table").count() > 0
+        report.close()
+
+        # install with one click; the live error before and after
+        wait_for(lambda: value("#err-now-effects-level") > 0, 10)
+        page.click("#install")
+        page.wait_for_selector("#installed:has-text('installed: ')", timeout=10000)
+        assert "offset" in text("#installed") or "coulomb" in text("#installed")
+        wait_for(lambda: value("#err-after-effects-level") > 0, 60)
+        before = {k: value(f"#err-before-{k}") for k in ("fixed", "effects", "fixed-level",
+                                                           "effects-level")}  # fmt: skip
+        after = {k: value(f"#err-after-{k}") for k in before}
+        page.locator("#loop-panel").scroll_into_view_if_needed()
+        OUT.mkdir(exist_ok=True)
+        page.screenshot(path=str(OUT / "dashboard-residual-loop.png"), full_page=True)
+        print(f"live error before {before}, after {after}")
+        # before the install the corrected channel is the fixed observer's
+        assert before["effects"] == pytest.approx(before["fixed"], rel=1e-6)
+        # after: the level of the error (what the effect shifts) falls by far, the
+        # fixed observer's stays
+        assert after["effects-level"] < 0.3 * before["effects-level"]
+        assert after["fixed-level"] > 0.5 * before["fixed-level"]
+        assert after["effects"] < after["fixed"]
+        assert not errors, errors

@@ -13,6 +13,7 @@ import paho.mqtt.client as mqtt
 import pytest
 import uvicorn
 from _broker import broker, free_port
+from _browser import CHROMIUM, chromium_page
 from websockets.sync.client import connect
 
 from server.pipeline.broker import parse_broker_url
@@ -118,24 +119,15 @@ def test_the_page_is_pushed_each_estimate() -> None:
 
 
 @pytest.mark.browser
+@pytest.mark.skipif(not CHROMIUM.exists(), reason="/usr/bin/chromium is not installed")
 def test_the_fleet_page_in_a_browser(tmp_path_factory: pytest.TempPathFactory) -> None:
     from pathlib import Path
 
-    from playwright.sync_api import sync_playwright
-
-    if not Path("/usr/bin/chromium").exists():
-        pytest.skip("chromium not installed")
     with broker() as bp, fleet(bp, stale_after=1.0) as hp:
         time.sleep(0.5)
         pub = publisher(bp)
         try:
-            with sync_playwright() as p:
-                b = p.chromium.launch(
-                    executable_path="/usr/bin/chromium",
-                    args=["--headless", "--no-sandbox", "--disable-gpu",
-                          "--disable-background-networking", "--disable-component-update"],
-                )  # fmt: skip
-                page = b.new_page()
+            with chromium_page(1280, 720) as (page, _errors):
                 page.goto(f"http://{hp}/")
                 page.wait_for_selector("#conn.up")
                 for m in ("a-1", "b-2"):
@@ -146,7 +138,6 @@ def test_the_fleet_page_in_a_browser(tmp_path_factory: pytest.TempPathFactory) -
                 out = Path("out")
                 out.mkdir(exist_ok=True)
                 page.screenshot(path=str(out / "fleet.png"), full_page=True)
-                b.close()
         finally:
             pub.loop_stop()
             pub.disconnect()

@@ -1,0 +1,55 @@
+"""Headless Chromium for the dashboard tests: Debian's browser, driven by Playwright.
+
+``chromium_page`` opens one page and collects the page's script errors; the marks skip a
+module when /usr/bin/chromium is not installed.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+CHROMIUM = Path("/usr/bin/chromium")
+ARGS = (
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-background-networking",
+    "--disable-component-update",
+)
+#: ``pytestmark`` of a browser test module
+MARKS = [
+    pytest.mark.browser,
+    pytest.mark.skipif(not CHROMIUM.exists(), reason="/usr/bin/chromium is not installed"),
+]
+
+
+def wait_for(pred: Callable[[], object], timeout: float = 15.0) -> None:
+    """Poll ``pred`` every 0.1 s until it is true; AssertionError after ``timeout`` s."""
+    deadline = time.monotonic() + timeout
+    while not pred():
+        if time.monotonic() > deadline:
+            raise AssertionError("condition not reached in time")
+        time.sleep(0.1)
+
+
+@contextmanager
+def chromium_page(
+    width: int = 1280, height: int = 720, args: Sequence[str] = ARGS
+) -> Iterator[tuple[Any, list[str]]]:
+    """A page of a fresh headless Chromium and the list its script errors go into."""
+    sync_api = pytest.importorskip("playwright.sync_api")
+    with sync_api.sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=str(CHROMIUM), args=list(args))
+        try:
+            page = browser.new_page(viewport={"width": width, "height": height})
+            errors: list[str] = []
+            page.on("pageerror", lambda e: errors.append(str(e)))
+            yield page, errors
+        finally:
+            browser.close()
