@@ -6,13 +6,13 @@ module when /usr/bin/chromium is not installed.
 
 from __future__ import annotations
 
-import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
 import pytest
+from _wait import poll
 
 CHROMIUM = Path("/usr/bin/chromium")
 ARGS = (
@@ -29,13 +29,9 @@ MARKS = [
 ]
 
 
-def wait_for(pred: Callable[[], object], timeout: float = 15.0) -> None:
+def wait_for(pred: Callable[[], object], timeout: float = 15.0) -> Any:
     """Poll ``pred`` every 0.1 s until it is true; AssertionError after ``timeout`` s."""
-    deadline = time.monotonic() + timeout
-    while not pred():
-        if time.monotonic() > deadline:
-            raise AssertionError("condition not reached in time")
-        time.sleep(0.1)
+    return poll(pred, timeout, 0.1)
 
 
 @contextmanager

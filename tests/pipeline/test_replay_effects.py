@@ -13,6 +13,7 @@ import httpx
 import numpy as np
 import pytest
 from _live import serve
+from _wait import poll
 
 from server.cli.main import main
 from server.pipeline.live_pipeline import LivePipeline
@@ -53,13 +54,7 @@ def api(files: dict[str, Path]) -> Iterator[httpx.Client]:
 
 
 def wait_for(pred: Callable[[], Any], timeout: float = 20.0) -> Any:
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        v = pred()
-        if v:
-            return v
-        time.sleep(0.1)
-    raise AssertionError("condition not met in time")
+    return poll(pred, timeout, 0.1)
 
 
 # ------------------------------------------------------------------ reports page

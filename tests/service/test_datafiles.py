@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import json
 import os
-import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -15,6 +14,7 @@ from typing import Any
 import httpx
 import pytest
 from _live import serve
+from _wait import poll
 
 from server.cli.main import main
 
@@ -22,13 +22,7 @@ LIMIT_MB = 4.0  # upload limit of the test server (the 10 s log: 2.8 MB)
 
 
 def wait_for(pred: Callable[[], Any], timeout: float = 120.0) -> Any:
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        v = pred()
-        if v:
-            return v
-        time.sleep(0.1)
-    raise AssertionError("condition not met in time")
+    return poll(pred, timeout, 0.1)
 
 
 @pytest.fixture(scope="module")

@@ -5,21 +5,19 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Iterator
+from typing import Any
 
 import numpy as np
 import pytest
+from _wait import poll
 
 from server.errors import CutwatchError
 from server.service.loop import Hub, LiveLoop
 from server.service.settings import Settings
 
 
-def wait_for(pred: Callable[[], bool], timeout: float = 20.0) -> None:
-    deadline = time.monotonic() + timeout
-    while not pred():
-        if time.monotonic() > deadline:
-            raise AssertionError("condition not reached in time")
-        time.sleep(0.02)
+def wait_for(pred: Callable[[], bool], timeout: float = 20.0) -> Any:
+    return poll(pred, timeout, 0.02)
 
 
 @pytest.fixture

@@ -7,7 +7,6 @@ from __future__ import annotations
 import csv
 import io
 import json
-import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -16,6 +15,7 @@ import httpx
 import numpy as np
 import pytest
 from _live import serve
+from _wait import poll
 
 from machine.stage import Measurements
 from server.cli.main import main
@@ -28,13 +28,7 @@ COLUMNS = ["t", "tau_m", "i_m", "q_m", "q_l", "f_ext"]
 
 
 def wait_for(pred: Callable[[], Any], timeout: float = 30.0) -> Any:
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        v = pred()
-        if v:
-            return v
-        time.sleep(0.05)
-    raise AssertionError("condition not met in time")
+    return poll(pred, timeout, 0.05)
 
 
 @pytest.fixture(scope="module")
