@@ -282,7 +282,11 @@ class RigidModel:
     idim : IdimParams, optional
         Filtering / decimation of the nominal fit (None: :func:`idim_for_rate`).
     families : mapping, optional
-        The family registry (None: :data:`FAMILIES`, every family the model offers).
+        The family registry (None: :data:`FAMILIES`, every family the model offers);
+        a record that cannot identify some families (too slow a rate) gets fewer.
+    rows_per_block : int
+        Least decimated rows per block of ``ResidualParams.blocks`` (the least record
+        length).
     """
 
     kind = "rigid"
@@ -298,8 +302,10 @@ class RigidModel:
         sample_time: float,
         idim: IdimParams | None = None,
         families: Mapping[str, Family] | None = None,
+        rows_per_block: int = ROWS_PER_BLOCK,
     ) -> None:
         self.q = np.asarray(q, dtype=np.float64)
+        self.rows_per_block = rows_per_block
         self.force, self.t, self.sample_time = force, t, sample_time
         self.p = idim_for_rate(sample_time) if idim is None else idim
         self.families: Mapping[str, Family] = FAMILIES if families is None else families
@@ -321,7 +327,7 @@ class RigidModel:
     def prepare(self, params: ResidualParams, say: Callable[[str], None]) -> Rows:
         """Check the length, split the decimated rows into fitting part and held-out end."""
         n, p = len(self.q), self.p
-        min_dec = ROWS_PER_BLOCK * params.blocks
+        min_dec = self.rows_per_block * params.blocks
         if n < 3 + p.decimation * min_dec:
             raise ParameterError(
                 "samples",

@@ -1,10 +1,15 @@
-r"""Effect families of real drives for the rigid residual analysis (pure numpy).
+r"""The family registry of the rigid residual model (pure numpy).
 
 Each family is a set of extra regressor columns of the rigid inverse dynamic model
 (:mod:`estimators.idim`), linear in its coefficients, with *shape* parameters (a delay,
 a period, a polynomial order) fixed beforehand from the residual of the current model.
-:mod:`estimators.residual` offers them beside its own families (one registration) and
-refits their coefficients jointly with the nominal ones. With :math:`v = \dot q`,
+:data:`FAMILIES` holds all of them, one :class:`Family` entry each (columns, column
+names, shape search, derived figures, meaning): DESIGN's canonical families
+(:data:`CANONICAL`: offset, inertia, viscous, coulomb_asymmetry, stribeck,
+position_periodic, harmonic, delay, drift; columns in the comment above it) and the
+real-drive families (:data:`DRIVE`, below); :data:`OFFERED` is what
+:class:`estimators.residual.RigidModel` offers, which refits the coefficients jointly
+with the nominal ones. The real-drive families, with :math:`v = \dot q`,
 :math:`a = \ddot q`, :math:`d_+ = 1[v > 0]`, :math:`d_- = 1[v < 0]`,
 :math:`x = 2 (q - q_{min}) / (q_{max} - q_{min}) - 1` clipped to [-1, 1]:
 

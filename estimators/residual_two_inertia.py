@@ -477,6 +477,9 @@ class TwoInertiaModel:
         Positions are angles [rad] (period search includes whole orders per revolution).
     families : mapping, optional
         The family registry (None: :data:`FAMILIES`).
+    rows_per_block : int
+        Least usable rows per block of ``ResidualParams.blocks`` (the least record
+        length, with the held-out fraction).
 
     Raises
     ------
@@ -502,8 +505,10 @@ class TwoInertiaModel:
         warmup_s: float = 0.02,
         angular: bool = True,
         families: Mapping[str, Family] | None = None,
+        rows_per_block: int = ROWS_PER_BLOCK,
     ) -> None:
         require_in("warmup_s", warmup_s, 0.0, 10.0)
+        self.rows_per_block = rows_per_block
         self.t = np.asarray(t, dtype=np.float64)
         self.tau, self.q_m, self.q_l = (np.asarray(a, dtype=np.float64) for a in (tau_m, q_m, q_l))
         n = len(self.t)
@@ -538,7 +543,7 @@ class TwoInertiaModel:
         say("observer")
         self.d, self.f_hat = self._front
         m = len(self.d.idx)
-        need = ROWS_PER_BLOCK * params.blocks / params.holdout_fraction
+        need = self.rows_per_block * params.blocks / params.holdout_fraction
         if m < need:
             raise ParameterError(
                 "samples",

@@ -147,9 +147,7 @@ def _position_spectrum(q: np.ndarray, r: np.ndarray, periods: np.ndarray) -> np.
     return amp
 
 
-def _figures(
-    res: ResidualResult, unit: str, pos_unit: str = ""
-) -> list[tuple[str, str]]:
+def _figures(res: ResidualResult, unit: str, pos_unit: str = "") -> list[tuple[str, str]]:
     import matplotlib
 
     matplotlib.use("Agg")

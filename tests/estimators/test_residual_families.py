@@ -22,8 +22,8 @@ import numpy as np
 import pytest
 
 from estimators.residual import RigidModel
-from estimators.residual_engine import ResidualParams, analyse
 from estimators.residual_cv import cross_validate
+from estimators.residual_engine import ResidualParams, analyse
 from estimators.residual_families import (
     CANONICAL,
     DRIVE,
