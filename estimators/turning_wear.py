@@ -68,6 +68,8 @@ MODEL_VERSION = 1
 _VB_UNIT = 100.0
 #: a life longer than this many segments is reported as never (inf)
 _NO_END = 1e9
+#: flank wear [um] past the abrasive break-in: the law's lambda is fitted above it
+_BREAK_IN = 100.0
 
 
 @dataclass(frozen=True)
@@ -290,6 +292,7 @@ def _fit_output(
         theta[neg[0]] = 0.0
     res = []
     gains = []
+    weights = []
     for s in tools:
         assert s.vb is not None
         phi, z = _regressors(s, s.vb, vb_ref, params.n_ref)
@@ -300,8 +303,16 @@ def _fit_output(
         den = float(wear @ wear)
         if den > 0:
             gains.append(float(wear @ zw) / den)
+            weights.append(den)
     r = np.concatenate(res)
-    spread = float(np.std(gains) / max(np.mean(gains), 1e-9)) if len(gains) > 1 else 0.5
+    spread = 0.5
+    if len(gains) > 1:
+        # weighted by each tool's wear-force energy: a tool that barely wears has a gain
+        # that is mostly noise, and says little about the tool-to-tool spread
+        g = np.asarray(gains)
+        w = np.asarray(weights) / np.sum(weights)
+        mean = float(w @ g)
+        spread = float(np.sqrt(w @ (g - mean) ** 2) / max(mean, 1e-9))
     return theta, float(np.std(r)), min(spread, 2.0)
 
 
@@ -325,7 +336,7 @@ def _fit_law(tools: list[ToolSeries]) -> tuple[float, float, float, float]:
         r = _rates(s.vb)
         r0.append(float(np.mean(r[: max(len(r) // 3, 1)])))
         walks.append(np.diff(r))
-        m = r > 0.05
+        m = (r > 0.05) & (s.vb >= _BREAK_IN)
         if m.sum() > 5:
             x = s.vb[m] - np.mean(s.vb[m])
             xs.append(x)
