@@ -147,6 +147,8 @@ class TurningWearModel:
         (a1 in signal units per um, a2 per um^2).
     vb_ref : float
         Mean VB over the first ``n_ref`` segments of the training tools [um].
+    vb_ref_sd : float
+        Spread of that initial VB over the training tools [um] (the state's prior).
     sigma_y : float
         Residual standard deviation of the output relation (signal units).
     gain_spread : float
@@ -170,6 +172,7 @@ class TurningWearModel:
     a1: float
     a2: float
     vb_ref: float
+    vb_ref_sd: float
     sigma_y: float
     gain_spread: float
     rate0: float
@@ -353,7 +356,10 @@ def _fit_law(tools: list[ToolSeries]) -> tuple[float, float, float, float]:
 def _fit_core(
     tools: list[ToolSeries], signal: str, params: TurningWearParams, scale: float
 ) -> TurningWearModel:
-    vb_ref = float(np.mean([np.mean(s.vb[: params.n_ref]) for s in tools if s.vb is not None]))
+    starts = [float(np.mean(s.vb[: params.n_ref])) for s in tools if s.vb is not None]
+    vb_ref = float(np.mean(starts))
+    # a new tool's initial wear: the training tools' spread (two start worn, ~40 um)
+    vb_ref_sd = max(float(np.std(starts)), 5.0)
     theta, sig, spread = _fit_output(tools, vb_ref, params)
     rate0, rate0_sd, walk, lam = _fit_law(tools)
     return TurningWearModel(
@@ -362,6 +368,7 @@ def _fit_core(
         a1=float(theta[1]) / _VB_UNIT,
         a2=float(theta[2]) / _VB_UNIT**2,
         vb_ref=vb_ref,
+        vb_ref_sd=vb_ref_sd,
         sigma_y=sig,
         gain_spread=spread,
         rate0=rate0,
@@ -465,9 +472,7 @@ def estimate(
     z = series.y - y_r
     vr = model.vb_ref
     x = np.array([vr, model.rate0])
-    P = np.diag([max(model.sigma_y / max(model.a1 + 2 * model.a2 * vr, 1e-6), 10.0) ** 2, 0.0])
-    P[0, 0] = max(P[0, 0], 15.0**2)
-    P[1, 1] = model.rate0_sd**2
+    P = np.diag([model.vb_ref_sd**2, model.rate0_sd**2])
     q = model.rate_walk**2
     out = np.empty((n, 2))
     cov = np.empty((n, 2, 2))

@@ -47,15 +47,20 @@ def _features(table: WearTable, signal: str, tools: Sequence[int]) -> tuple[F64,
     return X, y
 
 
+def _linear(X: F64, y: F64, Xt: F64) -> F64:
+    """Least-squares line of VB on the first feature (``_MEAN``), applied to ``Xt``."""
+    A = np.column_stack([np.ones(len(X)), X[:, 0]])
+    c, *_ = np.linalg.lstsq(A, y, rcond=None)
+    return np.asarray(c[0] + c[1] * Xt[:, 0], dtype=np.float64)
+
+
 def baselines(table: WearTable, signal: str, train: Sequence[int], test: int) -> dict[str, F64]:
     """Linear (VB on ``_MEAN``) and gradient-boosting predictions for one test tool."""
     from sklearn.ensemble import GradientBoostingRegressor
 
     X, y = _features(table, signal, train)
     Xt, _ = _features(table, signal, [test])
-    A = np.column_stack([np.ones(len(X)), X[:, 0]])
-    c, *_ = np.linalg.lstsq(A, y, rcond=None)
-    lin = c[0] + c[1] * Xt[:, 0]
+    lin = _linear(X, y, Xt)
     gbr = GradientBoostingRegressor(random_state=GBR_SEED).fit(X, y)
     return {"linear": lin, "gbr": np.asarray(gbr.predict(Xt), dtype=np.float64)}
 
@@ -125,17 +130,19 @@ def run_fold(
     model: TurningWearModel | None = None,
     with_baselines: bool = True,
     params: TurningWearParams | None = None,
+    life: bool = True,
 ) -> tuple[TurningWearModel, list[ToolResult]]:
-    """Fit on ``train`` (unless ``model`` is given) and estimate every tool of ``test``."""
+    """Fit on ``train`` (unless ``model`` is given) and estimate every tool of ``test``
+    (``life=False``: no remaining life, faster)."""
     p = params or TurningWearParams()
     if model is None:
         model = fit([series_of(table, signal, t)[0] for t in train], signal, p)
     results = []
     for t in test:
         s, n_bad = series_of(table, signal, t)
-        est = estimate(model, s, p, criterion=criterion)
+        est = estimate(model, s, p, criterion=criterion, life=life)
         life150 = None
-        if s.vb is not None and criterion != 150.0:
+        if life and s.vb is not None and criterion != 150.0:
             from estimators.turning_wear import life_from
 
             life150 = life_from(est.vb, est.rate, 150.0, model.lam)
@@ -226,15 +233,13 @@ def learning_curve(
         for _ in range(draws):
             train = sorted(int(x) for x in rng.choice(list(tools), size=n, replace=False))
             test = [t for t in tools if t not in train]
-            _, res = run_fold(table, signal, train, test, with_baselines=False)
+            _, res = run_fold(table, signal, train, test, with_baselines=False, life=False)
             vb = np.concatenate([r.vb for r in res if r.vb is not None])
             est = np.concatenate([r.estimate.vb for r in res])
             ours.append(float(np.mean(np.abs(est - vb))))
             X, y = _features(table, signal, train)
             Xt, yt = _features(table, signal, test)
-            A = np.column_stack([np.ones(len(X)), X[:, 0]])
-            c, *_ = np.linalg.lstsq(A, y, rcond=None)
-            lin.append(float(np.mean(np.abs(c[0] + c[1] * Xt[:, 0] - yt))))
+            lin.append(float(np.mean(np.abs(_linear(X, y, Xt) - yt))))
             if progress is not None:
                 progress(1)
         out[n] = {"mae": float(np.median(ours)), "linear_mae": float(np.median(lin))}
