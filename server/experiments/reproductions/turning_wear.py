@@ -43,12 +43,17 @@ DRAWS = 5
 QUICK_TOOLS = (7, 11, 14, 16)
 QUICK_SIGNALS = ("feed_force",)
 ROWS = (
-    "SIGNAL.mae (paper: linear)", "SIGNAL.mae_gbr (paper: gradient boosting)",
-    "SIGNAL.rmse (paper: linear)", "SIGNAL.tool.T.mae (paper: linear)",
-    "SIGNAL.coverage (paper: nominal 0.95)", "SIGNAL.width_over_mae (paper: 4.9)",
-    "SIGNAL.life_error_300um", "SIGNAL.life_error_150um", "SIGNAL.learning.nN.mae",
+    "SIGNAL.mae (paper: linear)",
+    "SIGNAL.mae_gbr (paper: gradient boosting)",
+    "SIGNAL.rmse (paper: linear)",
+    "SIGNAL.tool.T.mae (paper: linear)",
+    "SIGNAL.coverage (paper: nominal 0.95)",
+    "SIGNAL.width_over_mae (paper: 4.9)",
+    "SIGNAL.life_error_300um",
+    "SIGNAL.life_error_150um",
+    "SIGNAL.learning.nN.mae",
     "physics.*",
-)  # fmt: skip
+)
 
 
 def data_path() -> Path:
@@ -92,7 +97,7 @@ def _signal_section(
                 "um",
                 f"gbr {m['baselines']['gbr']['mae']:.1f}; VB max {m['vb_max']:.0f} um; "
                 f"coverage {m['coverage']:.2f}",
-            )  # fmt: skip
+            )
         )
     width_ratio = ov["interval_median_width"] / ov["mae"]
     rows += [
@@ -100,15 +105,21 @@ def _signal_section(
         Row(f"{signal}.interval_median_width", ov["interval_median_width"], None, "um", ""),
         Row(f"{signal}.width_over_mae", width_ratio, 4.9, "", "paper = calibrated Gaussian"),
         Row(
-            f"{signal}.life_error_300um", ov["life_median_abs_rel_error"], None, "",
+            f"{signal}.life_error_300um",
+            ov["life_median_abs_rel_error"],
+            None,
+            "",
             f"median |pred - true|/true at half-life, {ov['life_tools']} tools reach 300 um; "
             "life in segments",
         ),
         Row(
-            f"{signal}.life_error_150um", ov["life150_median_abs_rel_error"], None, "",
+            f"{signal}.life_error_150um",
+            ov["life150_median_abs_rel_error"],
+            None,
+            "",
             f"the same to 150 um, {ov['life150_tools']} tools",
         ),
-    ]  # fmt: skip
+    ]
     sizes = (1, 2) if quick else SIZES
     lc = learning_curve(
         table, signal, tools, sizes, draws=2 if quick else DRAWS, progress=bar.update
@@ -121,21 +132,28 @@ def _signal_section(
                 v["linear_mae"],
                 "um",
                 f"{n} training tools, median of {2 if quick else DRAWS} draws; paper = linear",
-            )  # fmt: skip
+            )
         )
     n_tools = len(tools)
     need_lower = int(np.ceil(7 * n_tools / 9))
     life = ov["life_median_abs_rel_error"]
     checks = [
-        Check(f"{signal}.mae_25pct_below_linear", ov["mae"] <= 0.75 * lin["mae"],
-              ov["mae"] / lin["mae"], 0.75),
-        Check(f"{signal}.tools_lower_than_linear", lin["tools_ours_lower"] >= need_lower,
-              float(lin["tools_ours_lower"]), float(need_lower)),
+        Check(
+            f"{signal}.mae_25pct_below_linear",
+            ov["mae"] <= 0.75 * lin["mae"],
+            ov["mae"] / lin["mae"],
+            0.75,
+        ),
+        Check(
+            f"{signal}.tools_lower_than_linear",
+            lin["tools_ours_lower"] >= need_lower,
+            float(lin["tools_ours_lower"]),
+            float(need_lower),
+        ),
         Check(f"{signal}.coverage_95", ov["coverage"] >= 0.90, ov["coverage"], 0.90),
         Check(f"{signal}.width_over_mae", width_ratio <= 6.0, width_ratio, 6.0),
-        Check(f"{signal}.life_at_half_300um", bool(np.isfinite(life) and life <= 0.2),
-              life, 0.2),
-    ]  # fmt: skip
+        Check(f"{signal}.life_at_half_300um", bool(np.isfinite(life) and life <= 0.2), life, 0.2),
+    ]
     return rows, checks, s
 
 
@@ -171,7 +189,7 @@ def _physics(table: Any, tools: list[int]) -> list[Row]:
                 f"(friction, no force) {100 * friction:.0f} % of the fresh torque; F_f range "
                 f"{np.ptp(ff[i]):.0f} N; feed rate {np.median(feed[i][:5]):.0f} at start; "
                 f"VB rises linearly between ~{knots} knots",
-            )  # fmt: skip
+            )
         )
     return rows
 
