@@ -12,7 +12,7 @@ Seed 004's adaptive wear observer adapted to one row per cutting segment (see
 docs/turning-wear.md): a wear state that only grows, a wear-rate law on the segment
 index (the table has no cutting time: rates and lives are per segment), a force-wear
 output relation fitted by RLS on the training tools, a fresh-tool reference from each
-tool's first 5 segments, the programmed feed rate (CON.G.FREAL, CNC units: only its
+tool's first 10 segments, the programmed feed rate (CON.G.FREAL, CNC units: only its
 ratio to the tool's first segments is used, glitch values replaced by the median of
 their neighbours) as the condition input. Default: leave one tool out over every tool.
 Writes DIR/estimates.csv (95 % intervals, life in segments), DIR/report.json (per tool
