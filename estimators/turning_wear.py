@@ -532,8 +532,8 @@ def estimate(
         lk = life_from(
             np.maximum(draws[:, 0], 0.0), np.maximum(draws[:, 1], 0.0), criterion, model.lam
         )
-        q = np.quantile(np.minimum(lk, _NO_END), [tail, 1.0 - tail])
-        L_lo[k], L_hi[k] = (np.inf if x >= _NO_END else x for x in q)
+        qs = np.quantile(np.minimum(lk, _NO_END), [tail, 1.0 - tail])
+        L_lo[k], L_hi[k] = (np.inf if x >= _NO_END else float(x) for x in qs)
     return WearEstimate(vb, lo, hi, out[:, 1], L, L_lo, L_hi)
 
 
