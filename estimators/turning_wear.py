@@ -329,7 +329,7 @@ def _fit_output(
     return theta, float(np.std(r)), min(spread, 2.0)
 
 
-def _rates(vb: F64, span: int = 10) -> F64:
+def local_rates(vb: F64, span: int = 10) -> F64:
     """Wear rate per segment, a centred difference over ``span`` segments."""
     n = len(vb)
     idx = np.arange(n)
@@ -338,7 +338,7 @@ def _rates(vb: F64, span: int = 10) -> F64:
     return np.asarray((vb[hi] - vb[lo]) / np.maximum(hi - lo, 1), dtype=np.float64)
 
 
-def _fit_law(tools: list[ToolSeries]) -> tuple[float, float, float, float]:
+def fit_law(tools: list[ToolSeries]) -> tuple[float, float, float, float]:
     """rate0, its spread, rate walk S.D. and lambda from the training tools' VB."""
     r0 = []
     xs: list[F64] = []
@@ -346,7 +346,7 @@ def _fit_law(tools: list[ToolSeries]) -> tuple[float, float, float, float]:
     walks = []
     for s in tools:
         assert s.vb is not None
-        r = _rates(s.vb)
+        r = local_rates(s.vb)
         r0.append(float(np.mean(r[: max(len(r) // 3, 1)])))
         walks.append(np.diff(r))
         m = (r > 0.05) & (s.vb >= _BREAK_IN)
@@ -371,7 +371,7 @@ def _fit_core(
     # a new tool's initial wear: the training tools' spread (two start worn, ~40 um)
     vb_ref_sd = max(float(np.std(starts)), 5.0)
     theta, sig, spread = _fit_output(tools, vb_ref, params)
-    rate0, rate0_sd, walk, lam = _fit_law(tools)
+    rate0, rate0_sd, walk, lam = fit_law(tools)
     return TurningWearModel(
         signal=signal,
         d=float(theta[0]),
@@ -546,5 +546,7 @@ __all__ = [
     "clean_condition",
     "estimate",
     "fit",
+    "fit_law",
     "life_from",
+    "local_rates",
 ]

@@ -42,6 +42,8 @@ DRAWS = 5
 #: --quick: a subset of tools, one signal, a short learning curve (for the tests)
 QUICK_TOOLS = (7, 11, 14, 16)
 QUICK_SIGNALS = ("feed_force",)
+#: tools cut at other speeds and feeds than the rest (data README)
+OTHER_SPEEDS = (3, 5, 16)
 ROWS = (
     "SIGNAL.mae (paper: linear)",
     "SIGNAL.mae_gbr (paper: gradient boosting)",
@@ -120,6 +122,8 @@ def _signal_section(
             f"the same to 150 um, {ov['life150_tools']} tools",
         ),
     ]
+    rows += _life_limits(table, signal, tools)
+    rows += _snr(table, signal, tools, s)
     sizes = (1, 2) if quick else SIZES
     lc = learning_curve(
         table, signal, tools, sizes, draws=2 if quick else DRAWS, progress=bar.update
@@ -155,6 +159,87 @@ def _signal_section(
         Check(f"{signal}.life_at_half_300um", bool(np.isfinite(life) and life <= 0.2), life, 0.2),
     ]
     return rows, checks, s
+
+
+def _life_limits(table: Any, signal: str, tools: list[int]) -> list[Row]:
+    """The law's remaining life at half-life from the *measured* VB and its measured local
+    rate (no estimation error at all): what the data allows a rate law to predict."""
+    from estimators.turning_wear import fit_law, life_from, local_rates
+    from server.pipeline.wear_folds import series_of
+
+    rows = []
+    for crit in (300.0, 150.0):
+        errs = []
+        for t in tools:
+            s, _ = series_of(table, signal, t)
+            assert s.vb is not None
+            hit = np.flatnonzero(s.vb >= crit)
+            if not len(hit) or hit[0] < 2:
+                continue
+            k = int(hit[0]) // 2
+            lam = fit_law([series_of(table, signal, u)[0] for u in tools if u != t])[3]
+            pred = life_from(s.vb[k : k + 1], local_rates(s.vb)[k : k + 1], crit, lam)[0]
+            errs.append(abs(pred - (hit[0] - k)) / (hit[0] - k))
+        rows.append(
+            Row(
+                f"{signal}.life_error_{crit:.0f}um.measured_state",
+                float(np.median(errs)) if errs else float("nan"),
+                None,
+                "",
+                f"the law from the measured VB and its local rate (10 segments) at half-life, "
+                f"lambda of the other tools; median over {len(errs)} tools: the data's limit",
+            )
+        )
+    return rows
+
+
+def _snr(table: Any, signal: str, tools: list[int], s: dict[str, Any]) -> list[Row]:
+    """The wear part of the signal at VB = 150 um against its segment-to-segment scatter,
+    and our MAE on the tools cut at other speeds (3, 5, 16) against the others."""
+    from estimators.turning_wear import fit
+    from server.pipeline.wear_folds import series_of
+
+    series = [series_of(table, signal, t)[0] for t in tools]
+    m = fit(series, signal)
+    wear150 = m.a1 * (150.0 - m.vb_ref) + m.a2 * (150.0**2 - m.vb_ref**2)
+    # scatter of one segment: S.D. of first differences / sqrt(2), median over tools
+    scatter = float(np.median([np.std(np.diff(x.y)) / np.sqrt(2.0) for x in series]))
+    rows = [
+        Row(
+            f"{signal}.wear_part_150um",
+            wear150,
+            None,
+            "signal units",
+            f"a1 {m.a1:.4g}/um, a2 {m.a2:.4g}/um^2, all tools",
+        ),
+        Row(
+            f"{signal}.segment_scatter",
+            scatter,
+            None,
+            "signal units",
+            "S.D. of one segment's mean about its neighbours (median over tools)",
+        ),
+        Row(
+            f"{signal}.relation_residual_sd",
+            m.sigma_y,
+            None,
+            "signal units",
+            "S.D. of the output relation's residual, all tools",
+        ),
+    ]
+    other = [x["mae"] for x in s["per_tool"] if x["tool"] in OTHER_SPEEDS]
+    rest = [x["mae"] for x in s["per_tool"] if x["tool"] not in OTHER_SPEEDS]
+    if other and rest:
+        rows.append(
+            Row(
+                f"{signal}.mae_tools_3_5_16",
+                float(np.mean(other)),
+                float(np.mean(rest)),
+                "um",
+                "tools cut at other speeds and feeds; paper = mean over the other tools",
+            )
+        )
+    return rows
 
 
 def _physics(table: Any, tools: list[int]) -> list[Row]:
