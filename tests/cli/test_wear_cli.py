@@ -129,3 +129,39 @@ def test_missing_column_and_latin1(tmp_path: Path, capsys: pytest.CaptureFixture
     assert rc == 2
     assert str(p) in err and "'CON.G.FREAL'" in err and "expected in the header" in err, err
     assert "x_\xb5m" in err  # the header as found, decoded as Latin-1
+
+
+def test_a_table_without_vb_is_estimated_with_a_model(
+    tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
+    train = subset(tmp_path, {"7", "11", "16"})
+    model = tmp_path / "m.json"
+    base = ["wear", "--quiet", "--no-baselines"]
+    assert main([*base, str(train), "--train-tools", "7,11", "--test-tools", "16",
+                 "--model", str(model), "--out", str(tmp_path / "a")]) == 0  # fmt: skip
+    # the new tool's rows without the Vb column: estimates only, no vb_true, no scores
+    lines = TABLE.read_bytes().decode("latin-1").splitlines()
+    head = next(csv.reader([lines[0]]))
+    keep = [i for i, h in enumerate(head) if h != "Vb"]
+    rows = [next(csv.reader([ln])) for ln in lines[1:]]
+    rows = [r for r in rows if r[head.index("tool")] == "5"]
+    blind = tmp_path / "blind.csv"
+    blind.write_text(
+        "\n".join(",".join(r[i] for i in keep) for r in [head, *rows]) + "\n", encoding="latin-1"
+    )
+    assert main([*base, str(blind), "--model", str(model), "--out", str(tmp_path / "b")]) == 0
+    with (tmp_path / "b" / "estimates.csv").open() as f:
+        got = list(csv.DictReader(f))
+    assert "vb_true" not in got[0] and len(got) == 88 and {r["tool"] for r in got} == {"5"}
+    rep = json.loads((tmp_path / "b" / "report.json").read_text())
+    assert "overall" not in rep and rep["per_tool"][0]["tool"] == 5
+    # the same model for another signal is refused, naming the field and both values
+    capsys.readouterr()
+    rc = main([*base, str(blind), "--model", str(model), "--signal", "drive_torque",
+               "--out", str(tmp_path / "c")])  # fmt: skip
+    err = capsys.readouterr().err
+    assert rc == 2 and "'signal'" in err and "'drive_torque'" in err and "'feed_force'" in err
+    # without Vb and without a model there is nothing to fit on
+    rc = main([*base, str(blind), "--out", str(tmp_path / "d")])
+    err = capsys.readouterr().err
+    assert rc == 2 and "column 'Vb'" in err and str(blind) in err
