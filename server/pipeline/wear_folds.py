@@ -170,7 +170,8 @@ def summarise(results: Sequence[ToolResult], criterion: float) -> dict[str, Any]
         "interval_median_width": float(np.median(hi - lo)),
     }
     for key, name in (("life_error_at_half", "life"), ("life_error_at_half_150um", "life150")):
-        errs = [abs(m[key]) for m in per if key in m and np.isfinite(m[key])]
+        # a predicted life of "never" (inf) is a miss and counts; NaN: criterion not reached
+        errs = [abs(m[key]) for m in per if key in m and not np.isnan(m[key])]
         ov[f"{name}_median_abs_rel_error"] = float(np.median(errs)) if errs else float("nan")
         ov[f"{name}_tools"] = len(errs)
     names = sorted({k for r in have for k in r.baselines})
