@@ -122,7 +122,6 @@ def _signal_section(
             f"the same to 150 um, {ov['life150_tools']} tools",
         ),
     ]
-    rows += _life_limits(table, signal, tools)
     rows += _snr(table, signal, tools, s)
     sizes = (1, 2) if quick else SIZES
     lc = learning_curve(
@@ -161,35 +160,40 @@ def _signal_section(
     return rows, checks, s
 
 
-def _life_limits(table: Any, signal: str, tools: list[int]) -> list[Row]:
-    """The law's remaining life at half-life from the *measured* VB and its measured local
-    rate (no estimation error at all): what the data allows a rate law to predict."""
+def _life_limits(table: Any, tools: list[int]) -> list[Row]:
+    """The law's remaining life at half-life from the *measured* VB (no estimation error
+    at all), with its local rate (10 segments) or its mean rate since the first segment:
+    what the data allows a rate law to predict."""
     from estimators.turning_wear import fit_law, life_from, local_rates
     from server.pipeline.wear_folds import series_of
 
     rows = []
     for crit in (300.0, 150.0):
-        errs = []
+        errs: dict[str, list[float]] = {"local_rate": [], "mean_rate": []}
         for t in tools:
-            s, _ = series_of(table, signal, t)
+            s, _ = series_of(table, "feed_force", t)
             assert s.vb is not None
             hit = np.flatnonzero(s.vb >= crit)
             if not len(hit) or hit[0] < 2:
                 continue
             k = int(hit[0]) // 2
-            lam = fit_law([series_of(table, signal, u)[0] for u in tools if u != t])[3]
-            pred = life_from(s.vb[k : k + 1], local_rates(s.vb)[k : k + 1], crit, lam)[0]
-            errs.append(abs(pred - (hit[0] - k)) / (hit[0] - k))
-        rows.append(
-            Row(
-                f"{signal}.life_error_{crit:.0f}um.measured_state",
-                float(np.median(errs)) if errs else float("nan"),
-                None,
-                "",
-                f"the law from the measured VB and its local rate (10 segments) at half-life, "
-                f"lambda of the other tools; median over {len(errs)} tools: the data's limit",
+            true = float(hit[0] - k)
+            lam = fit_law([series_of(table, "feed_force", u)[0] for u in tools if u != t])[3]
+            rates = {"local_rate": local_rates(s.vb)[k], "mean_rate": (s.vb[k] - s.vb[0]) / k}
+            for name, r in rates.items():
+                pred = life_from(s.vb[k : k + 1], np.array([r]), crit, lam)[0]
+                errs[name].append(abs(pred - true) / true)
+        for name, e in errs.items():
+            rows.append(
+                Row(
+                    f"physics.life_error_{crit:.0f}um.measured_state.{name}",
+                    float(np.median(e)) if e else float("nan"),
+                    None,
+                    "",
+                    f"the law from the measured VB and its {name.replace('_', ' ')} at "
+                    f"half-life, lambda of the other tools; median over {len(e)} tools",
+                )
             )
-        )
     return rows
 
 
@@ -303,7 +307,7 @@ def run(
             rep.add((rows, checks))
             if plot_dir is not None:
                 rep.figures.append(_plot(plot_dir, table, sig, s))
-    rep.add((_physics(table, tools), []))
+    rep.add((_physics(table, tools) + _life_limits(table, tools), []))
     return rep
 
 
