@@ -107,18 +107,23 @@ def verdict(rep: Mapping[str, Any]) -> str:
     return "; ".join(parts) + "."
 
 
+def _trained(train: Any) -> str:
+    if isinstance(train, str):
+        return f"Each tool estimated by a model fitted on the others ({train})"
+    return f"Trained on tools {', '.join(map(str, train))}"
+
+
 def report_html(rep: Mapping[str, Any], figures: Sequence[tuple[str, str]]) -> str:
     """Self-contained page: verdict, figures, then the tables folded."""
     head = (
         f"<h1>Flank wear from {html.escape(rep['signal'])} "
         f"({html.escape(rep['column'])})</h1>"
         f"<p class='verdict'><b>{html.escape(verdict(rep))}</b></p>"
-        f"<p>Trained on tools {', '.join(map(str, rep['train_tools']))}; life in segments "
+        f"<p>{html.escape(_trained(rep['train_tools']))}; life in segments "
         "(the table has no cutting time).</p>"
     )
     figs = "".join(
-        f"<figure><img alt='{html.escape(t)}' src='data:image/png;base64,{b}'>"
-        f"<figcaption>{html.escape(t)}</figcaption></figure>"
+        f"<figure><img alt='{html.escape(t)}' src='data:image/png;base64,{b}'></figure>"
         for t, b in figures
     )
     cols = ["tool", "segments", "mae", "rmse", "coverage", "interval_median_width",

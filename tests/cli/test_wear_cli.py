@@ -66,6 +66,7 @@ def test_leave_one_tool_out_on_three_tools(tmp_path: Path, capsys: pytest.Captur
     # verdict first, then the figures, then the folded tables
     assert page.index("class='verdict'") < page.index("<img") < page.index("<details>")
     assert page.count("<img") == 3
+    assert "Each tool estimated by a model fitted on the others" in page
 
 
 def test_train_test_model_written_then_read(tmp_path: Path) -> None:
@@ -78,6 +79,7 @@ def test_train_test_model_written_then_read(tmp_path: Path) -> None:
     assert m["version"] == 1 and m["signal"] == "drive_current" and m["train_tools"] == [7, 11, 16]
     rep_a = json.loads((tmp_path / "a" / "report.json").read_text())
     assert rep_a["test_tools"] == [5] and rep_a["criterion_um"] == 150.0
+    assert "Trained on tools 7, 11, 16" in (tmp_path / "a" / "report.html").read_text()
     # read back: the same estimates without refitting
     assert main([*args, "--model", str(model), "--out", str(tmp_path / "b"),
                  "--criterion", "150"]) == 0  # fmt: skip
