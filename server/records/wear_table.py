@@ -15,6 +15,7 @@ row, what was expected and what was found.
 from __future__ import annotations
 
 import csv
+import io
 import math
 import re
 from collections.abc import Iterable, Sequence
@@ -119,12 +120,13 @@ def read_wear_table(
         raise LogFormatError(f"{p}: cannot read: {exc}") from None
     if "\x00" in raw[:4096]:
         raise LogFormatError(f"{p}: expected a text CSV table, found binary data")
-    reader = csv.reader(raw.splitlines())
+    # csv on the text itself: str.splitlines would also split at \x85 (Latin-1 NEL)
+    reader = csv.reader(io.StringIO(raw, newline=""))
     try:
         header = [h.strip() for h in next(reader)]
     except StopIteration:
         raise LogFormatError(f"{p}: expected a header row, found an empty file") from None
-    rows = list(reader)
+    rows = [r for r in reader if any(c.strip() for c in r)]
     idx = {h: i for i, h in enumerate(header)}
     want = [TOOL, *needed]
     out: dict[str, F64] = {}

@@ -125,7 +125,7 @@ def test_refusals_name_what_is_wrong(
 def test_missing_column_and_latin1(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
     # a Latin-1 header (µ is 0xB5) reads; the missing feed column is named with the file
     p = tmp_path / "t.csv"
-    p.write_bytes("tool,Vb,F_f_MEAN,x_\xb5m\r\n1,0,300,1\r\n".encode("latin-1"))
+    p.write_bytes("tool,Vb,F_f_MEAN,x_\xb5m\r\n1,0,300,a\x85b\r\n".encode("latin-1"))
     rc = main(["wear", str(p), "--out", str(tmp_path / "o"), "--quiet"])
     err = capsys.readouterr().err
     assert rc == 2
