@@ -50,6 +50,8 @@ Detectors (each with its reason):
     override move it slowly. ``suspected`` (:math:`d_k` above ``suspect_share`` of the
     threshold) is the flag the eccentricity canceller of seed 003 holds its adaptation on
     (the canceller works on this same harmonic and would otherwise "cancel" the breakage).
+    It is evaluated only while the mean force is above the lower limit (a missing tool is
+    the other detector's).
 ``collision`` (collision, overload)
     :math:`f_k` above the extreme limit for ``collision_samples`` consecutive samples:
     no cut the program makes comes near it.
