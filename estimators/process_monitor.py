@@ -89,6 +89,8 @@ _RUN = (
     "alarmed",
 )  # fmt: skip
 _R = {name: i for i, name in enumerate(_RUN)}
+_T = {name: i for i, name in enumerate(_TEACH)}
+_C = {name: i for i, name in enumerate(_CUR)}
 
 
 @dataclass(frozen=True)
@@ -229,39 +231,41 @@ def _monitor_kernel(
     teach: bool,
     taught: bool,
     pr: F64,
-    t_cnt: F64,
-    t_msum: F64,
-    t_msq: F64,
-    t_mmin: F64,
-    t_pksum: F64,
-    t_pkmax: F64,
-    t_dmax: F64,
-    c_n: F64,
-    c_sum: F64,
-    c_min: F64,
-    c_pk: F64,
-    c_d: F64,
-    seg_gain: F64,
+    tt: F64,
+    cur: F64,
     seg_pk: F64,
     run: F64,
     fbuf: F64,
     rbuf: F64,
-    o_f: F64,
-    o_fm: F64,
-    o_lo: F64,
-    o_hi: F64,
-    o_ex: F64,
-    o_d: F64,
-    o_dl: F64,
+    o: F64,
     o_sus: np.ndarray,
     alarms: F64,
 ) -> int:  # pragma: no cover
     """One chunk of one block execution; returns the number of alarm rows written.
 
-    ``alarms[i] = [k, detector, value, limit]``. ``run`` is the scalar state (see
-    ``_RUN``), ``fbuf`` the ring of ``f, f cos psi, f sin psi``, ``rbuf`` the ring of the
-    pattern ``rho``.
+    ``alarms[i] = [k, detector, value, limit]``. ``tt`` the teach tables (``_TEACH`` by
+    segment by bin), ``cur`` this execution's per-bin accumulators (``_CUR``), ``run`` the
+    scalar state (``_RUN``), ``fbuf`` the ring of ``f, f cos psi, f sin psi``, ``rbuf``
+    the ring of the pattern ``rho``, ``o`` the per-sample outputs (``f, f_mean, lower,
+    upper, extreme, pattern, pattern_limit``).
     """
+    t_cnt = tt[0]
+    t_msum = tt[1]
+    t_msq = tt[2]
+    t_mmin = tt[3]
+    t_dmax = tt[6]
+    c_n = cur[0]
+    c_sum = cur[1]
+    c_min = cur[2]
+    c_pk = cur[3]
+    c_d = cur[4]
+    o_f = o[0]
+    o_fm = o[1]
+    o_lo = o[2]
+    o_hi = o[3]
+    o_ex = o[4]
+    o_d = o[5]
+    o_dl = o[6]
     ts = pr[0]
     bin_s = pr[2]
     kband = pr[3]
@@ -440,10 +444,9 @@ class ProcessMonitor:
         """Nothing taught: every table at zero, no segment known."""
         p = self.params
         s, b = p.max_segments, p.max_bins
-        st: dict[str, np.ndarray] = {name: np.zeros((s, b)) for name in _TEACH}
-        st["m_min"][:] = np.inf
-        for name in _CUR:
-            st[name] = np.zeros(b)
+        st: dict[str, np.ndarray] = {"teach": np.zeros((len(_TEACH), s, b))}
+        st["teach"][_T["m_min"]] = np.inf
+        st["current"] = np.zeros((len(_CUR), b))
         st["parts"] = np.zeros(s)
         st["gain"] = np.ones(s)
         st["peak"] = np.zeros(s)
@@ -488,8 +491,8 @@ class ProcessMonitor:
             sel &= state["key_tool"] == int(tool)
         if program is not None:
             sel &= state["key_program"] == str(program)
-        for name in _TEACH:
-            state[name][sel] = np.inf if name == "m_min" else 0.0
+        for name, i in _T.items():
+            state["teach"][i][sel] = np.inf if name == "m_min" else 0.0
         state["parts"][sel] = 0.0
         state["gain"][sel] = 1.0
         state["peak"][sel] = 0.0
@@ -549,15 +552,13 @@ class ProcessMonitor:
         watch = not self.teaching(state, seg)
         g = float(state["gain"][seg]) if gain is None else float(gain)
         n = fx.size
-        outs = [np.empty(n) for _ in range(7)]
+        o = np.empty((7, n))
         sus = np.zeros(n, dtype=np.uint8)
         alarms = np.zeros((3 * max(n, 1), 4))
         t = state
         na = _monitor_kernel(
-            fx, fy, psi, seg, new_block, ov, g, teach, watch, self._pr,
-            t["cnt"], t["m_sum"], t["m_sq"], t["m_min"], t["pk_sum"], t["pk_max"], t["d_max"],
-            t["c_n"], t["c_sum"], t["c_min"], t["c_pk"], t["c_d"], t["gain"], t["peak"],
-            run, t["fbuf"], t["rbuf"], *outs, sus, alarms,
+            fx, fy, psi, seg, new_block, ov, g, teach, watch, self._pr, t["teach"],
+            t["current"], t["peak"], run, t["fbuf"], t["rbuf"], o, sus, alarms,
         )  # fmt: skip
         k0 = int(state["samples"][0])
         state["samples"][0] += n
@@ -566,7 +567,10 @@ class ProcessMonitor:
                   float(a[2]), float(a[3]))
             for a in alarms[:na]
         ]  # fmt: skip
-        return MonitorRecord(*outs[:2], *outs[2:5], *outs[5:7], sus, teach, out)
+        return MonitorRecord(
+            f=o[0], f_mean=o[1], lower=o[2], upper=o[3], extreme=o[4], pattern=o[5],
+            pattern_limit=o[6], suspected=sus, teaching=teach, alarms=out,
+        )  # fmt: skip
 
     def end_block(self, state: dict[str, np.ndarray]) -> None:
         """Close the current block execution (teach it, or update the force ratio)."""
@@ -581,17 +585,18 @@ class ProcessMonitor:
         if self.teaching(state, seg):
             if ov != 1.0:
                 return
-            cn = state["c_n"]
-            used = cn > 0
-            mean = np.where(used, state["c_sum"] / np.maximum(cn, 1), 0.0)
-            state["cnt"][seg, used] += 1.0
-            state["m_sum"][seg, used] += mean[used]
-            state["m_sq"][seg, used] += mean[used] ** 2
-            state["m_min"][seg] = np.minimum(state["m_min"][seg], state["c_min"])
-            state["pk_sum"][seg] += state["c_pk"]
-            state["pk_max"][seg] = np.maximum(state["pk_max"][seg], state["c_pk"])
-            state["d_max"][seg] = np.maximum(state["d_max"][seg], state["c_d"])
-            state["peak"][seg] = float(state["pk_max"][seg].max())
+            t = {name: state["teach"][i, seg] for name, i in _T.items()}
+            c = {name: state["current"][i] for name, i in _C.items()}
+            used = c["c_n"] > 0
+            mean = np.where(used, c["c_sum"] / np.maximum(c["c_n"], 1), 0.0)
+            t["cnt"][used] += 1.0
+            t["m_sum"][used] += mean[used]
+            t["m_sq"][used] += mean[used] ** 2
+            np.minimum(t["m_min"], c["c_min"], out=t["m_min"])
+            t["pk_sum"] += c["c_pk"]
+            np.maximum(t["pk_max"], c["c_pk"], out=t["pk_max"])
+            np.maximum(t["d_max"], c["c_d"], out=t["d_max"])
+            state["peak"][seg] = float(t["pk_max"].max())
             state["parts"][seg] += 1.0
             return
         ref = run[_R["blk_ref"]]

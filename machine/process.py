@@ -33,6 +33,7 @@ the tool centre enters and out as it leaves.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -538,16 +539,24 @@ class ProcessMachine:
         return blk.feed_per_tooth * tool.n_flutes * blk.spindle_rpm / 60.0
 
     def run_block(
-        self, blk: ProgramBlock, *, override: float = 1.0, depth_scale: float = 1.0, chunk: int = 0
+        self,
+        blk: ProgramBlock,
+        *,
+        override: float = 1.0,
+        depth_scale: float = 1.0,
+        chunk: int = 0,
+        on_chunk: Callable[[BlockRecord], None] | None = None,
     ) -> list[BlockRecord]:
-        """Run one block (in chunks of ``chunk`` samples if > 0, else in one record)."""
+        """Run one block (in chunks of ``chunk`` samples if > 0, else in one record).
+
+        ``on_chunk`` is called with each chunk's record before the next chunk runs (a
+        controller there may change :meth:`set_modulation` for the next chunk).
+        """
         inst = self.instances[blk.tool]
         tool = inst.tool
         ts = self.sample_time
         n_total = self.block_samples(blk, override)
-        ev = [
-            e for e in self.events if e.part == self.part and e.line == blk.line
-        ]
+        ev = [e for e in self.events if e.part == self.part and e.line == blk.line]
         if len(ev) > 1:
             raise ParameterError("events", "at most one event per part and block", len(ev))
         k_ev_block = n_total + 1
@@ -567,8 +576,13 @@ class ProcessMachine:
                 depth_after = 1.0 - e.size
             truth.append(
                 EventTruth(
-                    e.kind, (self.k + k_ev_block) * ts, self.k + k_ev_block, e.size,
-                    tool.number, blk.line, self.part,
+                    e.kind,
+                    (self.k + k_ev_block) * ts,
+                    self.k + k_ev_block,
+                    e.size,
+                    tool.number,
+                    blk.line,
+                    self.part,
                 )
             )
         if blk.cut:
@@ -605,7 +619,7 @@ class ProcessMachine:
             recs.append(
                 BlockRecord(
                     k0=self.k,
-                    t=(self.k + np.arange(n)) * ts,
+                    t=np.asarray((self.k + np.arange(n)) * ts, dtype=np.float64),
                     x=out[2],
                     y=out[3],
                     ix=out[4] / kf[0],
@@ -627,6 +641,8 @@ class ProcessMachine:
             )
             self.k += n
             done += n
+            if on_chunk is not None:
+                on_chunk(recs[-1])
         # the event persists: a broken or chipped flute stays so
         if ev and ev[0].kind == "breakage":
             inst.dr[: tool.n_flutes] = dr1

@@ -38,11 +38,14 @@ import sys
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
 from server.experiments.reproduction import Check, Reproduction, Row
+
+if TYPE_CHECKING:
+    from machine.milling import MillingMachine
 
 NAME = "process-monitoring"
 SOURCE = "issue 21 (process monitoring on seed 003's feed drives); targets from the issue"
@@ -121,18 +124,29 @@ def _cut(rng: np.random.Generator, line: int, tool: Any, seconds: tuple[float, f
     v = fz * tool.n_flutes * rpm / 60.0
     dur = float(rng.uniform(*seconds))
     return ProgramBlock(
-        line, tool.number, True, v * dur + tool.diameter, spindle_rpm=rpm, feed_per_tooth=fz,
-        axial_depth=ap, radial_immersion=ae, down_milling=bool(rng.random() < 0.5),
-    )  # fmt: skip
+        line,
+        tool.number,
+        True,
+        v * dur + tool.diameter,
+        spindle_rpm=rpm,
+        feed_per_tooth=fz,
+        axial_depth=ap,
+        radial_immersion=ae,
+        down_milling=bool(rng.random() < 0.5),
+    )
 
 
 def _air(rng: np.random.Generator, line: int, tool: Any, rpm: float) -> Any:
     from machine.process import ProgramBlock
 
     return ProgramBlock(
-        line, tool.number, False, float(rng.uniform(4e-3, 12e-3)), spindle_rpm=rpm,
+        line,
+        tool.number,
+        False,
+        float(rng.uniform(4e-3, 12e-3)),
+        spindle_rpm=rpm,
         air_speed=float(rng.uniform(0.01, 0.03)),
-    )  # fmt: skip
+    )
 
 
 def _event_program(rng: np.random.Generator) -> Any:
@@ -142,9 +156,12 @@ def _event_program(rng: np.random.Generator) -> Any:
     c1 = _cut(rng, 20, t, (1.5, 3.0))
     c2 = _cut(rng, 40, t, (1.5, 3.0))
     blocks = (
-        _air(rng, 10, t, c1.spindle_rpm), c1, _air(rng, 30, t, c2.spindle_rpm), c2,
+        _air(rng, 10, t, c1.spindle_rpm),
+        c1,
+        _air(rng, 30, t, c2.spindle_rpm),
+        c2,
         _air(rng, 50, t, c2.spindle_rpm),
-    )  # fmt: skip
+    )
     return PartProgram(f"O{int(rng.integers(1000, 9999))}", blocks, (t,))
 
 
@@ -177,9 +194,11 @@ def _setup(program: Any, rng: np.random.Generator, noise: dict[str, float], **kw
 
     machine = ProcessMachine(program, rng=rng, **kw)
     obs = ObserverForceSource(
-        _DriveShape(machine.drives), q_hz=1000.0, rng=np.random.default_rng(rng.integers(2**32)),
+        cast("MillingMachine", _DriveShape(machine.drives)),
+        q_hz=1000.0,
+        rng=np.random.default_rng(rng.integers(2**32)),
         **noise,
-    )  # fmt: skip
+    )
     mon = ProcessMonitor(MonitorParams(sample_time=machine.sample_time, teach_parts=TEACH_PARTS))
     return machine, obs, mon, mon.initial_state()
 
@@ -190,8 +209,17 @@ def _teach(machine: Any, obs: Any, mon: Any, state: Any) -> int:
     while True:
         for r in machine.run_part():
             fx, fy = obs(r)
-            mon.step(state, fx, fy, r.psi, tool=r.tool, program=r.program, line=r.line,
-                     new_block=True, override=r.override)  # fmt: skip
+            mon.step(
+                state,
+                fx,
+                fy,
+                r.psi,
+                tool=r.tool,
+                program=r.program,
+                line=r.line,
+                new_block=True,
+                override=r.override,
+            )
         parts += 1
         used = state["key_tool"] >= 0
         if np.all(state["parts"][used] >= TEACH_PARTS) or parts > 50:
@@ -222,14 +250,28 @@ def run_event_case(case: Case) -> dict[str, Any]:
     machine.events = [ev]
     override = 1.0 if rng.random() < 0.7 else float(rng.choice([0.9, 1.1]))
     pre_alarms = 0
-    res: dict[str, Any] = {**asdict(case), "size_value": size, "rpm": blk.spindle_rpm,
-                           "flutes": tool.n_flutes, "detected": False}  # fmt: skip
+    res: dict[str, Any] = {
+        **asdict(case),
+        "size_value": size,
+        "rpm": blk.spindle_rpm,
+        "flutes": tool.n_flutes,
+        "detected": False,
+    }
     for b in program.blocks:
         recs = machine.run_block(b, override=override)
         r = recs[0]
         fx, fy = obs(r)
-        mrec = mon.step(state, fx, fy, r.psi, tool=r.tool, program=r.program, line=r.line,
-                        new_block=True, override=r.override)  # fmt: skip
+        mrec = mon.step(
+            state,
+            fx,
+            fy,
+            r.psi,
+            tool=r.tool,
+            program=r.program,
+            line=r.line,
+            new_block=True,
+            override=r.override,
+        )
         if b.line != line:
             pre_alarms += len(mrec.alarms)
             continue
@@ -241,8 +283,11 @@ def run_event_case(case: Case) -> dict[str, Any]:
         others = sorted({a.detector for a in mrec.alarms if a.sample - base >= k_ev} - {case.kind})
         ts = machine.sample_time
         res.update(
-            block_s=r.n * ts, event_t=truth.t, other_detectors=others, override=r.override,
-        )  # fmt: skip
+            block_s=r.n * ts,
+            event_t=truth.t,
+            other_detectors=others,
+            override=r.override,
+        )
         if hits:
             k_al = hits[0].sample - base
             res.update(detected=True, delay_s=(k_al - k_ev) * ts)
@@ -284,8 +329,17 @@ def run_free_case(case: Case) -> dict[str, Any]:
     while machine.t - t0 < case.hours * 3600.0:
         for r in machine.run_part():
             fx, fy = obs(r)
-            m = mon.step(state, fx, fy, r.psi, tool=r.tool, program=r.program, line=r.line,
-                         new_block=True, override=r.override)  # fmt: skip
+            m = mon.step(
+                state,
+                fx,
+                fy,
+                r.psi,
+                tool=r.tool,
+                program=r.program,
+                line=r.line,
+                new_block=True,
+                override=r.override,
+            )
             for a in m.alarms:
                 alarms[a.detector] += 1
             with np.errstate(invalid="ignore", divide="ignore"):
@@ -301,10 +355,13 @@ def run_free_case(case: Case) -> dict[str, Any]:
         if machine.t >= next_hour:
             cut = state["key_tool"] >= 0
             hourly.append(
-                {**hw, "gain_min": float(state["gain"][cut].min()),
-                 "gain_max": float(state["gain"][cut].max()),
-                 "wear_max": max(i.wear for i in machine.instances.values())}
-            )  # fmt: skip
+                {
+                    **hw,
+                    "gain_min": float(state["gain"][cut].min()),
+                    "gain_max": float(state["gain"][cut].max()),
+                    "wear_max": max(i.wear for i in machine.instances.values()),
+                }
+            )
             for k in worst:
                 worst[k] = max(worst[k], hw[k]) if k != "fmean_over_lower" else min(worst[k], hw[k])
             hw = {"f_over_extreme": 0.0, "fmean_over_lower": math.inf, "pattern_over_limit": 0.0}
@@ -328,7 +385,9 @@ def run_case(case: Case) -> dict[str, Any]:
 
 
 def _cases(quick: bool) -> list[Case]:
-    n_clear, n_edge, hours, per = (4, 2, 0.05, 0.05) if quick else (N_CLEAR, N_EDGE, FREE_HOURS, 1.0)
+    n_clear, n_edge, hours, per = (
+        (4, 2, 0.05, 0.05) if quick else (N_CLEAR, N_EDGE, FREE_HOURS, 1.0)
+    )
     out = [Case("none", "", s, per) for s in range(max(1, round(hours / per)))]
     for kind in ("breakage", "collision", "missing_tool"):
         out += [Case(kind, "clear", s) for s in range(n_clear)]
@@ -336,7 +395,12 @@ def _cases(quick: bool) -> list[Case]:
     return out
 
 
-_CODE = ("estimators/process_monitor.py", "machine", "common", "server/pipeline/eccentricity_loop.py")
+_CODE = (
+    "estimators/process_monitor.py",
+    "machine",
+    "common",
+    "server/pipeline/eccentricity_loop.py",
+)
 
 
 def code_version() -> str:
@@ -395,8 +459,9 @@ def run_cases(cases: list[Case], *, progress: bool, cache: Path | None) -> list[
             print(f"{NAME}: {len(results)} cases from {cache}", file=sys.stderr)
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     try:
-        with tqdm(total=len(todo), desc=NAME, unit="case", disable=not progress or not todo,
-                  leave=False) as bar:  # fmt: skip
+        with tqdm(
+            total=len(todo), desc=NAME, unit="case", disable=not progress or not todo, leave=False
+        ) as bar:
             if len(todo) <= 1:
                 it = map(run_case, todo)
                 for r in it:
@@ -453,8 +518,12 @@ def build(results: list[dict[str, Any]]) -> Reproduction:
     rep = Reproduction(NAME, SOURCE)
     targets = {
         "breakage": ("delay_revs", TARGET_BREAKAGE_REVS, "rev", "from the event's first sample"),
-        "collision": ("delay_from_estimate_s", TARGET_COLLISION_S, "s",
-                      "from the estimated force crossing the extreme limit"),  # fmt: skip
+        "collision": (
+            "delay_from_estimate_s",
+            TARGET_COLLISION_S,
+            "s",
+            "from the estimated force crossing the extreme limit",
+        ),
         "missing_tool": ("delay_blocks", 1.0, "block", "from the event's first sample"),
     }
     for kind in ("breakage", "collision", "missing_tool"):
@@ -467,15 +536,31 @@ def build(results: list[dict[str, Any]]) -> Reproduction:
             lo, hi = clopper_pearson(k, n)
             sv = [r["size_value"] for r in rs]
             unit = {"breakage": "m radius", "collision": "x feed", "missing_tool": "share"}[kind]
-            cond = f"{n} events, size {min(sv):.3g}-{max(sv):.3g} {unit}; 95 % CP [{lo:.4f}, {hi:.4f}]"
+            cond = (
+                f"{n} events, size {min(sv):.3g}-{max(sv):.3g} {unit}; 95 % CP [{lo:.4f}, {hi:.4f}]"
+            )
             rep.rows.append(Row(f"{kind}.{size}.detection", k / n, None, "-", cond))
             misses = [r["seed"] for r in rs if not r["detected"]]
             if misses:
-                rep.rows.append(Row(f"{kind}.{size}.misses", len(misses), None, "events",
-                                    "seeds " + ", ".join(map(str, misses[:20]))))  # fmt: skip
+                rep.rows.append(
+                    Row(
+                        f"{kind}.{size}.misses",
+                        len(misses),
+                        None,
+                        "events",
+                        "seeds " + ", ".join(map(str, misses[:20])),
+                    )
+                )
             pre = sum(r.get("pre_alarms", 0) for r in rs)
-            rep.rows.append(Row(f"{kind}.{size}.alarms_before_event", pre, None, "alarms",
-                                "in the watched event parts, before the event"))  # fmt: skip
+            rep.rows.append(
+                Row(
+                    f"{kind}.{size}.alarms_before_event",
+                    pre,
+                    None,
+                    "alarms",
+                    "in the watched event parts, before the event",
+                )
+            )
             key, target, tunit, tcond = targets[kind]
             d = [float(r[key]) for r in rs if r["detected"] and key in r]
             if d:
@@ -483,47 +568,133 @@ def build(results: list[dict[str, Any]]) -> Reproduction:
                 p95 = float(np.percentile(d, 95))
                 p95_hi = quantile_upper(d, 0.95)
                 rep.rows.append(Row(f"{kind}.{size}.delay_median", med, None, tunit, tcond))
-                rep.rows.append(Row(f"{kind}.{size}.delay_p95", p95, None, tunit,
-                                    f"95 % upper bound {p95_hi:.4g} {tunit}; target {target:g}"))  # fmt: skip
+                rep.rows.append(
+                    Row(
+                        f"{kind}.{size}.delay_p95",
+                        p95,
+                        None,
+                        tunit,
+                        f"95 % upper bound {p95_hi:.4g} {tunit}; target {target:g}",
+                    )
+                )
             if kind == "collision":
                 dt = [float(r["delay_from_true_s"]) for r in rs if "delay_from_true_s" in r]
                 if dt:
-                    rep.rows.append(Row(f"collision.{size}.delay_from_true_p95",
-                                        float(np.percentile(dt, 95)), None, "s",
-                                        "from the true force crossing the limit"))  # fmt: skip
+                    rep.rows.append(
+                        Row(
+                            f"collision.{size}.delay_from_true_p95",
+                            float(np.percentile(dt, 95)),
+                            None,
+                            "s",
+                            "from the true force crossing the limit",
+                        )
+                    )
             if size == "clear":
-                rep.checks.append(Check(f"{kind}.clear.detection_lower_95 >= 0.99",
-                                        lo >= TARGET_DETECTION, lo, TARGET_DETECTION))  # fmt: skip
+                rep.checks.append(
+                    Check(
+                        f"{kind}.clear.detection_lower_95 >= 0.99",
+                        lo >= TARGET_DETECTION,
+                        lo,
+                        TARGET_DETECTION,
+                    )
+                )
                 if d:
-                    rep.checks.append(Check(f"{kind}.clear.delay_median <= {target:g} {tunit}",
-                                            med <= target, med, target))  # fmt: skip
-                    rep.checks.append(Check(f"{kind}.clear.delay_p95_upper_95 <= {target:g} {tunit}",
-                                            p95_hi <= target, p95_hi, target))  # fmt: skip
+                    rep.checks.append(
+                        Check(
+                            f"{kind}.clear.delay_median <= {target:g} {tunit}",
+                            med <= target,
+                            med,
+                            target,
+                        )
+                    )
+                    rep.checks.append(
+                        Check(
+                            f"{kind}.clear.delay_p95_upper_95 <= {target:g} {tunit}",
+                            p95_hi <= target,
+                            p95_hi,
+                            target,
+                        )
+                    )
     free = [r for r in results if r["kind"] == "none"]
     if free:
         hours = float(sum(r["watched_h"] for r in free))
         for det in ("breakage", "collision", "missing_tool"):
             k = int(sum(r["alarms"][det] for r in free))
             lo, hi = poisson_rate(k, hours)
-            rep.rows.append(Row(f"false_alarms.{det}", k / hours, None, "per hour",
-                                f"{k} in {hours:.1f} h event-free; 95 % [{lo:.4f}, {hi:.4f}]"))  # fmt: skip
-            rep.checks.append(Check(f"false_alarms.{det}.upper_95 <= 0.1 per hour",
-                                    hi <= TARGET_FALSE_PER_HOUR, hi, TARGET_FALSE_PER_HOUR))  # fmt: skip
+            rep.rows.append(
+                Row(
+                    f"false_alarms.{det}",
+                    k / hours,
+                    None,
+                    "per hour",
+                    f"{k} in {hours:.1f} h event-free; 95 % [{lo:.4f}, {hi:.4f}]",
+                )
+            )
+            rep.checks.append(
+                Check(
+                    f"false_alarms.{det}.upper_95 <= 0.1 per hour",
+                    hi <= TARGET_FALSE_PER_HOUR,
+                    hi,
+                    TARGET_FALSE_PER_HOUR,
+                )
+            )
         w = [r["worst"] for r in free]
-        rep.rows.append(Row("free.max_force_over_extreme", max(x["f_over_extreme"] for x in w),
-                            None, "-", "largest f / extreme limit, all event-free hours"))  # fmt: skip
-        rep.rows.append(Row("free.min_mean_over_lower", min(x["fmean_over_lower"] for x in w),
-                            None, "-", "smallest mean force / lower limit where cutting"))  # fmt: skip
-        rep.rows.append(Row("free.max_pattern_over_limit", max(x["pattern_over_limit"] for x in w),
-                            None, "-", "largest d / breakage threshold"))  # fmt: skip
+        rep.rows.append(
+            Row(
+                "free.max_force_over_extreme",
+                max(x["f_over_extreme"] for x in w),
+                None,
+                "-",
+                "largest f / extreme limit, all event-free hours",
+            )
+        )
+        rep.rows.append(
+            Row(
+                "free.min_mean_over_lower",
+                min(x["fmean_over_lower"] for x in w),
+                None,
+                "-",
+                "smallest mean force / lower limit where cutting",
+            )
+        )
+        rep.rows.append(
+            Row(
+                "free.max_pattern_over_limit",
+                max(x["pattern_over_limit"] for x in w),
+                None,
+                "-",
+                "largest d / breakage threshold",
+            )
+        )
         hw = [h for r in free for h in r["hourly"]]
         if hw:
-            rep.rows.append(Row("free.wear_max", max(h["wear_max"] for h in hw), None, "-",
-                                "largest edge-coefficient growth reached"))  # fmt: skip
-            rep.rows.append(Row("free.tracked_gain_max", max(h["gain_max"] for h in hw), None,
-                                "-", "largest tracked force ratio moving the limits"))  # fmt: skip
-        rep.rows.append(Row("free.tool_replacements", sum(r["tool_replacements"] for r in free),
-                            None, "tools", "worn tools replaced by new instances"))  # fmt: skip
+            rep.rows.append(
+                Row(
+                    "free.wear_max",
+                    max(h["wear_max"] for h in hw),
+                    None,
+                    "-",
+                    "largest edge-coefficient growth reached",
+                )
+            )
+            rep.rows.append(
+                Row(
+                    "free.tracked_gain_max",
+                    max(h["gain_max"] for h in hw),
+                    None,
+                    "-",
+                    "largest tracked force ratio moving the limits",
+                )
+            )
+        rep.rows.append(
+            Row(
+                "free.tool_replacements",
+                sum(r["tool_replacements"] for r in free),
+                None,
+                "tools",
+                "worn tools replaced by new instances",
+            )
+        )
     return rep
 
 
@@ -536,9 +707,11 @@ def _plot(results: list[dict[str, Any]], plot_dir: Path) -> str:
     fig, axs = plt.subplots(1, 3, figsize=(13, 3.6))
     for ax, (kind, key, unit, target) in zip(
         axs,
-        (("breakage", "delay_revs", "rev", TARGET_BREAKAGE_REVS),
-         ("collision", "delay_from_estimate_s", "s", TARGET_COLLISION_S),
-         ("missing_tool", "delay_blocks", "block", 1.0)),  # fmt: skip
+        (
+            ("breakage", "delay_revs", "rev", TARGET_BREAKAGE_REVS),
+            ("collision", "delay_from_estimate_s", "s", TARGET_COLLISION_S),
+            ("missing_tool", "delay_blocks", "block", 1.0),
+        ),
         strict=True,
     ):
         for size, c in (("clear", "tab:blue"), ("edge", "tab:orange")):
@@ -556,7 +729,9 @@ def _plot(results: list[dict[str, Any]], plot_dir: Path) -> str:
     return str(path)
 
 
-def run(*, quick: bool = False, plot_dir: Path | None = None, progress: bool = True) -> Reproduction:
+def run(
+    *, quick: bool = False, plot_dir: Path | None = None, progress: bool = True
+) -> Reproduction:
     """The Monte Carlo (``quick``: a few seeds per kind and 3 event-free minutes).
 
     The full run keeps every finished case in :func:`cache_path` and resumes from it.
