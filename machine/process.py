@@ -591,6 +591,9 @@ class ProcessMachine:
             stock = np.array([x0, x0 + blk.length, ramp, 1.0])
         else:
             stock = np.zeros(4)
+        if ev and ev[0].kind == "collision" and blk.cut:
+            # the tool driven on at the wrong feed stays in the part (no exit)
+            stock[1] = math.inf
         imm = blk.radial_immersion
         phi_st, phi_ex = (
             (math.acos(2.0 * imm - 1.0), math.pi)
