@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
@@ -46,7 +47,7 @@ def test_a_part_carries_the_program_identities_and_cuts_only_in_cut_blocks() -> 
         assert (f.max() > 20.0) == r.cut, (r.line, f.max())
         assert np.all(np.diff(r.t) > 0) and r.part == 0
     # samples are consecutive across blocks
-    assert all(b.k0 == a.k0 + a.n for a, b in zip(recs, recs[1:], strict=False))
+    assert all(b.k0 == a.k0 + a.n for a, b in itertools.pairwise(recs))
     assert m.run_part()[0].part == 1
 
 
