@@ -57,7 +57,9 @@ Detectors (each with its reason):
     no cut the program makes comes near it.
 ``missing_tool`` (missing or broken-off tool)
     :math:`\bar f_k` below the lower limit for one revolution, where the block is taught
-    as cutting (taught minimum of :math:`\bar f` above ``min_cut_force``). The lower
+    as cutting (taught minimum of :math:`\bar f` above ``min_cut_force`` and above
+    ``cut_share`` of the block's largest taught mean: past the entry's ramp, where a
+    small shift of the entry would move the force a lot). The lower
     limit is the lower band, or ``lower_share`` of the taught minimum if that is lower.
 
 Each detector alarms at most once per block execution (latched until the next block).
@@ -113,8 +115,9 @@ class MonitorParams:
         The missing-tool limit is never above this share of the taught minimum.
     extreme_factor, extreme_floor : float
         Extreme limit: ``max(extreme_factor * taught peak, extreme_floor)`` [N].
-    min_cut_force : float
-        A bin counts as cutting when its taught minimum mean force exceeds this [N].
+    min_cut_force, cut_share : float
+        A bin counts as cutting when its taught minimum mean force exceeds this [N] and
+        ``cut_share`` of the block's largest taught mean (past the entry's ramp).
     breakage_factor, breakage_floor : float
         Breakage threshold on the pattern change ``d``.
     suspect_share : float
@@ -138,6 +141,7 @@ class MonitorParams:
     extreme_factor: float = 2.0
     extreme_floor: float = 40.0
     min_cut_force: float = 5.0
+    cut_share: float = 0.3
     breakage_factor: float = 3.0
     breakage_floor: float = 0.1
     suspect_share: float = 0.5
@@ -155,7 +159,7 @@ class MonitorParams:
                 raise ParameterError(name, "an integer >= 1", v)
         for name in ("bin_s", "band_factor", "extreme_factor", "breakage_factor"):
             require_positive(name, getattr(self, name))
-        for name in ("band_rel", "lower_share", "suspect_share", "gain_alpha"):
+        for name in ("band_rel", "lower_share", "suspect_share", "gain_alpha", "cut_share"):
             require_in(name, getattr(self, name), 0.0, 1.0)
         for name in ("extreme_floor", "min_cut_force", "breakage_floor"):
             require_positive(name, getattr(self, name))
@@ -167,7 +171,7 @@ class MonitorParams:
                 self.band_rel, self.lower_share, self.extreme_factor, self.extreme_floor,
                 self.min_cut_force, self.breakage_factor, self.breakage_floor,
                 self.suspect_share, self.breakage_samples, self.collision_samples,
-                self.gain_alpha,
+                self.gain_alpha, self.cut_share,
             ]
         )  # fmt: skip
 
@@ -234,6 +238,7 @@ def _monitor_kernel(
     tt: F64,
     cur: F64,
     seg_pk: F64,
+    seg_mpk: F64,
     run: F64,
     fbuf: F64,
     rbuf: F64,
@@ -279,6 +284,7 @@ def _monitor_kernel(
     sshare = pr[11]
     nbk = int(pr[12])
     nco = int(pr[13])
+    cut_lvl = max(mincut, pr[15] * seg_mpk[seg])
     nb = t_cnt.shape[1]
     lmax = fbuf.shape[1]
     na = 0
@@ -364,7 +370,7 @@ def _monitor_kernel(
                 hi = (mean + half) * up
                 mmin = _bin_val(t_mmin, seg, b, nb, False)
                 lo = min(mean - half, lshare * mmin) * lo_s
-                if mmin > mincut:
+                if mmin > cut_lvl:
                     dl = max(bfac * _bin_val(t_dmax, seg, b, nb, True), bfloor)
             # collision / overload
             if f > ex:
@@ -406,7 +412,7 @@ def _monitor_kernel(
                 alarms[na, 3] = lo
                 na += 1
             # the block's mean against the taught one (the tracked force ratio)
-            if cnt > 0.0 and not math.isnan(fm) and _bin_val(t_mmin, seg, b, nb, False) > mincut:
+            if cnt > 0.0 and not math.isnan(fm) and not math.isnan(dl):
                 run[14] += fm
                 run[15] += t_msum[seg, b] / cnt
         o_lo[k] = lo
@@ -450,6 +456,7 @@ class ProcessMonitor:
         st["parts"] = np.zeros(s)
         st["gain"] = np.ones(s)
         st["peak"] = np.zeros(s)
+        st["mean_peak"] = np.zeros(s)
         st["key_tool"] = np.full(s, -1, dtype=np.int64)
         st["key_line"] = np.full(s, -1, dtype=np.int64)
         st["key_program"] = np.full(s, "", dtype="<U32")
@@ -496,6 +503,7 @@ class ProcessMonitor:
         state["parts"][sel] = 0.0
         state["gain"][sel] = 1.0
         state["peak"][sel] = 0.0
+        state["mean_peak"][sel] = 0.0
         return int(sel.sum())
 
     def step(
@@ -558,7 +566,7 @@ class ProcessMonitor:
         t = state
         na = _monitor_kernel(
             fx, fy, psi, seg, new_block, ov, g, teach, watch, self._pr, t["teach"],
-            t["current"], t["peak"], run, t["fbuf"], t["rbuf"], o, sus, alarms,
+            t["current"], t["peak"], t["mean_peak"], run, t["fbuf"], t["rbuf"], o, sus, alarms,
         )  # fmt: skip
         k0 = int(state["samples"][0])
         state["samples"][0] += n
@@ -597,6 +605,9 @@ class ProcessMonitor:
             np.maximum(t["pk_max"], c["c_pk"], out=t["pk_max"])
             np.maximum(t["d_max"], c["c_d"], out=t["d_max"])
             state["peak"][seg] = float(t["pk_max"].max())
+            taught = t["cnt"] > 0
+            if taught.any():
+                state["mean_peak"][seg] = float((t["m_sum"][taught] / t["cnt"][taught]).max())
             state["parts"][seg] += 1.0
             return
         ref = run[_R["blk_ref"]]
