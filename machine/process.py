@@ -42,7 +42,7 @@ from numba import njit
 from common.arrays import F64
 from machine.errors import ParameterError, require_in, require_nonnegative, require_positive
 from machine.feed_drives import FeedDriveParams
-from machine.milling import check_rpm
+from machine.milling import check_rpm, drive_step
 
 #: event kinds the simulator injects
 EVENT_KINDS = ("breakage", "collision", "missing_tool")
@@ -389,26 +389,7 @@ def _process_kernel(
         out[6, k] = psi
         out[7, k] = e
         for i in range(2):
-            kp = drive[i, 0]
-            ki = drive[i, 1]
-            kd = drive[i, 2]
-            b = drive[i, 4]
-            fcl = drive[i, 5]
-            e1 = drive[i, 6]
-            e2 = drive[i, 7]
-            e3 = drive[i, 8]
-            r = rx if i == 0 else ry
-            x = ax[i, 0]
-            vv = ax[i, 1]
-            err = r - x
-            ax[i, 2] += ts * err
-            u = kp * err + ki * ax[i, 2] + kd * (err - ax[i, 3]) / ts
-            ax[i, 3] = err
-            out[4 + i, k] = u
-            f = u - (fx if i == 0 else fy) - fcl * math.tanh(vv / 1e-3)
-            e4 = (ts - e3) / b if b > 0.0 else ts * ts / (2.0 * drive[i, 3])
-            ax[i, 0] = x + e3 * vv + e4 * f
-            ax[i, 1] = e1 * vv + e2 * f
+            out[4 + i, k] = drive_step(drive, ax, i, rx if i == 0 else ry, fx if i == 0 else fy, ts)
         st[0] = psi + omega * ts
         st[1] += v * ts
         st[2] = (head + 1) % hlen

@@ -205,23 +205,29 @@ def _setup(program: Any, rng: np.random.Generator, noise: dict[str, float], **kw
     return machine, obs, mon, mon.initial_state()
 
 
+def _watch(obs: Any, mon: Any, state: Any, r: Any, new_block: bool = True) -> Any:
+    """The drives' force estimate of a block record through the monitor: ``(fx, record)``."""
+    fx, fy = obs(r)
+    rec = mon.step(
+        state,
+        fx,
+        fy,
+        r.psi,
+        tool=r.tool,
+        program=r.program,
+        line=r.line,
+        new_block=new_block,
+        override=r.override,
+    )
+    return fx, rec
+
+
 def _teach(machine: Any, obs: Any, mon: Any, state: Any) -> int:
     """Cut parts until every block is taught; returns the parts cut."""
     parts = 0
     while True:
         for r in machine.run_part():
-            fx, fy = obs(r)
-            mon.step(
-                state,
-                fx,
-                fy,
-                r.psi,
-                tool=r.tool,
-                program=r.program,
-                line=r.line,
-                new_block=True,
-                override=r.override,
-            )
+            _watch(obs, mon, state, r)
         parts += 1
         used = state["key_tool"] >= 0
         if np.all(state["parts"][used] >= TEACH_PARTS) or parts > 50:
@@ -262,18 +268,7 @@ def run_event_case(case: Case) -> dict[str, Any]:
     for b in program.blocks:
         recs = machine.run_block(b, override=override)
         r = recs[0]
-        fx, fy = obs(r)
-        mrec = mon.step(
-            state,
-            fx,
-            fy,
-            r.psi,
-            tool=r.tool,
-            program=r.program,
-            line=r.line,
-            new_block=True,
-            override=r.override,
-        )
+        _, mrec = _watch(obs, mon, state, r)
         if b.line != line:
             pre_alarms += len(mrec.alarms)
             continue
@@ -330,18 +325,7 @@ def run_free_case(case: Case) -> dict[str, Any]:
     hw = dict(worst)
     while machine.t - t0 < case.hours * 3600.0:
         for r in machine.run_part():
-            fx, fy = obs(r)
-            m = mon.step(
-                state,
-                fx,
-                fy,
-                r.psi,
-                tool=r.tool,
-                program=r.program,
-                line=r.line,
-                new_block=True,
-                override=r.override,
-            )
+            _, m = _watch(obs, mon, state, r)
             for a in m.alarms:
                 alarms[a.detector] += 1
             with np.errstate(invalid="ignore", divide="ignore"):
@@ -410,18 +394,7 @@ def run_canceller_case(case: Case) -> dict[str, Any]:
             ctl["latched"] = False
 
             def on_chunk(r: Any, spr: int = spr) -> None:
-                fx, fy = obs(r)
-                m = mon.step(
-                    state,
-                    fx,
-                    fy,
-                    r.psi,
-                    tool=r.tool,
-                    program=r.program,
-                    line=r.line,
-                    new_block=ctl["first"],
-                    override=r.override,
-                )
+                fx, m = _watch(obs, mon, state, r, ctl["first"])
                 ctl["first"] = False
                 if r.events:
                     ctl["truth"] = r.events[0]
