@@ -59,6 +59,8 @@ N_EDGE = 100
 N_CANCELLER = 60
 #: event-free simulated hours (0 alarms in 38 h: upper bound 3.69 / 38 = 0.097 per hour)
 FREE_HOURS = 38
+LONG_RUNS = 2
+LONG_HOURS = 10.0
 #: targets of the issue
 TARGET_DETECTION = 0.99
 TARGET_BREAKAGE_REVS = 2.0
@@ -476,7 +478,14 @@ def _cases(quick: bool) -> list[Case]:
     n_clear, n_edge, n_esc, hours, per = (
         (4, 2, 2, 0.05, 0.05) if quick else (N_CLEAR, N_EDGE, N_CANCELLER, FREE_HOURS, 1.0)
     )
-    out = [Case("none", "", s, per) for s in range(max(1, round(hours / per)))]
+    if quick:
+        out = [Case("none", "", s, per) for s in range(max(1, round(hours / per)))]
+    else:
+        # two continuous runs of LONG_HOURS (the limits must not drift over a long run),
+        # the rest one hour each (more programs, tools and noise levels)
+        out = [Case("none", "", 100 + s, LONG_HOURS) for s in range(LONG_RUNS)]
+        rest = FREE_HOURS - LONG_RUNS * LONG_HOURS
+        out += [Case("none", "", s, per) for s in range(round(rest / per))]
     out += [Case("breakage", "canceller", s) for s in range(n_esc)]
     for kind in ("breakage", "collision", "missing_tool"):
         out += [Case(kind, "clear", s) for s in range(n_clear)]
@@ -832,6 +841,25 @@ def build(results: list[dict[str, Any]]) -> Reproduction:
                     "largest tracked force ratio moving the limits",
                 )
             )
+        for r in (r for r in free if r["hours"] >= LONG_HOURS):
+            hh = r["hourly"]
+            if len(hh) < 2:
+                continue
+            first, last = hh[0], hh[-1]
+            for key, what in (
+                ("fmean_over_lower", "smallest mean force / lower limit"),
+                ("f_over_extreme", "largest f / extreme limit"),
+                ("gain_max", "largest tracked force ratio"),
+            ):
+                rep.rows.append(
+                    Row(
+                        f"free.long{r['seed']}.{key}.last_hour",
+                        last[key],
+                        None,
+                        "-",
+                        f"{what} in hour {len(hh)} of a continuous run; hour 1: {first[key]:.3f}",
+                    )
+                )
         rep.rows.append(
             Row(
                 "free.tool_replacements",
