@@ -903,6 +903,76 @@ def _plot(results: list[dict[str, Any]], plot_dir: Path) -> str:
     return str(path)
 
 
+def example_figure(plot_dir: Path) -> str:
+    """One tooth breakage on the default program (seed 0): the estimated force with its
+    taught envelope and extreme limit, the pattern change ``d`` with its threshold, the
+    event's first sample and the alarm."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from machine.process import ProcessEvent, default_program
+
+    rng = np.random.default_rng(0)
+    noise = {"resolution": 5e-9, "current_noise": 0.01, "mass_error": 0.02}
+    machine, obs, mon, state = _setup(default_program(), rng, noise, override_prob=0.0)
+    _teach(machine, obs, mon, state)
+    machine.events = [ProcessEvent("breakage", machine.part, 40, 0.5, 0.3e-3, flute=1)]
+    for b in machine.program.blocks:
+        (r,) = machine.run_block(b)
+        _, m = _watch(obs, mon, state, r)
+        if b.line == 40:
+            break
+    ts = machine.sample_time
+    k_ev = r.events[0].sample - r.k0
+    al = next(a for a in m.alarms if a.detector == "breakage")
+    k_al = al.sample - (int(state["samples"][0]) - r.n)
+    sl = slice(max(0, k_ev - 1500), min(r.n, k_ev + 1500))
+    t = (np.arange(r.n)[sl] - k_ev) * ts * 1e3
+    fig, (a1, a2) = plt.subplots(2, 1, figsize=(10, 6), sharex=True)
+    a1.plot(t, m.f[sl], lw=0.6, color="0.6", label="|F| estimated from the drives")
+    a1.plot(t, m.f_mean[sl], color="tab:blue", label="mean over a revolution")
+    a1.fill_between(
+        t,
+        m.lower[sl],
+        m.upper[sl],
+        color="tab:blue",
+        alpha=0.15,
+        label="taught band (missing-tool limit below)",
+    )
+    a1.plot(t, m.extreme[sl], color="tab:red", ls="--", label="extreme limit (collision)")
+    a1.set_ylabel("force [N]")
+    a1.legend(fontsize=8, loc="upper left")
+    a2.plot(t, m.pattern[sl], color="tab:purple", label="pattern change d")
+    a2.plot(t, m.pattern_limit[sl], color="tab:purple", ls="--", label="breakage threshold")
+    a2.fill_between(
+        t,
+        0,
+        np.where(m.suspected[sl] > 0, m.pattern_limit[sl], 0),
+        color="orange",
+        alpha=0.3,
+        label="suspected (canceller held)",
+    )
+    a2.set_ylabel("d [-]")
+    a2.set_xlabel("time from the breakage's first sample [ms]")
+    for ax in (a1, a2):
+        ax.axvline(0.0, color="k", lw=1)
+        ax.axvline((k_al - k_ev) * ts * 1e3, color="tab:red", lw=1)
+    a2.legend(fontsize=8, loc="upper left")
+    rev = 60.0 / r.spindle_rpm * 1e3
+    a1.set_title(
+        f"tooth breakage, line 40, {r.spindle_rpm:.0f} rpm: alarm after "
+        f"{(k_al - k_ev) * ts * 1e3:.1f} ms ({(k_al - k_ev) * ts * 1e3 / rev:.2f} rev)"
+    )
+    fig.tight_layout()
+    plot_dir.mkdir(parents=True, exist_ok=True)
+    path = plot_dir / "process_monitoring_breakage.png"
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return str(path)
+
+
 def run(
     *, quick: bool = False, plot_dir: Path | None = None, progress: bool = True
 ) -> Reproduction:
@@ -914,4 +984,5 @@ def run(
     rep = build(results)
     if plot_dir is not None:
         rep.figures.append(_plot(results, plot_dir))
+        rep.figures.append(example_figure(plot_dir))
     return rep
