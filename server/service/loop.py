@@ -22,6 +22,8 @@ import contextlib
 import math
 import threading
 import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -30,12 +32,14 @@ from server.errors import CutwatchError
 from server.pipeline.broker import BrokerConfig, parse_broker_url
 from server.pipeline.drive_feed import DriveFeed
 from server.pipeline.estimates_out import EstimatesPublisher
+from server.pipeline.knobs import Knob
 from server.pipeline.live_pipeline import LivePipeline
 from server.pipeline.mqtt_source import MqttSource
 from server.service import protocol
 from server.service.settings import MAX_SPEED, Settings
 
 if TYPE_CHECKING:
+    from estimators.observer_effects import ObserverEffect
     from server.service.recording import Recording
     from server.service.viser_scene import StageScene
 
@@ -186,37 +190,72 @@ def _wake(clients: list[ClientQueue]) -> None:
         q.event.set()
 
 
+@dataclass(frozen=True)
+class LoopParts:
+    """What a :class:`LiveLoop` runs: the pipeline and the broker parts, if any."""
+
+    pipeline: LivePipeline
+    feed: DriveFeed | None = None
+    estimates_out: EstimatesPublisher | None = None
+
+
+def loop_parts(settings: Settings) -> LoopParts:
+    """The pipeline, the drive feed and the estimates publisher the settings ask for:
+    a real machine's feed from the broker (``source == "mqtt"``) or the simulated
+    scenario; the estimates out when ``mqtt_publish_hz > 0``."""
+    feed: DriveFeed | None = None
+    out: EstimatesPublisher | None = None
+    if settings.source == "mqtt" or settings.mqtt_publish_hz > 0:
+        cfg = broker_config(settings)
+        if settings.source == "mqtt":
+            feed = DriveFeed(
+                cfg, settings.mqtt_machine, max_samples=10**7, max_seconds=settings.mqtt_buffer_s
+            )
+        if settings.mqtt_publish_hz > 0:
+            out = EstimatesPublisher(
+                cfg, settings.mqtt_machine, settings.mqtt_publish_hz, settings.public_url
+            )
+    if feed is not None:
+        pipe = LivePipeline(seed=settings.seed, source=MqttSource(feed))
+    else:
+        pipe = LivePipeline(settings.scenario, seed=settings.seed)
+    return LoopParts(pipe, feed, out)
+
+
 class LiveLoop:
     """The background loop: pipeline stepping on a wall-clock schedule, frames to the hub.
 
     Every public method is thread-safe. Pipeline access (stepping, knobs, reset,
-    snapshot) is serialised by one lock held for one block at a time.
+    snapshot) is serialised by one lock held for one block at a time; the routes use
+    the methods of the facade below, never the pipeline or the lock.
+
+    Parameters
+    ----------
+    settings, hub
+        The service's settings and the client hub.
+    pipeline
+        The pipeline to run (default: the settings' simulated scenario).
+    feed, estimates_out
+        A drive feed and an estimates publisher (:func:`loop_parts`), started and
+        stopped with the loop.
     """
 
-    def __init__(self, settings: Settings, hub: Hub) -> None:
+    def __init__(
+        self,
+        settings: Settings,
+        hub: Hub,
+        *,
+        pipeline: LivePipeline | None = None,
+        feed: DriveFeed | None = None,
+        estimates_out: EstimatesPublisher | None = None,
+    ) -> None:
         self.settings = settings
         self.hub = hub
-        #: a real machine's drive data from the broker (settings.source == "mqtt")
-        self.feed: DriveFeed | None = None
-        #: the estimates on cutwatch/<machine>/estimates (settings.mqtt_publish_hz > 0)
-        self.estimates_out: EstimatesPublisher | None = None
-        if settings.source == "mqtt" or settings.mqtt_publish_hz > 0:
-            cfg = broker_config(settings)
-            if settings.source == "mqtt":
-                self.feed = DriveFeed(
-                    cfg,
-                    settings.mqtt_machine,
-                    max_samples=10**7,
-                    max_seconds=settings.mqtt_buffer_s,
-                )
-            if settings.mqtt_publish_hz > 0:
-                self.estimates_out = EstimatesPublisher(
-                    cfg, settings.mqtt_machine, settings.mqtt_publish_hz, settings.public_url
-                )
-        if self.feed is not None:
-            self.pipeline = LivePipeline(seed=settings.seed, source=MqttSource(self.feed))
-        else:
-            self.pipeline = LivePipeline(settings.scenario, seed=settings.seed)
+        #: a real machine's drive data from the broker (started and stopped with the loop)
+        self.feed = feed
+        #: the estimates on cutwatch/<machine>/estimates (started and stopped with the loop)
+        self.estimates_out = estimates_out
+        self.pipeline = pipeline or LivePipeline(settings.scenario, seed=settings.seed)
         self.lock = threading.RLock()
         self._wake = threading.Event()
         self._stop = threading.Event()
@@ -342,8 +381,9 @@ class LiveLoop:
         try:
             while not self._stop.is_set():
                 src = self.pipeline.source
-                if isinstance(src, MqttSource) and src.needs_rebuild:  # a new meta
-                    self.set_pipeline(LivePipeline(seed=self.settings.seed, source=src.renewed()))
+                renewed = getattr(src, "renewed", None)  # a live feed's source
+                if renewed is not None and getattr(src, "needs_rebuild", False):  # a new meta
+                    self.set_pipeline(LivePipeline(seed=self.settings.seed, source=renewed()))
                 with self.lock:
                     paused, speed = self.paused, self.speed
                     block_s = self.block_n * self.pipeline.sample_time
@@ -429,7 +469,7 @@ class LiveLoop:
                 self.pipeline.t,
                 src.name,
                 health=self.health(),
-                drive_wall=src.last_wall if isinstance(src, MqttSource) else None,
+                drive_wall=getattr(src, "last_wall", None),
                 feed_health=self.feed.health() if self.feed is not None else None,
             )
             pub.publish(body, now)
@@ -438,7 +478,7 @@ class LiveLoop:
         """The measurement source, and the broker parts when there are any."""
         src = self.pipeline.source
         out: dict[str, Any] = {"source": src.name}
-        if isinstance(src, MqttSource):
+        if self.feed is not None:
             out["feed"] = src.status()
         if self.estimates_out is not None:
             out["estimates_out"] = self.estimates_out.health()
@@ -556,3 +596,81 @@ class LiveLoop:
     def knob_values(self) -> dict[str, Any]:
         with self.lock:
             return {k: v.value for k, v in self.pipeline.knobs().items()}
+
+    # ------------------------------------------------------------------ facade (routes)
+    @property
+    def scenario(self) -> str:
+        """The running scenario's name (a source's own name for a log or a feed)."""
+        return self.pipeline.scenario
+
+    @property
+    def sim_t(self) -> float:
+        """Time of the source [s]."""
+        return self.pipeline.t
+
+    @property
+    def finished(self) -> bool:
+        """The source hands out no more samples (a replayed log has ended)."""
+        return self.pipeline.finished
+
+    def knobs(self) -> dict[str, Knob]:
+        """Every knob with its range and current value (frozen copies)."""
+        with self.lock:
+            return self.pipeline.knobs()
+
+    def set_knobs(self, changes: Mapping[str, object]) -> dict[str, Knob]:
+        """Set knobs, all or nothing; the knobs after the change.
+
+        Raises
+        ------
+        ParameterError
+            A refused change (nothing changed).
+        """
+        with self.lock:
+            self.pipeline.set_knobs(changes)
+            return self.pipeline.knobs()
+
+    def snapshot(self) -> dict[str, object]:
+        """The pipeline's snapshot (:meth:`LivePipeline.snapshot`)."""
+        with self.lock:
+            return self.pipeline.snapshot()
+
+    def accuracy(self) -> dict[str, object]:
+        """The rolling accuracy of the force estimates."""
+        with self.lock:
+            return self.pipeline.accuracy()
+
+    def observer_effects(self) -> tuple[ObserverEffect, ...]:
+        """The effects installed in the live observer."""
+        with self.lock:
+            return self.pipeline.effects
+
+    def set_observer_effects(
+        self, effects: tuple[ObserverEffect, ...]
+    ) -> tuple[tuple[ObserverEffect, ...], float]:
+        """Install effects (``()`` removes them); the effects installed and the time.
+
+        Raises
+        ------
+        ParameterError
+            An effect without its fitted coefficients.
+        """
+        with self.lock:
+            self.pipeline.set_observer_effects(effects)
+            return self.pipeline.effects, self.pipeline.t
+
+    def start_recording(
+        self,
+        make: Callable[[dict[str, Any]], Recording],
+        refuse: Callable[[], None] = lambda: None,
+    ) -> Recording:
+        """Start a recording of the running source: ``refuse()`` first (it raises when
+        the loop's state allows none), then ``make(sidecar)``, both under the loop's
+        lock, so no block or pipeline change falls between the check and the start."""
+        from server.service.recording import source_sidecar
+
+        with self.lock:
+            refuse()
+            rec = make(source_sidecar(self.pipeline.source, self.pipeline.scenario))
+            self.recording = rec
+            return rec
