@@ -22,7 +22,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from common.arrays import F64
-from estimators import dfo as dfo_mod
+from estimators.dfo import Dfo, DfoRecord
 from estimators.observer_effects import EffectsParams, ObserverEffect, ObserverEffects
 from estimators.rls import IdentifierParams
 from server.pipeline.sources import MeasurementSource, SourceBlock
@@ -35,7 +35,7 @@ class BankBlock:
     """One block of the bank: the stage observers', the DFO's and the effects' outputs."""
 
     stage: StageBlock
-    dfo: dfo_mod.DfoRecord
+    dfo: DfoRecord
     f_effects: F64
 
 
@@ -64,16 +64,16 @@ class ObserverBank:
         effects: tuple[ObserverEffect, ...] = (),
     ) -> None:
         self.run = StageRun(source=source, ident=ident, observer_design=dict(design))
-        self.dfo = make_dfo(self.run.front.params, tuple(frequencies))
-        self.dfo_state = dfo_mod.initial_state(self.dfo)
+        self.dfo = Dfo(make_dfo(self.run.front.params, tuple(frequencies)))
+        self.dfo_state = self.dfo.initial_state()
         self.fx: ObserverEffects | None = None
         self.effects: tuple[ObserverEffect, ...] = ()
         self.set_effects(effects)
 
     def retune(self, frequencies: tuple[float, ...]) -> None:
         """The harmonic observer on new frequencies (its state kept)."""
-        if frequencies != tuple(self.dfo.frequencies):
-            self.dfo = self.dfo.with_frequencies(frequencies)
+        if frequencies != tuple(self.dfo.params.frequencies):
+            self.dfo = Dfo(self.dfo.params.with_frequencies(frequencies))
 
     def set_effects(self, effects: tuple[ObserverEffect, ...]) -> None:
         """Install identified effects (``()`` removes them), from their initial state.
@@ -88,20 +88,20 @@ class ObserverBank:
         fx = None
         if effects:
             fx = ObserverEffects(EffectsParams(effects, fp.sample_time, fp.q_hz, fp.q_order))
-            self.fx_state = fx.init_state()
+            self.fx_state = fx.initial_state()
         self.fx, self.effects = fx, effects
 
     def reset(self) -> None:
         """Every estimator back to its initial state (the DFO's frequencies kept)."""
         self.run.reset_estimators()
-        self.dfo_state = dfo_mod.initial_state(self.dfo)
+        self.dfo_state = self.dfo.initial_state()
         if self.fx is not None:
-            self.fx_state = self.fx.init_state()
+            self.fx_state = self.fx.initial_state()
 
     def process(self, block: SourceBlock) -> BankBlock:
         """Run every estimator on one non-empty block."""
         b = self.run.process(block)
-        self.dfo_state, dr = dfo_mod.step(self.dfo, self.dfo_state, b.f_segment)
+        self.dfo_state, dr = self.dfo.step(self.dfo_state, b.f_segment)
         f_effects = b.f_fixed
         if self.fx is not None:
             m = b.meas

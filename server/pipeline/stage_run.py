@@ -147,12 +147,12 @@ class StageRun:
         """Every observer and identifier back to its initial state (the source's nominal
         parameters), as if the next block were the first."""
         nl = self.nominal_load
-        self.s_front = self.front.init_state()
-        self.s_ident = self.ident.init_state(nl.J_L, nl.B_L, nl.F_CL)
-        self.s_sw = self.ident_sw.init_state(nl.J_L, nl.B_L, nl.F_CL)
+        self.s_front = self.front.initial_state()
+        self.s_ident = self.ident.initial_state(nl.J_L, nl.B_L, nl.F_CL)
+        self.s_sw = self.ident_sw.initial_state(nl.J_L, nl.B_L, nl.F_CL)
         # the cut engages and every filter starts at t = 0 (a step inside the first
         # acceleration segment, the start from rest): that segment is discarded
-        self.s_seg = mark_disturbance(self.ident_seg.init_state(), 0.0)
+        self.s_seg = mark_disturbance(self.ident_seg.initial_state(), 0.0)
         self._zq = self._q.initial_state()
         self._theta_a = np.array([nl.J_L, nl.B_L, nl.F_CL, 0.0])
         self._theta_s = self._theta_a.copy()
