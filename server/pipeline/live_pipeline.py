@@ -43,6 +43,7 @@ a reversal (the table at its stroke end), not in the middle of a stroke.
 
 from __future__ import annotations
 
+import copy
 import math
 import os
 from collections.abc import Mapping
@@ -67,6 +68,7 @@ from server.pipeline.channels import (
     no_eccentricity,
     stage_channels,
 )
+from server.pipeline.checkpoint import PipelineState, ScriptState, ToolState
 from server.pipeline.eccentricity_part import ECC_BASE_RPM, LiveEccentricity
 from server.pipeline.knobs import BASE_RPM, Knob, KnobValue, KnobValues
 from server.pipeline.observer_bank import ObserverBank
@@ -382,6 +384,71 @@ class LivePipeline:
     def tools_changed(self) -> int:
         """Tools changed at the flank-wear limit since the start (0 without tool wear)."""
         return self.tool.state.tools_changed if self.tool is not None else 0
+
+    # ------------------------------------------------------------------ state
+    def state(self) -> PipelineState:
+        """Everything the pipeline carries from block to block, as one detached value
+        (:class:`~server.pipeline.checkpoint.PipelineState`)."""
+        tool = ToolState(self.tool.state, self.tool.wear) if self.tool is not None else None
+        st = PipelineState(
+            scenario=self.scenario,
+            source=self.source.name,
+            seed=self.seed,
+            t=self.t,
+            knobs=self._knobs.as_dict(),
+            effects=self.effects,
+            source_state=self.source.state(),
+            estimators=self.bank.state(),
+            script=ScriptState(self._prev_factor, self._weight, self._applied, self._force_applied),
+            workpiece=self.workpiece.state if self.workpiece is not None else None,
+            tool=tool,
+            eccentricity=self._ecc,
+            latest=dict(self._last),
+        )
+        return copy.deepcopy(st)
+
+    def restore(self, state: PipelineState) -> None:
+        """Continue from ``state`` (taken from a pipeline of the same scenario and source
+        kind): the next :meth:`step` gives what the pipeline that took it would have
+        given. The rolling accuracy starts empty.
+
+        Raises
+        ------
+        ParameterError
+            Another scenario or source, or parts the scenario does not have; nothing is
+            changed then.
+        """
+        if (state.scenario, state.source) != (self.scenario, self.source.name):
+            raise ParameterError(
+                "state",
+                f"a state of scenario {self.scenario!r} on the {self.source.name} source",
+                f"scenario {state.scenario!r} on the {state.source} source",
+            )
+        for part, mine, theirs in (
+            ("workpiece", self.workpiece, state.workpiece),
+            ("tool", self.tool, state.tool),
+            ("eccentricity", self._ecc, state.eccentricity),
+        ):
+            if (mine is None) != (theirs is None):
+                raise ParameterError(f"state.{part}", "as the scenario has it", theirs)
+        st = copy.deepcopy(state)
+        self._knobs.update(st.knobs)
+        self.seed = st.seed
+        self.set_observer_effects(st.effects)
+        self.source.restore(st.source_state)
+        self.bank.restore(st.estimators)
+        sc = st.script
+        self._prev_factor, self._weight = sc.spindle_factor, sc.weight
+        self._applied, self._force_applied = sc.applied, sc.force
+        if self.workpiece is not None and st.workpiece is not None:
+            self.workpiece.state = st.workpiece
+        if self.tool is not None and st.tool is not None:
+            self.tool.state, self.tool.wear = st.tool.passes, st.tool.wear
+        self._ecc = st.eccentricity
+        self._last = dict(st.latest)
+        self._accuracy = RollingAccuracy(
+            FORCE_ESTIMATES, self.sample_time, has_truth=self.source.has_truth
+        )
 
     def _true_amplitudes(self) -> np.ndarray:
         """The harmonics' true amplitudes of the force the stage is given (NaN when the

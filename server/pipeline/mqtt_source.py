@@ -154,6 +154,13 @@ class MqttSource(ConfiguredSource):
         self._t = 0.0
         self._t0 = None
 
+    def state(self) -> object:
+        """None: a live feed is not ours to keep (the machine goes on without us)."""
+        return None
+
+    def restore(self, state: object) -> None:
+        """Nothing to restore: the feed continues with the samples that arrive."""
+
     def truth_summary(self) -> dict[str, object]:
         return {"machine": self.feed.machine}
 

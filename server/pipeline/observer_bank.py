@@ -22,12 +22,28 @@ from dataclasses import dataclass
 from typing import Any
 
 from common.arrays import F64
-from estimators.dfo import Dfo, DfoRecord
-from estimators.observer_effects import EffectsParams, ObserverEffect, ObserverEffects
+from common.errors import ParameterError
+from estimators.dfo import Dfo, DfoRecord, DfoState
+from estimators.observer_effects import (
+    EffectsParams,
+    EffectsState,
+    ObserverEffect,
+    ObserverEffects,
+)
 from estimators.rls import IdentifierParams
 from server.pipeline.sources import MeasurementSource, SourceBlock
 from server.pipeline.stage_harmonics import make_dfo
-from server.pipeline.stage_run import StageBlock, StageRun
+from server.pipeline.stage_run import StageBlock, StageRun, StageRunState
+
+
+@dataclass
+class BankState:
+    """The bank's estimators' state (checkpointed)."""
+
+    run: StageRunState
+    dfo_frequencies: tuple[float, ...]
+    dfo: DfoState
+    effects: EffectsState | None
 
 
 @dataclass(frozen=True)
@@ -97,6 +113,29 @@ class ObserverBank:
         self.dfo_state = self.dfo.initial_state()
         if self.fx is not None:
             self.fx_state = self.fx.initial_state()
+
+    def state(self) -> BankState:
+        """Every estimator's state now (shares the arrays: copy it to keep it)."""
+        fx = self.fx_state if self.fx is not None else None
+        return BankState(self.run.state(), tuple(self.dfo.params.frequencies), self.dfo_state, fx)
+
+    def restore(self, st: BankState) -> None:
+        """Continue from ``st`` (the effects of the state installed first).
+
+        Raises
+        ------
+        ParameterError
+            The state's effects' state without installed effects, or the reverse.
+        """
+        if (st.effects is None) != (self.fx is None):
+            raise ParameterError(
+                "effects", "the state's effects installed", "effects state mismatch"
+            )
+        self.run.restore(st.run)
+        self.retune(tuple(st.dfo_frequencies))
+        self.dfo_state = st.dfo
+        if st.effects is not None:
+            self.fx_state = st.effects
 
     def process(self, block: SourceBlock) -> BankBlock:
         """Run every estimator on one non-empty block."""

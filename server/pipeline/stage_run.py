@@ -24,14 +24,16 @@ from estimators.force_observer import (
     LoadParams,
     ObserverParams,
     TorsionEstimator,
+    TorsionState,
     cutting_force,
     cutting_force_lagged,
 )
-from estimators.rls import IdentifierParams, LoadIdentifier
+from estimators.rls import IdentifierParams, IdentState, LoadIdentifier
 from estimators.segment_id import (
     SegmentIdentifier,
     SegmentIdentifierParams,
     SegmentRecord,
+    SegmentState,
     mark_disturbance,
     restart,
 )
@@ -62,6 +64,26 @@ class StageBlock:
     excitation_index: float
     resets: int
     segment: SegmentRecord  # gated segment identifier: estimates, intervals, excited
+
+
+@dataclass
+class StageRunState:
+    """Everything a :class:`StageRun` carries from block to block (checkpointed): the
+    front end's, the identifiers' (RLS covariances included) and the segment
+    identifier's states (its tracks), Q's state on the true force, and the last sample's
+    parameters, force and time (the observers lag one sample)."""
+
+    front: TorsionState
+    ident: IdentState
+    ident_switching: IdentState
+    segment: SegmentState
+    zq: F64
+    theta_adaptive: F64
+    theta_switching: F64
+    theta_segment: F64
+    prev_f: float
+    prev_qf: float
+    prev_t: float
 
 
 def observer_params_for(cfg: StageConfig, **design: Any) -> ObserverParams:
@@ -160,6 +182,38 @@ class StageRun:
         self._prev_f = 0.0
         self._prev_qf = 0.0
         self._prev_t = 0.0
+
+    def state(self) -> StageRunState:
+        """The estimators' state now (shares the arrays: copy it to keep it)."""
+        return StageRunState(
+            self.s_front,
+            self.s_ident,
+            self.s_sw,
+            self.s_seg,
+            self._zq,
+            self._theta_a,
+            self._theta_s,
+            self._theta_g,
+            self._prev_f,
+            self._prev_qf,
+            self._prev_t,
+        )
+
+    def restore(self, st: StageRunState) -> None:
+        """Continue from ``st`` (of a run on the same source parameters)."""
+        self.s_front, self.s_ident, self.s_sw, self.s_seg = (
+            st.front,
+            st.ident,
+            st.ident_switching,
+            st.segment,
+        )
+        self._zq = st.zq
+        self._theta_a, self._theta_s, self._theta_g = (
+            st.theta_adaptive,
+            st.theta_switching,
+            st.theta_segment,
+        )
+        self._prev_f, self._prev_qf, self._prev_t = st.prev_f, st.prev_qf, st.prev_t
 
     def step(self, n: int) -> StageBlock:
         """Take ``n`` samples from the source and run the observers on them.

@@ -19,17 +19,22 @@ from __future__ import annotations
 import asyncio
 import collections
 import contextlib
+import logging
 import math
 import threading
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from common.errors import ParameterError
+from common.state_io import StateFormatError
 from server.errors import CutwatchError
 from server.pipeline.broker import BrokerConfig, parse_broker_url
+from server.pipeline.checkpoint import load_checkpoint, save_checkpoint
 from server.pipeline.drive_feed import DriveFeed
 from server.pipeline.estimates_out import EstimatesPublisher
 from server.pipeline.knobs import Knob
@@ -50,6 +55,16 @@ DISPLAY_DIGITS = 5
 
 #: how often the loop looks for new samples of a live feed (its latency floor) [s]
 LIVE_POLL_S = 0.01
+
+#: the service's log (uvicorn prints its warnings)
+log = logging.getLogger("uvicorn.error")
+
+
+def checkpoint_path(settings: Settings) -> Path | None:
+    """Where the service keeps its pipeline's state (None: ``checkpoint_s`` is 0)."""
+    if settings.checkpoint_s <= 0:
+        return None
+    return Path(settings.data_dir) / "state" / "pipeline.npz"
 
 
 def broker_config(settings: Settings) -> BrokerConfig:
@@ -238,6 +253,9 @@ class LiveLoop:
     feed, estimates_out
         A drive feed and an estimates publisher (:func:`loop_parts`), started and
         stopped with the loop.
+    checkpoint
+        The pipeline's checkpoint file (:func:`checkpoint_path`): resumed from at start,
+        written every ``settings.checkpoint_s`` wall seconds and at stop. None: none.
     """
 
     def __init__(
@@ -248,6 +266,7 @@ class LiveLoop:
         pipeline: LivePipeline | None = None,
         feed: DriveFeed | None = None,
         estimates_out: EstimatesPublisher | None = None,
+        checkpoint: Path | None = None,
     ) -> None:
         self.settings = settings
         self.hub = hub
@@ -276,6 +295,11 @@ class LiveLoop:
         self._hello_due = False  # the pipeline changed: clients need a new hello
         self.scene: StageScene | None = None  # the viser view, if started
         self.recording: Recording | None = None  # POST /api/record
+        #: the checkpoint file (settings.checkpoint_s > 0) and what became of it
+        self.checkpoint = checkpoint
+        self._home = (self.pipeline.scenario, self.pipeline.source.name)
+        self._saved_at = time.monotonic()
+        self.checkpoint_status: dict[str, Any] = {"path": str(self.checkpoint), "resumed": False}
         self._anchor()
 
     # ------------------------------------------------------------------ control
@@ -350,6 +374,8 @@ class LiveLoop:
         self._wake.set()
         if self._thread is not None:
             self._thread.join(timeout)
+            if not self._thread.is_alive():
+                self.save_checkpoint()  # the state at shutdown
         rec = self.end_recording("the service stopped")
         if rec is not None:
             rec.wait(timeout)  # every block handed over is written before exit
@@ -375,6 +401,7 @@ class LiveLoop:
         with self.lock:
             self.pipeline.step(self.block_n)
             self.pipeline.reset()
+            self._resume()
             self._anchor()
         last_frame = time.monotonic()
         next_frame = last_frame  # wall time of the next frame's slot
@@ -436,6 +463,8 @@ class LiveLoop:
                 self.lag_s = lag
                 self._lags.append(lag)
                 self._rate.append((done, self.pipeline.t))
+                if done - self._saved_at >= self.settings.checkpoint_s > 0:
+                    self.save_checkpoint()
                 if lag > self.settings.max_lag_s:
                     self.stalls += 1
                     with self.lock:
@@ -483,6 +512,42 @@ class LiveLoop:
         if self.estimates_out is not None:
             out["estimates_out"] = self.estimates_out.health()
         return out
+
+    # ------------------------------------------------------------------ checkpoints
+    def _resume(self) -> None:
+        """Continue from the checkpoint file, if there is one of this pipeline's scenario
+        and source; otherwise start fresh and say why (``checkpoint_status``, log)."""
+        path = self.checkpoint
+        if path is None or not path.exists():
+            return
+        try:
+            state = load_checkpoint(path)
+            self.pipeline.restore(state)
+        except (StateFormatError, ParameterError) as exc:
+            msg = f"checkpoint refused, starting fresh: {exc}"
+            self.checkpoint_status.update(resumed=False, refused=str(exc))
+            log.warning("cutwatch: %s", msg)
+            return
+        self.checkpoint_status.update(resumed=True, resumed_t=state.t)
+        log.warning("cutwatch: resumed from %s at t = %.3f s", path, state.t)
+
+    def save_checkpoint(self) -> bool:
+        """Write the pipeline's state to the checkpoint file (when the pipeline running is
+        the one the service started with: not a replay or another scenario). True when
+        written."""
+        path = self.checkpoint
+        self._saved_at = time.monotonic()
+        if path is None:
+            return False
+        with self.lock:
+            p = self.pipeline
+            if (p.scenario, p.source.name) != self._home:
+                return False
+            state = p.state()
+        path.parent.mkdir(parents=True, exist_ok=True)
+        save_checkpoint(path, state)
+        self.checkpoint_status.update(saved_t=state.t, saved_wall=time.time())
+        return True
 
     # ------------------------------------------------------------------ frames
     def _decimated(
@@ -631,9 +696,12 @@ class LiveLoop:
             return self.pipeline.knobs()
 
     def snapshot(self) -> dict[str, object]:
-        """The pipeline's snapshot (:meth:`LivePipeline.snapshot`)."""
+        """The pipeline's snapshot (:meth:`LivePipeline.snapshot`) and the checkpoint's
+        status (``checkpoint``: path, resumed, resumed_t, saved_t, refused)."""
         with self.lock:
-            return self.pipeline.snapshot()
+            snap = self.pipeline.snapshot()
+            snap["checkpoint"] = dict(self.checkpoint_status)
+            return snap
 
     def accuracy(self) -> dict[str, object]:
         """The rolling accuracy of the force estimates."""
