@@ -80,6 +80,7 @@ from server.pipeline.scenarios import (
     source_scenario,
 )
 from server.pipeline.sources import (
+    RESUMED,
     MeasurementSource,
     ReplaySource,
     SimulatorSource,
@@ -332,7 +333,7 @@ class LivePipeline:
         if n == 0:
             return empty_block()
         if block.discontinuity is not None:
-            self._discontinuity()
+            self._discontinuity(block.discontinuity, float(block.meas.t[0]))
         bb = self.bank.process(block)
         if self.tool is not None:
             nominal = self._force0.offset * self._knobs.number("feed_scale")
@@ -483,11 +484,16 @@ class LivePipeline:
         JSON-safe)."""
         return self._accuracy.summary(digits)
 
-    def _discontinuity(self) -> None:
-        """The source's next block does not continue the last one (a gap, a restart):
-        every observer starts again from its initial state, as in a fresh pipeline; the
-        wear pass under way is not given to the monitor."""
-        self.bank.reset()
+    def _discontinuity(self, reason: str, t: float) -> None:
+        """The source's next block (starting at ``t``) does not continue the last one (a
+        gap, a restart): every observer starts again from its initial state, as in a
+        fresh pipeline; after a restart from a checkpoint (:data:`RESUMED`) only the
+        filters on the measurements do. The wear pass under way is not given to the
+        monitor."""
+        if reason == RESUMED:
+            self.bank.restart_filters(t)
+        else:
+            self.bank.reset()
         if self.tool is not None:  # a wear pass under way spans the gap
             self.tool.interrupt()
 

@@ -137,6 +137,15 @@ class ObserverBank:
         if st.effects is not None:
             self.fx_state = st.effects
 
+    def restart_filters(self, t: float) -> None:
+        """The measurements resume after a break (:meth:`StageRun.restart_filters`): the
+        stage's filters restart, its estimates go on; the harmonic observer (whose
+        phases the break loses) and the effects' filters start again."""
+        self.run.restart_filters(t)
+        self.dfo_state = self.dfo.initial_state()
+        if self.fx is not None:
+            self.fx_state = self.fx.initial_state()
+
     def process(self, block: SourceBlock) -> BankBlock:
         """Run every estimator on one non-empty block."""
         b = self.run.process(block)

@@ -62,7 +62,10 @@ A :class:`SourceBlock` holds the block's Measurements, its Truth (or None) and
 continue the previous one (a missing block, a time jump, a restarted drive). The
 pipeline then resets every observer before it runs the block, so the estimates that
 follow are those of a fresh pipeline on the same data; the observers' state never
-bridges a gap.
+bridges a gap. One exception, :data:`RESUMED`: the first block of a live feed after the
+service restarted from a checkpoint (the machine and its load are the same): the filters
+on the measurements restart, the estimates (parameters, covariances, segment tracks,
+wear) go on.
 
 Implementations: :class:`SimulatorSource` (the stage of :mod:`machine.stage`) and
 :class:`ReplaySource` (a measured log, checked by :func:`open_replay`).
@@ -91,6 +94,9 @@ from machine.stage import SEED000_FORCE, Measurements, StageConfig, StageSim, Tr
 from server.errors import CutwatchError, LogFormatError
 from server.records.measured_log import MeasuredLog, load_log
 
+#: the discontinuity of a live feed's first block after the service restarted from a
+#: checkpoint: the filters on the measurements restart, the estimates go on
+RESUMED = "resumed"
 #: the nominal parameters a replayed log's sidecar must give
 NOMINAL = ("J_M", "J_L", "K", "K_t", "B_M", "B_L", "F_CM", "F_CL")
 
@@ -455,6 +461,7 @@ class ReplaySource(ConfiguredSource):
 
 __all__ = [
     "NOMINAL",
+    "RESUMED",
     "ConfiguredSource",
     "MeasurementSource",
     "ReplaySource",

@@ -12,7 +12,7 @@ instead (NaN when none).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -40,7 +40,13 @@ from estimators.segment_id import (
 from machine.params import StageParams
 from machine.stage import Measurements, StageConfig, StageSim, Truth
 from server.errors import CutwatchError
-from server.pipeline.sources import MeasurementSource, SimulatorSource, SourceBlock, no_truth
+from server.pipeline.sources import (
+    RESUMED,
+    MeasurementSource,
+    SimulatorSource,
+    SourceBlock,
+    no_truth,
+)
 
 
 @dataclass
@@ -233,7 +239,9 @@ class StageRun:
         """Run the observers on one non-empty block; a block marked as a discontinuity
         first resets them (:meth:`reset_estimators`)."""
         meas = block.meas
-        if block.discontinuity is not None:
+        if block.discontinuity == RESUMED:
+            self.restart_filters(float(meas.t[0]))
+        elif block.discontinuity is not None:
             self.reset_estimators()
             # the filters start again inside whatever segment follows: discarded
             self.s_seg = mark_disturbance(self.s_seg, float(meas.t[0]))
@@ -291,6 +299,21 @@ class StageRun:
             resets=ra.resets + rs.resets,
             segment=rg,
         )
+
+    def restart_filters(self, t: float) -> None:
+        """The measurements resume after a break in a run that goes on (a restart from a
+        checkpoint on a live feed, :data:`~server.pipeline.sources.RESUMED`): the filters
+        on the measurements restart from rest, the estimates (parameters, covariances,
+        the segment identifier's tracks) are kept; the segment around ``t`` is
+        discarded."""
+        nl = self.nominal_load
+        fresh = self.ident.initial_state(nl.J_L, nl.B_L, nl.F_CL)
+        self.s_front = self.front.initial_state()
+        self.s_ident = replace(self.s_ident, zf=fresh.zf.copy())
+        self.s_sw = replace(self.s_sw, zf=fresh.zf.copy())
+        seg = self.ident_seg.initial_state()
+        self.s_seg = mark_disturbance(replace(self.s_seg, zf=seg.zf, hist=seg.hist, seg=seg.seg), t)
+        self._zq = self._q.initial_state()
 
     def note_disturbance(self, t: float) -> None:
         """A known change of the cutting condition at ``t`` (spindle step, tool change):
