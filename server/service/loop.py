@@ -299,6 +299,7 @@ class LiveLoop:
         self.checkpoint = checkpoint
         self._home = (self.pipeline.scenario, self.pipeline.source.name)
         self._saved_at = time.monotonic()
+        self._writer: threading.Thread | None = None
         self.checkpoint_status: dict[str, Any] = {"path": str(self.checkpoint), "resumed": False}
         self._anchor()
 
@@ -464,7 +465,7 @@ class LiveLoop:
                 self._lags.append(lag)
                 self._rate.append((done, self.pipeline.t))
                 if done - self._saved_at >= self.settings.checkpoint_s > 0:
-                    self.save_checkpoint()
+                    self.save_checkpoint(wait=False)
                 if lag > self.settings.max_lag_s:
                     self.stalls += 1
                     with self.lock:
@@ -531,22 +532,40 @@ class LiveLoop:
         self.checkpoint_status.update(resumed=True, resumed_t=state.t)
         log.warning("cutwatch: resumed from %s at t = %.3f s", path, state.t)
 
-    def save_checkpoint(self) -> bool:
+    def save_checkpoint(self, *, wait: bool = True) -> bool:
         """Write the pipeline's state to the checkpoint file (when the pipeline running is
-        the one the service started with: not a replay or another scenario). True when
-        written."""
+        the one the service started with: not a replay or another scenario). The state
+        is taken under the lock; the file is written by a writer thread (``wait``: this
+        call waits for it), one at a time. True when a write was started."""
         path = self.checkpoint
         self._saved_at = time.monotonic()
         if path is None:
             return False
+        writer = self._writer
+        if writer is not None and writer.is_alive():
+            if not wait:
+                return False  # the previous file is still being written: next time
+            writer.join()
         with self.lock:
             p = self.pipeline
             if (p.scenario, p.source.name) != self._home:
                 return False
             state = p.state()
-        path.parent.mkdir(parents=True, exist_ok=True)
-        save_checkpoint(path, state)
-        self.checkpoint_status.update(saved_t=state.t, saved_wall=time.time())
+
+        def write() -> None:
+            try:
+                path.parent.mkdir(parents=True, exist_ok=True)
+                save_checkpoint(path, state)
+            except OSError as exc:  # a full disk must not stop the loop; say so
+                self.checkpoint_status.update(error=f"{type(exc).__name__}: {exc}")
+                log.warning("cutwatch: checkpoint not written: %s", exc)
+                return
+            self.checkpoint_status.update(saved_t=state.t, saved_wall=time.time())
+
+        self._writer = threading.Thread(target=write, name="cutwatch-checkpoint", daemon=True)
+        self._writer.start()
+        if wait:
+            self._writer.join()
         return True
 
     # ------------------------------------------------------------------ frames
