@@ -8,15 +8,27 @@ The public surface is the contract the live service builds on:
 - ``.channels() -> list[Channel]``: every per-sample output, with unit and group
 - ``.step(n) -> dict[str, np.ndarray]``: advance ``n`` samples; one float64 array of
   length ``n`` per channel name (plus ``"t"``)
-- ``.knobs() -> dict[str, Knob]``: live-tweakable parameters with their ranges
-- ``.set_knob(name, value)``: validated; raises ``ParameterError`` naming the field, the
-  allowed range and the value; nothing changes on error
+- ``.knobs() -> dict[str, Knob]``: live-tweakable parameters with their ranges (frozen
+  copies; :mod:`server.pipeline.knobs` holds the table)
+- ``.set_knob(name, value)``, ``.set_knobs(changes)``: validated (``Knob.check``); raise
+  ``ParameterError`` naming the field, the allowed range and the value; nothing changes
+  on error
 - ``.reset()``; ``.snapshot() -> dict`` (latest values, truths, knob values, accuracy)
+- ``.state() -> PipelineState``, ``.restore(state)``: everything carried from block to
+  block as one value (:mod:`server.pipeline.checkpoint`, docs/checkpoints.md)
 - ``.accuracy() -> dict``: rolling rms of each force estimate over 1 s and 10 s
   (:mod:`server.pipeline.accuracy`)
 - ``SCENARIOS``: name -> one-line description
 
-Behind it is :class:`server.pipeline.stage_run.StageRun`: a measurement source
+The parts: the scenario (:mod:`server.pipeline.scenarios`: the plant, the script of
+spindle steps and mounted weights, the workpiece, tool-wear and eccentricity processes:
+:mod:`server.pipeline.workpiece`, :mod:`server.pipeline.wear_passes`,
+:mod:`server.pipeline.eccentricity_part`), the observer bank
+(:mod:`server.pipeline.observer_bank`) and the channel assembly
+(:mod:`server.pipeline.channels`). The pipeline asks its scenario what to do; it never
+compares a scenario's name and never reaches into the simulator.
+
+Behind the bank is :class:`server.pipeline.stage_run.StageRun`: a measurement source
 (:mod:`server.pipeline.sources`; by default the simulated two-inertia stage of seed 000,
 or a replayed log, or a live feed) with the fixed-parameter, adaptive (ordinary RLS) and
 switching-RLS force observers. The estimators see the Measurements only; the truth
