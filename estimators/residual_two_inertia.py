@@ -385,7 +385,7 @@ def observer_front(
 ) -> tuple[F64, F64, F64]:
     """Nominal observer over a record: force estimate, twist disagreement, alpha."""
     te = TorsionEstimator(observer)
-    _, rec = te.step(te.init_state(), tau_m, q_m, q_l)
+    _, rec = te.step(te.initial_state(), tau_m, q_m, q_l)
     f = cutting_force(rec, load.J_L, load.B_L, load.F_CL)
     return f, rec.t_sk - rec.t_sm, rec.alpha
 
@@ -664,7 +664,7 @@ class TwoInertiaModel:
         f_after = self.f_hat.copy()
         if terms:
             fx = ObserverEffects(EffectsParams(terms, ob.sample_time, ob.q_hz, ob.q_order))
-            _, er = fx.step(fx.init_state(), d.alpha, self.t, self.q_m, self.q_l, self.tau)
+            _, er = fx.step(fx.initial_state(), d.alpha, self.t, self.q_m, self.q_l, self.tau)
             f_after = self.f_hat - er.f_corr
         say("unexplained structure")
         f0, cur = nominal.fit, final.fit
