@@ -21,9 +21,8 @@ from typing import Any
 import numpy as np
 
 from common.jsonsafe import json_safe
-from estimators.residual import NOT_OFFERED, ResidualResult
-from estimators.residual_families import FAMILIES as DRIVE_FAMILIES
-from estimators.residual_two_inertia import NOT_OFFERED_TWO_INERTIA, TwoInertiaResult
+from estimators.residual_engine import ResidualResult
+from estimators.residual_families import FAMILIES as RIGID_FAMILIES
 from server.records.measured_log import MeasuredLog
 
 
@@ -41,24 +40,13 @@ def describe_structure(u: Mapping[str, Any]) -> str:
 #: the physical meaning of each family, shown beside its parameters
 MEANING: dict[str, str] = {
     "none": "nothing beyond the nominal model",
-    "offset": "a constant effort (a sensor or amplifier offset, gravity on a tilted axis)",
-    "inertia": "mass / inertia not in the nominal model",
-    "viscous": "viscous friction, proportional to speed",
-    "coulomb_asymmetry": "friction that differs by direction: a Coulomb level and a "
-    "viscous coefficient for each direction (Fc_pos/Fc_neg, Fv_pos/Fv_neg)",
-    "stribeck": "friction above the Coulomb level at low speed, fading over the Stribeck "
-    "speed v_s (the same in both directions)",
-    "position_periodic": "a force periodic in position (cogging, screw lead error)",
     "torque_ripple": "motor torque periodic in the motor angle",
     "backlash": "lost motion between motor and load at reversals",
-    "harmonic": "a force periodic in time (a vibration, a disturbance at fixed frequency)",
-    "delay": "the effort acts late relative to the motion (command-to-force lag)",
-    "drift": "a slow change over time (warm-up of the lubricant, a thermal drift)",
-    **{name: fam.meaning for name, fam in DRIVE_FAMILIES.items()},
+    **{name: fam.meaning for name, fam in RIGID_FAMILIES.items()},
 }
 
 
-def selection_text(res: ResidualResult | TwoInertiaResult) -> str:
+def selection_text(res: ResidualResult) -> str:
     """The decision rule, in one sentence with its numbers (docs/residual-selection.md)."""
     sp = res.selection
     return (
@@ -78,22 +66,14 @@ def selection_text(res: ResidualResult | TwoInertiaResult) -> str:
 
 def report_dict(
     log: MeasuredLog,
-    res: ResidualResult | TwoInertiaResult,
+    res: ResidualResult,
     validation: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
     """The ``report.json`` object (DESIGN's contract keys plus details)."""
-    two = isinstance(res, TwoInertiaResult)
-    model = "rigid: tau = M*qdd + Fv*qd + Fc*sign(qd) + offset (IDIM-LS)"
-    if isinstance(res, TwoInertiaResult):
-        model = (
-            "two_inertia: cutting force observer (seed 000 eq. 2-8) with the log's nominal "
-            f"parameters; residual against {res.reference}; error over the force residual "
-            "and the twist disagreement T_sK - T_sM"
-        )
     rep: dict[str, Any] = {
         "log": str(log.path),
-        "model": model,
-        "kind": "two_inertia" if two else "rigid",
+        "model": res.model,
+        "kind": res.kind,
         "n_samples": log.n,
         "sample_time": log.sample_time,
         "holdout": {"start": res.holdout_start, "stop": res.holdout_stop},
@@ -130,7 +110,7 @@ def report_dict(
         ],
         "unexplained": list(res.unexplained),
         # canonical families this kind does not offer, and why
-        "not_offered": dict(NOT_OFFERED_TWO_INERTIA if two else NOT_OFFERED),
+        "not_offered": dict(res.not_offered),
         "parameters_before": dict(zip(res.names_before, map(float, res.theta_before))),
         "parameters_after": dict(zip(res.names_after, map(float, res.theta_after))),
         "units": log.units,
@@ -140,15 +120,8 @@ def report_dict(
         "mse_before) at the round the candidate was last scored (report figure only: the "
         "held-out end takes no part in the selection)",
     }
-    if isinstance(res, TwoInertiaResult):
-        rep["rms_force_before"] = res.rms_force_before
-        rep["rms_force_after"] = res.rms_force_after
-        rep["rms_twist_before"] = res.rms_twist_before
-        rep["rms_twist_after"] = res.rms_twist_after
-        rep["observer_effects"] = [
-            {"name": e.name, "side": e.side, "shape": dict(e.shape), "coef": list(e.coef)}
-            for e in res.effects
-        ]
+    # the model's own entries (the observer: per-channel figures and its terms)
+    rep.update(res.details)
     if validation is not None:
         rep["validation"] = dict(validation)
     return json_safe(rep)
@@ -174,9 +147,7 @@ def _position_spectrum(q: np.ndarray, r: np.ndarray, periods: np.ndarray) -> np.
     return amp
 
 
-def _figures(
-    res: ResidualResult | TwoInertiaResult, unit: str, pos_unit: str = ""
-) -> list[tuple[str, str]]:
+def _figures(res: ResidualResult, unit: str, pos_unit: str = "") -> list[tuple[str, str]]:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -319,7 +290,7 @@ Selected: {_fmt(", ".join(rep["selected"]) or "none")}.</p>
 def write_report(
     out_dir: Path,
     log: MeasuredLog,
-    res: ResidualResult | TwoInertiaResult,
+    res: ResidualResult,
     validation: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Write ``report.json``, ``estimates.csv`` and ``report.html`` into ``out_dir``."""
