@@ -95,6 +95,12 @@ def report_dict(
         "model": model,
         "kind": "two_inertia" if two else "rigid",
         "n_samples": log.n,
+        "rows": {
+            "read": log.n_read or log.n,
+            "used": log.n,
+            "left_out": list(log.left_out),
+            "pieces": len(log.segments),
+        },
         "sample_time": log.sample_time,
         "holdout": {"start": res.holdout_start, "stop": res.holdout_stop},
         "rms_before": res.rms_before,

@@ -38,7 +38,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         metavar="COL=EXPR",
         action="append",
         default=[],
-        help="column map: COL=name, COL=name*scale or COL=name*scale+offset",
+        help="column map: COL=name, COL=name*scale or COL=name*scale+offset; the log's "
+        "columns are t (or sample_time in --meta), tau_m (effort: N, N m, or A; in A "
+        "without nominal.K_t the parameters are in A), q_m (m or rad), and optionally "
+        "qd_m, qdd_m (the velocity and acceleration the controller reports, used instead "
+        "of differentiating a coarse position), q_l, f_ext. One axis per run.",
     )
     p.add_argument(
         "--kind", metavar="KIND", help="rigid or two_inertia (default: sidecar, else rigid)"
@@ -63,6 +67,50 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=[],
         help="two_inertia without f_ext: a segment [s] with no cutting force (repeatable)",
     )
+    rows = p.add_argument_group(
+        "rows",
+        "Choose rows by a condition on any column of the file, text labels included: "
+        "COND is TERM [& TERM ...], TERM is COLUMN OP VALUE with OP one of == != < <= > >= "
+        "(numbers; == and != also text) or ~ (regular expression searched in the cell). "
+        "Columns neither mapped nor required are otherwise ignored, whatever they hold. "
+        "The rows each rule leaves out are counted in the report; the record is split "
+        "where rows are left out (nothing is differentiated or filtered across a cut).",
+    )
+    rows.add_argument(
+        "--keep",
+        metavar="COND",
+        action="append",
+        default=[],
+        help="use only rows where COND holds (repeatable: all must hold), "
+        "e.g. --keep 'Machining_Process~^Layer'",
+    )
+    rows.add_argument(
+        "--drop",
+        metavar="COND",
+        action="append",
+        default=[],
+        help="leave out rows where COND holds (repeatable: any), e.g. rows that do not "
+        "reflect the machine: --drop 'S1_ActualVelocity<1 & X1_ActualPosition==198'",
+    )
+    rows.add_argument(
+        "--drop-repeats",
+        metavar="COLS",
+        help="leave out rows that repeat the previous row in every column named "
+        "(comma-separated names or patterns, e.g. 'X1_*,Y1_*'): stale copies of a sample",
+    )
+    rows.add_argument(
+        "--nominal-rows",
+        metavar="COND",
+        help="fit the nominal model on these rows only (e.g. the tool in the air: "
+        "--nominal-rows 'Machining_Process~^(Prep|Repositioning)'); effects on all rows",
+    )
+    rows.add_argument(
+        "--load-rows",
+        metavar="COND",
+        help="rows where a process load acts (e.g. cutting: --load-rows "
+        "'Machining_Process~^Layer'); offers the 'load' effect: an effort on these rows, "
+        "by direction of motion",
+    )
     p.add_argument("--out", metavar="DIR", type=Path, required=True, help="output directory")
     p.add_argument("--quiet", action="store_true", help="no progress messages")
 
@@ -81,12 +129,28 @@ def run(args: argparse.Namespace) -> int:
         raise CutwatchError(f"--holdout: {exc}") from None
     meta = load_meta(args.meta)
     progress = not args.quiet
-    log = load_log(args.log, meta=meta, maps=args.map, kind=args.kind, progress=progress)
+    selection = row_selection(args)
+    log = load_log(
+        args.log, meta=meta, maps=args.map, kind=args.kind, progress=progress,
+        selection=selection, current_ok=True,
+    )  # fmt: skip
     kind = log.kind or "rigid"
     with _Progress(progress) as say:
         if kind == "two_inertia":
             return _run_two_inertia(args, log, meta, say)
         return _run_rigid(args, log, meta, params, say)
+
+
+def row_selection(args: argparse.Namespace) -> Any:
+    """The ``--keep/--drop/--drop-repeats/--nominal-rows/--load-rows`` options, parsed."""
+    from server.records.row_select import RowSelection
+
+    return RowSelection.from_options(
+        keep=args.keep,
+        drop=args.drop,
+        drop_repeats=args.drop_repeats,
+        phases={"nominal_rows": args.nominal_rows, "load_rows": args.load_rows},
+    )
 
 
 class _Progress:
@@ -137,7 +201,10 @@ def _run_rigid(
         ) from None
     validation = None
     if args.validate is not None:
-        other = load_log(args.validate, meta=meta, maps=args.map, kind=args.kind, progress=progress)
+        other = load_log(
+            args.validate, meta=meta, maps=args.map, kind=args.kind, progress=progress,
+            selection=row_selection(args), current_ok=True,
+        )  # fmt: skip
         try:
             nums = apply_model(
                 res, other["q_m"], other["tau_m"], other["t"], other.sample_time, params.idim
@@ -243,8 +310,9 @@ def _run_two_inertia(
     validation = None
     if args.validate is not None:
         other = load_log(
-            args.validate, meta=meta, maps=args.map, kind="two_inertia", progress=not args.quiet
-        )
+            args.validate, meta=meta, maps=args.map, kind="two_inertia",
+            progress=not args.quiet, selection=row_selection(args), current_ok=True,
+        )  # fmt: skip
         op2, lp2 = _observer_inputs(other)
         f2 = other["f_ext"] if "f_ext" in other.columns else None
         air2 = parse_air_cuts(args.air_cut, other["t"], str(other.path)) if f2 is None else None
@@ -264,6 +332,9 @@ def _run_two_inertia(
 def _summary(args: argparse.Namespace, log: Any, rep: Any, validation: Any) -> None:
     from server.records.residual_report import describe_structure
 
+    if log.left_out:
+        counts = "; ".join(f"{d['left_out']} by {d['rule']}" for d in log.left_out)
+        print(f"{log.path}: rows read {log.n_read}, used {log.n}; left out: {counts}")
     print(
         f"{log.path}: held-out rms {rep['rms_before']:.4g} -> {rep['rms_after']:.4g} "
         f"{log.units['effort']}, relerr {rep['relerr_before']:.3f} % -> "
