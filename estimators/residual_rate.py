@@ -27,6 +27,10 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+import numpy as np
+from numpy.typing import NDArray
+
+from common.arrays import F64
 from estimators.errors import ParameterError
 from estimators.idim import IdimParams
 
@@ -123,6 +127,11 @@ def rate_plan(sample_time: float, *, velocity_given: bool = False) -> RatePlan:
             f"sampled at {fs:g} Hz: the controller's velocity (and acceleration) columns are "
             f"used, no position filter; decimation by {decimation}"
         )
+    if fs < LOW_RATE_HZ and not velocity_given:
+        note += (
+            "; map the controller's velocity (qd_m) and acceleration (qdd_m) when the log "
+            "has them: a position exported to few digits differentiates poorly"
+        )
     if fs < LOW_RATE_HZ:
         families = LOW_RATE_FAMILIES
         reasons = _low_rate_reasons(fs)
@@ -132,3 +141,42 @@ def rate_plan(sample_time: float, *, velocity_given: bool = False) -> RatePlan:
             "cogging, vibrations or drive delays (not offered, reasons in not_offered)"
         )
     return RatePlan(fs, idim, not velocity_given, families, reasons, note)
+
+
+def column_kinematics(
+    q: NDArray[np.float64],
+    qd: NDArray[np.float64],
+    qdd: NDArray[np.float64] | None,
+    sample_time: float,
+    segments: NDArray[np.int64] | None = None,
+) -> tuple[NDArray[np.int64], F64, F64, F64, F64]:
+    """Kinematics from the controller's velocity (and acceleration) columns.
+
+    Nothing is filtered. Without ``qdd`` the acceleration is the central difference of
+    the velocity inside each segment (a run of consecutive rows: ``segments`` holds the
+    start index of each), and the jerk likewise from the acceleration; the first and
+    last sample of a segment carry one-sided differences and are dropped, as
+    :func:`estimators.idim.kinematics` drops the record's ends.
+
+    Returns
+    -------
+    index, q, qd, qdd, qddd
+        The rows kept and the signals on them.
+    """
+    n = len(q)
+    starts = np.asarray([0] if segments is None else segments, dtype=np.int64)
+    stops = np.append(starts[1:], n)
+    keep: list[NDArray[np.int64]] = []
+    acc = np.empty(n)
+    jerk = np.empty(n)
+    for a, b in zip(starts, stops):
+        if qdd is None and b - a < 3:
+            continue  # too short to difference: left out
+        seg = slice(int(a), int(b))
+        acc[seg] = np.gradient(qd[seg], sample_time) if qdd is None else qdd[seg]
+        jerk[seg] = np.gradient(acc[seg], sample_time) if b - a >= 2 else 0.0
+        keep.append(np.arange(a + 1, b - 1) if qdd is None else np.arange(a, b))
+    if not keep:
+        raise ParameterError("segments", "a run of at least 3 consecutive rows", 0)
+    idx = np.concatenate(keep)
+    return idx, q[idx], qd[idx], acc[idx], jerk[idx]
