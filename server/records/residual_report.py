@@ -14,16 +14,15 @@ import json
 import os
 import shutil
 import tempfile
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from common.jsonsafe import json_safe
-from estimators.residual import NOT_OFFERED, ResidualResult
-from estimators.residual_families import FAMILIES as DRIVE_FAMILIES
-from estimators.residual_two_inertia import NOT_OFFERED_TWO_INERTIA, TwoInertiaResult
+from estimators.residual_engine import ResidualResult
+from estimators.residual_families import FAMILIES as RIGID_FAMILIES
 from server.records.measured_log import MeasuredLog
 
 
@@ -41,24 +40,13 @@ def describe_structure(u: Mapping[str, Any]) -> str:
 #: the physical meaning of each family, shown beside its parameters
 MEANING: dict[str, str] = {
     "none": "nothing beyond the nominal model",
-    "offset": "a constant effort (a sensor or amplifier offset, gravity on a tilted axis)",
-    "inertia": "mass / inertia not in the nominal model",
-    "viscous": "viscous friction, proportional to speed",
-    "coulomb_asymmetry": "friction that differs by direction: a Coulomb level and a "
-    "viscous coefficient for each direction (Fc_pos/Fc_neg, Fv_pos/Fv_neg)",
-    "stribeck": "friction above the Coulomb level at low speed, fading over the Stribeck "
-    "speed v_s (the same in both directions)",
-    "position_periodic": "a force periodic in position (cogging, screw lead error)",
     "torque_ripple": "motor torque periodic in the motor angle",
     "backlash": "lost motion between motor and load at reversals",
-    "harmonic": "a force periodic in time (a vibration, a disturbance at fixed frequency)",
-    "delay": "the effort acts late relative to the motion (command-to-force lag)",
-    "drift": "a slow change over time (warm-up of the lubricant, a thermal drift)",
-    **{name: fam.meaning for name, fam in DRIVE_FAMILIES.items()},
+    **{name: fam.meaning for name, fam in RIGID_FAMILIES.items()},
 }
 
 
-def selection_text(res: ResidualResult | TwoInertiaResult) -> str:
+def selection_text(res: ResidualResult) -> str:
     """The decision rule, in one sentence with its numbers (docs/residual-selection.md)."""
     sp = res.selection
     return (
@@ -78,22 +66,16 @@ def selection_text(res: ResidualResult | TwoInertiaResult) -> str:
 
 def report_dict(
     log: MeasuredLog,
-    res: ResidualResult | TwoInertiaResult,
+    res: ResidualResult,
     validation: Mapping[str, Any] | None = None,
+    notes: Sequence[str] = (),
 ) -> dict[str, Any]:
-    """The ``report.json`` object (DESIGN's contract keys plus details)."""
-    two = isinstance(res, TwoInertiaResult)
-    model = "rigid: tau = M*qdd + Fv*qd + Fc*sign(qd) + offset (IDIM-LS)"
-    if isinstance(res, TwoInertiaResult):
-        model = (
-            "two_inertia: cutting force observer (seed 000 eq. 2-8) with the log's nominal "
-            f"parameters; residual against {res.reference}; error over the force residual "
-            "and the twist disagreement T_sK - T_sM"
-        )
+    """The ``report.json`` object (DESIGN's contract keys plus details; ``notes``: what
+    the rate, the rows used and the unit mean for this record)."""
     rep: dict[str, Any] = {
         "log": str(log.path),
-        "model": model,
-        "kind": "two_inertia" if two else "rigid",
+        "model": res.model,
+        "kind": res.kind,
         "n_samples": log.n,
         "rows": {
             "read": log.n_read or log.n,
@@ -136,7 +118,7 @@ def report_dict(
         ],
         "unexplained": list(res.unexplained),
         # canonical families this kind does not offer, and why
-        "not_offered": dict(NOT_OFFERED_TWO_INERTIA if two else NOT_OFFERED),
+        "not_offered": dict(res.not_offered),
         "parameters_before": dict(zip(res.names_before, map(float, res.theta_before))),
         "parameters_after": dict(zip(res.names_after, map(float, res.theta_after))),
         "units": log.units,
@@ -146,15 +128,10 @@ def report_dict(
         "mse_before) at the round the candidate was last scored (report figure only: the "
         "held-out end takes no part in the selection)",
     }
-    if isinstance(res, TwoInertiaResult):
-        rep["rms_force_before"] = res.rms_force_before
-        rep["rms_force_after"] = res.rms_force_after
-        rep["rms_twist_before"] = res.rms_twist_before
-        rep["rms_twist_after"] = res.rms_twist_after
-        rep["observer_effects"] = [
-            {"name": e.name, "side": e.side, "shape": dict(e.shape), "coef": list(e.coef)}
-            for e in res.effects
-        ]
+    # the model's own entries (the observer: per-channel figures and its terms)
+    rep.update(res.details)
+    if notes:
+        rep["notes"] = list(notes)
     if validation is not None:
         rep["validation"] = dict(validation)
     return json_safe(rep)
@@ -213,7 +190,7 @@ def _plt() -> Any:
     return plt
 
 
-def _verdict_figure(res: ResidualResult | TwoInertiaResult, unit: str) -> tuple[str, str]:
+def _verdict_figure(res: ResidualResult, unit: str) -> tuple[str, str]:
     """Held-out error before and after (bars), and the held-out residual against time."""
     plt = _plt()
     fig, (ax0, ax1) = plt.subplots(1, 2, figsize=(10, 3), gridspec_kw={"width_ratios": [1, 3]})
@@ -238,15 +215,13 @@ def _verdict_figure(res: ResidualResult | TwoInertiaResult, unit: str) -> tuple[
     return out
 
 
-def _nominal_friction(res: ResidualResult | TwoInertiaResult, qd: np.ndarray) -> np.ndarray:
+def _nominal_friction(res: ResidualResult, qd: np.ndarray) -> np.ndarray:
     """Fv*qd + Fc*sign(qd) of the final model, where the model has those parameters."""
     th = dict(zip(res.names_after, map(float, res.theta_after)))
     return th.get("Fv", 0.0) * qd + th.get("Fc", 0.0) * np.sign(qd)
 
 
-def _shape_figures(
-    res: ResidualResult | TwoInertiaResult, unit: str, pos_unit: str
-) -> list[tuple[str, str]]:
+def _shape_figures(res: ResidualResult, unit: str, pos_unit: str) -> list[tuple[str, str]]:
     """Each selected effect drawn as its shape (needs the result's per-effect terms)."""
     terms: Mapping[str, np.ndarray] | None = getattr(res, "terms_dec", None)
     if not terms:
@@ -255,6 +230,7 @@ def _shape_figures(
     out: list[tuple[str, str]] = []
     qd, q, t = res.qd_dec, res.q_dec, res.t_dec
     qdd = getattr(res, "qdd_dec", None)
+    shapes = {e.name: dict(e.shape) for e in res.effects}
     for name, term in terms.items():
         axis = SHAPE_AXIS.get(name, "time")
         fig, ax = plt.subplots(figsize=(9, 3))
@@ -267,11 +243,19 @@ def _shape_figures(
             ax.set_xlabel(f"velocity [{pos_unit}/s]")
             title = f"{name}: friction against velocity"
         elif axis == "position":
+            period = shapes.get(name, {}).get("period", 0.0)
+            window = np.ones(len(q), dtype=bool)
+            if period > 0 and np.ptp(q) > 5 * period:  # four periods mid-travel
+                q0 = float(np.median(q))
+                window = (q >= q0) & (q <= q0 + 4 * period)
             for sel, lab, col in ((qd > 0, "v > 0", "tab:blue"), (qd < 0, "v < 0", "tab:orange")):
+                sel = sel & window
                 order = np.argsort(q[sel])
                 ax.plot(q[sel][order], term[sel][order], lw=1, color=col, label=lab)
             ax.set_xlabel(f"position [{pos_unit}]")
-            title = f"{name}: against position, per direction"
+            title = f"{name}: against position, per direction" + (
+                f" (four periods of {period:.4g} {pos_unit})" if not window.all() else ""
+            )
         elif axis == "acceleration" and qdd is not None:
             ax.plot(qdd, term, ".", ms=2, color="tab:red", label=name)
             ax.set_xlabel(f"acceleration [{pos_unit}/s²]")
@@ -288,9 +272,7 @@ def _shape_figures(
     return out
 
 
-def _figures(
-    res: ResidualResult | TwoInertiaResult, unit: str, pos_unit: str = ""
-) -> list[tuple[str, str]]:
+def _figures(res: ResidualResult, unit: str, pos_unit: str = "") -> list[tuple[str, str]]:
     """The detail figures: residual against time, velocity, position; its spectra."""
     plt = _plt()
     r0, r1 = res.residual_before_dec, res.residual_after_dec
@@ -479,11 +461,12 @@ coefficients)</summary>
 def write_report(
     out_dir: Path,
     log: MeasuredLog,
-    res: ResidualResult | TwoInertiaResult,
+    res: ResidualResult,
     validation: Mapping[str, Any] | None = None,
+    notes: Sequence[str] = (),
 ) -> dict[str, Any]:
     """Write ``report.json``, ``estimates.csv`` and ``report.html`` into ``out_dir``."""
-    rep = report_dict(log, res, validation)
+    rep = report_dict(log, res, validation, notes)
     unit, pos_unit = log.units.get("effort", ""), log.units.get("position", "")
     lead = [_verdict_figure(res, unit), *_shape_figures(res, unit, pos_unit)]
     figs = _figures(res, unit, pos_unit)
