@@ -33,6 +33,9 @@ from server.records.row_select import Column, RowSelection, select_rows
 
 REQUIRED_COLUMNS: tuple[str, ...] = ("t", "tau_m", "q_m")
 OPTIONAL_COLUMNS: tuple[str, ...] = ("q_l", "f_ext", "i_m", "qd_m", "qdd_m")
+#: the CNC's identities per sample, optional: tool number, G-code line (the program
+#: block), feed override (1 = 100 %); the program's name is the sidecar key ``program``
+IDENTITY_COLUMNS: tuple[str, ...] = ("tool", "line", "override")
 EFFORT_UNITS: frozenset[str] = frozenset({"N", "N m", "Nm", "N*m", "A"})
 POSITION_UNITS: frozenset[str] = frozenset({"m", "rad"})
 KINDS: tuple[str, ...] = ("rigid", "two_inertia")
@@ -99,7 +102,9 @@ class MeasuredLog:
     path : Path
         The file read.
     columns : dict of str to ndarray
-        Canonical columns (``t``, ``tau_m``, ``q_m`` and any of ``q_l``, ``f_ext``), SI.
+        Canonical columns (``t``, ``tau_m``, ``q_m`` and any of ``q_l``, ``f_ext``), SI,
+        and the CNC's identities when recorded (``tool``, ``line``, ``override``; the
+        program is ``sidecar["program"]``).
     sample_time : float
         Median sampling interval [s].
     units : dict
@@ -322,7 +327,7 @@ def _apply_maps(
 ) -> dict[str, F64]:
     kind = "variable" if is_mat else "column"
     out: dict[str, F64] = {}
-    canonical = (*REQUIRED_COLUMNS, *OPTIONAL_COLUMNS)
+    canonical = (*REQUIRED_COLUMNS, *OPTIONAL_COLUMNS, *IDENTITY_COLUMNS)
     for name, value in source.items():
         v = np.asarray(value)
         if v.dtype.kind in "US":
@@ -520,7 +525,7 @@ def load_log(
             f"{', '.join(sorted(cols)) or 'none'} (map one with "
             f"--map COL=name*scale+offset{hint})"
         )
-    keep = [c for c in (*REQUIRED_COLUMNS, *OPTIONAL_COLUMNS) if c in cols]
+    keep = [c for c in (*REQUIRED_COLUMNS, *OPTIONAL_COLUMNS, *IDENTITY_COLUMNS) if c in cols]
     n = len(cols["t"]) if "t" in cols else len(cols[keep[0]])
     for c in keep:
         if len(cols[c]) != n:
@@ -554,7 +559,14 @@ def load_log(
                 f"{p}: column {c!r}, row {i + 1}: expected a finite value, "
                 f"found {float(cols[c][i])}"
             )
+        if c in IDENTITY_COLUMNS:
+            _check_identity(p, c, v, rows)
         out[c] = np.ascontiguousarray(v)
+    prog = sidecar.get("program")
+    if prog is not None and (not isinstance(prog, str) or not 1 <= len(prog) <= 32):
+        raise LogFormatError(
+            f"{p}: sidecar 'program': expected a name of 1-32 characters, found {prog!r}"
+        )
 
     k = kind if kind is not None else sidecar.get("kind")
     if k is not None and k not in KINDS:
@@ -563,6 +575,22 @@ def load_log(
         p, out, ts, dict(units), k, nominal, sidecar,
         rows=rows + 1, n_read=n, left_out=left_out, phases=phases,
     )  # fmt: skip
+
+
+def _check_identity(p: Path, c: str, v: F64, rows: NDArray[np.int64]) -> None:
+    """Tool and line are whole numbers >= 0; the override lies in (0, 3] (``rows``: the
+    file's 0-based row of each sample, for the message)."""
+    if c == "override":
+        bad = np.flatnonzero(~((v > 0.0) & (v <= 3.0)))
+        want = "a feed override in (0, 3]"
+    else:
+        bad = np.flatnonzero((v < 0) | (v != np.round(v)))
+        want = "a whole number >= 0"
+    if bad.size:
+        i = int(bad[0])
+        raise LogFormatError(
+            f"{p}: column {c!r}, row {int(rows[i]) + 1}: expected {want}, found {float(v[i])}"
+        )
 
 
 def write_log(path: Path, columns: Mapping[str, NDArray[Any]], sidecar: Mapping[str, Any]) -> None:

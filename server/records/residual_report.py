@@ -437,7 +437,7 @@ figure{{margin:8px 0}}img{{max-width:100%}}summary{{font-weight:bold;cursor:poin
 (t = {_fmt(rep["holdout"]["start"])} … {_fmt(rep["holdout"]["stop"])} s, not used
 in the fit). Model: {_fmt(rep["model"])}.</p>
 {rows_used}{notes}
-<h2>Selected effects</h2><ul>{effects or "<li>none</li>"}</ul>
+<h2>Selected effects and their physical meaning</h2><ul>{effects or "<li>none</li>"}</ul>
 {lead_figs}
 {ambig}
 <h2>What is left unexplained</h2><ul>{unexpl}</ul>
