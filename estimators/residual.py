@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cached_property
 
 import numpy as np
@@ -54,7 +54,9 @@ from estimators.residual_engine import (
     Selection,
     Shape,
 )
-from estimators.residual_families import OFFERED, Family, SearchData
+from estimators.residual_families import FAMILIES as REGISTRY
+from estimators.residual_families import LOAD, OFFERED, Family, SearchData
+from estimators.residual_rate import column_kinematics, rate_plan
 from estimators.residual_selection import Fold, OutOfFold, SelectionParams, support
 from estimators.residual_shapes import SEARCH_SAMPLES, unexplained_structure
 
@@ -73,9 +75,9 @@ ROWS_PER_BLOCK = 40
 
 def idim_for_rate(sample_time: float) -> IdimParams:
     """The filtering and decimation of the nominal fit for a record sampled every
-    ``sample_time`` seconds (the benchmark's pipeline, 100 Hz position filter and
-    decimation by 10, is tuned for 1 kHz; every rate gets it today)."""
-    return IdimParams()
+    ``sample_time`` seconds (:func:`estimators.residual_rate.rate_plan`: the benchmark's
+    pipeline at 1 kHz and above, its proportions below)."""
+    return rate_plan(sample_time).idim
 
 
 @dataclass(frozen=True)
@@ -88,6 +90,8 @@ class Signals:
     qdd: F64
     qddd: F64
     force: F64
+    #: 1 on the rows where a process load acts (``--load-rows``), else None
+    load: F64 | None = None
 
 
 def signals(
@@ -102,12 +106,15 @@ def signals(
     return Signals(ta[kin.index], kin.q, kin.qd, kin.qdd, qddd, fa[kin.index])
 
 
-def _full_rate(values: F64, n: int) -> F64:
-    """Extend a series over samples 1..n-2 to 0..n-1 (ends repeat their neighbour)."""
-    out = np.empty(n)
-    out[1:-1] = values
-    out[0], out[-1] = values[0], values[-1]
-    return out
+def _full_rate(values: F64, n: int, index: NDArray[np.int64] | None = None) -> F64:
+    """Extend a series over the samples ``index`` (default 1..n-2) to 0..n-1: samples
+    between are interpolated, the ends repeat their neighbour."""
+    if index is None:
+        out = np.empty(n)
+        out[1:-1] = values
+        out[0], out[-1] = values[0], values[-1]
+        return out
+    return np.interp(np.arange(n, dtype=np.float64), index.astype(np.float64), values)
 
 
 @dataclass(frozen=True, eq=False)
@@ -214,9 +221,9 @@ def _rigid_oof(
 
 def effect_columns(effect: Effect, sig: Signals) -> F64:
     """Regressor columns of ``effect`` over the samples of ``sig`` (shape ``(n, k)``)."""
-    fam = FAMILIES.get(effect.name)
+    fam = REGISTRY.get(effect.name)
     if fam is None:
-        raise ParameterError("effect", f"one of {', '.join(FAMILIES)}", effect.name)
+        raise ParameterError("effect", f"one of {', '.join(REGISTRY)}", effect.name)
     return fam.columns(effect.shape, sig)
 
 
@@ -239,7 +246,7 @@ def find_shape(
     stride = max(1, int(math.ceil(len(idx) / max_samples)))
     idx = idx[::stride]
     data = SearchData(sig, residual, mask, idx, residual[idx], nominal, decimation)
-    return FAMILIES[name].search(data)
+    return REGISTRY[name].search(data)
 
 
 def effect_params(effect: Effect, design: Design, theta: F64) -> dict[str, float]:
@@ -248,7 +255,7 @@ def effect_params(effect: Effect, design: Design, theta: F64) -> dict[str, float
     byname = dict(zip(design.names, theta))
     for cn in effect.columns:
         out[cn] = float(byname.get(f"{effect.name}.{cn}", 0.0))
-    out.update(FAMILIES[effect.name].derived(effect.shape, out, byname))
+    out.update(REGISTRY[effect.name].derived(effect.shape, out, byname))
     return out
 
 
@@ -287,11 +294,22 @@ class RigidModel:
     rows_per_block : int
         Least decimated rows per block of ``ResidualParams.blocks`` (the least record
         length).
+    qd, qdd : array_like, optional
+        The controller's velocity and acceleration: used instead of filtering and
+        differentiating the position (``qdd`` without ``qd`` is ignored).
+    segments : array_like of int, optional
+        Start index of each run of consecutive samples (a row selection cuts the
+        record): nothing is differentiated across a cut.
+    load : array_like of bool, optional
+        Rows where a process load acts: offers the ``load`` family.
+    nominal_rows : array_like of bool, optional
+        Rows the nominal model (the report's "before") is fitted on, inside the fitting
+        part (e.g. the tool in the air); the selection and the final model use every
+        fitting row.
     """
 
     kind = "rigid"
     description = "rigid: tau = M*qdd + Fv*qd + Fc*sign(qd) + offset (IDIM-LS)"
-    not_offered: Mapping[str, str] = NOT_OFFERED
     max_effects = 6  # a cap; a real drive (EMPS) needs 5
 
     def __init__(
@@ -303,18 +321,58 @@ class RigidModel:
         idim: IdimParams | None = None,
         families: Mapping[str, Family] | None = None,
         rows_per_block: int = ROWS_PER_BLOCK,
+        *,
+        qd: ArrayLike | None = None,
+        qdd: ArrayLike | None = None,
+        segments: ArrayLike | None = None,
+        load: ArrayLike | None = None,
+        nominal_rows: ArrayLike | None = None,
     ) -> None:
         self.q = np.asarray(q, dtype=np.float64)
         self.rows_per_block = rows_per_block
         self.force, self.t, self.sample_time = force, t, sample_time
         self.p = idim_for_rate(sample_time) if idim is None else idim
-        self.families: Mapping[str, Family] = FAMILIES if families is None else families
+        fams = dict(FAMILIES if families is None else families)
+        self.not_offered: Mapping[str, str] = NOT_OFFERED
+        if load is None:
+            fams.pop(LOAD.name, None)
+            self.not_offered = {
+                **NOT_OFFERED,
+                LOAD.name: "needs the rows where the load acts (--load-rows)",
+            }
+        elif families is None:
+            fams[LOAD.name] = LOAD
+        self.families: Mapping[str, Family] = fams
+        self.qd = None if qd is None else np.asarray(qd, dtype=np.float64)
+        self.qdd = None if qdd is None or qd is None else np.asarray(qdd, dtype=np.float64)
+        self.segments = None if segments is None else np.asarray(segments, dtype=np.int64)
+        self.load = None if load is None else np.asarray(load, dtype=bool)
+        self.nominal_rows = None if nominal_rows is None else np.asarray(nominal_rows, dtype=bool)
         self._cache: dict[tuple[str, tuple[tuple[str, float], ...]], tuple[F64, F64]] = {}
 
     @cached_property
+    def index(self) -> NDArray[np.int64]:
+        """The record's rows the signals keep (the differentiation drops ends)."""
+        if self.qd is None:
+            return np.arange(1, len(self.q) - 1)
+        return column_kinematics(self.q, self.qd, self.qdd, self.sample_time, self.segments)[0]
+
+    @cached_property
     def sig(self) -> Signals:
-        """The filtered, differentiated signals (IDIM pipeline)."""
-        return signals(self.q, self.force, self.t, self.sample_time, self.p)
+        """The signals: filtered and differentiated position (IDIM pipeline), or the
+        controller's velocity and acceleration columns when given."""
+        if self.qd is None:
+            s = signals(self.q, self.force, self.t, self.sample_time, self.p)
+        else:
+            idx, q, qd, qdd, qddd = column_kinematics(
+                self.q, self.qd, self.qdd, self.sample_time, self.segments
+            )
+            ta = np.asarray(self.t, dtype=np.float64)
+            fa = np.asarray(self.force, dtype=np.float64)
+            s = Signals(ta[idx], q, qd, qdd, qddd, fa[idx])
+        if self.load is not None:
+            s = replace(s, load=self.load[self.index].astype(np.float64))
+        return s
 
     @cached_property
     def di(self) -> NDArray[np.int64]:
@@ -351,7 +409,9 @@ class RigidModel:
         # full-rate sample -> its decimated row (for the shape searches inside a fold)
         self.row_of = np.clip(np.searchsorted(t_dec, self.sig.t), 0, len(t_dec) - 1)
         say("nominal fit")
-        return Rows(len(t_dec), split, _guard_rows(self.sample_time, p))
+        # the controller's velocity, undecimated: no filter memory to guard against
+        guard = 2 if self.qd is not None and p.decimation == 1 else _guard_rows(self.sample_time, p)
+        return Rows(len(t_dec), split, guard)
 
     def _fitted(self, effects: tuple[Effect, ...]) -> RigidFit:
         d = build_design(self.sig, effects, self.p, self._cache)
@@ -361,7 +421,19 @@ class RigidModel:
         )
 
     def nominal(self) -> RigidFit:
-        return self._fitted(())
+        if self.nominal_rows is None:
+            return self._fitted(())
+        # the nominal model on the chosen rows of the fitting part (decimated rows: the
+        # row each decimated sample stands for)
+        rows = self.nominal_rows[self.index][self.di] & self.fit
+        if rows.sum() < 10:
+            raise ParameterError(
+                "nominal_rows", "at least 10 rows in the fitting part", int(rows.sum())
+            )
+        d = build_design(self.sig, (), self.p, self._cache)
+        theta, _ = fit_design(d, self.y_dec, rows)
+        return RigidFit((), d, theta, self.y_dec[self.hold] - d.x_dec[self.hold] @ theta,
+                        self.sig.force)  # fmt: skip
 
     def holdout_mse(self, state: RigidFit) -> float:
         return float(np.mean(state.e_hold**2))
@@ -441,6 +513,11 @@ class RigidModel:
             for e in final.effects
         )
         e0, e1 = nominal.e_hold, final.e_hold
+        terms: dict[str, F64] = {}
+        col = dict(zip(design.names, range(len(design.names))))
+        for e in final.effects:
+            j = [col[f"{e.name}.{c}"] for c in e.columns]
+            terms[e.name] = design.x_dec[:, j] @ theta[j]
         return ResidualResult(
             kind=self.kind,
             model=self.description,
@@ -457,8 +534,8 @@ class RigidModel:
             relerr_before=100.0 * float(np.linalg.norm(e0)) / norm_y,
             relerr_after=100.0 * float(np.linalg.norm(e1)) / norm_y,
             unexplained=tuple(unexpl),
-            f_hat_before=_full_rate(design0.x_full @ theta0, n),
-            f_hat_after=_full_rate(design.x_full @ theta, n),
+            f_hat_before=_full_rate(design0.x_full @ theta0, n, self.index),
+            f_hat_after=_full_rate(design.x_full @ theta, n, self.index),
             t_dec=t_dec,
             residual_before_dec=y_dec - design0.x_dec @ theta0,
             residual_after_dec=y_dec - design.x_dec @ theta,
@@ -472,6 +549,7 @@ class RigidModel:
             hold_speed=sig.qd[di][self.hold],
             hold_sq_force_before=e0**2,
             hold_sq_force_after=e1**2,
+            terms_dec=terms,
         )
 
     def evaluate(self, result: ResidualResult) -> dict[str, float]:

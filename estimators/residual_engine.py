@@ -175,6 +175,8 @@ class ResidualResult:
     hold_speed: F64 = field(default_factory=lambda: np.zeros(0))
     hold_sq_force_before: F64 = field(default_factory=lambda: np.zeros(0))
     hold_sq_force_after: F64 = field(default_factory=lambda: np.zeros(0))
+    #: each selected effect's fitted term on the display rows (``*_dec``), to draw it
+    terms_dec: Mapping[str, F64] = field(default_factory=dict)
 
 
 S = TypeVar("S")  # a fitted model structure (the model's own state)

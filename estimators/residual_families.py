@@ -713,11 +713,35 @@ DRIVE: tuple[Family, ...] = (
         _none,
     ),
 )
+
+
+def _load_cols(shape: Shape, s: Kin) -> F64:
+    load = getattr(s, "load", None)
+    if load is None:
+        return np.zeros((len(s.qd), 3))
+    return np.column_stack([load, load * s.qd, load * np.sign(s.qd)])
+
+
+#: a process load (cutting) on the rows marked as loaded: an effort during the cut, a part
+#: proportional to the feed speed (chip thickness grows with the feed at a constant
+#: spindle speed), a part by direction; offered only when the log marks those rows
+LOAD = Family(
+    "load",
+    "a process load (cutting) on the rows where it acts: an offset F_0, a part k_v "
+    "proportional to the speed (the chip thickness grows with the feed), a part F_c by "
+    "direction of motion",
+    _load_cols,
+    lambda s: ("F_0", "k_v", "F_c"),
+    _no_search,
+    _none,
+)
+
 #: every family of the rigid model, in the order a round scores them
-FAMILIES: dict[str, Family] = {f.name: f for f in (*CANONICAL, *DRIVE)}
+FAMILIES: dict[str, Family] = {f.name: f for f in (*CANONICAL, *DRIVE, LOAD)}
 
 #: built and measured on EMPS, not offered by default, with the reason (docs/residual-emps.md)
 NOT_OFFERED: dict[str, str] = {
+    "load": "needs the rows where the load acts (--load-rows)",
     "viscous_asymmetry": "spanned by coulomb_asymmetry (the benchmark's asymmetric variant, "
     "which reports Fv_pos and Fv_neg): offering both names one effect twice",
     "friction_curve": "on EMPS no better than the symmetric Stribeck family (record halves "

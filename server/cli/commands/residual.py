@@ -43,7 +43,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         metavar="COL=EXPR",
         action="append",
         default=[],
-        help="column map: COL=name, COL=name*scale or COL=name*scale+offset",
+        help="column map: COL=name, COL=name*scale or COL=name*scale+offset; the log's "
+        "columns are t (or sample_time in --meta), tau_m (effort: N, N m, or A; in A "
+        "without nominal.K_t the parameters are in A), q_m (m or rad), and optionally "
+        "qd_m, qdd_m (the velocity and acceleration the controller reports, used instead "
+        "of differentiating a coarse position), q_l, f_ext. One axis per run.",
     )
     p.add_argument(
         "--kind", metavar="KIND", help="rigid or two_inertia (default: sidecar, else rigid)"
@@ -69,6 +73,50 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=[],
         help="two_inertia without f_ext: a segment [s] with no cutting force (repeatable)",
     )
+    rows = p.add_argument_group(
+        "rows",
+        "Choose rows by a condition on any column of the file, text labels included: "
+        "COND is TERM [& TERM ...], TERM is COLUMN OP VALUE with OP one of == != < <= > >= "
+        "(numbers; == and != also text) or ~ (regular expression searched in the cell). "
+        "Columns neither mapped nor required are otherwise ignored, whatever they hold. "
+        "The rows each rule leaves out are counted in the report; the record is split "
+        "where rows are left out (nothing is differentiated or filtered across a cut).",
+    )
+    rows.add_argument(
+        "--keep",
+        metavar="COND",
+        action="append",
+        default=[],
+        help="use only rows where COND holds (repeatable: all must hold), "
+        "e.g. --keep 'Machining_Process~^Layer'",
+    )
+    rows.add_argument(
+        "--drop",
+        metavar="COND",
+        action="append",
+        default=[],
+        help="leave out rows where COND holds (repeatable: any), e.g. rows that do not "
+        "reflect the machine: --drop 'S1_ActualVelocity<1 & X1_ActualPosition==198'",
+    )
+    rows.add_argument(
+        "--drop-repeats",
+        metavar="COLS",
+        help="leave out rows that repeat the previous row in every column named "
+        "(comma-separated names or patterns, e.g. 'X1_*,Y1_*'): stale copies of a sample",
+    )
+    rows.add_argument(
+        "--nominal-rows",
+        metavar="COND",
+        help="fit the nominal model on these rows only (e.g. the tool in the air: "
+        "--nominal-rows 'Machining_Process~^(Prep|Repositioning)'); effects on all rows",
+    )
+    rows.add_argument(
+        "--load-rows",
+        metavar="COND",
+        help="rows where a process load acts (e.g. cutting: --load-rows "
+        "'Machining_Process~^Layer'); offers the 'load' effect: an effort on these rows, "
+        "by direction of motion",
+    )
     p.add_argument("--out", metavar="DIR", type=Path, required=True, help="output directory")
     p.add_argument("--quiet", action="store_true", help="no progress messages")
 
@@ -77,6 +125,7 @@ def run(args: argparse.Namespace) -> int:
     from estimators.errors import ParameterError
     from estimators.residual_engine import ResidualParams, analyse, apply
     from server.errors import CutwatchError
+    from server.pipeline.residual_run import model_notes
     from server.records.measured_log import load_log, load_meta
     from server.records.residual_report import write_report
 
@@ -88,7 +137,11 @@ def run(args: argparse.Namespace) -> int:
         raise CutwatchError(f"--holdout: {exc}") from None
     meta = load_meta(args.meta)
     progress = not args.quiet
-    log = load_log(args.log, meta=meta, maps=args.map, kind=args.kind, progress=progress)
+    selection = row_selection(args)
+    log = load_log(
+        args.log, meta=meta, maps=args.map, kind=args.kind, progress=progress,
+        selection=selection, current_ok=True,
+    )  # fmt: skip
     kind = log.kind or "rigid"
     with _Progress(progress) as say:
         model = _model(kind, log, args)
@@ -103,13 +156,16 @@ def run(args: argparse.Namespace) -> int:
     validation = None
     if args.validate is not None:
         vkind = kind if kind == "two_inertia" else args.kind
-        other = load_log(args.validate, meta=meta, maps=args.map, kind=vkind, progress=progress)
+        other = load_log(
+            args.validate, meta=meta, maps=args.map, kind=vkind, progress=progress,
+            selection=selection, current_ok=True,
+        )  # fmt: skip
         try:
             nums = apply(res, _model(kind, other, args))
         except ParameterError as exc:
             raise CutwatchError(f"{other.path}: cannot validate on it: {exc}") from None
         validation = {"log": str(other.path), **nums}
-    rep = write_report(args.out, log, res, validation)
+    rep = write_report(args.out, log, res, validation, notes=model_notes(log, kind))
     _summary(args, log, rep, validation)
     return 0
 
@@ -118,12 +174,12 @@ def _model(kind: str, log: Any, args: argparse.Namespace) -> Any:
     """The residual model of ``log``: the rigid axis, or the observer with its nominal
     parameters, its reference force or the ``--air-cut`` segments."""
     from estimators.errors import ParameterError
-    from estimators.residual import RigidModel
     from estimators.residual_two_inertia import TwoInertiaModel
     from server.errors import CutwatchError
+    from server.pipeline.residual_run import rigid_model
 
     if kind != "two_inertia":
-        return RigidModel(log["q_m"], log["tau_m"], log["t"], log.sample_time)
+        return rigid_model(log)
     op, lp = _observer_inputs(log)
     f_ext = log["f_ext"] if "f_ext" in log.columns else None
     if f_ext is None and not args.air_cut:
@@ -140,6 +196,18 @@ def _model(kind: str, log: Any, args: argparse.Namespace) -> Any:
         )  # fmt: skip
     except ParameterError as exc:
         raise CutwatchError(f"{log.path}: {exc}") from None
+
+
+def row_selection(args: argparse.Namespace) -> Any:
+    """The ``--keep/--drop/--drop-repeats/--nominal-rows/--load-rows`` options, parsed."""
+    from server.records.row_select import RowSelection
+
+    return RowSelection.from_options(
+        keep=args.keep,
+        drop=args.drop,
+        drop_repeats=args.drop_repeats,
+        phases={"nominal_rows": args.nominal_rows, "load_rows": args.load_rows},
+    )
 
 
 class _Progress:
@@ -226,6 +294,11 @@ def _observer_inputs(log: Any) -> tuple[Any, Any]:
 def _summary(args: argparse.Namespace, log: Any, rep: Any, validation: Any) -> None:
     from server.records.residual_report import describe_structure
 
+    if log.left_out:
+        counts = "; ".join(f"{d['left_out']} by {d['rule']}" for d in log.left_out)
+        print(f"{log.path}: rows read {log.n_read}, used {log.n}; left out: {counts}")
+    for note in rep.get("notes", []):
+        print(f"  {note}")
     print(
         f"{log.path}: held-out rms {rep['rms_before']:.4g} -> {rep['rms_after']:.4g} "
         f"{log.units['effort']}, relerr {rep['relerr_before']:.3f} % -> "
