@@ -74,8 +74,10 @@ def test_every_family_has_a_meaning_and_is_offered() -> None:
     for fam in DRIVE:
         assert (fam.name in OFFERED) == (fam.name in NAMES) == (fam.name not in NOT_OFFERED)
         assert len(fam.meaning) > 40
-    # one registry: the canonical families and the real-drive ones, each with a meaning
-    assert set(FAMILIES) == {f.name for f in CANONICAL} | {f.name for f in DRIVE}
+    # one registry: the canonical families, the real-drive ones and the process load (offered
+    # only where a log marks the loaded rows), each with a meaning
+    assert set(FAMILIES) == {f.name for f in CANONICAL} | {f.name for f in DRIVE} | {"load"}
+    assert "load" not in OFFERED and len(FAMILIES["load"].meaning) > 40
     for fam in CANONICAL:
         assert fam.name in OFFERED and len(fam.meaning) > 20
 
