@@ -4,7 +4,7 @@ Built by :func:`create_app`; the lifespan starts one :class:`~server.service.loo
 thread and stops it (and tells every WebSocket client) on shutdown. Serve it with one
 uvicorn worker: the simulation lives in the process (``cutwatch serve``). The routes are
 in ``server.service.routes``; every 4xx answers ``{"detail": [{field, allowed, got, msg}]}``
-(``server.service.errors``).
+(``server.service.http_errors``).
 """
 
 from __future__ import annotations
@@ -28,9 +28,10 @@ from server.errors import CutwatchError
 from server.pipeline.live_pipeline import SCENARIOS
 from server.records.store import DataStore
 from server.service.analysis import Analyses
-from server.service.errors import FieldError, _sanitise, error
+from server.service.auth import Access
+from server.service.http_errors import FieldError, _sanitise, error
 from server.service.loop import Hub, LiveLoop
-from server.service.middleware import BodyLimit
+from server.service.middleware import BodyLimit, Guard
 from server.service.routes import ROUTERS
 from server.service.settings import Settings, check_security
 
@@ -84,6 +85,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         'answers {"detail": [{"field", "allowed", "got", "msg"}]} (schema ErrorBody).',
     )
     app.state.settings = s
+    app.state.access = Access.from_settings(s)
     app.state.store = DataStore(s.data_dir, reports=s.reports_dir)
     app.state.analyses = Analyses(app.state.store)
     app.exception_handler(RequestValidationError)(_validation_error)
@@ -99,6 +101,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.add_middleware(
         BodyLimit, limit=s.max_body_bytes, paths={"/api/uploads": s.upload_max_bytes}
     )
+    app.add_middleware(Guard)  # outermost: Host, Origin, role, headers, audit
     return app
 
 

@@ -32,7 +32,9 @@ class ErrorBody(BaseModel):
 
 
 _ERROR_DOCS = {
-    401: "no or wrong bearer token (CUTWATCH_TOKEN set)",
+    400: "the Host header does not name this service (CUTWATCH_ALLOWED_HOSTS)",
+    401: "no or wrong credentials (a bearer token or a session; CUTWATCH_TOKEN set)",
+    403: "the viewer role on an operator's request, or a cross-origin browser request",
     404: "no such report, route or file",
     405: "method not allowed on this path",
     409: "the request does not fit the service's state (nothing runs, already recording...)",
@@ -42,12 +44,14 @@ _ERROR_DOCS = {
 
 
 def error_responses(*codes: int, json_route: bool = True) -> dict[int | str, dict[str, Any]]:
-    """OpenAPI ``responses=`` for the given 4xx codes, plus ``4XX`` for any other.
+    """OpenAPI ``responses=`` for the given 4xx codes, plus ``4XX`` for any other; 400
+    (Host), 401 (credentials) and 403 (role, Origin) on every route (the middleware's
+    checks, ``server.service.middleware.Guard``).
 
     ``json_route=False`` for routes answering HTML or text: FastAPI would file a
     ``model`` under the route's own media type, but the error bodies are JSON.
     """
-    docs: dict[int | str, str] = {c: _ERROR_DOCS[c] for c in codes}
+    docs: dict[int | str, str] = {c: _ERROR_DOCS[c] for c in (400, 401, 403, *codes)}
     docs["4XX"] = "any other client error, same shape"
     if json_route:
         return {c: {"model": ErrorBody, "description": d} for c, d in docs.items()}

@@ -8,7 +8,7 @@ from fastapi import APIRouter, HTTPException
 
 from server.pipeline.live_pipeline import SCENARIOS
 from server.service.deps import Authorised, Live
-from server.service.errors import _json_safe, error
+from server.service.http_errors import _json_safe, error
 from server.service.schemas import Control, ControlState, error_responses
 from server.service.settings import MAX_SPEED
 
@@ -20,7 +20,7 @@ router = APIRouter(responses=error_responses())
     summary="pause, resume, reset, or set the speed",
     dependencies=[Authorised],
     response_model=ControlState,
-    responses=error_responses(401, 413, 422),
+    responses=error_responses(413, 422),
 )
 def control(body: Control, lp: Live) -> ControlState:
     if body.action == "pause":

@@ -11,7 +11,7 @@ from fastapi import APIRouter, HTTPException
 from common.errors import ParameterError
 from server.pipeline.live_pipeline import Knob
 from server.service.deps import Authorised, Live
-from server.service.errors import _json_safe, error
+from server.service.http_errors import _json_safe, error
 from server.service.schemas import Params, ParamsPatch, error_responses
 
 router = APIRouter(responses=error_responses())
@@ -77,7 +77,7 @@ def params(lp: Live) -> Params:
     summary="change live parameters (all or nothing)",
     dependencies=[Authorised],
     response_model=Params,
-    responses=error_responses(401, 413, 422),
+    responses=error_responses(413, 422),
 )
 def patch_params(body: ParamsPatch, lp: Live) -> Params:
     changes = body.root

@@ -10,7 +10,7 @@ from fastapi import APIRouter, HTTPException
 from fastapi.responses import FileResponse, HTMLResponse
 
 from server.service.deps import Config
-from server.service.errors import error
+from server.service.http_errors import error
 from server.service.schemas import ResidualReport, error_responses
 
 router = APIRouter(responses=error_responses())
