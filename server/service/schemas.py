@@ -7,11 +7,21 @@ reaches clients rather than being dropped by the response model.
 
 from __future__ import annotations
 
+import math
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, JsonValue, RootModel
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    JsonValue,
+    PlainValidator,
+    RootModel,
+    model_validator,
+)
+from pydantic_core import PydanticCustomError
 
-from server.service.settings import MAX_SPEED
+from server.service.settings import MAX_SPEED, ScenarioName, Speed
 
 # ------------------------------------------------------------------ errors
 
@@ -200,7 +210,30 @@ class Params(RootModel[dict[str, KnobOut]]):
     """``GET``/``PATCH /api/params``: every live parameter with its allowed values."""
 
 
-class ParamsPatch(RootModel[dict[str, Any]]):
+def _knob_value(v: Any) -> bool | float | str:
+    # the type of a knob's value; its range or choices are the pipeline's to check
+    # (``LivePipeline.set_knob``, one message per knob)
+    if isinstance(v, bool):
+        return v
+    if isinstance(v, str) and len(v) <= 100:
+        return v
+    if isinstance(v, int | float):
+        try:
+            f = float(v)
+        except OverflowError:
+            f = math.inf
+        if math.isfinite(f):
+            return f
+    raise PydanticCustomError(
+        "knob_value", "a finite number, true or false, or a choice's name (a short string)"
+    )
+
+
+#: the value of one knob in a PATCH: a finite number, a boolean or a short string
+KnobValue = Annotated[bool | float | str, PlainValidator(_knob_value)]
+
+
+class ParamsPatch(RootModel[dict[str, KnobValue]]):
     """``PATCH /api/params``: ``{name: value}`` for one or more knobs (all or nothing).
 
     Each value is checked against its knob (a number in range, true or false, one of the
@@ -225,8 +258,19 @@ class Control(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
     action: Literal["pause", "resume", "reset", "speed", "scenario"]
-    value: float | None = Field(None, description=f"speed in [0, {MAX_SPEED:g}] (action speed)")
-    scenario: str | None = Field(None, description="scenario name (action scenario)")
+    value: Speed | None = Field(None, description=f"speed in [0, {MAX_SPEED:g}] (action speed)")
+    scenario: ScenarioName | None = Field(None, description="scenario name (action scenario)")
+
+    @model_validator(mode="after")
+    def _needs(self) -> Control:
+        # the field the action needs: named like a missing field
+        for action, name in (("speed", "value"), ("scenario", "scenario")):
+            if self.action == action and getattr(self, name) is None:
+                raise PydanticCustomError(
+                    "missing_for_action", "a value (required with action '{action}')",
+                    {"field": name, "action": action},
+                )  # fmt: skip
+        return self
 
 
 class ControlState(BaseModel):

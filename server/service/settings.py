@@ -8,19 +8,45 @@ token; see :func:`check_security`).
 from __future__ import annotations
 
 import ipaddress
+import math
 from pathlib import Path
-from typing import Literal
+from typing import Annotated, Literal
 from urllib.parse import urlsplit
 
-from pydantic import Field, SecretStr
+from pydantic import AfterValidator, Field, SecretStr
+from pydantic_core import PydanticCustomError
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 from common.errors import ParameterError
 from server.errors import CutwatchError
+from server.pipeline.live_pipeline import SCENARIOS
 
 MAX_SPEED = 1000.0
 #: the shortest token accepted (CUTWATCH_TOKEN, CUTWATCH_VIEW_TOKEN)
 MIN_TOKEN_CHARS = 16
+
+
+def _scenario(name: str) -> str:
+    if name not in SCENARIOS:
+        allowed = ", ".join(SCENARIOS)
+        raise PydanticCustomError("scenario", "expected one of {allowed}", {"allowed": allowed})
+    return name
+
+
+def _speed(v: float) -> float:
+    if not (math.isfinite(v) and 0.0 <= v <= MAX_SPEED):
+        raise PydanticCustomError("speed", "a speed in [0, {hi}]", {"hi": f"{MAX_SPEED:g}"})
+    return v
+
+
+#: the one check of a speed (the setting, ``POST /api/control``)
+Speed = Annotated[
+    float,
+    AfterValidator(_speed),
+    Field(description=f"simulated seconds per wall second in [0, {MAX_SPEED:g}] (0 = paused)"),
+]
+#: the one check of a scenario's name (the setting, ``POST /api/control``)
+ScenarioName = Annotated[str, AfterValidator(_scenario)]
 
 
 class Settings(BaseSettings):
@@ -31,13 +57,10 @@ class Settings(BaseSettings):
     host: str = Field(default="127.0.0.1", description="address to bind (loopback by default)")
     port: int = Field(default=8000, ge=1, le=65535, description="HTTP / WebSocket port")
     viser_port: int = Field(default=8080, ge=1, le=65535, description="port of the viser 3D view")
-    scenario: str = Field(default="default", description="scenario at start (see /api/scenarios)")
-    speed: float = Field(
-        default=1.0,
-        ge=0.0,
-        le=MAX_SPEED,
-        description="simulated seconds per wall second (0 = paused)",
+    scenario: ScenarioName = Field(
+        default="default", description="scenario at start (see /api/scenarios)"
     )
+    speed: Speed = 1.0
     block_ms: float = Field(default=50.0, ge=1.0, le=1000.0, description="loop block length [ms]")
     frame_hz: float = Field(default=20.0, ge=1.0, le=60.0, description="WebSocket frame rate [Hz]")
     display_points: int = Field(
