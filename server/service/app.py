@@ -60,6 +60,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     """
     s = settings if settings is not None else Settings()
     check_security(s)
+    _log_to_stderr()
 
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
@@ -69,6 +70,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                 "removed %d temporary file(s) left by an interrupted run: %s",
                 len(stale), ", ".join(stale)[:2000],
             )  # fmt: skip
+        from server.service import upload_check
+
+        # the upload checker's server process, started now (its imports take seconds)
+        warming = asyncio.create_task(asyncio.to_thread(upload_check.warm))
         hub = Hub(s.client_buffer)
         hub.bind(asyncio.get_running_loop())
         loop = LiveLoop(s, hub)
@@ -81,6 +86,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         try:
             yield
         finally:
+            warming.cancel()
             app.state.analyses.close()
             hub.close()
             await asyncio.to_thread(loop.stop)
@@ -113,6 +119,17 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     )
     app.add_middleware(Guard)  # outermost: Host, Origin, role, headers, audit
     return app
+
+
+def _log_to_stderr() -> None:
+    """The service's own log lines (``cutwatch.*``: the audit trail, start-up notes) on
+    stderr at INFO, beside uvicorn's (which configures only its own loggers)."""
+    root = logging.getLogger("cutwatch")
+    if not root.handlers:
+        h = logging.StreamHandler()
+        h.setFormatter(logging.Formatter("%(asctime)s %(name)s %(levelname)s: %(message)s"))
+        root.addHandler(h)
+        root.setLevel(logging.INFO)
 
 
 # ------------------------------------------------------------------ exception handlers
