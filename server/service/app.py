@@ -164,6 +164,14 @@ async def _http_error(request: Request, exc: StarletteHTTPException) -> Response
         headers["Allow"] = ", ".join(allowed)
         msg = f"{exc.detail}: {request.method} {path}; allowed: {', '.join(allowed)}"
         items = [error("method", "one of " + ", ".join(allowed), request.method, msg)]
+    elif exc.status_code == 400 and exc.detail == "There was an error parsing the body":
+        # FastAPI's answer when json.loads itself fails (nesting past the parser's
+        # recursion limit, an integer of more than 4,300 digits)
+        rule = (
+            "a JSON document the parser accepts (not nested past ~1,000 levels, "
+            "integers under 4,300 digits)"
+        )
+        items = [error("body", rule, None, "the body could not be parsed as JSON: " + rule)]
     else:
         items = [error("request", "see msg", None, str(exc.detail))]
     return _errors(exc.status_code, items, headers=headers or None)
