@@ -31,7 +31,7 @@ from server.service.auth import Access
 from server.service.http_errors import (
     FieldError,
     SafeJSONResponse,
-    _json_safe,
+    echo,
     error,
     sanitise,
 )
@@ -231,7 +231,7 @@ def _validation_item(request: Request, e: Any) -> dict[str, Any]:
         allowed = raw.removeprefix("Input should be ").removeprefix("expected ")
     msg = f"{field}: {raw}"
     if kind in _OURS:  # the request models' own checks: one sentence, the value found
-        msg = f"{field}: expected {allowed}, got {_json_safe(got)!r}"
+        msg = f"{field}: expected {allowed}, got {echo(got)!r}"
     item = error(field, allowed, None, msg)
     item["got"] = got  # the input as sent (bounded), a structure kept a structure
     return item
