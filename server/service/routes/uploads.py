@@ -98,7 +98,7 @@ async def upload(
             raise FieldError("body", "the file's bytes", 0, "empty body: expected the file's bytes")
         checked = await _check(st, qdir, name, s)
         try:  # publish: a link never replaces a file of that name (a race: 409)
-            os.link(qdir / name, final)
+            _publish(qdir / name, final)
         except FileExistsError:
             raise conflict(
                 "name", "a name not taken", name, f"upload {name!r} exists already"
@@ -106,6 +106,19 @@ async def upload(
         return _info(final, checked)
     finally:
         shutil.rmtree(qdir, ignore_errors=True)
+
+
+def _publish(src: Path, dst: Path) -> None:
+    """Move ``src`` to ``dst`` at once, never over an existing file (FileExistsError):
+    a hard link, or (a file system without links) a rename once the name is seen free."""
+    try:
+        os.link(src, dst)
+    except FileExistsError:
+        raise
+    except OSError:
+        if dst.exists():
+            raise FileExistsError(dst.name) from None
+        os.rename(src, dst)
 
 
 async def _receive(request: Request, path: Path, limit: int) -> int | None:
@@ -135,7 +148,10 @@ async def _check(st: DataStore, qdir: Path, name: str, s: Settings) -> dict[str,
     if companion is not None:
         other = st.area("uploads") / (stem + companion)
         if other.is_file():
-            os.link(other, qdir / other.name)
+            try:
+                os.link(other, qdir / other.name)
+            except OSError:  # a file system without hard links
+                shutil.copyfile(other, qdir / other.name)
             if suffix == ".json":  # the pair is checked through its log
                 target, what = qdir / other.name, "log"
     answer = await run_check(target, what, limits(s))
