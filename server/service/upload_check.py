@@ -53,7 +53,7 @@ class Refused(Exception):
 
 # ------------------------------------------------------------------ the child's side
 def mat_expanded_size(path: Path, limit: int) -> int:
-    """The bytes a MAT v5/v7 file's variables take once expanded, from their headers.
+    """The bytes a MAT file's variables take once expanded, from their headers.
 
     For a compressed element only the first bytes of its zlib stream are inflated (the
     inner matrix tag, array flags and dimensions); the size counted is the larger of the
@@ -68,7 +68,9 @@ def mat_expanded_size(path: Path, limit: int) -> int:
     with path.open("rb") as fh:
         head = fh.read(128)
         if len(head) < 128 or head[126:128] not in (b"IM", b"MI"):
-            raise Refused(f"{path.name}: not a MATLAB v5/v7 .mat file (no MAT-file header)")
+            if _is_v4(head):  # a v4 file has no compression: it expands to its own size
+                return path.stat().st_size
+            raise Refused(f"{path.name}: not a MATLAB .mat file (no v4 or v5 MAT-file header)")
         if head[124:126] in (b"\x02\x00", b"\x00\x02"):
             raise Refused(
                 f"{path.name}: MATLAB v7.3 (HDF5) files are not supported; save with -v7 "
@@ -99,6 +101,20 @@ def mat_expanded_size(path: Path, limit: int) -> int:
                     f"(at least {total} declared in the file's headers); the limit is "
                     "CUTWATCH_UPLOAD_MAX_MB"
                 )
+
+
+def _is_v4(head: bytes) -> bool:
+    """True when ``head`` starts like a MAT v4 variable (type MOPT, rows, columns,
+    imaginary flag, name length; little- or big-endian)."""
+    if len(head) < 20:
+        return False
+    for end in "<>":
+        mopt, rows, cols, imag, namlen = struct.unpack(end + "5i", head[:20])
+        m, o, p, t = mopt // 1000, mopt // 100 % 10, mopt // 10 % 10, mopt % 10
+        if 0 <= mopt < 5000 and m <= 4 and o == 0 and p <= 5 and t <= 2 and rows >= 0 \
+                and cols >= 0 and imag in (0, 1) and 1 <= namlen <= 64:  # fmt: skip
+            return True
+    return False
 
 
 def _compressed_size(path: Path, data: bytes, end: str) -> int:

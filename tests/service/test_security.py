@@ -32,6 +32,7 @@ from server.errors import CutwatchError
 from server.records.store import check_name
 from server.service.app import create_app
 from server.service.settings import Settings, check_security, is_loopback
+from server.service.upload_check import Refused, mat_expanded_size
 
 OP = {"Authorization": f"Bearer {OPERATOR}"}
 SIDECAR = {"sample_time": 0.001, "units": {"effort": "N m", "position": "rad"}, "kind": "rigid"}
@@ -118,7 +119,7 @@ BAD_UPLOADS = [
     ("tbig.json", b'{"sample_time": 1' + b"0" * 400 + b"}", "'sample_time'"),
     ("kind.json", json.dumps({**SIDECAR, "kind": 3}).encode(), "'kind'"),
     ("v73.mat", b"MATLAB 7.3 MAT-file".ljust(124, b" ") + b"\x00\x02IM" + b"\x00" * 64, "v7.3"),
-    ("short.mat", b"MATLAB 5.0", "not a MATLAB v5/v7"),
+    ("short.mat", b"MATLAB 5.0", "not a MATLAB .mat file"),
 ]
 
 
@@ -139,6 +140,44 @@ def test_bad_uploads_are_refused_named_removed_and_not_listed(
     listed = {u["name"] for u in c.get("/api/uploads", headers=OP).json()["uploads"]}
     assert listed == set() and not any((data / ".quarantine").iterdir())
     print(f"bad uploads: {sent} requests, 0 5xx, 0 files kept")
+
+
+def test_mat_headers_give_the_expanded_size(tmp_path: Path) -> None:
+    import scipy.io
+
+    cols = {"t": np.arange(5000) * 1e-3, "tau_m": np.zeros(5000), "q_m": np.ones(5000)}
+    for compress in (False, True):  # v5: element headers, compressed or not
+        p = tmp_path / f"v5{compress}.mat"
+        scipy.io.savemat(p, {**cols, "z": np.ones(3) + 1j}, do_compression=compress)
+        assert mat_expanded_size(p, 10**9) > 3 * 5000 * 8  # the three columns at least
+    p = tmp_path / "v4.mat"
+    scipy.io.savemat(p, cols, format="4")  # no compression: its own size
+    assert mat_expanded_size(p, 10**9) == p.stat().st_size
+    p = tmp_path / "zeros.mat"  # 16 MB of zeros in a few kB
+    scipy.io.savemat(p, {"t": np.zeros(2_000_000)}, do_compression=True)
+    assert p.stat().st_size < 100_000
+    with pytest.raises(Refused, match="expand to more than 1000000 bytes"):
+        mat_expanded_size(p, 10**6)
+
+
+def test_a_mat_log_and_its_sidecar_are_checked_together(
+    locked: tuple[httpx.Client, Path], tmp_path: Path
+) -> None:
+    import scipy.io
+
+    c, data = locked
+    t = np.arange(5000) * 1e-3
+    p = tmp_path / "m.mat"
+    scipy.io.savemat(p, {"t": t, "tau_m": np.sin(t), "q_m": np.cos(t)}, do_compression=True)
+    # the log first: no units yet, refused; the sidecar, then the log: both published
+    r = c.post("/api/uploads", params={"name": "m.mat"}, content=p.read_bytes(), headers=OP)
+    assert r.status_code == 422 and "units not declared" in shaped(r)[0]["msg"]
+    side = json.dumps(SIDECAR).encode()
+    assert c.post("/api/uploads", params={"name": "m.json"}, content=side,
+                  headers=OP).status_code == 200  # fmt: skip
+    r = c.post("/api/uploads", params={"name": "m.mat"}, content=p.read_bytes(), headers=OP)
+    assert r.status_code == 200 and r.json()["samples"] == 5000, r.text
+    assert (data / "uploads" / "m.mat").is_file()
 
 
 def test_a_csv_with_too_many_columns_is_refused_before_parsing(
