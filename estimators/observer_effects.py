@@ -353,7 +353,7 @@ class ObserverEffects:
     Examples
     --------
     >>> fx = ObserverEffects(EffectsParams((ObserverEffect("offset", {}, (0.3,)),), 4e-4))
-    >>> s = fx.init_state()
+    >>> s = fx.initial_state()
     >>> # per block, after TorsionEstimator.step:
     >>> # s, er = fx.step(s, rec.alpha, t, q_m, q_l); force = cutting_force(...) - er.f_corr
     """
@@ -367,7 +367,7 @@ class ObserverEffects:
         ]
         self._hist = int(math.ceil(max(lags))) + 3 if lags else 0
 
-    def init_state(self) -> EffectsState:
+    def initial_state(self) -> EffectsState:
         return EffectsState(
             prev=np.zeros(5),
             z=np.zeros((self._ncols, max(self.q.order, 1))),

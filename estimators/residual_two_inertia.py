@@ -419,7 +419,7 @@ def observer_front(
 ) -> tuple[F64, F64, F64]:
     """Nominal observer over a record: force estimate, twist disagreement, alpha."""
     te = TorsionEstimator(observer)
-    _, rec = te.step(te.init_state(), tau_m, q_m, q_l)
+    _, rec = te.step(te.initial_state(), tau_m, q_m, q_l)
     f = cutting_force(rec, load.J_L, load.B_L, load.F_CL)
     return f, rec.t_sk - rec.t_sm, rec.alpha
 
@@ -686,7 +686,7 @@ def analyse_two_inertia(
         fx = ObserverEffects(
             EffectsParams(tuple(effects), observer.sample_time, observer.q_hz, observer.q_order)
         )
-        _, er = fx.step(fx.init_state(), d.alpha, ta, qm_a, ql_a, tau_a)
+        _, er = fx.step(fx.initial_state(), d.alpha, ta, qm_a, ql_a, tau_a)
         f_after = f_hat - er.f_corr
     say("unexplained structure")
     hidx = d.idx[hold]

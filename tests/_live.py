@@ -1,21 +1,20 @@
-"""A real uvicorn server on a free loopback port, for the API and WebSocket tests; and
-``cutwatch serve`` as its own process, where the test measures the service itself."""
+"""A real uvicorn server on a free loopback port, for the API and WebSocket tests."""
 
 from __future__ import annotations
 
 import os
+import signal
 import socket
 import subprocess
 import sys
 import tempfile
 import threading
 import time
+import urllib.request
 from collections.abc import Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass
 from pathlib import Path
 
-import httpx
 import uvicorn
 
 from server.cli.commands.serve import uvicorn_options
@@ -81,13 +80,42 @@ def serve(*, sndbuf: int | None = None, **settings: object) -> Iterator[str]:
             tmp.cleanup()
 
 
-@dataclass
-class Process:
-    """A ``cutwatch serve`` process: its Popen, base URL and the file its stderr goes to."""
+class ServeProcess:
+    """``cutwatch serve`` as a child process on a free loopback port (see
+    :func:`serve_process`); ``stop(sig)`` ends it with that signal and waits."""
 
-    proc: subprocess.Popen[bytes]
-    base: str
-    log: Path
+    def __init__(self, args: list[str], env: dict[str, str]) -> None:
+        sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+        sock.bind(("127.0.0.1", 0))
+        self.port = int(sock.getsockname()[1])
+        sock.close()  # the child binds it again (a race with other binders is unlikely)
+        self.host = f"127.0.0.1:{self.port}"
+        cmd = [sys.executable, "-m", "server.cli.main", "serve", "--port", str(self.port)]
+        self.proc = subprocess.Popen(
+            [*cmd, "--no-viser", *args],
+            env={**os.environ, **env},
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        self.stderr = ""
+
+    def wait_ready(self, timeout: float = 60.0) -> None:
+        """Until ``GET /api/health`` answers (AssertionError when the child exits)."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if self.proc.poll() is not None:
+                raise AssertionError(f"cutwatch serve exited: {self.proc.communicate()[1]}")
+            try:
+                with urllib.request.urlopen(f"http://{self.host}/api/health", timeout=2):
+                    return
+            except OSError:
+                time.sleep(0.2)
+        raise AssertionError("cutwatch serve did not answer in time")
+
+    @property
+    def base(self) -> str:
+        return f"http://{self.host}"
 
     def rss_kb(self, key: str = "VmRSS") -> int:
         """A memory figure of the process from /proc (VmRSS, VmHWM: the peak) [kB]."""
@@ -100,41 +128,26 @@ class Process:
         """Reset VmHWM to the current RSS (Linux: 5 > /proc/PID/clear_refs)."""
         Path(f"/proc/{self.proc.pid}/clear_refs").write_text("5")
 
+    def stop(self, sig: int = signal.SIGTERM, timeout: float = 30.0) -> int:
+        """Send ``sig``, wait for the exit, keep stderr; the exit code."""
+        if self.proc.poll() is None:
+            self.proc.send_signal(sig)
+        try:
+            _, self.stderr = self.proc.communicate(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            _, self.stderr = self.proc.communicate()
+        return int(self.proc.returncode)
+
 
 @contextmanager
-def serve_process(data_dir: Path, log: Path, **env: str) -> Iterator[Process]:
-    """Run ``cutwatch serve`` as its own process on a free loopback port (no viser), the
-    data areas in ``data_dir``; ``env`` adds ``CUTWATCH_*`` variables. Stops it (SIGTERM)
-    unless the test has ended it already."""
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = int(s.getsockname()[1])
-    cmd = [sys.executable, "-c", "from server.cli.main import main; raise SystemExit(main())",
-           "serve", "--port", str(port), "--no-viser", "--data-dir", str(data_dir)]  # fmt: skip
-    full = {k: v for k, v in os.environ.items() if not k.startswith("CUTWATCH_")}
-    full.update(env)
-    with log.open("ab") as err:
-        proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=err, env=full)
-    base = f"http://127.0.0.1:{port}"
+def serve_process(*args: str, **env: str) -> Iterator[ServeProcess]:
+    """Run ``cutwatch serve <args>`` (environment ``env`` added), ready; killed at exit
+    if still running."""
+    sp = ServeProcess(list(args), dict(env))
     try:
-        deadline = time.monotonic() + 60
-        while True:
-            if proc.poll() is not None:
-                raise RuntimeError(f"cutwatch serve exited: {log.read_text()[-2000:]}")
-            try:
-                if httpx.get(f"{base}/api/health", timeout=2).status_code == 200:
-                    break
-            except httpx.HTTPError:
-                pass
-            if time.monotonic() > deadline:
-                raise RuntimeError("cutwatch serve did not answer within 60 s")
-            time.sleep(0.2)
-        yield Process(proc, base, log)
+        sp.wait_ready()
+        yield sp
     finally:
-        if proc.poll() is None:
-            proc.terminate()
-            try:
-                proc.wait(20)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
+        if sp.proc.poll() is None:
+            sp.stop(signal.SIGKILL)

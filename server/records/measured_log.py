@@ -31,6 +31,9 @@ from server.errors import LogFormatError
 
 REQUIRED_COLUMNS: tuple[str, ...] = ("t", "tau_m", "q_m")
 OPTIONAL_COLUMNS: tuple[str, ...] = ("q_l", "f_ext", "i_m")
+#: the CNC's identities per sample, optional: tool number, G-code line (the program
+#: block), feed override (1 = 100 %); the program's name is the sidecar key ``program``
+IDENTITY_COLUMNS: tuple[str, ...] = ("tool", "line", "override")
 EFFORT_UNITS: frozenset[str] = frozenset({"N", "N m", "Nm", "N*m", "A"})
 POSITION_UNITS: frozenset[str] = frozenset({"m", "rad"})
 KINDS: tuple[str, ...] = ("rigid", "two_inertia")
@@ -97,7 +100,9 @@ class MeasuredLog:
     path : Path
         The file read.
     columns : dict of str to ndarray
-        Canonical columns (``t``, ``tau_m``, ``q_m`` and any of ``q_l``, ``f_ext``), SI.
+        Canonical columns (``t``, ``tau_m``, ``q_m`` and any of ``q_l``, ``f_ext``), SI,
+        and the CNC's identities when recorded (``tool``, ``line``, ``override``; the
+        program is ``sidecar["program"]``).
     sample_time : float
         Median sampling interval [s].
     units : dict
@@ -484,7 +489,7 @@ def load_log(
             f"{', '.join(sorted(cols)) or 'none'} (map one with "
             "--map COL=name*scale+offset)"
         )
-    keep = [c for c in (*REQUIRED_COLUMNS, *OPTIONAL_COLUMNS) if c in cols]
+    keep = [c for c in (*REQUIRED_COLUMNS, *OPTIONAL_COLUMNS, *IDENTITY_COLUMNS) if c in cols]
     n = len(cols["t"]) if "t" in cols else len(cols[keep[0]])
     out: dict[str, F64] = {}
     for c in keep:
@@ -499,7 +504,14 @@ def load_log(
             raise LogFormatError(
                 f"{p}: column {c!r}, row {i + 1}: expected a finite value, found {float(v[i])}"
             )
+        if c in IDENTITY_COLUMNS:
+            _check_identity(p, c, v)
         out[c] = v
+    prog = sidecar.get("program")
+    if prog is not None and (not isinstance(prog, str) or not 1 <= len(prog) <= 32):
+        raise LogFormatError(
+            f"{p}: sidecar 'program': expected a name of 1-32 characters, found {prog!r}"
+        )
     declared = sidecar.get("sample_time")
     ts = check_time(p, out["t"], None if declared is None else declared)
 
@@ -507,6 +519,21 @@ def load_log(
     if k is not None and k not in KINDS:
         raise LogFormatError(f"{p}: kind {k!r}: expected one of {', '.join(KINDS)}")
     return MeasuredLog(p, out, ts, dict(units), k, nominal, sidecar)
+
+
+def _check_identity(p: Path, c: str, v: F64) -> None:
+    """Tool and line are whole numbers >= 0; the override lies in (0, 3]."""
+    if c == "override":
+        bad = np.flatnonzero(~((v > 0.0) & (v <= 3.0)))
+        want = "a feed override in (0, 3]"
+    else:
+        bad = np.flatnonzero((v < 0) | (v != np.round(v)))
+        want = "a whole number >= 0"
+    if bad.size:
+        i = int(bad[0])
+        raise LogFormatError(
+            f"{p}: column {c!r}, row {i + 1}: expected {want}, found {float(v[i])}"
+        )
 
 
 def write_log(path: Path, columns: Mapping[str, NDArray[Any]], sidecar: Mapping[str, Any]) -> None:

@@ -35,7 +35,7 @@ from server.service.http_errors import (
     error,
     sanitise,
 )
-from server.service.loop import Hub, LiveLoop
+from server.service.loop import Hub, LiveLoop, checkpoint_path, loop_parts
 from server.service.middleware import BodyLimit, Guard
 from server.service.routes import ROUTERS
 from server.service.settings import Settings, check_security
@@ -76,7 +76,15 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         warming = asyncio.create_task(asyncio.to_thread(upload_check.warm))
         hub = Hub(s.client_buffer)
         hub.bind(asyncio.get_running_loop())
-        loop = LiveLoop(s, hub)
+        parts = loop_parts(s)
+        loop = LiveLoop(
+            s,
+            hub,
+            pipeline=parts.pipeline,
+            feed=parts.feed,
+            estimates_out=parts.estimates_out,
+            checkpoint=checkpoint_path(s),
+        )
         app.state.hub, app.state.loop = hub, loop
         if s.viser:
             from server.service.viser_scene import StageScene

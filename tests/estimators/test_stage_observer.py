@@ -70,7 +70,7 @@ def test_weight_changes_the_true_inertia_only() -> None:
 def _observer_error(cfg: StageConfig, seconds: float = 3.0) -> tuple[float, float]:
     sim = StageSim(cfg)
     fe = TorsionEstimator(observer_params_for(cfg))
-    st = fe.init_state()
+    st = fe.initial_state()
     p = cfg.true_params
     est, true = [], []
     for _ in range(int(seconds / 0.05)):

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import json
 import logging
-import os
 import signal
 import subprocess
 import sys
@@ -356,7 +355,7 @@ def test_mat_bomb_does_not_reach_the_service(tmp_path: Path) -> None:
     bomb = tmp_path / "bomb.mat"
     _bomb(bomb)
     size_kb = bomb.stat().st_size / 1e3
-    with serve_process(tmp_path / "data", tmp_path / "serve.log", CUTWATCH_TOKEN=OPERATOR) as svc:
+    with serve_process("--data-dir", str(tmp_path / "data"), CUTWATCH_TOKEN=OPERATOR) as svc:
         time.sleep(2.0)  # past start-up
         before = svc.rss_kb()
         svc.reset_peak()
@@ -397,7 +396,7 @@ def test_large_upload_keeps_the_loop_on_time_and_is_unusable_until_checked(
     n = _big_csv(big, 80.0)
     mb = big.stat().st_size / 1e6
     with (
-        serve_process(tmp_path / "data", tmp_path / "serve.log", CUTWATCH_TOKEN=OPERATOR) as svc,
+        serve_process("--data-dir", str(tmp_path / "data"), CUTWATCH_TOKEN=OPERATOR) as svc,
         httpx.Client(base_url=svc.base, headers=OP, timeout=120) as c,
     ):
         r = c.post(
@@ -469,21 +468,19 @@ def test_the_check_runs_under_its_memory_limit(tmp_path: Path) -> None:
 
 
 def test_a_killed_recording_is_cleaned_at_the_next_start(tmp_path: Path) -> None:
-    data, log = tmp_path / "data", tmp_path / "serve.log"
-    with serve_process(data, log, CUTWATCH_TOKEN=OPERATOR) as svc:
+    data = tmp_path / "data"
+    with serve_process("--data-dir", str(data), CUTWATCH_TOKEN=OPERATOR) as svc:
         r = httpx.post(f"{svc.base}/api/record", json={"action": "start", "name": "k.csv"},
                        headers=OP)  # fmt: skip
         assert r.status_code == 200, r.text
         tmp = poll(lambda: list((data / "recordings").glob(".k.csv.*.tmp")), 10)
         time.sleep(0.5)
-        os.kill(svc.proc.pid, signal.SIGKILL)
-        svc.proc.wait()
+        svc.stop(signal.SIGKILL)
     assert all(p.exists() for p in tmp)  # the kill left it
-    with serve_process(data, log, CUTWATCH_TOKEN=OPERATOR) as svc:
+    with serve_process("--data-dir", str(data), CUTWATCH_TOKEN=OPERATOR) as svc:
         assert not list((data / "recordings").glob(".*.tmp"))
         listed = httpx.get(f"{svc.base}/api/records", headers=OP).json()["records"]
         assert listed == []
-    text = log.read_text()
-    assert (
-        f"removed 1 temporary file(s) left by an interrupted run: recordings/{tmp[0].name}" in text
-    )
+        svc.stop()
+    said = f"removed 1 temporary file(s) left by an interrupted run: recordings/{tmp[0].name}"
+    assert said in svc.stderr, svc.stderr[-2000:]

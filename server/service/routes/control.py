@@ -29,6 +29,4 @@ def control(body: Control, lp: Live) -> ControlState:
         lp.set_scenario(body.scenario)
     elif body.value is not None:
         lp.set_speed(body.value)
-    return ControlState(
-        speed=lp.speed, paused=lp.paused, sim_t=lp.pipeline.t, scenario=lp.pipeline.scenario
-    )
+    return ControlState(speed=lp.speed, paused=lp.paused, sim_t=lp.sim_t, scenario=lp.scenario)

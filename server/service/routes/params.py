@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-import contextlib
 from typing import Any
 
 from fastapi import APIRouter, HTTPException
 
 from common.errors import ParameterError
-from server.pipeline.live_pipeline import Knob
+from server.pipeline.knobs import Knob
 from server.service.deps import Authorised, Live
 from server.service.http_errors import echo, error
 from server.service.schemas import Params, ParamsPatch, error_responses
@@ -29,16 +28,25 @@ def _knob_dict(k: Knob) -> dict[str, Any]:
     return d
 
 
-def _params(lp: Any) -> Params:
-    return Params.model_validate({name: _knob_dict(k) for name, k in lp.pipeline.knobs().items()})
+def _params(knobs: dict[str, Knob]) -> Params:
+    return Params.model_validate({name: _knob_dict(k) for name, k in knobs.items()})
+
+
+def _check_knob(name: str, k: Knob, value: Any) -> tuple[Any, dict[str, Any] | None]:
+    """Validate one PATCH field against its knob (:meth:`Knob.check`, the one check);
+    return (value, None) or (None, error)."""
+    try:
+        return k.check(value), None
+    except ParameterError as exc:
+        msg = f"{name}: expected {exc.expected}, got {echo(value)!r}"
+        return None, error(name, exc.expected, value, msg)
 
 
 @router.get(
     "/api/params", summary="live parameters with their allowed ranges", response_model=Params
 )
 def params(lp: Live) -> Params:
-    with lp.lock:
-        return _params(lp)
+    return _params(lp.knobs())
 
 
 @router.patch(
@@ -49,32 +57,33 @@ def params(lp: Live) -> Params:
     responses=error_responses(413, 422),
 )
 def patch_params(body: ParamsPatch, lp: Live) -> Params:
-    # types are the request model's to check (KnobValue), ranges and choices the
-    # pipeline's (set_knob, one message per knob); all fields are tried, then undone
-    # when any is refused
+    # types are the request model's to check (KnobValue: a huge integer or a list never
+    # reaches the knob), ranges and choices the knob's (Knob.check, one message)
     changes = body.root
-    with lp.lock:
-        knobs = lp.pipeline.knobs()
-        if not changes:
-            allowed = "an object with at least one of " + ", ".join(knobs)
-            raise HTTPException(422, detail=[error("body", allowed, {}, "no field given")])
-        old = {name: knobs[name].value for name in changes if name in knobs}
-        errors: list[dict[str, Any]] = []
-        for name, value in changes.items():
-            if name not in knobs:
-                allowed = "one of " + ", ".join(knobs)
-                msg = f"unknown parameter {echo(name)!r}; expected {allowed}"
-                errors.append(error(name, allowed, value, msg))
-                continue
-            try:
-                lp.pipeline.set_knob(name, value)
-            except ParameterError as exc:
-                allowed = exc.expected
-                msg = f"{name}: expected {allowed}, got {echo(value)!r}"
-                errors.append(error(name, allowed, value, msg))
-        if errors:
-            for name, v in old.items():
-                with contextlib.suppress(ParameterError):
-                    lp.pipeline.set_knob(name, v)
-            raise HTTPException(422, detail=errors)
-        return _params(lp)
+    knobs = lp.knobs()
+    errors: list[dict[str, Any]] = []
+    clean: dict[str, Any] = {}
+    if not changes:
+        errors.append(
+            error(
+                "body",
+                "an object with at least one of " + ", ".join(knobs),
+                changes,
+                "no field given",
+            )
+        )
+    for name, value in changes.items():
+        if name not in knobs:
+            allowed = "one of " + ", ".join(knobs)
+            errors.append(
+                error(name, allowed, value, f"unknown parameter {echo(name)!r}; expected {allowed}")
+            )
+            continue
+        v, err = _check_knob(name, knobs[name], value)
+        if err is not None:
+            errors.append(err)
+        else:
+            clean[name] = v
+    if errors:
+        raise HTTPException(422, detail=errors)
+    return _params(lp.set_knobs(clean))
