@@ -1,6 +1,6 @@
 # cutwatch live service.
 #   Docker host:  docker build -t cutwatch .
-#                 docker run --rm -p 8000:8000 -p 8080:8080 -e CUTWATCH_TOKEN=change-me cutwatch
+#                 docker run --rm -p 8000:8000 -p 8080:8080 -e CUTWATCH_TOKEN=$(openssl rand -hex 16) cutwatch
 #   here (buildah, no daemon, no registry):  make image && make run-image   (docs/deploy.md)
 # The service binds 0.0.0.0 inside the container, so it refuses to start without
 # CUTWATCH_TOKEN; mutating endpoints then need "Authorization: Bearer <token>".

@@ -13,12 +13,17 @@ import time
 import urllib.request
 from collections.abc import Iterator
 from contextlib import contextmanager
+from pathlib import Path
 
 import uvicorn
 
 from server.cli.commands.serve import uvicorn_options
 from server.service.app import create_app
 from server.service.settings import Settings
+
+#: test tokens of the two roles (CUTWATCH_TOKEN, CUTWATCH_VIEW_TOKEN: 16 characters at least)
+OPERATOR = "operator-token-for-tests"
+VIEWER = "viewer-token-for-tests"
 
 
 @contextmanager
@@ -107,6 +112,21 @@ class ServeProcess:
             except OSError:
                 time.sleep(0.2)
         raise AssertionError("cutwatch serve did not answer in time")
+
+    @property
+    def base(self) -> str:
+        return f"http://{self.host}"
+
+    def rss_kb(self, key: str = "VmRSS") -> int:
+        """A memory figure of the process from /proc (VmRSS, VmHWM: the peak) [kB]."""
+        for line in Path(f"/proc/{self.proc.pid}/status").read_text().splitlines():
+            if line.startswith(key + ":"):
+                return int(line.split()[1])
+        raise KeyError(key)
+
+    def reset_peak(self) -> None:
+        """Reset VmHWM to the current RSS (Linux: 5 > /proc/PID/clear_refs)."""
+        Path(f"/proc/{self.proc.pid}/clear_refs").write_text("5")
 
     def stop(self, sig: int = signal.SIGTERM, timeout: float = 30.0) -> int:
         """Send ``sig``, wait for the exit, keep stderr; the exit code."""

@@ -160,7 +160,7 @@ def test_a_bad_log_is_refused_with_the_loaders_message_and_removed(
     assert str(env["d"]) not in err["msg"]
     assert not (up / "bad.csv").exists() and (up / "bad.json").exists()
     err = one_error(api.post("/api/uploads", params={"name": "x.json"}, content=b"[1]"), 422)
-    assert "not a sidecar: expected a JSON object, found list" in err["msg"]
+    assert "x.json: expected a JSON object, found list" in err["msg"]
 
 
 # ------------------------------------------------------------------ the loop, by name
@@ -199,6 +199,9 @@ def test_upload_analyse_install(api: httpx.Client, env: dict[str, Path]) -> None
     assert j["rms_after"] < 0.7 * j["rms_before"]  # measured: 0.0245 / 0.0467 = 0.52
     page = api.get(j["report_url"])
     assert page.status_code == 200 and "<html" in page.text.lower()
+    # no server path in the report: its log by name (issue 20)
+    assert api.get("/residual/ca/report.json").json()["log"] == "ca.csv"
+    assert str(env["data"]) not in page.text
     assert not [p for p in (env["data"] / "reports").iterdir() if p.name.startswith(".")]
 
     r = api.post("/api/observer-effects", json={"report": "ca"})

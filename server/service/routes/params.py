@@ -9,7 +9,7 @@ from fastapi import APIRouter, HTTPException
 from common.errors import ParameterError
 from server.pipeline.knobs import Knob
 from server.service.deps import Authorised, Live
-from server.service.errors import _json_safe, error
+from server.service.http_errors import echo, error
 from server.service.schemas import Params, ParamsPatch, error_responses
 
 router = APIRouter(responses=error_responses())
@@ -38,7 +38,7 @@ def _check_knob(name: str, k: Knob, value: Any) -> tuple[Any, dict[str, Any] | N
     try:
         return k.check(value), None
     except ParameterError as exc:
-        msg = f"{name}: expected {exc.expected}, got {_json_safe(value)!r}"
+        msg = f"{name}: expected {exc.expected}, got {echo(value)!r}"
         return None, error(name, exc.expected, value, msg)
 
 
@@ -54,9 +54,11 @@ def params(lp: Live) -> Params:
     summary="change live parameters (all or nothing)",
     dependencies=[Authorised],
     response_model=Params,
-    responses=error_responses(401, 413, 422),
+    responses=error_responses(413, 422),
 )
 def patch_params(body: ParamsPatch, lp: Live) -> Params:
+    # types are the request model's to check (KnobValue: a huge integer or a list never
+    # reaches the knob), ranges and choices the knob's (Knob.check, one message)
     changes = body.root
     knobs = lp.knobs()
     errors: list[dict[str, Any]] = []
@@ -74,7 +76,7 @@ def patch_params(body: ParamsPatch, lp: Live) -> Params:
         if name not in knobs:
             allowed = "one of " + ", ".join(knobs)
             errors.append(
-                error(name, allowed, value, f"unknown parameter {name!r}; expected {allowed}")
+                error(name, allowed, value, f"unknown parameter {echo(name)!r}; expected {allowed}")
             )
             continue
         v, err = _check_knob(name, knobs[name], value)
