@@ -75,7 +75,15 @@ class Settings(BaseSettings):
     mqtt_username: str | None = Field(default=None, description="broker user name")
     mqtt_password: SecretStr | None = Field(default=None, description="broker password")
     mqtt_cafile: Path | None = Field(
-        default=None, description="CA certificate file: connect to the broker with TLS"
+        default=None,
+        description="CA certificate(s) (PEM) the broker's certificate is checked against (TLS)",
+    )
+    mqtt_certfile: Path | None = Field(
+        default=None,
+        description="this service's client certificate (PEM), for a broker that requires one",
+    )
+    mqtt_keyfile: Path | None = Field(
+        default=None, description="the private key of mqtt_certfile, when not in its file"
     )
     mqtt_publish_hz: float = Field(
         default=0.0,

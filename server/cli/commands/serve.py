@@ -18,6 +18,8 @@ from __future__ import annotations
 import argparse
 from typing import TYPE_CHECKING
 
+from server.cli.broker_options import add_broker_options, broker_settings
+
 if TYPE_CHECKING:
     from server.service.settings import Settings
 
@@ -44,7 +46,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         choices=("simulator", "mqtt"),
         help="measurements from the simulated machine (default) or a broker (--broker)",
     )
-    p.add_argument("--broker", help="MQTT broker URL mqtt://host[:port] (docs/broker.md)")
+    p.add_argument(
+        "--broker",
+        help="MQTT broker URL mqtt://host[:port] or mqtts://host[:port] (TLS; docs/broker.md)",
+    )
     p.add_argument("--machine", help="machine name on the broker (topics cutwatch/<machine>/...)")
     p.add_argument(
         "--publish-hz",
@@ -56,6 +61,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="the service's recordings/, uploads/ and reports/ (default ./data)",
     )
     p.add_argument("--log-level", default="warning", help="uvicorn log level")
+    add_broker_options(p)
 
 
 def build_settings(args: argparse.Namespace) -> Settings:
@@ -82,6 +88,7 @@ def build_settings(args: argparse.Namespace) -> Settings:
         }.items()
         if v is not None
     }
+    overrides.update(broker_settings(args))
     try:
         return _Settings(**overrides)
     except ValidationError as exc:
