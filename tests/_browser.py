@@ -49,3 +49,15 @@ def chromium_page(
             yield page, errors
         finally:
             browser.close()
+
+
+def log_in(page: Any, base: str, token: str | None) -> None:
+    """Open the dashboard at ``base``; with a token set, through the login page (the
+    service answers a page without a session with a redirect to /login)."""
+    page.goto(f"{base}/")
+    if token is None:
+        return
+    page.wait_for_url("**/login", timeout=15000)
+    page.fill("#token", token)
+    page.click("#submit")
+    page.wait_for_url(f"{base}/", timeout=15000)

@@ -15,6 +15,10 @@ from server.cli.commands.serve import uvicorn_options
 from server.service.app import create_app
 from server.service.settings import Settings
 
+#: test tokens of the two roles (CUTWATCH_TOKEN, CUTWATCH_VIEW_TOKEN: 16 characters at least)
+OPERATOR = "operator-token-for-tests"
+VIEWER = "viewer-token-for-tests"
+
 
 @contextmanager
 def serve(*, sndbuf: int | None = None, **settings: object) -> Iterator[str]:

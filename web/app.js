@@ -263,16 +263,27 @@ function showHealth(h) {
 }
 
 // ---------------------------------------------------------------- REST
+// the session is an HttpOnly cookie the browser sends by itself (log in at /login)
 function headers() {
-  const h = { "content-type": "application/json" };
-  const tok = $("token").value.trim();
-  if (tok) h.authorization = `Bearer ${tok}`;
-  return h;
+  return { "content-type": "application/json" };
+}
+
+// a 401 means the session has ended (or never began): back to the login page
+function toLogin(r) {
+  if (r.status === 401) location.assign("/login");
+}
+
+async function showSession() {
+  const s = await fetch("/api/session").then((r) => r.json());
+  if (s.access_control && !s.role) { location.assign("/login"); return; }
+  $("session").textContent = s.access_control ? `signed in: ${s.role}` : "";
+  $("logout").hidden = !s.access_control;
 }
 
 async function call(method, path, body) {
   $("error").textContent = "";
   const r = await fetch(path, { method, headers: headers(), body: JSON.stringify(body) });
+  toLogin(r);
   const j = await r.json().catch(() => ({}));
   if (!r.ok) {
     const d = j.detail;
@@ -415,8 +426,9 @@ function init() {
   $("scenario").onchange = (e) => control("scenario", { scenario: e.target.value })
     .then((r) => { $("conn").textContent = `live · ${r.scenario}`; clearData(); return loadControls(); })
     .catch(() => {});
-  $("token").value = localStorage.getItem("cutwatch-token") || "";
-  $("token").onchange = (e) => localStorage.setItem("cutwatch-token", e.target.value);
+  $("logout").onclick = () => fetch("/api/logout", { method: "POST" })
+    .then(() => location.assign("/login"));
+  showSession().catch(() => {});
   window.addEventListener("resize", resize);
   connect();
   requestAnimationFrame(frameLoop);

@@ -20,8 +20,6 @@ const st = {
 // ---------------------------------------------------------------- REST
 function headers(json = true) {
   const h = json ? { "content-type": "application/json" } : { "content-type": "application/octet-stream" };
-  const tok = $("token") ? $("token").value.trim() : "";
-  if (tok) h.authorization = `Bearer ${tok}`;
   return h;
 }
 
@@ -31,6 +29,7 @@ async function api(method, path, body, raw = false) {
   const init = { method, headers: headers(!raw) };
   if (body !== undefined) init.body = raw ? body : JSON.stringify(body);
   const r = await fetch(path, init);
+  if (r.status === 401) location.assign("/login");
   const j = await r.json().catch(() => ({}));
   if (!r.ok) {
     const d = j.detail;

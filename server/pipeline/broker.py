@@ -24,7 +24,7 @@ from urllib.parse import unquote, urlsplit
 from server.errors import CutwatchError
 
 TOPIC_ROOT = "cutwatch"
-_MACHINE_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$")
+_MACHINE_RE = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")  # fullmatch: no final newline
 
 
 def topic(machine: str, leaf: str) -> str:
@@ -35,7 +35,7 @@ def topic(machine: str, leaf: str) -> str:
 
 def check_machine(machine: str) -> str:
     """A machine name is 1-64 characters of letters, digits, ``_ . -`` (no MQTT wildcards)."""
-    if not _MACHINE_RE.match(machine):
+    if not _MACHINE_RE.fullmatch(machine):
         raise CutwatchError(
             f"machine name {machine!r}: expected 1-64 characters from A-Z a-z 0-9 _ . - "
             "starting with a letter or digit"

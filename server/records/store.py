@@ -18,7 +18,8 @@ from pathlib import Path
 from server.errors import CutwatchError
 
 AREAS = ("recordings", "uploads", "reports")
-_NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,127}$")
+#: a plain name, matched whole (``fullmatch``: ``$`` would let a final newline through)
+_NAME_RE = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,127}")
 
 
 class NotFound(CutwatchError, LookupError):
@@ -35,7 +36,7 @@ class NotFound(CutwatchError, LookupError):
 
 def check_name(name: str) -> bool:
     """True for a plain item name (one component, no traversal)."""
-    return bool(_NAME_RE.match(name)) and ".." not in name
+    return isinstance(name, str) and bool(_NAME_RE.fullmatch(name)) and ".." not in name
 
 
 @dataclass(frozen=True)

@@ -144,7 +144,8 @@ class Analyses:
     # ------------------------------------------------------------------ the job
     def _command(self, job: Job, log_path: Path, out: Path) -> list[str]:
         cmd = [sys.executable, "-c", "from server.cli.main import main; raise SystemExit(main())"]
-        cmd += ["residual", str(log_path), "--out", str(out)]
+        # the log by its name, run beside it: report.json's "log" names no server path
+        cmd += ["residual", log_path.name, "--out", str(out)]
         if job.options.get("holdout") is not None:
             cmd += ["--holdout", repr(float(job.options["holdout"]))]
         if job.options.get("kind") is not None:
@@ -152,7 +153,7 @@ class Analyses:
         return cmd
 
     def _run(self, job: Job, log_path: Path) -> None:
-        reports = self.store.area("reports")
+        reports = self.store.area("reports").resolve()  # absolute: the command runs elsewhere
         out = reports / f".job-{job.id}"
         env = dict(os.environ)
         env["PYTHONPATH"] = os.pathsep.join(p for p in (str(ROOT), env.get("PYTHONPATH")) if p)
@@ -167,7 +168,7 @@ class Analyses:
                 stdout=subprocess.DEVNULL,
                 stderr=subprocess.PIPE,
                 env=env,
-                cwd=str(reports),
+                cwd=str(log_path.parent),
             )
             self._proc = proc
             job.state, job.progress = "running", 0.05

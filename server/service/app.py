@@ -4,7 +4,7 @@ Built by :func:`create_app`; the lifespan starts one :class:`~server.service.loo
 thread and stops it (and tells every WebSocket client) on shutdown. Serve it with one
 uvicorn worker: the simulation lives in the process (``cutwatch serve``). The routes are
 in ``server.service.routes``; every 4xx answers ``{"detail": [{field, allowed, got, msg}]}``
-(``server.service.errors``).
+(``server.service.http_errors``).
 """
 
 from __future__ import annotations
@@ -16,7 +16,6 @@ from pathlib import Path
 from typing import Any
 
 from fastapi import FastAPI, Request
-from fastapi.encoders import jsonable_encoder
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse, Response
 from fastapi.routing import APIRoute
@@ -25,12 +24,18 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from common.errors import ParameterError
 from server.errors import CutwatchError
-from server.pipeline.live_pipeline import SCENARIOS
 from server.records.store import DataStore
 from server.service.analysis import Analyses
-from server.service.errors import FieldError, _sanitise, error
+from server.service.auth import Access
+from server.service.http_errors import (
+    FieldError,
+    SafeJSONResponse,
+    _json_safe,
+    error,
+    sanitise,
+)
 from server.service.loop import Hub, LiveLoop
-from server.service.middleware import BodyLimit
+from server.service.middleware import BodyLimit, Guard
 from server.service.routes import ROUTERS
 from server.service.settings import Settings, check_security
 
@@ -53,8 +58,6 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     """
     s = settings if settings is not None else Settings()
     check_security(s)
-    if s.scenario not in SCENARIOS:
-        raise CutwatchError(f"scenario: expected one of {sorted(SCENARIOS)}, got {s.scenario!r}")
 
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
@@ -84,6 +87,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         'answers {"detail": [{"field", "allowed", "got", "msg"}]} (schema ErrorBody).',
     )
     app.state.settings = s
+    app.state.access = Access.from_settings(s)
     app.state.store = DataStore(s.data_dir, reports=s.reports_dir)
     app.state.analyses = Analyses(app.state.store)
     app.exception_handler(RequestValidationError)(_validation_error)
@@ -99,12 +103,13 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.add_middleware(
         BodyLimit, limit=s.max_body_bytes, paths={"/api/uploads": s.upload_max_bytes}
     )
+    app.add_middleware(Guard)  # outermost: Host, Origin, role, headers, audit
     return app
 
 
 # ------------------------------------------------------------------ exception handlers
 def _errors(status: int, items: Sequence[dict[str, Any]], **kw: Any) -> JSONResponse:
-    return JSONResponse({"detail": list(items)}, status_code=status, **kw)
+    return SafeJSONResponse({"detail": list(items)}, status_code=status, **kw)
 
 
 async def _parameter_error(request: Request, exc: ParameterError) -> JSONResponse:
@@ -159,6 +164,10 @@ _ALLOWED = {
 }
 
 
+#: error types of the request models' own validators (server.service.schemas, settings)
+_OURS = frozenset({"speed", "scenario", "knob_value", "missing_for_action"})
+
+
 async def _validation_error(request: Request, exc: RequestValidationError) -> JSONResponse:
     """FastAPI's 422, one entry per refused field, inputs made JSON-safe (a body of
     Infinity or NaN would otherwise fail to serialise and turn the 422 into a 500)."""
@@ -176,8 +185,8 @@ def _validation_item(request: Request, e: Any) -> dict[str, Any]:
         raw = f"{raw} at character {loc[1]}: {ctx.get('error', '')}" if len(loc) > 1 else raw
     else:
         parts = [f"[{p}]" if isinstance(p, int) else f".{p}" for p in loc[1:]]
-        field = "".join(parts).lstrip(".") or str(loc[0])
-        got = None if kind == "missing" else _sanitise(jsonable_encoder(e.get("input")))
+        field = str(ctx.get("field") or "".join(parts).lstrip(".") or loc[0])
+        got = None if kind == "missing" else sanitise(e.get("input"))
     if kind == "literal_error":
         allowed = f"one of {ctx.get('expected', '')}"
     elif kind == "extra_forbidden":
@@ -186,8 +195,13 @@ def _validation_item(request: Request, e: Any) -> dict[str, Any]:
     elif kind in _ALLOWED:
         allowed = _ALLOWED[kind]
     else:
-        allowed = raw.removeprefix("Input should be ")
-    return {"field": field, "allowed": allowed, "got": got, "msg": f"{field}: {raw}"}
+        allowed = raw.removeprefix("Input should be ").removeprefix("expected ")
+    msg = f"{field}: {raw}"
+    if kind in _OURS:  # the request models' own checks: one sentence, the value found
+        msg = f"{field}: expected {allowed}, got {_json_safe(got)!r}"
+    item = error(field, allowed, None, msg)
+    item["got"] = got  # the input as sent (bounded), a structure kept a structure
+    return item
 
 
 def _body_fields(request: Request) -> list[str]:

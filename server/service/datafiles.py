@@ -13,7 +13,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from server.records.store import DataStore, NotFound
-from server.service.errors import FieldError
+from server.service.http_errors import FieldError
 
 LOG_AREAS = ("recordings", "uploads")
 LOG_SUFFIXES = (".csv", ".mat")

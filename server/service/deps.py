@@ -1,14 +1,14 @@
-"""FastAPI dependencies: the live loop, the settings, the data store, the bearer token."""
+"""FastAPI dependencies: the live loop, the settings, the data store, the operator role."""
 
 from __future__ import annotations
 
-import secrets
 from typing import Annotated
 
 from fastapi import Depends, HTTPException, Request
 
 from server.records.store import DataStore
-from server.service.errors import error
+from server.service.auth import operator
+from server.service.http_errors import error
 from server.service.loop import LiveLoop
 from server.service.settings import Settings
 
@@ -41,27 +41,7 @@ def conflict(field: str, allowed: str, got: object, msg: str) -> HTTPException:
     return HTTPException(409, detail=[error(field, allowed, got, msg)])
 
 
-AUTH_MSG = "mutating endpoints need 'Authorization: Bearer <token>' (CUTWATCH_TOKEN)"
-
-
-def authorised(request: Request, s: Config) -> None:
-    """Refuse (401) a mutating request without ``Authorization: Bearer <CUTWATCH_TOKEN>``.
-
-    No token configured (loopback only, see ``check_security``): every request passes.
-    The token given is never echoed: ``got`` says only whether one was sent.
-    """
-    token = s.token.get_secret_value() if s.token is not None else ""
-    if not token:
-        return
-    got = request.headers.get("authorization", "")
-    if not secrets.compare_digest(got.encode(), f"Bearer {token}".encode()):
-        found = "a credential that does not match" if got else "no Authorization header"
-        raise HTTPException(
-            401,
-            detail=[error("authorization", "Bearer <CUTWATCH_TOKEN>", found, AUTH_MSG)],
-            headers={"WWW-Authenticate": "Bearer"},
-        )
-
-
-#: route dependency of every mutating endpoint
-Authorised = Depends(authorised)
+#: route dependency of every state-changing endpoint: the operator role
+#: (:func:`server.service.auth.operator`; the middleware has checked it already, the
+#: dependency keeps it on the route and in the OpenAPI document)
+Authorised = Depends(operator)

@@ -7,11 +7,21 @@ reaches clients rather than being dropped by the response model.
 
 from __future__ import annotations
 
+import math
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, JsonValue, RootModel
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    JsonValue,
+    PlainValidator,
+    RootModel,
+    model_validator,
+)
+from pydantic_core import PydanticCustomError
 
-from server.service.settings import MAX_SPEED
+from server.service.settings import MAX_SPEED, ScenarioName, Speed
 
 # ------------------------------------------------------------------ errors
 
@@ -32,7 +42,9 @@ class ErrorBody(BaseModel):
 
 
 _ERROR_DOCS = {
-    401: "no or wrong bearer token (CUTWATCH_TOKEN set)",
+    400: "the Host header does not name this service (CUTWATCH_ALLOWED_HOSTS)",
+    401: "no or wrong credentials (a bearer token or a session; CUTWATCH_TOKEN set)",
+    403: "the viewer role on an operator's request, or a cross-origin browser request",
     404: "no such report, route or file",
     405: "method not allowed on this path",
     409: "the request does not fit the service's state (nothing runs, already recording...)",
@@ -42,12 +54,14 @@ _ERROR_DOCS = {
 
 
 def error_responses(*codes: int, json_route: bool = True) -> dict[int | str, dict[str, Any]]:
-    """OpenAPI ``responses=`` for the given 4xx codes, plus ``4XX`` for any other.
+    """OpenAPI ``responses=`` for the given 4xx codes, plus ``4XX`` for any other; 400
+    (Host), 401 (credentials) and 403 (role, Origin) on every route (the middleware's
+    checks, ``server.service.middleware.Guard``).
 
     ``json_route=False`` for routes answering HTML or text: FastAPI would file a
     ``model`` under the route's own media type, but the error bodies are JSON.
     """
-    docs: dict[int | str, str] = {c: _ERROR_DOCS[c] for c in codes}
+    docs: dict[int | str, str] = {c: _ERROR_DOCS[c] for c in (400, 401, 403, *codes)}
     docs["4XX"] = "any other client error, same shape"
     if json_route:
         return {c: {"model": ErrorBody, "description": d} for c, d in docs.items()}
@@ -196,7 +210,30 @@ class Params(RootModel[dict[str, KnobOut]]):
     """``GET``/``PATCH /api/params``: every live parameter with its allowed values."""
 
 
-class ParamsPatch(RootModel[dict[str, Any]]):
+def _knob_value(v: Any) -> bool | float | str:
+    # the type of a knob's value; its range or choices are the pipeline's to check
+    # (``LivePipeline.set_knob``, one message per knob)
+    if isinstance(v, bool):
+        return v
+    if isinstance(v, str) and len(v) <= 100:
+        return v
+    if isinstance(v, int | float):
+        try:
+            f = float(v)
+        except OverflowError:
+            f = math.inf
+        if math.isfinite(f):
+            return f
+    raise PydanticCustomError(
+        "knob_value", "a finite number, true or false, or a choice's name (a short string)"
+    )
+
+
+#: the value of one knob in a PATCH: a finite number, a boolean or a short string
+KnobValue = Annotated[bool | float | str, PlainValidator(_knob_value)]
+
+
+class ParamsPatch(RootModel[dict[str, KnobValue]]):
     """``PATCH /api/params``: ``{name: value}`` for one or more knobs (all or nothing).
 
     Each value is checked against its knob (a number in range, true or false, one of the
@@ -221,8 +258,19 @@ class Control(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
     action: Literal["pause", "resume", "reset", "speed", "scenario"]
-    value: float | None = Field(None, description=f"speed in [0, {MAX_SPEED:g}] (action speed)")
-    scenario: str | None = Field(None, description="scenario name (action scenario)")
+    value: Speed | None = Field(None, description=f"speed in [0, {MAX_SPEED:g}] (action speed)")
+    scenario: ScenarioName | None = Field(None, description="scenario name (action scenario)")
+
+    @model_validator(mode="after")
+    def _needs(self) -> Control:
+        # the field the action needs: named like a missing field
+        for action, name in (("speed", "value"), ("scenario", "scenario")):
+            if self.action == action and getattr(self, name) is None:
+                raise PydanticCustomError(
+                    "missing_for_action", "a value (required with action '{action}')",
+                    {"field": name, "action": action},
+                )  # fmt: skip
+        return self
 
 
 class ControlState(BaseModel):

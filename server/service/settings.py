@@ -7,16 +7,46 @@ token; see :func:`check_security`).
 
 from __future__ import annotations
 
+import ipaddress
+import math
 from pathlib import Path
-from typing import Literal
+from typing import Annotated, Literal
+from urllib.parse import urlsplit
 
-from pydantic import Field, SecretStr
+from pydantic import AfterValidator, Field, SecretStr
+from pydantic_core import PydanticCustomError
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
+from common.errors import ParameterError
 from server.errors import CutwatchError
+from server.pipeline.live_pipeline import SCENARIOS
 
-LOOPBACK = frozenset({"127.0.0.1", "localhost", "::1"})
 MAX_SPEED = 1000.0
+#: the shortest token accepted (CUTWATCH_TOKEN, CUTWATCH_VIEW_TOKEN)
+MIN_TOKEN_CHARS = 16
+
+
+def _scenario(name: str) -> str:
+    if name not in SCENARIOS:
+        allowed = ", ".join(SCENARIOS)
+        raise PydanticCustomError("scenario", "expected one of {allowed}", {"allowed": allowed})
+    return name
+
+
+def _speed(v: float) -> float:
+    if not (math.isfinite(v) and 0.0 <= v <= MAX_SPEED):
+        raise PydanticCustomError("speed", "a speed in [0, {hi}]", {"hi": f"{MAX_SPEED:g}"})
+    return v
+
+
+#: the one check of a speed (the setting, ``POST /api/control``)
+Speed = Annotated[
+    float,
+    AfterValidator(_speed),
+    Field(description=f"simulated seconds per wall second in [0, {MAX_SPEED:g}] (0 = paused)"),
+]
+#: the one check of a scenario's name (the setting, ``POST /api/control``)
+ScenarioName = Annotated[str, AfterValidator(_scenario)]
 
 
 class Settings(BaseSettings):
@@ -27,13 +57,10 @@ class Settings(BaseSettings):
     host: str = Field(default="127.0.0.1", description="address to bind (loopback by default)")
     port: int = Field(default=8000, ge=1, le=65535, description="HTTP / WebSocket port")
     viser_port: int = Field(default=8080, ge=1, le=65535, description="port of the viser 3D view")
-    scenario: str = Field(default="default", description="scenario at start (see /api/scenarios)")
-    speed: float = Field(
-        default=1.0,
-        ge=0.0,
-        le=MAX_SPEED,
-        description="simulated seconds per wall second (0 = paused)",
+    scenario: ScenarioName = Field(
+        default="default", description="scenario at start (see /api/scenarios)"
     )
+    speed: Speed = 1.0
     block_ms: float = Field(default=50.0, ge=1.0, le=1000.0, description="loop block length [ms]")
     frame_hz: float = Field(default=20.0, ge=1.0, le=60.0, description="WebSocket frame rate [Hz]")
     display_points: int = Field(
@@ -55,7 +82,32 @@ class Settings(BaseSettings):
     max_lag_s: float = Field(
         default=2.0, gt=0.0, le=60.0, description="lag after which the loop re-anchors its clock"
     )
-    token: SecretStr | None = Field(default=None, description="bearer token for mutating endpoints")
+    token: SecretStr | None = Field(
+        default=None,
+        description=(
+            "the operator's token (changes, acknowledges, uploads, recordings, and every "
+            f"read); at least {MIN_TOKEN_CHARS} characters; unset: no access control "
+            "(loopback only)"
+        ),
+    )
+    view_token: SecretStr | None = Field(
+        default=None,
+        description=(
+            "the viewer's token (reads and the stream, no changes); needs CUTWATCH_TOKEN; "
+            f"at least {MIN_TOKEN_CHARS} characters"
+        ),
+    )
+    allowed_hosts: str = Field(
+        default="",
+        description=(
+            "Host headers answered, comma-separated (e.g. 'cutwatch.shop.lan,10.0.0.5'); "
+            "empty: the loopback names when bound to loopback, the bound address and "
+            "public_url's host otherwise, any host when bound to 0.0.0.0 or ::"
+        ),
+    )
+    session_hours: float = Field(
+        default=12.0, gt=0.0, le=24.0 * 30, description="lifetime of a browser session [h]"
+    )
     seed: int = Field(default=0, ge=0, description="seed of the simulation's random generators")
     viser: bool = Field(default=True, description="start the viser 3D view on viser_port")
     source: Literal["simulator", "mqtt"] = Field(
@@ -136,20 +188,91 @@ class Settings(BaseSettings):
 
 
 def is_loopback(host: str) -> bool:
-    """True if ``host`` is a loopback address."""
-    return host in LOOPBACK or host.startswith("127.")
+    """True if ``host`` is a loopback address or ``localhost`` (parsed by
+    :mod:`ipaddress`: ``127.0.0.1.attacker.example`` is a name, not loopback)."""
+    h = host.strip().strip("[]")
+    if h.lower() == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(h).is_loopback
+    except ValueError:
+        return False
 
 
-def check_security(settings: Settings) -> None:
-    """Refuse to serve on a non-loopback address without a bearer token.
+def _secret(v: SecretStr | None) -> str | None:
+    return None if v is None else v.get_secret_value()
+
+
+def token_of(settings: Settings, role: str) -> str:
+    """The token of ``role`` (``operator`` or ``viewer``), "" when unset."""
+    v = settings.token if role == "operator" else settings.view_token
+    return _secret(v) or ""
+
+
+def check_token(field: str, value: str | None) -> None:
+    """Refuse a token that is set but empty, blank, padded or shorter than the minimum.
 
     Raises
     ------
-    CutwatchError
-        If ``settings.host`` is not loopback and no (non-empty) token is set.
+    ParameterError
+        Naming the variable, what it allows and what was found (the token itself is
+        never printed: only its length).
     """
-    token = settings.token.get_secret_value() if settings.token is not None else ""
-    if not is_loopback(settings.host) and not token:
+    if value is None:
+        return
+    allowed = f"at least {MIN_TOKEN_CHARS} characters, no spaces around them"
+    if not value.strip():
+        raise ParameterError(field, allowed, "an empty or blank value")
+    if value != value.strip() or len(value) < MIN_TOKEN_CHARS:
+        raise ParameterError(field, allowed, f"a value of {len(value)} characters")
+
+
+def allowed_hosts(settings: Settings) -> list[str]:
+    """The Host header names answered (``["*"]``: any)."""
+    if settings.allowed_hosts.strip():
+        return [h.strip().lower() for h in settings.allowed_hosts.split(",") if h.strip()]
+    if is_loopback(settings.host):
+        return ["127.0.0.1", "localhost", "::1"]
+    h = settings.host.strip().strip("[]")
+    try:
+        if ipaddress.ip_address(h).is_unspecified:
+            return ["*"]
+    except ValueError:
+        pass
+    out = [h.lower(), "127.0.0.1", "localhost", "::1"]
+    if settings.public_url:
+        name = urlsplit(settings.public_url).hostname
+        if name:
+            out.append(name.lower())
+    return out
+
+
+def check_security(settings: Settings) -> None:
+    """Refuse to serve on a non-loopback address without a bearer token, and refuse
+    malformed tokens (empty, blank, short, a viewer token without an operator one, the
+    same token for both roles).
+
+    Raises
+    ------
+    ParameterError
+        A token that is set but not acceptable (named: CUTWATCH_TOKEN or
+        CUTWATCH_VIEW_TOKEN).
+    CutwatchError
+        If ``settings.host`` is not loopback and no token is set.
+    """
+    op, view = _secret(settings.token), _secret(settings.view_token)
+    check_token("CUTWATCH_TOKEN", op)
+    check_token("CUTWATCH_VIEW_TOKEN", view)
+    if view is not None and op is None:
+        raise ParameterError(
+            "CUTWATCH_VIEW_TOKEN", "set together with CUTWATCH_TOKEN (the operator's)",
+            "a viewer token alone",
+        )  # fmt: skip
+    if view is not None and view == op:
+        raise ParameterError(
+            "CUTWATCH_VIEW_TOKEN", "a token other than CUTWATCH_TOKEN", "the operator's token"
+        )
+    if not is_loopback(settings.host) and not op:
         raise CutwatchError(
             f"binding to {settings.host!r} (not loopback) requires a bearer token: set "
             "CUTWATCH_TOKEN in the environment; refusing to start"

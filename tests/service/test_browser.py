@@ -9,8 +9,8 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from _browser import ARGS, MARKS, chromium_page, wait_for
-from _live import serve
+from _browser import ARGS, MARKS, chromium_page, log_in, wait_for
+from _live import OPERATOR, VIEWER, serve
 
 pytestmark = MARKS
 
@@ -118,21 +118,32 @@ def test_viser_scene_renders_and_moves(tmp_path: Path) -> None:
 
 
 def test_refused_request_shows_the_servers_message() -> None:
-    # the page reads the one error body ({"detail": [{field, allowed, got, msg}]})
-    with serve(token="s3cret") as hostport, chromium_page(1280, 720) as (page, errors):
-        page.goto(f"http://{hostport}/")
+    # the page reads the one error body ({"detail": [{field, allowed, got, msg}]}); a
+    # viewer's session reads and streams, an operator's changes
+    with (
+        serve(token=OPERATOR, view_token=VIEWER) as hostport,
+        chromium_page(1280, 720) as (page, errors),
+    ):
+        base = f"http://{hostport}"
+        log_in(page, base, VIEWER)
         page.wait_for_selector("#conn[data-state=up]", timeout=15000)
-        page.click("#pause")  # no token: 401
-        page.wait_for_selector("#error:has-text('Bearer')", timeout=5000)
+        assert page.text_content("#session") == "signed in: viewer"
+        assert page.evaluate("() => document.cookie") == ""  # HttpOnly: not readable
+        assert page.evaluate("() => JSON.stringify(localStorage)") == "{}"
+        page.click("#pause")  # a viewer: 403
+        page.wait_for_selector("#error:has-text('operator')", timeout=5000)
         assert page.text_content("#error") == (
-            "mutating endpoints need 'Authorization: Bearer <token>' (CUTWATCH_TOKEN)"
+            "this request needs the operator role; this session is a viewer"
         )
-        page.fill("#token", "s3cret")
+        page.click("#logout")
+        page.wait_for_url("**/login", timeout=5000)
+        log_in(page, base, OPERATOR)
+        page.wait_for_selector("#conn[data-state=up]", timeout=15000)
         page.click("#pause")
         page.wait_for_selector("#simt:has-text('paused')", timeout=5000)
         assert page.text_content("#error") == ""
-        # an uncaught rejection of the first click is the page's own (call() throws)
-        assert all("Bearer" in e for e in errors)
+        # an uncaught rejection of the refused click is the page's own (call() throws)
+        assert all("operator" in e for e in errors)
 
 
 def accuracy_numbers(page: Any) -> dict[str, list[float]]:

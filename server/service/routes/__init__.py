@@ -11,6 +11,7 @@ from server.service.routes import (
     records,
     replay,
     reports,
+    session,
     status,
     stream,
     uploads,
@@ -18,6 +19,7 @@ from server.service.routes import (
 
 ROUTERS: tuple[APIRouter, ...] = (
     status.router,
+    session.router,
     params.router,
     control.router,
     reports.router,

@@ -12,7 +12,7 @@ from server.records.store import check_name
 from server.service.analysis import Analyses, Busy
 from server.service.datafiles import find_log
 from server.service.deps import Authorised, Store, conflict
-from server.service.errors import FieldError, error
+from server.service.http_errors import FieldError, error
 from server.service.schemas import AnalysisBody, AnalysisJob, AnalysisJobs, error_responses
 
 router = APIRouter(responses=error_responses())
@@ -31,7 +31,7 @@ def jobs(request: Request) -> Analyses:
     dependencies=[Authorised],
     response_model=AnalysisJob,
     status_code=202,
-    responses=error_responses(401, 409, 413, 422),
+    responses=error_responses(409, 413, 422),
 )
 def start_analysis(body: AnalysisBody, request: Request, st: Store) -> AnalysisJob:
     area, path = find_log(st, body.log, body.area)

@@ -18,7 +18,7 @@ from fastapi.responses import FileResponse
 
 from server.records.store import DataStore, NotFound, check_name
 from server.service.deps import Authorised, Config, Live, Store, conflict
-from server.service.errors import FieldError, error
+from server.service.http_errors import FieldError, error
 from server.service.loop import LiveLoop
 from server.service.recording import Recording, default_name, source_sidecar
 from server.service.schemas import RecordBody, RecordInfo, Records, RecordState, error_responses
@@ -60,7 +60,7 @@ def _record_name(name: str | None) -> str:
     summary="start or stop recording what the live source delivers",
     dependencies=[Authorised],
     response_model=RecordState,
-    responses=error_responses(401, 409, 413, 422),
+    responses=error_responses(409, 413, 422),
 )
 async def record(body: RecordBody, lp: Live, s: Config, st: Store) -> RecordState:
     if body.action == "stop":

@@ -13,7 +13,7 @@ from common.jsonsafe import json_safe
 from server.errors import CutwatchError
 from server.service.datafiles import find_log, find_report, refuse_path, scrub
 from server.service.deps import Authorised, Config, Live, Store
-from server.service.errors import FieldError
+from server.service.http_errors import FieldError
 from server.service.schemas import (
     Effects,
     EffectsBody,
@@ -34,7 +34,7 @@ _LOG_RULE = "a two_inertia log (.csv with its .json sidecar, or .mat) in the dat
     "observers",
     dependencies=[Authorised],
     response_model=ReplayStarted,
-    responses=error_responses(401, 413, 422),
+    responses=error_responses(413, 422),
 )
 def replay(body: Replay, lp: Live, s: Config, st: Store) -> ReplayStarted:
     from server.pipeline.live_pipeline import LivePipeline
@@ -78,7 +78,7 @@ def get_effects(lp: Live) -> Effects:
     summary="install identified effects (a residual report by name, or its observer_effects)",
     dependencies=[Authorised],
     response_model=EffectsInstalled,
-    responses=error_responses(401, 413, 422),
+    responses=error_responses(413, 422),
 )
 def post_effects(body: EffectsBody, lp: Live, st: Store) -> EffectsInstalled:
     if body.path is not None:
@@ -108,7 +108,7 @@ def post_effects(body: EffectsBody, lp: Live, st: Store) -> EffectsInstalled:
     summary="remove the installed effects",
     dependencies=[Authorised],
     response_model=Effects,
-    responses=error_responses(401),
+    responses=error_responses(),
 )
 def delete_effects(lp: Live) -> Effects:
     with lp.lock:

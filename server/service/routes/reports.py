@@ -3,19 +3,18 @@
 from __future__ import annotations
 
 import html
-import re
 from pathlib import Path
 
 from fastapi import APIRouter, HTTPException
 from fastapi.responses import FileResponse, HTMLResponse
 
+from server.records.store import check_name
 from server.service.deps import Config
-from server.service.errors import error
+from server.service.http_errors import error
 from server.service.schemas import ResidualReport, error_responses
 
 router = APIRouter(responses=error_responses())
 
-_REPORT_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,127}$")
 _NAME_RULE = "a directory name: letters, digits, '.', '_', '-', not starting with '.'"
 
 
@@ -24,9 +23,7 @@ def residual_reports(root: Path) -> list[str]:
     if not root.is_dir():
         return []
     return sorted(
-        d.name
-        for d in root.iterdir()
-        if _REPORT_NAME.match(d.name) and (d / "report.html").is_file()
+        d.name for d in root.iterdir() if check_name(d.name) and (d / "report.html").is_file()
     )
 
 
@@ -39,12 +36,12 @@ def report_file(root: Path, name: str, leaf: str) -> Path:
         404 for an unknown or unsafe name (path traversal) or a missing file.
     """
     base = root.resolve()
-    if not _REPORT_NAME.match(name) or ".." in name:
+    if not check_name(name):
         msg = f"no residual report named {name!r} (expected a directory name)"
         raise HTTPException(404, detail=[error("name", _NAME_RULE, name, msg)])
     f = (base / name / leaf).resolve()
     if not f.is_relative_to(base) or not f.is_file():
-        msg = f"no residual report named {name!r} in {root}"
+        msg = f"no residual report named {name!r} in the reports area (GET /residual)"
         raise HTTPException(404, detail=[error("name", "a report listed at /residual", name, msg)])
     return f
 
@@ -63,8 +60,8 @@ def residual_index(s: Config) -> HTMLResponse:
     body = rows or "<li>none yet: <code>cutwatch residual LOG --out DIR</code></li>"
     return HTMLResponse(
         "<!doctype html><html><head><meta charset='utf-8'><title>cutwatch residual "
-        f"reports</title></head><body><h1>Residual reports in "
-        f"{html.escape(str(s.reports_area))}</h1><ul>{body}</ul></body></html>"
+        "reports</title></head><body><h1>Residual reports</h1>"
+        f"<ul>{body}</ul></body></html>"
     )
 
 

@@ -29,7 +29,7 @@ from server.records.measured_log import MeasuredLog, load_log
 from server.records.store import DataStore, check_name
 from server.service.datafiles import scrub
 from server.service.deps import Authorised, Config, Store, conflict
-from server.service.errors import FieldError, error
+from server.service.http_errors import FieldError, error
 from server.service.schemas import UploadInfo, Uploads, error_responses
 
 router = APIRouter(responses=error_responses())
@@ -69,7 +69,7 @@ def _log_of(st: DataStore, sidecar: Path) -> Path | None:
     summary="upload a measured log or its sidecar (the raw file as the body)",
     dependencies=[Authorised],
     response_model=UploadInfo,
-    responses=error_responses(401, 409, 413, 422),
+    responses=error_responses(409, 413, 422),
     openapi_extra={
         "requestBody": {
             "required": True,
