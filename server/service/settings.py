@@ -79,6 +79,30 @@ class Settings(BaseSettings):
     max_body_bytes: int = Field(
         default=16384, ge=256, le=1 << 20, description="largest request body accepted [bytes]"
     )
+    header_timeout_s: float = Field(
+        default=10.0,
+        gt=0.0,
+        le=300.0,
+        description="a request's line and headers must arrive within this time [s] (then 408)",
+    )
+    body_timeout_s: float = Field(
+        default=10.0,
+        gt=0.0,
+        le=300.0,
+        description="longest silence while a request body is due [s] (then 408)",
+    )
+    body_min_rate: float = Field(
+        default=1024.0,
+        ge=0.0,
+        le=1e9,
+        description="slowest average request body accepted past body_timeout_s [bytes/s]",
+    )
+    max_header_bytes: int = Field(
+        default=32768,
+        ge=1024,
+        le=1 << 20,
+        description="largest request line and headers accepted [bytes] (then 431)",
+    )
     max_lag_s: float = Field(
         default=2.0, gt=0.0, le=60.0, description="lag after which the loop re-anchors its clock"
     )

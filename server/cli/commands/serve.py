@@ -99,8 +99,17 @@ def build_settings(args: argparse.Namespace) -> Settings:
 
 def uvicorn_options(settings: Settings) -> dict[str, object]:
     """The uvicorn options of the service (one worker; shared by the tests' server)."""
+    from server.service.http_guard import guarded_protocol
+
     return {
         "workers": 1,
+        # uvicorn's httptools protocol with header/body timeouts and a header-size limit
+        "http": guarded_protocol(
+            header_timeout=settings.header_timeout_s,
+            body_timeout=settings.body_timeout_s,
+            body_min_rate=settings.body_min_rate,
+            max_header_bytes=settings.max_header_bytes,
+        ),
         "ws": WS_IMPL,
         "ws_max_size": WS_MAX_SIZE,
         # each client would deflate the same frame again: off unless asked for
