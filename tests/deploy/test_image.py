@@ -289,6 +289,30 @@ def test_mutating_request_needs_the_token(service: Service) -> None:
     assert httpx.post(url, json={"action": "resume"}, headers=right, timeout=5).status_code == 200
 
 
+def test_slow_clients_are_dropped(service: Service) -> None:
+    """The image's ``cutwatch serve`` has the HTTP limits (server/service/http_guard.py):
+    half a request line is answered 408 and closed within the default 10 s; a 10 MiB
+    header is refused with 431 long before it is all sent."""
+    with socket.create_connection(("127.0.0.1", service.port), timeout=15) as s:
+        t0 = time.monotonic()
+        s.sendall(b"GET /api/hea")
+        raw = b""
+        while chunk := s.recv(4096):
+            raw += chunk
+        took = time.monotonic() - t0
+    assert raw.startswith(b"HTTP/1.1 408") and 9.5 <= took <= 12.0, (took, raw[:200])
+    with socket.create_connection(("127.0.0.1", service.port), timeout=15) as s:
+        s.sendall(b"GET /api/health HTTP/1.1\r\nHost: 127.0.0.1\r\nX-Big: ")
+        sent = 0
+        try:
+            while sent < 10 * 2**20:
+                sent += s.send(b"a" * 65536)
+        except OSError:
+            pass
+        raw = s.recv(4096)
+    assert raw.startswith(b"HTTP/1.1 431") and sent < 10 * 2**20, (sent, raw[:200])
+
+
 def test_stops_cleanly_on_sigterm(config: dict[str, Any], service: Service, ctr: str) -> None:
     # last in this module: what `docker stop` does, SIGTERM to the service
     os.kill(service.pid, signal.SIGTERM)

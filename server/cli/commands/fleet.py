@@ -33,6 +33,7 @@ def run(args: argparse.Namespace) -> int:
 
     from server.errors import CutwatchError
     from server.service.fleet import create_fleet_app
+    from server.service.http_guard import GuardedHttpToolsProtocol
 
     if not (1 <= args.port <= 65535):
         raise CutwatchError(f"--port: expected 1-65535, got {args.port}")
@@ -40,5 +41,8 @@ def run(args: argparse.Namespace) -> int:
         raise CutwatchError(f"--stale-after: expected a value > 0, got {args.stale_after}")
     cfg = broker_config(args.broker, args)
     app = create_fleet_app(cfg, stale_after=args.stale_after)
-    uvicorn.run(app, host=args.host, port=args.port, log_level="warning")
+    # the service's HTTP limits (slow clients dropped; default limits)
+    uvicorn.run(
+        app, host=args.host, port=args.port, log_level="warning", http=GuardedHttpToolsProtocol
+    )
     return 0
