@@ -56,7 +56,12 @@ class Settings(BaseSettings):
 
     host: str = Field(default="127.0.0.1", description="address to bind (loopback by default)")
     port: int = Field(default=8000, ge=1, le=65535, description="HTTP / WebSocket port")
-    viser_port: int = Field(default=8080, ge=1, le=65535, description="port of the viser 3D view")
+    viser_port: int = Field(
+        default=8080,
+        ge=1,
+        le=65535,
+        description="port of the viser 3D view, on 127.0.0.1 only (browsers use /viser/)",
+    )
     scenario: ScenarioName = Field(
         default="default", description="scenario at start (see /api/scenarios)"
     )

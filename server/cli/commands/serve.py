@@ -33,7 +33,11 @@ WS_MAX_SIZE = 65536
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--host", help="address to bind (default 127.0.0.1)")
     p.add_argument("--port", type=int, help="HTTP port (default 8000)")
-    p.add_argument("--viser-port", type=int, help="port of the viser 3D view (default 8080)")
+    p.add_argument(
+        "--viser-port",
+        type=int,
+        help="loopback port of the viser 3D view, reached at /viser/ (default 8080)",
+    )
     p.add_argument("--scenario", help="scenario at start (see GET /api/scenarios)")
     p.add_argument(
         "--speed",
@@ -126,9 +130,9 @@ def run(args: argparse.Namespace) -> int:
     settings = build_settings(args)
     app = create_app(settings)
     if settings.viser:
-        from server.service.viser_scene import check_port_free
+        from server.service.viser_scene import VISER_HOST, check_port_free
 
-        check_port_free(settings.host, settings.viser_port)  # fail before serving anything
+        check_port_free(VISER_HOST, settings.viser_port)  # fail before serving anything
     shown = "127.0.0.1" if settings.host in ("0.0.0.0", "::") else settings.host
     print(
         f"cutwatch dashboard: http://{shown}:{settings.port}/  "
@@ -136,7 +140,11 @@ def run(args: argparse.Namespace) -> int:
         flush=True,
     )
     if settings.viser:
-        print(f"viser 3D view: http://{shown}:{settings.viser_port}/", flush=True)
+        print(
+            f"viser 3D view: http://{shown}:{settings.port}/viser/  "
+            f"(viser itself on 127.0.0.1:{settings.viser_port} only)",
+            flush=True,
+        )
     uvicorn.run(
         app,
         host=settings.host,
