@@ -204,7 +204,7 @@ def service(
 def test_image_config(config: dict[str, Any], ctr: str) -> None:
     assert config["User"] == "cutwatch"
     assert config["Entrypoint"] == ["cutwatch", "serve", "--host", "0.0.0.0"]
-    assert set(config["ExposedPorts"]) == {"8000/tcp", "8080/tcp"}
+    assert set(config["ExposedPorts"]) == {"8000/tcp"}  # viser: loopback, through /viser/
     test = config["Healthcheck"]["Test"]
     assert test[0] == "CMD" and any("/api/health" in part for part in test)
     # the final stage has neither a compiler nor the installers
@@ -248,9 +248,11 @@ def test_ws_streams_hello_and_data(service: Service) -> None:
     assert seqs == list(range(seqs[0], seqs[0] + 5))
 
 
-def test_viser_answers(service: Service) -> None:
-    page = httpx.get(f"http://127.0.0.1:{service.viser_port}/", timeout=10)
+def test_viser_answers_through_the_app(service: Service) -> None:
+    auth = {"Authorization": f"Bearer {service.token}"}
+    page = httpx.get(f"{service.url}/viser/", headers=auth, timeout=10)
     assert page.status_code == 200 and "<html" in page.text.lower()
+    assert httpx.get(f"{service.url}/viser/", timeout=10).status_code == 401
 
 
 def test_healthcheck_command_passes(config: dict[str, Any], service: Service, ctr: str) -> None:
