@@ -148,8 +148,15 @@ def test_headers_a_byte_at_a_time_are_dropped_in_time(server: str) -> None:
     for a in answers:
         status, body = status_and_body(a)
         assert status == 408 and body["detail"][0]["field"] == "headers"
-    # the server serves on
+    # the server serves on, and counts them
     assert httpx.get(f"http://{server}/api/health", timeout=5).status_code == 200
+    metrics = httpx.get(f"http://{server}/metrics", timeout=5).text
+    n = next(
+        ln
+        for ln in metrics.splitlines()
+        if ln.startswith("cutwatch_http_dropped_header_timeout_total ")
+    )
+    assert float(n.split()[-1]) >= 10
 
 
 def test_a_connection_that_sends_nothing_is_dropped(server: str) -> None:
