@@ -132,12 +132,49 @@ def _read_sidecar(path: Path) -> dict[str, Any]:
     if not side.exists() or side == path:
         return {}
     try:
-        data = json.loads(side.read_text())
+        data = json.loads(side.read_bytes().decode("utf-8"))
+    except UnicodeDecodeError as exc:
+        raise LogFormatError(f"{side}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
     except json.JSONDecodeError as exc:
         raise LogFormatError(f"{side}: not valid JSON ({exc})") from exc
+    except RecursionError:
+        raise LogFormatError(f"{side}: JSON nested too deeply (expected a flat object)") from None
+    check_sidecar(side, data)
+    return data
+
+
+def check_sidecar(side: Path, data: Any) -> None:
+    """Refuse a sidecar whose known keys have the wrong type (the loader's later checks
+    assume these types), naming the key, the expected and the found.
+
+    Raises
+    ------
+    LogFormatError
+        Not an object; ``units`` not an object of strings; ``sample_time`` not a finite
+        number > 0; ``nominal`` not an object; ``kind`` not a string.
+    """
     if not isinstance(data, dict):
         raise LogFormatError(f"{side}: expected a JSON object, found {type(data).__name__}")
-    return data
+
+    def bad(key: str, expected: str, v: Any) -> LogFormatError:
+        return LogFormatError(
+            f"{side}: sidecar {key!r}: expected {expected}, found {type(v).__name__} {repr(v)[:60]}"
+        )
+
+    units = data.get("units")
+    if units is not None and not (
+        isinstance(units, dict) and all(isinstance(v, str) for v in units.values())
+    ):
+        raise bad("units", 'an object of unit names ({"effort": "N m", ...})', units)
+    ts = data.get("sample_time")
+    if ts is not None:
+        ok = isinstance(ts, int | float) and not isinstance(ts, bool)
+        if not (ok and ts < 1e300 and math.isfinite(float(ts)) and ts > 0):
+            raise bad("sample_time", "a finite number of seconds > 0", ts)
+    if data.get("nominal") is not None and not isinstance(data["nominal"], dict):
+        raise bad("nominal", "an object of numbers", data["nominal"])
+    if data.get("kind") is not None and not isinstance(data["kind"], str):
+        raise bad("kind", "a string", data["kind"])
 
 
 def load_meta(text: str | os.PathLike[str] | None) -> dict[str, Any]:
@@ -165,7 +202,17 @@ def load_meta(text: str | os.PathLike[str] | None) -> dict[str, Any]:
 
 
 def _read_csv(path: Path, progress: bool) -> dict[str, F64]:
-    with path.open("r", newline="") as fh:
+    try:
+        return _read_csv_text(path, progress)
+    except UnicodeDecodeError as exc:
+        raise LogFormatError(
+            f"{path}: not UTF-8 text ({exc.reason} at byte {exc.start} of a block; expected "
+            "comma-separated numbers in UTF-8 or ASCII)"
+        ) from None
+
+
+def _read_csv_text(path: Path, progress: bool) -> dict[str, F64]:
+    with path.open("r", newline="", encoding="utf-8") as fh:
         header_line = fh.readline()
         if not header_line.strip():
             raise LogFormatError(f"{path}: empty file (expected a header row)")

@@ -11,13 +11,18 @@ such item exists in that area: the service is no oracle over the host's file sys
 
 from __future__ import annotations
 
+import builtins
 import re
+import shutil
+import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
 from server.errors import CutwatchError
 
 AREAS = ("recordings", "uploads", "reports")
+#: where uploads wait for their check (under the root; never an area)
+QUARANTINE = ".quarantine"
 #: a plain name, matched whole (``fullmatch``: ``$`` would let a final newline through)
 _NAME_RE = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,127}")
 
@@ -93,3 +98,31 @@ class DataStore:
         return sorted(
             p for p in base.glob(pattern) if check_name(p.name) and not p.name.endswith(".tmp")
         )
+
+    def quarantine(self, prefix: str = "upload-") -> Path:
+        """A fresh private directory under ``.quarantine/`` of the root, where a file
+        waits for its check: no area lists it and no name resolves into it."""
+        base = self.root / QUARANTINE
+        base.mkdir(parents=True, exist_ok=True)
+        return Path(tempfile.mkdtemp(prefix=prefix, dir=base))
+
+    def clean_stale(self) -> builtins.list[str]:
+        """Remove what an interrupted process left (call at start-up, before anything
+        runs): the quarantine, temporary files of recordings and uploads
+        (``.<name>.<random>.tmp``) and unfinished analysis directories (``.job-*``).
+        Returns what was removed, as ``area/name``."""
+        gone: builtins.list[str] = []
+        q = self.root / QUARANTINE
+        if q.is_dir():
+            gone += [f"{QUARANTINE}/{p.name}" for p in sorted(q.iterdir())]
+            shutil.rmtree(q, ignore_errors=True)
+        for area, pattern in (("recordings", ".*.tmp"), ("uploads", ".*.tmp"),
+                              ("reports", ".job-*")):  # fmt: skip
+            d = self.area(area)
+            for p in sorted(d.glob(pattern)):
+                if p.is_dir() and not p.is_symlink():
+                    shutil.rmtree(p, ignore_errors=True)
+                else:
+                    p.unlink(missing_ok=True)
+                gone.append(f"{area}/{p.name}")
+        return gone

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import logging
 from collections.abc import AsyncIterator, Sequence
 from pathlib import Path
 from typing import Any
@@ -39,6 +40,7 @@ from server.service.middleware import BodyLimit, Guard
 from server.service.routes import ROUTERS
 from server.service.settings import Settings, check_security
 
+log = logging.getLogger("cutwatch.service")
 WEB_DIR = Path(__file__).resolve().parents[2] / "web"
 UPLOT_DIR = WEB_DIR / "node_modules" / "uplot" / "dist"
 
@@ -61,6 +63,12 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        stale = app.state.store.clean_stale()  # nothing runs yet: all of it is left over
+        if stale:
+            log.warning(
+                "removed %d temporary file(s) left by an interrupted run: %s",
+                len(stale), ", ".join(stale)[:2000],
+            )  # fmt: skip
         hub = Hub(s.client_buffer)
         hub.bind(asyncio.get_running_loop())
         loop = LiveLoop(s, hub)

@@ -203,7 +203,28 @@ class Settings(BaseSettings):
         default=60.0, gt=0.0, le=10_080.0, description="longest recording [min] (then it stops)"
     )
     upload_max_mb: float = Field(
-        default=100.0, gt=0.0, le=100_000.0, description="largest uploaded file [MB] (413 above)"
+        default=100.0,
+        gt=0.0,
+        le=100_000.0,
+        description="largest uploaded file [MB] (413 above); also the most a .mat may expand to",
+    )
+    upload_max_rows: int = Field(
+        default=20_000_000, ge=2, description="most data rows of an uploaded CSV log"
+    )
+    upload_max_columns: int = Field(
+        default=64, ge=2, le=10_000, description="most columns of an uploaded CSV log"
+    )
+    upload_check_mb: int = Field(
+        default=1536,
+        ge=256,
+        le=1 << 20,
+        description=(
+            "address space of the child process checking an upload [MB] (RLIMIT_AS; the "
+            "interpreter with numpy and scipy takes about 450 of it)"
+        ),
+    )
+    upload_check_s: float = Field(
+        default=300.0, gt=0.0, le=3600.0, description="longest check of an upload [s]"
     )
 
     @property

@@ -160,7 +160,7 @@ def test_a_bad_log_is_refused_with_the_loaders_message_and_removed(
     assert str(env["d"]) not in err["msg"]
     assert not (up / "bad.csv").exists() and (up / "bad.json").exists()
     err = one_error(api.post("/api/uploads", params={"name": "x.json"}, content=b"[1]"), 422)
-    assert "not a sidecar: expected a JSON object, found list" in err["msg"]
+    assert "x.json: expected a JSON object, found list" in err["msg"]
 
 
 # ------------------------------------------------------------------ the loop, by name

@@ -1,36 +1,35 @@
 """Logs sent to the service: ``POST /api/uploads?name=NAME`` (the raw file as the body)
 and ``GET /api/uploads``.
 
-One file per request, into the uploads area: a log (``.csv``, ``.mat``) or its sidecar
-(``.json``, the same stem; send it first, a CSV log needs its units). The body streams
-to a temporary file; its size limit (``CUTWATCH_UPLOAD_MAX_MB``) is enforced while it
-arrives (413, nothing kept). A log then runs the checks of the command line's log loader
-(:func:`server.records.measured_log.load_log`, with its sidecar when there is one); a
-log that fails them is removed and the answer is the loader's message (422). A sidecar
-must be a JSON object; when its log is there already, the pair is checked again and a
-sidecar that makes it fail is removed.
+One file per request: a log (``.csv``, ``.mat``) or its sidecar (``.json``, the same
+stem; send it first, a CSV log needs its units). The body streams into a private
+quarantine directory (``DataStore.quarantine``), its size bounded while it arrives
+(``CUTWATCH_UPLOAD_MAX_MB``: 413, nothing kept). It is then checked in a child process
+with a memory limit (:mod:`server.service.upload_check`: a CSV's rows and columns, a
+``.mat``'s expanded size from its headers, then the log loader's checks, with the
+sidecar beside it when there is one; a sidecar alone: a JSON object of the right types,
+and with its log the pair). Only a file that passes is published into the uploads area,
+by a link that never replaces an existing name; until then no listing shows it and no
+name reaches it. A refused file is removed and the answer names why (422).
 """
 
 from __future__ import annotations
 
-import asyncio
-import contextlib
-import json
 import os
-import tempfile
+import shutil
 from pathlib import Path
+from typing import Any
 
 from fastapi import APIRouter, HTTPException, Query, Request
 from fastapi.responses import Response
 from starlette.requests import ClientDisconnect
 
-from server.errors import CutwatchError
-from server.records.measured_log import MeasuredLog, load_log
 from server.records.store import DataStore, check_name
-from server.service.datafiles import scrub
 from server.service.deps import Authorised, Config, Store, conflict
 from server.service.http_errors import FieldError, error
 from server.service.schemas import UploadInfo, Uploads, error_responses
+from server.service.settings import Settings
+from server.service.upload_check import Limits, run_check
 
 router = APIRouter(responses=error_responses())
 
@@ -41,27 +40,29 @@ _NAME_RULE = (
 )
 
 
-def _check(path: Path) -> MeasuredLog:
-    return load_log(path)
+def limits(s: Settings) -> Limits:
+    """The bounds of an upload's check, from the settings."""
+    return Limits(
+        expanded_bytes=s.upload_max_bytes,
+        rows=s.upload_max_rows,
+        columns=s.upload_max_columns,
+        memory_mb=s.upload_check_mb,
+        timeout_s=s.upload_check_s,
+    )
 
 
-def _info(p: Path, log: MeasuredLog | None = None) -> UploadInfo:
+def _info(p: Path, checked: dict[str, Any] | None = None) -> UploadInfo:
     is_log = p.suffix.lower() != ".json"
+    c = checked if checked is not None and is_log else {}
     return UploadInfo(
         name=p.name,
         bytes=p.stat().st_size,
         kind="log" if is_log else "sidecar",
-        checked=True if log is not None else None,
-        samples=None if log is None else len(log["t"]),
-        sample_time=None if log is None else log.sample_time,
-        log_kind=None if log is None else log.kind,
+        checked=True if c else None,
+        samples=c.get("samples"),
+        sample_time=c.get("sample_time"),
+        log_kind=c.get("log_kind"),
     )
-
-
-def _log_of(st: DataStore, sidecar: Path) -> Path | None:
-    """The CSV log beside a sidecar (a .mat log has no sidecar)."""
-    p = sidecar.with_suffix(".csv")
-    return p if p.is_file() else None
 
 
 @router.post(
@@ -88,64 +89,63 @@ async def upload(
     final = st.new_path("uploads", name)
     if final.exists():
         raise conflict("name", "a name not taken", name, f"upload {name!r} exists already")
-    limit = s.upload_max_bytes
-    fd, tmp = tempfile.mkstemp(prefix=f".{name}.", suffix=".tmp", dir=final.parent)
+    qdir = st.quarantine()
+    try:
+        size = await _receive(request, qdir / name, s.upload_max_bytes)
+        if size is None:  # over the limit (the 413 went out) or the client left
+            return Response(status_code=413)
+        if size == 0:
+            raise FieldError("body", "the file's bytes", 0, "empty body: expected the file's bytes")
+        checked = await _check(st, qdir, name, s)
+        try:  # publish: a link never replaces a file of that name (a race: 409)
+            os.link(qdir / name, final)
+        except FileExistsError:
+            raise conflict(
+                "name", "a name not taken", name, f"upload {name!r} exists already"
+            ) from None
+        return _info(final, checked)
+    finally:
+        shutil.rmtree(qdir, ignore_errors=True)
+
+
+async def _receive(request: Request, path: Path, limit: int) -> int | None:
+    """Stream the body into ``path``; its size, or None when the client left."""
     size = 0
     try:
-        with os.fdopen(fd, "wb") as fh:
+        with path.open("wb") as fh:
             async for chunk in request.stream():
                 size += len(chunk)
                 if size > limit:  # the middleware answers first; this guards without it
                     msg = f"request body larger than {limit} bytes"
-                    item = error("body", f"at most {limit} bytes", size, msg)
-                    raise HTTPException(413, detail=[item])
+                    raise HTTPException(
+                        413, detail=[error("body", f"at most {limit} bytes", size, msg)]
+                    )
                 fh.write(chunk)
-    except ClientDisconnect:  # over the limit (the 413 went out) or the client left
-        _unlink(tmp)
-        return Response(status_code=413)
-    except BaseException:
-        _unlink(tmp)
-        raise
-    if size == 0:
-        _unlink(tmp)
-        raise FieldError("body", "the file's bytes", 0, "empty body: expected the file's bytes")
-    if final.exists():
-        _unlink(tmp)
-        raise conflict("name", "a name not taken", name, f"upload {name!r} exists already")
-    os.replace(tmp, final)
-    if final.suffix.lower() == ".json":
-        try:
-            side = json.loads(final.read_bytes())
-            if not isinstance(side, dict):
-                raise ValueError(f"expected a JSON object, found {type(side).__name__}")
-        except (ValueError, UnicodeDecodeError) as exc:
-            _unlink(final)
-            raise FieldError(
-                "body", "a JSON object (the log's sidecar)", None, f"{name}: not a sidecar: {exc}"
-            ) from None
-        log_path = _log_of(st, final)
-        if log_path is None:
-            return _info(final)
-        final, name = log_path, log_path.name  # the pair is checked below
-        undo = final.with_suffix(".json")
-    else:
-        undo = final
-    try:
-        log = await asyncio.to_thread(_check, final)
-    except CutwatchError as exc:
-        _unlink(undo)
-        raise FieldError(
-            "body",
-            "a measured log passing the log loader's checks",
-            undo.name,
-            f"{scrub(str(exc), final, name)} (the upload {undo.name!r} was removed)",
-        ) from None
-    return _info(final, log)
+    except ClientDisconnect:
+        return None
+    return size
 
 
-def _unlink(p: str | Path) -> None:
-    with contextlib.suppress(OSError):
-        os.unlink(p)
+async def _check(st: DataStore, qdir: Path, name: str, s: Settings) -> dict[str, Any]:
+    """Check the quarantined ``qdir/name`` with its published companion linked beside
+    it (a CSV log's sidecar, a sidecar's CSV log); a refusal is a :class:`FieldError`."""
+    stem, suffix = Path(name).stem, Path(name).suffix.lower()
+    companion = {".csv": ".json", ".json": ".csv"}.get(suffix)
+    target, what = qdir / name, "sidecar" if suffix == ".json" else "log"
+    if companion is not None:
+        other = st.area("uploads") / (stem + companion)
+        if other.is_file():
+            os.link(other, qdir / other.name)
+            if suffix == ".json":  # the pair is checked through its log
+                target, what = qdir / other.name, "log"
+    answer = await run_check(target, what, limits(s))
+    if answer.get("ok"):
+        return answer
+    allowed = "a JSON object (the log's sidecar)" if suffix == ".json" else (
+        "a measured log passing the log loader's checks"
+    )  # fmt: skip
+    msg = f"{answer.get('error', 'refused')} (the upload {name!r} was removed)"
+    raise FieldError("body", allowed, name, msg)
 
 
 @router.get("/api/uploads", summary="uploaded logs and sidecars", response_model=Uploads)
