@@ -22,6 +22,7 @@ from collections.abc import Iterator
 import httpx
 import pytest
 from _broker import free_port
+from _proc import stop
 from websockets.sync.client import connect
 
 HEADER_S = 2.0
@@ -63,14 +64,7 @@ def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
             time.sleep(0.2)
         yield hp
     finally:
-        proc.terminate()
-        try:
-            proc.wait(10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(5)
-        if proc.stderr:
-            proc.stderr.close()
+        stop(proc)
 
 
 def open_conn(hp: str) -> socket.socket:
