@@ -16,6 +16,9 @@ and so for the image, whose entry point it is:
   seconds is as much a hold as silence).
 - ``max_header_bytes``: a request line and headers larger than this are answered 431 and
   the connection closed; at most this much plus one read (256 KiB) is ever buffered.
+- ``max_per_client``: at most this many HTTP connections open at once from one address;
+  one more is answered 503 and closed at once (a WebSocket leaves the count when it is
+  upgraded: the stream's own limits hold it).
 
 Idle kept-alive connections are closed by uvicorn after ``timeout_keep_alive`` (5 s). Once
 the headers and body are in, the request is the app's: nothing here limits how long the
@@ -28,14 +31,16 @@ from __future__ import annotations
 
 import asyncio
 import json
-from typing import Any
+from typing import Any, ClassVar
 
 from uvicorn.protocols.http.httptools_impl import STATUS_LINE, HttpToolsProtocol
 
 from server.service.http_errors import error
 
 #: connections dropped by each limit since the process started
-DROPPED: dict[str, int] = {"header_timeout": 0, "body_timeout": 0, "header_size": 0}
+DROPPED: dict[str, int] = {
+    "header_timeout": 0, "body_timeout": 0, "header_size": 0, "per_client": 0
+}  # fmt: skip
 
 
 class _Refused(Exception):
@@ -50,6 +55,9 @@ class GuardedHttpToolsProtocol(HttpToolsProtocol):
     body_timeout: float = 10.0
     body_min_rate: float = 1024.0
     max_header_bytes: int = 32768
+    max_per_client: int = 64
+    #: open HTTP connections per client address (one dict per class: per server)
+    open_per_client: ClassVar[dict[str, int]] = {}
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
@@ -61,6 +69,8 @@ class GuardedHttpToolsProtocol(HttpToolsProtocol):
         self._rate_start = 0.0  # the average rate is measured from here ...
         self._rate_bytes = 0  # ... and from this count on
         self._answer: tuple[int, str, dict[str, Any]] | None = None
+        self._addr = "?"
+        self._counted = False  # in open_per_client
 
     # --- timers
     def _arm(self, delay: float, callback: Any) -> None:
@@ -140,11 +150,31 @@ class GuardedHttpToolsProtocol(HttpToolsProtocol):
     # --- the protocol's events
     def connection_made(self, transport: asyncio.Transport) -> None:  # type: ignore[override]
         super().connection_made(transport)
+        self._addr = self.client[0] if self.client else "?"
+        held = self.open_per_client.get(self._addr, 0)
+        self._counted = True
+        self.open_per_client[self._addr] = held + 1
+        if held >= self.max_per_client:
+            DROPPED["per_client"] += 1
+            msg = f"more than {self.max_per_client} open connections from {self._addr}"
+            self._refuse(503, msg, error("connections", f"at most {self.max_per_client}",
+                                         held + 1, msg))  # fmt: skip
+            return
         self._start_headers()  # a connection that sends nothing is dropped in time too
+
+    def _uncount(self) -> None:
+        if self._counted:
+            self._counted = False
+            n = self.open_per_client.get(self._addr, 1) - 1
+            if n > 0:
+                self.open_per_client[self._addr] = n
+            else:
+                self.open_per_client.pop(self._addr, None)
 
     def connection_lost(self, exc: Exception | None) -> None:
         self._disarm()
         self._phase = "closed"
+        self._uncount()
         super().connection_lost(exc)
 
     def data_received(self, data: bytes) -> None:
@@ -174,6 +204,7 @@ class GuardedHttpToolsProtocol(HttpToolsProtocol):
     def handle_websocket_upgrade(self) -> None:
         self._disarm()  # the WebSocket protocol takes the connection from here
         self._phase = "app"
+        self._uncount()
         super().handle_websocket_upgrade()
 
     # --- parser callbacks
@@ -216,6 +247,7 @@ def guarded_protocol(
     body_timeout: float,
     body_min_rate: float,
     max_header_bytes: int,
+    max_per_client: int = GuardedHttpToolsProtocol.max_per_client,
 ) -> type[GuardedHttpToolsProtocol]:
     """A :class:`GuardedHttpToolsProtocol` subclass with these limits (for
     ``uvicorn.Config(http=...)``)."""
@@ -227,5 +259,7 @@ def guarded_protocol(
             "body_timeout": float(body_timeout),
             "body_min_rate": float(body_min_rate),
             "max_header_bytes": int(max_header_bytes),
+            "max_per_client": int(max_per_client),
+            "open_per_client": {},
         },
     )

@@ -108,6 +108,12 @@ class Settings(BaseSettings):
         le=1 << 20,
         description="largest request line and headers accepted [bytes] (then 431)",
     )
+    max_connections_per_client: int = Field(
+        default=64,
+        ge=1,
+        le=100_000,
+        description="HTTP connections open at once from one address (then 503)",
+    )
     max_lag_s: float = Field(
         default=2.0, gt=0.0, le=60.0, description="lag after which the loop re-anchors its clock"
     )

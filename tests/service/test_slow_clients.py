@@ -23,11 +23,13 @@ import httpx
 import pytest
 from _broker import free_port
 from _proc import stop
+from _wait import poll
 from websockets.sync.client import connect
 
 HEADER_S = 2.0
 BODY_S = 2.0
 MAX_HEADER = 32768
+PER_CLIENT = 20
 #: how late a drop may come after its limit: the timer's own jitter on a loaded machine
 SLACK_S = 1.5
 
@@ -40,6 +42,7 @@ def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
         "CUTWATCH_HEADER_TIMEOUT_S": str(HEADER_S),
         "CUTWATCH_BODY_TIMEOUT_S": str(BODY_S),
         "CUTWATCH_MAX_HEADER_BYTES": str(MAX_HEADER),
+        "CUTWATCH_MAX_CONNECTIONS_PER_CLIENT": str(PER_CLIENT),
     }
     for k in ("CUTWATCH_TOKEN", "CUTWATCH_VIEW_TOKEN", "CUTWATCH_HOST"):
         env.pop(k, None)
@@ -208,6 +211,23 @@ def test_a_trickling_body_is_dropped_by_its_rate(server: str) -> None:
     assert BODY_S - 0.2 <= t <= BODY_S + SLACK_S
     status, body = status_and_body(raw)
     assert status == 408 and "bytes/s" in body["detail"][0]["msg"]
+
+
+def test_connections_from_one_address_are_bounded(server: str) -> None:
+    """20 silent connections are held (until their header limit); the 21st from the same
+    address is answered 503 at once; once they are gone, requests are served again."""
+    held = [open_conn(server) for _ in range(PER_CLIENT)]
+    try:
+        extra = open_conn(server)
+        raw, t = read_until_closed(extra, 5)
+        extra.close()
+        print(f"connection {PER_CLIENT + 1} from one address: 503 after {t:.3f} s")
+        status, body = status_and_body(raw)
+        assert status == 503 and body["detail"][0]["field"] == "connections" and t < 1.0
+    finally:
+        for c in held:
+            c.close()
+    poll(lambda: httpx.get(f"http://{server}/api/health", timeout=5).status_code == 200, 10)
 
 
 def test_a_10_mib_header_is_refused_before_it_is_read(server: str) -> None:

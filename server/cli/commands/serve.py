@@ -113,6 +113,7 @@ def uvicorn_options(settings: Settings) -> dict[str, object]:
             body_timeout=settings.body_timeout_s,
             body_min_rate=settings.body_min_rate,
             max_header_bytes=settings.max_header_bytes,
+            max_per_client=settings.max_connections_per_client,
         ),
         "ws": WS_IMPL,
         "ws_max_size": WS_MAX_SIZE,
