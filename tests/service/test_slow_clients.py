@@ -262,6 +262,7 @@ def test_an_invalid_request_gets_the_error_shape(server: str) -> None:
     for raw in (
         f"POST /api/control HTTP/1.1\r\nHost: {server}\r\nContent-Length: abc\r\n\r\n",
         f"GET /api/health HTTP/1.1\r\nHost: {server}\r\nBad Header\r\n\r\n",
+        f"BREW /api/health HTTP/1.1\r\nHost: {server}\r\n\r\n",  # an unknown method
     ):
         s = open_conn(server)
         s.sendall(raw.encode())
