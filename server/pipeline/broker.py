@@ -164,7 +164,8 @@ class _ClosedOnFailedHandshake(ssl.SSLSocket):
 
 def tls_context(cfg: BrokerConfig) -> ssl.SSLContext:
     """The TLS context of a broker connection: TLS 1.2 or later, the broker's certificate
-    and host name verified, this client's certificate when one is configured.
+    and host name verified against ``cfg.cafile`` only (the system's authorities when
+    none is given), this client's certificate when one is configured.
 
     Raises
     ------
@@ -172,12 +173,14 @@ def tls_context(cfg: BrokerConfig) -> ssl.SSLContext:
         A file that is not a certificate or a key (or a key that is not the
         certificate's), naming it.
     """
-    ctx = ssl.create_default_context(ssl.Purpose.SERVER_AUTH)
+    ctx = ssl.SSLContext(ssl.PROTOCOL_TLS_CLIENT)  # verifies the chain and the host name
     ctx.minimum_version = ssl.TLSVersion.TLSv1_2
     ctx.sslsocket_class = _ClosedOnFailedHandshake
     try:
-        if cfg.cafile is not None:
+        if cfg.cafile is not None:  # this authority only (not the system's as well)
             ctx.load_verify_locations(cafile=str(cfg.cafile))
+        else:
+            ctx.load_default_certs(ssl.Purpose.SERVER_AUTH)
     except (ssl.SSLError, ValueError) as exc:
         raise CutwatchError(
             f"broker CA file {str(cfg.cafile)!r}: expected PEM certificates ({exc})"

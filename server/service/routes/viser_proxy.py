@@ -87,6 +87,8 @@ async def fetch(port: int, path: str, accept_encoding: str) -> tuple[int, dict[s
         writer.close()
         with contextlib.suppress(OSError):
             await writer.wait_closed()
+    if len(raw) > MAX_PAGE_BYTES:
+        raise HTTPException(502, f"the viser 3D view answered more than {MAX_PAGE_BYTES} bytes")
     head, sep, body = raw.partition(b"\r\n\r\n")
     lines = head.decode("latin-1").split("\r\n")
     if not sep or len(lines[0].split(" ")) < 2:
@@ -111,6 +113,8 @@ async def viser_root() -> RedirectResponse:
 async def viser_page(request: Request, path: str) -> Response:
     """viser's page (and any file it serves) from its loopback port."""
     port = _viser_port(request.app)
+    if ".." in path.split("/"):
+        raise HTTPException(404, "no such file of the viser 3D view")
     gzip = "gzip" if "gzip" in request.headers.get("accept-encoding", "") else "identity"
     try:
         status, headers, body = await fetch(port, "/" + quote(path, safe="/._-~"), gzip)
