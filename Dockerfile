@@ -1,6 +1,6 @@
 # cutwatch live service.
 #   Docker host:  docker build -t cutwatch .
-#                 docker run --rm -p 8000:8000 -e CUTWATCH_TOKEN=change-me cutwatch
+#                 docker run --rm -p 8000:8000 -e CUTWATCH_TOKEN=$(openssl rand -hex 16) cutwatch
 #   (the viser 3D view is at /viser/ on the same port; viser itself listens on the
 #   container's loopback only)
 #   here (buildah, no daemon, no registry):  make image && make run-image   (docs/deploy.md)

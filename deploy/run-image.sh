@@ -14,7 +14,7 @@ PORT=${PORT:-8000}
 VISER_PORT=${VISER_PORT:-8080}
 if [ -z "${CUTWATCH_TOKEN:-}" ]; then
     CUTWATCH_TOKEN=$(head -c 18 /dev/urandom | base64 | tr '+/' '-_')
-    echo "CUTWATCH_TOKEN=$CUTWATCH_TOKEN (generated; mutating requests need it as a Bearer token)"
+    echo "CUTWATCH_TOKEN=$CUTWATCH_TOKEN (generated; every request but /api/health needs it: a Bearer token, or log in at /login)"
 fi
 
 ctr=$(bh from --pull-never "$IMAGE")

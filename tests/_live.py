@@ -1,14 +1,21 @@
-"""A real uvicorn server on a free loopback port, for the API and WebSocket tests."""
+"""A real uvicorn server on a free loopback port, for the API and WebSocket tests; and
+``cutwatch serve`` as its own process, where the test measures the service itself."""
 
 from __future__ import annotations
 
+import os
 import socket
+import subprocess
+import sys
 import tempfile
 import threading
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
 
+import httpx
 import uvicorn
 
 from server.cli.commands.serve import uvicorn_options
@@ -72,3 +79,62 @@ def serve(*, sndbuf: int | None = None, **settings: object) -> Iterator[str]:
         sock.close()
         if tmp is not None:
             tmp.cleanup()
+
+
+@dataclass
+class Process:
+    """A ``cutwatch serve`` process: its Popen, base URL and the file its stderr goes to."""
+
+    proc: subprocess.Popen[bytes]
+    base: str
+    log: Path
+
+    def rss_kb(self, key: str = "VmRSS") -> int:
+        """A memory figure of the process from /proc (VmRSS, VmHWM: the peak) [kB]."""
+        for line in Path(f"/proc/{self.proc.pid}/status").read_text().splitlines():
+            if line.startswith(key + ":"):
+                return int(line.split()[1])
+        raise KeyError(key)
+
+    def reset_peak(self) -> None:
+        """Reset VmHWM to the current RSS (Linux: 5 > /proc/PID/clear_refs)."""
+        Path(f"/proc/{self.proc.pid}/clear_refs").write_text("5")
+
+
+@contextmanager
+def serve_process(data_dir: Path, log: Path, **env: str) -> Iterator[Process]:
+    """Run ``cutwatch serve`` as its own process on a free loopback port (no viser), the
+    data areas in ``data_dir``; ``env`` adds ``CUTWATCH_*`` variables. Stops it (SIGTERM)
+    unless the test has ended it already."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = int(s.getsockname()[1])
+    cmd = [sys.executable, "-c", "from server.cli.main import main; raise SystemExit(main())",
+           "serve", "--port", str(port), "--no-viser", "--data-dir", str(data_dir)]  # fmt: skip
+    full = {k: v for k, v in os.environ.items() if not k.startswith("CUTWATCH_")}
+    full.update(env)
+    with log.open("ab") as err:
+        proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=err, env=full)
+    base = f"http://127.0.0.1:{port}"
+    try:
+        deadline = time.monotonic() + 60
+        while True:
+            if proc.poll() is not None:
+                raise RuntimeError(f"cutwatch serve exited: {log.read_text()[-2000:]}")
+            try:
+                if httpx.get(f"{base}/api/health", timeout=2).status_code == 200:
+                    break
+            except httpx.HTTPError:
+                pass
+            if time.monotonic() > deadline:
+                raise RuntimeError("cutwatch serve did not answer within 60 s")
+            time.sleep(0.2)
+        yield Process(proc, base, log)
+    finally:
+        if proc.poll() is None:
+            proc.terminate()
+            try:
+                proc.wait(20)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()

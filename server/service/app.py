@@ -31,7 +31,7 @@ from server.service.auth import Access
 from server.service.http_errors import (
     FieldError,
     SafeJSONResponse,
-    _json_safe,
+    echo,
     error,
     sanitise,
 )
@@ -60,6 +60,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     """
     s = settings if settings is not None else Settings()
     check_security(s)
+    _log_to_stderr()
 
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
@@ -69,6 +70,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                 "removed %d temporary file(s) left by an interrupted run: %s",
                 len(stale), ", ".join(stale)[:2000],
             )  # fmt: skip
+        from server.service import upload_check
+
+        # the upload checker's server process, started now (its imports take seconds)
+        warming = asyncio.create_task(asyncio.to_thread(upload_check.warm))
         hub = Hub(s.client_buffer)
         hub.bind(asyncio.get_running_loop())
         loop = LiveLoop(s, hub)
@@ -82,6 +87,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         try:
             yield
         finally:
+            warming.cancel()
             app.state.analyses.close()
             hub.close()
             await asyncio.to_thread(loop.stop)
@@ -116,6 +122,17 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     return app
 
 
+def _log_to_stderr() -> None:
+    """The service's own log lines (``cutwatch.*``: the audit trail, start-up notes) on
+    stderr at INFO, beside uvicorn's (which configures only its own loggers)."""
+    root = logging.getLogger("cutwatch")
+    if not root.handlers:
+        h = logging.StreamHandler()
+        h.setFormatter(logging.Formatter("%(asctime)s %(name)s %(levelname)s: %(message)s"))
+        root.addHandler(h)
+        root.setLevel(logging.INFO)
+
+
 # ------------------------------------------------------------------ exception handlers
 def _errors(status: int, items: Sequence[dict[str, Any]], **kw: Any) -> JSONResponse:
     return SafeJSONResponse({"detail": list(items)}, status_code=status, **kw)
@@ -148,6 +165,14 @@ async def _http_error(request: Request, exc: StarletteHTTPException) -> Response
         headers["Allow"] = ", ".join(allowed)
         msg = f"{exc.detail}: {request.method} {path}; allowed: {', '.join(allowed)}"
         items = [error("method", "one of " + ", ".join(allowed), request.method, msg)]
+    elif exc.status_code == 400 and exc.detail == "There was an error parsing the body":
+        # FastAPI's answer when json.loads itself fails (nesting past the parser's
+        # recursion limit, an integer of more than 4,300 digits)
+        rule = (
+            "a JSON document the parser accepts (not nested past ~1,000 levels, "
+            "integers under 4,300 digits)"
+        )
+        items = [error("body", rule, None, "the body could not be parsed as JSON: " + rule)]
     else:
         items = [error("request", "see msg", None, str(exc.detail))]
     return _errors(exc.status_code, items, headers=headers or None)
@@ -207,7 +232,7 @@ def _validation_item(request: Request, e: Any) -> dict[str, Any]:
         allowed = raw.removeprefix("Input should be ").removeprefix("expected ")
     msg = f"{field}: {raw}"
     if kind in _OURS:  # the request models' own checks: one sentence, the value found
-        msg = f"{field}: expected {allowed}, got {_json_safe(got)!r}"
+        msg = f"{field}: expected {allowed}, got {echo(got)!r}"
     item = error(field, allowed, None, msg)
     item["got"] = got  # the input as sent (bounded), a structure kept a structure
     return item

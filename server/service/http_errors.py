@@ -34,7 +34,7 @@ def _text(s: str, limit: int = MAX_TEXT) -> str:
     return s
 
 
-def _json_safe(v: Any) -> Any:
+def echo(v: Any) -> Any:
     """``v`` if it is a JSON scalar, else its repr (at most 80 characters).
 
     Used for the ``got`` of an error: a non-finite float comes back as ``"nan"`` or
@@ -79,7 +79,7 @@ def sanitise(x: Any, depth: int = 0) -> Any:
     if isinstance(x, float) and not math.isfinite(x):
         return repr(x)
     if isinstance(x, bool | int | float | str) or x is None:
-        return _json_safe(x)
+        return echo(x)
     return _text(f"a {type(x).__name__}", 80)
 
 
@@ -88,7 +88,7 @@ def error(field: str, allowed: str, got: Any, msg: str) -> dict[str, Any]:
     return {
         "field": _text(str(field)),
         "allowed": _text(str(allowed), 1000),
-        "got": _json_safe(got),
+        "got": echo(got),
         "msg": _text(str(msg), 2000),
     }
 

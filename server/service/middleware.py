@@ -130,7 +130,8 @@ class Guard:
                 refusal = (status, item)
         if refusal is not None:
             if need == "operator":
-                _audit(conn, method, role, refusal[0], "refused: " + refusal[1]["msg"])
+                who = auth.access_of(conn).role_of(conn)[0]  # a viewer refused: say so
+                _audit(conn, method, who, refusal[0], "refused: " + refusal[1]["msg"])
             if ws:
                 await _deny_ws(scope, send, *refusal)
             elif refusal[0] == 401 and _wants_page(conn):

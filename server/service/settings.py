@@ -2,7 +2,7 @@
 
 Examples: ``CUTWATCH_PORT=8001``, ``CUTWATCH_SPEED=0`` (start paused),
 ``CUTWATCH_HOST=0.0.0.0 CUTWATCH_TOKEN=...`` (any address other than loopback needs a
-token; see :func:`check_security`).
+token of 16 characters at least; see :func:`check_security` and ``server.service.auth``).
 """
 
 from __future__ import annotations

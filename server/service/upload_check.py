@@ -1,9 +1,10 @@
 """The check of an uploaded file, run in a child process with a memory limit.
 
-An upload lands in a quarantine directory (``POST /api/uploads``); this module's
-:func:`run_check` runs ``python -m server.service.upload_check`` beside it, niced, with
-``RLIMIT_AS`` set before anything is read, and reads one JSON line back: what the file
-holds, or why it is refused. Whatever the file does to its reader (a decompression bomb, a
+An upload lands in a quarantine directory (``POST /api/uploads``); :func:`run_check`
+checks it in a new process (forked from a server process that has the readers imported
+already: ``multiprocessing``'s forkserver), niced, with ``RLIMIT_AS`` set before
+anything is read, and gets one answer back: what the file holds, or why it is refused.
+Whatever the file does to its reader (a decompression bomb, a
 parser's recursion, a crash) happens in that process, not in the service.
 
 The child bounds the work before parsing: a CSV's rows and columns are counted on the
@@ -18,16 +19,13 @@ from __future__ import annotations
 
 import asyncio
 import json
+import multiprocessing
 import os
 import struct
-import subprocess
-import sys
 import zlib
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
-
-ROOT = Path(__file__).resolve().parents[2]
 
 #: MAT v5 data types (MATLAB's "MAT-File Format", table 1-1)
 MI_MATRIX, MI_COMPRESSED = 14, 15
@@ -55,7 +53,7 @@ class Refused(Exception):
 
 # ------------------------------------------------------------------ the child's side
 def mat_expanded_size(path: Path, limit: int) -> int:
-    """The bytes a MAT v5/v7 file's variables take once expanded, from their headers.
+    """The bytes a MAT file's variables take once expanded, from their headers.
 
     For a compressed element only the first bytes of its zlib stream are inflated (the
     inner matrix tag, array flags and dimensions); the size counted is the larger of the
@@ -70,7 +68,9 @@ def mat_expanded_size(path: Path, limit: int) -> int:
     with path.open("rb") as fh:
         head = fh.read(128)
         if len(head) < 128 or head[126:128] not in (b"IM", b"MI"):
-            raise Refused(f"{path.name}: not a MATLAB v5/v7 .mat file (no MAT-file header)")
+            if _is_v4(head):  # a v4 file has no compression: it expands to its own size
+                return path.stat().st_size
+            raise Refused(f"{path.name}: not a MATLAB .mat file (no v4 or v5 MAT-file header)")
         if head[124:126] in (b"\x02\x00", b"\x00\x02"):
             raise Refused(
                 f"{path.name}: MATLAB v7.3 (HDF5) files are not supported; save with -v7 "
@@ -101,6 +101,20 @@ def mat_expanded_size(path: Path, limit: int) -> int:
                     f"(at least {total} declared in the file's headers); the limit is "
                     "CUTWATCH_UPLOAD_MAX_MB"
                 )
+
+
+def _is_v4(head: bytes) -> bool:
+    """True when ``head`` starts like a MAT v4 variable (type MOPT, rows, columns,
+    imaginary flag, name length; little- or big-endian)."""
+    if len(head) < 20:
+        return False
+    for end in "<>":
+        mopt, rows, cols, imag, namlen = struct.unpack(end + "5i", head[:20])
+        m, o, p, t = mopt // 1000, mopt // 100 % 10, mopt // 10 % 10, mopt % 10
+        if 0 <= mopt < 5000 and m <= 4 and o == 0 and p <= 5 and t <= 2 and rows >= 0 \
+                and cols >= 0 and imag in (0, 1) and 1 <= namlen <= 64:  # fmt: skip
+            return True
+    return False
 
 
 def _compressed_size(path: Path, data: bytes, end: str) -> int:
@@ -188,64 +202,90 @@ def check_file(path: Path, what: str, limits: Limits) -> dict[str, Any]:
     return {"samples": len(log["t"]), "sample_time": log.sample_time, "log_kind": log.kind}
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Child entry: ``python -m server.service.upload_check FILE WHAT LIMITS_JSON``;
-    prints one JSON line (``{"ok": true, ...}`` or ``{"ok": false, "error": msg}``)."""
+def _child(name: str, where: str, what: str, limits: dict[str, Any], conn: Any) -> None:
+    """The checking process: beside the file, under its memory limit, niced; sends one
+    answer (``{"ok": True, ...}`` or ``{"ok": False, "error": msg}``) down ``conn``."""
     import resource
 
-    args = sys.argv[1:] if argv is None else argv
-    limits = Limits(**json.loads(args[2]))
-    cap = limits.memory_mb * 1024 * 1024
+    lim = Limits(**limits)
+    os.chdir(where)  # messages name the file, never its directory
+    cap = lim.memory_mb * 1024 * 1024
     resource.setrlimit(resource.RLIMIT_AS, (cap, cap))
     os.nice(10)  # the service's loop comes first
     try:
-        out: dict[str, Any] = {"ok": True, **check_file(Path(args[0]), args[1], limits)}
+        out: dict[str, Any] = {"ok": True, **check_file(Path(name), what, lim)}
     except MemoryError:
-        out = {"ok": False, "error": f"{args[0]}: checking it needed more than "
-               f"{limits.memory_mb} MB (CUTWATCH_UPLOAD_CHECK_MB)"}  # fmt: skip
+        out = {"ok": False, "error": f"{name}: checking it needed more than "
+               f"{lim.memory_mb} MB (CUTWATCH_UPLOAD_CHECK_MB)"}  # fmt: skip
     except RecursionError:
-        out = {"ok": False, "error": f"{args[0]}: nested too deeply to read"}
+        out = {"ok": False, "error": f"{name}: nested too deeply to read"}
     except Exception as exc:  # a named error, or what the reader tripped on, named
         from server.errors import CutwatchError
 
         named = isinstance(exc, Refused | CutwatchError)
-        msg = str(exc) if named else f"{args[0]}: not readable ({type(exc).__name__}: {exc})"
-        out = {"ok": False, "error": msg}
-    print(json.dumps(out), flush=True)
-    return 0
+        msg = str(exc) if named else f"{name}: not readable ({type(exc).__name__}: {exc})"
+        out = {"ok": False, "error": msg[:2000]}
+    conn.send(out)
+    conn.close()
 
 
 # ------------------------------------------------------------------ the service's side
+#: checks are forked from a server process that has the readers imported already (a
+#: fresh interpreter would spend seconds importing numpy and scipy for every upload);
+#: each check is a new process, so nothing one file does outlives its check
+_CTX = multiprocessing.get_context("forkserver")
+_CTX.set_forkserver_preload(["server.service.upload_check", "server.records.measured_log",
+                             "scipy.io"])  # fmt: skip
+
+
 def _run(path: Path, what: str, limits: Limits) -> dict[str, Any]:
-    env = dict(os.environ)
-    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(ROOT), env.get("PYTHONPATH")) if p)
-    env.update(OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1", MKL_NUM_THREADS="1")
-    cmd = [sys.executable, "-m", "server.service.upload_check", path.name, what,
-           json.dumps(asdict(limits))]  # fmt: skip
+    recv, send = _CTX.Pipe(duplex=False)
+    p = _CTX.Process(
+        target=_child,
+        args=(path.name, str(path.parent), what, asdict(limits), send),
+        name=f"upload-check-{path.name}",
+        daemon=True,
+    )
+    p.start()
+    send.close()
     try:
-        done = subprocess.run(
-            cmd, cwd=path.parent, env=env, capture_output=True, timeout=limits.timeout_s
-        )
-    except subprocess.TimeoutExpired:
+        if recv.poll(limits.timeout_s):
+            out: dict[str, Any] = recv.recv()
+            return out
+        p.kill()
         return {"ok": False, "error": f"{path.name}: its check took over {limits.timeout_s:g} s"}
-    lines = done.stdout.decode("utf-8", "replace").strip().splitlines()
-    try:
-        out: dict[str, Any] = json.loads(lines[-1])
-        return out
-    except (IndexError, ValueError):
-        how = f"signal {-done.returncode}" if done.returncode < 0 else f"status {done.returncode}"
+    except EOFError:  # the process died without an answer
+        p.join(5)
+        code = p.exitcode
+        how = f"signal {-code}" if code is not None and code < 0 else f"status {code}"
         return {
             "ok": False,
             "error": f"{path.name}: its check ended without an answer ({how}: over its "
             f"memory limit of {limits.memory_mb} MB, CUTWATCH_UPLOAD_CHECK_MB, or a crash)",
         }
+    finally:
+        recv.close()
+        p.join(5)
+
+
+def warm() -> None:
+    """Start the server process that checks are forked from (the service's start-up
+    calls this on a thread, so that the first upload does not wait for the imports)."""
+    recv, send = _CTX.Pipe(duplex=False)
+    p = _CTX.Process(target=_noop, args=(send,), daemon=True)
+    p.start()
+    send.close()
+    recv.poll(120)
+    recv.close()
+    p.join(5)
+
+
+def _noop(conn: Any) -> None:
+    conn.send(None)
+    conn.close()
 
 
 async def run_check(path: Path, what: str, limits: Limits) -> dict[str, Any]:
     """Check ``path`` (``sidecar`` or ``log``) in a child process; the answer of
-    :func:`main`. Messages name the file by its name only (the child runs beside it)."""
+    :func:`_child`. Messages name the file by its name only (the child runs beside it)."""
     return await asyncio.to_thread(_run, path, what, limits)
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

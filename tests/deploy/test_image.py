@@ -231,15 +231,18 @@ def test_health_and_dashboard_over_http(service: Service) -> None:
     health = httpx.get(f"{service.url}/api/health", timeout=5).json()
     assert health["status"] == "ok" and health["loop_error"] is None
     assert health["viser_running"] is True and health["viser_port"] == service.viser_port
-    page = httpx.get(f"{service.url}/", timeout=5)
+    auth = {"Authorization": f"Bearer {service.token}"}  # every read but health needs it
+    assert httpx.get(f"{service.url}/", timeout=5).status_code == 401
+    page = httpx.get(f"{service.url}/", headers=auth, timeout=5)
     assert page.status_code == 200 and "/vendor/uplot/uPlot.iife.min.js" in page.text
     # the uPlot asset copied from the image's npm stage
-    uplot = httpx.get(f"{service.url}/vendor/uplot/uPlot.iife.min.js", timeout=5)
+    uplot = httpx.get(f"{service.url}/vendor/uplot/uPlot.iife.min.js", headers=auth, timeout=5)
     assert uplot.status_code == 200 and "uPlot" in uplot.text
 
 
 def test_ws_streams_hello_and_data(service: Service) -> None:
-    with connect(f"ws://127.0.0.1:{service.port}/ws") as ws:
+    auth = {"Authorization": f"Bearer {service.token}"}
+    with connect(f"ws://127.0.0.1:{service.port}/ws", additional_headers=auth) as ws:
         hello = json.loads(ws.recv(timeout=10))
         frames = [json.loads(ws.recv(timeout=10)) for _ in range(5)]
     assert hello["type"] == "hello" and hello["channels"]
@@ -272,13 +275,15 @@ def test_records_into_the_image_data_directory(service: Service) -> None:
     deadline = time.monotonic() + 10
     names: list[str] = []
     while time.monotonic() < deadline and not names:
-        listing = httpx.get(f"{service.url}/api/records", timeout=5).json()["records"]
+        listing = httpx.get(f"{service.url}/api/records", headers=auth, timeout=5).json()
+        listing = listing["records"]
         names = [r["name"] for r in listing if not r["active"]]
         time.sleep(0.2)
     assert any(n.startswith("img") for n in names), names
 
 
-def test_mutating_request_needs_the_token(service: Service) -> None:
+def test_requests_need_the_token(service: Service) -> None:
+    assert httpx.get(f"{service.url}/api/params", timeout=5).status_code == 401
     url = f"{service.url}/api/control"
     pause = {"action": "pause"}
     assert httpx.post(url, json=pause, timeout=5).status_code == 401

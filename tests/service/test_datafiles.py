@@ -199,6 +199,9 @@ def test_upload_analyse_install(api: httpx.Client, env: dict[str, Path]) -> None
     assert j["rms_after"] < 0.7 * j["rms_before"]  # measured: 0.0245 / 0.0467 = 0.52
     page = api.get(j["report_url"])
     assert page.status_code == 200 and "<html" in page.text.lower()
+    # no server path in the report: its log by name (issue 20)
+    assert api.get("/residual/ca/report.json").json()["log"] == "ca.csv"
+    assert str(env["data"]) not in page.text
     assert not [p for p in (env["data"] / "reports").iterdir() if p.name.startswith(".")]
 
     r = api.post("/api/observer-effects", json={"report": "ca"})

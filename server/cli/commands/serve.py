@@ -4,13 +4,15 @@ Examples::
 
     cutwatch serve                       # http://127.0.0.1:8000/
     cutwatch serve --speed 0             # start paused
-    CUTWATCH_TOKEN=secret cutwatch serve --host 0.0.0.0
+    CUTWATCH_TOKEN=$(openssl rand -hex 16) cutwatch serve --host 0.0.0.0
     cutwatch serve --source mqtt --broker mqtt://127.0.0.1:1883 --machine mill-1 \
         --publish-hz 10                  # a real machine's drive data from a broker
 
 Options override the ``CUTWATCH_*`` environment variables. Any address other than
-loopback requires ``CUTWATCH_TOKEN`` (mutating endpoints then need
-``Authorization: Bearer <token>``); the service refuses to start without it.
+loopback requires ``CUTWATCH_TOKEN`` (16 characters at least; the service refuses to
+start without it). With a token set every request but ``/api/health`` needs one:
+``Authorization: Bearer <token>``, or the browser's session after logging in at
+``/login``; ``CUTWATCH_VIEW_TOKEN`` is a second token that only reads and streams.
 """
 
 from __future__ import annotations

@@ -10,7 +10,7 @@ from fastapi import APIRouter, HTTPException
 from common.errors import ParameterError
 from server.pipeline.live_pipeline import Knob
 from server.service.deps import Authorised, Live
-from server.service.http_errors import _json_safe, error
+from server.service.http_errors import echo, error
 from server.service.schemas import Params, ParamsPatch, error_responses
 
 router = APIRouter(responses=error_responses())
@@ -63,14 +63,14 @@ def patch_params(body: ParamsPatch, lp: Live) -> Params:
         for name, value in changes.items():
             if name not in knobs:
                 allowed = "one of " + ", ".join(knobs)
-                msg = f"unknown parameter {_json_safe(name)!r}; expected {allowed}"
+                msg = f"unknown parameter {echo(name)!r}; expected {allowed}"
                 errors.append(error(name, allowed, value, msg))
                 continue
             try:
                 lp.pipeline.set_knob(name, value)
             except ParameterError as exc:
                 allowed = exc.expected
-                msg = f"{name}: expected {allowed}, got {_json_safe(value)!r}"
+                msg = f"{name}: expected {allowed}, got {echo(value)!r}"
                 errors.append(error(name, allowed, value, msg))
         if errors:
             for name, v in old.items():

@@ -98,7 +98,7 @@ async def upload(
             raise FieldError("body", "the file's bytes", 0, "empty body: expected the file's bytes")
         checked = await _check(st, qdir, name, s)
         try:  # publish: a link never replaces a file of that name (a race: 409)
-            os.link(qdir / name, final)
+            _publish(qdir / name, final)
         except FileExistsError:
             raise conflict(
                 "name", "a name not taken", name, f"upload {name!r} exists already"
@@ -106,6 +106,19 @@ async def upload(
         return _info(final, checked)
     finally:
         shutil.rmtree(qdir, ignore_errors=True)
+
+
+def _publish(src: Path, dst: Path) -> None:
+    """Move ``src`` to ``dst`` at once, never over an existing file (FileExistsError):
+    a hard link, or (a file system without links) a rename once the name is seen free."""
+    try:
+        os.link(src, dst)
+    except FileExistsError:
+        raise
+    except OSError:
+        if dst.exists():
+            raise FileExistsError(dst.name) from None
+        os.rename(src, dst)
 
 
 async def _receive(request: Request, path: Path, limit: int) -> int | None:
@@ -127,18 +140,29 @@ async def _receive(request: Request, path: Path, limit: int) -> int | None:
 
 
 async def _check(st: DataStore, qdir: Path, name: str, s: Settings) -> dict[str, Any]:
-    """Check the quarantined ``qdir/name`` with its published companion linked beside
-    it (a CSV log's sidecar, a sidecar's CSV log); a refusal is a :class:`FieldError`."""
+    """Check the quarantined ``qdir/name`` with its published companions linked beside
+    it (a log's sidecar; a sidecar's logs, each checked with it); a refusal is a
+    :class:`FieldError`."""
     stem, suffix = Path(name).stem, Path(name).suffix.lower()
-    companion = {".csv": ".json", ".json": ".csv"}.get(suffix)
-    target, what = qdir / name, "sidecar" if suffix == ".json" else "log"
-    if companion is not None:
-        other = st.area("uploads") / (stem + companion)
+    companions = (".csv", ".mat") if suffix == ".json" else (".json",)
+    logs = []
+    for c in companions:
+        other = st.area("uploads") / (stem + c)
         if other.is_file():
-            os.link(other, qdir / other.name)
-            if suffix == ".json":  # the pair is checked through its log
-                target, what = qdir / other.name, "log"
-    answer = await run_check(target, what, limits(s))
+            try:
+                os.link(other, qdir / other.name)
+            except OSError:  # a file system without hard links
+                shutil.copyfile(other, qdir / other.name)
+            logs.append(qdir / other.name)
+    if suffix != ".json":
+        checks = [(qdir / name, "log")]
+    else:  # the pair is checked through its logs; a sidecar alone by itself
+        checks = [(p, "log") for p in logs] or [(qdir / name, "sidecar")]
+    answer: dict[str, Any] = {"ok": True}
+    for target, what in checks:
+        answer = await run_check(target, what, limits(s))
+        if not answer.get("ok"):
+            break
     if answer.get("ok"):
         return answer
     allowed = "a JSON object (the log's sidecar)" if suffix == ".json" else (
