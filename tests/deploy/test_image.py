@@ -4,8 +4,9 @@ Builds ``cutwatch:latest`` from the Dockerfile (deploy/build-image.sh: a local
 debian:bookworm-slim from debootstrap, then ``buildah bud``), starts the image's own
 entrypoint in a working container on free loopback ports and checks what a user of the
 image relies on: a non-root ``cutwatch serve``, health over real HTTP, the WebSocket stream,
-viser's port, the image's HEALTHCHECK command, the token that binding 0.0.0.0 demands, and a
-clean stop on SIGTERM (what ``docker stop`` sends).
+the viser view through /viser/, slow clients dropped, the image's HEALTHCHECK command, the
+token that binding 0.0.0.0 demands, and a clean stop on SIGTERM (what ``docker stop``
+sends).
 
 Chroot isolation shares the host's network, so the entrypoint's ``--host 0.0.0.0`` is
 followed by ``--host 127.0.0.1`` (the last one wins): nothing listens beyond loopback.
