@@ -19,6 +19,7 @@ import httpx
 import uvicorn
 
 from server.cli.commands.serve import uvicorn_options
+from server.pipeline.broker import BrokerConfig
 from server.service.app import create_app
 from server.service.settings import Settings
 
@@ -138,3 +139,29 @@ def serve_process(data_dir: Path, log: Path, **env: str) -> Iterator[Process]:
             except subprocess.TimeoutExpired:
                 proc.kill()
                 proc.wait()
+
+
+@contextmanager
+def serve_fleet(cfg: BrokerConfig, stale_after: float = 1.0) -> Iterator[str]:
+    """The fleet page on ``cfg``'s broker in a background thread; yield ``host:port``."""
+    from server.service.fleet import create_fleet_app
+    from server.service.http_guard import GuardedHttpToolsProtocol
+
+    app = create_fleet_app(cfg, stale_after)
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = int(s.getsockname()[1])
+    config = uvicorn.Config(
+        app, host="127.0.0.1", port=port, log_level="error", http=GuardedHttpToolsProtocol
+    )
+    server = uvicorn.Server(config)
+    th = threading.Thread(target=server.run, daemon=True)
+    th.start()
+    deadline = time.monotonic() + 10
+    while not server.started and time.monotonic() < deadline:
+        time.sleep(0.05)
+    try:
+        yield f"127.0.0.1:{port}"
+    finally:
+        server.should_exit = True
+        th.join(10)

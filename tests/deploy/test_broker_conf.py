@@ -19,11 +19,13 @@ import httpx
 import paho.mqtt.client as mqtt
 import pytest
 from _broker import Pki, free_port, make_pki, mosquitto, password_file
-from _live import serve
+from _live import serve, serve_fleet
+from _wait import poll
 
 from server.cli.main import main
 from server.errors import CutwatchError
 from server.pipeline.broker import BrokerConfig, connect_blocking, make_client, parse_broker_url
+from server.records.drive_wire import encode_estimates
 
 SHIPPED = Path(__file__).resolve().parents[2] / "deploy" / "mosquitto"
 INSTALLED = "/etc/mosquitto/cutwatch/"  # where the shipped conf expects its files
@@ -203,3 +205,17 @@ def test_serve_and_feed_through_the_shipped_broker(
         topic, body = at_viewer.get(timeout=20)
         assert topic == "cutwatch/m1/estimates"
         assert json.loads(body)["schema"] == "cutwatch.estimates"
+
+
+def test_the_fleet_page_reads_estimates_as_viewer(shipped_broker: tuple[int, Pki]) -> None:
+    """``cutwatch fleet``'s app logged in as viewer over TLS: a row appears for what
+    cutwatch publishes, none for estimates a device tried to forge."""
+    port, pki = shipped_broker
+    with serve_fleet(config(port, pki, "viewer"), stale_after=30.0) as hp:
+        poll(lambda: httpx.get(f"http://{hp}/api/health").json()["connected"], 10)
+        with client(port, pki, "m2") as (m2, _):
+            publish_all(m2, [("cutwatch/m2/estimates", encode_estimates("m2", {"wall": 1.0}))])
+        with client(port, pki, "cutwatch") as (svc, _):
+            publish_all(svc, [("cutwatch/m1/estimates", encode_estimates("m1", {"wall": 1.0}))])
+        rows = poll(lambda: httpx.get(f"http://{hp}/api/fleet").json(), 10)
+        assert [r["machine"] for r in rows] == ["m1"]
