@@ -29,6 +29,24 @@ VIEWER = "viewer-token-for-tests"
 
 
 @contextmanager
+def in_thread(server: uvicorn.Server, sock: socket.socket | None = None) -> Iterator[None]:
+    """Run ``server`` (on ``sock`` if given) in a daemon thread until the block ends."""
+    kwargs = {"sockets": [sock]} if sock is not None else {}
+    thread = threading.Thread(target=server.run, kwargs=kwargs, daemon=True)
+    thread.start()
+    deadline = time.monotonic() + 20
+    while not server.started:
+        if time.monotonic() > deadline or not thread.is_alive():
+            raise RuntimeError("uvicorn did not start")
+        time.sleep(0.02)
+    try:
+        yield
+    finally:
+        server.should_exit = True
+        thread.join(10)
+
+
+@contextmanager
 def serve(*, sndbuf: int | None = None, **settings: object) -> Iterator[str]:
     """Run the app in a background thread; yield ``host:port``; stop it cleanly.
 
@@ -64,19 +82,10 @@ def serve(*, sndbuf: int | None = None, **settings: object) -> Iterator[str]:
         log_level="warning",
         **options,  # type: ignore[arg-type]
     )
-    server = uvicorn.Server(config)
-    thread = threading.Thread(target=server.run, kwargs={"sockets": [sock]}, daemon=True)
-    thread.start()
-    deadline = time.monotonic() + 20
-    while not server.started:
-        if time.monotonic() > deadline or not thread.is_alive():
-            raise RuntimeError("uvicorn did not start")
-        time.sleep(0.02)
     try:
-        yield f"127.0.0.1:{port}"
+        with in_thread(uvicorn.Server(config), sock):
+            yield f"127.0.0.1:{port}"
     finally:
-        server.should_exit = True
-        thread.join(10)
         sock.close()
         if tmp is not None:
             tmp.cleanup()
@@ -154,14 +163,5 @@ def serve_fleet(cfg: BrokerConfig, stale_after: float = 1.0) -> Iterator[str]:
     config = uvicorn.Config(
         app, host="127.0.0.1", port=port, log_level="error", http=GuardedHttpToolsProtocol
     )
-    server = uvicorn.Server(config)
-    th = threading.Thread(target=server.run, daemon=True)
-    th.start()
-    deadline = time.monotonic() + 10
-    while not server.started and time.monotonic() < deadline:
-        time.sleep(0.05)
-    try:
+    with in_thread(uvicorn.Server(config)):
         yield f"127.0.0.1:{port}"
-    finally:
-        server.should_exit = True
-        th.join(10)

@@ -11,18 +11,14 @@ from __future__ import annotations
 
 import contextlib
 import json
-import os
 import socket
-import subprocess
-import sys
 import threading
 import time
 from collections.abc import Iterator
 
 import httpx
 import pytest
-from _broker import free_port
-from _proc import stop
+from _live import serve_process
 from _wait import poll
 from websockets.sync.client import connect
 
@@ -36,38 +32,15 @@ SLACK_S = 1.5
 
 @pytest.fixture(scope="module")
 def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
-    port = free_port()
-    env = {
-        **os.environ,
+    d = tmp_path_factory.mktemp("slow")
+    limits = {
         "CUTWATCH_HEADER_TIMEOUT_S": str(HEADER_S),
         "CUTWATCH_BODY_TIMEOUT_S": str(BODY_S),
         "CUTWATCH_MAX_HEADER_BYTES": str(MAX_HEADER),
         "CUTWATCH_MAX_CONNECTIONS_PER_CLIENT": str(PER_CLIENT),
     }
-    for k in ("CUTWATCH_TOKEN", "CUTWATCH_VIEW_TOKEN", "CUTWATCH_HOST"):
-        env.pop(k, None)
-    data = tmp_path_factory.mktemp("slow-data")
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "server.cli.main", "serve", "--port", str(port), "--no-viser",
-         "--speed", "0", "--data-dir", str(data), "--log-level", "error"],
-        env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-    )  # fmt: skip
-    hp = f"127.0.0.1:{port}"
-    try:
-        deadline = time.monotonic() + 60
-        while True:
-            try:
-                if httpx.get(f"http://{hp}/api/health", timeout=2).status_code == 200:
-                    break
-            except httpx.HTTPError:
-                pass
-            if proc.poll() is not None or time.monotonic() > deadline:
-                err = proc.stderr.read().decode() if proc.stderr else ""
-                raise RuntimeError(f"cutwatch serve did not start: {err[-2000:]}")
-            time.sleep(0.2)
-        yield hp
-    finally:
-        stop(proc)
+    with serve_process(d / "data", d / "serve.log", **limits) as p:
+        yield p.base.removeprefix("http://")
 
 
 def open_conn(hp: str) -> socket.socket:
