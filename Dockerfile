@@ -1,6 +1,8 @@
 # cutwatch live service.
 #   Docker host:  docker build -t cutwatch .
-#                 docker run --rm -p 8000:8000 -p 8080:8080 -e CUTWATCH_TOKEN=$(openssl rand -hex 16) cutwatch
+#                 docker run --rm -p 8000:8000 -e CUTWATCH_TOKEN=$(openssl rand -hex 16) cutwatch
+#   (the viser 3D view is at /viser/ on the same port; viser itself listens on the
+#   container's loopback only)
 #   here (buildah, no daemon, no registry):  make image && make run-image   (docs/deploy.md)
 # The service binds 0.0.0.0 inside the container, so it refuses to start without
 # CUTWATCH_TOKEN; mutating endpoints then need "Authorization: Bearer <token>".
@@ -68,7 +70,7 @@ RUN python -c "from server.pipeline.live_pipeline import SCENARIOS, LivePipeline
     && install -d -o cutwatch -g cutwatch /var/lib/cutwatch
 # recordings, uploads and reports (mount a volume here to keep them: -v DIR:/var/lib/cutwatch)
 USER cutwatch
-EXPOSE 8000 8080
+EXPOSE 8000
 HEALTHCHECK --interval=15s --timeout=5s --start-period=60s --retries=3 \
     CMD ["python", "-c", "import json, os, urllib.request as u; port = os.environ.get('CUTWATCH_PORT', '8000'); assert json.load(u.urlopen(f'http://127.0.0.1:{port}/api/health', timeout=4))['status'] == 'ok'"]
 ENTRYPOINT ["cutwatch", "serve", "--host", "0.0.0.0"]

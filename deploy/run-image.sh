@@ -52,7 +52,7 @@ for _ in $(seq 1 100); do
     esac
     sleep 0.1
 done
-echo "cutwatch in $IMAGE: http://127.0.0.1:$PORT/  (viser http://127.0.0.1:$VISER_PORT/)"
+echo "cutwatch in $IMAGE: http://127.0.0.1:$PORT/  (viser 3D view http://127.0.0.1:$PORT/viser/)"
 status=0
 wait "$runner" || status=$?
 # `wait` returns early when a trapped signal arrives: wait for the service's own exit

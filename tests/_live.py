@@ -18,12 +18,31 @@ from pathlib import Path
 import uvicorn
 
 from server.cli.commands.serve import uvicorn_options
+from server.pipeline.broker import BrokerConfig
 from server.service.app import create_app
 from server.service.settings import Settings
 
 #: test tokens of the two roles (CUTWATCH_TOKEN, CUTWATCH_VIEW_TOKEN: 16 characters at least)
 OPERATOR = "operator-token-for-tests"
 VIEWER = "viewer-token-for-tests"
+
+
+@contextmanager
+def in_thread(server: uvicorn.Server, sock: socket.socket | None = None) -> Iterator[None]:
+    """Run ``server`` (on ``sock`` if given) in a daemon thread until the block ends."""
+    kwargs = {"sockets": [sock]} if sock is not None else {}
+    thread = threading.Thread(target=server.run, kwargs=kwargs, daemon=True)
+    thread.start()
+    deadline = time.monotonic() + 20
+    while not server.started:
+        if time.monotonic() > deadline or not thread.is_alive():
+            raise RuntimeError("uvicorn did not start")
+        time.sleep(0.02)
+    try:
+        yield
+    finally:
+        server.should_exit = True
+        thread.join(10)
 
 
 @contextmanager
@@ -62,19 +81,10 @@ def serve(*, sndbuf: int | None = None, **settings: object) -> Iterator[str]:
         log_level="warning",
         **options,  # type: ignore[arg-type]
     )
-    server = uvicorn.Server(config)
-    thread = threading.Thread(target=server.run, kwargs={"sockets": [sock]}, daemon=True)
-    thread.start()
-    deadline = time.monotonic() + 20
-    while not server.started:
-        if time.monotonic() > deadline or not thread.is_alive():
-            raise RuntimeError("uvicorn did not start")
-        time.sleep(0.02)
     try:
-        yield f"127.0.0.1:{port}"
+        with in_thread(uvicorn.Server(config), sock):
+            yield f"127.0.0.1:{port}"
     finally:
-        server.should_exit = True
-        thread.join(10)
         sock.close()
         if tmp is not None:
             tmp.cleanup()
@@ -151,3 +161,20 @@ def serve_process(*args: str, **env: str) -> Iterator[ServeProcess]:
     finally:
         if sp.proc.poll() is None:
             sp.stop(signal.SIGKILL)
+
+
+@contextmanager
+def serve_fleet(cfg: BrokerConfig, stale_after: float = 1.0) -> Iterator[str]:
+    """The fleet page on ``cfg``'s broker in a background thread; yield ``host:port``."""
+    from server.service.fleet import create_fleet_app
+    from server.service.http_guard import GuardedHttpToolsProtocol
+
+    app = create_fleet_app(cfg, stale_after)
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = int(s.getsockname()[1])
+    config = uvicorn.Config(
+        app, host="127.0.0.1", port=port, log_level="error", http=GuardedHttpToolsProtocol
+    )
+    with in_thread(uvicorn.Server(config)):
+        yield f"127.0.0.1:{port}"

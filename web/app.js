@@ -336,7 +336,9 @@ function knobControl(name, k) {
 async function loadViser() {
   const h = await fetch("/api/health").then((r) => r.json());
   if (!h.viser_running) return;
-  const url = `${location.protocol}//${location.hostname}:${h.viser_port}/`;
+  // viser itself listens on the server's loopback only: the app relays it at /viser/,
+  // behind this page's session
+  const url = new URL("/viser/", location.href).href;
   const frame = $("viser");
   if (frame.src !== url) frame.src = url;
   $("viser-link").href = url;

@@ -8,7 +8,9 @@ aiomqtt is itself a wrapper around paho for asyncio code. ``cutwatch feed`` and 
 fleet page use the same client.
 
 Topics (DESIGN "Broker"): ``cutwatch/<machine>/drive`` (blocks in),
-``cutwatch/<machine>/meta`` (retained sidecar), ``cutwatch/<machine>/estimates`` (out).
+``cutwatch/<machine>/meta`` (retained sidecar), ``cutwatch/<machine>/estimates``,
+``cutwatch/<machine>/events`` and ``cutwatch/<machine>/command`` (out). Who may publish
+what is the broker's access list (deploy/mosquitto/acl, docs/broker.md).
 """
 
 from __future__ import annotations
@@ -43,7 +45,12 @@ def check_machine(machine: str) -> str:
 
 @dataclass(frozen=True)
 class BrokerConfig:
-    """Where and how to connect. ``url`` is ``mqtt://host[:port]`` or ``mqtts://...`` (TLS)."""
+    """Where and how to connect. ``url`` is ``mqtt://host[:port]`` or ``mqtts://...`` (TLS).
+
+    With TLS the broker's certificate is verified (chain and host name) against ``cafile``,
+    or the system's trusted authorities when none is given; ``certfile``/``keyfile`` are
+    this client's own certificate, for a broker that requires one.
+    """
 
     host: str
     port: int
@@ -51,6 +58,8 @@ class BrokerConfig:
     username: str | None = None
     password: str | None = None
     cafile: Path | None = None
+    certfile: Path | None = None
+    keyfile: Path | None = None
     keepalive: int = 30
 
     def describe(self) -> str:
@@ -59,22 +68,35 @@ class BrokerConfig:
         return f"{'mqtts' if self.tls else 'mqtt'}://{user}{self.host}:{self.port}"
 
 
+def _existing(f: str | Path | None, what: str) -> Path | None:
+    """``f`` as a path (None when not given), after checking that the file exists."""
+    if not f:
+        return None
+    if not Path(f).is_file():
+        raise CutwatchError(f"broker {what} {str(f)!r}: no such file")
+    return Path(f)
+
+
 def parse_broker_url(
     url: str,
     *,
     username: str | None = None,
     password: str | None = None,
     cafile: str | Path | None = None,
+    certfile: str | Path | None = None,
+    keyfile: str | Path | None = None,
 ) -> BrokerConfig:
     """Parse ``mqtt://[user[:password]@]host[:port]`` (or ``mqtts://``, TLS, port 8883).
 
-    Explicit ``username``/``password``/``cafile`` override the URL's. A ``cafile`` implies
-    TLS.
+    Explicit ``username``/``password`` override the URL's. A ``cafile`` or a client
+    ``certfile`` implies TLS; a ``keyfile`` needs a ``certfile`` (a ``certfile`` alone
+    holds its key too).
 
     Raises
     ------
     CutwatchError
-        The URL is not of that form, or the CA file does not exist.
+        The URL is not of that form, a file does not exist, or a key comes without its
+        certificate.
     """
     parts = urlsplit(url)
     if parts.scheme not in ("mqtt", "mqtts") or not parts.hostname:
@@ -85,10 +107,14 @@ def parse_broker_url(
         port = parts.port
     except ValueError:
         raise CutwatchError(f"broker URL {url!r}: port expected 1-65535") from None
-    tls = parts.scheme == "mqtts" or cafile is not None
-    ca = Path(cafile) if cafile else None
-    if ca is not None and not ca.is_file():
-        raise CutwatchError(f"broker CA file {str(ca)!r}: no such file")
+    ca = _existing(cafile, "CA file")
+    cert = _existing(certfile, "client certificate")
+    key = _existing(keyfile, "client key")
+    if key is not None and cert is None:
+        raise CutwatchError(
+            f"broker client key {str(key)!r}: expected a client certificate with it, got none"
+        )
+    tls = parts.scheme == "mqtts" or ca is not None or cert is not None
     return BrokerConfig(
         host=parts.hostname,
         port=port or (8883 if tls else 1883),
@@ -96,6 +122,8 @@ def parse_broker_url(
         username=username if username is not None else unquote(parts.username or "") or None,
         password=password if password is not None else unquote(parts.password or "") or None,
         cafile=ca,
+        certfile=cert,
+        keyfile=key,
     )
 
 
@@ -104,6 +132,12 @@ def make_client(cfg: BrokerConfig, client_id: str = "") -> object:
 
     Returns ``paho.mqtt.client.Client`` (typed ``object`` here so paho is imported only
     where a broker is used).
+
+    Raises
+    ------
+    CutwatchError
+        A CA file, client certificate or key that is not one (or a key that does not
+        match its certificate), naming the file.
     """
     import paho.mqtt.client as mqtt
 
@@ -111,9 +145,58 @@ def make_client(cfg: BrokerConfig, client_id: str = "") -> object:
     if cfg.username:
         c.username_pw_set(cfg.username, cfg.password)
     if cfg.tls:
-        c.tls_set(ca_certs=str(cfg.cafile) if cfg.cafile else None, cert_reqs=ssl.CERT_REQUIRED)
+        c.tls_set_context(tls_context(cfg))
     c.reconnect_delay_set(min_delay=1, max_delay=30)
     return c
+
+
+class _ClosedOnFailedHandshake(ssl.SSLSocket):
+    """An ``SSLSocket`` that closes itself when its handshake fails (paho leaves such a
+    socket open, on every failed attempt of its reconnect loop)."""
+
+    def do_handshake(self, block: bool = False) -> None:
+        try:
+            super().do_handshake(block)
+        except BaseException:
+            self.close()
+            raise
+
+
+def tls_context(cfg: BrokerConfig) -> ssl.SSLContext:
+    """The TLS context of a broker connection: TLS 1.2 or later, the broker's certificate
+    and host name verified against ``cfg.cafile`` only (the system's authorities when
+    none is given), this client's certificate when one is configured.
+
+    Raises
+    ------
+    CutwatchError
+        A file that is not a certificate or a key (or a key that is not the
+        certificate's), naming it.
+    """
+    ctx = ssl.SSLContext(ssl.PROTOCOL_TLS_CLIENT)  # verifies the chain and the host name
+    ctx.minimum_version = ssl.TLSVersion.TLSv1_2
+    ctx.sslsocket_class = _ClosedOnFailedHandshake
+    try:
+        if cfg.cafile is not None:  # this authority only (not the system's as well)
+            ctx.load_verify_locations(cafile=str(cfg.cafile))
+        else:
+            ctx.load_default_certs(ssl.Purpose.SERVER_AUTH)
+    except (ssl.SSLError, ValueError) as exc:
+        raise CutwatchError(
+            f"broker CA file {str(cfg.cafile)!r}: expected PEM certificates ({exc})"
+        ) from None
+    try:
+        if cfg.certfile is not None:
+            ctx.load_cert_chain(
+                str(cfg.certfile), str(cfg.keyfile) if cfg.keyfile is not None else None
+            )
+    except (ssl.SSLError, ValueError) as exc:
+        raise CutwatchError(
+            f"broker client certificate {str(cfg.certfile)!r}"
+            + (f" with key {str(cfg.keyfile)!r}" if cfg.keyfile is not None else "")
+            + f": expected a PEM certificate and its private key ({exc})"
+        ) from None
+    return ctx
 
 
 def reason_text(reason_code: object) -> str:
@@ -143,7 +226,15 @@ def connect_blocking(client: object, cfg: BrokerConfig, timeout: float = 10.0) -
         result.append("" if not getattr(rc, "is_failure", False) else reason_text(rc))
         done.set()
 
+    def on_disconnect(_c: object, _u: object, _f: object, rc: object, _p: object = None) -> None:
+        # the broker hung up before answering (a TLS client certificate it refused, or
+        # plain MQTT on a TLS port)
+        if not done.is_set():
+            result.append(f"the broker closed the connection before answering ({rc})")
+            done.set()
+
     client.on_connect = on_connect
+    client.on_disconnect = on_disconnect
     try:
         client.connect(cfg.host, cfg.port, keepalive=cfg.keepalive)
     except (OSError, ssl.SSLError) as exc:

@@ -87,9 +87,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         )
         app.state.hub, app.state.loop = hub, loop
         if s.viser:
-            from server.service.viser_scene import StageScene
+            from server.service.viser_scene import VISER_HOST, StageScene
 
-            loop.scene = StageScene(s.host, s.viser_port)
+            # loopback only: browsers reach it through /viser/, behind the session
+            loop.scene = StageScene(VISER_HOST, s.viser_port)
         loop.start()
         try:
             yield

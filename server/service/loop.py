@@ -75,6 +75,8 @@ def broker_config(settings: Settings) -> BrokerConfig:
         username=settings.mqtt_username,
         password=pw,
         cafile=settings.mqtt_cafile,
+        certfile=settings.mqtt_certfile,
+        keyfile=settings.mqtt_keyfile,
     )
 
 

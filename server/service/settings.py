@@ -56,7 +56,12 @@ class Settings(BaseSettings):
 
     host: str = Field(default="127.0.0.1", description="address to bind (loopback by default)")
     port: int = Field(default=8000, ge=1, le=65535, description="HTTP / WebSocket port")
-    viser_port: int = Field(default=8080, ge=1, le=65535, description="port of the viser 3D view")
+    viser_port: int = Field(
+        default=8080,
+        ge=1,
+        le=65535,
+        description="port of the viser 3D view, on 127.0.0.1 only (browsers use /viser/)",
+    )
     scenario: ScenarioName = Field(
         default="default", description="scenario at start (see /api/scenarios)"
     )
@@ -78,6 +83,36 @@ class Settings(BaseSettings):
     )
     max_body_bytes: int = Field(
         default=16384, ge=256, le=1 << 20, description="largest request body accepted [bytes]"
+    )
+    header_timeout_s: float = Field(
+        default=10.0,
+        gt=0.0,
+        le=300.0,
+        description="a request's line and headers must arrive within this time [s] (then 408)",
+    )
+    body_timeout_s: float = Field(
+        default=10.0,
+        gt=0.0,
+        le=300.0,
+        description="longest silence while a request body is due [s] (then 408)",
+    )
+    body_min_rate: float = Field(
+        default=1024.0,
+        ge=0.0,
+        le=1e9,
+        description="slowest average request body accepted past body_timeout_s [bytes/s]",
+    )
+    max_header_bytes: int = Field(
+        default=32768,
+        ge=1024,
+        le=1 << 20,
+        description="largest request line and headers accepted [bytes] (then 431)",
+    )
+    max_connections_per_client: int = Field(
+        default=64,
+        ge=1,
+        le=100_000,
+        description="HTTP connections open at once from one address (then 503)",
     )
     max_lag_s: float = Field(
         default=2.0, gt=0.0, le=60.0, description="lag after which the loop re-anchors its clock"
@@ -127,7 +162,15 @@ class Settings(BaseSettings):
     mqtt_username: str | None = Field(default=None, description="broker user name")
     mqtt_password: SecretStr | None = Field(default=None, description="broker password")
     mqtt_cafile: Path | None = Field(
-        default=None, description="CA certificate file: connect to the broker with TLS"
+        default=None,
+        description="CA certificate(s) (PEM) the broker's certificate is checked against (TLS)",
+    )
+    mqtt_certfile: Path | None = Field(
+        default=None,
+        description="this service's client certificate (PEM), for a broker that requires one",
+    )
+    mqtt_keyfile: Path | None = Field(
+        default=None, description="the private key of mqtt_certfile, when not in its file"
     )
     mqtt_publish_hz: float = Field(
         default=0.0,

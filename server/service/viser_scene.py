@@ -1,4 +1,10 @@
-"""The viser 3D view of the stage: its own server on its own, pinned port.
+"""The viser 3D view of the stage: its own server on its own, pinned port, on loopback.
+
+viser has no authentication of its own, so its server listens on 127.0.0.1 only and the
+browser reaches it through the app (``/viser/``, :mod:`server.service.routes.viser_proxy`),
+behind the app's session. viser's share feature (a viewer's request makes the server
+open a public tunnel through share.viser.studio) is switched off here: the share button
+hidden and the server's handlers of share requests removed (:func:`disable_share`).
 
 Scene: the machine bed; the ball screw turning with the motor angle; the table and the
 workpiece moving with the load position (the workpiece shrinking as material is
@@ -13,9 +19,11 @@ coalesces to at most ``max_hz`` updates per second (latest values win).
 
 from __future__ import annotations
 
+import contextlib
 import math
 import socket
 import time
+from typing import Any
 
 import numpy as np
 
@@ -47,6 +55,32 @@ def _qmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     )
 
 
+#: where viser listens: loopback only, whatever address the app binds
+VISER_HOST = "127.0.0.1"
+
+
+def disable_share(server: Any) -> None:
+    """Switch off viser's share URL: no button, no handler, no method that opens a tunnel.
+
+    viser (1.x) offers ``configure_theme(show_share_button=False)`` to hide the button;
+    the server still answers a client's ``ShareUrlRequest`` message by calling
+    ``request_share_url()``, which connects out to share.viser.studio. Both message
+    handlers are removed, and ``request_share_url`` is replaced by a refusal.
+    """
+    from viser import _messages
+
+    server.gui.configure_theme(show_share_button=False)
+    infra = getattr(server, "_websock_server", None)
+    for cls in (_messages.ShareUrlRequest, _messages.ShareUrlDisconnect):
+        with contextlib.suppress(AssertionError, KeyError, AttributeError):
+            infra.unregister_handler(cls)  # type: ignore[union-attr]
+
+    def refused(verbose: bool = True) -> None:
+        return None
+
+    server.request_share_url = refused
+
+
 def check_port_free(host: str, port: int) -> None:
     """Raise :class:`CutwatchError` if ``port`` cannot be bound (viser would drift)."""
     with socket.socket() as s:
@@ -65,8 +99,8 @@ class StageScene:
     Parameters
     ----------
     host, port
-        Where viser listens. The port is pinned: if it is taken, :class:`CutwatchError`
-        (viser itself would move to the next free port).
+        Where viser listens (loopback: :data:`VISER_HOST`). The port is pinned: if it
+        is taken, :class:`CutwatchError` (viser itself would move to the next free port).
     max_hz
         Most scene updates per second.
     """
@@ -80,6 +114,7 @@ class StageScene:
             got = self.server.get_port()
             self.server.stop()
             raise CutwatchError(f"viser port {port} was taken (viser moved to {got})")
+        disable_share(self.server)
         self.port = port
         self.period = 1.0 / max_hz
         self._last = -math.inf

@@ -4,8 +4,9 @@ Builds ``cutwatch:latest`` from the Dockerfile (deploy/build-image.sh: a local
 debian:bookworm-slim from debootstrap, then ``buildah bud``), starts the image's own
 entrypoint in a working container on free loopback ports and checks what a user of the
 image relies on: a non-root ``cutwatch serve``, health over real HTTP, the WebSocket stream,
-viser's port, the image's HEALTHCHECK command, the token that binding 0.0.0.0 demands, and a
-clean stop on SIGTERM (what ``docker stop`` sends).
+the viser view through /viser/, slow clients dropped, the image's HEALTHCHECK command, the
+token that binding 0.0.0.0 demands, and a clean stop on SIGTERM (what ``docker stop``
+sends).
 
 Chroot isolation shares the host's network, so the entrypoint's ``--host 0.0.0.0`` is
 followed by ``--host 127.0.0.1`` (the last one wins): nothing listens beyond loopback.
@@ -204,7 +205,7 @@ def service(
 def test_image_config(config: dict[str, Any], ctr: str) -> None:
     assert config["User"] == "cutwatch"
     assert config["Entrypoint"] == ["cutwatch", "serve", "--host", "0.0.0.0"]
-    assert set(config["ExposedPorts"]) == {"8000/tcp", "8080/tcp"}
+    assert set(config["ExposedPorts"]) == {"8000/tcp"}  # viser: loopback, through /viser/
     test = config["Healthcheck"]["Test"]
     assert test[0] == "CMD" and any("/api/health" in part for part in test)
     # the final stage has neither a compiler nor the installers
@@ -251,9 +252,11 @@ def test_ws_streams_hello_and_data(service: Service) -> None:
     assert seqs == list(range(seqs[0], seqs[0] + 5))
 
 
-def test_viser_answers(service: Service) -> None:
-    page = httpx.get(f"http://127.0.0.1:{service.viser_port}/", timeout=10)
+def test_viser_answers_through_the_app(service: Service) -> None:
+    auth = {"Authorization": f"Bearer {service.token}"}
+    page = httpx.get(f"{service.url}/viser/", headers=auth, timeout=10)
     assert page.status_code == 200 and "<html" in page.text.lower()
+    assert httpx.get(f"{service.url}/viser/", timeout=10).status_code == 401
 
 
 def test_healthcheck_command_passes(config: dict[str, Any], service: Service, ctr: str) -> None:
@@ -292,6 +295,30 @@ def test_requests_need_the_token(service: Service) -> None:
     assert httpx.post(url, json=pause, headers=right, timeout=5).status_code == 200
     assert httpx.get(f"{service.url}/api/health", timeout=5).json()["paused"] is True
     assert httpx.post(url, json={"action": "resume"}, headers=right, timeout=5).status_code == 200
+
+
+def test_slow_clients_are_dropped(service: Service) -> None:
+    """The image's ``cutwatch serve`` has the HTTP limits (server/service/http_guard.py):
+    half a request line is answered 408 and closed within the default 10 s; a 10 MiB
+    header is refused with 431 long before it is all sent."""
+    with socket.create_connection(("127.0.0.1", service.port), timeout=15) as s:
+        t0 = time.monotonic()
+        s.sendall(b"GET /api/hea")
+        raw = b""
+        while chunk := s.recv(4096):
+            raw += chunk
+        took = time.monotonic() - t0
+    assert raw.startswith(b"HTTP/1.1 408") and 9.5 <= took <= 12.0, (took, raw[:200])
+    with socket.create_connection(("127.0.0.1", service.port), timeout=15) as s:
+        s.sendall(b"GET /api/health HTTP/1.1\r\nHost: 127.0.0.1\r\nX-Big: ")
+        sent = 0
+        try:
+            while sent < 10 * 2**20:
+                sent += s.send(b"a" * 65536)
+        except OSError:
+            pass
+        raw = s.recv(4096)
+    assert raw.startswith(b"HTTP/1.1 431") and sent < 10 * 2**20, (sent, raw[:200])
 
 
 def test_stops_cleanly_on_sigterm(config: dict[str, Any], service: Service, ctr: str) -> None:

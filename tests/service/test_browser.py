@@ -81,7 +81,8 @@ def test_knob_change_through_the_page(hp: str) -> None:
 
 
 def test_viser_scene_renders_and_moves(tmp_path: Path) -> None:
-    # WebGL in software (SwiftShader): the 3D view is drawn, and the stage moves in it
+    # WebGL in software (SwiftShader): the 3D view is drawn, and the stage moves in it;
+    # through the app's relay (/viser/), as every browser reaches it
     import io
     import socket
 
@@ -92,8 +93,11 @@ def test_viser_scene_renders_and_moves(tmp_path: Path) -> None:
         s.bind(("127.0.0.1", 0))
         vp = int(s.getsockname()[1])
     gl = [*ARGS, "--use-angle=swiftshader", "--enable-unsafe-swiftshader"]
-    with serve(viser=True, viser_port=vp), chromium_page(1280, 720, args=gl) as (page, _errors):
-        page.goto(f"http://127.0.0.1:{vp}/")
+    with (
+        serve(viser=True, viser_port=vp) as hostport,
+        chromium_page(1280, 720, args=gl) as (page, _errors),
+    ):
+        page.goto(f"http://{hostport}/viser/")
         page.wait_for_selector("canvas", timeout=20000)
 
         def shot() -> np.ndarray:

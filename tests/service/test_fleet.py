@@ -2,40 +2,23 @@
 
 from __future__ import annotations
 
-import contextlib
 import json
-import threading
 import time
-from collections.abc import Iterator
 
 import httpx
 import paho.mqtt.client as mqtt
 import pytest
-import uvicorn
-from _broker import broker, free_port
+from _broker import broker
 from _browser import CHROMIUM, chromium_page
+from _live import serve_fleet
 from websockets.sync.client import connect
 
 from server.pipeline.broker import parse_broker_url
 from server.records.drive_wire import encode_estimates
-from server.service.fleet import create_fleet_app
 
 
-@contextlib.contextmanager
-def fleet(broker_port: int, stale_after: float = 1.0) -> Iterator[str]:
-    app = create_fleet_app(parse_broker_url(f"mqtt://127.0.0.1:{broker_port}"), stale_after)
-    port = free_port()
-    server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="error"))
-    th = threading.Thread(target=server.run, daemon=True)
-    th.start()
-    deadline = time.monotonic() + 10
-    while not server.started and time.monotonic() < deadline:
-        time.sleep(0.05)
-    try:
-        yield f"127.0.0.1:{port}"
-    finally:
-        server.should_exit = True
-        th.join(10)
+def fleet(broker_port: int, stale_after: float = 1.0):  # type: ignore[no-untyped-def]
+    return serve_fleet(parse_broker_url(f"mqtt://127.0.0.1:{broker_port}"), stale_after)
 
 
 def publisher(port: int) -> mqtt.Client:

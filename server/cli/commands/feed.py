@@ -22,6 +22,8 @@ import os
 import time
 from pathlib import Path
 
+from server.cli.broker_options import add_broker_options, broker_config
+
 HELP = "publish a measured log to an MQTT broker at real time (the mqtt source's test feed)"
 
 
@@ -38,14 +40,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--block-ms", type=float, default=50.0, help="samples per message [ms of log]")
     p.add_argument("--map", action="append", default=[], help="column map COL=EXPR (repeatable)")
     p.add_argument("--meta", help="sidecar keys as a JSON file or inline JSON object")
-    p.add_argument("--username", help="broker user name")
-    p.add_argument(
-        "--password-env",
-        metavar="VAR",
-        default="CUTWATCH_MQTT_PASSWORD",
-        help="environment variable holding the broker password (never on the command line)",
-    )
-    p.add_argument("--cafile", type=Path, help="CA certificate file: connect with TLS")
+    add_broker_options(p)
     p.add_argument(
         "--float64", action="store_true", help="send efforts as float64 too (default float32)"
     )
@@ -59,7 +54,6 @@ def run(args: argparse.Namespace) -> int:
     from server.pipeline.broker import (
         connect_blocking,
         make_client,
-        parse_broker_url,
         topic,
     )
     from server.records.drive_wire import encode_drive, encode_meta
@@ -72,12 +66,7 @@ def run(args: argparse.Namespace) -> int:
     drive_topic = topic(args.machine, "drive")
     meta_topic = topic(args.machine, "meta")
     log = load_log(args.log, meta=load_meta(args.meta), maps=args.map)
-    cfg = parse_broker_url(
-        args.broker,
-        username=args.username,
-        password=os.environ.get(args.password_env) if args.username else None,
-        cafile=args.cafile,
-    )
+    cfg = broker_config(args.broker, args)
     ts = log.sample_time
     n = log.n
     per = max(1, int(round(args.block_ms * 1e-3 / ts)))

@@ -12,8 +12,8 @@ Example::
 from __future__ import annotations
 
 import argparse
-import os
-from pathlib import Path
+
+from server.cli.broker_options import add_broker_options, broker_config
 
 HELP = "serve the fleet page (one row per machine publishing estimates to a broker)"
 
@@ -25,33 +25,24 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--stale-after", type=float, default=5.0, help="seconds of silence before a row is stale"
     )
-    p.add_argument("--username", help="broker user name")
-    p.add_argument(
-        "--password-env",
-        metavar="VAR",
-        default="CUTWATCH_MQTT_PASSWORD",
-        help="environment variable holding the broker password",
-    )
-    p.add_argument("--cafile", type=Path, help="CA certificate file: connect with TLS")
+    add_broker_options(p)
 
 
 def run(args: argparse.Namespace) -> int:
     import uvicorn
 
     from server.errors import CutwatchError
-    from server.pipeline.broker import parse_broker_url
     from server.service.fleet import create_fleet_app
+    from server.service.http_guard import GuardedHttpToolsProtocol
 
     if not (1 <= args.port <= 65535):
         raise CutwatchError(f"--port: expected 1-65535, got {args.port}")
     if not (args.stale_after > 0):
         raise CutwatchError(f"--stale-after: expected a value > 0, got {args.stale_after}")
-    cfg = parse_broker_url(
-        args.broker,
-        username=args.username,
-        password=os.environ.get(args.password_env) if args.username else None,
-        cafile=args.cafile,
-    )
+    cfg = broker_config(args.broker, args)
     app = create_fleet_app(cfg, stale_after=args.stale_after)
-    uvicorn.run(app, host=args.host, port=args.port, log_level="warning")
+    # the service's HTTP limits (slow clients dropped; default limits)
+    uvicorn.run(
+        app, host=args.host, port=args.port, log_level="warning", http=GuardedHttpToolsProtocol
+    )
     return 0

@@ -20,6 +20,8 @@ from __future__ import annotations
 import argparse
 from typing import TYPE_CHECKING
 
+from server.cli.broker_options import add_broker_options, broker_settings
+
 if TYPE_CHECKING:
     from server.service.settings import Settings
 
@@ -33,7 +35,11 @@ WS_MAX_SIZE = 65536
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--host", help="address to bind (default 127.0.0.1)")
     p.add_argument("--port", type=int, help="HTTP port (default 8000)")
-    p.add_argument("--viser-port", type=int, help="port of the viser 3D view (default 8080)")
+    p.add_argument(
+        "--viser-port",
+        type=int,
+        help="loopback port of the viser 3D view, reached at /viser/ (default 8080)",
+    )
     p.add_argument("--scenario", help="scenario at start (see GET /api/scenarios)")
     p.add_argument(
         "--speed",
@@ -46,7 +52,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         choices=("simulator", "mqtt"),
         help="measurements from the simulated machine (default) or a broker (--broker)",
     )
-    p.add_argument("--broker", help="MQTT broker URL mqtt://host[:port] (docs/broker.md)")
+    p.add_argument(
+        "--broker",
+        help="MQTT broker URL mqtt://host[:port] or mqtts://host[:port] (TLS; docs/broker.md)",
+    )
     p.add_argument("--machine", help="machine name on the broker (topics cutwatch/<machine>/...)")
     p.add_argument(
         "--publish-hz",
@@ -58,6 +67,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="the service's recordings/, uploads/ and reports/ (default ./data)",
     )
     p.add_argument("--log-level", default="warning", help="uvicorn log level")
+    add_broker_options(p)
 
 
 def build_settings(args: argparse.Namespace) -> Settings:
@@ -84,6 +94,7 @@ def build_settings(args: argparse.Namespace) -> Settings:
         }.items()
         if v is not None
     }
+    overrides.update(broker_settings(args))
     try:
         return _Settings(**overrides)
     except ValidationError as exc:
@@ -94,8 +105,18 @@ def build_settings(args: argparse.Namespace) -> Settings:
 
 def uvicorn_options(settings: Settings) -> dict[str, object]:
     """The uvicorn options of the service (one worker; shared by the tests' server)."""
+    from server.service.http_guard import guarded_protocol
+
     return {
         "workers": 1,
+        # uvicorn's httptools protocol with header/body timeouts and a header-size limit
+        "http": guarded_protocol(
+            header_timeout=settings.header_timeout_s,
+            body_timeout=settings.body_timeout_s,
+            body_min_rate=settings.body_min_rate,
+            max_header_bytes=settings.max_header_bytes,
+            max_per_client=settings.max_connections_per_client,
+        ),
         "ws": WS_IMPL,
         "ws_max_size": WS_MAX_SIZE,
         # each client would deflate the same frame again: off unless asked for
@@ -112,9 +133,9 @@ def run(args: argparse.Namespace) -> int:
     settings = build_settings(args)
     app = create_app(settings)
     if settings.viser:
-        from server.service.viser_scene import check_port_free
+        from server.service.viser_scene import VISER_HOST, check_port_free
 
-        check_port_free(settings.host, settings.viser_port)  # fail before serving anything
+        check_port_free(VISER_HOST, settings.viser_port)  # fail before serving anything
     shown = "127.0.0.1" if settings.host in ("0.0.0.0", "::") else settings.host
     print(
         f"cutwatch dashboard: http://{shown}:{settings.port}/  "
@@ -122,7 +143,11 @@ def run(args: argparse.Namespace) -> int:
         flush=True,
     )
     if settings.viser:
-        print(f"viser 3D view: http://{shown}:{settings.viser_port}/", flush=True)
+        print(
+            f"viser 3D view: http://{shown}:{settings.port}/viser/  "
+            f"(viser itself on 127.0.0.1:{settings.viser_port} only)",
+            flush=True,
+        )
     uvicorn.run(
         app,
         host=settings.host,

@@ -15,6 +15,7 @@ from server.service.routes import (
     status,
     stream,
     uploads,
+    viser_proxy,
 )
 
 ROUTERS: tuple[APIRouter, ...] = (
@@ -28,4 +29,5 @@ ROUTERS: tuple[APIRouter, ...] = (
     uploads.router,
     analyses.router,
     stream.router,
+    viser_proxy.router,
 )

@@ -11,6 +11,7 @@ from fastapi.responses import PlainTextResponse
 from common.jsonsafe import json_safe
 from server.pipeline.live_pipeline import SCENARIOS
 from server.service.deps import Config, Live
+from server.service.http_guard import DROPPED
 from server.service.schemas import Health, Scenarios, Snapshot, error_responses
 
 router = APIRouter(responses=error_responses())
@@ -108,6 +109,11 @@ def metrics(lp: Live) -> PlainTextResponse:
         )  # fmt: skip
         for c in COUNTERS:
             rows.append((f"cutwatch_feed_{c}_total", "counter", f"drive feed: {c}", feed[c]))
+    for reason, n in DROPPED.items():
+        rows.append(
+            (f"cutwatch_http_dropped_{reason}_total", "counter",
+             f"connections dropped by the HTTP limit {reason}", n)
+        )  # fmt: skip
     out = b.get("estimates_out")
     if out is not None:
         rows.append(

@@ -1,0 +1,278 @@
+"""Slow and oversized clients against ``cutwatch serve`` as a user runs it (a subprocess,
+its own uvicorn): headers a byte at a time, a body declared 1,000 bytes with 1 sent, a
+body trickling in, a connection that sends nothing, a 10 MiB header. Each is dropped
+within its limit (2 s here, to keep the test short; 10 s by default) while ordinary
+requests and a WebSocket that outlives the limits keep working.
+
+Bounded: at most 10 slow connections at once, each test under ~10 s.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import socket
+import threading
+import time
+from collections.abc import Iterator
+
+import httpx
+import pytest
+from _live import serve_process
+from _wait import poll
+from websockets.sync.client import connect
+
+HEADER_S = 2.0
+BODY_S = 2.0
+MAX_HEADER = 32768
+PER_CLIENT = 20
+#: how late a drop may come after its limit: the timer's own jitter on a loaded machine
+SLACK_S = 1.5
+
+
+@pytest.fixture(scope="module")
+def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
+    d = tmp_path_factory.mktemp("slow")
+    limits = {
+        "CUTWATCH_HEADER_TIMEOUT_S": str(HEADER_S),
+        "CUTWATCH_BODY_TIMEOUT_S": str(BODY_S),
+        "CUTWATCH_MAX_HEADER_BYTES": str(MAX_HEADER),
+        "CUTWATCH_MAX_CONNECTIONS_PER_CLIENT": str(PER_CLIENT),
+    }
+    with serve_process(d / "data", d / "serve.log", **limits) as p:
+        yield p.base.removeprefix("http://")
+
+
+def open_conn(hp: str) -> socket.socket:
+    host, port = hp.split(":")
+    s = socket.create_connection((host, int(port)), timeout=5)
+    return s
+
+
+def read_until_closed(s: socket.socket, limit_s: float) -> tuple[bytes, float]:
+    """Everything the server sends until it closes, and when it closed (from now)."""
+    t0 = time.monotonic()
+    out = b""
+    s.settimeout(0.2)
+    while time.monotonic() - t0 < limit_s:
+        try:
+            chunk = s.recv(65536)
+        except TimeoutError:
+            continue
+        except ConnectionResetError:
+            break
+        if not chunk:
+            break
+        out += chunk
+    else:
+        raise AssertionError(f"still open after {limit_s} s; got {out[:200]!r}")
+    return out, time.monotonic() - t0
+
+
+def status_and_body(raw: bytes) -> tuple[int, dict]:
+    head, _, body = raw.partition(b"\r\n\r\n")
+    return int(head.split(b" ", 2)[1]), json.loads(body)
+
+
+def test_headers_a_byte_at_a_time_are_dropped_in_time(server: str) -> None:
+    """10 connections trickling a request's headers (a byte every 0.1 s, a 60-byte
+    header would take 6 s): each answered 408 and closed within the header limit."""
+    request = f"GET /api/health HTTP/1.1\r\nHost: {server}\r\nX-Slow: {'a' * 40}\r\n\r\n"
+    conns = [open_conn(server) for _ in range(10)]
+    t0 = time.monotonic()
+    closed_at: list[float] = []
+    answers: list[bytes] = []
+    lock = threading.Lock()
+
+    def trickle(s: socket.socket) -> None:
+        got = b""
+        s.settimeout(0.1)
+        for ch in request.encode():
+            try:
+                s.send(bytes([ch]))
+            except OSError:
+                break
+            try:
+                data = s.recv(4096)
+                got += data
+                if not data:
+                    break
+            except TimeoutError:
+                continue
+            except OSError:
+                break
+        with lock:
+            closed_at.append(time.monotonic() - t0)
+            answers.append(got)
+
+    threads = [threading.Thread(target=trickle, args=(c,)) for c in conns]
+    for th in threads:
+        th.start()
+    for th in threads:
+        th.join(HEADER_S + 10)
+    for c in conns:
+        c.close()
+    print(f"byte-a-time headers: 10 connections closed after {sorted(closed_at)} s")
+    assert len(closed_at) == 10
+    assert all(HEADER_S - 0.2 <= t <= HEADER_S + SLACK_S for t in closed_at), closed_at
+    for a in answers:
+        status, body = status_and_body(a)
+        assert status == 408 and body["detail"][0]["field"] == "headers"
+    # the server serves on, and counts them
+    assert httpx.get(f"http://{server}/api/health", timeout=5).status_code == 200
+    metrics = httpx.get(f"http://{server}/metrics", timeout=5).text
+    n = next(
+        ln
+        for ln in metrics.splitlines()
+        if ln.startswith("cutwatch_http_dropped_header_timeout_total ")
+    )
+    assert float(n.split()[-1]) >= 10
+
+
+def test_a_connection_that_sends_nothing_is_dropped(server: str) -> None:
+    s = open_conn(server)
+    raw, t = read_until_closed(s, HEADER_S + 10)
+    s.close()
+    print(f"silent connection closed after {t:.2f} s")
+    assert HEADER_S - 0.2 <= t <= HEADER_S + SLACK_S
+    assert status_and_body(raw)[0] == 408
+
+
+@pytest.mark.parametrize("path", ["/api/control", "/api/nowhere"])
+def test_a_body_declared_1000_bytes_with_1_sent_is_dropped(server: str, path: str) -> None:
+    """Whether the app waits for the body (a JSON route) or answers without it (404)."""
+    s = open_conn(server)
+    s.sendall(
+        f"POST {path} HTTP/1.1\r\nHost: {server}\r\nContent-Type: application/json\r\n"
+        "Content-Length: 1000\r\n\r\n{".encode()
+    )
+    raw, t = read_until_closed(s, BODY_S + 10)
+    s.close()
+    print(f"body 1 of 1000 bytes on {path}: closed after {t:.2f} s")
+    assert BODY_S - 0.2 <= t <= BODY_S + SLACK_S
+    if path == "/api/control":  # the app was still waiting: the answer is ours
+        status, body = status_and_body(raw)
+        assert status == 408 and body["detail"][0]["field"] == "body"
+        assert body["detail"][0]["got"] == 1
+
+
+def test_a_trickling_body_is_dropped_by_its_rate(server: str) -> None:
+    """A byte every 0.5 s never leaves the body silent for 2 s, but it is far below the
+    1024 bytes/s accepted past the first 2 s."""
+    s = open_conn(server)
+    s.sendall(
+        f"POST /api/control HTTP/1.1\r\nHost: {server}\r\nContent-Type: application/json\r\n"
+        "Content-Length: 1000\r\n\r\n".encode()
+    )
+    t0 = time.monotonic()
+    s.settimeout(0.5)
+    raw = b""
+    while time.monotonic() - t0 < BODY_S + 10:
+        try:
+            s.send(b" ")
+            chunk = s.recv(4096)
+        except TimeoutError:
+            continue
+        except OSError:
+            break
+        raw += chunk
+        if not chunk:
+            break
+    t = time.monotonic() - t0
+    s.close()
+    print(f"trickling body: closed after {t:.2f} s")
+    assert BODY_S - 0.2 <= t <= BODY_S + SLACK_S
+    status, body = status_and_body(raw)
+    assert status == 408 and "bytes/s" in body["detail"][0]["msg"]
+
+
+def test_connections_from_one_address_are_bounded(server: str) -> None:
+    """20 silent connections are held (until their header limit); the 21st from the same
+    address is answered 503 at once; once they are gone, requests are served again."""
+    held = [open_conn(server) for _ in range(PER_CLIENT)]
+    try:
+        extra = open_conn(server)
+        raw, t = read_until_closed(extra, 5)
+        extra.close()
+        print(f"connection {PER_CLIENT + 1} from one address: 503 after {t:.3f} s")
+        status, body = status_and_body(raw)
+        assert status == 503 and body["detail"][0]["field"] == "connections" and t < 1.0
+    finally:
+        for c in held:
+            c.close()
+    poll(lambda: httpx.get(f"http://{server}/api/health", timeout=5).status_code == 200, 10)
+
+
+def test_a_10_mib_header_is_refused_before_it_is_read(server: str) -> None:
+    s = open_conn(server)
+    s.sendall(f"GET /api/health HTTP/1.1\r\nHost: {server}\r\nX-Big: ".encode())
+    sent = 0
+    chunk = b"a" * 65536
+    t0 = time.monotonic()
+    with contextlib.suppress(OSError):
+        while sent < 10 * 2**20:
+            sent += s.send(chunk)
+    raw, _ = read_until_closed(s, 10)
+    t = time.monotonic() - t0
+    s.close()
+    print(f"10 MiB header: refused after {sent} bytes sent, {t:.2f} s")
+    status, body = status_and_body(raw)
+    assert status == 431 and body["detail"][0]["field"] == "headers"
+    # the server stopped reading near the limit: the rest never left the client's buffers
+    assert sent < 10 * 2**20
+
+
+def test_a_header_over_the_limit_in_one_piece_is_refused(server: str) -> None:
+    r = httpx.get(f"http://{server}/api/health", headers={"X-Big": "a" * (MAX_HEADER + 100)})
+    assert (
+        r.status_code == 431 and r.json()["detail"][0]["allowed"] == f"at most {MAX_HEADER} bytes"
+    )
+    r = httpx.get(f"http://{server}/api/health", headers={"X-Fine": "a" * (MAX_HEADER // 2)})
+    assert r.status_code == 200
+
+
+def test_an_invalid_request_gets_the_error_shape(server: str) -> None:
+    for raw in (
+        f"POST /api/control HTTP/1.1\r\nHost: {server}\r\nContent-Length: abc\r\n\r\n",
+        f"GET /api/health HTTP/1.1\r\nHost: {server}\r\nBad Header\r\n\r\n",
+        f"BREW /api/health HTTP/1.1\r\nHost: {server}\r\n\r\n",  # an unknown method
+    ):
+        s = open_conn(server)
+        s.sendall(raw.encode())
+        got, _ = read_until_closed(s, 5)
+        s.close()
+        status, body = status_and_body(got)
+        assert status == 400 and body["detail"][0]["field"] == "request"
+
+
+def test_ordinary_clients_keep_working(server: str) -> None:
+    """Kept-alive requests with pauses, a JSON body in pieces, and a WebSocket open for
+    longer than both limits."""
+    with httpx.Client(base_url=f"http://{server}", timeout=5) as c:
+        for _ in range(3):
+            assert c.get("/api/health").status_code == 200
+            time.sleep(1.0)  # under uvicorn's 5 s keep-alive, past nothing of ours
+    s = open_conn(server)
+    body = b'{"action": "pause"}'
+    s.sendall(
+        f"POST /api/control HTTP/1.1\r\nHost: {server}\r\nContent-Type: application/json\r\n"
+        f"Content-Length: {len(body)}\r\nConnection: close\r\n\r\n".encode()
+    )
+    for i in range(0, len(body), 5):  # a slow but live sender: a piece every 0.3 s
+        time.sleep(0.3)
+        s.sendall(body[i : i + 5])
+    raw, _ = read_until_closed(s, 10)
+    s.close()
+    assert raw.startswith(b"HTTP/1.1 200"), raw[:200]
+    with connect(f"ws://{server}/ws") as ws:
+        assert json.loads(ws.recv(timeout=5))["type"] == "hello"
+        t0 = time.monotonic()
+        pong = None
+        while time.monotonic() - t0 < HEADER_S + BODY_S + 5:
+            if pong is None and time.monotonic() - t0 > HEADER_S + BODY_S + 0.5:
+                pong = ws.ping()
+            if pong is not None and pong.is_set():
+                break  # still open past both limits: the limits end at the upgrade
+            with contextlib.suppress(TimeoutError):
+                ws.recv(timeout=0.2)  # the stream's frames, read so that the pong gets in
+        assert pong is not None and pong.is_set()
