@@ -8,7 +8,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed-stamp
 
-.PHONY: setup web-deps run test test-fast lint typecheck pytest reproduce bench docs system-deps clean \
+.PHONY: setup web-deps run test test-fast schema lint typecheck pytest reproduce bench docs system-deps clean \
         image run-image test-image
 
 setup: $(STAMP) web-deps
@@ -47,6 +47,11 @@ reproduce: setup
 
 bench: setup
 	$(BIN)/cutwatch bench
+
+# the dashboard's stream schema (web/schema.js) from the message models
+# (server/service/messages.py); tests/service/test_protocol.py fails while it is stale
+schema: setup
+	$(BIN)/cutwatch schema --js --out web/schema.js
 
 # the documentation (docs/, mkdocs.yml) as a site in site/; any warning fails the build
 docs: setup
