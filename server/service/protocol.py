@@ -1,4 +1,4 @@
-"""The live stream's message schema (server side); its twin is ``web/protocol.js``.
+"""The live stream's encoding and its SCHEMA, derived from the message models.
 
 Two message types travel from server to client as JSON text:
 

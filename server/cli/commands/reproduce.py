@@ -4,7 +4,7 @@ Examples::
 
     cutwatch reproduce --list
     cutwatch reproduce adaptive-observer --plot out/figs
-    cutwatch reproduce --all --json
+    cutwatch reproduce --all --quick --json   # every experiment, shortened runs
 """
 
 from __future__ import annotations
