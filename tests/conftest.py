@@ -9,11 +9,15 @@ broker and not browser and not image"``. A test is marked here by what it starts
 the helpers its module imports, so a new test that starts one is marked without anyone
 remembering to:
 
-- ``server``: a real uvicorn server (``tests/_live.py``) or a ``cutwatch`` sub-process;
+- ``server``: a real uvicorn server (``tests/_live.py``);
 - ``broker``: a real Mosquitto (``tests/_broker.py``);
 - ``browser``: headless Chromium (``tests/_browser.py``, marked by its ``MARKS``);
-- ``slow``: marked by hand, a long reproduction or Monte Carlo run (measured; see
-  ``docs/development.md``).
+- ``slow``: a long reproduction, Monte Carlo, data set or CLI run (over ~5 s each,
+  measured): marked by hand, and every test under ``tests/experiments/`` (each runs a
+  reproduction through the CLI).
+
+The README's "The fast test loop" has the table; ``docs/architecture.md#tests`` the
+times measured.
 """
 
 from __future__ import annotations
@@ -30,6 +34,9 @@ if os.environ.get("CI", "").lower() in ("1", "true", "yes"):
 
 #: helper module of tests/ -> the mark of every test in a module that imports from it
 HELPER_MARKS = {"_live": "server", "_broker": "broker", "_browser": "browser"}
+#: test folders whose every test is slow
+SLOW_DIRS = ("experiments",)
+TESTS = os.path.dirname(os.path.abspath(__file__))
 
 
 def _helpers(module: types.ModuleType) -> set[str]:
@@ -53,3 +60,6 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
         helpers = seen.setdefault(module.__name__, _helpers(module))
         for helper in sorted(helpers):
             item.add_marker(HELPER_MARKS[helper])
+        folder = os.path.relpath(str(item.path), TESTS).split(os.sep)[0]
+        if folder in SLOW_DIRS:
+            item.add_marker("slow")
