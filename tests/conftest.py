@@ -13,8 +13,9 @@ remembering to:
 - ``broker``: a real Mosquitto (``tests/_broker.py``);
 - ``browser``: headless Chromium (``tests/_browser.py``, marked by its ``MARKS``);
 - ``slow``: a long reproduction, Monte Carlo, data set or CLI run (over ~5 s each,
-  measured): marked by hand, and every test under ``tests/experiments/`` (each runs a
-  reproduction through the CLI).
+  measured): marked by hand, and every test under ``tests/experiments/`` and
+  ``tests/cli/`` (each runs a reproduction or a whole command: 23 min for tests/cli on
+  this machine under load).
 
 The README's "The fast test loop" has the table; ``docs/architecture.md#tests`` the
 times measured.
@@ -34,8 +35,9 @@ if os.environ.get("CI", "").lower() in ("1", "true", "yes"):
 
 #: helper module of tests/ -> the mark of every test in a module that imports from it
 HELPER_MARKS = {"_live": "server", "_broker": "broker", "_browser": "browser"}
-#: test folders whose every test is slow
-SLOW_DIRS = ("experiments",)
+#: test folders whose every test is slow: each runs a reproduction, or a whole command
+#: (a residual analysis, a simulation, a benchmark) in a real sub-process or through main()
+SLOW_DIRS = ("experiments", "cli")
 TESTS = os.path.dirname(os.path.abspath(__file__))
 
 
