@@ -34,7 +34,6 @@ export const INTERVALS = {
 
 // the fields of each message, and each message shape's version
 export const SCHEMA = {
-  "version": 1,
   "hello": [
     "type",
     "version",
@@ -82,34 +81,14 @@ export const SCHEMA = {
     "floor",
     "mean_of"
   ],
-  "fast_groups": [
-    "force"
-  ],
-  "intervals": {
-    "J_L": {
-      "estimate": "J_L_seg",
-      "lower": "J_L_lo",
-      "upper": "J_L_hi",
-      "excited": "J_L_excited"
-    },
-    "B_L": {
-      "estimate": "B_L_seg",
-      "lower": "B_L_lo",
-      "upper": "B_L_hi",
-      "excited": "B_L_excited"
-    },
-    "F_CL": {
-      "estimate": "F_CL_seg",
-      "lower": "F_CL_lo",
-      "upper": "F_CL_hi",
-      "excited": "F_CL_excited"
-    }
-  },
   "versions": {
     "hello": 1,
     "channel": 1,
     "data": 1,
     "health": 1,
     "accuracy": 1
-  }
+  },
+  "version": VERSION,
+  "fast_groups": FAST_GROUPS,
+  "intervals": INTERVALS
 };

@@ -204,6 +204,14 @@ def javascript() -> str:
             '// 0: show the parameter greyed, "not excited", not as a number)',
             const("INTERVALS", INTERVALS),
             "// the fields of each message, and each message shape's version",
-            const("SCHEMA", SCHEMA),
+            _js_schema(),
         ]
     )
+
+
+def _js_schema() -> str:
+    """``SCHEMA`` as JS, its version, fast groups and intervals by the constants' names."""
+    refs = {"version": "VERSION", "fast_groups": "FAST_GROUPS", "intervals": "INTERVALS"}
+    rest = json.dumps({k: v for k, v in SCHEMA.items() if k not in refs}, indent=2)
+    named = "".join(f',\n  "{key}": {name}' for key, name in refs.items())
+    return f"export const SCHEMA = {rest[:-2]}{named}\n}};\n"
