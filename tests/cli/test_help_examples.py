@@ -6,8 +6,9 @@ Each runs as a real ``cutwatch`` process in a scratch directory, with only what 
 this machine put in: the broker address ``mqtt://127.0.0.1:1883`` of the examples points
 to a real Mosquitto started for the test (``tests/_broker.py``), a port given on the
 command line (``--port``) or taken by default (``CUTWATCH_PORT``, ``CUTWATCH_VISER_PORT``)
-is a free one, and the EMPS data set is linked where the examples expect it
-(``DATA_EMPS.mat``, ``../shared/data/emps/DATA_EMPS.mat``). A finite command must exit 0
+is a free one, and the data sets are linked where the examples expect it
+(``DATA_EMPS.mat``, ``segments.csv``, ``../shared/data/...``; ``other.csv``, "another
+table", is the same table). A finite command must exit 0
 (``reproduce`` may exit 1 after reporting a check that does not hold, as its help says);
 a server (``serve``, ``fleet``) must answer HTTP, then it is stopped.
 """
@@ -36,14 +37,17 @@ pytestmark = pytest.mark.slow
 EXAMPLE_BROKER = "mqtt://127.0.0.1:1883"
 #: commands that serve until stopped, and the path that answers once they are up
 SERVERS = {"serve": "/api/health", "fleet": "/"}
-EMPS = next(
-    (
-        p / "shared" / "data" / "emps" / "DATA_EMPS.mat"
-        for p in Path(__file__).resolve().parents
-        if (p / "shared" / "data" / "emps" / "DATA_EMPS.mat").exists()
-    ),
+SHARED_DATA = next(
+    (p / "shared" / "data" for p in Path(__file__).resolve().parents if (p / "shared").is_dir()),
     None,
 )
+#: file named by an example in its current directory -> the data set file it stands for
+#: (``other.csv``: "another table of the same form", the same one here)
+DATA_LINKS = {
+    "DATA_EMPS.mat": "emps/DATA_EMPS.mat",
+    "segments.csv": "turning-wear/segments.csv",
+    "other.csv": "turning-wear/segments.csv",
+}
 
 
 def examples(doc: str) -> list[str]:
@@ -82,15 +86,16 @@ def test_every_command_has_examples() -> None:
 
 @pytest.fixture(scope="module")
 def workdir(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """``root/work`` (the current directory of the examples), the EMPS data linked in."""
+    """``root/work`` (the current directory of the examples), the data sets linked in."""
     root = tmp_path_factory.mktemp("examples")
     work = root / "work"
     (work / "web").mkdir(parents=True)  # the schema examples write web/schema.js
-    if EMPS is not None:
-        (work / "DATA_EMPS.mat").symlink_to(EMPS)
-        shared = root / "shared" / "data" / "emps"
-        shared.mkdir(parents=True)
-        (shared / "DATA_EMPS.mat").symlink_to(EMPS)
+    if SHARED_DATA is not None:
+        (root / "shared").mkdir()
+        (root / "shared" / "data").symlink_to(SHARED_DATA)  # ../shared/data/... of the examples
+        for name, target in DATA_LINKS.items():
+            if (SHARED_DATA / target).exists():
+                (work / name).symlink_to(SHARED_DATA / target)
     return work
 
 
@@ -130,8 +135,13 @@ def answers(port: int, path: str, proc: subprocess.Popen[bytes], timeout: float 
 
 @pytest.mark.parametrize(("command", "example"), EXAMPLES, ids=[e for _, e in EXAMPLES])
 def test_the_example_runs(command: str, example: str, workdir: Path, broker_url: str) -> None:
-    if "DATA_EMPS.mat" in example and EMPS is None:
-        pytest.skip("EMPS data not present")
+    missing = [
+        target
+        for name, target in DATA_LINKS.items()
+        if name in example and (SHARED_DATA is None or not (SHARED_DATA / target).exists())
+    ]
+    if missing:
+        pytest.skip(f"data set not present: {', '.join(missing)}")
     env, argv = command_line(example, broker_url)
     if command not in SERVERS:
         r = subprocess.run(argv, cwd=workdir, env=env, capture_output=True, timeout=1800)
