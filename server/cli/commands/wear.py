@@ -1,0 +1,208 @@
+"""Flank wear of turning tools from a drive or force signal, on held-out tools.
+
+Examples::
+
+    cutwatch wear ../shared/data/turning-wear/segments.csv --out out/wear
+    cutwatch wear segments.csv --signal drive_current --out out/wear_cv3
+    cutwatch wear segments.csv --train-tools 6,7,11,14,15 --test-tools 3,10 \\
+        --model out/model.json --out out/wear_a
+    cutwatch wear other.csv --model out/model.json --out out/wear_b   # model read
+
+Seed 004's adaptive wear observer adapted to one row per cutting segment (see
+docs/turning-wear.md): a wear state that only grows, a wear-rate law on the segment
+index (the table has no cutting time: rates and lives are per segment), a force-wear
+output relation fitted by RLS on the training tools, a fresh-tool reference from each
+tool's first 10 segments, the programmed feed rate (CON.G.FREAL, CNC units: only its
+ratio to the tool's first segments is used, glitch values replaced by the median of
+their neighbours) as the condition input. Default: leave one tool out over every tool.
+Writes DIR/estimates.csv (95 % intervals, life in segments), DIR/report.json (per tool
+and overall MAE, RMSE, coverage, width, remaining-life error, the linear and
+gradient-boosting baselines beside them) and DIR/report.html.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+HELP = "estimate flank wear of turning tools from a drive/force signal (held-out tools)"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    from server.records.wear_table import SIGNALS
+
+    p.add_argument("table", type=Path, help="CSV table of cutting segments (Latin-1)")
+    p.add_argument("--out", metavar="DIR", type=Path, required=True, help="output directory")
+    p.add_argument(
+        "--signal",
+        choices=list(SIGNALS),
+        default="feed_force",
+        help="feed_force (F_f), drive_torque (TV2.Z) or drive_current (CV3.Z)",
+    )
+    p.add_argument("--train-tools", metavar="LIST", help="tools to fit on, e.g. 3,5,6")
+    p.add_argument(
+        "--test-tools",
+        metavar="LIST",
+        help="tools to estimate (default: leave one tool out over all tools)",
+    )
+    p.add_argument(
+        "--model",
+        metavar="FILE",
+        type=Path,
+        help="fitted model (JSON): written after fitting, or read if it exists and no "
+        "--train-tools is given",
+    )
+    p.add_argument(
+        "--criterion",
+        metavar="UM",
+        type=float,
+        default=300.0,
+        help="VB limit [um] for the remaining life (ISO 3685 average flank wear, carbide)",
+    )
+    p.add_argument(
+        "--map",
+        metavar="COL=EXPR",
+        action="append",
+        default=[],
+        help="column map as in cutwatch residual, e.g. --map F_f_MEAN=Ff_mean*1.0 "
+        "(columns: tool, Vb, CON.G.FREAL and the signal's _MEAN/_RMS/_MAX/_SK/_KURT)",
+    )
+    p.add_argument("--no-baselines", action="store_true", help="skip the two baselines")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def run(args: argparse.Namespace) -> int:
+    import math
+
+    from server.errors import CutwatchError
+    from server.records.wear_table import (
+        FEED,
+        SIGNALS,
+        parse_tools,
+        read_wear_table,
+        signal_columns,
+    )
+
+    if not (math.isfinite(args.criterion) and args.criterion > 0):
+        raise CutwatchError(f"--criterion {args.criterion}: expected a VB limit > 0 um")
+    table = read_wear_table(args.table, [FEED, *signal_columns(args.signal)], args.map)
+    train = parse_tools(args.train_tools, table, "--train-tools")
+    test = parse_tools(args.test_tools, table, "--test-tools")
+    model = None
+    if args.model is not None and args.model.is_file() and train is None:
+        model = _read_model(args.model, args.signal)
+    if (train is not None or model is not None) and test is None:
+        test = [t for t in table.tools if t not in (train or model.train_tools)]  # type: ignore[union-attr]
+        if not test:
+            raise CutwatchError(
+                f"{table.path}: no tool left to test (every tool is a training tool); "
+                "pass --test-tools"
+            )
+    if (train is not None or model is None) and not table.has_vb:
+        raise CutwatchError(
+            f"{table.path}: column 'Vb': expected measured flank wear to fit on, found none "
+            "(give a fitted --model FILE to estimate without it)"
+        )
+    if train is not None and test is not None and set(train) & set(test):
+        raise CutwatchError(
+            f"--train-tools and --test-tools share tool(s) {sorted(set(train) & set(test))}"
+        )
+    results, fitted = _estimate(args, table, train, test, model)
+    rep, rows, figs = _report(args, table, results, fitted)
+    from server.records.wear_report import verdict, write_report
+
+    write_report(args.out, rep, rows, figs, table.has_vb)
+    if args.model is not None and model is None and fitted is not None:
+        args.model.parent.mkdir(parents=True, exist_ok=True)
+        args.model.write_text(json.dumps(fitted.to_dict(), indent=2) + "\n")
+    print(f"{table.path} [{SIGNALS[args.signal]}_MEAN]: {verdict(rep)}")
+    print(f"wrote {args.out}/estimates.csv, report.json, report.html")
+    return 0
+
+
+def _read_model(path: Path, signal: str) -> Any:
+    from estimators.turning_wear import TurningWearModel
+    from server.errors import CutwatchError
+
+    try:
+        data = json.loads(path.read_text())
+        m = TurningWearModel.from_dict(data)
+    except (OSError, ValueError, TypeError) as exc:
+        raise CutwatchError(f"{path}: not a cutwatch wear model: {exc}") from None
+    if m.signal != signal:
+        raise CutwatchError(
+            f"{path}: field 'signal': expected {signal!r} (--signal), found {m.signal!r}"
+        )
+    return m
+
+
+def _estimate(
+    args: argparse.Namespace, table: Any, train: Any, test: Any, model: Any
+) -> tuple[list[Any], Any]:
+    from tqdm import tqdm
+
+    from estimators.errors import ParameterError
+    from server.errors import CutwatchError
+    from server.pipeline.wear_folds import leave_one_out, run_fold
+
+    base = not args.no_baselines
+    try:
+        if train is None and model is None and test is None:
+            with tqdm(
+                total=len(table.tools), desc="wear folds", file=sys.stderr, disable=args.quiet
+            ) as bar:
+                res = leave_one_out(
+                    table, args.signal, table.tools, criterion=args.criterion,
+                    with_baselines=base, progress=bar.update,
+                )  # fmt: skip
+            return res, None
+        if train is None and model is None:
+            train = [t for t in table.tools if t not in test]
+        fitted, res = run_fold(
+            table, args.signal, train or model.train_tools, test,
+            criterion=args.criterion, model=model, with_baselines=base and model is None,
+        )  # fmt: skip
+    except ParameterError as exc:
+        raise CutwatchError(f"{table.path}: {exc}") from None
+    return res, fitted
+
+
+def _report(
+    args: argparse.Namespace, table: Any, results: list[Any], fitted: Any
+) -> tuple[dict[str, Any], list[dict[str, Any]], list[tuple[str, str]]]:
+    from server.pipeline.wear_folds import summarise
+    from server.records.wear_report import tool_figure
+    from server.records.wear_table import SIGNALS
+
+    rep: dict[str, Any] = {
+        "table": str(table.path),
+        "signal": args.signal,
+        "column": f"{SIGNALS[args.signal]}_MEAN",
+        "criterion_um": args.criterion,
+        "time_base": "segment index (the table has no cutting time); life in segments",
+        "interval": "95 %",
+        "train_tools": fitted.train_tools if fitted is not None else "leave-one-tool-out",
+        "test_tools": [r.tool for r in results],
+        **summarise(results, args.criterion),
+    }
+    if fitted is not None:
+        rep["model"] = fitted.to_dict()
+    rows = []
+    figs = []
+    for r in results:
+        e = r.estimate
+        for k in range(len(e.vb)):
+            row = {
+                "tool": r.tool, "segment": k, "vb_est": e.vb[k], "vb_lo": e.vb_lo[k],
+                "vb_hi": e.vb_hi[k], "life_left": e.life_left[k],
+                "life_left_lo": e.life_left_lo[k], "life_left_hi": e.life_left_hi[k],
+            }  # fmt: skip
+            if r.vb is not None:
+                row["vb_true"] = r.vb[k]
+            rows.append(row)
+        est = {"vb": e.vb, "vb_lo": e.vb_lo, "vb_hi": e.vb_hi}
+        figs.append((f"tool {r.tool}", tool_figure(r.tool, r.vb, est, r.baselines, rep["column"])))
+    return rep, rows, figs

@@ -1,0 +1,169 @@
+"""`cutwatch wear` on the real turning-wear table (a few tools) and its refusals.
+
+The table is ``../shared/data/turning-wear/segments.csv`` (Vicomtech, CC BY-SA 4.0); the
+subsets written here are rows of it, byte for byte, in Latin-1.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from server.cli.main import main
+
+TABLE = next(
+    (
+        p / "shared" / "data" / "turning-wear" / "segments.csv"
+        for p in Path(__file__).resolve().parents
+        if (p / "shared" / "data" / "turning-wear" / "segments.csv").exists()
+    ),
+    Path("segments.csv-not-found"),
+)
+pytestmark = pytest.mark.skipif(not TABLE.exists(), reason="turning-wear data not present")
+
+
+def subset(tmp_path: Path, tools: set[str], *, rename: dict[str, str] | None = None) -> Path:
+    """Rows of ``tools`` (and the header, optionally renamed) of the real table."""
+    lines = TABLE.read_bytes().decode("latin-1").splitlines(keepends=True)
+    head = next(csv.reader([lines[0]]))
+    ti = head.index("tool")
+    if rename:
+        head = [rename.get(h, h) for h in head]
+    keep = [ln for ln in lines[1:] if next(csv.reader([ln]))[ti] in tools]
+    out = tmp_path / "subset.csv"
+    out.write_bytes((",".join(head) + "\r\n" + "".join(keep)).encode("latin-1"))
+    return out
+
+
+def test_leave_one_tool_out_on_three_tools(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    t = subset(tmp_path, {"7", "11", "16"})
+    out = tmp_path / "out"
+    assert main(["wear", str(t), "--out", str(out), "--quiet"]) == 0
+    assert "MAE" in capsys.readouterr().out
+    with (out / "estimates.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    assert list(rows[0]) == [
+        "tool", "segment", "vb_true", "vb_est", "vb_lo", "vb_hi",
+        "life_left", "life_left_lo", "life_left_hi",
+    ]  # fmt: skip
+    assert {r["tool"] for r in rows} == {"7", "11", "16"}
+    assert len(rows) == 169 + 213 + 109
+    lo, est, hi = (np.array([float(r[c]) for r in rows]) for c in ("vb_lo", "vb_est", "vb_hi"))
+    assert np.all(lo <= est) and np.all(est <= hi)
+    rep = json.loads((out / "report.json").read_text())
+    ov = rep["overall"]
+    assert set(ov["baselines"]) == {"linear", "gbr"}
+    assert [m["tool"] for m in rep["per_tool"]] == [7, 11, 16]
+    # the MAE in the report is the one of the CSV
+    vb = np.array([float(r["vb_true"]) for r in rows])
+    assert ov["mae"] == pytest.approx(float(np.mean(np.abs(est - vb))))
+    assert 0.0 <= ov["coverage"] <= 1.0 and ov["interval_median_width"] > 0
+    page = (out / "report.html").read_text()
+    # verdict first, then the figures, then the folded tables
+    assert page.index("class='verdict'") < page.index("<img") < page.index("<details>")
+    assert page.count("<img") == 3
+    assert "Each tool estimated by a model fitted on the others" in page
+
+
+def test_train_test_model_written_then_read(tmp_path: Path) -> None:
+    t = subset(tmp_path, {"7", "11", "16", "5"})
+    model = tmp_path / "m.json"
+    args = ["wear", str(t), "--quiet", "--no-baselines", "--signal", "drive_current"]
+    assert main([*args, "--train-tools", "7,11,16", "--out", str(tmp_path / "a"),
+                 "--model", str(model), "--criterion", "150"]) == 0  # fmt: skip
+    m = json.loads(model.read_text())
+    assert m["version"] == 1 and m["signal"] == "drive_current" and m["train_tools"] == [7, 11, 16]
+    rep_a = json.loads((tmp_path / "a" / "report.json").read_text())
+    assert rep_a["test_tools"] == [5] and rep_a["criterion_um"] == 150.0
+    assert "Trained on tools 7, 11, 16" in (tmp_path / "a" / "report.html").read_text()
+    # read back: the same estimates without refitting
+    assert main([*args, "--model", str(model), "--out", str(tmp_path / "b"),
+                 "--criterion", "150"]) == 0  # fmt: skip
+    a = (tmp_path / "a" / "estimates.csv").read_text()
+    b = (tmp_path / "b" / "estimates.csv").read_text()
+    assert a == b
+
+
+def test_map_reads_other_column_names(tmp_path: Path) -> None:
+    t = subset(tmp_path, {"7", "16"}, rename={"F_f_MEAN": "feed.force.mean", "Vb": "VB_um"})
+    out = tmp_path / "o"
+    rc = main(["wear", str(t), "--out", str(out), "--quiet", "--no-baselines",
+               "--map", "F_f_MEAN=feed.force.mean", "--map", "Vb=VB_um*1.0"])  # fmt: skip
+    assert rc == 0
+    assert json.loads((out / "report.json").read_text())["overall"]["mae"] > 0
+
+
+@pytest.mark.parametrize(
+    ("argv", "expect"),
+    [
+        (["--train-tools", "7,99"], ["--train-tools", "tool 99", "'tool'", "found tools 7, 16"]),
+        (["--test-tools", "x"], ["--test-tools", "expected tool numbers"]),
+        (["--map", "F_f_MEAN=nope"], ["column 'F_f_MEAN'", "mapped from 'nope'", "expected"]),
+        (["--map", "F_f_MEAN=CV3.X_SK"], ["column 'CV3.X_SK'", "row", "empty cell"]),
+        (["--map", "F_f_MEAN=="], ["--map", "expected COL=name"]),
+        (["--criterion", "-3"], ["--criterion", "expected"]),
+        (["--train-tools", "7", "--test-tools", "7"], ["share tool"]),
+    ],
+)
+def test_refusals_name_what_is_wrong(
+    tmp_path: Path, capsys: pytest.CaptureFixture, argv: list[str], expect: list[str]
+) -> None:
+    t = subset(tmp_path, {"7", "16", "11"} if "CV3.X_SK" in argv[-1] else {"7", "16"})
+    rc = main(["wear", str(t), "--out", str(tmp_path / "o"), "--quiet", *argv])
+    err = capsys.readouterr().err
+    assert rc == 2, err
+    for e in expect:
+        assert e in err, err
+    if "99" in argv[-1] or "=" in argv[-1]:  # file-level refusals name the file
+        assert str(t) in err or "--map" in err, err
+
+
+def test_missing_column_and_latin1(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    # a Latin-1 header (µ is 0xB5) reads; the missing feed column is named with the file
+    p = tmp_path / "t.csv"
+    p.write_bytes("tool,Vb,F_f_MEAN,x_\xb5m\r\n1,0,300,a\x85b\r\n".encode("latin-1"))
+    rc = main(["wear", str(p), "--out", str(tmp_path / "o"), "--quiet"])
+    err = capsys.readouterr().err
+    assert rc == 2
+    assert str(p) in err and "'CON.G.FREAL'" in err and "expected in the header" in err, err
+    assert "x_\xb5m" in err  # the header as found, decoded as Latin-1
+
+
+def test_a_table_without_vb_is_estimated_with_a_model(
+    tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
+    train = subset(tmp_path, {"7", "11", "16"})
+    model = tmp_path / "m.json"
+    base = ["wear", "--quiet", "--no-baselines"]
+    assert main([*base, str(train), "--train-tools", "7,11", "--test-tools", "16",
+                 "--model", str(model), "--out", str(tmp_path / "a")]) == 0  # fmt: skip
+    # the new tool's rows without the Vb column: estimates only, no vb_true, no scores
+    lines = TABLE.read_bytes().decode("latin-1").splitlines()
+    head = next(csv.reader([lines[0]]))
+    keep = [i for i, h in enumerate(head) if h != "Vb"]
+    rows = [next(csv.reader([ln])) for ln in lines[1:]]
+    rows = [r for r in rows if r[head.index("tool")] == "5"]
+    blind = tmp_path / "blind.csv"
+    blind.write_text(
+        "\n".join(",".join(r[i] for i in keep) for r in [head, *rows]) + "\n", encoding="latin-1"
+    )
+    assert main([*base, str(blind), "--model", str(model), "--out", str(tmp_path / "b")]) == 0
+    with (tmp_path / "b" / "estimates.csv").open() as f:
+        got = list(csv.DictReader(f))
+    assert "vb_true" not in got[0] and len(got) == 88 and {r["tool"] for r in got} == {"5"}
+    rep = json.loads((tmp_path / "b" / "report.json").read_text())
+    assert "overall" not in rep and rep["per_tool"][0]["tool"] == 5
+    # the same model for another signal is refused, naming the field and both values
+    capsys.readouterr()
+    rc = main([*base, str(blind), "--model", str(model), "--signal", "drive_torque",
+               "--out", str(tmp_path / "c")])  # fmt: skip
+    err = capsys.readouterr().err
+    assert rc == 2 and "'signal'" in err and "'drive_torque'" in err and "'feed_force'" in err
+    # without Vb and without a model there is nothing to fit on
+    rc = main([*base, str(blind), "--out", str(tmp_path / "d")])
+    err = capsys.readouterr().err
+    assert rc == 2 and "column 'Vb'" in err and str(blind) in err

@@ -1,0 +1,64 @@
+"""`cutwatch reproduce turning-wear --quick --json`: its JSON shape and what the rows mean."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from server.cli.main import main
+from server.experiments.reproductions import turning_wear
+
+pytestmark = pytest.mark.skipif(
+    not any(
+        (p / "shared" / "data" / "turning-wear" / "segments.csv").exists()
+        for p in Path(__file__).resolve().parents
+    ),
+    reason="turning-wear data not present",
+)
+
+
+def test_quick_json_rows_and_checks(capsys: pytest.CaptureFixture) -> None:
+    rc = main(["reproduce", "turning-wear", "--quick", "--json"])
+    out = json.loads(capsys.readouterr().out)
+    assert out["experiment"] == "turning-wear"
+    rows = {r["name"]: r for r in out["rows"]}
+    for name in (
+        "mae",
+        "mae_gbr",
+        "rmse",
+        "coverage",
+        "width_over_mae",
+        "life_error_300um",
+        "life_error_150um",
+        "learning.n1.mae",
+        "learning.n2.mae",
+    ):
+        assert f"feed_force.{name}" in rows, name
+    for t in turning_wear.QUICK_TOOLS:
+        r = rows[f"feed_force.tool.{t}.mae"]
+        assert r["ours"] > 0 and r["paper"] > 0 and r["unit"] == "um"
+        assert f"physics.tool.{t}.torque_per_feed_force" in rows
+    # the pooled MAE lies between the per-tool ones; the width row is width / MAE
+    per = [rows[f"feed_force.tool.{t}.mae"]["ours"] for t in turning_wear.QUICK_TOOLS]
+    assert min(per) <= rows["feed_force.mae"]["ours"] <= max(per)
+    w = rows["feed_force.interval_median_width"]["ours"] / rows["feed_force.mae"]["ours"]
+    assert rows["feed_force.width_over_mae"]["ours"] == pytest.approx(w)
+    checks = {c["name"]: c for c in out["checks"]}
+    assert set(checks) == {
+        f"feed_force.{n}"
+        for n in (
+            "mae_25pct_below_linear",
+            "tools_lower_than_linear",
+            "coverage_95",
+            "width_over_mae",
+            "life_at_half_300um",
+        )
+    }
+    c = checks["feed_force.mae_25pct_below_linear"]
+    assert c["value"] == pytest.approx(
+        rows["feed_force.mae"]["ours"] / rows["feed_force.mae"]["paper"]
+    )
+    assert c["holds"] == (c["value"] <= c["limit"])
+    assert rc == (0 if all(c["holds"] for c in out["checks"]) else 1)
