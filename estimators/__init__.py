@@ -6,9 +6,11 @@ Public names of the cutting force observer and the identifiers are re-exported h
 other estimators are re-exported as their modules (each with its own ``__all__`` or
 documented public functions): ``dfo`` and ``imbdo`` (seed 002), ``esc`` and
 ``fast_tuner`` (seed 003), ``ud_rls``, ``wear_linear``, ``wear_observer`` and
-``wear_monitor`` (seed 004), ``idim``, ``residual``, ``residual_families`` (real-drive
-effect families), ``residual_cv`` (cross-validated figures), ``residual_two_inertia``
-and ``observer_effects`` (the residual loop).
+``wear_monitor`` (seed 004), ``idim``, and the residual loop: ``residual_engine`` (the
+one ``analyse`` over a residual model), ``residual`` (the rigid model),
+``residual_families`` (its family registry), ``residual_two_inertia`` (the observer
+model), ``residual_selection`` (the decision rule), ``residual_shapes`` (shared shape
+searches), ``residual_cv`` (cross-validated figures) and ``observer_effects``.
 """
 
 from estimators import (
@@ -20,7 +22,10 @@ from estimators import (
     observer_effects,
     residual,
     residual_cv,
+    residual_engine,
     residual_families,
+    residual_selection,
+    residual_shapes,
     residual_two_inertia,
     ud_rls,
     wear_linear,
@@ -89,7 +94,10 @@ __all__ = [
     "observer_effects",
     "residual",
     "residual_cv",
+    "residual_engine",
     "residual_families",
+    "residual_selection",
+    "residual_shapes",
     "residual_two_inertia",
     "rls_init",
     "rls_update",

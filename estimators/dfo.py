@@ -301,7 +301,7 @@ class DfoRecord:
     offset: F64
 
 
-def initial_state(params: DfoParams) -> DfoState:
+def _initial_state(params: DfoParams) -> DfoState:
     """Zero estimates, zero past inputs."""
     return DfoState(
         x=np.zeros(params.n_states),
@@ -373,11 +373,11 @@ def _dfo_block(
         comp[j] = tc + o
 
 
-def step(params: DfoParams, state: DfoState, y: ArrayLike) -> tuple[DfoState, DfoRecord]:
+def _step(params: DfoParams, state: DfoState, y: ArrayLike) -> tuple[DfoState, DfoRecord]:
     """Process a block of measurements ``y``.
 
     With ``uses_input`` the block may hold at most ``D + 1`` samples (``D`` whole samples
-    of input delay) and the block's commands must be handed over with :func:`apply`
+    of input delay) and the block's commands must be handed over with :meth:`Dfo.apply`
     before the next step.
     """
     ya = np.ascontiguousarray(y, dtype=np.float64)
@@ -436,7 +436,7 @@ def step(params: DfoParams, state: DfoState, y: ArrayLike) -> tuple[DfoState, Df
     )
 
 
-def apply(params: DfoParams, state: DfoState, commands: ArrayLike) -> DfoState:
+def _apply(params: DfoParams, state: DfoState, commands: ArrayLike) -> DfoState:
     """Hand over the commands [input unit] applied during the last processed block."""
     u = np.ascontiguousarray(commands, dtype=np.float64)
     if not params.uses_input:
@@ -447,12 +447,37 @@ def apply(params: DfoParams, state: DfoState, commands: ArrayLike) -> DfoState:
     return DfoState(x=state.x, u_hist=np.concatenate([state.u_hist, u]), k=state.k)
 
 
+class Dfo:
+    """The harmonic observer of ``params`` (the estimator contract: :meth:`initial_state`,
+    :meth:`step`; :meth:`apply` hands over the commands of an observer with an input).
+
+    Examples
+    --------
+    >>> obs = Dfo(DfoParams(frequencies=(100.0,), sample_time=4e-4, channel_num=(1.0,),
+    ...                     channel_den=(1.0,)))  # doctest: +SKIP
+    >>> state, rec = obs.step(obs.initial_state(), y)  # doctest: +SKIP
+    """
+
+    def __init__(self, params: DfoParams) -> None:
+        self.params = params
+
+    def initial_state(self) -> DfoState:
+        """Zero estimates, zero past inputs."""
+        return _initial_state(self.params)
+
+    def step(self, state: DfoState, y: ArrayLike) -> tuple[DfoState, DfoRecord]:
+        """Process a block of measurements ``y`` (see :func:`_step`)."""
+        return _step(self.params, state, y)
+
+    def apply(self, state: DfoState, commands: ArrayLike) -> DfoState:
+        """Hand over the commands applied during the last processed block."""
+        return _apply(self.params, state, commands)
+
+
 __all__ = [
+    "Dfo",
     "DfoParams",
     "DfoRecord",
     "DfoState",
-    "apply",
-    "initial_state",
     "place_observer",
-    "step",
 ]

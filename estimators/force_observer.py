@@ -83,7 +83,7 @@ class LoadParams:
 class TorsionState:
     """Explicit state of the front end: previous angles and the filter states."""
 
-    prev: F64  # [q_m, q_l, initialised flag]
+    prev: F64  # PV_*: angles and torques one and two samples back, samples-seen flag
     z: F64  # filter states, one row per filtered channel
 
 
@@ -105,39 +105,52 @@ class TorsionRecord:
 _N_CH = 8
 
 
+# Index of each entry of the kernel's packed design array ``pr`` (TorsionEstimator._pr):
+# sample time, nominal motor-side parameters and K, the variances of their errors
+# (seed000 (6)-(7)) and of the quantisation (seed000 (8))
+PR_TS, PR_J_M, PR_B_M, PR_F_CM, PR_K = 0, 1, 2, 3, 4
+PR_VAR_J_M, PR_VAR_B_M, PR_VAR_K, PR_VAR_F_CM = 5, 6, 7, 8
+PR_VAR_W, PR_VAR_DW, PR_VAR_Q = 9, 10, 11
+PR_SIZE = 12
+# Index of each entry of the kernel's history ``prev`` (TorsionState.prev): the angles and
+# torques one and two samples back, and the samples-seen flag
+PV_QM1, PV_QM2, PV_QL1, PV_QL2, PV_TAU1, PV_TAU2, PV_SEEN = 0, 1, 2, 3, 4, 5, 6
+PV_SIZE = 7
+
+
 @njit(cache=True)
 def _torsion_kernel(
     tau, qm, ql, prev, z, bq, aq, pr, o_ts, o_tsm, o_tsk, o_al, o_acc, o_vel, o_sgn, o_wl
 ):  # pragma: no cover
     # prev = [q_m[k-1], q_m[k-2], q_l[k-1], q_l[k-2], tau[k-1], tau[k-2], samples seen]
-    ts = pr[0]
-    JM, BM, FCM, K = pr[1], pr[2], pr[3], pr[4]
-    s2J, s2B, s2K, s2F = pr[5], pr[6], pr[7], pr[8]
-    var_w, var_dw, var_q = pr[9], pr[10], pr[11]
+    ts = pr[PR_TS]
+    JM, BM, FCM, K = pr[PR_J_M], pr[PR_B_M], pr[PR_F_CM], pr[PR_K]
+    s2J, s2B, s2K, s2F = pr[PR_VAR_J_M], pr[PR_VAR_B_M], pr[PR_VAR_K], pr[PR_VAR_F_CM]
+    var_w, var_dw, var_q = pr[PR_VAR_W], pr[PR_VAR_DW], pr[PR_VAR_Q]
     # T_s = alpha T_sM + (1 - alpha) T_sK, alpha = V_K / (V_M + V_K) (seed000 (3)-(8))
     for k in range(len(tau)):
-        if prev[6] == 0.0:
-            prev[0] = prev[1] = qm[k]
-            prev[2] = prev[3] = ql[k]
-            prev[4] = prev[5] = tau[k]
-            prev[6] = 1.0
+        if prev[PV_SEEN] == 0.0:
+            prev[PV_QM1] = prev[PV_QM2] = qm[k]
+            prev[PV_QL1] = prev[PV_QL2] = ql[k]
+            prev[PV_TAU1] = prev[PV_TAU2] = tau[k]
+            prev[PV_SEEN] = 1.0
         # Every signal is aligned at t[k-1]: central differences of the angles, and the
         # torque averaged over the two zero-order-hold intervals around t[k-1] (exact for
         # the second difference of a ZOH-driven rigid body). Backward differences against
         # the current torque would misalign the torque and the acceleration by 1.5
         # samples (0.8 rad of phase at 200 Hz). The estimate therefore refers to t[k-1].
-        wm = (qm[k] - prev[1]) / (2.0 * ts)
-        wl = (ql[k] - prev[3]) / (2.0 * ts)
-        am = (qm[k] - 2.0 * prev[0] + prev[1]) / (ts * ts)
-        al_ = (ql[k] - 2.0 * prev[2] + prev[3]) / (ts * ts)
-        tq = 0.5 * (prev[4] + prev[5])
-        dth = prev[0] - prev[2]
-        prev[1] = prev[0]
-        prev[0] = qm[k]
-        prev[3] = prev[2]
-        prev[2] = ql[k]
-        prev[5] = prev[4]
-        prev[4] = tau[k]
+        wm = (qm[k] - prev[PV_QM2]) / (2.0 * ts)
+        wl = (ql[k] - prev[PV_QL2]) / (2.0 * ts)
+        am = (qm[k] - 2.0 * prev[PV_QM1] + prev[PV_QM2]) / (ts * ts)
+        al_ = (ql[k] - 2.0 * prev[PV_QL1] + prev[PV_QL2]) / (ts * ts)
+        tq = 0.5 * (prev[PV_TAU1] + prev[PV_TAU2])
+        dth = prev[PV_QM1] - prev[PV_QL1]
+        prev[PV_QM2] = prev[PV_QM1]
+        prev[PV_QM1] = qm[k]
+        prev[PV_QL2] = prev[PV_QL1]
+        prev[PV_QL1] = ql[k]
+        prev[PV_TAU2] = prev[PV_TAU1]
+        prev[PV_TAU1] = tau[k]
         sm = 1.0 if wm > 0 else (-1.0 if wm < 0 else 0.0)
         sl = 1.0 if wl > 0 else (-1.0 if wl < 0 else 0.0)
         acc_m = df2t_step(bq, aq, z[0], am)
@@ -182,25 +195,20 @@ class TorsionEstimator:
         ts = p.sample_time
         # seed000 (8): quantisation variance q^2/12; q/ts and q/ts^2 as the equivalent
         # resolutions of omega and d omega/dt (seed 000 III.B)
-        self._pr = np.array(
-            [
-                ts,
-                p.J_M,
-                p.B_M,
-                p.F_CM,
-                p.K,
-                (p.err3_J_M * p.J_M / 3) ** 2,
-                (p.err3_B_M * p.B_M / 3) ** 2,
-                (p.err3_K * p.K / 3) ** 2,
-                (p.err3_F_CM * p.F_CM / 3) ** 2,
-                (qn / ts) ** 2 / 12,
-                (qn / ts**2) ** 2 / 12,
-                qn**2 / 12,
-            ]
-        )
+        pr = np.empty(PR_SIZE)
+        pr[PR_TS] = ts
+        pr[PR_J_M], pr[PR_B_M], pr[PR_F_CM], pr[PR_K] = p.J_M, p.B_M, p.F_CM, p.K
+        pr[PR_VAR_J_M] = (p.err3_J_M * p.J_M / 3) ** 2
+        pr[PR_VAR_B_M] = (p.err3_B_M * p.B_M / 3) ** 2
+        pr[PR_VAR_K] = (p.err3_K * p.K / 3) ** 2
+        pr[PR_VAR_F_CM] = (p.err3_F_CM * p.F_CM / 3) ** 2
+        pr[PR_VAR_W] = (qn / ts) ** 2 / 12
+        pr[PR_VAR_DW] = (qn / ts**2) ** 2 / 12
+        pr[PR_VAR_Q] = qn**2 / 12
+        self._pr = pr
 
-    def init_state(self) -> TorsionState:
-        return TorsionState(prev=np.zeros(7), z=np.zeros((_N_CH, max(self.q.order, 1))))
+    def initial_state(self) -> TorsionState:
+        return TorsionState(prev=np.zeros(PV_SIZE), z=np.zeros((_N_CH, max(self.q.order, 1))))
 
     def step(
         self, state: TorsionState, tau_m: F64, q_m: F64, q_l: F64

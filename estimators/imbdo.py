@@ -259,7 +259,7 @@ class ImbdoRecord:
     d_hat: F64
 
 
-def initial_state(params: ImbdoParams) -> ImbdoState:
+def _initial_state(params: ImbdoParams) -> ImbdoState:
     """Observer at rest (plant at rest at z = 0, no disturbance)."""
     return ImbdoState(
         z_inv=np.zeros(params.inverse_filter.order),
@@ -307,7 +307,7 @@ def _imbdo_block(
         vh[m - 1] = vk
 
 
-def step(
+def _step(
     params: ImbdoParams, state: ImbdoState, z: ArrayLike, u_c: ArrayLike
 ) -> tuple[ImbdoState, ImbdoRecord]:
     """One block: measured position ``z`` [mm] and controller output ``u_c`` [V].
@@ -343,7 +343,26 @@ def step(
     return ImbdoState(z_inv=zi, z_q=zq, v_hist=vh), ImbdoRecord(v=v, d_hat=dh)
 
 
+class Imbdo:
+    """The inverse-model observer of ``params`` (the estimator contract:
+    :meth:`initial_state`, :meth:`step`)."""
+
+    def __init__(self, params: ImbdoParams) -> None:
+        self.params = params
+
+    def initial_state(self) -> ImbdoState:
+        """Observer at rest (plant at rest at z = 0, no disturbance)."""
+        return _initial_state(self.params)
+
+    def step(
+        self, state: ImbdoState, z: ArrayLike, u_c: ArrayLike
+    ) -> tuple[ImbdoState, ImbdoRecord]:
+        """One block: position ``z`` [mm], controller output ``u_c`` [V] (:func:`_step`)."""
+        return _step(self.params, state, z, u_c)
+
+
 __all__ = [
+    "Imbdo",
     "ImbdoParams",
     "ImbdoRecord",
     "ImbdoState",
@@ -351,8 +370,6 @@ __all__ = [
     "StabilityCheck",
     "check_q_filter",
     "continuous_response",
-    "initial_state",
     "inverse_delta",
     "q_filter_tf",
-    "step",
 ]

@@ -147,7 +147,7 @@ class ObserverEffect:
 
 
 @dataclass(frozen=True)
-class Kinematics:
+class ObserverKinematics:
     """Signals at :math:`t_{k-1}` for sample k (central differences, like the observer)."""
 
     t: F64
@@ -170,7 +170,7 @@ def kinematics(
     prev: F64 | None = None,
     tau: F64 | None = None,
     tau_hist: F64 | None = None,
-) -> tuple[Kinematics, F64]:
+) -> tuple[ObserverKinematics, F64]:
     """Aligned signals of one block; ``prev`` = [q_m[k-1], q_m[k-2], q_l[k-1], q_l[k-2],
     seen] carries the history between blocks (None: start of a record). With ``tau``,
     ``tau_hist`` (>= 3 raw torques before the block, oldest first; None at the start of a
@@ -200,7 +200,7 @@ def kinematics(
         # as in the observer kernel: the torque at t[k-1] is 0.5 (tau[k-1] + tau[k-2])
         tau_ext = 0.5 * (ext[1:-1] + ext[:-2])
         n_hist = len(hist) - 2
-    kin = Kinematics(
+    kin = ObserverKinematics(
         t=np.asarray(t, dtype=np.float64) - ts,
         q_m=em[1:-1],
         q_l=el[1:-1],
@@ -213,7 +213,7 @@ def kinematics(
     return kin, new_prev
 
 
-def raw_basis(name: str, shape: Mapping[str, float], kin: Kinematics) -> F64:
+def raw_basis(name: str, shape: Mapping[str, float], kin: ObserverKinematics) -> F64:
     """Unfiltered basis columns of family ``name`` (shape ``(n, len(COLUMNS[name]))``)."""
     w = kin.w_l
     n = len(w)
@@ -353,7 +353,7 @@ class ObserverEffects:
     Examples
     --------
     >>> fx = ObserverEffects(EffectsParams((ObserverEffect("offset", {}, (0.3,)),), 4e-4))
-    >>> s = fx.init_state()
+    >>> s = fx.initial_state()
     >>> # per block, after TorsionEstimator.step:
     >>> # s, er = fx.step(s, rec.alpha, t, q_m, q_l); force = cutting_force(...) - er.f_corr
     """
@@ -367,7 +367,7 @@ class ObserverEffects:
         ]
         self._hist = int(math.ceil(max(lags))) + 3 if lags else 0
 
-    def init_state(self) -> EffectsState:
+    def initial_state(self) -> EffectsState:
         return EffectsState(
             prev=np.zeros(5),
             z=np.zeros((self._ncols, max(self.q.order, 1))),

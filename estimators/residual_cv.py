@@ -26,7 +26,8 @@ from numpy.typing import ArrayLike, NDArray
 from common.arrays import F64
 from estimators.errors import ParameterError, require_in
 from estimators.idim import IdimParams, decimate, decimated_index
-from estimators.residual import Effect, _build, signals
+from estimators.residual import build_design, signals
+from estimators.residual_engine import Effect
 
 
 @dataclass(frozen=True)
@@ -74,7 +75,7 @@ def cross_validate(
     p = IdimParams() if p is None else p
     sig = signals(q, force, t, sample_time, p)
     y = decimate(sig.force, p)
-    design = _build(sig, tuple(effects), p)
+    design = build_design(sig, tuple(effects), p)
     x = design.x_dec
     td = sig.t[decimated_index(len(sig.t), p)]
     edges = np.linspace(td[0], td[-1], folds + 1)

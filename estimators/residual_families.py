@@ -1,10 +1,15 @@
-r"""Effect families of real drives for the rigid residual analysis (pure numpy).
+r"""The family registry of the rigid residual model (pure numpy).
 
 Each family is a set of extra regressor columns of the rigid inverse dynamic model
 (:mod:`estimators.idim`), linear in its coefficients, with *shape* parameters (a delay,
 a period, a polynomial order) fixed beforehand from the residual of the current model.
-:mod:`estimators.residual` offers them beside its own families (one registration) and
-refits their coefficients jointly with the nominal ones. With :math:`v = \dot q`,
+:data:`FAMILIES` holds all of them, one :class:`Family` entry each (columns, column
+names, shape search, derived figures, meaning): DESIGN's canonical families
+(:data:`CANONICAL`: offset, inertia, viscous, coulomb_asymmetry, stribeck,
+position_periodic, harmonic, delay, drift; columns in the comment above it) and the
+real-drive families (:data:`DRIVE`, below); :data:`OFFERED` is what
+:class:`estimators.residual.RigidModel` offers, which refits the coefficients jointly
+with the nominal ones. The real-drive families, with :math:`v = \dot q`,
 :math:`a = \ddot q`, :math:`d_+ = 1[v > 0]`, :math:`d_- = 1[v < 0]`,
 :math:`x = 2 (q - q_{min}) / (q_{max} - q_{min}) - 1` clipped to [-1, 1]:
 
@@ -62,6 +67,15 @@ from numpy.polynomial import legendre
 from numpy.typing import NDArray
 
 from common.arrays import F64
+from estimators.errors import ParameterError
+from estimators.idim import rigid_regressor
+from estimators.residual_shapes import (
+    gap_filled,
+    project_rss,
+    refine_grid,
+    search_frequency,
+    search_period,
+)
 
 
 class Kin(Protocol):
@@ -80,20 +94,37 @@ class Kin(Protocol):
 
 
 Shape = Mapping[str, float]
-#: search(sig, residual over idx, idx (time order), nominal M, Fv, Fc, offset or None)
-Search = Callable[[Kin, F64, NDArray[np.intp], F64 | None], dict[str, float]]
+
+
+@dataclass(frozen=True, eq=False)
+class SearchData:
+    """What a shape search is given: the full-rate signals and the current model's
+    residual there, the rows it may use (``mask``), the evenly spaced subsample of them
+    it searches (``idx``, time order; ``r`` the residual there), the current nominal
+    parameters (M, Fv, Fc, offset) and the regressor's decimation."""
+
+    sig: Kin
+    residual: F64
+    mask: NDArray[np.bool_]
+    idx: NDArray[np.intp]
+    r: F64
+    nominal: F64 | None = None
+    decimation: int = 1
 
 
 @dataclass(frozen=True)
 class Family:
-    """One effect family: its columns, their names, its shape search, its meaning."""
+    """One effect family of the rigid model: its columns, their names, its shape search,
+    its derived figures (from the shape, the coefficients and the nominal parameters),
+    its meaning, and whether it has a shape to search again inside each training fold."""
 
     name: str
     meaning: str
     columns: Callable[[Shape, Kin], F64]
     column_names: Callable[[Shape], tuple[str, ...]]
-    search: Search
-    derived: Callable[[Shape, Mapping[str, float]], dict[str, float]]
+    search: Callable[[SearchData], dict[str, float]]
+    derived: Callable[[Shape, Mapping[str, float], Mapping[str, float]], dict[str, float]]
+    shaped: bool = False
 
 
 #: the highest orders a shape search tries
@@ -171,8 +202,9 @@ def _friction_curve_cols(shape: Shape, s: Kin) -> F64:
 
 
 def _friction_curve_search(
-    sig: Kin, r: F64, idx: NDArray[np.intp], nominal: F64 | None
+    s: SearchData,
 ) -> dict[str, float]:
+    sig, r, idx = s.sig, s.r, s.idx
     sub = _Sub(sig, idx)
     vmax = float(np.max(np.abs(sub.qd))) if len(idx) else 0.0
     if not vmax > 0:
@@ -188,7 +220,7 @@ def _friction_curve_search(
     return {"v_s": float(grid[int(np.argmin(rss))])}
 
 
-def _no_search(sig: Kin, r: F64, idx: NDArray[np.intp], nominal: F64 | None) -> dict[str, float]:
+def _no_search(s: SearchData) -> dict[str, float]:
     return {}
 
 
@@ -216,8 +248,9 @@ def _position_friction_names(shape: Shape) -> tuple[str, ...]:
 
 
 def _position_friction_search(
-    sig: Kin, r: F64, idx: NDArray[np.intp], nominal: F64 | None
+    s: SearchData,
 ) -> dict[str, float]:
+    sig, r, idx = s.sig, s.r, s.idx
     q = sig.q[idx]
     lo, hi = float(np.min(q)), float(np.max(q))
     if not hi > lo:
@@ -233,7 +266,9 @@ def _position_friction_search(
     return {**shape, "order": float(order) if order else math.nan}
 
 
-def _position_friction_derived(shape: Shape, coef: Mapping[str, float]) -> dict[str, float]:
+def _position_friction_derived(
+    shape: Shape, coef: Mapping[str, float], nominal: Mapping[str, float]
+) -> dict[str, float]:
     # the friction profile along the travel, per direction: its peak-to-peak variation
     k = int(shape["order"])
     x = np.linspace(-1.0, 1.0, 201)
@@ -294,8 +329,9 @@ def position_periodogram(q: F64, v: F64, r: F64, bins: int = 1 << 15) -> tuple[F
 
 
 def _harmonic_search(
-    sig: Kin, r: F64, idx: NDArray[np.intp], nominal: F64 | None
+    s: SearchData,
 ) -> dict[str, float]:
+    sig, r, idx = s.sig, s.r, s.idx
     q, v = sig.q[idx], sig.qd[idx]
     periods, amp = position_periodogram(q, v, r)
     # a period the drive's data can carry: at the fast end of the motion (90th
@@ -338,7 +374,9 @@ def _harmonic_search(
     return {"period": period, "harmonics": float(k), "direction": direction}
 
 
-def _harmonic_derived(shape: Shape, coef: Mapping[str, float]) -> dict[str, float]:
+def _harmonic_derived(
+    shape: Shape, coef: Mapping[str, float], nominal: Mapping[str, float]
+) -> dict[str, float]:
     out = {}
     for k in range(1, int(shape["harmonics"]) + 1):
         c, s, dc, ds = (coef.get(f"{p}{k}", 0.0) for p in ("c", "s", "dc", "ds"))
@@ -374,8 +412,9 @@ def _nominal_shape(nominal: F64 | None) -> dict[str, float]:
     return dict(zip(("M", "Fv", "Fc", "offset"), map(float, nominal[:4])))
 
 
-def _delay_search(sig: Kin, r: F64, idx: NDArray[np.intp], nominal: F64 | None) -> dict[str, float]:
-    base = _nominal_shape(nominal)
+def _delay_search(s: SearchData) -> dict[str, float]:
+    sig, r, idx = s.sig, s.r, s.idx
+    base = _nominal_shape(s.nominal)
     if not all(math.isfinite(x) for x in base.values()):
         return {**base, "delay_s": math.nan}
     ts = float(np.median(np.diff(sig.t)))
@@ -394,7 +433,9 @@ def _delay_search(sig: Kin, r: F64, idx: NDArray[np.intp], nominal: F64 | None) 
     return {**base, "delay_s": float(fine[int(np.argmin([rss(d) for d in fine]))])}
 
 
-def _delay_derived(shape: Shape, coef: Mapping[str, float]) -> dict[str, float]:
+def _delay_derived(
+    shape: Shape, coef: Mapping[str, float], nominal: Mapping[str, float]
+) -> dict[str, float]:
     # for a small delay the column is ~ d E'(t): gain * d is the delay the data shows
     return {"effective_delay_s": coef.get("gain", 0.0) * shape["delay_s"]}
 
@@ -412,8 +453,8 @@ def _lag_cols(shape: Shape, s: Kin) -> F64:
     return col[:, None]
 
 
-def _lag_search(sig: Kin, r: F64, idx: NDArray[np.intp], nominal: F64 | None) -> dict[str, float]:
-    base = _nominal_shape(nominal)
+def _lag_search(s: SearchData) -> dict[str, float]:
+    base = _nominal_shape(s.nominal)
     return {"M": base["M"], "Fv": base["Fv"]}
 
 
@@ -425,80 +466,290 @@ class _Sub:
         self.qdd, self.qddd = sig.qdd[idx], sig.qddd[idx]
 
 
-def _none(shape: Shape, coef: Mapping[str, float]) -> dict[str, float]:
+def _none(
+    shape: Shape, coef: Mapping[str, float], nominal: Mapping[str, float]
+) -> dict[str, float]:
     return {}
 
 
-FAMILIES: dict[str, Family] = {
-    f.name: f
-    for f in (
-        Family(
-            "viscous_asymmetry",
-            "viscous friction that differs by direction: Fv for v < 0, Fv + coefficient "
-            "for v > 0 (seals, preload or lubrication that depend on the direction)",
-            _viscous_asym_cols,
-            lambda s: ("dFv_pos",),
-            _no_search,
-            _none,
-        ),
-        Family(
-            "friction_curve",
-            "the friction-speed curve of each direction (Stribeck): friction at low "
-            "speed above (coefficient > 0) or below the Coulomb + viscous line, fading "
-            "over the Stribeck speed v_s; bounded, so it extrapolates as the line",
-            _friction_curve_cols,
-            lambda s: ("pos_Fs", "neg_Fs"),
-            _friction_curve_search,
-            _none,
-        ),
-        Family(
-            "position_friction",
-            "friction that varies smoothly along the travel, per direction (screw "
-            "preload, alignment and wear of the guides and the nut along the stroke)",
-            _position_friction_cols,
-            _position_friction_names,
-            _position_friction_search,
-            _position_friction_derived,
-        ),
-        Family(
-            "position_harmonics",
-            "a force periodic in position with harmonics: the direction-independent part "
-            "is cogging / torque ripple / lead error, the part that follows the "
-            "direction is friction varying with the screw's turn (at one motor "
-            "revolution of travel, 2.5 mm on EMPS: the motor and the screw)",
-            _harmonic_cols,
-            _harmonic_names,
-            _harmonic_search,
-            _harmonic_derived,
-        ),
-        Family(
-            "drive_delay",
-            "the drive's force acts late by a pure delay (the controller's zero-order "
-            "hold, the current loop): the effort matches the motion a little later",
-            _delay_cols,
-            lambda s: ("gain",),
-            _delay_search,
-            _delay_derived,
-        ),
-        Family(
-            "force_lag",
-            "a first-order lag of the drive's force loop: command = force + T * "
-            "d(force)/dt; the coefficient is the time constant T [s]",
-            _lag_cols,
-            lambda s: ("T_lag",),
-            _lag_search,
-            _none,
-        ),
+# ------------------------------------------------------------- the canonical families
+# (DESIGN's names; columns with v = qd: offset 1, inertia qdd, viscous v,
+# coulomb_asymmetry 1[v>0] and |v|, stribeck sign(v) exp(-(|v|/v_s)^2), position_periodic
+# cos, sin(2 pi k q / P) for k = 1, 2, harmonic cos, sin(2 pi f t), delay P(t-d) - P(t)
+# with P the nominal effort, drift (t - t0) / T)
+
+
+def _ones_cols(shape: Shape, s: Kin) -> F64:
+    return np.ones((len(s.qd), 1))
+
+
+def _inertia_cols(shape: Shape, s: Kin) -> F64:
+    return s.qdd[:, None].copy()
+
+
+def _viscous_cols(shape: Shape, s: Kin) -> F64:
+    return s.qd[:, None].copy()
+
+
+def _coulomb_asym_cols(shape: Shape, s: Kin) -> F64:
+    v = s.qd
+    return np.column_stack([(v > 0).astype(np.float64), np.abs(v)])
+
+
+def _stribeck_cols(shape: Shape, s: Kin) -> F64:
+    v, vs = s.qd, shape["v_s"]
+    return (np.sign(v) * np.exp(-((np.abs(v) / vs) ** 2)))[:, None]
+
+
+def _periodic_cols(shape: Shape, s: Kin) -> F64:
+    w = 2.0 * np.pi * s.q / shape["period"]
+    return np.column_stack([np.cos(w), np.sin(w), np.cos(2 * w), np.sin(2 * w)])
+
+
+def _time_harmonic_cols(shape: Shape, s: Kin) -> F64:
+    w = 2.0 * np.pi * shape["frequency"] * s.t
+    return np.column_stack([np.cos(w), np.sin(w)])
+
+
+def _rigid_effort(shape: Shape, s: Kin) -> F64:
+    return np.asarray(
+        rigid_regressor(s.qd, s.qdd)
+        @ np.array([shape["M"], shape["Fv"], shape["Fc"], shape["offset"]]),
+        dtype=np.float64,
     )
-}
+
+
+def _late_effort_cols(shape: Shape, s: Kin) -> F64:
+    """``P(t - d) - P(t)`` with ``P`` the nominal effort (linear interpolation in time)."""
+    p = _rigid_effort(shape, s)
+    # the first d seconds have no past: P is held at its first value there
+    return np.asarray(np.interp(s.t - shape["delay_s"], s.t, p) - p, dtype=np.float64)[:, None]
+
+
+def _drift_cols(shape: Shape, s: Kin) -> F64:
+    return ((s.t - shape["t0"]) / shape["span"])[:, None]
+
+
+def _stribeck_search(s: SearchData) -> dict[str, float]:
+    sig, idx, r = s.sig, s.idx, s.r
+    vmax = float(np.max(np.abs(sig.qd[idx])))
+    sub = _Sub(sig, idx)
+
+    def rss_vs(vs: float) -> float:
+        cols = _stribeck_cols({"v_s": float(vs)}, sub)
+        return project_rss(np.column_stack([cols, np.ones(len(idx))]), r)
+
+    grid = np.geomspace(max(vmax * 1e-3, 1e-12), vmax * 0.5, 40)
+    return {"v_s": refine_grid(rss_vs, grid, log=True)}
+
+
+def _periodic_search(s: SearchData) -> dict[str, float]:
+    q, r = s.sig.q, s.r
+    dq = float(np.median(np.abs(np.diff(q)))) if len(q) > 1 else 0.0
+    period, _ = search_period(q[s.idx], r - r.mean(), dq)
+    return {"period": period}
+
+
+def _time_harmonic_search(s: SearchData) -> dict[str, float]:
+    t = s.sig.t
+    tt, rr = gap_filled(t, s.residual, s.mask)
+    # below the anti-alias filter of the decimation (the regressor is decimated: a
+    # column above it is filtered away and its coefficient is meaningless)
+    fs = 1.0 / float(np.median(np.diff(t)))
+    freq, _ = search_frequency(tt, rr, f_max=0.9 * 0.4 * fs / s.decimation)
+    if math.isfinite(freq) and freq > 0:
+        # refine within +-1 bin of the padded FFT by least squares on the residual
+        df = 1.0 / (4.0 * max(float(tt[-1] - tt[0]), 1e-12))
+        ts_, rs_ = t[s.idx], s.r - s.r.mean()
+
+        def rss(fr: float) -> float:
+            w = 2.0 * np.pi * fr * ts_
+            return project_rss(np.column_stack([np.cos(w), np.sin(w)]), rs_)
+
+        fine = np.linspace(max(freq - df, df * 1e-3), freq + df, 41)
+        freq = float(fine[int(np.argmin([rss(fr) for fr in fine]))])
+    return {"frequency": freq}
+
+
+def _late_effort_search(s: SearchData) -> dict[str, float]:
+    if s.nominal is None:
+        raise ParameterError("nominal", "the nominal parameters (M, Fv, Fc, offset)", None)
+    sig, idx, r = s.sig, s.idx, s.r
+    base = dict(zip(("M", "Fv", "Fc", "offset"), map(float, s.nominal[:4])))
+    ts = float(np.median(np.diff(sig.t)))
+    span = float(sig.t[-1] - sig.t[0])
+    # lags from one sample to 5 % of the record (at most 0.5 s)
+    grid = np.geomspace(ts, max(min(0.5, 0.05 * span), 2 * ts), 40)
+    p_full = _rigid_effort(base, sig)
+    t_sub = sig.t[idx]
+
+    def rss_d(d: float) -> float:
+        # the column of _late_effort_cols, evaluated on the search samples only
+        col = np.interp(t_sub - d, sig.t, p_full) - p_full[idx]
+        return project_rss(np.column_stack([col, np.ones(len(idx))]), r)
+
+    return {**base, "delay_s": refine_grid(rss_d, grid, log=True)}
+
+
+def _drift_search(s: SearchData) -> dict[str, float]:
+    tt = s.sig.t[np.flatnonzero(s.mask)]
+    return {"t0": float(tt[0]), "span": float(max(tt[-1] - tt[0], 1e-12))}
+
+
+def _periodic_derived(
+    shape: Shape, coef: Mapping[str, float], nominal: Mapping[str, float]
+) -> dict[str, float]:
+    return {
+        "amplitude_1": math.hypot(coef["c1"], coef["s1"]),
+        "amplitude_2": math.hypot(coef["c2"], coef["s2"]),
+    }
+
+
+def _time_harmonic_derived(
+    shape: Shape, coef: Mapping[str, float], nominal: Mapping[str, float]
+) -> dict[str, float]:
+    return {"amplitude": math.hypot(coef["c"], coef["s"])}
+
+
+def _coulomb_asym_derived(
+    shape: Shape, coef: Mapping[str, float], nominal: Mapping[str, float]
+) -> dict[str, float]:
+    fv, fc, off = nominal["Fv"], nominal["Fc"], nominal["offset"]
+    return {
+        "Fv_pos": float(fv + coef["abs_v"]),
+        "Fv_neg": float(fv - coef["abs_v"]),
+        "Fc_pos": float(fc + off + coef["dir_pos"]),
+        "Fc_neg": float(fc - off),
+    }
+
+
+def _named(*names: str) -> Callable[[Shape], tuple[str, ...]]:
+    return lambda shape: names
+
+
+CANONICAL: tuple[Family, ...] = (
+    Family("offset", "a constant effort (a sensor or amplifier offset, gravity on a tilted "
+           "axis)", _ones_cols, _named("offset"), _no_search, _none),
+    Family("inertia", "mass / inertia not in the nominal model", _inertia_cols,
+           _named("inertia"), _no_search, _none),
+    Family("viscous", "viscous friction, proportional to speed", _viscous_cols,
+           _named("viscous"), _no_search, _none),
+    Family("coulomb_asymmetry", "friction that differs by direction: a Coulomb level and a "
+           "viscous coefficient for each direction (Fc_pos/Fc_neg, Fv_pos/Fv_neg)",
+           _coulomb_asym_cols, _named("dir_pos", "abs_v"), _no_search, _coulomb_asym_derived),
+    Family("stribeck", "friction above the Coulomb level at low speed, fading over the "
+           "Stribeck speed v_s (the same in both directions)", _stribeck_cols,
+           _named("F_s"), _stribeck_search, _none, shaped=True),
+    Family("position_periodic", "a force periodic in position (cogging, screw lead error)",
+           _periodic_cols, _named("c1", "s1", "c2", "s2"), _periodic_search,
+           _periodic_derived, shaped=True),
+    Family("harmonic", "a force periodic in time (a vibration, a disturbance at fixed "
+           "frequency)", _time_harmonic_cols, _named("c", "s"), _time_harmonic_search,
+           _time_harmonic_derived, shaped=True),
+    Family("delay", "the effort acts late relative to the motion (command-to-force lag)",
+           _late_effort_cols, _named("gain"), _late_effort_search, _none, shaped=True),
+    Family("drift", "a slow change over time (warm-up of the lubricant, a thermal drift)",
+           _drift_cols, _named("slope"), _drift_search, _none),
+)  # fmt: skip
+
+
+#: the real-drive families (built and measured on EMPS)
+DRIVE: tuple[Family, ...] = (
+    Family(
+        "viscous_asymmetry",
+        "viscous friction that differs by direction: Fv for v < 0, Fv + coefficient "
+        "for v > 0 (seals, preload or lubrication that depend on the direction)",
+        _viscous_asym_cols,
+        lambda s: ("dFv_pos",),
+        _no_search,
+        _none,
+    ),
+    Family(
+        "friction_curve",
+        "the friction-speed curve of each direction (Stribeck): friction at low "
+        "speed above (coefficient > 0) or below the Coulomb + viscous line, fading "
+        "over the Stribeck speed v_s; bounded, so it extrapolates as the line",
+        _friction_curve_cols,
+        lambda s: ("pos_Fs", "neg_Fs"),
+        _friction_curve_search,
+        _none,
+    ),
+    Family(
+        "position_friction",
+        "friction that varies smoothly along the travel, per direction (screw "
+        "preload, alignment and wear of the guides and the nut along the stroke)",
+        _position_friction_cols,
+        _position_friction_names,
+        _position_friction_search,
+        _position_friction_derived,
+    ),
+    Family(
+        "position_harmonics",
+        "a force periodic in position with harmonics: the direction-independent part "
+        "is cogging / torque ripple / lead error, the part that follows the "
+        "direction is friction varying with the screw's turn (at one motor "
+        "revolution of travel, 2.5 mm on EMPS: the motor and the screw)",
+        _harmonic_cols,
+        _harmonic_names,
+        _harmonic_search,
+        _harmonic_derived,
+    ),
+    Family(
+        "drive_delay",
+        "the drive's force acts late by a pure delay (the controller's zero-order "
+        "hold, the current loop): the effort matches the motion a little later",
+        _delay_cols,
+        lambda s: ("gain",),
+        _delay_search,
+        _delay_derived,
+    ),
+    Family(
+        "force_lag",
+        "a first-order lag of the drive's force loop: command = force + T * "
+        "d(force)/dt; the coefficient is the time constant T [s]",
+        _lag_cols,
+        lambda s: ("T_lag",),
+        _lag_search,
+        _none,
+    ),
+)
+
+
+def _load_cols(shape: Shape, s: Kin) -> F64:
+    load = getattr(s, "load", None)
+    if load is None:
+        return np.zeros((len(s.qd), 3))
+    return np.column_stack([load, load * s.qd, load * np.sign(s.qd)])
+
+
+#: a process load (cutting) on the rows marked as loaded: an effort during the cut, a part
+#: proportional to the feed speed (chip thickness grows with the feed at a constant
+#: spindle speed), a part by direction; offered only when the log marks those rows
+LOAD = Family(
+    "load",
+    "a process load (cutting) on the rows where it acts: an offset F_0, a part k_v "
+    "proportional to the speed (the chip thickness grows with the feed), a part F_c by "
+    "direction of motion",
+    _load_cols,
+    lambda s: ("F_0", "k_v", "F_c"),
+    _no_search,
+    _none,
+)
+
+#: every family of the rigid model, in the order a round scores them
+FAMILIES: dict[str, Family] = {f.name: f for f in (*CANONICAL, *DRIVE, LOAD)}
 
 #: built and measured on EMPS, not offered by default, with the reason (docs/residual-emps.md)
 NOT_OFFERED: dict[str, str] = {
+    "load": "needs the rows where the load acts (--load-rows)",
     "viscous_asymmetry": "spanned by coulomb_asymmetry (the benchmark's asymmetric variant, "
     "which reports Fv_pos and Fv_neg): offering both names one effect twice",
     "friction_curve": "on EMPS no better than the symmetric Stribeck family (record halves "
     "1.96 / 2.24 % either way) and worse where the fit has low accelerations (scored at "
     "high |qdd|: 6.8 % against 2.9 %): its per-direction levels rest on the few reversals",
 }
-#: the families offered to the residual analysis
-NAMES: tuple[str, ...] = tuple(n for n in FAMILIES if n not in NOT_OFFERED)
+#: the real-drive families offered to the residual analysis
+NAMES: tuple[str, ...] = tuple(f.name for f in DRIVE if f.name not in NOT_OFFERED)
+#: THE REGISTRY of the rigid model: the families its analysis offers (a new family is
+#: one entry of CANONICAL or DRIVE)
+OFFERED: dict[str, Family] = {n: f for n, f in FAMILIES.items() if n not in NOT_OFFERED}

@@ -22,8 +22,9 @@ channels, both at :math:`t_{k-1}` and filtered by Q(s):
 
 The held-out error is the rms over both channels,
 :math:`\sqrt{\overline{(e_F^2 + e_S^2)}/2}`; the rms of each channel is reported too.
-Selection is greedy with the cross-validated rule of :mod:`estimators.residual_selection`
-(as :mod:`estimators.residual`; the folds cut the valid rows of both channels alike).
+Selection is the engine's (:func:`estimators.residual_engine.analyse`, the rule of
+:mod:`estimators.residual_selection`) over :class:`TwoInertiaModel`; the folds cut the
+valid rows of both channels alike.
 The observer's own discretisation floor is part of the nominal model: a baseline column
 for the sampling error of eq. (2)'s Coulomb term (the sign of a velocity that crosses
 zero within a sample). Where two candidates are the same signal on the record, the
@@ -39,12 +40,15 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from common.arrays import F64
+from common.stats import rms
+from estimators import residual_engine as engine
 from estimators.errors import ParameterError, require_in
 from estimators.filters import DiscreteFilter, lowpass
 from estimators.force_observer import (
@@ -57,50 +61,24 @@ from estimators.observer_effects import (
     COLUMNS,
     SIDES,
     EffectsParams,
-    Kinematics,
     ObserverEffect,
     ObserverEffects,
+    ObserverKinematics,
     filter_columns,
     kinematics,
     raw_basis,
     signature,
     stribeck_basis,
 )
-from estimators.residual import (
-    CandidateScore,
-    Signals,
-    _project_rss,
+from estimators.residual_selection import Fold, OutOfFold, SelectionParams, support
+from estimators.residual_shapes import (
     gap_filled,
+    project_rss,
     refine_grid,
-    rms,
     search_frequency,
     unexplained_structure,
 )
-from estimators.residual_selection import (
-    Fold,
-    OutOfFold,
-    SelectionParams,
-    Verdict,
-    ambiguity,
-    correlation,
-    holm,
-    make_folds,
-    support,
-    verdict,
-)
 
-FAMILIES_TWO_INERTIA: tuple[str, ...] = (
-    "offset",
-    "coulomb_asymmetry",
-    "stribeck",
-    "position_periodic",
-    "torque_ripple",
-    "backlash",
-    "inertia",
-    "viscous",
-    "harmonic",
-    "drift",
-)
 #: families of DESIGN not offered for a two-inertia log, with the reason (measured)
 NOT_OFFERED_TWO_INERTIA: dict[str, str] = {
     "delay": (
@@ -111,83 +89,14 @@ NOT_OFFERED_TWO_INERTIA: dict[str, str] = {
 }
 #: torque history kept for delay terms [s]
 _MAX_DELAY = 0.05
-_SEARCH_SAMPLES = 20_000  # rows of a shape search over the whole fitting part
 #: taps of the reference calibration filter (samples around t[k-1])
 _REF_TAPS: tuple[int, ...] = (-2, -1, 1, 2)
 
 
-@dataclass(frozen=True)
-class TwoInertiaParams:
-    """Settings of the two-inertia residual analysis (see :class:`ResidualParams`)."""
-
-    holdout_fraction: float = 0.3
-    blocks: int = 10
-    max_effects: int = 4
-    warmup_s: float = 0.02
-    families: tuple[str, ...] = FAMILIES_TWO_INERTIA
-    selection: SelectionParams = field(default_factory=SelectionParams)
-
-    def __post_init__(self) -> None:
-        require_in("holdout_fraction", self.holdout_fraction, 0.05, 0.7)
-        require_in("warmup_s", self.warmup_s, 0.0, 10.0)
-        if not isinstance(self.blocks, int) or self.blocks < 3:
-            raise ParameterError("blocks", "an integer >= 3", self.blocks)
-        nf = len(FAMILIES_TWO_INERTIA)
-        if not isinstance(self.max_effects, int) or not 0 <= self.max_effects <= nf:
-            raise ParameterError("max_effects", f"an integer in [0, {nf}]", self.max_effects)
-        unknown = [f for f in self.families if f not in FAMILIES_TWO_INERTIA]
-        if unknown:
-            raise ParameterError(
-                "families", f"names among {', '.join(FAMILIES_TWO_INERTIA)}", unknown[0]
-            )
-
-
-@dataclass(frozen=True, eq=False)
-class TwoInertiaResult:
-    """Outcome of :func:`analyse_two_inertia` (the fields of ``ResidualResult`` and more).
-
-    ``rms_*`` are the held-out rms over both channels; ``rms_force_*`` and ``rms_twist_*``
-    per channel; ``relerr_*`` = 100 ||e_F|| / ||Q F_ref|| over the held-out samples
-    (without a reference: over ||Q tau_m||). ``f_hat_*`` are the observer's force
-    estimates without and with the effects, shifted to the log's time base (the estimate
-    of sample k+1 refers to t[k]; the last sample repeats).
-    """
-
-    names_before: tuple[str, ...]
-    theta_before: F64
-    names_after: tuple[str, ...]
-    theta_after: F64
-    effects: tuple[ObserverEffect, ...]
-    candidates: tuple[CandidateScore, ...]
-    holdout_start: float
-    holdout_stop: float
-    rms_before: float
-    rms_after: float
-    relerr_before: float
-    relerr_after: float
-    rms_force_before: float
-    rms_force_after: float
-    rms_twist_before: float
-    rms_twist_after: float
-    unexplained: tuple[dict[str, float | str], ...]
-    f_hat_before: F64
-    f_hat_after: F64
-    t_dec: F64
-    residual_before_dec: F64
-    residual_after_dec: F64
-    q_dec: F64
-    qd_dec: F64
-    reference: str
-    indistinguishable: tuple[dict[str, object], ...] = ()
-    selection: SelectionParams = field(default_factory=SelectionParams)
-    # per held-out row: squared error over both channels (mean of the two), load speed
-    hold_sq_before: F64 = field(default_factory=lambda: np.zeros(0))
-    hold_sq_after: F64 = field(default_factory=lambda: np.zeros(0))
-    hold_speed: F64 = field(default_factory=lambda: np.zeros(0))
-    #: squared force-channel error alone over the held-out rows (where a load-side
-    #: effect acts: its twist column is zero)
-    hold_sq_force_before: F64 = field(default_factory=lambda: np.zeros(0))
-    hold_sq_force_after: F64 = field(default_factory=lambda: np.zeros(0))
+#: least usable rows of a record per block of ResidualParams.blocks
+ROWS_PER_BLOCK = 40
+#: samples of a shape search inside a fold
+_FOLD_SEARCH_SAMPLES = 10_000
 
 
 @dataclass(frozen=True, eq=False)
@@ -195,7 +104,7 @@ class _Data:
     """Everything the search needs, over the valid samples (``idx`` into the record)."""
 
     idx: NDArray[np.intp]
-    kin: Kinematics  # whole record
+    kin: ObserverKinematics  # whole record
     alpha: F64  # whole record
     base_f: F64  # baseline columns of the force channel (valid rows)
     base_s: F64  # the same baseline columns in the twist channel
@@ -206,17 +115,8 @@ class _Data:
 
 def _columns(d: _Data, name: str, shape: dict[str, float], qf: DiscreteFilter) -> tuple[F64, F64]:
     qc, _ = filter_columns(qf, raw_basis(name, shape, d.kin))
-    cf, cs = signature(_side(name), qc, d.alpha)
+    cf, cs = signature(SIDES[name], qc, d.alpha)
     return cf[d.idx], cs[d.idx]
-
-
-def _side(name: str) -> str:
-    return SIDES[name]
-
-
-def _proj_rss(cols: F64, r: F64) -> float:
-    # normal equations (a few well-scaled columns; lstsq on 50k rows was the search's cost)
-    return _project_rss(cols, r)
 
 
 def _period_search(q: F64, r: F64, angular: bool) -> float:
@@ -229,7 +129,7 @@ def _period_search(q: F64, r: F64, angular: bool) -> float:
 
     def rss(p: float) -> float:
         w = 2.0 * np.pi * q / p
-        return _proj_rss(np.column_stack([np.cos(w), np.sin(w), np.ones(len(q))]), r)
+        return project_rss(np.column_stack([np.cos(w), np.sin(w), np.ones(len(q))]), r)
 
     grid = list(np.geomspace(lo, hi, 120))
     if angular:
@@ -249,6 +149,118 @@ def _period_search(q: F64, r: F64, angular: bool) -> float:
     return best[1]
 
 
+@dataclass(frozen=True, eq=False)
+class _Search:
+    """A shape search's inputs: the current residuals on the valid rows, the rows it
+    may use (``fit``) and the evenly spaced ones it searches (``rows``; ``gi`` their
+    record indices)."""
+
+    d: _Data
+    r_f: F64
+    r_s: F64
+    fit: NDArray[np.bool_]
+    rows: NDArray[np.intp]
+    gi: NDArray[np.intp]
+    angular: bool
+    q_hz: float
+    q_order: int
+
+
+def _stribeck_search(s: _Search) -> dict[str, float]:
+    kin, gi = s.d.kin, s.gi
+    w = kin.w_l[gi]
+    vmax = float(np.max(np.abs(w))) if len(w) else 0.0
+    if vmax <= 0:
+        return {"v_s": math.nan}
+    qf = lowpass(s.q_hz, kin.sample_time, s.q_order)
+
+    def rss(vs: float) -> float:
+        # the column as the fit sees it: the basis through Q(s), like the residual
+        c, _ = filter_columns(
+            qf, stribeck_basis(kin.w_l, kin.a_l, kin.sample_time, float(vs))[:, None]
+        )
+        return project_rss(np.column_stack([c[gi, 0], np.ones(len(gi))]), s.r_f[s.rows])
+
+    return {"v_s": refine_grid(rss, np.geomspace(vmax * 1e-3, vmax * 0.5, 30), log=True)}
+
+
+def _load_period_search(s: _Search) -> dict[str, float]:
+    return {"period": _period_search(s.d.kin.q_l[s.gi], s.r_f[s.rows], s.angular)}
+
+
+def _motor_period_search(s: _Search) -> dict[str, float]:
+    # motor side: seen in full in the twist disagreement
+    return {"period": _period_search(s.d.kin.q_m[s.gi], s.r_s[s.rows], s.angular)}
+
+
+def _backlash_search(s: _Search) -> dict[str, float]:
+    dth = s.d.kin.q_m[s.gi] - s.d.kin.q_l[s.gi]
+    top = float(np.max(np.abs(dth))) if len(dth) else 0.0
+    if not top > 0:
+        return {"gap": math.nan}
+    best = (math.inf, math.nan)
+    # total gap from 1/1000 of the largest twist to 1/4 of the median |twist|. Choice:
+    # a wider dead zone is a line through the twist, which fits the observer's own
+    # discretisation error at the 400 Hz shaft mode (on the simulator without any
+    # effect) rather than a gap
+    med = float(np.median(np.abs(dth)))
+    for gap in np.geomspace(top * 1e-3, max(0.25 * med, top * 2e-3), 40):
+        c = np.clip(dth, -0.5 * gap, 0.5 * gap)
+        # no constant column: the twist channel has none (an offset is load side)
+        val = project_rss(c[:, None], s.r_s[s.rows])
+        if val < best[0]:
+            best = (val, float(gap))
+    return {"gap": best[1]}
+
+
+def _harmonic_search(s: _Search) -> dict[str, float]:
+    # rows are consecutive samples (air-cut masks aside): fill the fold's gap
+    tt, rr = gap_filled(s.d.kin.t[s.d.idx], s.r_f, s.fit)
+    return {"frequency": search_frequency(tt, rr)[0]}
+
+
+def _drift_search(s: _Search) -> dict[str, float]:
+    tt = s.d.kin.t[s.d.idx[np.flatnonzero(s.fit)]]
+    return {"t0": float(tt[0]), "span": float(max(tt[-1] - tt[0], 1e-12))}
+
+
+def _no_search(s: _Search) -> dict[str, float]:
+    return {}
+
+
+@dataclass(frozen=True)
+class Family:
+    """One effect family of the two-inertia model: its shape search and whether it has a
+    shape to search again inside each training fold. Its basis, side and coefficient
+    names are the observer's terms (:mod:`estimators.observer_effects`)."""
+
+    name: str
+    search: Callable[[_Search], dict[str, float]]
+    shaped: bool = False
+
+    @property
+    def columns(self) -> tuple[str, ...]:
+        return COLUMNS[self.name]
+
+
+#: THE REGISTRY of the two-inertia model, in the order a round scores them
+FAMILIES: dict[str, Family] = {
+    f.name: f
+    for f in (
+        Family("offset", _no_search),
+        Family("coulomb_asymmetry", _no_search),
+        Family("stribeck", _stribeck_search, shaped=True),
+        Family("position_periodic", _load_period_search, shaped=True),
+        Family("torque_ripple", _motor_period_search, shaped=True),
+        Family("backlash", _backlash_search, shaped=True),
+        Family("inertia", _no_search),
+        Family("viscous", _no_search),
+        Family("harmonic", _harmonic_search, shaped=True),
+        Family("drift", _drift_search),
+    )
+}
+
+
 def find_shape_two_inertia(
     name: str,
     d: _Data,
@@ -266,54 +278,8 @@ def find_shape_two_inertia(
     rows = np.flatnonzero(fit)
     stride = max(1, int(math.ceil(len(rows) / max_rows)))
     rows = rows[::stride]
-    gi = d.idx[rows]  # record indices
-    kin = d.kin
-    if name == "stribeck":
-        w = kin.w_l[gi]
-        vmax = float(np.max(np.abs(w))) if len(w) else 0.0
-        if vmax <= 0:
-            return {"v_s": math.nan}
-        qf = lowpass(q_hz, kin.sample_time, q_order)
-
-        def rss(vs: float) -> float:
-            # the column as the fit sees it: the basis through Q(s), like the residual
-            c, _ = filter_columns(
-                qf, stribeck_basis(kin.w_l, kin.a_l, kin.sample_time, float(vs))[:, None]
-            )
-            return _proj_rss(np.column_stack([c[gi, 0], np.ones(len(gi))]), r_f[rows])
-
-        return {"v_s": refine_grid(rss, np.geomspace(vmax * 1e-3, vmax * 0.5, 30), log=True)}
-    if name == "position_periodic":
-        return {"period": _period_search(kin.q_l[gi], r_f[rows], angular)}
-    if name == "torque_ripple":
-        # motor side: seen in full in the twist disagreement
-        return {"period": _period_search(kin.q_m[gi], r_s[rows], angular)}
-    if name == "backlash":
-        dth = kin.q_m[gi] - kin.q_l[gi]
-        top = float(np.max(np.abs(dth))) if len(dth) else 0.0
-        if not top > 0:
-            return {"gap": math.nan}
-        best = (math.inf, math.nan)
-        # total gap from 1/1000 of the largest twist to 1/4 of the median |twist|. Choice:
-        # a wider dead zone is a line through the twist, which fits the observer's own
-        # discretisation error at the 400 Hz shaft mode (on the simulator without any
-        # effect) rather than a gap
-        med = float(np.median(np.abs(dth)))
-        for gap in np.geomspace(top * 1e-3, max(0.25 * med, top * 2e-3), 40):
-            c = np.clip(dth, -0.5 * gap, 0.5 * gap)
-            # no constant column: the twist channel has none (an offset is load side)
-            val = _proj_rss(c[:, None], r_s[rows])
-            if val < best[0]:
-                best = (val, float(gap))
-        return {"gap": best[1]}
-    if name == "harmonic":
-        # rows are consecutive samples (air-cut masks aside): fill the fold's gap
-        tt, rr = gap_filled(kin.t[d.idx], r_f, fit)
-        return {"frequency": search_frequency(tt, rr)[0]}
-    if name == "drift":
-        tt = kin.t[d.idx[np.flatnonzero(fit)]]
-        return {"t0": float(tt[0]), "span": float(max(tt[-1] - tt[0], 1e-12))}
-    return {}
+    s = _Search(d, r_f, r_s, fit, rows, d.idx[rows], angular, q_hz, q_order)
+    return FAMILIES[name].search(s)
 
 
 @dataclass(frozen=True, eq=False)
@@ -419,7 +385,7 @@ def observer_front(
 ) -> tuple[F64, F64, F64]:
     """Nominal observer over a record: force estimate, twist disagreement, alpha."""
     te = TorsionEstimator(observer)
-    _, rec = te.step(te.init_state(), tau_m, q_m, q_l)
+    _, rec = te.step(te.initial_state(), tau_m, q_m, q_l)
     f = cutting_force(rec, load.J_L, load.B_L, load.F_CL)
     return f, rec.t_sk - rec.t_sm, rec.alpha
 
@@ -480,21 +446,19 @@ def _prepare(
     return data, f_hat
 
 
-def analyse_two_inertia(
-    t: ArrayLike,
-    tau_m: ArrayLike,
-    q_m: ArrayLike,
-    q_l: ArrayLike,
-    observer: ObserverParams,
-    load: LoadParams,
-    f_ext: ArrayLike | None = None,
-    air_cut: NDArray[np.bool_] | None = None,
-    params: TwoInertiaParams = TwoInertiaParams(),
-    *,
-    angular: bool = True,
-    progress: Callable[[str], None] | None = None,
-) -> TwoInertiaResult:
-    """Residual of the nominal observer, greedy effect selection, observer with effects.
+@dataclass(frozen=True, eq=False)
+class TwoInertiaFit:
+    """A model structure (baseline plus ``effects``) fitted on the fitting part."""
+
+    fit: _Fit
+    cf: F64  # the effects' columns in the force channel (valid rows)
+    cs: F64  # and in the twist channel
+    effects: tuple[tuple[str, dict[str, float]], ...] = ()
+
+
+class TwoInertiaModel:
+    """The cutting force observer (seed 000) with a log's nominal parameters as a
+    residual model for :func:`estimators.residual_engine.analyse`.
 
     Parameters
     ----------
@@ -507,248 +471,282 @@ def analyse_two_inertia(
         cutting force.
     air_cut : ndarray of bool, optional
         Samples where the true cutting force is zero (used when ``f_ext`` is None).
-    params : TwoInertiaParams
-        Settings.
+    warmup_s : float
+        Start of the record left out (the observer's transient) [s].
     angular : bool
         Positions are angles [rad] (period search includes whole orders per revolution).
-    progress : callable, optional
-        Called with a short message at each stage and candidate.
+    families : mapping, optional
+        The family registry (None: :data:`FAMILIES`).
+    rows_per_block : int
+        Least usable rows per block of ``ResidualParams.blocks`` (the least record
+        length, with the held-out fraction).
 
     Raises
     ------
     ParameterError
-        Mismatched lengths, neither ``f_ext`` nor ``air_cut``, or too few samples.
+        Mismatched lengths, or neither ``f_ext`` nor ``air_cut``.
     """
-    ta = np.asarray(t, dtype=np.float64)
-    tau_a, qm_a, ql_a = (np.asarray(a, dtype=np.float64) for a in (tau_m, q_m, q_l))
-    arrays = [tau_a, qm_a, ql_a]
-    n = len(ta)
-    if any(len(a) != n for a in arrays):
-        raise ParameterError("signals", "t, tau_m, q_m, q_l of equal length", n)
-    fe = None if f_ext is None else np.asarray(f_ext, dtype=np.float64)
-    if fe is None and air_cut is None:
-        raise ParameterError("f_ext", "a reference force or air-cut segments", None)
-    if air_cut is not None and len(air_cut) != n:
-        raise ParameterError("air_cut", f"a mask of {n} samples", len(air_cut))
-    mask = None if fe is not None else np.asarray(air_cut, dtype=bool)
 
-    def say(msg: str) -> None:
-        if progress is not None:
-            progress(msg)
+    kind = "two_inertia"
+    not_offered: Mapping[str, str] = NOT_OFFERED_TWO_INERTIA
+    max_effects = 4
 
-    say("observer")
-    d, f_hat = _prepare(ta, tau_a, qm_a, ql_a, fe, mask, observer, load, params.warmup_s)
-    m = len(d.idx)
-    need = 40 * params.blocks / params.holdout_fraction
-    if m < need:
-        raise ParameterError(
-            "samples",
-            f"at least {int(math.ceil(need))} usable samples for the held-out split "
-            f"(after the {params.warmup_s:g} s warm-up"
-            + ("" if mask is None else ", inside the air-cut segments")
-            + ")",
-            m,
+    def __init__(
+        self,
+        t: ArrayLike,
+        tau_m: ArrayLike,
+        q_m: ArrayLike,
+        q_l: ArrayLike,
+        observer: ObserverParams,
+        load: LoadParams,
+        f_ext: ArrayLike | None = None,
+        air_cut: NDArray[np.bool_] | None = None,
+        *,
+        warmup_s: float = 0.02,
+        angular: bool = True,
+        families: Mapping[str, Family] | None = None,
+        rows_per_block: int = ROWS_PER_BLOCK,
+    ) -> None:
+        require_in("warmup_s", warmup_s, 0.0, 10.0)
+        self.rows_per_block = rows_per_block
+        self.t = np.asarray(t, dtype=np.float64)
+        self.tau, self.q_m, self.q_l = (np.asarray(a, dtype=np.float64) for a in (tau_m, q_m, q_l))
+        n = len(self.t)
+        if any(len(a) != n for a in (self.tau, self.q_m, self.q_l)):
+            raise ParameterError("signals", "t, tau_m, q_m, q_l of equal length", n)
+        self.fe = None if f_ext is None else np.asarray(f_ext, dtype=np.float64)
+        if self.fe is None and air_cut is None:
+            raise ParameterError("f_ext", "a reference force or air-cut segments", None)
+        if air_cut is not None and len(air_cut) != n:
+            raise ParameterError("air_cut", f"a mask of {n} samples", len(air_cut))
+        self.mask = None if self.fe is not None else np.asarray(air_cut, dtype=bool)
+        self.observer, self.load = observer, load
+        self.warmup_s, self.angular = warmup_s, angular
+        self.families: Mapping[str, Family] = FAMILIES if families is None else families
+        self.reference = "f_ext" if self.fe is not None else "air cut"
+        self.description = (
+            "two_inertia: cutting force observer (seed 000 eq. 2-8) with the log's nominal "
+            f"parameters; residual against {self.reference}; error over the force residual "
+            "and the twist disagreement T_sK - T_sM"
         )
-    split = int(round((1.0 - params.holdout_fraction) * m))
-    fit = np.zeros(m, dtype=bool)
-    fit[:split] = True
-    hold = ~fit
-    qf = lowpass(observer.q_hz, observer.sample_time, observer.q_order)
-    empty = np.zeros((m, 0))
-    base = (d.base_f, d.base_s)
-    f0 = _fit(base, empty, empty, d.y_f, d.y_s, fit)
-    cur, cf_cur, cs_cur = f0, empty, empty
-    sp = params.selection
-    # guard rows around a validation fold: the memory of Q(s) and of the observer's
-    # own filters (ten time constants of Q), at least the warm-up
-    guard_s = max(params.warmup_s, 10.0 / (2.0 * math.pi * observer.q_hz))
-    guard = int(math.ceil(guard_s / observer.sample_time))
-    folds = make_folds(m, split, sp.folds, guard)
-    selected: list[tuple[str, dict[str, float]]] = []
-    scores: dict[str, CandidateScore] = {}
-    ambiguous: list[dict[str, object]] = []
-    while len(selected) < params.max_effects:
-        say(f"cross-validation round {len(selected) + 1}")
-        before = _fold_before(d, folds, cf_cur, cs_cur)
-        trials: list[_Trial] = []
-        for name in params.families:
-            if any(s_[0] == name for s_ in selected):
-                continue
-            say(f"candidate {name}")
-            shape = find_shape_two_inertia(
-                name, d, cur.e_f, cur.e_s, fit, angular, q_hz=observer.q_hz,
-                q_order=observer.q_order,
-            )  # fmt: skip
-            if any(not math.isfinite(v) for v in shape.values()):
-                scores[name] = CandidateScore(
-                    name, shape, _rms2(cur, hold), _rms2(cur, hold), 0.0, 0.0, False,
-                    "no shape found",
-                )  # fmt: skip
-                continue
-            cf, cs = _columns(d, name, shape, qf)
-            fr = _fit(base, np.hstack([cf_cur, cf]), np.hstack([cs_cur, cs]), d.y_f, d.y_s, fit)
-            added = int(fr.keep[-cf.shape[1] :].sum())
-            mse_cur = _mse(cur.e_f[hold], cur.e_s[hold])
-            mse1 = _mse(fr.e_f[hold], fr.e_s[hold])
-            gain = 1.0 - mse1 / max(mse_cur, 1e-300)
-            coefs = fr.theta[-cf.shape[1] :]
-            pars = {**shape, **dict(zip(COLUMNS[name], map(float, coefs)))}
-            if not added:
-                scores[name] = CandidateScore(
-                    name, pars, _rms2(cur, hold), math.sqrt(mse1), gain, 0.0, False,
-                    "spanned by the current model (nothing new)",
-                )  # fmt: skip
-                continue
-            # screen with the shape of the whole fitting part (optimistic: the shape saw
-            # the validation folds); a candidate that fails even this is not re-searched
-            ver = _fold_scores(d, folds, before, cf_cur, cs_cur, (cf, cs), sp)
-            note = ""
-            if (
-                name in _SHAPED
-                and math.isfinite(ver.mean_effect)
-                and ver.mean_effect >= 0.5 * sp.min_effect
-                and ver.p_value < 0.5
-            ):
-                cols_k = []
-                xf_cur = np.hstack([d.base_f, cf_cur])
-                xs_cur = np.hstack([d.base_s, cs_cur])
-                for fd, b0 in zip(folds, before):
-                    # the current model fitted without the fold: its residual there
-                    r_f = d.y_f - xf_cur @ b0.theta
-                    r_s = d.y_s - xs_cur @ b0.theta
-                    sh_k = find_shape_two_inertia(
-                        name, d, r_f, r_s, fd.train, angular, _FOLD_SEARCH_SAMPLES,
-                        q_hz=observer.q_hz, q_order=observer.q_order,
-                    )  # fmt: skip
-                    if any(not math.isfinite(v) for v in sh_k.values()):
-                        sh_k = shape
-                    cols_k.append(_columns(d, name, sh_k, qf))
-                ver = _fold_scores(d, folds, before, cf_cur, cs_cur, cols_k, sp)
-            elif name in _SHAPED:
-                note = "screened out (shape of the whole fitting part; not re-searched)"
-            term = _stacked_term(fr, cf, cs)
-            trials.append(_Trial(name, shape, fr, cf, cs, ver, term))
-            scores[name] = CandidateScore(
-                name, pars, _rms2(cur, hold), math.sqrt(mse1), gain, ver.t_stat, False, note,
-                cv_effect=ver.mean_effect, p_value=ver.p_value, folds_used=ver.folds_used,
-                support_fraction=ver.support_fraction,
-            )  # fmt: skip
-        if not trials:
-            break
-        passes = holm([tr.verdict.p_value for tr in trials], sp.alpha)
-        accepted = [
-            tr for tr, ok in zip(trials, passes) if ok and tr.verdict.mean_effect >= sp.min_effect
-        ]
-        for tr, ok in zip(trials, passes):
-            scores[tr.name] = replace(scores[tr.name], passed=bool(ok) and tr in accepted)
-        if not accepted:
-            break
-        best = max(accepted, key=lambda tr: tr.verdict.total_reduction)
-        same = [
-            tr
-            for tr in accepted
-            if tr is best
-            or (
-                correlation(tr.term, best.term) >= sp.same_signal
-                and tr.verdict.total_reduction >= (1.0 - sp.tie) * best.verdict.total_reduction
+        self.qf = lowpass(observer.q_hz, observer.sample_time, observer.q_order)
+
+    @cached_property
+    def _front(self) -> tuple[_Data, F64]:
+        return _prepare(
+            self.t, self.tau, self.q_m, self.q_l, self.fe, self.mask, self.observer,
+            self.load, self.warmup_s,
+        )  # fmt: skip
+
+    def prepare(self, params: engine.ResidualParams, say: Callable[[str], None]) -> engine.Rows:
+        """Run the nominal observer, check the length, split the valid rows."""
+        say("observer")
+        self.d, self.f_hat = self._front
+        m = len(self.d.idx)
+        need = self.rows_per_block * params.blocks / params.holdout_fraction
+        if m < need:
+            raise ParameterError(
+                "samples",
+                f"at least {int(math.ceil(need))} usable samples for the held-out split "
+                f"(after the {self.warmup_s:g} s warm-up"
+                + ("" if self.mask is None else ", inside the air-cut segments")
+                + ")",
+                m,
             )
-        ]
-        # the same signal on this record: the family with fewer columns is installed (it
-        # carries the signal as well), both are named as indistinguishable here
-        choice = min(same, key=lambda tr: (tr.cf.shape[1], -tr.verdict.total_reduction))
-        if len(same) > 1:
-            ambiguous.append(ambiguity([tr.name for tr in same], choice.name, sp.same_signal))
-        selected.append((choice.name, choice.shape))
-        cur = choice.fit
-        cf_cur = np.hstack([cf_cur, choice.cf])
-        cs_cur = np.hstack([cs_cur, choice.cs])
-        scores[choice.name] = replace(scores[choice.name], selected=True)
-    # the selected effects with their joint coefficients, as observer terms
-    nb = d.base_f.shape[1]
-    effects: list[ObserverEffect] = []
-    j = nb
-    names_after = list(_base_names(nb))
-    for name, shape in selected:
-        k = len(COLUMNS[name])
-        effects.append(ObserverEffect(name, shape, tuple(map(float, cur.theta[j : j + k]))))
-        names_after.extend(f"{name}.{c}" for c in COLUMNS[name])
-        j += k
-    final_scores = []
-    for sc in scores.values():
-        if sc.selected:
-            eff = next(e for e in effects if e.name == sc.name)
-            pars = {**eff.shape, **dict(zip(COLUMNS[eff.name], eff.coef))}
-            sc = replace(sc, params=pars)
-        final_scores.append(sc)
-    say("observer with the effects")
-    f_after = f_hat.copy()
-    if effects:
-        fx = ObserverEffects(
-            EffectsParams(tuple(effects), observer.sample_time, observer.q_hz, observer.q_order)
+        split = int(round((1.0 - params.holdout_fraction) * m))
+        self.fit = np.zeros(m, dtype=bool)
+        self.fit[:split] = True
+        self.hold = ~self.fit
+        # guard rows around a validation fold: the memory of Q(s) and of the observer's
+        # own filters (ten time constants of Q), at least the warm-up
+        ob = self.observer
+        guard_s = max(self.warmup_s, 10.0 / (2.0 * math.pi * ob.q_hz))
+        return engine.Rows(m, split, int(math.ceil(guard_s / ob.sample_time)))
+
+    def nominal(self) -> TwoInertiaFit:
+        empty = np.zeros((len(self.d.idx), 0))
+        d = self.d
+        return TwoInertiaFit(
+            _fit((d.base_f, d.base_s), empty, empty, d.y_f, d.y_s, self.fit), empty, empty
         )
-        _, er = fx.step(fx.init_state(), d.alpha, ta, qm_a, ql_a, tau_a)
-        f_after = f_hat - er.f_corr
-    say("unexplained structure")
-    hidx = d.idx[hold]
-    kin = d.kin
-    sig_h = Signals(
-        kin.t[hidx], kin.q_l[hidx], kin.w_l[hidx], kin.a_l[hidx], kin.a_l[hidx], cur.e_f[hold]
-    )
-    unexpl = unexplained_structure(sig_h, cur.e_f[hold])
-    nr = max(float(np.linalg.norm(d.norm_ref[hold])), 1e-300)
-    stride = max(1, m // 20_000)
-    sl = slice(None, None, stride)
-    return TwoInertiaResult(
-        names_before=_base_names(nb),
-        theta_before=f0.theta,
-        names_after=tuple(names_after),
-        theta_after=cur.theta,
-        effects=tuple(effects),
-        candidates=tuple(final_scores),
-        holdout_start=float(kin.t[d.idx[split]]),
-        holdout_stop=float(kin.t[d.idx[-1]]),
-        rms_before=math.sqrt(_mse(f0.e_f[hold], f0.e_s[hold])),
-        rms_after=math.sqrt(_mse(cur.e_f[hold], cur.e_s[hold])),
-        relerr_before=100.0 * float(np.linalg.norm(f0.e_f[hold])) / nr,
-        relerr_after=100.0 * float(np.linalg.norm(cur.e_f[hold])) / nr,
-        rms_force_before=rms(f0.e_f[hold]),
-        rms_force_after=rms(cur.e_f[hold]),
-        rms_twist_before=rms(f0.e_s[hold]),
-        rms_twist_after=rms(cur.e_s[hold]),
-        unexplained=tuple(unexpl),
-        f_hat_before=_to_log_time(f_hat),
-        f_hat_after=_to_log_time(f_after),
-        t_dec=kin.t[d.idx][sl],
-        residual_before_dec=f0.e_f[sl],
-        residual_after_dec=cur.e_f[sl],
-        q_dec=kin.q_l[d.idx][sl],
-        qd_dec=kin.w_l[d.idx][sl],
-        reference="f_ext" if fe is not None else "air cut",
-        indistinguishable=tuple(ambiguous),
-        selection=sp,
-        hold_sq_before=0.5 * (f0.e_f[hold] ** 2 + f0.e_s[hold] ** 2),
-        hold_sq_after=0.5 * (cur.e_f[hold] ** 2 + cur.e_s[hold] ** 2),
-        hold_speed=kin.w_l[d.idx[hold]],
-        hold_sq_force_before=f0.e_f[hold] ** 2,
-        hold_sq_force_after=cur.e_f[hold] ** 2,
-    )
 
+    def holdout_mse(self, state: TwoInertiaFit) -> float:
+        return _mse(state.fit.e_f[self.hold], state.fit.e_s[self.hold])
 
-#: families with shape parameters (searched again inside each training fold)
-_SHAPED = frozenset({"stribeck", "position_periodic", "torque_ripple", "backlash", "harmonic"})
-#: samples of a shape search inside a fold
-_FOLD_SEARCH_SAMPLES = 10_000
+    def holdout_rms(self, state: TwoInertiaFit) -> float:
+        return math.sqrt(self.holdout_mse(state))
 
+    def search(
+        self, name: str, state: TwoInertiaFit, fold: tuple[Fold, _FoldErr] | None = None
+    ) -> dict[str, float]:
+        ob, d = self.observer, self.d
+        if fold is None:
+            return find_shape_two_inertia(
+                name, d, state.fit.e_f, state.fit.e_s, self.fit, self.angular,
+                q_hz=ob.q_hz, q_order=ob.q_order,
+            )  # fmt: skip
+        fd, b0 = fold
+        # the current model fitted without the fold: its residual there
+        r_f = d.y_f - np.hstack([d.base_f, state.cf]) @ b0.theta
+        r_s = d.y_s - np.hstack([d.base_s, state.cs]) @ b0.theta
+        return find_shape_two_inertia(
+            name, d, r_f, r_s, fd.train, self.angular, _FOLD_SEARCH_SAMPLES,
+            q_hz=ob.q_hz, q_order=ob.q_order,
+        )  # fmt: skip
 
-@dataclass(frozen=True, eq=False)
-class _Trial:
-    name: str
-    shape: dict[str, float]
-    fit: _Fit
-    cf: F64
-    cs: F64
-    verdict: Verdict
-    term: F64
+    def columns(self, name: str, shape: dict[str, float]) -> tuple[F64, F64]:
+        return _columns(self.d, name, shape, self.qf)
+
+    def extend(
+        self, state: TwoInertiaFit, name: str, shape: dict[str, float]
+    ) -> engine.Extension[TwoInertiaFit, tuple[F64, F64]]:
+        d = self.d
+        cf, cs = self.columns(name, shape)
+        cf_new, cs_new = np.hstack([state.cf, cf]), np.hstack([state.cs, cs])
+        fr = _fit((d.base_f, d.base_s), cf_new, cs_new, d.y_f, d.y_s, self.fit)
+        k = cf.shape[1]
+        coefs = fr.theta[-k:]
+        return engine.Extension(
+            state=TwoInertiaFit(fr, cf_new, cs_new, (*state.effects, (name, shape))),
+            columns=(cf, cs),
+            added=int(fr.keep[-k:].sum()),
+            ncols=k,
+            term=_stacked_term(fr, cf, cs),
+            params={**shape, **dict(zip(COLUMNS[name], map(float, coefs)))},
+        )
+
+    def fold_fits(self, state: TwoInertiaFit, folds: list[Fold]) -> list[_FoldErr]:
+        return _fold_before(self.d, folds, state.cf, state.cs)
+
+    def out_of_fold(
+        self,
+        state: TwoInertiaFit,
+        folds: list[Fold],
+        before: list[_FoldErr],
+        cols: tuple[F64, F64] | list[tuple[F64, F64]],
+        sp: SelectionParams,
+    ) -> OutOfFold:
+        return _fold_scores(self.d, folds, before, state.cf, state.cs, cols, sp)
+
+    def _effects(self, state: TwoInertiaFit) -> list[engine.Effect]:
+        """The selected effects with their joint coefficients."""
+        out = []
+        j = self.d.base_f.shape[1]
+        for name, shape in state.effects:
+            k = len(COLUMNS[name])
+            out.append(
+                engine.Effect(
+                    name, shape, COLUMNS[name], tuple(map(float, state.fit.theta[j : j + k]))
+                )
+            )
+            j += k
+        return out
+
+    def selected_params(self, state: TwoInertiaFit, index: int) -> dict[str, float]:
+        eff = self._effects(state)[index]
+        return {**eff.shape, **dict(zip(eff.columns, eff.coef))}
+
+    def result(
+        self,
+        nominal: TwoInertiaFit,
+        final: TwoInertiaFit,
+        sel: engine.Selection,
+        say: Callable[[str], None],
+    ) -> engine.ResidualResult:
+        d, kin, hold, ob = self.d, self.d.kin, self.hold, self.observer
+        nb = d.base_f.shape[1]
+        effects = self._effects(final)
+        names_after = list(_base_names(nb))
+        for e in effects:
+            names_after.extend(f"{e.name}.{c}" for c in e.columns)
+        terms = tuple(ObserverEffect(e.name, e.shape, e.coef) for e in effects)
+        say("observer with the effects")
+        f_after = self.f_hat.copy()
+        if terms:
+            fx = ObserverEffects(EffectsParams(terms, ob.sample_time, ob.q_hz, ob.q_order))
+            _, er = fx.step(fx.initial_state(), d.alpha, self.t, self.q_m, self.q_l, self.tau)
+            f_after = self.f_hat - er.f_corr
+        say("unexplained structure")
+        f0, cur = nominal.fit, final.fit
+        hidx = d.idx[hold]
+        unexpl = unexplained_structure(kin.t[hidx], kin.q_l[hidx], cur.e_f[hold])
+        nr = max(float(np.linalg.norm(d.norm_ref[hold])), 1e-300)
+        m = len(d.idx)
+        sl = slice(None, None, max(1, m // 20_000))
+        details = {
+            "rms_force_before": rms(f0.e_f[hold]),
+            "rms_force_after": rms(cur.e_f[hold]),
+            "rms_twist_before": rms(f0.e_s[hold]),
+            "rms_twist_after": rms(cur.e_s[hold]),
+            "observer_effects": [
+                {"name": e.name, "side": e.side, "shape": dict(e.shape), "coef": list(e.coef)}
+                for e in terms
+            ],
+        }
+        return engine.ResidualResult(
+            kind=self.kind,
+            model=self.description,
+            names_before=_base_names(nb),
+            theta_before=f0.theta,
+            names_after=tuple(names_after),
+            theta_after=cur.theta,
+            effects=tuple(effects),
+            candidates=sel.candidates,
+            holdout_start=float(kin.t[d.idx[sel.rows.split]]),
+            holdout_stop=float(kin.t[d.idx[-1]]),
+            rms_before=math.sqrt(_mse(f0.e_f[hold], f0.e_s[hold])),
+            rms_after=math.sqrt(_mse(cur.e_f[hold], cur.e_s[hold])),
+            relerr_before=100.0 * float(np.linalg.norm(f0.e_f[hold])) / nr,
+            relerr_after=100.0 * float(np.linalg.norm(cur.e_f[hold])) / nr,
+            unexplained=tuple(unexpl),
+            f_hat_before=_to_log_time(self.f_hat),
+            f_hat_after=_to_log_time(f_after),
+            t_dec=kin.t[d.idx][sl],
+            residual_before_dec=f0.e_f[sl],
+            residual_after_dec=cur.e_f[sl],
+            q_dec=kin.q_l[d.idx][sl],
+            qd_dec=kin.w_l[d.idx][sl],
+            not_offered=dict(self.not_offered),
+            reference=self.reference,
+            details=details,
+            indistinguishable=sel.indistinguishable,
+            selection=sel.selection,
+            hold_sq_before=0.5 * (f0.e_f[hold] ** 2 + f0.e_s[hold] ** 2),
+            hold_sq_after=0.5 * (cur.e_f[hold] ** 2 + cur.e_s[hold] ** 2),
+            hold_speed=kin.w_l[d.idx[hold]],
+            hold_sq_force_before=f0.e_f[hold] ** 2,
+            hold_sq_force_after=cur.e_f[hold] ** 2,
+        )
+
+    def evaluate(self, result: engine.ResidualResult) -> dict[str, float]:
+        """Numbers of ``result``'s observers (before/after) on this record, nothing
+        refitted: ``rms_*`` over both channels, ``relerr_*`` over the force channel, over
+        every usable sample."""
+        if result.reference != self.reference:
+            raise ParameterError(
+                "f_ext",
+                f"a record with the same reference as the fitted one ({result.reference})",
+                None,
+            )
+        d, _ = self._front
+        if len(d.idx) < 10:
+            raise ParameterError("samples", "at least 10 usable samples", len(d.idx))
+        nb = d.base_f.shape[1]
+        e0_f = d.y_f - d.base_f @ result.theta_before[:nb]
+        e0_s = d.y_s - d.base_s @ result.theta_before[:nb]
+        e1_f = d.y_f - d.base_f @ result.theta_after[:nb]
+        e1_s = d.y_s - d.base_s @ result.theta_after[:nb]
+        for eff in result.effects:
+            cf, cs = _columns(d, eff.name, dict(eff.shape), self.qf)
+            e1_f = e1_f - cf @ np.asarray(eff.coef)
+            e1_s = e1_s - cs @ np.asarray(eff.coef)
+        nr = max(float(np.linalg.norm(d.norm_ref)), 1e-300)
+        return {
+            "rms_before": math.sqrt(_mse(e0_f, e0_s)),
+            "rms_after": math.sqrt(_mse(e1_f, e1_s)),
+            "relerr_before": 100.0 * float(np.linalg.norm(e0_f)) / nr,
+            "relerr_after": 100.0 * float(np.linalg.norm(e1_f)) / nr,
+        }
 
 
 def _stacked_term(fr: _Fit, cf: F64, cs: F64) -> F64:
@@ -801,7 +799,7 @@ def _fold_scores(
     cs_cur: F64,
     cols: list[tuple[F64, F64]] | tuple[F64, F64],
     sp: SelectionParams,
-) -> Verdict:
+) -> OutOfFold:
     """Out-of-fold errors before/after the candidate and its support; the verdict.
 
     ``cols``: the candidate's columns, one pair for every fold, or one pair per fold
@@ -834,11 +832,7 @@ def _fold_scores(
         sq0[v] = 0.5 * (b0.e_f**2 + b0.e_s**2)
         sq1[v] = 0.5 * (e_f**2 + e_s**2)
         supp[v] = support(term_tr, term_v, sp.support_level)
-    return verdict(OutOfFold(sq0, sq1, supp), sp.blocks, test=sp.test)
-
-
-def _rms2(fr: _Fit, hold: NDArray[np.bool_]) -> float:
-    return math.sqrt(_mse(fr.e_f[hold], fr.e_s[hold]))
+    return OutOfFold(sq0, sq1, supp)
 
 
 def _base_names(nb: int) -> tuple[str, ...]:
@@ -857,54 +851,3 @@ def _to_log_time(f: F64) -> F64:
     out[:-1] = f[1:]
     out[-1] = f[-1]
     return out
-
-
-def apply_two_inertia(
-    result: TwoInertiaResult,
-    t: ArrayLike,
-    tau_m: ArrayLike,
-    q_m: ArrayLike,
-    q_l: ArrayLike,
-    observer: ObserverParams,
-    load: LoadParams,
-    f_ext: ArrayLike | None = None,
-    air_cut: NDArray[np.bool_] | None = None,
-    warmup_s: float = 0.02,
-) -> dict[str, float]:
-    """Numbers of ``result``'s observers (before/after) on a second record, nothing refitted.
-
-    Returns ``rms_before``, ``rms_after`` (both channels), ``relerr_before``,
-    ``relerr_after`` (force channel) over every usable sample.
-    """
-    ta = np.asarray(t, dtype=np.float64)
-    tau_a, qm_a, ql_a = (np.asarray(a, dtype=np.float64) for a in (tau_m, q_m, q_l))
-    fe = None if f_ext is None else np.asarray(f_ext, dtype=np.float64)
-    if (fe is None) != (result.reference != "f_ext"):
-        raise ParameterError(
-            "f_ext",
-            f"a record with the same reference as the fitted one ({result.reference})",
-            None,
-        )
-    if fe is None and air_cut is None:
-        raise ParameterError("air_cut", "air-cut segments for a record without f_ext", None)
-    mask = None if fe is not None else np.asarray(air_cut, dtype=bool)
-    d, _ = _prepare(ta, tau_a, qm_a, ql_a, fe, mask, observer, load, warmup_s)
-    if len(d.idx) < 10:
-        raise ParameterError("samples", "at least 10 usable samples", len(d.idx))
-    qf = lowpass(observer.q_hz, observer.sample_time, observer.q_order)
-    nb = d.base_f.shape[1]
-    e0_f = d.y_f - d.base_f @ result.theta_before[:nb]
-    e0_s = d.y_s - d.base_s @ result.theta_before[:nb]
-    e1_f = d.y_f - d.base_f @ result.theta_after[:nb]
-    e1_s = d.y_s - d.base_s @ result.theta_after[:nb]
-    for eff in result.effects:
-        cf, cs = _columns(d, eff.name, dict(eff.shape), qf)
-        e1_f = e1_f - cf @ np.asarray(eff.coef)
-        e1_s = e1_s - cs @ np.asarray(eff.coef)
-    nr = max(float(np.linalg.norm(d.norm_ref)), 1e-300)
-    return {
-        "rms_before": math.sqrt(_mse(e0_f, e0_s)),
-        "rms_after": math.sqrt(_mse(e1_f, e1_s)),
-        "relerr_before": 100.0 * float(np.linalg.norm(e0_f)) / nr,
-        "relerr_after": 100.0 * float(np.linalg.norm(e1_f)) / nr,
-    }

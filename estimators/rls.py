@@ -114,6 +114,15 @@ def rls_init(p: RLSParams, theta0: F64) -> RLSState:
     )
 
 
+# Index of each entry of a buffered RLS's ``meta`` (RLSState.meta): the ring buffer's
+# head, the samples it holds, the covariance resets so far
+META_HEAD, META_COUNT, META_RESETS = 0, 1, 2
+# Index of each entry of the switching identifier's ``sw`` (IdentState.sw): samples since
+# the last velocity reversal, the regressor mode in charge (4 or 3), the F_CL used
+# (physical) and the sign of the velocity
+SW_SINCE_REVERSAL, SW_MODE, SW_F_CL, SW_SIGN = 0, 1, 2, 3
+
+
 @njit(cache=True)
 def _reset(P, r, th, meta, p0):  # pragma: no cover
     n = len(th)
@@ -122,9 +131,9 @@ def _reset(P, r, th, meta, p0):  # pragma: no cover
         for j in range(n):
             P[i, j] = p0 if i == j else 0.0
         r[i] = th[i] / p0
-    meta[0] = 0
-    meta[1] = 0
-    meta[2] += 1
+    meta[META_HEAD] = 0
+    meta[META_COUNT] = 0
+    meta[META_RESETS] += 1
 
 
 @njit(cache=True)
@@ -134,8 +143,8 @@ def rebuild_information(r, th, buf_phi, buf_y, meta, p0):  # pragma: no cover
     L = buf_phi.shape[0]
     for i in range(n):
         r[i] = th[i] / p0
-    for q in range(meta[1]):
-        h = (meta[0] + q) % L
+    for q in range(meta[META_COUNT]):
+        h = (meta[META_HEAD] + q) % L
         for i in range(n):
             r[i] += buf_phi[h, i] * buf_y[h]
 
@@ -148,8 +157,8 @@ def rebuild_covariance(P, buf_phi, meta, p0):  # pragma: no cover
     R = np.zeros((n, n))
     for i in range(n):
         R[i, i] = 1.0 / p0
-    for q in range(meta[1]):
-        h = (meta[0] + q) % L
+    for q in range(meta[META_COUNT]):
+        h = (meta[META_HEAD] + q) % L
         for i in range(n):
             for j in range(n):
                 R[i, j] += buf_phi[h, i] * buf_phi[h, j]
@@ -167,8 +176,8 @@ def rls_update(P, r, th, buf_phi, buf_y, meta, phi, y, lo, hi, p0, follow):  # p
     L = buf_phi.shape[0]
     Pp = np.empty(n)
     was_reset = 0
-    if meta[1] == L:
-        h = meta[0]
+    if meta[META_COUNT] == L:
+        h = meta[META_HEAD]
         # P <- P + P phi_o phi_o^T P / (1 - phi_o^T P phi_o), r <- r - phi_o y_o
         # downdate: the oldest accepted sample leaves the window (seed000 (12), sign fixed)
         for i in range(n):
@@ -189,8 +198,8 @@ def rls_update(P, r, th, buf_phi, buf_y, meta, phi, y, lo, hi, p0, follow):  # p
                 for j in range(n):
                     P[i, j] += Pp[i] * Pp[j] / d
                 r[i] -= buf_phi[h, i] * buf_y[h]
-            meta[0] = (h + 1) % L
-            meta[1] -= 1
+            meta[META_HEAD] = (h + 1) % L
+            meta[META_COUNT] -= 1
     # P <- P - P phi phi^T P / (1 + phi^T P phi), r <- r + phi y
     # update with the new sample (seed000 (11))
     for i in range(n):
@@ -205,11 +214,11 @@ def rls_update(P, r, th, buf_phi, buf_y, meta, phi, y, lo, hi, p0, follow):  # p
         for j in range(n):
             P[i, j] -= Pp[i] * Pp[j] / d
         r[i] += phi[i] * y
-    h = (meta[0] + meta[1]) % L
+    h = (meta[META_HEAD] + meta[META_COUNT]) % L
     for i in range(n):
         buf_phi[h, i] = phi[i]
     buf_y[h] = y
-    meta[1] += 1
+    meta[META_COUNT] += 1
     for i in range(n):
         if P[i, i] <= 0.0 or not np.isfinite(P[i, i]):
             _reset(P, r, th, meta, p0)
@@ -381,31 +390,31 @@ def _switching_kernel(
     #  the window, else 3 (seed001 (12))
     for k in range(len(y)):
         s = 1.0 if rev[k] > 0 else (-1.0 if rev[k] < 0 else 0.0)
-        if s != 0.0 and s != sw[3]:
-            if sw[3] != 0.0:
-                sw[0] = 0.0
-            sw[3] = s
+        if s != 0.0 and s != sw[SW_SIGN]:
+            if sw[SW_SIGN] != 0.0:
+                sw[SW_SINCE_REVERSAL] = 0.0
+            sw[SW_SIGN] = s
         else:
-            sw[0] += 1.0
+            sw[SW_SINCE_REVERSAL] += 1.0
         exc = abs(phi[k, 0]) > thr
         o_exc[k] = exc
         # Fig. 6(a): the 4-parameter model while a reversal lies within the window
         # (its PE condition), the 3-parameter model on acceleration alone, else none
         mode = 0
         if exc:
-            mode = 4 if sw[0] < L else 3
-        prev = int(sw[1])
+            mode = 4 if sw[SW_SINCE_REVERSAL] < L else 3
+        prev = int(sw[SW_MODE])
         if mode == 3 and prev == 4:
             # Fig. 6(b): hand over J_L, B_L, F_DC and the matching covariance to the
             # 3-parameter RLS. "Matching" is the covariance of the 3-parameter model over
             # the same window (F_CL now known): rebuilt from the window's regressors. The
             # sub-block of P4 still carries F_CL's uncertainty; handing it over made the
             # 3-parameter window inconsistent with its samples (measured: divergence).
-            sw[2] = th4[2] * sc4[2]
+            sw[SW_F_CL] = th4[2] * sc4[2]
             for q in range(bp4.shape[0]):
                 for i in range(3):
                     bp3[q, i] = bp4[q, idx3[i]] / sc4[idx3[i]] * sc3[i]
-                by3[q] = by4[q] - sw[2] * bp4[q, 2] / sc4[2]
+                by3[q] = by4[q] - sw[SW_F_CL] * bp4[q, 2] / sc4[2]
             m3[0] = m4[0]
             m3[1] = m4[1]
             for i in range(3):
@@ -423,10 +432,10 @@ def _switching_kernel(
             for i in range(4):
                 ph4[i] = phi[k, i] * sc4[i]
             rls_update(P4, r4, th4, bp4, by4, m4, ph4, y[k], lo4, hi4, p0, follow)
-            sw[2] = th4[2] * sc4[2]
+            sw[SW_F_CL] = th4[2] * sc4[2]
         elif mode == 3:
             # seed001 (12): y3 = Q_RLS(T_s - F_CL sgn(omega_L)) with the held F_CL
-            y3 = y[k] - sw[2] * phi[k, 2]
+            y3 = y[k] - sw[SW_F_CL] * phi[k, 2]
             for i in range(3):
                 ph3[i] = phi[k, idx3[i]] * sc3[i]
             rls_update(P3, r3, th3, bp3, by3, m3, ph3, y3, lo3, hi3, p0, follow)
@@ -435,12 +444,12 @@ def _switching_kernel(
                 ph4[i] = phi[k, i] * sc4[i]
             rls_update(P4, r4, th4, bp4, by4, m4, ph4, y[k], lo4, hi4, p0, follow)
         if mode != 0:
-            sw[1] = mode
+            sw[SW_MODE] = mode
         o_mode[k] = mode
-        if int(sw[1]) == 3:
+        if int(sw[SW_MODE]) == 3:
             o_theta[k, 0] = th3[0] * sc3[0]
             o_theta[k, 1] = th3[1] * sc3[1]
-            o_theta[k, 2] = sw[2]
+            o_theta[k, 2] = sw[SW_F_CL]
             o_theta[k, 3] = th3[2] * sc3[2]
         else:
             for i in range(4):
@@ -452,10 +461,10 @@ def excitation_index(state: RLSState) -> float:
 
     While the window fills, the mean is over the samples it holds.
     """
-    c = int(state.meta[1])
+    c = int(state.meta[META_COUNT])
     if c == 0:
         return 0.0
-    h = int(state.meta[0])
+    h = int(state.meta[META_HEAD])
     L = state.buf_phi.shape[0]
     idx = (h + np.arange(c)) % L
     ph = state.buf_phi[idx]
@@ -498,7 +507,7 @@ class LoadIdentifier:
         self._lo3 = np.array(r3p.lower) / np.array(r3p.scale)
         self._hi3 = np.array(r3p.upper) / np.array(r3p.scale)
 
-    def init_state(self, J_L: float, B_L: float, F_CL: float, F_dc: float = 0.0) -> IdentState:
+    def initial_state(self, J_L: float, B_L: float, F_CL: float, F_dc: float = 0.0) -> IdentState:
         p = self.params
         z = np.zeros((4, max(self.q_rls.order, 1)))
         s4 = rls_init(p.rls4, np.array([J_L, B_L, F_CL, F_dc]))
@@ -560,7 +569,7 @@ class LoadIdentifier:
                 mode,
                 exc,
             )
-            resets = int(a.meta[2])
+            resets = int(a.meta[META_RESETS])
         else:
             assert new.rls3 is not None and new.sw is not None
             b = new.rls3
@@ -596,7 +605,7 @@ class LoadIdentifier:
                 mode,
                 exc,
             )
-            resets = int(a.meta[2] + b.meta[2])
+            resets = int(a.meta[META_RESETS] + b.meta[META_RESETS])
         return new, IdentRecord(
             theta=theta,
             mode=mode,

@@ -143,6 +143,17 @@ class SegmentIdentifierParams:
         return float(stats.norm.ppf(0.5 + 0.5 * self.level))
 
 
+# Index of each entry of SegmentState.seg: a segment open (1) or not, its first and last
+# gated times, the time of the last known disturbance
+SEG_OPEN, SEG_FIRST, SEG_LAST, SEG_DISTURBANCE = 0, 1, 2, 3
+# Index of each entry of SegmentState.counts
+COUNT_USED, COUNT_DISCARDED, COUNT_RESTARTS, COUNT_SAMPLES = 0, 1, 2, 3
+# Index of each entry of the kernel's packed design ``d`` (SegmentIdentifier._design): the
+# J_L slope noise^2 (walk_B^2, walk_F^2 follow it), the model errors (3), z, the relative
+# excitation thresholds (3), the prior's relative spread
+D_SLOPE, D_MODEL_ERROR, D_Z, D_EXCITED, D_PRIOR = 0, 3, 6, 7, 10
+
+
 @dataclass
 class SegmentState:
     """Explicit state of the segment identifier."""
@@ -204,7 +215,7 @@ class SegmentIdentifier:
         )
 
     # ------------------------------------------------------------------ state
-    def init_state(self) -> SegmentState:
+    def initial_state(self) -> SegmentState:
         prior = self.params.prior_rel**2
         return SegmentState(
             zf=np.zeros((4, max(self.q_rls.order, 1))),
@@ -244,8 +255,8 @@ class SegmentIdentifier:
         phi = np.empty((n, 4))
         filter_regressors(new.zf, self.q_rls.b, self.q_rls.a, t_s, acc_l, vel_l, sgn_l, y, phi)
         blk = np.column_stack([np.asarray(t, dtype=np.float64), y, phi[:, :3]])
-        first = (-int(new.counts[3])) % p.decimation
-        new.counts[3] += n
+        first = (-int(new.counts[COUNT_SAMPLES])) % p.decimation
+        new.counts[COUNT_SAMPLES] += n
         new.hist = np.concatenate([state.hist, blk[first :: p.decimation]])[-self._keep :]
         gated = np.abs(phi[:, 0]) > p.acc_threshold
         seg = new.seg
@@ -253,19 +264,19 @@ class SegmentIdentifier:
         k_close = n
         if gated.any():
             tg = blk[gated, 0]
-            if seg[0] == 0.0:
-                seg[0], seg[1] = 1.0, tg[0]
-            seg[2] = tg[-1]
-        if seg[0] == 1.0:
-            t_end = seg[2] + p.post
+            if seg[SEG_OPEN] == 0.0:
+                seg[SEG_OPEN], seg[SEG_FIRST] = 1.0, tg[0]
+            seg[SEG_LAST] = tg[-1]
+        if seg[SEG_OPEN] == 1.0:
+            t_end = seg[SEG_LAST] + p.post
             if blk[-1, 0] >= t_end:
                 k_close = int(np.searchsorted(blk[:, 0], t_end))
-                self._close(new, seg[1] - p.pre, t_end)
-                seg[0], seg[1], seg[2] = 0.0, math.nan, math.nan
-            elif blk[-1, 0] - seg[1] > p.max_segment + p.post:
+                self._close(new, seg[SEG_FIRST] - p.pre, t_end)
+                seg[SEG_OPEN], seg[SEG_FIRST], seg[SEG_LAST] = 0.0, math.nan, math.nan
+            elif blk[-1, 0] - seg[SEG_FIRST] > p.max_segment + p.post:
                 # gated for too long: not a reversal (drop it, start afresh)
-                new.counts[1] += 1
-                seg[0], seg[1], seg[2] = 0.0, math.nan, math.nan
+                new.counts[COUNT_DISCARDED] += 1
+                seg[SEG_OPEN], seg[SEG_FIRST], seg[SEG_LAST] = 0.0, math.nan, math.nan
         th, lo, hi, ex = self._evaluate(state if k_close > 0 else new, blk[:k_close, 0])
         if k_close < n:
             th2, lo2, hi2, ex2 = self._evaluate(new, blk[k_close:, 0])
@@ -276,9 +287,9 @@ class SegmentIdentifier:
             lower=lo,
             upper=hi,
             excited=ex,
-            segments=int(new.counts[0]),
-            discarded=int(new.counts[1]),
-            restarts=int(new.counts[2]),
+            segments=int(new.counts[COUNT_USED]),
+            discarded=int(new.counts[COUNT_DISCARDED]),
+            restarts=int(new.counts[COUNT_RESTARTS]),
             last_segment=new.last.copy(),
         )
 
@@ -329,19 +340,19 @@ class SegmentIdentifier:
         p = self.params
         h = st.hist
         m = (h[:, 0] >= t0) & (h[:, 0] <= t1)
-        if st.seg[3] >= t0 - 1e-12 and st.seg[3] <= t1 + 1e-12:
-            st.counts[1] += 1  # a known change of the cutting condition inside
+        if st.seg[SEG_DISTURBANCE] >= t0 - 1e-12 and st.seg[SEG_DISTURBANCE] <= t1 + 1e-12:
+            st.counts[COUNT_DISCARDED] += 1  # a known change of the cutting condition inside
             return
         if m.sum() < 20:
-            st.counts[1] += 1
+            st.counts[COUNT_DISCARDED] += 1
             return
         th, cov, reversal = self.fit_segment(h[m])
         if not np.all(np.isfinite(th)):
-            st.counts[1] += 1
+            st.counts[COUNT_DISCARDED] += 1
             return
         st.last[:] = th * self._scale
         tc = float(t1)
-        st.counts[0] += 1
+        st.counts[COUNT_USED] += 1
         var = np.diag(cov)
         for i in range(3):
             if i > 0 and not reversal:
@@ -369,7 +380,7 @@ class SegmentIdentifier:
             S = P[0, 0] + r
             nu = z - x[0]
             if nu * nu > p.gate**2 * S:
-                st.counts[2] += 1
+                st.counts[COUNT_RESTARTS] += 1
                 self._kf_reset(st, i, tc, z, r)
                 return
             K = P[:, 0] / S
@@ -381,7 +392,7 @@ class SegmentIdentifier:
             S = Pp + r
             nu = z - st.x[j]
             if nu * nu > p.gate**2 * S:
-                st.counts[2] += 1
+                st.counts[COUNT_RESTARTS] += 1
                 self._kf_reset(st, i, tc, z, r)
                 return
             K = Pp / S
@@ -414,26 +425,26 @@ class SegmentIdentifier:
 def _evaluate_kernel(t, x, P, t_upd, d, scale, o_th, o_lo, o_hi, o_ex):  # pragma: no cover
     """Per sample: the Kalman prediction at ``t``, its 95 % interval and the excited flag
     (module docstring, 4.-5.). Before a parameter's first segment: the prior."""
-    z = d[6]
+    z = d[D_Z]
     for k in range(len(t)):
         for i in range(3):
             if np.isnan(t_upd[i]):
                 th = 1.0
-                v = d[10] * d[10]
+                v = d[D_PRIOR] * d[D_PRIOR]
                 exc = False
             else:
                 dt = max(t[k] - t_upd[i], 0.0)
                 if i == 0:
                     th = x[0] + x[1] * dt
-                    v = P[0, 0] + 2.0 * dt * P[0, 1] + dt * dt * P[1, 1] + d[0] * dt**3 / 3.0
+                    v = P[0, 0] + 2.0 * dt * P[0, 1] + dt * dt * P[1, 1] + d[D_SLOPE] * dt**3 / 3.0
                 else:
                     th = x[i + 1]
-                    v = P[i + 1, i + 1] + d[i] * dt
+                    v = P[i + 1, i + 1] + d[D_SLOPE + i] * dt
                 # the model error does not average out over segments: added at the output
-                v += (d[3 + i] * th) ** 2
+                v += (d[D_MODEL_ERROR + i] * th) ** 2
                 exc = True
             half = z * math.sqrt(max(v, 0.0))
-            o_ex[k, i] = exc and half <= d[7 + i] * abs(th)
+            o_ex[k, i] = exc and half <= d[D_EXCITED + i] * abs(th)
             o_th[k, i] = th * scale[i]
             o_lo[k, i] = max(th - half, 0.0) * scale[i]
             o_hi[k, i] = (th + half) * scale[i]
@@ -459,7 +470,7 @@ def mark_disturbance(state: SegmentState, t: float) -> SegmentState:
     """A known change of the cutting condition at ``t`` (spindle step, tool change): the
     segment around it is discarded (its DC step would read as friction)."""
     seg = state.seg.copy()
-    seg[3] = float(t)
+    seg[SEG_DISTURBANCE] = float(t)
     return SegmentState(
         state.zf, state.hist, seg, state.x, state.P, state.t_upd, state.counts, state.last
     )

@@ -200,21 +200,7 @@ class ToolLifeMonitor:
         feed : array_like
             Feed of each pass [mm/rev], > 0.
         """
-        ta = np.atleast_1d(np.asarray(t, dtype=np.float64))
-        Fa = np.atleast_1d(np.asarray(force, dtype=np.float64))
-        fa = np.atleast_1d(np.asarray(feed, dtype=np.float64))
-        if ta.ndim != 1 or Fa.shape != ta.shape or fa.shape != ta.shape:
-            raise ParameterError(
-                "force/feed", f"1-D arrays shaped like t {ta.shape}", (Fa.shape, fa.shape)
-            )
-        if not (np.all(np.isfinite(ta)) and np.all(np.isfinite(Fa))):
-            raise ParameterError("t/force", "finite values", "NaN or inf")
-        if not np.all(np.isfinite(fa)) or np.any(fa <= 0):
-            bad = fa[~(np.isfinite(fa) & (fa > 0))][0]
-            raise ParameterError("feed", "a feed > 0 mm/rev for every pass", float(bad))
-        prev_t = state.misc[5] if state.misc[4] > 0.5 else 0.0
-        if np.any(np.diff(np.concatenate([[prev_t], ta])) <= 0):
-            raise ParameterError("t", "strictly increasing cutting times", ta.tolist()[:5])
+        ta, Fa, fa = _passes(state, t, force, feed)
         p = self.params
         misc = state.misc.copy()
         S = state.sums.copy()
@@ -280,29 +266,9 @@ class ToolLifeMonitor:
             trend = rate = rul = sd = frac = math.nan
             m = int(p.trend_order) + 1
             if S[9] >= p.min_trend_passes:
-                M = np.array([[S[i + k] for k in range(m)] for i in range(m)])
-                r = S[5 : 5 + m]
-                if np.linalg.cond(M) < 1e12:
-                    Minv = np.linalg.inv(M)
-                    c = Minv @ r
-                    sse = S[8] - float(c @ r)
-                    # choice: the weighted count S0 as the sample size (conservative for
-                    # forgetting < 1: the effective count is larger)
-                    s2 = max(sse, 0.0) / max(S[0] - m, 1.0)
-                    C = s2 * Minv
-                    tau = tj - p.trend_start
-                    trend = float(np.polyval(c[::-1], tau))
-                    dc = c[1:] * np.arange(1, m)
-                    rate = float(np.polyval(dc[::-1], tau))
-                    t_star = _crossing(c, p.vb_limit, tau)
-                    if math.isfinite(t_star):
-                        rul = max(t_star - tau, 0.0)
-                        # delta method: g(c, t*) = sum c_i t*^i - VB_lim = 0
-                        slope = float(np.polyval(dc[::-1], t_star))
-                        grad = -(t_star ** np.arange(m)) / slope
-                        sd = math.sqrt(max(float(grad @ C @ grad), 0.0))
-                    else:
-                        rul, sd = math.inf, math.inf
+                fit = _polynomial_life(S, m, tj - p.trend_start, p.vb_limit)
+                if fit is not None:
+                    trend, rate, rul, sd = fit
                     if law_ok and self._law is not None and lp is not None:
                         H = np.concatenate(hist_rows)[-MAX_HISTORY:]
                         hist_rows = [H]
@@ -330,20 +296,63 @@ class ToolLifeMonitor:
             misc[2], misc[3], misc[5] = fj, Fj, tj
             misc[4] += 1.0
         rec = ToolLifeRecord(
-            t=ta.copy(),
-            wear_force=out["dy"],
-            static_gain=out["D"],
-            vb=out["vb"],
-            vb_trend=out["trend"],
-            wear_rate=out["rate"],
-            remaining_life=out["rul"],
-            remaining_life_sd=out["sd"],
-            life_fraction=out["frac"],
-            warning=warn,
-            alarm=alarm,
-        )
+            ta.copy(), out["dy"], out["D"], out["vb"], out["trend"], out["rate"], out["rul"],
+            out["sd"], out["frac"], warn, alarm,
+        )  # fmt: skip
         hist = np.concatenate(hist_rows)[-MAX_HISTORY:] if n_hist else state.hist
         return ToolLifeState(misc=misc, sums=S, law=law, hist=hist), rec
 
 
 __all__ = ["ToolLifeMonitor", "ToolLifeParams", "ToolLifeRecord", "ToolLifeState"]
+
+
+def _passes(
+    state: ToolLifeState, t: ArrayLike, force: ArrayLike, feed: ArrayLike
+) -> tuple[F64, F64, F64]:
+    """The passes' times, forces and feeds as arrays, checked (ParameterError naming the
+    input)."""
+    ta = np.atleast_1d(np.asarray(t, dtype=np.float64))
+    Fa = np.atleast_1d(np.asarray(force, dtype=np.float64))
+    fa = np.atleast_1d(np.asarray(feed, dtype=np.float64))
+    if ta.ndim != 1 or Fa.shape != ta.shape or fa.shape != ta.shape:
+        raise ParameterError(
+            "force/feed", f"1-D arrays shaped like t {ta.shape}", (Fa.shape, fa.shape)
+        )
+    if not (np.all(np.isfinite(ta)) and np.all(np.isfinite(Fa))):
+        raise ParameterError("t/force", "finite values", "NaN or inf")
+    if not np.all(np.isfinite(fa)) or np.any(fa <= 0):
+        bad = fa[~(np.isfinite(fa) & (fa > 0))][0]
+        raise ParameterError("feed", "a feed > 0 mm/rev for every pass", float(bad))
+    prev_t = state.misc[5] if state.misc[4] > 0.5 else 0.0
+    if np.any(np.diff(np.concatenate([[prev_t], ta])) <= 0):
+        raise ParameterError("t", "strictly increasing cutting times", ta.tolist()[:5])
+    return ta, Fa, fa
+
+
+def _polynomial_life(
+    S: F64, m: int, tau: float, vb_limit: float
+) -> tuple[float, float, float, float] | None:
+    """Trend, wear rate, remaining life and its sd from the weighted sums ``S`` of the
+    polynomial of ``m`` coefficients at ``tau`` after the trend start (None: the normal
+    equations are singular)."""
+    M = np.array([[S[i + k] for k in range(m)] for i in range(m)])
+    r = S[5 : 5 + m]
+    if not np.linalg.cond(M) < 1e12:
+        return None
+    Minv = np.linalg.inv(M)
+    c = Minv @ r
+    sse = S[8] - float(c @ r)
+    # choice: the weighted count S0 as the sample size (conservative for forgetting < 1:
+    # the effective count is larger)
+    s2 = max(sse, 0.0) / max(S[0] - m, 1.0)
+    C = s2 * Minv
+    trend = float(np.polyval(c[::-1], tau))
+    dc = c[1:] * np.arange(1, m)
+    rate = float(np.polyval(dc[::-1], tau))
+    t_star = _crossing(c, vb_limit, tau)
+    if not math.isfinite(t_star):
+        return trend, rate, math.inf, math.inf
+    # delta method: g(c, t*) = sum c_i t*^i - VB_lim = 0
+    slope = float(np.polyval(dc[::-1], t_star))
+    grad = -(t_star ** np.arange(m)) / slope
+    return trend, rate, max(t_star - tau, 0.0), math.sqrt(max(float(grad @ C @ grad), 0.0))

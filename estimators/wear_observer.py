@@ -226,6 +226,22 @@ def _limit_covariance(
 
 
 @njit(cache=True)
+def _covariance_trace(P: F64, U: F64, Dd: F64, use_ud: bool) -> float:  # pragma: no cover
+    """Trace of the RLS covariance (``P``, or ``U diag(Dd) U^T`` of the UD form)."""
+    tr = 0.0
+    if use_ud:
+        for i in range(6):
+            s = 0.0
+            for j in range(i, 6):
+                s += U[i, j] * U[i, j] * Dd[j]
+            tr += s
+    else:
+        for i in range(6):
+            tr += P[i, i]
+    return tr
+
+
+@njit(cache=True)
 def _observer_block(
     y: F64,
     u: F64,
@@ -319,17 +335,7 @@ def _observer_block(
         out_dy[k] = dyk
         out_D[k] = misc[0]
         out_res[k] = res
-        tr = 0.0
-        if use_ud:
-            for i in range(6):
-                s = 0.0
-                for j in range(i, 6):
-                    s += U[i, j] * U[i, j] * Dd[j]
-                tr += s
-        else:
-            for i in range(6):
-                tr += P[i, i]
-        out_tr[k] = tr
+        out_tr[k] = _covariance_trace(P, U, Dd, use_ud)
         # seed004 (18) without the static part: y_hat = x0_hat_1; seed004 (17) with the
         # deadbeat gains g_i = -a_i (seed004 (19) then has all eigenvalues at z = 0)
         e = dyk - xh[0]

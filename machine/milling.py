@@ -186,6 +186,41 @@ def edge_force(
 
 
 @njit(cache=True)
+def drive_step(
+    drive: F64, ax_state: F64, i: int, r: float, f_work: float, ts: float
+) -> float:  # pragma: no cover
+    """One sample of axis ``i``: the PID on the position error, then the carriage over the
+    sample (exact zero-order hold, :func:`machine.feed_drives.zoh_terms`) under the motor
+    force, friction and the reaction ``-f_work`` of the force on the workpiece.
+
+    ``drive`` is :meth:`FeedDriveParams.packed`, ``ax_state[i] = [x, v, integral,
+    e_prev]`` (updated); returns the motor force ``u`` [N].
+    """
+    kp = drive[i, 0]
+    ki = drive[i, 1]
+    kd = drive[i, 2]
+    b = drive[i, 4]
+    fc = drive[i, 5]
+    e1 = drive[i, 6]
+    e2 = drive[i, 7]
+    e3 = drive[i, 8]
+    x = ax_state[i, 0]
+    v = ax_state[i, 1]
+    e = r - x
+    ax_state[i, 2] += ts * e
+    u = kp * e + ki * ax_state[i, 2] + kd * (e - ax_state[i, 3]) / ts
+    ax_state[i, 3] = e
+    f = u - f_work - fc * math.tanh(v / 1e-3)
+    if b > 0.0:
+        e4 = (ts - e3) / b
+    else:
+        e4 = ts * ts / (2.0 * drive[i, 3])
+    ax_state[i, 0] = x + e3 * v + e4 * f
+    ax_state[i, 1] = e1 * v + e2 * f
+    return u
+
+
+@njit(cache=True)
 def _milling_block(
     n: int,
     ts: float,
@@ -273,31 +308,10 @@ def _milling_block(
         out[5, k] = ry
         out[8, k] = psi
         for i in range(2):
-            kp = drive[i, 0]
-            ki = drive[i, 1]
-            kd = drive[i, 2]
-            b = drive[i, 4]
-            fc = drive[i, 5]
-            e1 = drive[i, 6]
-            e2 = drive[i, 7]
-            e3 = drive[i, 8]
-            r = rx if i == 0 else ry
-            x = ax_state[i, 0]
-            v = ax_state[i, 1]
-            e = r - x
-            ax_state[i, 2] += ts * e
-            u = kp * e + ki * ax_state[i, 2] + kd * (e - ax_state[i, 3]) / ts
-            ax_state[i, 3] = e
-            out[6 + i, k] = u
             # the tool feels the reaction of the force on the workpiece
-            f_cut = -(fx if i == 0 else fy)
-            f = u + f_cut - fc * math.tanh(v / 1e-3)
-            if b > 0.0:
-                e4 = (ts - e3) / b
-            else:
-                e4 = ts * ts / (2.0 * drive[i, 3])
-            ax_state[i, 0] = x + e3 * v + e4 * f
-            ax_state[i, 1] = e1 * v + e2 * f
+            out[6 + i, k] = drive_step(
+                drive, ax_state, i, rx if i == 0 else ry, fx if i == 0 else fy, ts
+            )
         st[0] = psi + omega * ts
         st[1] += feed_speed * ts
         st[2] = (head + 1) % hlen
@@ -547,5 +561,6 @@ __all__ = [
     "MillingParams",
     "MillingRecord",
     "check_rpm",
+    "drive_step",
     "edge_force",
 ]

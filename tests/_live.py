@@ -2,10 +2,15 @@
 
 from __future__ import annotations
 
+import os
+import signal
 import socket
+import subprocess
+import sys
 import tempfile
 import threading
 import time
+import urllib.request
 from collections.abc import Iterator
 from contextlib import contextmanager
 
@@ -68,3 +73,61 @@ def serve(*, sndbuf: int | None = None, **settings: object) -> Iterator[str]:
         sock.close()
         if tmp is not None:
             tmp.cleanup()
+
+
+class ServeProcess:
+    """``cutwatch serve`` as a child process on a free loopback port (see
+    :func:`serve_process`); ``stop(sig)`` ends it with that signal and waits."""
+
+    def __init__(self, args: list[str], env: dict[str, str]) -> None:
+        sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+        sock.bind(("127.0.0.1", 0))
+        self.port = int(sock.getsockname()[1])
+        sock.close()  # the child binds it again (a race with other binders is unlikely)
+        self.host = f"127.0.0.1:{self.port}"
+        cmd = [sys.executable, "-m", "server.cli.main", "serve", "--port", str(self.port)]
+        self.proc = subprocess.Popen(
+            [*cmd, "--no-viser", *args],
+            env={**os.environ, **env},
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        self.stderr = ""
+
+    def wait_ready(self, timeout: float = 60.0) -> None:
+        """Until ``GET /api/health`` answers (AssertionError when the child exits)."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if self.proc.poll() is not None:
+                raise AssertionError(f"cutwatch serve exited: {self.proc.communicate()[1]}")
+            try:
+                with urllib.request.urlopen(f"http://{self.host}/api/health", timeout=2):
+                    return
+            except OSError:
+                time.sleep(0.2)
+        raise AssertionError("cutwatch serve did not answer in time")
+
+    def stop(self, sig: int = signal.SIGTERM, timeout: float = 30.0) -> int:
+        """Send ``sig``, wait for the exit, keep stderr; the exit code."""
+        if self.proc.poll() is None:
+            self.proc.send_signal(sig)
+        try:
+            _, self.stderr = self.proc.communicate(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            _, self.stderr = self.proc.communicate()
+        return int(self.proc.returncode)
+
+
+@contextmanager
+def serve_process(*args: str, **env: str) -> Iterator[ServeProcess]:
+    """Run ``cutwatch serve <args>`` (environment ``env`` added), ready; killed at exit
+    if still running."""
+    sp = ServeProcess(list(args), dict(env))
+    try:
+        sp.wait_ready()
+        yield sp
+    finally:
+        if sp.proc.poll() is None:
+            sp.stop(signal.SIGKILL)

@@ -121,7 +121,7 @@ class ObserverForceSource:
             est = TorsionEstimator(op)
             load = LoadParams(J_L=0.5 * m, B_L=ax.viscous, F_CL=ax.coulomb)
             self._est.append(est)
-            self._state.append(est.init_state())
+            self._state.append(est.initial_state())
             self._load.append(load)
             self._kf.append(ax.force_constant)
 

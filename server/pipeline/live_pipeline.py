@@ -8,15 +8,27 @@ The public surface is the contract the live service builds on:
 - ``.channels() -> list[Channel]``: every per-sample output, with unit and group
 - ``.step(n) -> dict[str, np.ndarray]``: advance ``n`` samples; one float64 array of
   length ``n`` per channel name (plus ``"t"``)
-- ``.knobs() -> dict[str, Knob]``: live-tweakable parameters with their ranges
-- ``.set_knob(name, value)``: validated; raises ``ParameterError`` naming the field, the
-  allowed range and the value; nothing changes on error
+- ``.knobs() -> dict[str, Knob]``: live-tweakable parameters with their ranges (frozen
+  copies; :mod:`server.pipeline.knobs` holds the table)
+- ``.set_knob(name, value)``, ``.set_knobs(changes)``: validated (``Knob.check``); raise
+  ``ParameterError`` naming the field, the allowed range and the value; nothing changes
+  on error
 - ``.reset()``; ``.snapshot() -> dict`` (latest values, truths, knob values, accuracy)
+- ``.state() -> PipelineState``, ``.restore(state)``: everything carried from block to
+  block as one value (:mod:`server.pipeline.checkpoint`, docs/checkpoints.md)
 - ``.accuracy() -> dict``: rolling rms of each force estimate over 1 s and 10 s
   (:mod:`server.pipeline.accuracy`)
 - ``SCENARIOS``: name -> one-line description
 
-Behind it is :class:`server.pipeline.stage_run.StageRun`: a measurement source
+The parts: the scenario (:mod:`server.pipeline.scenarios`: the plant, the script of
+spindle steps and mounted weights, the workpiece, tool-wear and eccentricity processes:
+:mod:`server.pipeline.workpiece`, :mod:`server.pipeline.wear_passes`,
+:mod:`server.pipeline.eccentricity_part`), the observer bank
+(:mod:`server.pipeline.observer_bank`) and the channel assembly
+(:mod:`server.pipeline.channels`). The pipeline asks its scenario what to do; it never
+compares a scenario's name and never reaches into the simulator.
+
+Behind the bank is :class:`server.pipeline.stage_run.StageRun`: a measurement source
 (:mod:`server.pipeline.sources`; by default the simulated two-inertia stage of seed 000,
 or a replayed log, or a live feed) with the fixed-parameter, adaptive (ordinary RLS) and
 switching-RLS force observers. The estimators see the Measurements only; the truth
@@ -43,207 +55,63 @@ a reversal (the table at its stroke end), not in the middle of a stroke.
 
 from __future__ import annotations
 
+import copy
 import math
 import os
-from dataclasses import dataclass, replace
+from collections.abc import Mapping
+from dataclasses import replace
 
 import numpy as np
 
-from estimators import dfo as dfo_mod
-from estimators.errors import ParameterError
-from estimators.observer_effects import EffectsParams, ObserverEffect, ObserverEffects
+from common.errors import ParameterError
+from estimators.observer_effects import ObserverEffect
 from estimators.rls import IdentifierParams
 from machine.effects import EFFECT_NAMES, PlantEffects
-from machine.params import ADDED_WEIGHT_INERTIA, preset
-from machine.stage import SEED000_FORCE, SEED001_FORCE, CuttingForce, StageConfig
+from machine.params import ADDED_WEIGHT_INERTIA
+from machine.stage import SEED000_FORCE, CuttingForce, StageConfig
 from server.pipeline.accuracy import RollingAccuracy
-from server.pipeline.eccentricity_part import (
-    ECC_BASE_RPM,
-    ECC_CHANNELS,
-    FORCE_SOURCES,
-    TUNERS,
-    LiveEccentricity,
+from server.pipeline.channels import (
+    CHANNELS,
+    FORCE_ESTIMATES,
+    BlockParts,
+    Channel,
+    empty_block,
+    finish,
+    no_eccentricity,
+    stage_channels,
+)
+from server.pipeline.checkpoint import PipelineState, ScriptState, ToolState
+from server.pipeline.eccentricity_part import ECC_BASE_RPM, LiveEccentricity
+from server.pipeline.knobs import BASE_RPM, Knob, KnobValue, KnobValues
+from server.pipeline.observer_bank import ObserverBank
+from server.pipeline.scenarios import (
+    SCENARIO_OBJECTS,
+    SCENARIOS,
+    Plant,
+    Scenario,
+    source_scenario,
 )
 from server.pipeline.sources import (
+    RESUMED,
     MeasurementSource,
     ReplaySource,
     SimulatorSource,
     SourceBlock,
     open_replay,
 )
-from server.pipeline.stage_harmonics import make_dfo
 from server.pipeline.stage_run import StageRun
-from server.pipeline.wear_clock import AcceleratedToolWear
+from server.pipeline.wear_passes import VB_LIMIT, ToolWearPasses
+from server.pipeline.workpiece import Workpiece
 
-
-@dataclass(frozen=True)
-class Channel:
-    name: str
-    unit: str
-    group: str
-    label: str
-
-
-@dataclass
-class Knob:
-    name: str
-    value: float | bool | str
-    min: float | None
-    max: float | None
-    unit: str
-    doc: str
-    choices: tuple[str, ...] | None = None
-
-
-SCENARIOS: dict[str, str] = {
-    "default": "X stage reciprocating while milling; workpiece losing mass; spindle changes",
-    "seed000-weight": "seed 000 Table III: the weight (+2.92e-4 kg m^2) added at 10 s",
-    "seed001-spindle": "seed 001 Fig. 9: spindle speed and force drop to 80 % at 11 s",
-}
-
-#: spindle speed at which the force's frequencies are the papers' 100 / 200 Hz
-BASE_RPM = 3000.0
-SPINDLE_PERIOD = 15.0  # default scenario: the spindle steps every 15 s of simulated time
-WORKPIECE_INERTIA = ADDED_WEIGHT_INERTIA  # a blank as heavy as seed 000's weight
-REMOVAL_STEP = 0.05  # the workpiece's inertia is updated in steps of 5 % of the blank
-PASS_S = 1.0  # default scenario: one tool-wear pass per second of simulated time
-#: the wear clock of the first tool starts once the observers have settled (their first
-#: second reads ~3 % low, which biased the monitor's sharp-tool force, seed004 (25), and with
-#: it every later VB by ~+0.03 mm); later tools start at once (observers settled)
-WEAR_WARMUP_S = 5.0
-VB_LIMIT = 0.3  # flank wear at which the tool is changed [mm] (seed 004's limit)
-#: a fresh blank is clamped this long before a reversal's centre (the table near its
-#: stroke end; the reversal right after it identifies the new J_L)
-CLAMP_BEFORE_REVERSAL = 0.3
-#: ... at the last such reversal before the blank is used up: the clamp is planned this
-#: many seconds of removal ahead (two strokes). Waiting for a reversal with the blank
-#: used up held J_L while the identifier extrapolated its fall (measured: J_L 10 % low
-#: after 8 s, the DFO's amplitudes 6-8 % low)
-CLAMP_LOOKAHEAD = 8.0
-
-CHANNELS: list[Channel] = [
-    Channel("f_true", "N m", "force", "true cutting torque"),
-    Channel("f_fixed", "N m", "force", "fixed-parameter observer"),
-    Channel("f_adaptive", "N m", "force", "adaptive observer (RLS)"),
-    Channel("f_switching", "N m", "force", "switching-RLS observer"),
-    Channel("f_segment", "N m", "force", "observer on the gated segment identifier"),
-    Channel("J_L_true", "kg m^2", "J_L", "true J_L"),
-    Channel("J_L_adaptive", "kg m^2", "J_L", "J_L identified (RLS)"),
-    Channel("J_L_switching", "kg m^2", "J_L", "J_L identified (switching RLS)"),
-    Channel("B_L_true", "N m s/rad", "B_L", "true B_L"),
-    Channel("B_L_adaptive", "N m s/rad", "B_L", "B_L identified (RLS)"),
-    Channel("B_L_switching", "N m s/rad", "B_L", "B_L identified (switching RLS)"),
-    Channel("F_CL_true", "N m", "F_CL", "true F_CL"),
-    Channel("F_CL_adaptive", "N m", "F_CL", "F_CL identified (RLS)"),
-    Channel("F_CL_switching", "N m", "F_CL", "F_CL identified (switching RLS)"),
-    Channel("f_effects", "N m", "force", "fixed observer with the identified effects"),
-    Channel("f_dfo", "N m", "force", "harmonic observer (DFO) on the segment observer"),
-    Channel("h1_amp", "N m", "harmonics", "1st tooth-passing harmonic, DFO amplitude"),
-    Channel("h2_amp", "N m", "harmonics", "2nd tooth-passing harmonic, DFO amplitude"),
-    Channel("h1_true", "N m", "harmonics", "1st harmonic, true amplitude"),
-    Channel("h2_true", "N m", "harmonics", "2nd harmonic, true amplitude"),
-    Channel("vb_true", "mm", "wear", "flank wear, true"),
-    Channel("vb_est", "mm", "wear", "flank wear, estimated from the adaptive observer"),
-    Channel("vb_limit", "mm", "wear", "flank-wear limit (tool change)"),
-    Channel("life_left", "min", "wear", "remaining tool life (wear clock)"),
-    *(
-        Channel(f"{q}_{suffix}", unit, q, f"{q} {what}")
-        for q, unit in (("J_L", "kg m^2"), ("B_L", "N m s/rad"), ("F_CL", "N m"))
-        for suffix, what in (
-            ("seg", "identified (gated segments)"),
-            ("lo", "95 % interval, lower bound"),
-            ("hi", "95 % interval, upper bound"),
-            ("excited", "excited (1) or not determined by the data (0)"),
-        )
-    ),
-    Channel("mode_switching", "", "rls", "switching-RLS regressor mode"),
-    Channel("excitation", "", "rls", "excitation index of the block"),
-    Channel("omega_l", "rad/s", "motion", "load velocity (true)"),
-    Channel("spindle_rpm", "rpm", "motion", "spindle speed in effect"),
-    Channel("q_m", "rad", "motion", "motor angle (encoder)"),
-    Channel("x_l", "m", "motion", "table position (load encoder x 10 mm lead)"),
-] + [Channel(k, u, "eccentricity", lab) for k, (u, lab) in ECC_CHANNELS.items()]
-SCREW_LEAD = 0.01  # m per revolution, for the displayed table position (papers give none)
-#: the force estimates scored by the accuracy panel: every force channel but the truth
-FORCE_ESTIMATES = tuple(c.name for c in CHANNELS if c.group == "force" and c.name != "f_true")
-
-
-def _knobs() -> dict[str, Knob]:
-    ks = [
-        Knob(
-            "spindle_rpm",
-            BASE_RPM,
-            600.0,
-            6000.0,
-            "rpm",
-            "spindle speed (3000 rpm = the papers' 100/200 Hz force)",
-        ),
-        Knob("feed_scale", 1.0, 0.0, 3.0, "", "feed: scales the cutting force"),
-        Knob("weight_on", False, None, None, "", "seed 000's weight on the load"),
-        Knob(
-            "removal_rate",
-            2.0,
-            0.0,
-            20.0,
-            "%/s",
-            "workpiece mass removed per second (default scenario)",
-        ),
-        Knob(
-            "spindle_changes",
-            True,
-            None,
-            None,
-            "",
-            "spindle steps to 80 % every 15 s (default scenario)",
-        ),
-        Knob("current_noise", 0.0, 0.0, 0.05, "A", "rms noise of the current measurement"),
-        Knob(
-            "wear_rate",
-            0.5,
-            0.05,
-            5.0,
-            "min/s",
-            "minutes of tool wear per second of machining (default scenario)",
-        ),
-        Knob(
-            "eccentricity_um",
-            20.0,
-            0.0,
-            50.0,
-            "um",
-            "tool eccentricity radius (default scenario; seed 003 case 1: 20 um)",
-        ),
-        Knob("eccentricity_deg", 40.0, 0.0, 360.0, "deg", "tool eccentricity angle"),
-        Knob("esc_on", True, None, None, "", "eccentricity cancellation (tuner) running"),
-        Knob(
-            "tuner",
-            "esc",
-            None,
-            None,
-            "",
-            "tuner: extremum seeking (seed 003, Table 1 gains: converges from the default "
-            "40 deg; stalls for phases far from its start, e.g. 90-270 deg) or fast "
-            "(converges from any phase in ~5 revolutions)",
-            choices=TUNERS,
-        ),
-        Knob(
-            "ecc_force",
-            "dynamometer",
-            None,
-            None,
-            "",
-            "tuner's force: dynamometer, seed-000 observers (fixed mass) or adaptive "
-            "observers (mass identified at spindle order 4.125)",
-            choices=FORCE_SOURCES,
-        ),
-        Knob("ecc_mass_error", 0.0, -10.0, 10.0, "%", "observers' nominal mass error"),
-    ]
-    # each plant effect the observers do not model (machine.effects), on/off
-    ks += [
-        Knob(f"effect_{e}", False, None, None, "", f"plant effect {e!r} (unmodelled)")
-        for e in EFFECT_NAMES
-    ]
-    return {k.name: k for k in ks}
+__all__ = [
+    "BASE_RPM",
+    "CHANNELS",
+    "FORCE_ESTIMATES",
+    "SCENARIOS",
+    "Channel",
+    "Knob",
+    "LivePipeline",
+]
 
 
 class LivePipeline:
@@ -266,19 +134,25 @@ class LivePipeline:
         self, scenario: str = "default", seed: int = 0, source: MeasurementSource | None = None
     ) -> None:
         if source is not None and not source.knobs_apply:
-            scenario = source.name
-        elif scenario not in SCENARIOS:
+            sc = source_scenario(source.name)
+        elif scenario in SCENARIO_OBJECTS:
+            sc = SCENARIO_OBJECTS[scenario]
+        else:
             raise ParameterError("scenario", f"one of {sorted(SCENARIOS)}", scenario)
-        self.scenario = scenario
+        self.script: Scenario = sc
         self.seed = seed
-        self._knobs = _knobs()
+        self._knobs = KnobValues(sc.knobs)
         self.effects: tuple[ObserverEffect, ...] = ()
-        if scenario == "seed001-spindle":
-            self._knobs["spindle_changes"].value = False
-        cfg, self._ident, self._design = self._base(source)
-        self._force0: CuttingForce = cfg.force
-        self.source = source or SimulatorSource(cfg, seed=seed)
+        plant = self._plant(source)
+        self._plant_cfg = plant
+        self._force0: CuttingForce = plant.config.force
+        self.source = source or SimulatorSource(plant.config, seed=seed)
         self.reset()
+
+    @property
+    def scenario(self) -> str:
+        """The scenario's name (a source's own name when the knobs do not apply)."""
+        return self.script.name
 
     @classmethod
     def from_log(cls, path: str | os.PathLike[str], seed: int = 0) -> LivePipeline:
@@ -294,112 +168,60 @@ class LivePipeline:
         return cls(seed=seed, source=ReplaySource(open_replay(path)))
 
     # ------------------------------------------------------------------ set-up
-    def _base(
-        self, source: MeasurementSource | None
-    ) -> tuple[StageConfig, IdentifierParams, dict[str, float]]:
+    def _plant(self, source: MeasurementSource | None) -> Plant:
         """The scenario's stage, identifier and observer design; for a given source, its
         sample time and the default design (the stage configuration then only gives the
         nominal cutting force: the harmonic observer's frequencies)."""
         if source is not None:
-            ts = source.sample_time
-            return StageConfig(force=SEED000_FORCE), IdentifierParams(sample_time=ts), {}
-        if self.scenario == "seed001-spindle":
-            p = preset("seed001")
-            ident = IdentifierParams(q_rls_hz=40.0, scale=(p.J_L, p.B_L, p.F_CL, 1.0))
-            design = {"err3_J_M": 0.0, "err3_B_M": 0.0, "err3_K": 0.0, "err3_F_CM": 0.0}
-            return StageConfig(params=p, force=SEED001_FORCE), ident, design
-        return StageConfig(params=preset("seed000"), force=SEED000_FORCE), IdentifierParams(), {}
+            ident = IdentifierParams(sample_time=source.sample_time)
+            return Plant(StageConfig(force=SEED000_FORCE), ident, {})
+        if self.script.plant is None:
+            raise ParameterError("source", f"a measurement source for {self.scenario!r}", None)
+        return self.script.plant()
 
     def reset(self) -> None:
         """Start the source (the simulation from t = 0, a log from its first sample) and
         every estimator again (knobs kept)."""
+        sc, k = self.script, self._knobs
         self.source.reset()
-        self.run = StageRun(source=self.source, ident=self._ident, observer_design=self._design)
+        self.bank = ObserverBank(
+            self.source,
+            self._plant_cfg.ident,
+            self._plant_cfg.design,
+            tuple(self._force0.frequencies),
+            self.effects,
+        )
         self.sample_time = float(self.source.sample_time)
         self.last_block: SourceBlock | None = None
-        self._removed = 0.0  # fraction of the current workpiece removed
-        self._removed_applied = 0.0  # the removal the plant has (steps, mid-stroke)
-        self._clamp_pending = False  # the blank is nearly used up; a fresh one is due
-        self._pending_since = 0.0
         self._weight = math.nan  # seed 000's weight on the load (none applied yet)
         self._prev_factor = self._spindle_factor(0.0)
         self._last: dict[str, float] = {}
         self._applied: tuple[object, ...] = ()
-        self._reset_observers()
-        self._new_tool()
-        self._install_effects()
+        self._force_applied = self._force0
+        # the workpiece needs the table's reversals: the simulated trajectory's
+        hp = self._plant_cfg.config.trajectory.half_period
+        self.workpiece = Workpiece(hp, self._spindle_factor) if sc.workpiece else None
+        self.tool = ToolWearPasses(k.number("wear_rate")) if sc.tool_wear else None
         self._accuracy = RollingAccuracy(
             FORCE_ESTIMATES, self.sample_time, has_truth=self.source.has_truth
         )
-        # seed 003's milling machine with eccentricity and its tuner (default scenario)
-        k = self._knobs
+        # seed 003's milling machine with eccentricity and its tuner
         self._ecc: LiveEccentricity | None = None
-        if self.scenario == "default":
+        if sc.eccentricity:
             self._ecc = LiveEccentricity(
-                float(k["eccentricity_um"].value),
-                float(k["eccentricity_deg"].value),
-                tuner=str(k["tuner"].value),
-                enabled=bool(k["esc_on"].value),
-                force=str(k["ecc_force"].value),
-                mass_error_pct=float(k["ecc_mass_error"].value),
+                k.number("eccentricity_um"),
+                k.number("eccentricity_deg"),
+                tuner=str(k["tuner"]),
+                enabled=bool(k["esc_on"]),
+                force=str(k["ecc_force"]),
+                mass_error_pct=k.number("ecc_mass_error"),
             )
         self._apply(0.0)
 
-    def _reset_observers(self) -> None:
-        """The harmonic observer from its initial state at the scenario's nominal
-        frequencies (retuned by the next :meth:`_apply`)."""
-        # seed 002's harmonic observer (DFO) through Q(s) (server.pipeline.stage_harmonics), on the
-        # observer with the gated segment identifier's parameters: on the fixed one the
-        # workpiece's unmodelled inertia biases the harmonics (measured: 2.8 N m for a
-        # true 4.0); on the adaptive (RLS) one its J_L moves at every spindle step and the
-        # 100 Hz acceleration times that error reads as a harmonic (measured, 100 s of the
-        # default scenario: amplitude error median 9 % / p90 46 %, and after 5 of 6
-        # spindle steps not within 5 % in 2 s; on the segment parameters: 0.8 % / 3 %,
-        # within 5 % 40-65 ms after every step); retuned, state kept, when the spindle
-        # speed changes
-        self._dfo = make_dfo(self.run.front.params, tuple(self._force0.frequencies))
-        self._dfo_state = dfo_mod.initial_state(self._dfo)
-
-    def _new_tool(self) -> None:
-        """A sharp tool: seed 004's wear model on an accelerated clock (default scenario).
-
-        The wear raises the cutting force on the stage (gain = pass force / sharp force);
-        the life monitor is fed the force the adaptive observer sees, back in the wear
-        model's newtons: ``F_sharp * mean(f_adaptive) / mean(force without wear)``.
-        """
-        # life_sd=False: the stream shows VB and the remaining life, not its spread,
-        # which is ~4/5 of the monitor's time per pass (docs/benchmarks.md)
-        self._wear = AcceleratedToolWear(
-            wear_minutes_per_second=float(self._knobs["wear_rate"].value), life_sd=False
-        )
-        self._wear_gain = 1.0
-        # the wear's force gain ramps over each pass (mean over the pass = the pass's
-        # force): (gain at the pass start, slope per second, pass start time)
-        self._gain_ramp = (1.0, 0.0, 0.0)
-        self._first_pass = True
-        # force of the sharp tool (seed004 (8) at zero wear): the stage's force is scaled by
-        # the wear model's force over this one
-        self._f_sharp = self._wear.model.force(np.zeros(3), self._wear.feed)
-        self._pass_est = self._pass_nom = self._pass_t = 0.0
-        self._pass_cut: tuple[float, np.ndarray] | None = None  # (mean force, wear at end)
-        self._pass_prev_nom = math.nan  # nominal force of the previous block (none yet)
-        self._pass_steady = True  # no change of cutting condition within the pass
-        self._vb_true = 0.0
-        self._vb_est = math.nan
-        self._life_left = math.nan
-        self.tools_changed = getattr(self, "tools_changed", -1) + 1
-        if self.tools_changed > 0:
-            # the CNC knows a tool change: the force's DC steps back to the sharp tool's
-            self.run.note_disturbance(self.t)
-
-    def _install_effects(self) -> None:
-        fp = self.run.front.params
-        self._fx: ObserverEffects | None = None
-        if self.effects:
-            self._fx = ObserverEffects(
-                EffectsParams(self.effects, self.sample_time, fp.q_hz, fp.q_order)
-            )
-            self._fx_state = self._fx.init_state()
+    @property
+    def run(self) -> StageRun:
+        """The stage observers and identifiers (:class:`~server.pipeline.stage_run.StageRun`)."""
+        return self.bank.run
 
     def set_observer_effects(self, effects: tuple[ObserverEffect, ...]) -> None:
         """Install identified effects (issue 4 section 4) into the live observer; ``()``
@@ -411,12 +233,8 @@ class LivePipeline:
         ParameterError
             An effect without its fitted coefficients.
         """
-        effects = tuple(effects)
-        if effects:
-            fp = self.run.front.params
-            EffectsParams(effects, self.sample_time, fp.q_hz, fp.q_order)  # validates
-        self.effects = effects
-        self._install_effects()
+        self.bank.set_effects(tuple(effects))
+        self.effects = self.bank.effects
 
     @property
     def t(self) -> float:
@@ -430,68 +248,46 @@ class LivePipeline:
 
     # ------------------------------------------------------------------ scenario
     def _spindle_factor(self, t: float) -> float:
-        if self.scenario == "seed001-spindle":
-            return 0.8 if t >= 11.0 else 1.0
-        # the spindle steps belong to the default scenario; the papers' experiments keep a
-        # constant force (seed 000 Table III)
-        if (
-            self.scenario == "default"
-            and self._knobs["spindle_changes"].value
-            and math.floor(t / SPINDLE_PERIOD) % 2 == 1
-        ):
-            return 0.8
-        return 1.0
+        return self.script.spindle_factor(t, self._knobs)
 
     def _apply(self, t: float) -> None:
         """Set the stage's configuration for the block starting at ``t``."""
         k = self._knobs
         sf = self._spindle_factor(t)
-        freq = float(k["spindle_rpm"].value) / BASE_RPM * sf
-        g0, slope, tp = self._gain_ramp
-        self._wear_gain = g0 + slope * max(t - tp, 0.0)
-        gain = float(k["feed_scale"].value) * sf * self._wear_gain
-        extra = ADDED_WEIGHT_INERTIA if k["weight_on"].value else 0.0
-        if self.scenario == "seed000-weight" and t >= 10.0:
-            extra = ADDED_WEIGHT_INERTIA
+        freq = k.number("spindle_rpm") / BASE_RPM * sf
+        wear_gain = self.tool.gain(t) if self.tool is not None else 1.0
+        gain = k.number("feed_scale") * sf * wear_gain
+        extra = ADDED_WEIGHT_INERTIA if k["weight_on"] else 0.0
+        scripted = self.script.extra_inertia(t, k)
+        if scripted is not None:
+            extra = scripted
         if extra != self._weight:  # the weight mounted or removed: a known J_L change
             if not math.isnan(self._weight) and self.source.knobs_apply:
                 self.run.note_restart(J_L=True)
             self._weight = extra
-        if self.scenario == "default":
-            # in steps of REMOVAL_STEP: each change of the plant costs a matrix
-            # exponential (~1-7 ms here), too much to pay every 50 ms block. A step is
-            # applied mid-stroke (>= 1 s from a reversal), where no acceleration shows
-            # it: a J_L step inside a reversal is an artefact of the steps (the mass
-            # goes continuously) and biased the identified B_L/F_CL when the steps fell
-            # on the reversals (removal 2.5 %/s: a step every 2 s, every reversal)
-            removed = math.floor(self._removed / REMOVAL_STEP) * REMOVAL_STEP
-            hp = self.run.sim.config.trajectory.half_period
-            if self._removed == 0.0 or abs(t - round(t / hp) * hp) >= 1.0:
-                self._removed_applied = removed
-            removed = self._removed_applied
-            extra += WORKPIECE_INERTIA * (1.0 - removed)
+        if self.workpiece is not None:
+            extra += self.workpiece.inertia(t)
         if self._ecc is not None:
             self._ecc.configure(
-                float(k["eccentricity_um"].value),
-                float(k["eccentricity_deg"].value),
-                str(k["tuner"].value),
-                bool(k["esc_on"].value),
+                k.number("eccentricity_um"),
+                k.number("eccentricity_deg"),
+                str(k["tuner"]),
+                bool(k["esc_on"]),
                 ECC_BASE_RPM * freq,
-                str(k["ecc_force"].value),
-                float(k["ecc_mass_error"].value),
+                str(k["ecc_force"]),
+                k.number("ecc_mass_error"),
             )
-        noise = float(k["current_noise"].value)
-        effects = tuple(e for e in EFFECT_NAMES if k[f"effect_{e}"].value)
+        noise = k.number("current_noise")
+        effects = tuple(e for e in EFFECT_NAMES if k[f"effect_{e}"])
         key = (freq, gain, extra, noise, effects)
         if key == self._applied:
             return
         self._applied = key
-        freqs = tuple(f * freq for f in self._force0.frequencies)
-        if freqs != tuple(self._dfo.frequencies):
-            self._dfo = self._dfo.with_frequencies(freqs)
+        self.bank.retune(tuple(f * freq for f in self._force0.frequencies))
+        self._force_applied = replace(self._force0, freq_scale=freq, gain=gain)
         # a log or a live feed ignores it (sources.MeasurementSource.knobs_apply)
         self.source.reconfigure(
-            force=replace(self._force0, freq_scale=freq, gain=gain),
+            force=self._force_applied,
             extra_inertia=extra,
             current_noise=noise,
             effects=PlantEffects().with_enabled(*effects),
@@ -503,34 +299,34 @@ class LivePipeline:
         return list(CHANNELS)
 
     def knobs(self) -> dict[str, Knob]:
-        """Live-tweakable parameters with their ranges (the objects themselves)."""
-        return dict(self._knobs)
+        """Live-tweakable parameters with their ranges and current values (frozen copies:
+        change them with :meth:`set_knob`)."""
+        return self._knobs.knobs()
 
-    def set_knob(self, name: str, value: float | bool | str) -> None:
-        """Set one knob; validated, nothing changes on error.
+    def knob_values(self) -> dict[str, KnobValue]:
+        """Name -> current value of every knob."""
+        return self._knobs.as_dict()
+
+    def set_knob(self, name: str, value: object) -> None:
+        """Set one knob; validated (:meth:`server.pipeline.knobs.Knob.check`), nothing
+        changes on error.
 
         Raises
         ------
         ParameterError
             Unknown name, wrong type, or a value outside the knob's range.
         """
-        if name not in self._knobs:
-            raise ParameterError("name", f"one of {sorted(self._knobs)}", name)
-        k = self._knobs[name]
-        if isinstance(k.value, bool):
-            if not isinstance(value, bool):
-                raise ParameterError(name, "true or false", value)
-        elif k.choices is not None:
-            if not isinstance(value, str) or value not in k.choices:
-                raise ParameterError(name, "one of " + ", ".join(k.choices), value)
-        else:
-            ok = isinstance(value, int | float) and not isinstance(value, bool)
-            v = float(value) if ok else math.nan
-            lo, hi = k.min, k.max
-            if not (math.isfinite(v) and (lo is None or v >= lo) and (hi is None or v <= hi)):
-                raise ParameterError(name, f"a value in [{lo:g}, {hi:g}] {k.unit}".rstrip(), value)
-            value = v
-        k.value = value
+        self._knobs.set(name, value)
+
+    def set_knobs(self, changes: Mapping[str, object]) -> None:
+        """Set several knobs, all or nothing.
+
+        Raises
+        ------
+        ParameterError
+            The first refused change (nothing is changed then).
+        """
+        self._knobs.update(changes)
 
     def step(self, n: int) -> dict[str, np.ndarray]:
         """Advance ``n`` samples; return ``"t"`` and every channel, ``n`` values each.
@@ -542,105 +338,147 @@ class LivePipeline:
         resets every observer first (:meth:`_discontinuity`).
         """
         t0 = float(self.source.t)
-        if self.scenario == "default":
-            rate = float(self._knobs["removal_rate"].value) / 100.0
-            if self._clamp_pending and self._clamp_now(t0):
-                self._removed = 0.0  # a fresh blank is clamped
-                self._clamp_pending = False
-                self.run.note_restart(J_L=True)
-            else:
-                self._removed = min(self._removed + rate * n * self.sample_time, 1.0)
-                ahead = min(rate * CLAMP_LOOKAHEAD, 0.2)  # at most a fifth left uncut
-                if not self._clamp_pending and self._removed >= 1.0 - ahead:
-                    self._clamp_pending = True
-                    self._pending_since = t0
-            self._wear_begin(t0)
+        self._script(t0, n)
+        block = self.source.step(n)
+        self.last_block = block  # the measurements as the source gave them (recording)
+        n = block.n
+        if n == 0:
+            return empty_block()
+        if block.discontinuity is not None:
+            self._discontinuity(block.discontinuity, float(block.meas.t[0]))
+        bb = self.bank.process(block)
+        if self.tool is not None:
+            nominal = self._force0.offset * self._knobs.number("feed_scale")
+            nominal *= self._spindle_factor(t0)
+            if self.tool.accumulate(n, bb.stage.f_adaptive, nominal, self.sample_time):
+                self._new_tool()
+        parts = BlockParts(
+            b=bb.stage,
+            dfo=bb.dfo,
+            f_effects=bb.f_effects,
+            true_amplitudes=self._true_amplitudes(),
+            wear=self._wear_values(),
+            spindle_rpm=self._knobs.number("spindle_rpm") * self._spindle_factor(t0),
+        )
+        out = stage_channels(parts, self.sample_time)
+        if self._ecc is not None:
+            out.update(self._ecc.step(out["t"], self.sample_time))
+        else:
+            out.update(no_eccentricity(n))
+        out = finish(out, has_truth=self.source.has_truth)
+        self._score(out, bb.stage.f_true, bb.stage.f_ideal)
+        self._last = {k: float(v[-1]) for k, v in out.items()}
+        return out
+
+    def _script(self, t0: float, n: int) -> None:
+        """The scenario's events before the block of ``n`` samples starting at ``t0``:
+        the workpiece's removal and clamp, the tool's pass, a spindle step; then the
+        stage's configuration for the block."""
+        if self.workpiece is not None:
+            rate = self._knobs.number("removal_rate") / 100.0
+            if self.workpiece.advance(t0, n, self.sample_time, rate):
+                self.run.note_restart(J_L=True)  # a fresh blank: J_L changes
+        if self.tool is not None:
+            self.tool.begin(t0, self._knobs.number("wear_rate"))
         factor = self._spindle_factor(t0)
         if factor != self._prev_factor:  # a spindle step: the force's DC changes
             self.run.note_disturbance(t0)
             self._prev_factor = factor
         self._apply(t0)
-        block = self.source.step(n)
-        self.last_block = block  # the measurements as the source gave them (recording)
-        n = block.n
-        if n == 0:
-            return {"t": np.zeros(0)} | {c.name: np.zeros(0) for c in CHANNELS}
-        if block.discontinuity is not None:
-            self._discontinuity()
-        b = self.run.process(block)
-        self._dfo_state, dr = dfo_mod.step(self._dfo, self._dfo_state, b.f_segment)
-        f_effects = b.f_fixed
-        if self._fx is not None:
-            m = b.meas
-            # the effects' terms, at t_(k-1) like the observer's (estimators.observer_effects)
-            self._fx_state, er = self._fx.step(self._fx_state, b.alpha, m.t, m.q_m, m.q_l, m.tau_m)
-            f_effects = b.f_fixed - er.f_corr
-        if self.scenario == "default":
-            self._wear_pass(n, b.f_adaptive, t0)
-        if isinstance(self.source, SimulatorSource):
-            f = self.source.config.force
-            true_amp = np.asarray(f.amplitudes, dtype=np.float64) * f.gain
-        else:
-            true_amp = np.full(len(self._force0.amplitudes), math.nan)
-        th_a, th_s = b.theta_adaptive, b.theta_switching
-        sg = b.segment
-        spindle = float(self._knobs["spindle_rpm"].value) * self._spindle_factor(t0)
-        out = {
-            # b.t_est, except that the very first estimate refers to t = -dt, not 0 twice
-            "t": b.meas.t - self.sample_time,
-            "f_true": b.f_true,
-            "f_fixed": b.f_fixed,
-            "f_adaptive": b.f_adaptive,
-            "f_switching": b.f_switching,
-            "f_segment": b.f_segment,
-            "J_L_true": b.truth.J_L,
-            "J_L_adaptive": th_a[:, 0],
-            "J_L_switching": th_s[:, 0],
-            "B_L_true": b.truth.B_L,
-            "B_L_adaptive": th_a[:, 1],
-            "B_L_switching": th_s[:, 1],
-            "F_CL_true": b.truth.F_CL,
-            "F_CL_adaptive": th_a[:, 2],
-            "F_CL_switching": th_s[:, 2],
-            "f_effects": f_effects,
-            "f_dfo": dr.d_hat,
-            "h1_amp": dr.amplitude[:, 0],
-            "h2_amp": dr.amplitude[:, 1],
-            "h1_true": np.full(n, true_amp[0]),
-            "h2_true": np.full(n, true_amp[1]),
-            "vb_true": np.full(n, self._vb_true),
-            "vb_est": np.full(n, self._vb_est),
-            "vb_limit": np.full(n, VB_LIMIT),
-            "life_left": np.full(n, self._life_left),
-            **{
-                f"{q}_{suffix}": arr[:, j]
-                for j, q in enumerate(("J_L", "B_L", "F_CL"))
-                for suffix, arr in (
-                    ("seg", sg.theta),
-                    ("lo", sg.lower),
-                    ("hi", sg.upper),
-                    ("excited", sg.excited.astype(np.float64)),
-                )
-            },
-            "mode_switching": b.mode_switching.astype(np.float64),
-            "excitation": np.full(n, float(b.excitation_index)),
-            "omega_l": b.truth.omega_l,
-            "spindle_rpm": np.full(n, spindle),
-            "q_m": b.meas.q_m,
-            "x_l": b.meas.q_l * (SCREW_LEAD / (2 * math.pi)),
-        }
-        if self._ecc is not None:
-            out.update(self._ecc.step(out["t"], self.sample_time))
-        else:
-            out.update({k: np.full(n, math.nan) for k in ECC_CHANNELS})
+
+    def _new_tool(self) -> None:
+        """A sharp tool at the flank-wear limit; the CNC knows a tool change: the force's
+        DC steps back to the sharp tool's."""
+        assert self.tool is not None
+        self.tool.new_tool(self._knobs.number("wear_rate"))
+        self.run.note_disturbance(self.t)
+
+    @property
+    def tools_changed(self) -> int:
+        """Tools changed at the flank-wear limit since the start (0 without tool wear)."""
+        return self.tool.state.tools_changed if self.tool is not None else 0
+
+    # ------------------------------------------------------------------ state
+    def state(self) -> PipelineState:
+        """Everything the pipeline carries from block to block, as one detached value
+        (:class:`~server.pipeline.checkpoint.PipelineState`)."""
+        tool = ToolState(self.tool.state, self.tool.wear) if self.tool is not None else None
+        st = PipelineState(
+            scenario=self.scenario,
+            source=self.source.name,
+            seed=self.seed,
+            t=self.t,
+            knobs=self._knobs.as_dict(),
+            effects=self.effects,
+            source_state=self.source.state(),
+            estimators=self.bank.state(),
+            script=ScriptState(self._prev_factor, self._weight, self._applied, self._force_applied),
+            workpiece=self.workpiece.state if self.workpiece is not None else None,
+            tool=tool,
+            eccentricity=self._ecc,
+            latest=dict(self._last),
+        )
+        return copy.deepcopy(st)
+
+    def restore(self, state: PipelineState) -> None:
+        """Continue from ``state`` (taken from a pipeline of the same scenario and source
+        kind): the next :meth:`step` gives what the pipeline that took it would have
+        given. The rolling accuracy starts empty.
+
+        Raises
+        ------
+        ParameterError
+            Another scenario or source, or parts the scenario does not have; nothing is
+            changed then.
+        """
+        if (state.scenario, state.source) != (self.scenario, self.source.name):
+            raise ParameterError(
+                "state",
+                f"a state of scenario {self.scenario!r} on the {self.source.name} source",
+                f"scenario {state.scenario!r} on the {state.source} source",
+            )
+        for part, mine, theirs in (
+            ("workpiece", self.workpiece, state.workpiece),
+            ("tool", self.tool, state.tool),
+            ("eccentricity", self._ecc, state.eccentricity),
+        ):
+            if (mine is None) != (theirs is None):
+                raise ParameterError(f"state.{part}", "as the scenario has it", theirs)
+        st = copy.deepcopy(state)
+        self._knobs.update(st.knobs)
+        self.seed = st.seed
+        self.set_observer_effects(st.effects)
+        self.source.restore(st.source_state)
+        self.bank.restore(st.estimators)
+        sc = st.script
+        self._prev_factor, self._weight = sc.spindle_factor, sc.weight
+        self._applied, self._force_applied = sc.applied, sc.force
+        if self.workpiece is not None and st.workpiece is not None:
+            self.workpiece.state = st.workpiece
+        if self.tool is not None and st.tool is not None:
+            self.tool.state, self.tool.wear = st.tool.passes, st.tool.wear
+        self._ecc = st.eccentricity
+        self._last = dict(st.latest)
+        self._accuracy = RollingAccuracy(
+            FORCE_ESTIMATES, self.sample_time, has_truth=self.source.has_truth
+        )
+
+    def _true_amplitudes(self) -> np.ndarray:
+        """The harmonics' true amplitudes of the force the stage is given (NaN when the
+        source has no truth: the force applied is then not the one measured)."""
         if not self.source.has_truth:
-            # no truth but the reference force: the true harmonics and wear are unknown
-            for k in ("h1_true", "h2_true", "vb_true", "vb_est", "vb_limit", "life_left"):
-                out[k] = np.full(n, math.nan)
-        out = {k: np.ascontiguousarray(v, dtype=np.float64) for k, v in out.items()}
-        self._score(out, b.f_true, b.f_ideal)
-        self._last = {k: float(v[-1]) for k, v in out.items()}
-        return out
+            return np.full(len(self._force0.amplitudes), math.nan)
+        f = self._force_applied
+        return np.asarray(f.amplitudes, dtype=np.float64) * f.gain
+
+    def _wear_values(self) -> dict[str, float]:
+        s = self.tool.state if self.tool is not None else None
+        return {
+            "vb_true": s.vb_true if s is not None else 0.0,
+            "vb_est": s.vb_est if s is not None else math.nan,
+            "vb_limit": VB_LIMIT,
+            "life_left": s.life_left if s is not None else math.nan,
+        }
 
     def _score(self, out: dict[str, np.ndarray], f_true: np.ndarray, f_ideal: np.ndarray) -> None:
         """The block into the rolling accuracy (:mod:`server.pipeline.accuracy`): against
@@ -649,7 +487,7 @@ class LivePipeline:
         if self.source.has_truth:
             self._accuracy.update(out, f_true, f_ideal)
         else:
-            skip = () if self._fx is not None else ("f_effects",)
+            skip = () if self.bank.fx is not None else ("f_effects",)
             self._accuracy.update(out, mean_of=[k for k in FORCE_ESTIMATES if k not in skip])
 
     def accuracy(self, digits: int | None = None) -> dict[str, object]:
@@ -658,84 +496,18 @@ class LivePipeline:
         JSON-safe)."""
         return self._accuracy.summary(digits)
 
-    def _discontinuity(self) -> None:
-        """The source's next block does not continue the last one (a gap, a restart):
-        every observer starts again from its initial state, as in a fresh pipeline; the
-        wear pass under way is not given to the monitor."""
-        self.run.reset_estimators()
-        self._dfo_state = dfo_mod.initial_state(self._dfo)
-        if self._fx is not None:
-            self._fx_state = self._fx.init_state()
-        if self._pass_cut is not None:  # a wear pass is under way: it spans the gap
-            self._pass_steady = False
-
-    def _wear_begin(self, t0: float) -> None:
-        """Start a pass: advance the wear model over it first, so the stage cuts with the
-        pass's own wear force (no one-pass lag between the force and the wear clock)."""
-        if self._pass_cut is not None or t0 < WEAR_WARMUP_S - 1e-9:
-            return
-        w = self._wear
-        w.rate = float(self._knobs["wear_rate"].value)
-        _, f_true, x = w.cut_pass(PASS_S)
-        self._pass_cut = (f_true, x)
-        # A ramp over the pass whose mean is the pass's force, continuing the previous
-        # pass's slope: the wear grows the force smoothly. (It was held in 1 % steps at
-        # the pass starts, which fall on the reversals every 4 s: a DC step inside a
-        # reversal reads as Coulomb friction, docs/live-identification.md.) A force
-        # change costs no matrix exponential (StageSim re-discretises only on a plant
-        # change).
-        g = f_true / self._f_sharp
-        g_prev = self._gain_ramp[0] + 0.5 * self._gain_ramp[1] * PASS_S
-        if self._first_pass:
-            g_prev = g  # the first pass of a tool
-            self._first_pass = False
-        slope = (g - g_prev) / PASS_S
-        self._gain_ramp = (g - 0.5 * slope * PASS_S, slope, t0)
-
-    def _clamp_now(self, t0: float) -> bool:
-        """Clamp the pending fresh blank at this block (start ``t0``)? Just before a
-        reversal without a spindle step near it; if the blocks are too long to hit that
-        instant, once three half periods have passed."""
-        hp = self.run.sim.config.trajectory.half_period
-        rev = (math.floor(t0 / hp) + 1) * hp
-        if rev - t0 > CLAMP_BEFORE_REVERSAL:
-            return t0 - self._pending_since > 3 * hp
-        # not at a reversal whose segment a spindle step spoils (every 60 s here): J_L
-        # would stay unknown until the next one (the DFO then reads a wrong J_L's
-        # acceleration as harmonics, measured: amplitudes 33 % low for 4 s)
-        return self._spindle_factor(rev - 1.0) == self._spindle_factor(rev + 1.0)
-
-    def _wear_pass(self, n: int, f_est: np.ndarray, t0: float) -> None:
-        """Accumulate the block into the current pass; close the pass every PASS_S."""
-        if self._pass_cut is None:  # the wear clock has not started yet
-            return
-        nominal = self._force0.offset * float(self._knobs["feed_scale"].value)
-        nominal *= self._spindle_factor(t0)
-        # the mean of the observer's force over a pass is the offset's (the harmonics
-        # average out); the nominal mean is what it would be with a sharp tool
-        prev, self._pass_prev_nom = self._pass_prev_nom, nominal
-        if not math.isnan(prev) and nominal != prev:  # changed in the pass or at its start
-            self._pass_steady = False
-        self._pass_est += float(np.sum(f_est))
-        self._pass_nom += n * nominal
-        self._pass_t += n * self.sample_time
-        if self._pass_t < PASS_S - 1e-9:
-            return
-        w = self._wear
-        _, x = self._pass_cut
-        # a pass in which, or at whose start, the cutting condition changed (spindle step,
-        # feed) is not given to the monitor: the observers' transient after the step
-        # biases its mean (measured -0.04 mm on VB for the pass after a spindle step)
-        if self._pass_nom > 0.0 and self._pass_steady:
-            rec = w.observe_pass(self._f_sharp * self._pass_est / self._pass_nom)
-            self._vb_est = float(rec.vb[-1])
-            self._life_left = float(rec.remaining_life[-1])
-        self._vb_true = float(x[0] + x[1])  # flank wear w_f1 + w_f2
-        self._pass_est = self._pass_nom = self._pass_t = 0.0
-        self._pass_steady = True
-        self._pass_cut = None
-        if self._vb_true >= VB_LIMIT:  # the tool is changed at the flank-wear limit
-            self._new_tool()
+    def _discontinuity(self, reason: str, t: float) -> None:
+        """The source's next block (starting at ``t``) does not continue the last one (a
+        gap, a restart): every observer starts again from its initial state, as in a
+        fresh pipeline; after a restart from a checkpoint (:data:`RESUMED`) only the
+        filters on the measurements do. The wear pass under way is not given to the
+        monitor."""
+        if reason == RESUMED:
+            self.bank.restart_filters(t)
+        else:
+            self.bank.reset()
+        if self.tool is not None:  # a wear pass under way spans the gap
+            self.tool.interrupt()
 
     @property
     def latest(self) -> dict[str, float]:
@@ -745,7 +517,7 @@ class LivePipeline:
     @property
     def workpiece_removed(self) -> float:
         """Fraction of the current blank removed (default scenario; else 0)."""
-        return self._removed
+        return self.workpiece.state.removed if self.workpiece is not None else 0.0
 
     def snapshot(self) -> dict[str, object]:
         """Latest value of every channel, the truth the source knows and the knob values;
@@ -753,13 +525,13 @@ class LivePipeline:
         """
         truth = self.source.truth_summary()
         if self.source.has_truth:
-            truth["workpiece_removed"] = self._removed
+            truth["workpiece_removed"] = self.workpiece_removed
         snap: dict[str, object] = {
             "t": self.t,
             "scenario": self.scenario,
             "latest": dict(self._last),
             "truth": truth,
-            "knobs": {k: v.value for k, v in self._knobs.items()},
+            "knobs": self._knobs.as_dict(),
             "observer_effects": [
                 {"name": e.name, "shape": dict(e.shape), "coef": list(e.coef)} for e in self.effects
             ],

@@ -27,6 +27,7 @@ from machine.stage import SEED000_FORCE, Measurements, StageConfig
 from server.pipeline.drive_feed import DriveFeed
 from server.pipeline.sources import (
     NOMINAL,
+    RESUMED,
     ConfiguredSource,
     SourceBlock,
     empty_measurements,
@@ -56,6 +57,7 @@ class MqttSource(ConfiguredSource):
         self._t = 0.0
         self._t0: float | None = None
         self._taken = 0
+        self._resumed = False  # restored from a checkpoint: the next block says so
         self.last_wall: float | None = None
 
     def _configure(self, meta: dict[str, Any]) -> None:
@@ -123,6 +125,8 @@ class MqttSource(ConfiguredSource):
             self.problem = "drive blocks without q_l: the live observers need the load position"
             return SourceBlock(empty_measurements())
         disc = ("; ".join(take.reasons) or "gap") if take.discontinuity else None
+        if self._resumed:  # the first block after a restart (sources.RESUMED)
+            disc, self._resumed = RESUMED, False
         t0 = float(take.t[0])
         if self._t0 is None:  # the source's time counts from its first sample
             self._t0 = t0 - self._t
@@ -153,6 +157,24 @@ class MqttSource(ConfiguredSource):
         """A live feed cannot rewind: time restarts at 0 with the next samples."""
         self._t = 0.0
         self._t0 = None
+
+    def state(self) -> object:
+        """The source's time [s]: a live feed is not ours to keep (the machine goes on
+        without us), but its time goes on from where it was."""
+        return float(self._t)
+
+    def restore(self, state: object) -> None:
+        """Continue the time at ``state`` [s]; the next block is marked
+        :data:`~server.pipeline.sources.RESUMED`.
+
+        Raises
+        ------
+        ParameterError
+            Not a time.
+        """
+        if not isinstance(state, float) or not math.isfinite(state) or state < 0:
+            raise ParameterError("source", "a time >= 0 s", state)
+        self._t, self._t0, self._resumed = state, None, True
 
     def truth_summary(self) -> dict[str, object]:
         return {"machine": self.feed.machine}

@@ -47,6 +47,11 @@ reconfigure(**changes)
 reset()
     Back to the start: the simulator from t = 0 with its first configuration and seed,
     a log from its first sample.
+state() -> object
+    Where the source is, as a value of the state codec (:mod:`common.state_io`): the
+    simulated stage (state, configuration, random generator), a log's position; None
+    for a live feed (the machine goes on without us). ``restore(state)`` continues
+    from it.
 truth_summary() -> dict
     What the source knows beside the measurements, for the snapshot's ``truth``.
 status() -> dict
@@ -57,7 +62,10 @@ A :class:`SourceBlock` holds the block's Measurements, its Truth (or None) and
 continue the previous one (a missing block, a time jump, a restarted drive). The
 pipeline then resets every observer before it runs the block, so the estimates that
 follow are those of a fresh pipeline on the same data; the observers' state never
-bridges a gap.
+bridges a gap. One exception, :data:`RESUMED`: the first block of a live feed after the
+service restarted from a checkpoint (the machine and its load are the same): the filters
+on the measurements restart, the estimates (parameters, covariances, segment tracks,
+wear) go on.
 
 Implementations: :class:`SimulatorSource` (the stage of :mod:`machine.stage`) and
 :class:`ReplaySource` (a measured log, checked by :func:`open_replay`).
@@ -70,6 +78,7 @@ parameters J_M, J_L, K, K_t, B_M, B_L, F_CM, F_CL.
 
 from __future__ import annotations
 
+import copy
 import math
 import os
 from collections.abc import Mapping
@@ -85,6 +94,9 @@ from machine.stage import SEED000_FORCE, Measurements, StageConfig, StageSim, Tr
 from server.errors import CutwatchError, LogFormatError
 from server.records.measured_log import MeasuredLog, load_log
 
+#: the discontinuity of a live feed's first block after the service restarted from a
+#: checkpoint: the filters on the measurements restart, the estimates go on
+RESUMED = "resumed"
 #: the nominal parameters a replayed log's sidecar must give
 NOMINAL = ("J_M", "J_L", "K", "K_t", "B_M", "B_L", "F_CM", "F_CL")
 
@@ -155,6 +167,10 @@ class MeasurementSource(Protocol):
     def reconfigure(self, **changes: object) -> None: ...
 
     def reset(self) -> None: ...
+
+    def state(self) -> object: ...
+
+    def restore(self, state: object) -> None: ...
 
     def truth_summary(self) -> dict[str, object]: ...
 
@@ -240,6 +256,22 @@ class SimulatorSource:
     def reset(self) -> None:
         """A fresh stage: t = 0, the first configuration, the seed's generator."""
         self.sim = StageSim(self._config0, seed=self._seed)
+
+    def state(self) -> object:
+        """The simulated stage itself (a copy: its state, configuration, generator)."""
+        return copy.deepcopy(self.sim)
+
+    def restore(self, state: object) -> None:
+        """Continue the simulation of :meth:`state`.
+
+        Raises
+        ------
+        ParameterError
+            ``state`` is not a simulated stage.
+        """
+        if not isinstance(state, StageSim):
+            raise ParameterError("source", "a simulated stage (StageSim)", type(state).__name__)
+        self.sim = copy.deepcopy(state)
 
     def truth_summary(self) -> dict[str, object]:
         """The true load parameters in effect (added inertia included)."""
@@ -399,6 +431,22 @@ class ReplaySource(ConfiguredSource):
         """Back to the log's first sample."""
         self.k = 0
 
+    def state(self) -> object:
+        """The position in the log (samples handed out)."""
+        return int(self.k)
+
+    def restore(self, state: object) -> None:
+        """Continue at position ``state`` of the same log.
+
+        Raises
+        ------
+        ParameterError
+            Not a position inside the log.
+        """
+        if not isinstance(state, int) or not 0 <= state <= self.n:
+            raise ParameterError("source", f"a position in [0, {self.n}]", state)
+        self.k = state
+
     def truth_summary(self) -> dict[str, object]:
         return {"log": str(self.log.path), "samples": self.n}
 
@@ -413,6 +461,7 @@ class ReplaySource(ConfiguredSource):
 
 __all__ = [
     "NOMINAL",
+    "RESUMED",
     "ConfiguredSource",
     "MeasurementSource",
     "ReplaySource",

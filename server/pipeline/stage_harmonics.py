@@ -76,8 +76,8 @@ def run_stage(
     cfg = StageConfig(params=preset("seed001"), force=force)
     run = StageRun(cfg, seed=seed)
     fp = run.front.params
-    dp = make_dfo(fp, tuple(force.frequencies))
-    st = dfo_mod.initial_state(dp)
+    obs = dfo_mod.Dfo(make_dfo(fp, tuple(force.frequencies)))
+    st = obs.initial_state()
     n_blocks = round(duration / (BLOCK * cfg.sample_time))
     out: dict[str, list[F64]] = {k: [] for k in ("t", "ft", "fo", "fd", "amp", "tamp")}
     changed = False
@@ -85,11 +85,13 @@ def run_stage(
         if change_time is not None and not changed and run.sim.t >= change_time - 1e-9:
             new_force = replace(force, gain=factor, freq_scale=factor)
             run.sim.reconfigure(force=new_force)
-            dp = dp.with_frequencies(tuple(factor * f for f in force.frequencies))
+            obs = dfo_mod.Dfo(
+                obs.params.with_frequencies(tuple(factor * f for f in force.frequencies))
+            )
             force = new_force
             changed = True
         blk = run.step(BLOCK)
-        st, rec = dfo_mod.step(dp, st, blk.f_fixed)
+        st, rec = obs.step(st, blk.f_fixed)
         out["t"].append(blk.t_est)
         out["ft"].append(blk.f_true)
         out["fo"].append(blk.f_fixed)

@@ -12,7 +12,7 @@ instead (NaN when none).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -24,21 +24,29 @@ from estimators.force_observer import (
     LoadParams,
     ObserverParams,
     TorsionEstimator,
+    TorsionState,
     cutting_force,
     cutting_force_lagged,
 )
-from estimators.rls import IdentifierParams, LoadIdentifier
+from estimators.rls import IdentifierParams, IdentState, LoadIdentifier
 from estimators.segment_id import (
     SegmentIdentifier,
     SegmentIdentifierParams,
     SegmentRecord,
+    SegmentState,
     mark_disturbance,
     restart,
 )
 from machine.params import StageParams
 from machine.stage import Measurements, StageConfig, StageSim, Truth
 from server.errors import CutwatchError
-from server.pipeline.sources import MeasurementSource, SimulatorSource, SourceBlock, no_truth
+from server.pipeline.sources import (
+    RESUMED,
+    MeasurementSource,
+    SimulatorSource,
+    SourceBlock,
+    no_truth,
+)
 
 
 @dataclass
@@ -62,6 +70,26 @@ class StageBlock:
     excitation_index: float
     resets: int
     segment: SegmentRecord  # gated segment identifier: estimates, intervals, excited
+
+
+@dataclass
+class StageRunState:
+    """Everything a :class:`StageRun` carries from block to block (checkpointed): the
+    front end's, the identifiers' (RLS covariances included) and the segment
+    identifier's states (its tracks), Q's state on the true force, and the last sample's
+    parameters, force and time (the observers lag one sample)."""
+
+    front: TorsionState
+    ident: IdentState
+    ident_switching: IdentState
+    segment: SegmentState
+    zq: F64
+    theta_adaptive: F64
+    theta_switching: F64
+    theta_segment: F64
+    prev_f: float
+    prev_qf: float
+    prev_t: float
 
 
 def observer_params_for(cfg: StageConfig, **design: Any) -> ObserverParams:
@@ -147,12 +175,12 @@ class StageRun:
         """Every observer and identifier back to its initial state (the source's nominal
         parameters), as if the next block were the first."""
         nl = self.nominal_load
-        self.s_front = self.front.init_state()
-        self.s_ident = self.ident.init_state(nl.J_L, nl.B_L, nl.F_CL)
-        self.s_sw = self.ident_sw.init_state(nl.J_L, nl.B_L, nl.F_CL)
+        self.s_front = self.front.initial_state()
+        self.s_ident = self.ident.initial_state(nl.J_L, nl.B_L, nl.F_CL)
+        self.s_sw = self.ident_sw.initial_state(nl.J_L, nl.B_L, nl.F_CL)
         # the cut engages and every filter starts at t = 0 (a step inside the first
         # acceleration segment, the start from rest): that segment is discarded
-        self.s_seg = mark_disturbance(self.ident_seg.init_state(), 0.0)
+        self.s_seg = mark_disturbance(self.ident_seg.initial_state(), 0.0)
         self._zq = self._q.initial_state()
         self._theta_a = np.array([nl.J_L, nl.B_L, nl.F_CL, 0.0])
         self._theta_s = self._theta_a.copy()
@@ -160,6 +188,38 @@ class StageRun:
         self._prev_f = 0.0
         self._prev_qf = 0.0
         self._prev_t = 0.0
+
+    def state(self) -> StageRunState:
+        """The estimators' state now (shares the arrays: copy it to keep it)."""
+        return StageRunState(
+            self.s_front,
+            self.s_ident,
+            self.s_sw,
+            self.s_seg,
+            self._zq,
+            self._theta_a,
+            self._theta_s,
+            self._theta_g,
+            self._prev_f,
+            self._prev_qf,
+            self._prev_t,
+        )
+
+    def restore(self, st: StageRunState) -> None:
+        """Continue from ``st`` (of a run on the same source parameters)."""
+        self.s_front, self.s_ident, self.s_sw, self.s_seg = (
+            st.front,
+            st.ident,
+            st.ident_switching,
+            st.segment,
+        )
+        self._zq = st.zq
+        self._theta_a, self._theta_s, self._theta_g = (
+            st.theta_adaptive,
+            st.theta_switching,
+            st.theta_segment,
+        )
+        self._prev_f, self._prev_qf, self._prev_t = st.prev_f, st.prev_qf, st.prev_t
 
     def step(self, n: int) -> StageBlock:
         """Take ``n`` samples from the source and run the observers on them.
@@ -179,7 +239,9 @@ class StageRun:
         """Run the observers on one non-empty block; a block marked as a discontinuity
         first resets them (:meth:`reset_estimators`)."""
         meas = block.meas
-        if block.discontinuity is not None:
+        if block.discontinuity == RESUMED:
+            self.restart_filters(float(meas.t[0]))
+        elif block.discontinuity is not None:
             self.reset_estimators()
             # the filters start again inside whatever segment follows: discarded
             self.s_seg = mark_disturbance(self.s_seg, float(meas.t[0]))
@@ -237,6 +299,21 @@ class StageRun:
             resets=ra.resets + rs.resets,
             segment=rg,
         )
+
+    def restart_filters(self, t: float) -> None:
+        """The measurements resume after a break in a run that goes on (a restart from a
+        checkpoint on a live feed, :data:`~server.pipeline.sources.RESUMED`): the filters
+        on the measurements restart from rest, the estimates (parameters, covariances,
+        the segment identifier's tracks) are kept; the segment around ``t`` is
+        discarded."""
+        nl = self.nominal_load
+        fresh = self.ident.initial_state(nl.J_L, nl.B_L, nl.F_CL)
+        self.s_front = self.front.initial_state()
+        self.s_ident = replace(self.s_ident, zf=fresh.zf.copy())
+        self.s_sw = replace(self.s_sw, zf=fresh.zf.copy())
+        seg = self.ident_seg.initial_state()
+        self.s_seg = mark_disturbance(replace(self.s_seg, zf=seg.zf, hist=seg.hist, seg=seg.seg), t)
+        self._zq = self._q.initial_state()
 
     def note_disturbance(self, t: float) -> None:
         """A known change of the cutting condition at ``t`` (spindle step, tool change):

@@ -20,6 +20,20 @@ Three payloads travel on ``cutwatch/<machine>/...`` (docs/broker.md):
   travel as ``<f8``: a float32 angle of 1000 rad resolves only 6e-5 rad, coarser than a
   20-bit encoder.
 
+  Minor version 1 (``"minor": 1``; a header without ``minor`` is minor 0 and still
+  accepted) adds the CNC's identities of the block, optional::
+
+    "program": "O1001",
+    "segments": [{"i": 0, "tool": 1, "line": 20, "override": 1.0},
+                 {"i": 180, "tool": 1, "line": 30}]
+
+  ``program`` is the running program's name (1-32 characters); each segment says from
+  which sample ``i`` of the block on the spindle holds tool ``tool`` and the CNC runs
+  G-code line ``line`` (the program block), with the feed override ``override`` (1 =
+  100 %) when given. ``i`` starts at 0 and grows. A minor-0 receiver ignores these keys
+  (it reads only the ones it knows), so a new publisher stays readable by old
+  receivers, and old publishers by new ones.
+
 ``meta`` — retained JSON, the log sidecar's keys (``sample_time``, ``units``, ``kind``,
 ``nominal``, ``encoder_resolution``) plus ``schema`` and ``version``.
 
@@ -34,7 +48,7 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -47,6 +61,10 @@ DRIVE_SCHEMA = "cutwatch.drive"
 META_SCHEMA = "cutwatch.meta"
 ESTIMATES_SCHEMA = "cutwatch.estimates"
 VERSION = 1
+#: the drive schema's minor version (1: the CNC identities, program and segments)
+MINOR = 1
+#: the longest program name a block may carry
+MAX_PROGRAM = 32
 
 #: the columns a drive block may carry, and the unit family of each
 COLUMN_FAMILY: dict[str, str] = {
@@ -77,6 +95,17 @@ class WireError(CutwatchError, ValueError):
 
 
 @dataclass(frozen=True)
+class Segment:
+    """From sample ``i`` of a block on: tool ``tool``, G-code line ``line``, feed override
+    ``override`` (None when the publisher does not send it)."""
+
+    i: int
+    tool: int
+    line: int
+    override: float | None = None
+
+
+@dataclass(frozen=True)
 class DriveBlock:
     """One decoded drive block."""
 
@@ -87,6 +116,27 @@ class DriveBlock:
     units: dict[str, str] = field(default_factory=dict)
     #: the publisher's wall clock at publishing (unix s), when it sent one
     wall: float | None = None
+    #: the schema's minor version the publisher wrote (0: no identities)
+    minor: int = 0
+    #: the running program's name (minor 1), when sent
+    program: str | None = None
+    #: the CNC's identities along the block (minor 1), empty when not sent
+    segments: tuple[Segment, ...] = ()
+
+    def identities(self) -> dict[str, F64] | None:
+        """Per-sample ``tool``, ``line`` and ``override`` (NaN where not sent), or None
+        for a block without segments."""
+        if not self.segments:
+            return None
+        n = self.n
+        out = {k: np.full(n, np.nan) for k in ("tool", "line", "override")}
+        for j, sg in enumerate(self.segments):
+            end = self.segments[j + 1].i if j + 1 < len(self.segments) else n
+            out["tool"][sg.i : end] = sg.tool
+            out["line"][sg.i : end] = sg.line
+            if sg.override is not None:
+                out["override"][sg.i : end] = sg.override
+        return out
 
     @property
     def n(self) -> int:
@@ -114,12 +164,14 @@ def encode_drive(
     units: Mapping[str, str],
     dtypes: Mapping[str, str] | None = None,
     wall: float | None = None,
+    program: str | None = None,
+    segments: Sequence[Segment] = (),
 ) -> bytes:
     """Encode one drive block (see the module docstring for the format).
 
     ``units`` maps a unit family (``effort``, ``position``, ``current``) or a column name
     to its unit; ``dtypes`` maps a column to ``<f4``/``<f8`` (default: positions ``<f8``,
-    the rest ``<f4``).
+    the rest ``<f4``). ``program`` and ``segments`` are the CNC's identities (minor 1).
     """
     dtypes = dict(dtypes or {})
     head_cols = []
@@ -154,7 +206,71 @@ def encode_drive(
     }
     if wall is not None:
         header["wall"] = float(wall)
+    if program is not None or segments:
+        header["minor"] = MINOR
+        ident = _check_identities(program, [_segment_dict(sg) for sg in segments], int(n or 0))
+        header.update(ident)
     return json.dumps(header, separators=(",", ":")).encode() + b"\n" + b"".join(parts)
+
+
+def _segment_dict(sg: Segment) -> dict[str, Any]:
+    d: dict[str, Any] = {"i": int(sg.i), "tool": int(sg.tool), "line": int(sg.line)}
+    if sg.override is not None:
+        d["override"] = float(sg.override)
+    return d
+
+
+def _is_int(v: Any) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def _check_identities(program: Any, segments: Any, n: int) -> dict[str, Any]:
+    """Check the minor-1 keys; returns them as they travel."""
+    out: dict[str, Any] = {}
+    if program is not None:
+        if not isinstance(program, str) or not 1 <= len(program) <= MAX_PROGRAM:
+            raise WireError(
+                "schema",
+                f"drive header: program expected a name of 1-{MAX_PROGRAM} characters, "
+                f"got {program!r}",
+            )
+        out["program"] = program
+    if segments is None or segments == []:
+        return out
+    if not isinstance(segments, list):
+        raise WireError(
+            "schema", f"drive header: segments expected a list, got {type(segments).__name__}"
+        )
+    prev = -1
+    clean = []
+    for j, sg in enumerate(segments):
+        if not isinstance(sg, dict):
+            raise WireError("schema", f"drive header: segments[{j}] expected an object")
+        for key in ("i", "tool", "line"):
+            if not _is_int(sg.get(key)) or sg[key] < 0:
+                raise WireError(
+                    "schema",
+                    f"drive header: segments[{j}].{key} expected an integer >= 0, "
+                    f"got {sg.get(key)!r}",
+                )
+        i = sg["i"]
+        if (j == 0 and i != 0) or (j > 0 and i <= prev) or (n > 0 and i >= n):
+            raise WireError(
+                "shape",
+                f"drive header: segments[{j}].i expected {'0' if j == 0 else f'> {prev}'} "
+                f"and < n = {n}, got {i}",
+            )
+        prev = i
+        ov = sg.get("override")
+        if ov is not None and (
+            not isinstance(ov, int | float) or isinstance(ov, bool) or not 0.0 < float(ov) <= 3.0
+        ):
+            raise WireError(
+                "value", f"drive header: segments[{j}].override expected in (0, 3], got {ov!r}"
+            )
+        clean.append({k: sg[k] for k in ("i", "tool", "line", "override") if k in sg})
+    out["segments"] = clean
+    return out
 
 
 def _field(header: Mapping[str, Any], name: str, typ: type | tuple[type, ...]) -> Any:
@@ -240,7 +356,32 @@ def decode_drive(payload: bytes) -> DriveBlock:
         )
     wall = header.get("wall")
     wall = float(wall) if isinstance(wall, int | float) and not isinstance(wall, bool) else None
-    return DriveBlock(seq=seq, t0=t0, sample_time=ts, columns=out, units=units, wall=wall)
+    minor = header.get("minor", 0)
+    if not _is_int(minor) or minor < 0:
+        raise WireError("version", f"drive header: minor expected an integer >= 0, got {minor!r}")
+    ident = (
+        _check_identities(header.get("program"), header.get("segments"), n) if minor >= 1 else {}
+    )
+    segs = tuple(
+        Segment(
+            sg["i"],
+            sg["tool"],
+            sg["line"],
+            None if sg.get("override") is None else float(sg["override"]),
+        )
+        for sg in ident.get("segments", [])
+    )
+    return DriveBlock(
+        seq=seq,
+        t0=t0,
+        sample_time=ts,
+        columns=out,
+        units=units,
+        wall=wall,
+        minor=minor,
+        program=ident.get("program"),
+        segments=segs,
+    )
 
 
 def encode_drive_json(

@@ -13,6 +13,7 @@ the file, the column or row, and what was expected against what was found.
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 import os
@@ -28,9 +29,13 @@ from numpy.typing import NDArray
 
 from common.arrays import F64
 from server.errors import LogFormatError
+from server.records.row_select import Column, RowSelection, select_rows
 
 REQUIRED_COLUMNS: tuple[str, ...] = ("t", "tau_m", "q_m")
-OPTIONAL_COLUMNS: tuple[str, ...] = ("q_l", "f_ext", "i_m")
+OPTIONAL_COLUMNS: tuple[str, ...] = ("q_l", "f_ext", "i_m", "qd_m", "qdd_m")
+#: the CNC's identities per sample, optional: tool number, G-code line (the program
+#: block), feed override (1 = 100 %); the program's name is the sidecar key ``program``
+IDENTITY_COLUMNS: tuple[str, ...] = ("tool", "line", "override")
 EFFORT_UNITS: frozenset[str] = frozenset({"N", "N m", "Nm", "N*m", "A"})
 POSITION_UNITS: frozenset[str] = frozenset({"m", "rad"})
 KINDS: tuple[str, ...] = ("rigid", "two_inertia")
@@ -97,7 +102,9 @@ class MeasuredLog:
     path : Path
         The file read.
     columns : dict of str to ndarray
-        Canonical columns (``t``, ``tau_m``, ``q_m`` and any of ``q_l``, ``f_ext``), SI.
+        Canonical columns (``t``, ``tau_m``, ``q_m`` and any of ``q_l``, ``f_ext``), SI,
+        and the CNC's identities when recorded (``tool``, ``line``, ``override``; the
+        program is ``sidecar["program"]``).
     sample_time : float
         Median sampling interval [s].
     units : dict
@@ -108,6 +115,14 @@ class MeasuredLog:
         Known parameters from the sidecar (may be empty).
     sidecar : dict
         The merged sidecar (file, then ``meta`` overrides).
+    rows : ndarray of int, optional
+        The file's 1-based data row of each sample used (None: all rows, in order).
+    n_read : int
+        Rows read from the file (before any selection).
+    left_out : list of dict
+        ``{"rule": ..., "left_out": count}`` for each row-selection rule, in order.
+    phases : dict of str to ndarray of bool
+        Named masks over the samples used (``nominal``, ``load``, ...).
     """
 
     path: Path
@@ -117,11 +132,32 @@ class MeasuredLog:
     kind: str | None
     nominal: dict[str, float] = field(default_factory=dict)
     sidecar: dict[str, Any] = field(default_factory=dict)
+    rows: NDArray[np.int64] | None = None
+    n_read: int = 0
+    left_out: list[dict[str, Any]] = field(default_factory=list)
+    phases: dict[str, NDArray[np.bool_]] = field(default_factory=dict)
 
     @property
     def n(self) -> int:
         """Number of samples."""
         return len(self.columns["t"])
+
+    @property
+    def row_numbers(self) -> NDArray[np.int64]:
+        """The file's 1-based data row of each sample used (all rows when none left out)."""
+        if self.rows is None:
+            return np.arange(1, self.n + 1)
+        return self.rows
+
+    @property
+    def segments(self) -> NDArray[np.int64]:
+        """Start index of each run of consecutive file rows among the samples used.
+
+        One segment (``[0]``) when no row was left out; a row selection splits the
+        record where it left rows out, and nothing may differentiate or filter across.
+        """
+        r = self.row_numbers
+        return np.concatenate(([0], np.flatnonzero(np.diff(r) > 1) + 1)).astype(np.int64)
 
     def __getitem__(self, name: str) -> F64:
         return self.columns[name]
@@ -164,7 +200,9 @@ def load_meta(text: str | os.PathLike[str] | None) -> dict[str, Any]:
     return data
 
 
-def _read_csv(path: Path, progress: bool) -> dict[str, F64]:
+def _read_csv(path: Path, progress: bool) -> dict[str, Column]:
+    # newline="": universal newlines for reading, so CR-only, LF and CRLF files split
+    # into the same rows (line ends are stripped from each cell below)
     with path.open("r", newline="") as fh:
         header_line = fh.readline()
         if not header_line.strip():
@@ -183,14 +221,13 @@ def _read_csv(path: Path, progress: bool) -> dict[str, F64]:
             from tqdm import tqdm
 
             bar = tqdm(total=size, unit="B", unit_scale=True, desc=f"reading {path.name}")
-        chunks: list[F64] = []
+        chunks: list[list[Column]] = []
         row0 = 0
         while True:
-            lines = [ln for ln in (fh.readline() for _ in range(_CHUNK_ROWS)) if ln]
+            lines = [ln for ln in itertools.islice(fh, _CHUNK_ROWS) if ln.strip()]
             if not lines:
                 break
-            block = _parse_block(path, header, lines, row0)
-            chunks.append(block)
+            chunks.append(_parse_block(path, header, lines, row0))
             row0 += len(lines)
             if bar is not None:
                 bar.update(sum(len(ln) for ln in lines))
@@ -198,19 +235,28 @@ def _read_csv(path: Path, progress: bool) -> dict[str, F64]:
             bar.close()
     if not chunks:
         raise LogFormatError(f"{path}: no data rows after the header")
-    data = np.concatenate(chunks, axis=0)
-    return {h: np.ascontiguousarray(data[:, j]) for j, h in enumerate(header)}
+    out: dict[str, Column] = {}
+    for j, h in enumerate(header):
+        parts = [c[j] for c in chunks]
+        if all(p.dtype.kind == "f" for p in parts):
+            out[h] = np.ascontiguousarray(np.concatenate(parts), dtype=np.float64)
+        else:  # a text column (a label): numbers of other chunks back to text
+            out[h] = np.concatenate(
+                [p if p.dtype.kind in "US" else np.char.mod("%.17g", p) for p in parts]
+            ).astype(np.str_)
+    return out
 
 
-def _parse_block(path: Path, header: list[str], lines: list[str], row0: int) -> F64:
+def _parse_block(path: Path, header: list[str], lines: list[str], row0: int) -> list[Column]:
+    """Columns of one block of rows: floats where every cell is a number, else text."""
     ncol = len(header)
     try:
         arr = np.loadtxt(lines, delimiter=",", dtype=np.float64, ndmin=2)
         if arr.shape[1] == ncol:
-            return arr
+            return [np.ascontiguousarray(arr[:, j]) for j in range(ncol)]
     except ValueError:
         pass
-    # slow path: find the first offending cell and name it
+    rows: list[list[str]] = []
     for i, line in enumerate(lines):
         cells = line.rstrip("\r\n").split(",")
         row = row0 + i + 1
@@ -219,18 +265,31 @@ def _parse_block(path: Path, header: list[str], lines: list[str], row0: int) -> 
                 f"{path}: row {row} (line {row + 1}): expected {ncol} cells "
                 f"({', '.join(header)}), found {len(cells)}"
             )
-        for h, c in zip(header, cells):
-            try:
-                float(c)
-            except ValueError:
-                raise LogFormatError(
-                    f"{path}: row {row} (line {row + 1}), column {h!r}: "
-                    f"expected a number, found {c.strip()!r}"
-                ) from None
-    raise LogFormatError(
-        f"{path}: rows {row0 + 1}..{row0 + len(lines)}: could not parse "
-        "(expected comma-separated numbers)"
-    )  # pragma: no cover
+        rows.append([c.strip() for c in cells])
+    cols: list[Column] = []
+    for j in range(ncol):
+        cells_j = [r[j] for r in rows]
+        try:
+            cols.append(np.array(cells_j, dtype=np.float64))
+        except ValueError:
+            cols.append(np.array(cells_j, dtype=np.str_))
+    return cols
+
+
+def _numeric(path: Path, name: str, col: Column, row0: int = 0) -> F64:
+    """``col`` as floats, or a refusal naming its first cell that is not a number."""
+    if col.dtype.kind == "f":
+        return col  # type: ignore[return-value]
+    for i, c in enumerate(col):
+        try:
+            float(c)
+        except ValueError:
+            row = row0 + i + 1
+            raise LogFormatError(
+                f"{path}: row {row} (line {row + 1}), column {name!r}: "
+                f"expected a number, found {str(c)!r}"
+            ) from None
+    return np.asarray(col, dtype=np.float64)  # pragma: no cover
 
 
 def _read_mat(path: Path) -> dict[str, Any]:
@@ -268,9 +327,14 @@ def _apply_maps(
 ) -> dict[str, F64]:
     kind = "variable" if is_mat else "column"
     out: dict[str, F64] = {}
+    canonical = (*REQUIRED_COLUMNS, *OPTIONAL_COLUMNS, *IDENTITY_COLUMNS)
     for name, value in source.items():
         v = np.asarray(value)
-        if v.size > 1:
+        if v.dtype.kind in "US":
+            # a text column: ignored unless it is one of the log's own columns
+            if name in canonical:
+                out[name] = _numeric(path, name, v)
+        elif v.size > 1:
             out[name] = _as_vector(path, name, value)
     for m in maps:
         if m.source not in source:
@@ -278,7 +342,10 @@ def _apply_maps(
                 f"{path}: --map {m.column}=...: {kind} {m.source!r} does not "
                 f"exist; found {', '.join(sorted(source))}"
             )
-        base = _as_vector(path, m.source, source[m.source])
+        raw = np.asarray(source[m.source])
+        if raw.dtype.kind in "US":
+            raw = _numeric(path, m.source, raw)
+        base = _as_vector(path, m.source, raw)
         if isinstance(m.scale, str):
             if m.scale not in source:
                 raise LogFormatError(
@@ -349,6 +416,8 @@ def load_log(
     kind: str | None = None,
     required: Sequence[str] = REQUIRED_COLUMNS,
     progress: bool = False,
+    selection: RowSelection | None = None,
+    current_ok: bool = False,
 ) -> MeasuredLog:
     """Read a measured log and check it against DESIGN's log format.
 
@@ -366,6 +435,12 @@ def load_log(
         Columns that must be present after mapping.
     progress : bool
         Show a progress bar while reading long files.
+    selection : RowSelection, optional
+        Rows to use (``--keep``, ``--drop``, ``--drop-repeats``) and phase masks; the
+        rows each rule leaves out are counted in ``MeasuredLog.left_out``.
+    current_ok : bool
+        Accept an effort in A without a torque constant (kept in A); otherwise
+        ``units.effort = "A"`` needs ``nominal.K_t``.
 
     Returns
     -------
@@ -418,48 +493,104 @@ def load_log(
         if not isinstance(v, int | float) or not math.isfinite(float(v)):
             raise LogFormatError(f"{p}: sidecar nominal.{k} = {v!r}: expected a finite number")
         nominal[k] = float(v)
-    # effort given as current: tau_m = K_t * i_m
+    # effort given as current: tau_m = K_t * i_m when K_t is known, else kept in A
     if units["effort"] == "A":
         if "tau_m" not in cols and "i_m" in cols:
             cols["tau_m"] = cols["i_m"]
-        if "K_t" not in nominal:
+        if "K_t" in nominal:
+            if "tau_m" in cols:
+                cols["tau_m"] = cols["tau_m"] * nominal["K_t"]
+            units = {**units, "effort": "N m"}
+        elif not current_ok:
             raise LogFormatError(
                 f"{p}: units.effort = 'A' (current): expected nominal.K_t "
                 "[N m/A] in the sidecar, found none"
             )
-        cols["tau_m"] = cols["tau_m"] * nominal["K_t"]
-        units = {**units, "effort": "N m"}
 
+    declared = sidecar.get("sample_time")
+    if "t" not in cols and declared is not None:
+        # no time column: rows are uniform, one every sample_time seconds
+        if not (isinstance(declared, int | float) and math.isfinite(declared) and declared > 0):
+            raise LogFormatError(
+                f"{p}: sample_time = {declared!r}: expected a finite number of seconds > 0"
+            )
+        first = next((c for c in (*REQUIRED_COLUMNS, *OPTIONAL_COLUMNS) if c in cols), None)
+        if first is not None:
+            cols["t"] = np.arange(len(cols[first]), dtype=np.float64) * float(declared)
     missing = [c for c in required if c not in cols]
     if missing:
+        hint = " or declare sample_time" if "t" in missing else ""
         raise LogFormatError(
             f"{p}: missing column(s) {', '.join(missing)}; found "
             f"{', '.join(sorted(cols)) or 'none'} (map one with "
-            "--map COL=name*scale+offset)"
+            f"--map COL=name*scale+offset{hint})"
         )
-    keep = [c for c in (*REQUIRED_COLUMNS, *OPTIONAL_COLUMNS) if c in cols]
+    keep = [c for c in (*REQUIRED_COLUMNS, *OPTIONAL_COLUMNS, *IDENTITY_COLUMNS) if c in cols]
     n = len(cols["t"]) if "t" in cols else len(cols[keep[0]])
+    for c in keep:
+        if len(cols[c]) != n:
+            raise LogFormatError(
+                f"{p}: column {c!r}: expected {n} samples (as 't'), found {len(cols[c])}"
+            )
+    ts = check_time(p, cols["t"], None if declared is None else declared)
+
+    # rows used: every row unless a selection leaves some out (each rule's count kept)
+    used = np.ones(n, dtype=bool)
+    left_out: list[dict[str, Any]] = []
+    phases: dict[str, NDArray[np.bool_]] = {}
+    if selection is not None and not selection.empty:
+        where: dict[str, Any] = {}
+        for name, value in source.items():
+            a = np.asarray(value)
+            a = a.ravel() if a.ndim == 2 and 1 in a.shape else a
+            if a.ndim == 1 and len(a) == n:
+                where[name] = a
+        where.update({c: cols[c] for c in keep})
+        chosen = select_rows(p, selection, where, n)
+        used, left_out, phases = chosen.used, chosen.left_out, chosen.phases
+    rows = np.flatnonzero(used)
     out: dict[str, F64] = {}
     for c in keep:
-        v = cols[c]
-        if len(v) != n:
-            raise LogFormatError(
-                f"{p}: column {c!r}: expected {n} samples (as 't'), found {len(v)}"
-            )
+        v = cols[c][rows] if len(rows) < n else cols[c]
         bad = np.flatnonzero(~np.isfinite(v))
         if bad.size:
-            i = int(bad[0])
+            i = int(rows[int(bad[0])])
             raise LogFormatError(
-                f"{p}: column {c!r}, row {i + 1}: expected a finite value, found {float(v[i])}"
+                f"{p}: column {c!r}, row {i + 1}: expected a finite value, "
+                f"found {float(cols[c][i])}"
             )
-        out[c] = v
-    declared = sidecar.get("sample_time")
-    ts = check_time(p, out["t"], None if declared is None else declared)
+        if c in IDENTITY_COLUMNS:
+            _check_identity(p, c, v, rows)
+        out[c] = np.ascontiguousarray(v)
+    prog = sidecar.get("program")
+    if prog is not None and (not isinstance(prog, str) or not 1 <= len(prog) <= 32):
+        raise LogFormatError(
+            f"{p}: sidecar 'program': expected a name of 1-32 characters, found {prog!r}"
+        )
 
     k = kind if kind is not None else sidecar.get("kind")
     if k is not None and k not in KINDS:
         raise LogFormatError(f"{p}: kind {k!r}: expected one of {', '.join(KINDS)}")
-    return MeasuredLog(p, out, ts, dict(units), k, nominal, sidecar)
+    return MeasuredLog(
+        p, out, ts, dict(units), k, nominal, sidecar,
+        rows=rows + 1, n_read=n, left_out=left_out, phases=phases,
+    )  # fmt: skip
+
+
+def _check_identity(p: Path, c: str, v: F64, rows: NDArray[np.int64]) -> None:
+    """Tool and line are whole numbers >= 0; the override lies in (0, 3] (``rows``: the
+    file's 0-based row of each sample, for the message)."""
+    if c == "override":
+        bad = np.flatnonzero(~((v > 0.0) & (v <= 3.0)))
+        want = "a feed override in (0, 3]"
+    else:
+        bad = np.flatnonzero((v < 0) | (v != np.round(v)))
+        want = "a whole number >= 0"
+    if bad.size:
+        i = int(bad[0])
+        raise LogFormatError(
+            f"{p}: column {c!r}, row {int(rows[i]) + 1}: expected {want}, found {float(v[i])}"
+        )
 
 
 def write_log(path: Path, columns: Mapping[str, NDArray[Any]], sidecar: Mapping[str, Any]) -> None:

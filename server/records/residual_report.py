@@ -14,16 +14,15 @@ import json
 import os
 import shutil
 import tempfile
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from common.jsonsafe import json_safe
-from estimators.residual import NOT_OFFERED, ResidualResult
-from estimators.residual_families import FAMILIES as DRIVE_FAMILIES
-from estimators.residual_two_inertia import NOT_OFFERED_TWO_INERTIA, TwoInertiaResult
+from estimators.residual_engine import ResidualResult
+from estimators.residual_families import FAMILIES as RIGID_FAMILIES
 from server.records.measured_log import MeasuredLog
 
 
@@ -41,24 +40,13 @@ def describe_structure(u: Mapping[str, Any]) -> str:
 #: the physical meaning of each family, shown beside its parameters
 MEANING: dict[str, str] = {
     "none": "nothing beyond the nominal model",
-    "offset": "a constant effort (a sensor or amplifier offset, gravity on a tilted axis)",
-    "inertia": "mass / inertia not in the nominal model",
-    "viscous": "viscous friction, proportional to speed",
-    "coulomb_asymmetry": "friction that differs by direction: a Coulomb level and a "
-    "viscous coefficient for each direction (Fc_pos/Fc_neg, Fv_pos/Fv_neg)",
-    "stribeck": "friction above the Coulomb level at low speed, fading over the Stribeck "
-    "speed v_s (the same in both directions)",
-    "position_periodic": "a force periodic in position (cogging, screw lead error)",
     "torque_ripple": "motor torque periodic in the motor angle",
     "backlash": "lost motion between motor and load at reversals",
-    "harmonic": "a force periodic in time (a vibration, a disturbance at fixed frequency)",
-    "delay": "the effort acts late relative to the motion (command-to-force lag)",
-    "drift": "a slow change over time (warm-up of the lubricant, a thermal drift)",
-    **{name: fam.meaning for name, fam in DRIVE_FAMILIES.items()},
+    **{name: fam.meaning for name, fam in RIGID_FAMILIES.items()},
 }
 
 
-def selection_text(res: ResidualResult | TwoInertiaResult) -> str:
+def selection_text(res: ResidualResult) -> str:
     """The decision rule, in one sentence with its numbers (docs/residual-selection.md)."""
     sp = res.selection
     return (
@@ -78,23 +66,23 @@ def selection_text(res: ResidualResult | TwoInertiaResult) -> str:
 
 def report_dict(
     log: MeasuredLog,
-    res: ResidualResult | TwoInertiaResult,
+    res: ResidualResult,
     validation: Mapping[str, Any] | None = None,
+    notes: Sequence[str] = (),
 ) -> dict[str, Any]:
-    """The ``report.json`` object (DESIGN's contract keys plus details)."""
-    two = isinstance(res, TwoInertiaResult)
-    model = "rigid: tau = M*qdd + Fv*qd + Fc*sign(qd) + offset (IDIM-LS)"
-    if isinstance(res, TwoInertiaResult):
-        model = (
-            "two_inertia: cutting force observer (seed 000 eq. 2-8) with the log's nominal "
-            f"parameters; residual against {res.reference}; error over the force residual "
-            "and the twist disagreement T_sK - T_sM"
-        )
+    """The ``report.json`` object (DESIGN's contract keys plus details; ``notes``: what
+    the rate, the rows used and the unit mean for this record)."""
     rep: dict[str, Any] = {
         "log": str(log.path),
-        "model": model,
-        "kind": "two_inertia" if two else "rigid",
+        "model": res.model,
+        "kind": res.kind,
         "n_samples": log.n,
+        "rows": {
+            "read": log.n_read or log.n,
+            "used": log.n,
+            "left_out": list(log.left_out),
+            "pieces": len(log.segments),
+        },
         "sample_time": log.sample_time,
         "holdout": {"start": res.holdout_start, "stop": res.holdout_stop},
         "rms_before": res.rms_before,
@@ -130,7 +118,7 @@ def report_dict(
         ],
         "unexplained": list(res.unexplained),
         # canonical families this kind does not offer, and why
-        "not_offered": dict(NOT_OFFERED_TWO_INERTIA if two else NOT_OFFERED),
+        "not_offered": dict(res.not_offered),
         "parameters_before": dict(zip(res.names_before, map(float, res.theta_before))),
         "parameters_after": dict(zip(res.names_after, map(float, res.theta_after))),
         "units": log.units,
@@ -140,15 +128,10 @@ def report_dict(
         "mse_before) at the round the candidate was last scored (report figure only: the "
         "held-out end takes no part in the selection)",
     }
-    if isinstance(res, TwoInertiaResult):
-        rep["rms_force_before"] = res.rms_force_before
-        rep["rms_force_after"] = res.rms_force_after
-        rep["rms_twist_before"] = res.rms_twist_before
-        rep["rms_twist_after"] = res.rms_twist_after
-        rep["observer_effects"] = [
-            {"name": e.name, "side": e.side, "shape": dict(e.shape), "coef": list(e.coef)}
-            for e in res.effects
-        ]
+    # the model's own entries (the observer: per-channel figures and its terms)
+    rep.update(res.details)
+    if notes:
+        rep["notes"] = list(notes)
     if validation is not None:
         rep["validation"] = dict(validation)
     return json_safe(rep)
@@ -174,14 +157,124 @@ def _position_spectrum(q: np.ndarray, r: np.ndarray, periods: np.ndarray) -> np.
     return amp
 
 
-def _figures(
-    res: ResidualResult | TwoInertiaResult, unit: str, pos_unit: str = ""
-) -> list[tuple[str, str]]:
+#: what each family's shape is drawn against (velocity: the friction curve with the
+#: nominal friction; position: per direction; time; acceleration)
+SHAPE_AXIS: dict[str, str] = {
+    "viscous": "velocity",
+    "coulomb_asymmetry": "velocity",
+    "stribeck": "velocity",
+    "friction_curve": "velocity",
+    "viscous_asymmetry": "velocity",
+    "load": "velocity",
+    "position_friction": "position",
+    "position_periodic": "position",
+    "position_harmonics": "position",
+    "torque_ripple": "position",
+    "backlash": "position",
+    "harmonic": "time",
+    "drift": "time",
+    "delay": "time",
+    "drive_delay": "time",
+    "force_lag": "time",
+    "offset": "time",
+    "inertia": "acceleration",
+}
+
+
+def _plt() -> Any:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    return plt
+
+
+def _verdict_figure(res: ResidualResult, unit: str) -> tuple[str, str]:
+    """Held-out error before and after (bars), and the held-out residual against time."""
+    plt = _plt()
+    fig, (ax0, ax1) = plt.subplots(1, 2, figsize=(10, 3), gridspec_kw={"width_ratios": [1, 3]})
+    vals = [res.relerr_before, res.relerr_after]
+    bars = ax0.bar(["nominal", "with effects"], vals, color=["0.6", "tab:green"])
+    for bar, v in zip(bars, vals):
+        ax0.annotate(f"{v:.3g} %", (bar.get_x() + bar.get_width() / 2, v), ha="center",
+                     va="bottom")  # fmt: skip
+    ax0.set_ylabel("held-out relative error [%]")
+    ax0.set_ylim(0, max(vals) * 1.2 + 1e-12)
+    hold = res.t_dec >= res.holdout_start
+    ax1.plot(res.t_dec[hold], res.residual_before_dec[hold], ".", ms=2, color="0.5",
+             label="nominal")  # fmt: skip
+    ax1.plot(res.t_dec[hold], res.residual_after_dec[hold], ".", ms=2, color="tab:green",
+             label="with effects")  # fmt: skip
+    ax1.set_xlabel("t [s] (held-out end)")
+    ax1.set_ylabel(f"error [{unit}]")
+    ax1.legend(loc="upper right")
+    fig.tight_layout()
+    out = ("Held-out error, before and after", _png(fig))
+    plt.close(fig)
+    return out
+
+
+def _nominal_friction(res: ResidualResult, qd: np.ndarray) -> np.ndarray:
+    """Fv*qd + Fc*sign(qd) of the final model, where the model has those parameters."""
+    th = dict(zip(res.names_after, map(float, res.theta_after)))
+    return th.get("Fv", 0.0) * qd + th.get("Fc", 0.0) * np.sign(qd)
+
+
+def _shape_figures(res: ResidualResult, unit: str, pos_unit: str) -> list[tuple[str, str]]:
+    """Each selected effect drawn as its shape (needs the result's per-effect terms)."""
+    terms: Mapping[str, np.ndarray] | None = getattr(res, "terms_dec", None)
+    if not terms:
+        return []
+    plt = _plt()
+    out: list[tuple[str, str]] = []
+    qd, q, t = res.qd_dec, res.q_dec, res.t_dec
+    qdd = getattr(res, "qdd_dec", None)
+    shapes = {e.name: dict(e.shape) for e in res.effects}
+    for name, term in terms.items():
+        axis = SHAPE_AXIS.get(name, "time")
+        fig, ax = plt.subplots(figsize=(9, 3))
+        if axis == "velocity":
+            order = np.argsort(qd)
+            base = _nominal_friction(res, qd)
+            ax.plot(qd[order], base[order], lw=1, color="0.5", label="nominal friction")
+            ax.plot(qd[order], (base + term)[order], ".", ms=2, color="tab:red",
+                    label=f"with {name}")  # fmt: skip
+            ax.set_xlabel(f"velocity [{pos_unit}/s]")
+            title = f"{name}: friction against velocity"
+        elif axis == "position":
+            period = shapes.get(name, {}).get("period", 0.0)
+            window = np.ones(len(q), dtype=bool)
+            if period > 0 and np.ptp(q) > 5 * period:  # four periods mid-travel
+                q0 = float(np.median(q))
+                window = (q >= q0) & (q <= q0 + 4 * period)
+            for sel, lab, col in ((qd > 0, "v > 0", "tab:blue"), (qd < 0, "v < 0", "tab:orange")):
+                sel = sel & window
+                order = np.argsort(q[sel])
+                ax.plot(q[sel][order], term[sel][order], lw=1, color=col, label=lab)
+            ax.set_xlabel(f"position [{pos_unit}]")
+            title = f"{name}: against position, per direction" + (
+                f" (four periods of {period:.4g} {pos_unit})" if not window.all() else ""
+            )
+        elif axis == "acceleration" and qdd is not None:
+            ax.plot(qdd, term, ".", ms=2, color="tab:red", label=name)
+            ax.set_xlabel(f"acceleration [{pos_unit}/s²]")
+            title = f"{name}: against acceleration"
+        else:
+            ax.plot(t, term, lw=0.8, color="tab:red", label=name)
+            ax.set_xlabel("t [s]")
+            title = f"{name}: against time"
+        ax.set_ylabel(f"effort [{unit}]")
+        ax.axhline(0.0, color="0.8", lw=0.5)
+        ax.legend(loc="upper right")
+        out.append((title, _png(fig)))
+        plt.close(fig)
+    return out
+
+
+def _figures(res: ResidualResult, unit: str, pos_unit: str = "") -> list[tuple[str, str]]:
+    """The detail figures: residual against time, velocity, position; its spectra."""
+    plt = _plt()
     r0, r1 = res.residual_before_dec, res.residual_after_dec
     out: list[tuple[str, str]] = []
     fig, ax = plt.subplots(figsize=(9, 3))
@@ -238,8 +331,38 @@ def _fmt(x: Any) -> str:
     return html.escape(str(x))
 
 
-def report_html(rep: Mapping[str, Any], figures: list[tuple[str, str]]) -> str:
-    """A self-contained page: numbers, candidate table, figures (PNG as base64)."""
+def _img(title: str, b64: str) -> str:
+    t = html.escape(title)
+    return (
+        f"<figure><img alt='{t}' src='data:image/png;base64,{b64}'>"
+        f"<figcaption>{t}</figcaption></figure>"
+    )
+
+
+def verdict_text(rep: Mapping[str, Any]) -> str:
+    """One sentence: what the log's nominal model missed and what adding it gained."""
+    b, a = rep["relerr_before"], rep["relerr_after"]
+    sel = rep["selected"]
+    gain = 100.0 * (1.0 - a / b) if b > 0 else 0.0
+    if not sel:
+        return (
+            f"Nothing added: no effect passed the selection; the nominal model's held-out "
+            f"error is {b:.3g} %."
+        )
+    return (
+        f"Found {len(sel)} effect{'s' if len(sel) > 1 else ''} ({', '.join(sel)}): the held-out "
+        f"error falls from {b:.3g} % to {a:.3g} % ({gain:.0f} % lower)."
+    )
+
+
+def report_html(
+    rep: Mapping[str, Any],
+    figures: list[tuple[str, str]],
+    lead: list[tuple[str, str]] | None = None,
+) -> str:
+    """A self-contained page: the verdict and the figures first (error before and after,
+    each selected effect drawn as its shape), then the details folded (raw coefficients,
+    candidates, residual figures). PNG figures are inlined as base64."""
     rows = "".join(
         f"<tr><td>{_fmt(c['name'])}</td><td>{'yes' if c['selected'] else ''}</td>"
         f"<td>{_fmt(c['cv_effect'])}</td><td>{_fmt(c['p_value'])}</td>"
@@ -261,24 +384,27 @@ def report_html(rep: Mapping[str, Any], figures: list[tuple[str, str]]) -> str:
         if k not in rep["parameters_before"]
     )
     effects = "".join(
-        f"<tr><td>{_fmt(e['name'])}</td><td>{_fmt(e['meaning'])}</td>"
+        f"<li><b>{_fmt(e['name'])}</b>: {_fmt(e['meaning'])}</li>" for e in rep.get("effects", [])
+    )
+    coefs = "".join(
+        f"<tr><td>{_fmt(e['name'])}</td>"
         f"<td>{_fmt(', '.join(f'{k}={_fmt(v)}' for k, v in e['params'].items()))}</td></tr>"
         for e in rep.get("effects", [])
     )
     unexpl = (
         "".join(f"<li>{_fmt(describe_structure(u))}</li>" for u in rep["unexplained"])
-        or "<li>none above the reporting threshold</li>"
+        or "<li>no structure above the reporting threshold</li>"
     )
-    unexpl += "".join(
+    not_off = "".join(
         f"<li>not offered: {_fmt(k)} — {_fmt(v)}</li>" for k, v in rep["not_offered"].items()
     )
     val = ""
     if "validation" in rep:
         v = rep["validation"]
         val = (
-            f"<h2>Validation on {_fmt(v['log'])}</h2><p>rms {_fmt(v['rms_before'])} → "
-            f"{_fmt(v['rms_after'])}; relerr {_fmt(v['relerr_before'])} % → "
-            f"{_fmt(v['relerr_after'])} %</p>"
+            f"<p><b>On a second record</b> ({_fmt(v['log'])}): relative error "
+            f"{_fmt(v['relerr_before'])} % → {_fmt(v['relerr_after'])} % (rms "
+            f"{_fmt(v['rms_before'])} → {_fmt(v['rms_after'])}).</p>"
         )
     ambig = "".join(
         f"<p><b>Indistinguishable on this record: {_fmt(' and '.join(a['families']))}</b> "
@@ -286,32 +412,48 @@ def report_html(rep: Mapping[str, Any], figures: list[tuple[str, str]]) -> str:
         f"{_fmt(a['excitation'])}.</p>"
         for a in rep.get("indistinguishable", [])
     )
-    figs = "".join(
-        f"<h3>{html.escape(t)}</h3><img alt='{html.escape(t)}' src='data:image/png;base64,{b}'>"
-        for t, b in figures
-    )
+    rows_used = ""
+    r = rep.get("rows")
+    if r and r.get("left_out"):
+        counts = "; ".join(f"{_fmt(d['left_out'])} by {_fmt(d['rule'])}" for d in r["left_out"])
+        rows_used = (
+            f"<p>Rows: {_fmt(r['read'])} read, {_fmt(r['used'])} used in "
+            f"{_fmt(r['pieces'])} piece(s); left out: {counts}.</p>"
+        )
+    notes = "".join(f"<p>{_fmt(n)}</p>" for n in rep.get("notes", []))
+    lead_figs = "".join(_img(t, b) for t, b in (lead or []))
+    figs = "".join(_img(t, b) for t, b in figures)
+    unit = rep.get("units", {}).get("effort", "")
     return f"""<!doctype html>
 <html lang="en"><head><meta charset="utf-8"><title>cutwatch residual report</title>
 <style>body{{font-family:sans-serif;max-width:1000px;margin:auto}}
-table{{border-collapse:collapse}}td,th{{border:1px solid #ccc;padding:2px 6px}}</style>
+table{{border-collapse:collapse}}td,th{{border:1px solid #ccc;padding:2px 6px}}
+.verdict{{font-size:1.3em;background:#eef6ee;padding:8px;border-left:5px solid #3a3}}
+figure{{margin:8px 0}}img{{max-width:100%}}summary{{font-weight:bold;cursor:pointer}}</style>
 </head><body>
 <h1>Residual report: {_fmt(rep["log"])}</h1>
-<p>Model: {_fmt(rep["model"])}. Held out: t = {_fmt(rep["holdout"]["start"])} …
-{_fmt(rep["holdout"]["stop"])} s.</p>
-<p><b>Held-out rms {_fmt(rep["rms_before"])} → {_fmt(rep["rms_after"])}</b>;
-relerr {_fmt(rep["relerr_before"])} % → {_fmt(rep["relerr_after"])} %.
-Selected: {_fmt(", ".join(rep["selected"]) or "none")}.</p>
-<p>Selection: {_fmt(rep["selection_test"])}.</p>
-<h2>Selected effects</h2><table><tr><th>effect</th><th>physical meaning</th>
-<th>parameters</th></tr>{effects}</table>
-<h2>Parameters</h2><table><tr><th>name</th><th>before</th><th>after</th></tr>{params}</table>
+<p class="verdict">{_fmt(verdict_text(rep))}</p>
+<p>Held-out rms {_fmt(rep["rms_before"])} → {_fmt(rep["rms_after"])} {_fmt(unit)}
+(t = {_fmt(rep["holdout"]["start"])} … {_fmt(rep["holdout"]["stop"])} s, not used
+in the fit). Model: {_fmt(rep["model"])}.</p>
+{rows_used}{notes}
+<h2>Selected effects and their physical meaning</h2><ul>{effects or "<li>none</li>"}</ul>
+{lead_figs}
 {ambig}
-<h2>Candidates</h2><table><tr><th>name</th><th>selected</th><th>CV effect</th>
+<h2>What is left unexplained</h2><ul>{unexpl}</ul>
+{val}
+<details><summary>Raw coefficients (parameters before and after, each effect's
+coefficients)</summary>
+<table><tr><th>effect</th><th>shape and coefficients</th></tr>{coefs}</table>
+<table><tr><th>name</th><th>before</th><th>after</th></tr>{params}</table></details>
+<details><summary>Candidates and the selection rule</summary>
+<p>Selection: {_fmt(rep["selection_test"])}.</p>
+<table><tr><th>name</th><th>selected</th><th>CV effect</th>
 <th>p</th><th>passed</th><th>held-out score</th><th>t</th>
 <th>rms before</th><th>rms after</th><th>parameters</th><th>note</th></tr>{rows}</table>
-<h2>Unexplained structure</h2><ul>{unexpl}</ul>
-{val}
-<h2>Figures</h2>{figs}
+<ul>{not_off}</ul></details>
+<details><summary>Residual figures (time, velocity, position, spectra)</summary>
+{figs}</details>
 </body></html>
 """
 
@@ -319,13 +461,16 @@ Selected: {_fmt(", ".join(rep["selected"]) or "none")}.</p>
 def write_report(
     out_dir: Path,
     log: MeasuredLog,
-    res: ResidualResult | TwoInertiaResult,
+    res: ResidualResult,
     validation: Mapping[str, Any] | None = None,
+    notes: Sequence[str] = (),
 ) -> dict[str, Any]:
     """Write ``report.json``, ``estimates.csv`` and ``report.html`` into ``out_dir``."""
-    rep = report_dict(log, res, validation)
-    figs = _figures(res, log.units.get("effort", ""), log.units.get("position", ""))
-    page = report_html(rep, figs)
+    rep = report_dict(log, res, validation, notes)
+    unit, pos_unit = log.units.get("effort", ""), log.units.get("position", "")
+    lead = [_verdict_figure(res, unit), *_shape_figures(res, unit, pos_unit)]
+    figs = _figures(res, unit, pos_unit)
+    page = report_html(rep, figs, lead)
     est = io.StringIO()
     np.savetxt(
         est,

@@ -41,16 +41,12 @@ _STEP_RE = re.compile(r"residual:\s*(\d+)\s*step")
 
 def max_steps(kind: str | None) -> int:
     """The most progress steps of an analysis of ``kind`` (1 + families x rounds)."""
+    from estimators import residual, residual_two_inertia
+
     if kind == "rigid":
-        from estimators.residual import ResidualParams
-
-        rp = ResidualParams()
-        fam = len(getattr(rp, "families", ())) or 12
-        return 2 + fam * int(getattr(rp, "max_effects", 4))
-    from estimators.residual_two_inertia import TwoInertiaParams
-
-    tp = TwoInertiaParams()
-    return 1 + len(tp.families) * tp.max_effects
+        return 2 + len(residual.FAMILIES) * residual.RigidModel.max_effects
+    two = residual_two_inertia
+    return 1 + len(two.FAMILIES) * two.TwoInertiaModel.max_effects
 
 
 @dataclass

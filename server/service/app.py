@@ -29,7 +29,7 @@ from server.pipeline.live_pipeline import SCENARIOS
 from server.records.store import DataStore
 from server.service.analysis import Analyses
 from server.service.errors import FieldError, _sanitise, error
-from server.service.loop import Hub, LiveLoop
+from server.service.loop import Hub, LiveLoop, checkpoint_path, loop_parts
 from server.service.middleware import BodyLimit
 from server.service.routes import ROUTERS
 from server.service.settings import Settings, check_security
@@ -60,7 +60,15 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         hub = Hub(s.client_buffer)
         hub.bind(asyncio.get_running_loop())
-        loop = LiveLoop(s, hub)
+        parts = loop_parts(s)
+        loop = LiveLoop(
+            s,
+            hub,
+            pipeline=parts.pipeline,
+            feed=parts.feed,
+            estimates_out=parts.estimates_out,
+            checkpoint=checkpoint_path(s),
+        )
         app.state.hub, app.state.loop = hub, loop
         if s.viser:
             from server.service.viser_scene import StageScene

@@ -19,17 +19,25 @@ from __future__ import annotations
 import asyncio
 import collections
 import contextlib
+import logging
 import math
 import threading
 import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from common.errors import ParameterError
+from common.state_io import StateFormatError
 from server.errors import CutwatchError
 from server.pipeline.broker import BrokerConfig, parse_broker_url
+from server.pipeline.checkpoint import load_checkpoint, save_checkpoint
 from server.pipeline.drive_feed import DriveFeed
 from server.pipeline.estimates_out import EstimatesPublisher
+from server.pipeline.knobs import Knob
 from server.pipeline.live_pipeline import LivePipeline
 from server.pipeline.mqtt_source import MqttSource
 from server.service import protocol
@@ -37,6 +45,7 @@ from server.service.messages import LoopHealth
 from server.service.settings import MAX_SPEED, Settings
 
 if TYPE_CHECKING:
+    from estimators.observer_effects import ObserverEffect
     from server.service.recording import Recording
     from server.service.viser_scene import StageScene
 
@@ -47,6 +56,16 @@ DISPLAY_DIGITS = 5
 
 #: how often the loop looks for new samples of a live feed (its latency floor) [s]
 LIVE_POLL_S = 0.01
+
+#: the service's log (uvicorn prints its warnings)
+log = logging.getLogger("uvicorn.error")
+
+
+def checkpoint_path(settings: Settings) -> Path | None:
+    """Where the service keeps its pipeline's state (None: ``checkpoint_s`` is 0)."""
+    if settings.checkpoint_s <= 0:
+        return None
+    return Path(settings.data_dir) / "state" / "pipeline.npz"
 
 
 def broker_config(settings: Settings) -> BrokerConfig:
@@ -187,37 +206,76 @@ def _wake(clients: list[ClientQueue]) -> None:
         q.event.set()
 
 
+@dataclass(frozen=True)
+class LoopParts:
+    """What a :class:`LiveLoop` runs: the pipeline and the broker parts, if any."""
+
+    pipeline: LivePipeline
+    feed: DriveFeed | None = None
+    estimates_out: EstimatesPublisher | None = None
+
+
+def loop_parts(settings: Settings) -> LoopParts:
+    """The pipeline, the drive feed and the estimates publisher the settings ask for:
+    a real machine's feed from the broker (``source == "mqtt"``) or the simulated
+    scenario; the estimates out when ``mqtt_publish_hz > 0``."""
+    feed: DriveFeed | None = None
+    out: EstimatesPublisher | None = None
+    if settings.source == "mqtt" or settings.mqtt_publish_hz > 0:
+        cfg = broker_config(settings)
+        if settings.source == "mqtt":
+            feed = DriveFeed(
+                cfg, settings.mqtt_machine, max_samples=10**7, max_seconds=settings.mqtt_buffer_s
+            )
+        if settings.mqtt_publish_hz > 0:
+            out = EstimatesPublisher(
+                cfg, settings.mqtt_machine, settings.mqtt_publish_hz, settings.public_url
+            )
+    if feed is not None:
+        pipe = LivePipeline(seed=settings.seed, source=MqttSource(feed))
+    else:
+        pipe = LivePipeline(settings.scenario, seed=settings.seed)
+    return LoopParts(pipe, feed, out)
+
+
 class LiveLoop:
     """The background loop: pipeline stepping on a wall-clock schedule, frames to the hub.
 
     Every public method is thread-safe. Pipeline access (stepping, knobs, reset,
-    snapshot) is serialised by one lock held for one block at a time.
+    snapshot) is serialised by one lock held for one block at a time; the routes use
+    the methods of the facade below, never the pipeline or the lock.
+
+    Parameters
+    ----------
+    settings, hub
+        The service's settings and the client hub.
+    pipeline
+        The pipeline to run (default: the settings' simulated scenario).
+    feed, estimates_out
+        A drive feed and an estimates publisher (:func:`loop_parts`), started and
+        stopped with the loop.
+    checkpoint
+        The pipeline's checkpoint file (:func:`checkpoint_path`): resumed from at start,
+        written every ``settings.checkpoint_s`` wall seconds and at stop. None: none.
     """
 
-    def __init__(self, settings: Settings, hub: Hub) -> None:
+    def __init__(
+        self,
+        settings: Settings,
+        hub: Hub,
+        *,
+        pipeline: LivePipeline | None = None,
+        feed: DriveFeed | None = None,
+        estimates_out: EstimatesPublisher | None = None,
+        checkpoint: Path | None = None,
+    ) -> None:
         self.settings = settings
         self.hub = hub
-        #: a real machine's drive data from the broker (settings.source == "mqtt")
-        self.feed: DriveFeed | None = None
-        #: the estimates on cutwatch/<machine>/estimates (settings.mqtt_publish_hz > 0)
-        self.estimates_out: EstimatesPublisher | None = None
-        if settings.source == "mqtt" or settings.mqtt_publish_hz > 0:
-            cfg = broker_config(settings)
-            if settings.source == "mqtt":
-                self.feed = DriveFeed(
-                    cfg,
-                    settings.mqtt_machine,
-                    max_samples=10**7,
-                    max_seconds=settings.mqtt_buffer_s,
-                )
-            if settings.mqtt_publish_hz > 0:
-                self.estimates_out = EstimatesPublisher(
-                    cfg, settings.mqtt_machine, settings.mqtt_publish_hz, settings.public_url
-                )
-        if self.feed is not None:
-            self.pipeline = LivePipeline(seed=settings.seed, source=MqttSource(self.feed))
-        else:
-            self.pipeline = LivePipeline(settings.scenario, seed=settings.seed)
+        #: a real machine's drive data from the broker (started and stopped with the loop)
+        self.feed = feed
+        #: the estimates on cutwatch/<machine>/estimates (started and stopped with the loop)
+        self.estimates_out = estimates_out
+        self.pipeline = pipeline or LivePipeline(settings.scenario, seed=settings.seed)
         self.lock = threading.RLock()
         self._wake = threading.Event()
         self._stop = threading.Event()
@@ -238,6 +296,12 @@ class LiveLoop:
         self._hello_due = False  # the pipeline changed: clients need a new hello
         self.scene: StageScene | None = None  # the viser view, if started
         self.recording: Recording | None = None  # POST /api/record
+        #: the checkpoint file (settings.checkpoint_s > 0) and what became of it
+        self.checkpoint = checkpoint
+        self._home = (self.pipeline.scenario, self.pipeline.source.name)
+        self._saved_at = time.monotonic()
+        self._writer: threading.Thread | None = None
+        self.checkpoint_status: dict[str, Any] = {"path": str(self.checkpoint), "resumed": False}
         self._anchor()
 
     # ------------------------------------------------------------------ control
@@ -312,6 +376,8 @@ class LiveLoop:
         self._wake.set()
         if self._thread is not None:
             self._thread.join(timeout)
+            if not self._thread.is_alive():
+                self.save_checkpoint()  # the state at shutdown
         rec = self.end_recording("the service stopped")
         if rec is not None:
             rec.wait(timeout)  # every block handed over is written before exit
@@ -337,14 +403,16 @@ class LiveLoop:
         with self.lock:
             self.pipeline.step(self.block_n)
             self.pipeline.reset()
+            self._resume()
             self._anchor()
         last_frame = time.monotonic()
         next_frame = last_frame  # wall time of the next frame's slot
         try:
             while not self._stop.is_set():
                 src = self.pipeline.source
-                if isinstance(src, MqttSource) and src.needs_rebuild:  # a new meta
-                    self.set_pipeline(LivePipeline(seed=self.settings.seed, source=src.renewed()))
+                renewed = getattr(src, "renewed", None)  # a live feed's source
+                if renewed is not None and getattr(src, "needs_rebuild", False):  # a new meta
+                    self.set_pipeline(LivePipeline(seed=self.settings.seed, source=renewed()))
                 with self.lock:
                     paused, speed = self.paused, self.speed
                     block_s = self.block_n * self.pipeline.sample_time
@@ -397,6 +465,8 @@ class LiveLoop:
                 self.lag_s = lag
                 self._lags.append(lag)
                 self._rate.append((done, self.pipeline.t))
+                if done - self._saved_at >= self.settings.checkpoint_s > 0:
+                    self.save_checkpoint(wait=False)
                 if lag > self.settings.max_lag_s:
                     self.stalls += 1
                     with self.lock:
@@ -430,7 +500,7 @@ class LiveLoop:
                 self.pipeline.t,
                 src.name,
                 health=self.health(),
-                drive_wall=src.last_wall if isinstance(src, MqttSource) else None,
+                drive_wall=getattr(src, "last_wall", None),
                 feed_health=self.feed.health() if self.feed is not None else None,
             )
             pub.publish(body, now)
@@ -439,11 +509,65 @@ class LiveLoop:
         """The measurement source, and the broker parts when there are any."""
         src = self.pipeline.source
         out: dict[str, Any] = {"source": src.name}
-        if isinstance(src, MqttSource):
+        if self.feed is not None:
             out["feed"] = src.status()
         if self.estimates_out is not None:
             out["estimates_out"] = self.estimates_out.health()
         return out
+
+    # ------------------------------------------------------------------ checkpoints
+    def _resume(self) -> None:
+        """Continue from the checkpoint file, if there is one of this pipeline's scenario
+        and source; otherwise start fresh and say why (``checkpoint_status``, log)."""
+        path = self.checkpoint
+        if path is None or not path.exists():
+            return
+        try:
+            state = load_checkpoint(path)
+            self.pipeline.restore(state)
+        except (StateFormatError, ParameterError) as exc:
+            msg = f"checkpoint refused, starting fresh: {exc}"
+            self.checkpoint_status.update(resumed=False, refused=str(exc))
+            log.warning("cutwatch: %s", msg)
+            return
+        self.checkpoint_status.update(resumed=True, resumed_t=state.t)
+        log.warning("cutwatch: resumed from %s at t = %.3f s", path, state.t)
+
+    def save_checkpoint(self, *, wait: bool = True) -> bool:
+        """Write the pipeline's state to the checkpoint file (when the pipeline running is
+        the one the service started with: not a replay or another scenario). The state
+        is taken under the lock; the file is written by a writer thread (``wait``: this
+        call waits for it), one at a time. True when a write was started."""
+        path = self.checkpoint
+        self._saved_at = time.monotonic()
+        if path is None:
+            return False
+        writer = self._writer
+        if writer is not None and writer.is_alive():
+            if not wait:
+                return False  # the previous file is still being written: next time
+            writer.join()
+        with self.lock:
+            p = self.pipeline
+            if (p.scenario, p.source.name) != self._home:
+                return False
+            state = p.state()
+
+        def write() -> None:
+            try:
+                path.parent.mkdir(parents=True, exist_ok=True)
+                save_checkpoint(path, state)
+            except OSError as exc:  # a full disk must not stop the loop; say so
+                self.checkpoint_status.update(error=f"{type(exc).__name__}: {exc}")
+                log.warning("cutwatch: checkpoint not written: %s", exc)
+                return
+            self.checkpoint_status.update(saved_t=state.t, saved_wall=time.time())
+
+        self._writer = threading.Thread(target=write, name="cutwatch-checkpoint", daemon=True)
+        self._writer.start()
+        if wait:
+            self._writer.join()
+        return True
 
     # ------------------------------------------------------------------ frames
     def _decimated(
@@ -558,3 +682,84 @@ class LiveLoop:
     def knob_values(self) -> dict[str, Any]:
         with self.lock:
             return {k: v.value for k, v in self.pipeline.knobs().items()}
+
+    # ------------------------------------------------------------------ facade (routes)
+    @property
+    def scenario(self) -> str:
+        """The running scenario's name (a source's own name for a log or a feed)."""
+        return self.pipeline.scenario
+
+    @property
+    def sim_t(self) -> float:
+        """Time of the source [s]."""
+        return self.pipeline.t
+
+    @property
+    def finished(self) -> bool:
+        """The source hands out no more samples (a replayed log has ended)."""
+        return self.pipeline.finished
+
+    def knobs(self) -> dict[str, Knob]:
+        """Every knob with its range and current value (frozen copies)."""
+        with self.lock:
+            return self.pipeline.knobs()
+
+    def set_knobs(self, changes: Mapping[str, object]) -> dict[str, Knob]:
+        """Set knobs, all or nothing; the knobs after the change.
+
+        Raises
+        ------
+        ParameterError
+            A refused change (nothing changed).
+        """
+        with self.lock:
+            self.pipeline.set_knobs(changes)
+            return self.pipeline.knobs()
+
+    def snapshot(self) -> dict[str, object]:
+        """The pipeline's snapshot (:meth:`LivePipeline.snapshot`) and the checkpoint's
+        status (``checkpoint``: path, resumed, resumed_t, saved_t, refused)."""
+        with self.lock:
+            snap = self.pipeline.snapshot()
+            snap["checkpoint"] = dict(self.checkpoint_status)
+            return snap
+
+    def accuracy(self) -> dict[str, object]:
+        """The rolling accuracy of the force estimates."""
+        with self.lock:
+            return self.pipeline.accuracy()
+
+    def observer_effects(self) -> tuple[ObserverEffect, ...]:
+        """The effects installed in the live observer."""
+        with self.lock:
+            return self.pipeline.effects
+
+    def set_observer_effects(
+        self, effects: tuple[ObserverEffect, ...]
+    ) -> tuple[tuple[ObserverEffect, ...], float]:
+        """Install effects (``()`` removes them); the effects installed and the time.
+
+        Raises
+        ------
+        ParameterError
+            An effect without its fitted coefficients.
+        """
+        with self.lock:
+            self.pipeline.set_observer_effects(effects)
+            return self.pipeline.effects, self.pipeline.t
+
+    def start_recording(
+        self,
+        make: Callable[[dict[str, Any]], Recording],
+        refuse: Callable[[], None] = lambda: None,
+    ) -> Recording:
+        """Start a recording of the running source: ``refuse()`` first (it raises when
+        the loop's state allows none), then ``make(sidecar)``, both under the loop's
+        lock, so no block or pipeline change falls between the check and the start."""
+        from server.service.recording import source_sidecar
+
+        with self.lock:
+            refuse()
+            rec = make(source_sidecar(self.pipeline.source, self.pipeline.scenario))
+            self.recording = rec
+            return rec

@@ -107,6 +107,15 @@ class Settings(BaseSettings):
             "default: data_dir/reports"
         ),
     )
+    checkpoint_s: float = Field(
+        default=10.0,
+        ge=0.0,
+        le=86_400.0,
+        description=(
+            "save the pipeline's state to data_dir/state/pipeline.npz this often [wall s] "
+            "and at shutdown, and resume from it at start (docs/checkpoints.md); 0: never"
+        ),
+    )
     record_max_mb: float = Field(
         default=200.0, gt=0.0, le=100_000.0, description="largest recording [MB] (then it stops)"
     )

@@ -134,8 +134,12 @@ def test_report_files_follow_the_contract(tmp_path: Path) -> None:
     assert rows[0] == ["t", "f_hat_before", "f_hat_after"]
     assert len(rows) == 8000 + 1
     page = (out / "report.html").read_text()
-    assert page.count("data:image/png;base64,") == 5
+    # the verdict figure leads, then one shape per selected effect, then 5 residual figures
+    assert page.count("data:image/png;base64,") == 1 + len(rep["selected"]) + 5
     assert "stribeck" in page
+    # the verdict and the figures lead; the raw coefficients are folded below them
+    assert page.index('class="verdict"') < page.index("<img") < page.index("Raw coefficients")
+    assert page.index("<details>") < page.index("Raw coefficients")
 
 
 @pytest.mark.skipif(not EMPS.exists(), reason="EMPS data not present")

@@ -212,8 +212,8 @@ def test_effects_blockwise_equals_whole(block: int, seed: int) -> None:
     )
     tau = rng.normal(0.0, 1.0, n)
     fx = ObserverEffects(EffectsParams(effects, ts))
-    _, whole = fx.step(fx.init_state(), alpha, t, q_m, q_l, tau)
-    s = fx.init_state()
+    _, whole = fx.step(fx.initial_state(), alpha, t, q_m, q_l, tau)
+    s = fx.initial_state()
     parts = []
     for a in range(0, n, block):
         sl = slice(a, a + block)
@@ -230,7 +230,7 @@ def test_delay_term_is_the_late_torque() -> None:
     fx = ObserverEffects(
         EffectsParams((ObserverEffect("delay", {"delay_s": 2 * ts}, (1.0,)),), ts, q_hz=250.0)
     )
-    _, rec = fx.step(fx.init_state(), np.ones(n), t, np.zeros(n), np.zeros(n), tau)
+    _, rec = fx.step(fx.initial_state(), np.ones(n), t, np.zeros(n), np.zeros(n), tau)
     avg = 0.5 * (tau[1:] + tau[:-1])  # avg[k-2] = torque the observer uses at sample k
     expect = np.zeros(n)
     expect[4:] = avg[:-3] - avg[2:-1]
@@ -241,7 +241,7 @@ def test_delay_term_is_the_late_torque() -> None:
     qe, _ = lowpass(250.0, ts, 1).run(expect)
     assert np.allclose(-rec.f_corr[60:], qe[60:], atol=1e-9)  # start transient gone
     with pytest.raises(ParameterError, match=r"'tau_m': expected the block's 400 motor torques"):
-        fx.step(fx.init_state(), np.ones(n), t, np.zeros(n), np.zeros(n))
+        fx.step(fx.initial_state(), np.ones(n), t, np.zeros(n), np.zeros(n))
 
 
 def test_effect_parameters_are_validated() -> None:

@@ -98,7 +98,7 @@ def _closed_loop_const_disturbance(with_imbdo: bool) -> np.ndarray:
     axis = xa.XYAxisParams()
     ctrl = xa.CascadeParams(ki=0.0)  # P/P: leaves a steady error under a constant force
     ip = im.ImbdoParams(axis.a, axis.b, axis.c, axis.sample_time, model_delay=axis.delay)
-    stt, cs, ist = xa.initial_state(axis), xa.CascadeState(), im.initial_state(ip)
+    stt, cs, ist = xa.initial_state(axis), xa.CascadeState(), im.Imbdo(ip).initial_state()
     n = 30000
     z_all = np.empty(n)
     blk = axis.delay_samples
@@ -107,7 +107,7 @@ def _closed_loop_const_disturbance(with_imbdo: bool) -> np.ndarray:
         z_all[k0 : k0 + blk] = z
         cs, u = xa.cascade_step(ctrl, cs, z, np.zeros(blk))
         if with_imbdo:
-            ist, rec = im.step(ip, ist, z, u)
+            ist, rec = im.Imbdo(ip).step(ist, z, u)
             u = rec.v
         stt = xa.apply(axis, stt, u)
     return z_all
@@ -124,12 +124,12 @@ def test_imbdo_with_exact_model_rejects_a_constant_disturbance() -> None:
 def test_imbdo_estimate_converges_to_the_disturbance_open_loop() -> None:
     axis = xa.XYAxisParams()
     ip = im.ImbdoParams(axis.a, axis.b, axis.c, axis.sample_time, model_delay=axis.delay)
-    stt, ist = xa.initial_state(axis), im.initial_state(ip)
+    stt, ist = xa.initial_state(axis), im.Imbdo(ip).initial_state()
     blk = axis.delay_samples
     dh = np.empty(0)
     for _ in range(1000):
         stt, z = xa.step(axis, stt, np.full(blk, 0.005))
-        ist, rec = im.step(ip, ist, z, np.zeros(blk))
+        ist, rec = im.Imbdo(ip).step(ist, z, np.zeros(blk))
         stt = xa.apply(axis, stt, rec.v)
         dh = rec.d_hat
     assert dh[-1] == pytest.approx(0.005, rel=1e-6)
@@ -239,7 +239,7 @@ def test_dfo_recovers_a_multisine_directly() -> None:
     ts = 4e-4
     p = dfo.DfoParams(FREQS, ts)
     t = np.arange(2500) * ts
-    _, rec = dfo.step(p, dfo.initial_state(p), _multisine(t, FREQS, AMPS, PHASES))
+    _, rec = dfo.Dfo(p).step(dfo.Dfo(p).initial_state(), _multisine(t, FREQS, AMPS, PHASES))
     _check_recovery(rec)
 
 
@@ -251,9 +251,9 @@ def test_dfo_undoes_a_q_filter() -> None:
     q = im.continuous_response(num, den, np.asarray(FREQS))
     t = np.arange(5000) * ts
     y = _multisine(t, FREQS, AMPS, PHASES, q)  # the filter's steady-state output
-    stt = dfo.initial_state(p)
+    stt = dfo.Dfo(p).initial_state()
     for k0 in range(0, t.size, 100):  # block by block gives the same as one call
-        stt, rec = dfo.step(p, stt, y[k0 : k0 + 100])
+        stt, rec = dfo.Dfo(p).step(stt, y[k0 : k0 + 100])
     _check_recovery(rec)
     truth = _multisine(t[-100:], FREQS, AMPS, PHASES)
     assert np.max(np.abs(rec.d_hat - truth)) < 0.01 * max(AMPS)
@@ -275,13 +275,13 @@ def test_dfo_on_the_axis_with_a_delayed_input() -> None:
     force = xa.HarmonicForce((26.0, 52.0, 78.0), (0.005, 0.001, 0.001), (0.3, 1.0, -2.0))
     d = force(t + axis.sample_time / 2)
     u = np.repeat(rng.normal(0.0, 0.002, n // 12), 12)
-    stt, dst = xa.initial_state(axis), dfo.initial_state(p)
+    stt, dst = xa.initial_state(axis), dfo.Dfo(p).initial_state()
     blk = axis.delay_samples
     for k0 in range(0, n, blk):
         stt, z = xa.step(axis, stt, d[k0 : k0 + blk])
-        dst, rec = dfo.step(p, dst, z)
+        dst, rec = dfo.Dfo(p).step(dst, z)
         stt = xa.apply(axis, stt, u[k0 : k0 + blk])
-        dst = dfo.apply(p, dst, u[k0 : k0 + blk])
+        dst = dfo.Dfo(p).apply(dst, u[k0 : k0 + blk])
     # held at each interval's midpoint, the force acts like the continuous one (no lag)
     np.testing.assert_allclose(rec.amplitude[-1], force.amplitudes, rtol=0.01)
     dph = np.angle(np.exp(1j * (rec.phase[-1] - np.asarray(force.phases))))
@@ -340,28 +340,28 @@ def test_dfo_block_protocol_errors() -> None:
         input_delay=axis.delay,
         uses_input=True,
     )
-    s0 = dfo.initial_state(p)
+    s0 = dfo.Dfo(p).initial_state()
     with pytest.raises(EParameterError, match="'y': expected a block of at most 13 samples"):
-        dfo.step(p, s0, np.zeros(14))
-    s1, _ = dfo.step(p, s0, np.zeros(12))
+        dfo.Dfo(p).step(s0, np.zeros(14))
+    s1, _ = dfo.Dfo(p).step(s0, np.zeros(12))
     with pytest.raises(EParameterError, match="previous block's commands applied first"):
-        dfo.step(p, s1, np.zeros(12))
+        dfo.Dfo(p).step(s1, np.zeros(12))
     with pytest.raises(EParameterError, match="'commands': expected a 1-D block of 12"):
-        dfo.apply(p, s1, np.zeros(5))
+        dfo.Dfo(p).apply(s1, np.zeros(5))
     q = dfo.DfoParams((26.0,), 4e-4)
     with pytest.raises(EParameterError, match="'commands': expected no commands"):
-        dfo.apply(q, dfo.initial_state(q), np.zeros(1))
+        dfo.Dfo(q).apply(dfo.Dfo(q).initial_state(), np.zeros(1))
     with pytest.raises(EParameterError, match="'y': expected a non-empty 1-D block"):
-        dfo.step(q, dfo.initial_state(q), np.zeros(0))
+        dfo.Dfo(q).step(dfo.Dfo(q).initial_state(), np.zeros(0))
 
 
 def test_dfo_retunes_to_new_frequencies_and_reconverges() -> None:
     ts = 4e-4
     p = dfo.DfoParams(FREQS, ts)
     t = np.arange(2500) * ts
-    stt, _ = dfo.step(p, dfo.initial_state(p), _multisine(t, FREQS, AMPS, PHASES))
+    stt, _ = dfo.Dfo(p).step(dfo.Dfo(p).initial_state(), _multisine(t, FREQS, AMPS, PHASES))
     new = tuple(0.8 * f for f in FREQS)
     p2 = p.with_frequencies(new)
     t2 = np.arange(2500, 5000) * ts
-    _, rec = dfo.step(p2, stt, _multisine(t2, new, AMPS, PHASES))
+    _, rec = dfo.Dfo(p2).step(stt, _multisine(t2, new, AMPS, PHASES))
     np.testing.assert_allclose(rec.amplitude[-1], AMPS, rtol=0.01)

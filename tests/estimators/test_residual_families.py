@@ -21,12 +21,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from estimators.residual import ResidualParams, analyse_rigid
+from estimators.residual import RigidModel
 from estimators.residual_cv import cross_validate
+from estimators.residual_engine import ResidualParams, analyse
 from estimators.residual_families import (
+    CANONICAL,
+    DRIVE,
     FAMILIES,
     NAMES,
     NOT_OFFERED,
+    SearchData,
     cv_order,
     position_periodogram,
 )
@@ -59,7 +63,7 @@ def log_with(extra: np.ndarray | None = None, force: np.ndarray | None = None, s
 
 
 def only(name: str, q: np.ndarray, f: np.ndarray, t: np.ndarray):
-    res = analyse_rigid(q, f, t, TS, ResidualParams(families=(name,)))
+    res = analyse(RigidModel(q, f, t, TS), ResidualParams(families=(name,)))
     cand = {c.name: c for c in res.candidates}[name]
     return res, cand
 
@@ -67,9 +71,13 @@ def only(name: str, q: np.ndarray, f: np.ndarray, t: np.ndarray):
 def test_every_family_has_a_meaning_and_is_offered() -> None:
     from estimators.residual import FAMILIES as OFFERED
 
-    for name, fam in FAMILIES.items():
-        assert (name in OFFERED) == (name in NAMES) == (name not in NOT_OFFERED)
+    for fam in DRIVE:
+        assert (fam.name in OFFERED) == (fam.name in NAMES) == (fam.name not in NOT_OFFERED)
         assert len(fam.meaning) > 40
+    # one registry: the canonical families and the real-drive ones, each with a meaning
+    assert set(FAMILIES) == {f.name for f in CANONICAL} | {f.name for f in DRIVE}
+    for fam in CANONICAL:
+        assert fam.name in OFFERED and len(fam.meaning) > 20
 
 
 def test_position_harmonics_period_and_amplitudes() -> None:
@@ -124,7 +132,9 @@ def direct_fit(name: str, q: np.ndarray, f: np.ndarray, t: np.ndarray):
     nominal_cols = np.column_stack([sig.qdd, sig.qd, np.sign(sig.qd), np.ones(len(sig.t))])
     coef, *_ = np.linalg.lstsq(nominal_cols, sig.force, rcond=None)
     fam = FAMILIES[name]
-    shape = fam.search(sig, sig.force - nominal_cols @ coef, np.arange(len(sig.t)), coef)
+    r = sig.force - nominal_cols @ coef
+    rows = np.arange(len(sig.t))
+    shape = fam.search(SearchData(sig, r, np.ones(len(r), dtype=bool), rows, r, coef))
     x = np.column_stack([nominal_cols, fam.columns(shape, sig)])
     theta, *_ = np.linalg.lstsq(x, sig.force, rcond=None)
     return shape, dict(zip(fam.column_names(shape), theta[4:]))
@@ -189,7 +199,7 @@ def test_force_lag_recovers_the_time_constant() -> None:
 
 def test_no_effect_selects_none_of_the_new_families() -> None:
     q, f, t = log_with()
-    res = analyse_rigid(q, f, t, TS, ResidualParams(families=NAMES))
+    res = analyse(RigidModel(q, f, t, TS), ResidualParams(families=NAMES))
     assert [e.name for e in res.effects] == []
 
 
@@ -230,7 +240,7 @@ def test_emps_cross_validated_error_improves_over_the_nominal() -> None:
     q = d["qm"].ravel()
     f = (d["vir"] * d["gtau"]).ravel()
     t = d["t"].ravel()
-    res = analyse_rigid(q, f, t, 1e-3)
+    res = analyse(RigidModel(q, f, t, 1e-3))
     names = [e.name for e in res.effects]
     assert set(names) & set(FAMILIES), names  # the new families carry the model
     before = cross_validate(q, f, t, 1e-3, ())

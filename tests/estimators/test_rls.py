@@ -148,7 +148,7 @@ def test_excitation_off_skips_only_the_excitation_index(switching: bool) -> None
     sgn = np.sign(vel)
     ts = 2.8e-4 * acc + 2e-3 * vel + 0.15 * sgn
     ident = LoadIdentifier(IdentifierParams(), switching=switching)
-    s0 = ident.init_state(2.0e-4, 1e-3, 0.1)
+    s0 = ident.initial_state(2.0e-4, 1e-3, 0.1)
     sa, a = ident.step(s0, ts, acc, vel, sgn, vel)
     sb, b = ident.step(s0, ts, acc, vel, sgn, vel, excitation=False)
     assert np.array_equal(a.theta, b.theta) and np.array_equal(a.mode, b.mode)

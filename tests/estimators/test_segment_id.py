@@ -55,7 +55,7 @@ def run(ident, state, t, ts, w, acc, block=125):
 def test_noise_free_reversals_identify_every_parameter_despite_a_changing_dc() -> None:
     t, w, acc = reciprocate(9.0)
     ident = SegmentIdentifier(SegmentIdentifierParams(nominal=NOMINAL, model_error=(0, 0, 0)))
-    _, recs = run(ident, ident.init_state(), t, torque(t, w, acc), w, acc)
+    _, recs = run(ident, ident.initial_state(), t, torque(t, w, acc), w, acc)
     first = recs[0]
     # before the first reversal: the prior, flagged not excited
     assert not first.excited.any()
@@ -76,7 +76,7 @@ def test_segment_interval_is_calibrated_on_low_passed_noise() -> None:
     trials = 120
     for seed in range(trials):
         y = torque(t, w, acc, noise=0.2, seed=seed)
-        st = ident.init_state()
+        st = ident.initial_state()
         for k in range(0, len(t), 125):
             s = slice(k, k + 125)
             st, _ = ident.step(st, t[s], y[s], acc[s], w[s], np.sign(w[s]))
@@ -111,11 +111,11 @@ def test_known_change_inside_a_segment_discards_it() -> None:
     p = SegmentIdentifierParams(nominal=NOMINAL, model_error=(0, 0, 0))
     ident = SegmentIdentifier(p)
     # unknown: the DC step reads as Coulomb friction (0.5 N m against 0.15)
-    st, recs = run(ident, ident.init_state(), t, y, w, acc)
+    st, recs = run(ident, ident.initial_state(), t, y, w, acc)
     assert recs[-1].segments == 1
     assert abs(recs[-1].theta[-1, 2] / TRUE[2] - 1) > 0.5
     # known (a spindle step the CNC commanded): the segment is discarded, nothing claimed
-    st = mark_disturbance(ident.init_state(), 2.0)
+    st = mark_disturbance(ident.initial_state(), 2.0)
     st, recs = run(ident, st, t, y, w, acc)
     assert recs[-1].discarded == 1 and recs[-1].segments == 0
     assert not recs[-1].excited.any()
@@ -127,7 +127,7 @@ def test_restart_flags_not_excited_until_the_next_segment() -> None:
     y = torque(t, w, acc)
     ident = SegmentIdentifier(SegmentIdentifierParams(nominal=NOMINAL))
     k = int(round(3.0 / TS))
-    st, _ = run(ident, ident.init_state(), t[:k], y[:k], w[:k], acc[:k])
+    st, _ = run(ident, ident.initial_state(), t[:k], y[:k], w[:k], acc[:k])
     st = restart(st, (True, False, False))
     st, recs = run(ident, st, t[k:], y[k:], w[k:], acc[k:])
     assert not recs[0].excited[0, 0] and recs[0].excited[0, 1:].all()
@@ -139,7 +139,7 @@ def test_restart_flags_not_excited_until_the_next_segment() -> None:
 def test_interval_widens_with_the_time_since_the_last_segment() -> None:
     t, w, acc = reciprocate(3.9)
     ident = SegmentIdentifier(SegmentIdentifierParams(nominal=NOMINAL))
-    _, recs = run(ident, ident.init_state(), t, torque(t, w, acc), w, acc)
+    _, recs = run(ident, ident.initial_state(), t, torque(t, w, acc), w, acc)
     width = [r.upper[-1] - r.lower[-1] for r in recs[-20:]]
     assert np.all(np.diff(np.array(width), axis=0) >= -1e-15)
     assert width[-1][1] > width[0][1]
@@ -169,5 +169,5 @@ def test_block_of_unequal_lengths_is_rejected() -> None:
     ident = SegmentIdentifier(SegmentIdentifierParams(nominal=NOMINAL))
     with pytest.raises(ParameterError, match="equal length"):
         ident.step(
-            ident.init_state(), np.zeros(3), np.zeros(3), np.zeros(2), np.zeros(3), np.zeros(3)
+            ident.initial_state(), np.zeros(3), np.zeros(3), np.zeros(2), np.zeros(3), np.zeros(3)
         )

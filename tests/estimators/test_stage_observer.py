@@ -71,7 +71,7 @@ def _observer_error(cfg: StageConfig, seconds: float = 3.0) -> tuple[float, floa
     nom = cfg.nominal or cfg.params  # the observer knows the nominal motor side only
     ts, res = cfg.sample_time, cfg.encoder_resolution
     fe = TorsionEstimator(ObserverParams(nom.J_M, nom.B_M, nom.F_CM, nom.K, ts, res))
-    st = fe.init_state()
+    st = fe.initial_state()
     p = cfg.true_params
     est, true = [], []
     for _ in range(int(seconds / 0.05)):

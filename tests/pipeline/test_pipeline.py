@@ -77,9 +77,9 @@ def test_spindle_knob_and_steps() -> None:
 @pytest.mark.parametrize(
     ("name", "value", "message"),
     [
-        ("spindle_rpm", 1e6, r"parameter 'spindle_rpm': expected a value in \[600, 6000\] rpm"),
-        ("spindle_rpm", float("nan"), r"'spindle_rpm': expected a value in \[600, 6000\]"),
-        ("spindle_rpm", "fast", r"'spindle_rpm': expected a value in .*got 'fast'"),
+        ("spindle_rpm", 1e6, r"parameter 'spindle_rpm': expected a number in \[600, 6000\] rpm"),
+        ("spindle_rpm", float("nan"), r"'spindle_rpm': expected a number in \[600, 6000\]"),
+        ("spindle_rpm", "fast", r"'spindle_rpm': expected a number in .*got 'fast'"),
         ("weight_on", 1, r"parameter 'weight_on': expected true or false, got 1"),
         ("nope", 1, r"parameter 'name': expected one of \["),
     ],

@@ -12,10 +12,12 @@ import numpy as np
 import pytest
 
 from estimators.observer_effects import ObserverEffect
+from estimators.segment_id import SEG_DISTURBANCE
 from machine.params import preset
 from machine.stage import SEED000_FORCE, StageConfig
 from server.pipeline.live_pipeline import LivePipeline
 from server.pipeline.sources import (
+    RESUMED,
     MeasurementSource,
     ReplaySource,
     SimulatorSource,
@@ -32,7 +34,7 @@ BLOCK = 125
 CONFIG = StageConfig(params=preset("seed000"), force=SEED000_FORCE)
 MEMBERS = (
     "name kind sample_time nominal encoder_resolution has_truth knobs_apply t finished "
-    "step reconfigure reset truth_summary status"
+    "step reconfigure reset truth_summary status state restore"
 ).split()
 
 
@@ -276,3 +278,50 @@ def test_the_live_loop_waits_on_a_source_with_nothing(logs: dict[str, Path]) -> 
         assert 1 <= calls <= dt * Settings(viser=False).frame_hz + 5, calls
     finally:
         loop.stop()
+
+
+class ResumingLog(ReplaySource):
+    """A log that, restored from a checkpoint, goes on after a break of ``GAP`` samples
+    and marks its next block RESUMED: what a live feed does after the service restarted."""
+
+    GAP = 500
+
+    def restore(self, state: object) -> None:
+        super().restore(state)
+        self.k += self.GAP
+        self._resumed = True
+
+    def step(self, n: int) -> SourceBlock:
+        blk = super().step(n)
+        if getattr(self, "_resumed", False) and blk.n:
+            self._resumed = False
+            return SourceBlock(blk.meas, blk.truth, RESUMED)
+        return blk
+
+
+def test_a_feed_resumed_from_a_checkpoint_keeps_its_estimates(logs: dict[str, Path]) -> None:
+    a = LivePipeline.from_log(logs["full"])
+    for _ in range(40):  # 2 s
+        a.step(BLOCK)
+    state = a.state()
+    kept = state.estimators.run
+    b = LivePipeline(source=ResumingLog(open_replay(logs["full"])))
+    b.restore(state)
+    out = b.step(BLOCK)  # the first block after the break
+    assert b.t == pytest.approx(a.t + (ResumingLog.GAP + BLOCK) * a.sample_time)
+    # the filters restarted (no derivative across the break), the estimates went on
+    for k in ("f_fixed", "f_adaptive", "f_segment", "J_L_adaptive"):
+        assert np.all(np.isfinite(out[k])), k
+    # the first estimate uses the parameters identified before the break, not the
+    # nominal ones a restart from scratch would use
+    j_nom = CONFIG.params.J_L
+    assert abs(a.latest["J_L_adaptive"] - j_nom) > 1e-4 * j_nom
+    assert out["J_L_adaptive"][0] == a.latest["J_L_adaptive"]
+    # the RLS covariance goes on from the state's (a fresh one starts from p0 I)
+    fresh = LivePipeline.from_log(logs["full"])
+    fresh.step(BLOCK)
+    p_kept, p_b = kept.ident.rls4.P, b.run.s_ident.rls4.P
+    p_new = fresh.run.s_ident.rls4.P
+    assert np.linalg.norm(p_b - p_kept) < np.linalg.norm(p_new - p_kept)
+    # a gap without RESUMED restarts everything (test_a_discontinuity_resets_the_observers)
+    assert b.run.s_seg.seg[SEG_DISTURBANCE] == pytest.approx(a.t + ResumingLog.GAP * a.sample_time)

@@ -128,3 +128,72 @@ def test_meta_round_trip_and_checks() -> None:
         decode_meta(encode_meta({**side, "units": {"effort": "N m", "position": "deg"}}))
     with pytest.raises(WireError, match="sample_time expected a number > 0"):
         decode_meta(encode_meta({**side, "sample_time": -1}))
+
+
+# --- minor version 1: the CNC's identities (program, segments of tool / line / override)
+
+
+def test_identities_round_trip_and_expand_per_sample() -> None:
+    from server.records.drive_wire import MINOR, Segment
+
+    cols = block(100)
+    segs = [Segment(0, 1, 20, 1.0), Segment(60, 2, 30, 1.2)]
+    b = decode_drive(encode_drive(3, 0.5, 2e-4, cols, UNITS, program="O1001", segments=segs))
+    assert (b.minor, b.program, b.segments) == (MINOR, "O1001", tuple(segs))
+    ident = b.identities()
+    assert ident is not None
+    np.testing.assert_array_equal(ident["tool"], [1] * 60 + [2] * 40)
+    np.testing.assert_array_equal(ident["line"], [20] * 60 + [30] * 40)
+    np.testing.assert_array_equal(ident["override"], [1.0] * 60 + [1.2] * 40)
+
+
+def test_an_old_publisher_without_minor_is_still_accepted() -> None:
+    payload = encode_drive(0, 0.0, 4e-4, block(10), UNITS)
+    head = json.loads(payload.split(b"\n", 1)[0])
+    assert "minor" not in head and "segments" not in head
+    b = decode_drive(payload)
+    assert (b.minor, b.program, b.segments, b.identities()) == (0, None, (), None)
+
+
+def test_an_old_receiver_reads_a_new_block() -> None:
+    """A minor-0 receiver reads only the keys it knows: the columns are unchanged."""
+    from server.records.drive_wire import Segment
+
+    new = encode_drive(0, 0.0, 4e-4, block(10), UNITS, program="O7", segments=[Segment(0, 1, 5)])
+    head, body = new.split(b"\n", 1)
+    h = json.loads(head)
+    old_keys = {"schema", "version", "seq", "t0", "sample_time", "n", "columns"}
+    assert h["version"] == 1 and old_keys <= set(h)
+    old = json.dumps({k: h[k] for k in old_keys}).encode() + b"\n" + body
+    assert decode_drive(old).columns.keys() == decode_drive(new).columns.keys()
+
+
+@pytest.mark.parametrize(
+    ("changes", "kind", "match"),
+    [
+        ({"minor": 1, "program": ""}, "schema", "program"),
+        ({"minor": 1, "program": "x" * 33}, "schema", "program"),
+        ({"minor": 1, "segments": {"i": 0}}, "schema", "segments expected a list"),
+        ({"minor": 1, "segments": [{"i": 0, "tool": 1}]}, "schema", r"segments\[0\].line"),
+        ({"minor": 1, "segments": [{"i": 2, "tool": 1, "line": 1}]}, "shape", r"segments\[0\].i"),
+        (
+            {
+                "minor": 1,
+                "segments": [{"i": 0, "tool": 1, "line": 1}, {"i": 0, "tool": 1, "line": 2}],
+            },
+            "shape",
+            r"segments\[1\].i",
+        ),
+        (
+            {"minor": 1, "segments": [{"i": 0, "tool": 1, "line": 1, "override": 0}]},
+            "value",
+            "override",
+        ),
+        ({"minor": -1}, "version", "minor"),
+    ],
+)
+def test_malformed_identities_are_named(changes: dict, kind: str, match: str) -> None:
+    payload = _with_header(encode_drive(0, 0.0, 4e-4, block(10), UNITS), **changes)
+    with pytest.raises(WireError, match=match) as exc:
+        decode_drive(payload)
+    assert exc.value.kind == kind

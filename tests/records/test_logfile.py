@@ -269,3 +269,24 @@ def test_emps_file_loads_through_the_map() -> None:
     log = load_log(EMPS, meta=UNITS, maps=["tau_m=vir*gtau", "q_m=qm"])
     assert log.n == 24841
     assert log.sample_time == pytest.approx(1e-3, rel=1e-4)
+
+
+def test_identity_columns_are_kept_and_checked(tmp_path: Path) -> None:
+    from server.errors import LogFormatError
+
+    cols = _cols()
+    n = len(cols["t"])
+    cols = {
+        **cols,
+        "tool": np.where(np.arange(n) < n // 2, 1.0, 2.0),
+        "line": np.full(n, 20.0),
+        "override": np.full(n, 1.1),
+    }
+    write_log(tmp_path / "id.csv", cols, {**UNITS, "program": "O1001"})
+    log = load_log(tmp_path / "id.csv")
+    np.testing.assert_array_equal(log["tool"], cols["tool"])
+    assert log.sidecar["program"] == "O1001"
+    cols["line"][3] = 2.5
+    write_log(tmp_path / "bad.csv", cols, UNITS)
+    with pytest.raises(LogFormatError, match=r"column 'line', row 4: expected a whole number"):
+        load_log(tmp_path / "bad.csv")

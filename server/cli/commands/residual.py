@@ -7,9 +7,14 @@ Examples::
         --map tau_m=vir*gtau --map q_m=qm \\
         --meta '{"units": {"effort": "N", "position": "m"}}' --out out/emps
 
-The nominal rigid model is identified by IDIM-LS (estimators.idim) on the first part of
-the record; candidate effects (estimators.residual) are scored on the held-out end of
-the record. Writes DIR/report.json, DIR/estimates.csv and DIR/report.html.
+The nominal model (rigid: IDIM-LS, estimators.idim; two_inertia: the cutting force
+observer with the log's nominal parameters) is fitted on the first part of the record
+(1 - --holdout). Candidate effects (estimators.residual_engine) are selected greedily by
+blocked cross-validation inside that fitting part: per round, each family's shape is
+searched again inside every training fold, its out-of-fold error reduction where it
+acts is tested (Holm over the round's candidates) and must remove a quarter of the
+floor. The held-out end takes no part in the selection: it is the report's before/after
+figure. Writes DIR/report.json, DIR/estimates.csv and DIR/report.html.
 """
 
 from __future__ import annotations
@@ -38,7 +43,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         metavar="COL=EXPR",
         action="append",
         default=[],
-        help="column map: COL=name, COL=name*scale or COL=name*scale+offset",
+        help="column map: COL=name, COL=name*scale or COL=name*scale+offset; the log's "
+        "columns are t (or sample_time in --meta), tau_m (effort: N, N m, or A; in A "
+        "without nominal.K_t the parameters are in A), q_m (m or rad), and optionally "
+        "qd_m, qdd_m (the velocity and acceleration the controller reports, used instead "
+        "of differentiating a coarse position), q_l, f_ext. One axis per run.",
     )
     p.add_argument(
         "--kind", metavar="KIND", help="rigid or two_inertia (default: sidecar, else rigid)"
@@ -54,7 +63,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         type=float,
         default=0.3,
         metavar="FRACTION",
-        help="fraction at the end of the record held out for scoring (0.3)",
+        help="fraction at the end of the record held out for the before/after figure; the "
+        "selection cross-validates inside the rest (0.3)",
     )
     p.add_argument(
         "--air-cut",
@@ -63,15 +73,61 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=[],
         help="two_inertia without f_ext: a segment [s] with no cutting force (repeatable)",
     )
+    rows = p.add_argument_group(
+        "rows",
+        "Choose rows by a condition on any column of the file, text labels included: "
+        "COND is TERM [& TERM ...], TERM is COLUMN OP VALUE with OP one of == != < <= > >= "
+        "(numbers; == and != also text) or ~ (regular expression searched in the cell). "
+        "Columns neither mapped nor required are otherwise ignored, whatever they hold. "
+        "The rows each rule leaves out are counted in the report; the record is split "
+        "where rows are left out (nothing is differentiated or filtered across a cut).",
+    )
+    rows.add_argument(
+        "--keep",
+        metavar="COND",
+        action="append",
+        default=[],
+        help="use only rows where COND holds (repeatable: all must hold), "
+        "e.g. --keep 'Machining_Process~^Layer'",
+    )
+    rows.add_argument(
+        "--drop",
+        metavar="COND",
+        action="append",
+        default=[],
+        help="leave out rows where COND holds (repeatable: any), e.g. rows that do not "
+        "reflect the machine: --drop 'S1_ActualVelocity<1 & X1_ActualPosition==198'",
+    )
+    rows.add_argument(
+        "--drop-repeats",
+        metavar="COLS",
+        help="leave out rows that repeat the previous row in every column named "
+        "(comma-separated names or patterns, e.g. 'X1_*,Y1_*'): stale copies of a sample",
+    )
+    rows.add_argument(
+        "--nominal-rows",
+        metavar="COND",
+        help="fit the nominal model on these rows only (e.g. the tool in the air: "
+        "--nominal-rows 'Machining_Process~^(Prep|Repositioning)'); effects on all rows",
+    )
+    rows.add_argument(
+        "--load-rows",
+        metavar="COND",
+        help="rows where a process load acts (e.g. cutting: --load-rows "
+        "'Machining_Process~^Layer'); offers the 'load' effect: an effort on these rows, "
+        "by direction of motion",
+    )
     p.add_argument("--out", metavar="DIR", type=Path, required=True, help="output directory")
     p.add_argument("--quiet", action="store_true", help="no progress messages")
 
 
 def run(args: argparse.Namespace) -> int:
     from estimators.errors import ParameterError
-    from estimators.residual import ResidualParams
+    from estimators.residual_engine import ResidualParams, analyse, apply
     from server.errors import CutwatchError
+    from server.pipeline.residual_run import model_notes
     from server.records.measured_log import load_log, load_meta
+    from server.records.residual_report import write_report
 
     if args.kind is not None and args.kind not in KINDS:
         raise CutwatchError(f"--kind {args.kind!r}: expected one of {', '.join(KINDS)}")
@@ -81,12 +137,77 @@ def run(args: argparse.Namespace) -> int:
         raise CutwatchError(f"--holdout: {exc}") from None
     meta = load_meta(args.meta)
     progress = not args.quiet
-    log = load_log(args.log, meta=meta, maps=args.map, kind=args.kind, progress=progress)
+    selection = row_selection(args)
+    log = load_log(
+        args.log, meta=meta, maps=args.map, kind=args.kind, progress=progress,
+        selection=selection, current_ok=True,
+    )  # fmt: skip
     kind = log.kind or "rigid"
     with _Progress(progress) as say:
-        if kind == "two_inertia":
-            return _run_two_inertia(args, log, meta, say)
-        return _run_rigid(args, log, meta, params, say)
+        model = _model(kind, log, args)
+        try:
+            res = analyse(model, params, progress=say)
+        except ParameterError as exc:
+            if kind == "two_inertia":
+                raise CutwatchError(f"{log.path}: {exc}") from None
+            raise CutwatchError(
+                f"{log.path}: too few samples for the held-out split ({log.n} rows): {exc}"
+            ) from None
+    validation = None
+    if args.validate is not None:
+        vkind = kind if kind == "two_inertia" else args.kind
+        other = load_log(
+            args.validate, meta=meta, maps=args.map, kind=vkind, progress=progress,
+            selection=selection, current_ok=True,
+        )  # fmt: skip
+        try:
+            nums = apply(res, _model(kind, other, args))
+        except ParameterError as exc:
+            raise CutwatchError(f"{other.path}: cannot validate on it: {exc}") from None
+        validation = {"log": str(other.path), **nums}
+    rep = write_report(args.out, log, res, validation, notes=model_notes(log, kind))
+    _summary(args, log, rep, validation)
+    return 0
+
+
+def _model(kind: str, log: Any, args: argparse.Namespace) -> Any:
+    """The residual model of ``log``: the rigid axis, or the observer with its nominal
+    parameters, its reference force or the ``--air-cut`` segments."""
+    from estimators.errors import ParameterError
+    from estimators.residual_two_inertia import TwoInertiaModel
+    from server.errors import CutwatchError
+    from server.pipeline.residual_run import rigid_model
+
+    if kind != "two_inertia":
+        return rigid_model(log)
+    op, lp = _observer_inputs(log)
+    f_ext = log["f_ext"] if "f_ext" in log.columns else None
+    if f_ext is None and not args.air_cut:
+        raise CutwatchError(
+            f"{log.path}: kind 'two_inertia' needs a reference force column 'f_ext' or "
+            "--air-cut START:STOP segments with no cutting force"
+        )
+    air = parse_air_cuts(args.air_cut, log["t"], str(log.path)) if f_ext is None else None
+    angular = log.units.get("position") == "rad"
+    try:
+        return TwoInertiaModel(
+            log["t"], log["tau_m"], log["q_m"], log["q_l"], op, lp,
+            f_ext=f_ext, air_cut=air, angular=angular,
+        )  # fmt: skip
+    except ParameterError as exc:
+        raise CutwatchError(f"{log.path}: {exc}") from None
+
+
+def row_selection(args: argparse.Namespace) -> Any:
+    """The ``--keep/--drop/--drop-repeats/--nominal-rows/--load-rows`` options, parsed."""
+    from server.records.row_select import RowSelection
+
+    return RowSelection.from_options(
+        keep=args.keep,
+        drop=args.drop,
+        drop_repeats=args.drop_repeats,
+        phases={"nominal_rows": args.nominal_rows, "load_rows": args.load_rows},
+    )
 
 
 class _Progress:
@@ -111,43 +232,6 @@ class _Progress:
     def __exit__(self, *exc: object) -> None:
         if self.bar is not None:
             self.bar.close()
-
-
-def _run_rigid(
-    args: argparse.Namespace,
-    log: Any,
-    meta: Any,
-    params: Any,
-    say: Callable[[str], None],
-) -> int:
-    from estimators.errors import ParameterError
-    from estimators.residual import analyse_rigid, apply_model
-    from server.errors import CutwatchError
-    from server.records.measured_log import load_log
-    from server.records.residual_report import write_report
-
-    progress = not args.quiet
-    try:
-        res = analyse_rigid(
-            log["q_m"], log["tau_m"], log["t"], log.sample_time, params, progress=say
-        )
-    except ParameterError as exc:
-        raise CutwatchError(
-            f"{log.path}: too few samples for the held-out split ({log.n} rows): {exc}"
-        ) from None
-    validation = None
-    if args.validate is not None:
-        other = load_log(args.validate, meta=meta, maps=args.map, kind=args.kind, progress=progress)
-        try:
-            nums = apply_model(
-                res, other["q_m"], other["tau_m"], other["t"], other.sample_time, params.idim
-            )
-        except ParameterError as exc:
-            raise CutwatchError(f"{other.path}: cannot validate on it: {exc}") from None
-        validation = {"log": str(other.path), **nums}
-    rep = write_report(args.out, log, res, validation)
-    _summary(args, log, rep, validation)
-    return 0
 
 
 _NOMINAL = ("J_M", "B_M", "F_CM", "K", "J_L", "B_L", "F_CL")
@@ -207,63 +291,14 @@ def _observer_inputs(log: Any) -> tuple[Any, Any]:
     return op, lp
 
 
-def _run_two_inertia(
-    args: argparse.Namespace, log: Any, meta: Any, say: Callable[[str], None]
-) -> int:
-    from estimators.errors import ParameterError
-    from estimators.residual_two_inertia import (
-        TwoInertiaParams,
-        analyse_two_inertia,
-        apply_two_inertia,
-    )
-    from server.errors import CutwatchError
-    from server.records.measured_log import load_log
-    from server.records.residual_report import write_report
-
-    try:
-        params = TwoInertiaParams(holdout_fraction=args.holdout)
-    except ParameterError as exc:
-        raise CutwatchError(f"--holdout: {exc}") from None
-    op, lp = _observer_inputs(log)
-    f_ext = log["f_ext"] if "f_ext" in log.columns else None
-    if f_ext is None and not args.air_cut:
-        raise CutwatchError(
-            f"{log.path}: kind 'two_inertia' needs a reference force column 'f_ext' or "
-            "--air-cut START:STOP segments with no cutting force"
-        )
-    air = parse_air_cuts(args.air_cut, log["t"], str(log.path)) if f_ext is None else None
-    angular = log.units.get("position") == "rad"
-    try:
-        res = analyse_two_inertia(
-            log["t"], log["tau_m"], log["q_m"], log["q_l"], op, lp,
-            f_ext=f_ext, air_cut=air, params=params, angular=angular, progress=say,
-        )  # fmt: skip
-    except ParameterError as exc:
-        raise CutwatchError(f"{log.path}: {exc}") from None
-    validation = None
-    if args.validate is not None:
-        other = load_log(
-            args.validate, meta=meta, maps=args.map, kind="two_inertia", progress=not args.quiet
-        )
-        op2, lp2 = _observer_inputs(other)
-        f2 = other["f_ext"] if "f_ext" in other.columns else None
-        air2 = parse_air_cuts(args.air_cut, other["t"], str(other.path)) if f2 is None else None
-        try:
-            nums = apply_two_inertia(
-                res, other["t"], other["tau_m"], other["q_m"], other["q_l"], op2, lp2,
-                f_ext=f2, air_cut=air2,
-            )  # fmt: skip
-        except ParameterError as exc:
-            raise CutwatchError(f"{other.path}: cannot validate on it: {exc}") from None
-        validation = {"log": str(other.path), **nums}
-    rep = write_report(args.out, log, res, validation)
-    _summary(args, log, rep, validation)
-    return 0
-
-
 def _summary(args: argparse.Namespace, log: Any, rep: Any, validation: Any) -> None:
     from server.records.residual_report import describe_structure
 
+    if log.left_out:
+        counts = "; ".join(f"{d['left_out']} by {d['rule']}" for d in log.left_out)
+        print(f"{log.path}: rows read {log.n_read}, used {log.n}; left out: {counts}")
+    for note in rep.get("notes", []):
+        print(f"  {note}")
     print(
         f"{log.path}: held-out rms {rep['rms_before']:.4g} -> {rep['rms_after']:.4g} "
         f"{log.units['effort']}, relerr {rep['relerr_before']:.3f} % -> "

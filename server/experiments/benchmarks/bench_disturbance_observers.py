@@ -47,9 +47,9 @@ def measure(*, repeats: int, quick: bool) -> dict[str, object]:
     y = np.sin(2 * np.pi * 100.0 * np.arange(n) * ts)
 
     def run_dfo() -> None:
-        s = dfo_mod.initial_state(p)
+        s = dfo_mod.Dfo(p).initial_state()
         for k0 in range(0, n, n_blk):
-            s, _ = dfo_mod.step(p, s, y[k0 : k0 + n_blk])
+            s, _ = dfo_mod.Dfo(p).step(s, y[k0 : k0 + n_blk])
 
     run_dfo()
     wall = _median_time(run_dfo, repeats)

@@ -29,7 +29,8 @@ def _record(n: int, seed: int = 0) -> dict[str, np.ndarray]:
 
 def measure(*, repeats: int, quick: bool) -> dict[str, object]:
     """Median wall time of the residual analysis of one record (seconds)."""
-    from estimators.residual import analyse_rigid
+    from estimators.residual import RigidModel
+    from estimators.residual_engine import analyse
     from server.records.measured_log import load_log, write_log
     from server.records.residual_report import write_report
 
@@ -43,12 +44,12 @@ def measure(*, repeats: int, quick: bool) -> dict[str, object]:
         write_log(path, cols, {"units": {"effort": "N", "position": "m"}, "kind": "rigid"})
         for _ in range(repeats):
             t0 = time.perf_counter()
-            res = analyse_rigid(cols["q_m"], cols["tau_m"], cols["t"], 1e-3)
+            res = analyse(RigidModel(cols["q_m"], cols["tau_m"], cols["t"], 1e-3))
             analysis.append(time.perf_counter() - t0)
             selected = [e.name for e in res.effects]
             t0 = time.perf_counter()
             log = load_log(path)
-            res = analyse_rigid(log["q_m"], log["tau_m"], log["t"], log.sample_time)
+            res = analyse(RigidModel(log["q_m"], log["tau_m"], log["t"], log.sample_time))
             write_report(Path(tmp) / "out", log, res)
             end_to_end.append(time.perf_counter() - t0)
     return {

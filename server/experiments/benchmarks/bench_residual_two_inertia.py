@@ -17,7 +17,8 @@ import numpy as np
 def measure(*, repeats: int, quick: bool) -> dict[str, object]:
     """Median wall time of one analysis (seconds) and its real-time factor."""
     from estimators.force_observer import LoadParams
-    from estimators.residual_two_inertia import analyse_two_inertia
+    from estimators.residual_engine import analyse
+    from estimators.residual_two_inertia import TwoInertiaModel
     from machine.effects import PlantEffects
     from machine.stage import StageConfig, StageSim
     from server.pipeline.stage_run import observer_params_for
@@ -40,9 +41,10 @@ def measure(*, repeats: int, quick: bool) -> dict[str, object]:
     selected: list[str] = []
     for _ in range(repeats):
         t0 = time.perf_counter()
-        res = analyse_two_inertia(
+        model = TwoInertiaModel(
             cols["t"], cols["tau_m"], cols["q_m"], cols["q_l"], op, lp, f_ext=cols["f_ext"]
         )
+        res = analyse(model)
         times.append(time.perf_counter() - t0)
         selected = [e.name for e in res.effects]
     med = statistics.median(times)

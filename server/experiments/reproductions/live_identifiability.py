@@ -46,7 +46,8 @@ import numpy as np
 from common.arrays import F64
 from machine.stage import Trajectory
 from server.experiments.reproduction import Check, Reproduction, Row, format_table
-from server.pipeline.live_pipeline import PASS_S, LivePipeline
+from server.pipeline.live_pipeline import LivePipeline
+from server.pipeline.wear_passes import PASS_S
 
 NAME = "live-identifiability"
 SOURCE = "issue 13 (default live scenario); seed 000 eq. (14), seed 001 Fig. 6"
@@ -104,16 +105,15 @@ class AblatedPipeline(LivePipeline):
         m = max(round(0.5 * (t0 + t1) / hp), 1)
         return t1 > m * hp - REV_PRE and t0 < m * hp + REV_POST
 
-    def _wear_begin(self, t0: float) -> None:
-        super()._wear_begin(t0)
-        if "smooth_wear" in self.off and self._gain_ramp[2] == t0:
-            g0, slope, _ = self._gain_ramp
-            mean = g0 + 0.5 * slope * PASS_S
-            self._gain_ramp = (round(mean / 0.01) * 0.01, 0.0, t0)
-
     def _apply(self, t: float) -> None:
-        if "wear_dc" in self.off:
-            self._gain_ramp = (1.0, 0.0, 0.0)
+        tool = self.tool
+        if tool is not None and "smooth_wear" in self.off and tool.state.gain_ramp[2] == t:
+            # a pass starts at t: its force in 1 % steps (idempotent once stepped)
+            g0, slope, _ = tool.state.gain_ramp
+            mean = g0 + 0.5 * slope * PASS_S
+            tool.state.gain_ramp = (round(mean / 0.01) * 0.01, 0.0, t)
+        if tool is not None and "wear_dc" in self.off:
+            tool.state.gain_ramp = (1.0, 0.0, 0.0)
         super()._apply(t)
         if "reversal_force" in self.off:
             lift = self._near_reversal(t, t + BLOCK * self.sample_time)

@@ -3,10 +3,11 @@
 Every case is one seed of one family at one record length, for both kinds of log:
 
 * ``rigid``: the closed-form rigid axis of :func:`server.experiments.residual_logs.rigid_log`
-  (1 kHz), analysed by :func:`estimators.residual.analyse_rigid`;
+  (1 kHz), analysed by :func:`estimators.residual_engine.analyse` through
+  :class:`estimators.residual.RigidModel`;
 * ``two_inertia``: the simulator as ``cutwatch simulate --seed N`` runs it
   (:func:`server.experiments.residual_logs.simulate_stage`, 2.5 kHz), analysed by
-  :func:`estimators.residual_two_inertia.analyse_two_inertia` against its ``f_ext``.
+  :class:`estimators.residual_two_inertia.TwoInertiaModel` against its ``f_ext``.
 
 A seed draws the motion program, the noise and the effect's magnitude (x 0.7 ... 1.3 of
 the default) and phase. Rows per kind, family and length:
@@ -112,15 +113,12 @@ def _ratio(sq0: np.ndarray, sq1: np.ndarray) -> float:
 
 
 def _rigid(family: str, seconds: float, seed: int, max_effects: int | None = None) -> Any:
-    from dataclasses import replace
+    from estimators.residual import RigidModel
+    from estimators.residual_engine import ResidualParams, analyse
 
-    from estimators.residual import ResidualParams, analyse_rigid
-
-    params = ResidualParams()
-    if max_effects is not None:
-        params = replace(params, max_effects=max_effects)
     cols = rigid_log(family, int(round(seconds * 1000)), seed)
-    return analyse_rigid(cols["q_m"], cols["tau_m"], cols["t"], 1e-3, params)
+    model = RigidModel(cols["q_m"], cols["tau_m"], cols["t"], 1e-3)
+    return analyse(model, ResidualParams(max_effects=max_effects))
 
 
 def _rigid_where(res: Any, family: str) -> np.ndarray:
@@ -131,22 +129,16 @@ def _rigid_where(res: Any, family: str) -> np.ndarray:
 
 
 def _stage(family: str, seconds: float, seed: int, max_effects: int | None = None) -> Any:
-    from estimators.residual_two_inertia import (
-        TwoInertiaParams,
-        analyse_two_inertia,
-        nominal_observer,
-    )
+    from estimators.residual_engine import ResidualParams, analyse
+    from estimators.residual_two_inertia import TwoInertiaModel, nominal_observer
 
     effects = [] if family == "none" else [family]
     cols, side, _ = simulate_stage(stage_case(effects, seed), seconds, seed=seed)
     op, lp = nominal_observer(side["nominal"], side["sample_time"], side["encoder_resolution"])
-    params = TwoInertiaParams()
-    if max_effects is not None:
-        params = TwoInertiaParams(max_effects=max_effects)
-    return analyse_two_inertia(
-        cols["t"], cols["tau_m"], cols["q_m"], cols["q_l"], op, lp, f_ext=cols["f_ext"],
-        params=params,
-    )  # fmt: skip
+    model = TwoInertiaModel(
+        cols["t"], cols["tau_m"], cols["q_m"], cols["q_l"], op, lp, f_ext=cols["f_ext"]
+    )
+    return analyse(model, ResidualParams(max_effects=max_effects))
 
 
 @functools.lru_cache(maxsize=4)

@@ -172,8 +172,8 @@ def simulate(
     dp = (dfo or make_dfo(axis)) if use_d else None
     st = xa.initial_state(axis)
     cs = xa.CascadeState()
-    ist = imbdo_mod.initial_state(ip) if ip else None
-    dst = dfo_mod.initial_state(dp) if dp else None
+    ist = imbdo_mod.Imbdo(ip).initial_state() if ip else None
+    dst = dfo_mod.Dfo(dp).initial_state() if dp else None
     z_all = np.empty(n_total)
     dhd = np.zeros(n_total)
     dhi = np.zeros(n_total)
@@ -185,15 +185,15 @@ def simulate(
         z_all[k0:k1] = z
         cs, u = xa.cascade_step(ctrl, cs, z, ref[k0:k1])
         if ip is not None and ist is not None:
-            ist, irec = imbdo_mod.step(ip, ist, z, u)
+            ist, irec = imbdo_mod.Imbdo(ip).step(ist, z, u)
             u = irec.v
             dhi[k0:k1] = irec.d_hat
         if dp is not None and dst is not None:
-            dst, drec = dfo_mod.step(dp, dst, z)
+            dst, drec = dfo_mod.Dfo(dp).step(dst, z)
             u = u - drec.compensation
             dhd[k0:k1] = drec.d_hat
             amp[k0:k1] = drec.amplitude
-            dst = dfo_mod.apply(dp, dst, u)
+            dst = dfo_mod.Dfo(dp).apply(dst, u)
         st = xa.apply(axis, st, u)
     return AxisRun(t=t, ref=ref, z=z_all, d=dist, d_hat_dfo=dhd, d_hat_imbdo=dhi, amplitude=amp)
 

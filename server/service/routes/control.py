@@ -59,6 +59,4 @@ def control(body: Control, lp: Live) -> ControlState:
                 ],
             )
         lp.set_speed(v)
-    return ControlState(
-        speed=lp.speed, paused=lp.paused, sim_t=lp.pipeline.t, scenario=lp.pipeline.scenario
-    )
+    return ControlState(speed=lp.speed, paused=lp.paused, sim_t=lp.sim_t, scenario=lp.scenario)

@@ -20,7 +20,7 @@ from server.records.store import DataStore, NotFound, check_name
 from server.service.deps import Authorised, Config, Live, Store, conflict
 from server.service.errors import FieldError, error
 from server.service.loop import LiveLoop
-from server.service.recording import Recording, default_name, source_sidecar
+from server.service.recording import Recording, default_name
 from server.service.schemas import RecordBody, RecordInfo, Records, RecordState, error_responses
 
 router = APIRouter(responses=error_responses())
@@ -39,7 +39,7 @@ def nothing_runs(lp: LiveLoop) -> str | None:
     if not lp.running:
         why = f" ({lp.error})" if lp.error else ""
         return f"nothing runs: the live loop has stopped{why}"
-    if lp.pipeline.finished:
+    if lp.finished:
         return "nothing runs: the replayed log has ended (start a scenario or a replay)"
     if lp.paused:
         return "nothing runs: the loop is paused (resume it: POST /api/control)"
@@ -66,18 +66,18 @@ async def record(body: RecordBody, lp: Live, s: Config, st: Store) -> RecordStat
     if body.action == "stop":
         if body.name is not None:
             raise FieldError("name", "no name with action 'stop'", body.name, "stop takes no name")
-        with lp.lock:
-            rec = lp.recording
-            if rec is None or not rec.active:
-                ended = "" if rec is None else rec.recorder.end_reason or rec.recorder.limit_reason
-                why = f" (the last recording ended: {ended})" if ended else ""
-                raise conflict("action", "'start' first", "stop", f"not recording{why}")
+        rec = lp.recording
+        if rec is None or not rec.active:
+            ended = "" if rec is None else rec.recorder.end_reason or rec.recorder.limit_reason
+            why = f" (the last recording ended: {ended})" if ended else ""
+            raise conflict("action", "'start' first", "stop", f"not recording{why}")
         lp.end_recording("stopped")
         done = await asyncio.to_thread(rec.wait)
         return RecordState(recording=RecordInfo.model_validate(done))
     name = _record_name(body.name)
     path = st.new_path("recordings", name)
-    with lp.lock:
+
+    def refuse() -> None:
         idle = nothing_runs(lp)
         if idle is not None:
             raise conflict("action", "'start' while the loop runs a source", "start", idle)
@@ -90,14 +90,14 @@ async def record(body: RecordBody, lp: Live, s: Config, st: Store) -> RecordStat
             )
         if path.exists() or path.with_suffix(".json").exists():
             raise conflict("name", "a name not taken", name, f"recording {name!r} exists already")
-        side = source_sidecar(lp.pipeline.source, lp.pipeline.scenario)
-        lp.recording = Recording(
-            path,
-            side,
-            max_bytes=s.record_max_mb * 1e6,
-            max_seconds=s.record_max_minutes * 60.0,
-        )
-        return RecordState(recording=RecordInfo.model_validate(lp.recording.summary()))
+
+    started = lp.start_recording(
+        lambda side: Recording(
+            path, side, max_bytes=s.record_max_mb * 1e6, max_seconds=s.record_max_minutes * 60.0
+        ),
+        refuse,
+    )
+    return RecordState(recording=RecordInfo.model_validate(started.summary()))
 
 
 def recordings(st: DataStore, lp: LiveLoop) -> list[dict[str, Any]]:

@@ -69,8 +69,7 @@ def replay(body: Replay, lp: Live, s: Config, st: Store) -> ReplayStarted:
     response_model=Effects,
 )
 def get_effects(lp: Live) -> Effects:
-    with lp.lock:
-        return Effects.model_validate({"observer_effects": _effects_json(lp.pipeline.effects)})
+    return Effects.model_validate({"observer_effects": _effects_json(lp.observer_effects())})
 
 
 @router.post(
@@ -92,15 +91,10 @@ def post_effects(body: EffectsBody, lp: Live, st: Store) -> EffectsInstalled:
         )
     path = find_report(st, body.report) if body.report is not None else None
     effects, skipped = parse_effects(path, body.observer_effects)
-    with lp.lock:
-        lp.pipeline.set_observer_effects(effects)
-        return EffectsInstalled.model_validate(
-            {
-                "observer_effects": _effects_json(lp.pipeline.effects),
-                "skipped": skipped,
-                "t": lp.pipeline.t,
-            }
-        )
+    installed, t = lp.set_observer_effects(effects)
+    return EffectsInstalled.model_validate(
+        {"observer_effects": _effects_json(installed), "skipped": skipped, "t": t}
+    )
 
 
 @router.delete(
@@ -111,8 +105,7 @@ def post_effects(body: EffectsBody, lp: Live, st: Store) -> EffectsInstalled:
     responses=error_responses(401),
 )
 def delete_effects(lp: Live) -> Effects:
-    with lp.lock:
-        lp.pipeline.set_observer_effects(())
+    lp.set_observer_effects(())
     return Effects(observer_effects=[])
 
 

@@ -25,7 +25,7 @@ def health(lp: Live, s: Config) -> Health:
             "loop_error": lp.error,
             "viser_port": s.viser_port,
             "viser_running": lp.scene is not None,
-            "scenario": lp.pipeline.scenario,
+            "scenario": lp.scenario,
             **json_safe(h),
             **json_safe(lp.broker_status()),
         }
@@ -34,7 +34,7 @@ def health(lp: Live, s: Config) -> Health:
 
 @router.get("/api/scenarios", summary="the scenarios the loop can run", response_model=Scenarios)
 def scenarios(lp: Live) -> Scenarios:
-    return Scenarios(current=lp.pipeline.scenario, scenarios=dict(SCENARIOS))
+    return Scenarios(current=lp.scenario, scenarios=dict(SCENARIOS))
 
 
 @router.get(
@@ -44,8 +44,7 @@ def scenarios(lp: Live) -> Scenarios:
     response_model_exclude_unset=True,  # "replay" only while replaying, as the pipeline says
 )
 def snapshot(lp: Live) -> Snapshot:
-    with lp.lock:
-        snap = lp.pipeline.snapshot()
+    snap = lp.snapshot()
     return Snapshot.model_validate(json_safe({"pipeline": snap, "health": lp.health()}))
 
 
@@ -118,8 +117,7 @@ def metrics(lp: Live) -> PlainTextResponse:
     lines = []
     for name, kind, doc, value in rows:
         lines += [f"# HELP {name} {doc}", f"# TYPE {name} {kind}", f"{name} {float(value):g}"]
-    with lp.lock:
-        acc = lp.pipeline.accuracy()
+    acc = lp.accuracy()
     lines += _accuracy_lines(acc)
     return PlainTextResponse(
         "\n".join(lines) + "\n", media_type="text/plain; version=0.0.4; charset=utf-8"
