@@ -8,7 +8,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed-stamp
 
-.PHONY: setup web-deps run test lint typecheck pytest reproduce bench docs system-deps clean \
+.PHONY: setup web-deps run test test-fast schema lint typecheck pytest reproduce bench docs system-deps clean \
         image run-image test-image
 
 setup: $(STAMP) web-deps
@@ -48,6 +48,11 @@ reproduce: setup
 bench: setup
 	$(BIN)/cutwatch bench
 
+# the dashboard's stream schema (web/schema.js) from the message models
+# (server/service/messages.py); tests/service/test_protocol.py fails while it is stale
+schema: setup
+	$(BIN)/cutwatch schema --js --out web/schema.js
+
 # the documentation (docs/, mkdocs.yml) as a site in site/; any warning fails the build
 docs: setup
 	$(BIN)/mkdocs build --strict --site-dir site
@@ -64,6 +69,13 @@ pytest: setup system-deps
 	$(BIN)/python -m pytest
 
 test: lint typecheck pytest
+
+# The fast loop: the unit and property tests, without the tests that start a server, a
+# broker or a browser, or run a reproduction (marks in tests/conftest.py; about a fifth of
+# the full suite's time or less, see docs/development.md)
+FAST := not slow and not server and not broker and not browser and not image
+test-fast: setup
+	$(BIN)/python -m pytest -q -m '$(FAST)'
 
 # The container image (Dockerfile), built and run without a daemon by buildah (as root;
 # installs buildah and debootstrap when missing). docs/deploy.md has the Docker commands.

@@ -130,3 +130,60 @@ def test_code_cites_existing_doc_pages() -> None:
                 if not (ROOT / cited).is_file():
                     missing.append(f"{path.relative_to(ROOT)} cites {cited}, which does not exist")
     assert missing == []
+
+
+# ------------------------------------------------------------------ the architecture page
+PACKAGES = ("common", "machine", "estimators", "server")
+_MODULE_ROW = re.compile(r"^\|\s*`([\w/]+\.py)`\s*\|", re.M)
+
+
+def documented_modules(page: Path) -> list[str]:
+    """The modules listed (first column of a table row) under the page's "Every module"."""
+    text = page.read_text(encoding="utf-8")
+    start = text.index("\n## Every module")
+    end = text.find("\n## ", start + 1)
+    return _MODULE_ROW.findall(text[start : end if end > 0 else len(text)])
+
+
+def tree_modules(root: Path) -> set[str]:
+    """Every module of our packages (``__init__.py`` aside), as a path from ``root``."""
+    return {
+        p.relative_to(root).as_posix()
+        for pkg in PACKAGES
+        for p in (root / pkg).rglob("*.py")
+        if p.name != "__init__.py"
+    }
+
+
+def module_list_mismatch(page: Path, root: Path) -> list[str]:
+    """What is wrong with the page's module list, one line each (empty: it matches)."""
+    listed = documented_modules(page)
+    tree = tree_modules(root)
+    out = [f"{m}: in the tree, not in {page.name}" for m in sorted(tree - set(listed))]
+    out += [f"{m}: in {page.name}, not in the tree" for m in sorted(set(listed) - tree)]
+    out += [f"{m}: listed twice" for m in sorted({m for m in listed if listed.count(m) > 1})]
+    return out
+
+
+def test_the_architecture_page_lists_every_module() -> None:
+    problems = module_list_mismatch(ROOT / "docs" / "architecture.md", ROOT)
+    assert problems == [], "docs/architecture.md, section 'Every module':\n" + "\n".join(problems)
+
+
+def test_the_module_check_names_a_missing_and_an_extra_module(tmp_path: Path) -> None:
+    for rel in ("common/a.py", "common/__init__.py", "server/service/b.py", "server/c.py"):
+        (tmp_path / rel).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / rel).write_text("")
+    for pkg in PACKAGES:
+        (tmp_path / pkg).mkdir(exist_ok=True)
+    page = tmp_path / "arch.md"
+    page.write_text(
+        "# A\n\n## Every module\n\n| module | what |\n|---|---|\n| `common/a.py` | a |\n"
+        "| `server/c.py` | c |\n| `server/c.py` | again |\n| `server/gone.py` | gone |\n\n"
+        "## Next\n\n| `server/service/b.py` | outside the section |\n"
+    )
+    assert module_list_mismatch(page, tmp_path) == [
+        "server/service/b.py: in the tree, not in arch.md",
+        "server/gone.py: in arch.md, not in the tree",
+        "server/c.py: listed twice",
+    ]

@@ -1,31 +1,10 @@
-// The live stream's message schema (client side); its twin is server/protocol.py.
-// tests/test_protocol.py runs this module under node and checks SCHEMA equals the
-// server's, and that checkMessage accepts the frames the server really sends.
+// The live stream's message checks (client side). The schema itself (VERSION, FAST_GROUPS,
+// INTERVALS, SCHEMA) is web/schema.js, generated from the server's message models
+// (server/service/messages.py) by `make schema`; tests/service/test_protocol.py fails when
+// it is stale, and runs checkMessage under node on the frames the server really sends.
+import { FAST_GROUPS, INTERVALS, SCHEMA, VERSION } from "./schema.js";
 
-export const VERSION = 1;
-// channel groups on the fast grid t; every other group is on ts (see server/protocol.py)
-export const FAST_GROUPS = ["force"];
-
-// identified parameter -> its channels: estimate, 95 % bounds, excited flag (1/0; 0: show
-// the parameter greyed, "not excited", not as a number)
-export const INTERVALS = Object.fromEntries(
-  ["J_L", "B_L", "F_CL"].map((q) => [
-    q, { estimate: `${q}_seg`, lower: `${q}_lo`, upper: `${q}_hi`, excited: `${q}_excited` },
-  ]),
-);
-
-export const SCHEMA = {
-  version: VERSION,
-  hello: ["type", "version", "channels", "sample_time", "scenario", "knobs"],
-  channel: ["name", "unit", "group", "label", "grid"],
-  data: ["type", "dropped", "seq", "wall", "t", "ts", "ch", "health", "knobs", "accuracy"],
-  fast_groups: FAST_GROUPS,
-  health: ["sim_t", "speed", "paused", "lag_ms", "lag_p99_ms", "realtime_factor",
-           "clients", "dropped_total", "stalls"],
-  // rolling rms of each force estimate (server/protocol.py): mode "truth" or "agreement"
-  accuracy: ["mode", "windows", "span", "rms", "rms_q", "floor", "mean_of"],
-  intervals: INTERVALS,
-};
+export { FAST_GROUPS, INTERVALS, SCHEMA, VERSION };
 
 function missing(obj, fields) {
   return fields.filter((f) => !(f in obj));

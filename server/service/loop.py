@@ -41,6 +41,7 @@ from server.pipeline.knobs import Knob
 from server.pipeline.live_pipeline import LivePipeline
 from server.pipeline.mqtt_source import MqttSource
 from server.service import protocol
+from server.service.messages import LoopHealth
 from server.service.settings import MAX_SPEED, Settings
 
 if TYPE_CHECKING:
@@ -667,17 +668,18 @@ class LiveLoop:
         return self._p99
 
     def health(self) -> dict[str, Any]:
-        return {
-            "sim_t": self.pipeline.t,
-            "speed": self.speed,
-            "paused": self.paused,
-            "lag_ms": 1e3 * self.lag_s,
-            "lag_p99_ms": 1e3 * self.lag_p99(),
-            "realtime_factor": self.realtime_factor(),
-            "clients": self.hub.clients,
-            "dropped_total": self.hub.dropped(),
-            "stalls": self.stalls,
-        }
+        """The loop's health, shaped by :class:`~server.service.messages.LoopHealth`."""
+        return LoopHealth(
+            sim_t=self.pipeline.t,
+            speed=self.speed,
+            paused=self.paused,
+            lag_ms=1e3 * self.lag_s,
+            lag_p99_ms=1e3 * self.lag_p99(),
+            realtime_factor=self.realtime_factor(),
+            clients=self.hub.clients,
+            dropped_total=self.hub.dropped(),
+            stalls=self.stalls,
+        ).model_dump()
 
     def knob_values(self) -> dict[str, Any]:
         with self.lock:

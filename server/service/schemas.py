@@ -1,5 +1,8 @@
 """Request and response models of every REST route (what ``/docs`` shows).
 
+The stream's shapes that REST responses carry too (``LoopHealth``, ``Accuracy``) are
+defined once, in :mod:`server.service.messages`.
+
 Responses whose content the pipeline owns (snapshot, residual report) declare the keys
 known today and let others through (``extra="allow"``), so a key added by the pipeline
 reaches clients rather than being dropped by the response model.
@@ -21,6 +24,7 @@ from pydantic import (
 )
 from pydantic_core import PydanticCustomError
 
+from server.service.messages import Accuracy, LoopHealth
 from server.service.settings import MAX_SPEED, ScenarioName, Speed
 
 # ------------------------------------------------------------------ errors
@@ -75,20 +79,6 @@ def error_responses(*codes: int, json_route: bool = True) -> dict[int | str, dic
 # ------------------------------------------------------------------ status
 
 
-class LoopHealth(BaseModel):
-    """The live loop's health (also the ``health`` of every stream frame)."""
-
-    sim_t: float | None = Field(description="simulated time [s]")
-    speed: float | None = Field(description="requested speed (x real time)")
-    paused: bool
-    lag_ms: float | None = Field(description="lateness of the last block [ms]")
-    lag_p99_ms: float | None = Field(description="p99 lateness over the last 600 blocks [ms]")
-    realtime_factor: float | None = Field(description="simulated seconds per wall second")
-    clients: int = Field(description="connected WebSocket clients")
-    dropped_total: int = Field(description="frames dropped for slow clients")
-    stalls: int = Field(description="clock re-anchors after a stall")
-
-
 class Health(LoopHealth):
     """``GET /api/health``."""
 
@@ -133,27 +123,6 @@ class ReplayProgress(BaseModel):
     samples: int
     fed: int
     finished: bool
-
-
-class Accuracy(BaseModel):
-    """Rolling rms of each force estimate (also the ``accuracy`` of every stream frame)."""
-
-    mode: Literal["truth", "agreement"] = Field(
-        description="'truth': against the true force (simulator); 'agreement': no truth "
-        "(a replayed log, a live feed), each estimate against the mean of 'mean_of'"
-    )
-    windows: list[float] = Field(description="window lengths [s]")
-    span: list[float] = Field(description="seconds each window really covers [s]")
-    rms: dict[str, list[float | None]] = Field(
-        description="estimate -> rms error per window [N m] (against the truth or the mean)"
-    )
-    rms_q: dict[str, list[float | None]] = Field(
-        description="estimate -> rms against the Q(s)-filtered true force (empty: no truth)"
-    )
-    floor: list[float | None] = Field(
-        description="rms of the Q(s)-filtered true force against the true force, per window"
-    )
-    mean_of: list[str] = Field(description="the estimates averaged (mode 'agreement')")
 
 
 class PipelineSnapshot(BaseModel):

@@ -9,6 +9,7 @@ names what is wrong (never a traceback).
 from __future__ import annotations
 
 import json
+import math
 import tempfile
 from pathlib import Path
 
@@ -34,14 +35,36 @@ def _outcome(log: Path, holdout: float, capsys: pytest.CaptureFixture[str]) -> d
     assert "Traceback" not in err
     if code == 0:
         rep = json.loads((out / "report.json").read_text())
-        assert rep["rms_after"] <= rep["rms_before"] * (1 + 1e-9) or rep["selected"]
-        assert rep["holdout"]["start"] < rep["holdout"]["stop"]
+        _check_report(rep)
         return rep
     assert code == 2
     # a message that names the log or the option and what was expected
     assert "expected" in err or "needs" in err or "too few" in err, err
     assert out.exists() is False
     return None
+
+
+def _check_report(rep: dict) -> None:
+    """What a report must say whatever the options: a consistent selection and its errors.
+
+    The selected effects are distinct, each is the candidate marked selected and it passed
+    the test (Holm and the minimum effect size) at its round, and the report's effects list
+    them in the same order; no effect selected leaves the model and so the held-out error
+    unchanged; the errors are finite and the held-out span is inside the record.
+    """
+    selected = rep["selected"]
+    assert len(set(selected)) == len(selected), selected
+    marked = [c["name"] for c in rep["candidates"] if c["selected"]]
+    assert sorted(marked) == sorted(selected), (marked, selected)
+    assert all(c["passed"] for c in rep["candidates"] if c["selected"]), rep["candidates"]
+    assert [e["name"] for e in rep["effects"]] == selected
+    assert math.isfinite(rep["rms_before"]) and rep["rms_before"] > 0.0
+    assert math.isfinite(rep["rms_after"]) and rep["rms_after"] > 0.0
+    if not selected:
+        assert rep["rms_after"] == pytest.approx(rep["rms_before"], rel=1e-9, abs=0.0)
+    hold = rep["holdout"]
+    duration = (rep["n_samples"] - 1) * rep["sample_time"]
+    assert 0.0 <= hold["start"] < hold["stop"] <= duration * (1 + 1e-9), (hold, duration)
 
 
 def _rigid_one_direction(n: int, seed: int, rests: bool) -> dict[str, np.ndarray]:

@@ -365,20 +365,3 @@ def test_dfo_retunes_to_new_frequencies_and_reconverges() -> None:
     t2 = np.arange(2500, 5000) * ts
     _, rec = dfo.Dfo(p2).step(stt, _multisine(t2, new, AMPS, PHASES))
     np.testing.assert_allclose(rec.amplitude[-1], AMPS, rtol=0.01)
-
-
-def test_delay_free_imbdo_destabilises_the_papers_loop_and_the_delayed_one_does_not() -> None:
-    # the finding behind the IMBDO choice (reproductions.seed002_disturbance_observers)
-    from server.experiments.reproductions import seed002_disturbance_observers as do
-
-    axis = xa.XYAxisParams()
-    free = im.ImbdoParams(
-        axis.a, axis.b, axis.c, axis.sample_time, model_delay=0.0, delay_uncertainty=axis.delay
-    )
-    assert free.stability.holds  # eq. (4) alone does not see it: the cascade does
-    bad = do.simulate("imbdo", 0.3, axis=axis, imbdo=free)
-    good = do.simulate("imbdo", 0.3, axis=axis)
-    assert np.max(np.abs(bad.ref - bad.z)) > 1e3  # mm: diverging
-    assert np.max(np.abs(good.ref - good.z)) < 0.2
-    gain, f180 = do.delay_free_imbdo_loop(axis, xa.CascadeParams())
-    assert gain > 1.0 and 100.0 < f180 < 125.0

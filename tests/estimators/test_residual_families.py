@@ -234,6 +234,7 @@ EMPS = next(
 
 
 @pytest.mark.skipif(not EMPS.exists(), reason="EMPS data not present")
+@pytest.mark.slow
 def test_emps_cross_validated_error_improves_over_the_nominal() -> None:
     import scipy.io
 

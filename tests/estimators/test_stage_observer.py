@@ -19,7 +19,6 @@ from machine.effects import EFFECT_NAMES, PlantEffects
 from machine.errors import ParameterError
 from machine.params import ADDED_WEIGHT_INERTIA, StageParams, preset
 from machine.stage import StageConfig, StageSim, Trajectory
-from server.pipeline.stage_run import observer_params_for
 
 
 def test_presets_have_their_first_resonance_at_a_few_hundred_hz() -> None:
@@ -69,7 +68,9 @@ def test_weight_changes_the_true_inertia_only() -> None:
 
 def _observer_error(cfg: StageConfig, seconds: float = 3.0) -> tuple[float, float]:
     sim = StageSim(cfg)
-    fe = TorsionEstimator(observer_params_for(cfg))
+    nom = cfg.nominal or cfg.params  # the observer knows the nominal motor side only
+    ts, res = cfg.sample_time, cfg.encoder_resolution
+    fe = TorsionEstimator(ObserverParams(nom.J_M, nom.B_M, nom.F_CM, nom.K, ts, res))
     st = fe.initial_state()
     p = cfg.true_params
     est, true = [], []

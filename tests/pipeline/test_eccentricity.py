@@ -303,6 +303,7 @@ def _checks(rep: dict[str, object]) -> dict[str, bool]:
     return {c["name"]: c["holds"] for c in rep["checks"]}  # type: ignore[index, union-attr]
 
 
+@pytest.mark.slow
 def test_reproduction_has_the_issue_rows(reproduction: dict[str, object]) -> None:
     rows = _rows(reproduction)
     for c in (1, 2):
@@ -324,6 +325,7 @@ def test_reproduction_has_the_issue_rows(reproduction: dict[str, object]) -> Non
         assert r in rows
 
 
+@pytest.mark.slow
 def test_esc_converges_to_the_cancelling_modulation(reproduction: dict[str, object]) -> None:
     rows = _rows(reproduction)
     for c in (1, 2):
@@ -340,12 +342,14 @@ def test_esc_converges_to_the_cancelling_modulation(reproduction: dict[str, obje
     "scrambles the estimate; no reading or lag compensation tried reaches 15 s in both "
     "cases. See docs/reproductions/seed003-eccentricity.md, 'Why the ESC is slower than the paper'",
 )
+@pytest.mark.slow
 def test_esc_converges_within_15_s(reproduction: dict[str, object]) -> None:
     checks = _checks(reproduction)
     assert checks["case1.esc_within_10pct_of_cancelling_by_15s"]
     assert checks["case2.esc_within_10pct_of_cancelling_by_15s"]
 
 
+@pytest.mark.slow
 def test_fast_tuner_beats_esc(reproduction: dict[str, object]) -> None:
     checks = _checks(reproduction)
     rows = _rows(reproduction)
@@ -359,6 +363,7 @@ def test_fast_tuner_beats_esc(reproduction: dict[str, object]) -> None:
         assert rows[f"case{c}.fast_tuner.flute_peak_spread.ratio"] < 14.0 / 101.0
 
 
+@pytest.mark.slow
 def test_ellipse_undoes_mismatched_axes(reproduction: dict[str, object]) -> None:
     checks = _checks(reproduction)
     assert checks["case1.mismatch.ellipse_beats_circle"]
@@ -366,10 +371,12 @@ def test_ellipse_undoes_mismatched_axes(reproduction: dict[str, object]) -> None
     assert _rows(reproduction)["case1.mismatch.fast_tuner_ellipse.revolutions"] <= 15
 
 
+@pytest.mark.slow
 def test_estimated_force_drives_the_esc(reproduction: dict[str, object]) -> None:
     assert _checks(reproduction)["case1.estimated_force_esc_cost_below_10pct"]
 
 
+@pytest.mark.slow
 def test_cli_lists_and_prints_json(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["reproduce", "--list"]) == 0
     out = capsys.readouterr().out

@@ -32,6 +32,7 @@ def run(request: pytest.FixtureRequest):
     return tr, tr.arrays()
 
 
+@pytest.mark.slow
 def test_intervals_cover_the_truth(run) -> None:
     _, a = run
     sc = scores(a)
@@ -39,6 +40,7 @@ def test_intervals_cover_the_truth(run) -> None:
         assert sc[f"segment.{q}.coverage"] >= 0.9, (q, sc[f"segment.{q}.coverage"])
 
 
+@pytest.mark.slow
 def test_point_estimates_within_their_bands(run) -> None:
     _, a = run
     sc = scores(a)
@@ -47,6 +49,7 @@ def test_point_estimates_within_their_bands(run) -> None:
     assert sc["segment.B_L.within_or_unexcited"] >= 0.8, sc["segment.B_L.within_or_unexcited"]
 
 
+@pytest.mark.slow
 def test_no_glitch_at_changes(run) -> None:
     tr, a = run
     kinds = {k for k, _ in tr.events}
@@ -57,6 +60,7 @@ def test_no_glitch_at_changes(run) -> None:
         assert v <= 1.0, (k, v)
 
 
+@pytest.mark.slow
 def test_dfo_back_within_5_percent_after_spindle_steps(run) -> None:
     tr, a = run
     rec = dfo_recovery(a["h"], tr.events, 4e-4)

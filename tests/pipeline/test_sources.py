@@ -246,6 +246,7 @@ def test_empty_blocks_change_nothing(logs: dict[str, Path]) -> None:
         np.testing.assert_array_equal(np.concatenate([o[k] for o in got]), ref[k], err_msg=k)
 
 
+@pytest.mark.slow
 def test_the_live_loop_waits_on_a_source_with_nothing(logs: dict[str, Path]) -> None:
     src = GappySource(logs["full"], N_LOG, N_LOG, stutter=True)
     loop = LiveLoop(Settings(viser=False), Hub(4))

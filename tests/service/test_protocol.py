@@ -1,4 +1,10 @@
-"""The stream schema is one thing on both sides: server/protocol.py and web/protocol.js."""
+"""The stream schema is one thing on both sides: the message models, web/schema.js from them.
+
+``server/service/messages.py`` defines the messages; ``protocol.SCHEMA`` and the
+dashboard's ``web/schema.js`` (``make schema``) are derived from the models. The frames
+the server sends are validated against the models, and run through ``web/protocol.js``'s
+``checkMessage`` under node.
+"""
 
 from __future__ import annotations
 
@@ -9,12 +15,16 @@ from pathlib import Path
 
 import pytest
 
+from server.cli.commands import schema
 from server.pipeline.accuracy import RollingAccuracy
 from server.service import protocol
+from server.service.loop import Hub, LiveLoop
+from server.service.messages import Accuracy, Data, Hello, LoopHealth, fields
+from server.service.settings import Settings
 
 WEB = Path(__file__).resolve().parents[2] / "web"
 NODE = shutil.which("node")
-pytestmark = pytest.mark.skipif(NODE is None, reason="node is not installed")
+needs_node = pytest.mark.skipif(NODE is None, reason="node is not installed")
 
 
 def run_js(code: str, stdin: str = "") -> str:
@@ -33,6 +43,44 @@ def run_js(code: str, stdin: str = "") -> str:
     return out.stdout
 
 
+def test_the_generated_schema_module_is_current() -> None:
+    found = (WEB / "schema.js").read_text(encoding="utf-8")
+    assert found == schema.text(js=True), (
+        "web/schema.js is stale: a message model changed; regenerate it with `make schema` "
+        "(cutwatch schema --js --out web/schema.js)"
+    )
+
+
+def test_schema_check_names_a_stale_file(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from server.cli.main import main
+
+    stale = tmp_path / "schema.js"
+    stale.write_text(schema.text(js=True).replace('"stalls"', '"stall_count"'))
+    assert main(["schema", "--js", "--check", str(stale)]) == 1
+    assert f"{stale} is stale" in capsys.readouterr().err
+    assert main(["schema", "--js", "--out", str(stale)]) == 0
+    assert main(["schema", "--js", "--check", str(stale)]) == 0
+    doc = json.loads(schema.text(js=False))
+    assert doc["messages"]["health"]["x-version"] == LoopHealth.VERSION
+    assert list(doc["messages"]["data"]["properties"]) == protocol.SCHEMA["data"]
+
+
+def test_the_loop_builds_its_messages_from_the_models() -> None:
+    loop = LiveLoop(Settings(viser=False), Hub(4))
+    loop.pipeline.step(2 * loop.block_n)
+    health = loop.health()
+    assert list(health) == fields(LoopHealth)
+    assert LoopHealth.model_validate(health, strict=True).sim_t == loop.pipeline.t
+    hello = Hello.model_validate_json(loop.hello())
+    assert [c.name for c in hello.channels] == [c.name for c in loop.pipeline.channels()]
+    acc = loop.pipeline.accuracy(digits=protocol.ACCURACY_DIGITS)
+    assert list(acc) == fields(Accuracy)
+    Accuracy.model_validate(acc, strict=True)
+
+
+@needs_node
 def test_schema_equal_on_both_sides() -> None:
     js = json.loads(
         run_js("import {SCHEMA} from './protocol.js';console.log(JSON.stringify(SCHEMA));")
@@ -62,7 +110,17 @@ def frames(has_truth: bool = True) -> list[str]:
         "default",
         {"spindle_rpm": 1500.0},
     )
-    health = dict.fromkeys(protocol.SCHEMA["health"], 0.0)
+    health = LoopHealth(
+        sim_t=0.4,
+        speed=1.0,
+        paused=False,
+        lag_ms=0.5,
+        lag_p99_ms=2.0,
+        realtime_factor=1.0,
+        clients=1,
+        dropped_total=0,
+        stalls=0,
+    ).model_dump()
     body = protocol.data_body(
         3,
         1.0,
@@ -76,6 +134,7 @@ def frames(has_truth: bool = True) -> list[str]:
     return [hello, protocol.with_dropped(body, 7)]
 
 
+@needs_node
 @pytest.mark.parametrize("has_truth", [True, False])
 def test_js_accepts_what_python_sends(has_truth: bool) -> None:
     code = (
@@ -85,6 +144,14 @@ def test_js_accepts_what_python_sends(has_truth: bool) -> None:
         "console.log(JSON.stringify(lines.map((l) => checkMessage(l).type)));"
     )
     assert json.loads(run_js(code, "\n".join(frames(has_truth)))) == ["hello", "data"]
+
+
+@pytest.mark.parametrize("has_truth", [True, False])
+def test_python_frames_are_the_models(has_truth: bool) -> None:
+    hello, data = frames(has_truth)
+    Hello.model_validate_json(hello, strict=True)
+    frame = Data.model_validate_json(data, strict=True)
+    assert frame.dropped == 7 and frame.ch["force_true"] == [1.0, None]
 
 
 def test_python_frames_follow_schema() -> None:
@@ -143,6 +210,7 @@ def test_python_frames_follow_schema() -> None:
         ),
     ],
 )
+@needs_node
 def test_js_rejects_malformed(bad: str, message: str) -> None:
     code = (
         "import {checkMessage} from './protocol.js';"
@@ -173,6 +241,7 @@ def test_interval_channels_are_streamed_by_the_live_pipeline() -> None:
             assert protocol.grid_of(chans[name].group) == "ts"
 
 
+@needs_node
 def test_panels_draw_bands_only_for_streamed_interval_channels() -> None:
     # web/panels.js: a parameter's band series and band from SCHEMA.intervals, or none
     # when the hello lacks one of its four channels
@@ -197,6 +266,7 @@ def test_panels_draw_bands_only_for_streamed_interval_channels() -> None:
     assert got["excited"] == "J_L_excited" and got["B_L"] is None
 
 
+@needs_node
 @pytest.mark.parametrize("has_truth", [True, False])
 def test_panels_accuracy_table(has_truth: bool) -> None:
     acc = json.loads(frames(has_truth)[1])["accuracy"]

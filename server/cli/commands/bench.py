@@ -17,6 +17,11 @@ the top-level realtime_factor is the stage group's (offline block of 2500 sample
 realtime_factor_of names its configuration; without the stage group it is absent and
 realtime_factor_of says so. This is a benchmark, not a test: run it on a quiet machine
 and compare medians.
+
+Examples::
+
+    cutwatch bench stage tool-wear --json        # two groups, five runs each
+    cutwatch bench pipeline --quick --repeats 1  # a smoke check of one group
 """
 
 from __future__ import annotations

@@ -4,7 +4,10 @@ Examples::
 
     cutwatch reproduce --list
     cutwatch reproduce adaptive-observer --plot out/figs
-    cutwatch reproduce --all --json
+    cutwatch reproduce --all --quick --json   # every experiment, shortened runs
+
+Exit status: 0 when every check holds, 1 when one does not (marked FAIL in the table,
+"holds": false in the JSON; the rows are printed all the same), 2 for bad input.
 """
 
 from __future__ import annotations

@@ -29,7 +29,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -103,9 +103,88 @@ def _stop(procs: list[subprocess.Popen[Any]]) -> None:
             p.wait(5)
 
 
-def _run(machines: int, seconds: float, progress: bool) -> dict[str, object]:
+def _start_services(
+    names: list[str],
+    url: str,
+    env: dict[str, str],
+    services: list[subprocess.Popen[bytes]],
+    progress: bool,
+) -> list[int]:
+    """One ``cutwatch serve --source mqtt`` per machine name, each waited for; appended to
+    ``services`` as they start (so the caller stops them whatever happens); their ports."""
+    ports: list[int] = []
+    for name in names:
+        port = _free_port()
+        ports.append(port)
+        services.append(
+            subprocess.Popen(
+                _cutwatch("serve", "--port", str(port), "--no-viser", "--source", "mqtt",
+                          "--broker", url, "--machine", name,
+                          "--publish-hz", str(PUBLISH_HZ)),
+                env={**env, "CUTWATCH_PUBLIC_URL": f"http://127.0.0.1:{port}/"},
+                stdout=subprocess.DEVNULL,
+            )
+        )  # fmt: skip
+        _wait_http(f"http://127.0.0.1:{port}/api/health", 120)
+        if progress:
+            print(f"  service {name} up", file=sys.stderr)
+    return ports
+
+
+def _wait_receiving(ports: list[int]) -> None:
+    """Until every service receives its feed (every pipeline built on its meta)."""
+    deadline = time.monotonic() + 180
+    for port in ports:
+        while True:
+            h = httpx.get(f"http://127.0.0.1:{port}/api/health", timeout=5).json()
+            if h["feed"]["state"] == "receiving" and h["feed"]["blocks"] > 20:
+                break
+            if time.monotonic() > deadline:
+                raise RuntimeError(f"service :{port} never received: {h['feed']}")
+            time.sleep(0.5)
+
+
+def _watch(
+    fport: int,
+    seconds: float,
+    victim: str,
+    feeders: dict[str, subprocess.Popen[bytes]],
+    feed: Callable[[str], subprocess.Popen[bytes]],
+) -> tuple[list[float], tuple[float | None, float | None, float | None, float | None]]:
+    """Watch the fleet page's stream for ``seconds``: the drive-to-page latencies, and the
+    victim's feeder killed at 40 % and restarted once its row is stale; returns the
+    latencies and the monotonic times killed, restarted, stale, recovered (None: never)."""
     from websockets.sync.client import connect
 
+    t0 = time.monotonic()
+    lat: list[float] = []
+    killed_at = restarted_at = stale_at = recovered_at = None
+    with connect(f"ws://127.0.0.1:{fport}/ws") as ws:
+        while time.monotonic() - t0 < seconds:
+            msg = json.loads(ws.recv(timeout=10))
+            now = time.time()
+            rows = msg["rows"] if "rows" in msg else [msg]
+            for r in rows:
+                if "rows" not in msg and r.get("drive_wall") is not None:
+                    lat.append(now - float(r["drive_wall"]))
+                if r["machine"] == victim and killed_at is not None:
+                    if stale_at is None and r["status"] == "stale":
+                        stale_at = time.monotonic()
+                    if restarted_at is not None and stale_at is not None:
+                        if recovered_at is None and r["status"] == "ok":
+                            recovered_at = time.monotonic()
+            el = time.monotonic() - t0
+            if killed_at is None and el > seconds * 0.4:
+                feeders[victim].kill()
+                feeders[victim].wait(5)
+                killed_at = time.monotonic()
+            if restarted_at is None and stale_at is not None:
+                feeders[victim] = feed(victim)
+                restarted_at = time.monotonic()
+    return lat, (killed_at, restarted_at, stale_at, recovered_at)
+
+
+def _run(machines: int, seconds: float, progress: bool) -> dict[str, object]:
     work = Path(tempfile.mkdtemp(prefix="cutwatch-bench-fleet-"))
     log = work / "drive.csv"
     subprocess.run(
@@ -135,22 +214,7 @@ def _run(machines: int, seconds: float, progress: bool) -> dict[str, object]:
                 env=env, stdout=subprocess.DEVNULL,
             )  # fmt: skip
             names = [f"m{k:02d}" for k in range(machines)]
-            ports: list[int] = []
-            for name in names:
-                port = _free_port()
-                ports.append(port)
-                services.append(
-                    subprocess.Popen(
-                        _cutwatch("serve", "--port", str(port), "--no-viser", "--source", "mqtt",
-                                  "--broker", url, "--machine", name,
-                                  "--publish-hz", str(PUBLISH_HZ)),
-                        env={**env, "CUTWATCH_PUBLIC_URL": f"http://127.0.0.1:{port}/"},
-                        stdout=subprocess.DEVNULL,
-                    )
-                )  # fmt: skip
-                _wait_http(f"http://127.0.0.1:{port}/api/health", 120)
-                if progress:
-                    print(f"  service {name} up", file=sys.stderr)
+            ports = _start_services(names, url, env, services, progress)
             _wait_http(f"http://127.0.0.1:{fport}/api/health", 60)
 
             def feed(name: str) -> subprocess.Popen[bytes]:
@@ -161,16 +225,7 @@ def _run(machines: int, seconds: float, progress: bool) -> dict[str, object]:
 
             for name in names:
                 feeders[name] = feed(name)
-            # every feeder started and every pipeline built on its meta
-            deadline = time.monotonic() + 180
-            for port in ports:
-                while True:
-                    h = httpx.get(f"http://127.0.0.1:{port}/api/health", timeout=5).json()
-                    if h["feed"]["state"] == "receiving" and h["feed"]["blocks"] > 20:
-                        break
-                    if time.monotonic() > deadline:
-                        raise RuntimeError(f"service :{port} never received: {h['feed']}")
-                    time.sleep(0.5)
+            _wait_receiving(ports)
             time.sleep(2 * STALE_AFTER)  # the fleet page has seen every machine
             hs = [httpx.get(f"http://127.0.0.1:{p}/api/health", timeout=5).json() for p in ports]
             out["services.publishing"] = sum(
@@ -189,30 +244,9 @@ def _run(machines: int, seconds: float, progress: bool) -> dict[str, object]:
             pids["feeders"] = [p.pid for n, p in feeders.items() if n != victim]
             cpu0 = {k: sum(_cpu(p) for p in v) for k, v in pids.items()}
             t0 = time.monotonic()
-            lat: list[float] = []
-            killed_at = restarted_at = stale_at = recovered_at = None
-            with connect(f"ws://127.0.0.1:{fport}/ws") as ws:
-                while time.monotonic() - t0 < seconds:
-                    msg = json.loads(ws.recv(timeout=10))
-                    now = time.time()
-                    rows = msg["rows"] if "rows" in msg else [msg]
-                    for r in rows:
-                        if "rows" not in msg and r.get("drive_wall") is not None:
-                            lat.append(now - float(r["drive_wall"]))
-                        if r["machine"] == victim and killed_at is not None:
-                            if stale_at is None and r["status"] == "stale":
-                                stale_at = time.monotonic()
-                            if restarted_at is not None and stale_at is not None:
-                                if recovered_at is None and r["status"] == "ok":
-                                    recovered_at = time.monotonic()
-                    el = time.monotonic() - t0
-                    if killed_at is None and el > seconds * 0.4:
-                        feeders[victim].kill()
-                        feeders[victim].wait(5)
-                        killed_at = time.monotonic()
-                    if restarted_at is None and stale_at is not None:
-                        feeders[victim] = feed(victim)
-                        restarted_at = time.monotonic()
+            lat, (killed_at, restarted_at, stale_at, recovered_at) = _watch(
+                fport, seconds, victim, feeders, feed
+            )
             wall = time.monotonic() - t0
             cpu1 = {k: sum(_cpu(p) for p in v) for k, v in pids.items()}
             for k in pids:

@@ -293,6 +293,19 @@ def run(
             print(f"  simulating {c} ...", flush=True)
         runs[c] = simulate(c, duration, axis=axis, ctrl=ctrl, force=force)
         res[c] = metrics(runs[c])
+    _table_rows(rep, res, cond)
+    _lead_rows(rep, duration, axis, ctrl, force, cond)
+    ip = _imbdo_rows(rep, axis, ctrl, force)
+    _checks(rep, res, ip)
+    stage = _stage_rows(rep, quick=quick, progress=progress)
+    if plot_dir is not None:
+        rep.figures.extend(_plots(Path(plot_dir), runs, axis))
+        rep.figures.append(_stage_plot(Path(plot_dir), stage))
+    return rep
+
+
+def _table_rows(rep: Reproduction, res: dict[str, dict[str, float]], cond: str) -> None:
+    """Tables 1 and 2: rms and maximum tracking error, their change, the harmonic peaks."""
     for c in CONFIGS:
         rep.rows.append(Row(f"rmse.{c}", res[c]["rmse"], PAPER_RMSE[c], "mm", cond))
     for c in CONFIGS:
@@ -321,6 +334,17 @@ def run(
                     cond + extra,
                 )
             )
+
+
+def _lead_rows(
+    rep: Reproduction,
+    duration: float,
+    axis: xa.XYAxisParams,
+    ctrl: xa.CascadeParams,
+    force: xa.HarmonicForce,
+    cond: str,
+) -> None:
+    """The DFO's peaks with its output led by the delay (ours, not the paper's)."""
     # the DFO with its compensation predicted one delay ahead (not in the paper)
     lead = make_dfo(axis, lead=axis.delay)
     for c in ("dfo", "combined"):
@@ -335,6 +359,13 @@ def run(
                     cond + "; DFO output led by Td (ours)",
                 )
             )
+
+
+def _imbdo_rows(
+    rep: Reproduction, axis: xa.XYAxisParams, ctrl: xa.CascadeParams, force: xa.HarmonicForce
+) -> imbdo_mod.ImbdoParams:
+    """Bandwidths, the IMBDO's Q-filter margin and delay finding, the force's harmonics;
+    returns the IMBDO's parameters (for the checks)."""
     ip = make_imbdo(axis)
     bw_pi = bandwidth(axis, ctrl)
     bw_i = bandwidth(axis, ctrl, ip)
@@ -397,6 +428,11 @@ def run(
             )
         )
 
+    return ip
+
+
+def _checks(rep: Reproduction, res: dict[str, dict[str, float]], ip: imbdo_mod.ImbdoParams) -> None:
+    """The paper's orderings and the Q-filter's stability (eq. 4)."""
     r = {c: res[c] for c in CONFIGS}
     rep.checks.append(
         Check(
@@ -432,11 +468,6 @@ def run(
             1.0,
         )
     )
-    stage = _stage_rows(rep, quick=quick, progress=progress)
-    if plot_dir is not None:
-        rep.figures.extend(_plots(Path(plot_dir), runs, axis))
-        rep.figures.append(_stage_plot(Path(plot_dir), stage))
-    return rep
 
 
 def _stage_rows(rep: Reproduction, *, quick: bool, progress: bool) -> sh.StageHarmonicsRun:

@@ -487,12 +487,26 @@ def esc_diagnosis(case: int, seconds: float) -> list[Row]:
     """
     mp = case_params(case)
     p = f"case{case}"
+    rows, h, lag = _dither_lag_rows(p, mp)
+    a_s, th_s = MillingMachine(mp).cancelling_modulation()
+    u_star = a_s * 1e6 * np.exp(1j * th_s)
+    rev_time = 60.0 / mp.spindle_rpm
+    j0 = _initial_cost(run_case(mp, "off", ADAPT_START + 2 * rev_time).loop)
+    rows += _lag_compensation_rows(p, mp, seconds, h, lag, (j0, u_star, rev_time))
+    rows += _esc_variant_rows(p, mp, seconds, j0, rev_time)
+    rows += _phase_sweep_rows(p, mp)
+    return rows
+
+
+def _dither_lag_rows(
+    p: str, mp: MillingParams
+) -> tuple[list[Row], tuple[float, float], tuple[float, float]]:
+    """The first-revolution response and the dither lag of each ESC channel, measured
+    on the machine on the ESC's way in; the rows, the responses and the lags."""
     rows: list[Row] = []
     m = MillingMachine(mp)
     a_s, th_s = m.cancelling_modulation()
     a_star, th_star = a_s * 1e6, math.degrees(th_s)
-    u_star = a_star * np.exp(1j * th_s)
-    rev_time = 60.0 / mp.spindle_rpm
     # operating point on the ESC's way in: half the radius, 30 deg short in phase
     h_a = first_revolution_response(mp, 0.5 * a_star, th_star - 30.0, 1.0, 0.0)
     h_t = first_revolution_response(mp, 0.5 * a_star, th_star - 30.0, 0.0, 1.0)
@@ -530,6 +544,22 @@ def esc_diagnosis(case: int, seconds: float) -> list[Row]:
             "phase channel: lag at the dither frequency",
         ),
     ]
+    return rows, (h_a, h_t), (lag_a, lag_t)
+
+
+def _lag_compensation_rows(
+    p: str,
+    mp: MillingParams,
+    seconds: float,
+    h: tuple[float, float],
+    lag: tuple[float, float],
+    cone: tuple[float, complex, float],
+) -> list[Row]:
+    """The ESC with the measured lag compensated, and on a static cone (``cone``: the
+    initial cost, the cancelling modulation, one revolution's time) with and without
+    the lag."""
+    (h_a, h_t), (lag_a, lag_t), (j0, u_star, rev_time) = h, lag, cone
+    rows: list[Row] = []
     comp = replace(ESC_TABLE1, demod_phase=lag_a, demod_phase_theta=lag_t)
     rows.append(
         Row(
@@ -540,7 +570,6 @@ def esc_diagnosis(case: int, seconds: float) -> list[Row]:
             "Table 1 K; demodulation delayed by the measured lag of each channel",
         ),
     )
-    j0 = _initial_cost(run_case(mp, "off", ADAPT_START + 2 * rev_time).loop)
     rows += [
         Row(
             f"{p}.esc_static_cone.param_converge_time_s",
@@ -557,6 +586,15 @@ def esc_diagnosis(case: int, seconds: float) -> list[Row]:
             "the same cone, each channel lagging as measured above",
         ),
     ]
+    return rows
+
+
+def _esc_variant_rows(
+    p: str, mp: MillingParams, seconds: float, j0: float, rev_time: float
+) -> list[Row]:
+    """The other readings: high-pass cut-offs, Psi_theta, K's units (``j0``: the initial
+    cost), stiffer drives."""
+    rows: list[Row] = []
     for label, esc_v in (
         ("esc_hpf_0.02", replace(ESC_TABLE1, hpf_cycles_per_rev=0.02)),
         ("esc_hpf_0.2", replace(ESC_TABLE1, hpf_cycles_per_rev=0.2)),
@@ -611,13 +649,18 @@ def esc_diagnosis(case: int, seconds: float) -> list[Row]:
                 "of the plant, not the paper's)",
             )
         )
+    return rows
+
+
+def _phase_sweep_rows(p: str, mp: MillingParams) -> list[Row]:
+    """How the ESC's convergence depends on the eccentricity's phase."""
     times = [
         param_converge_time(
             run_case(replace(mp, eccentricity_deg=float(ed)), "esc", ADAPT_START + 60.0).loop
         )
         for ed in range(0, 360, 30)
     ]
-    rows += [
+    return [
         Row(
             f"{p}.esc.ecc_phase_sweep.within_15s",
             float(sum(t <= 15.0 for t in times)),
@@ -633,24 +676,12 @@ def esc_diagnosis(case: int, seconds: float) -> list[Row]:
             "the same by 60 s",
         ),
     ]
-    return rows
 
 
-def rows_case(case: int, plot_dir: Path | None) -> tuple[Section, list[str]]:
-    """One Table 1 case with ESC and with the fast tuner; its figure if ``plot_dir`` is
-    given."""
-    rows: list[Row] = []
-    checks: list[Check] = []
-    seconds_esc, seconds_fast = SECONDS_ESC, SECONDS_FAST
-    mp = case_params(case)
-    tr_esc = run_case(mp, "esc", seconds_esc)
-    tr_fast = run_case(mp, "fast", seconds_fast)
-    s = summarize(tr_esc, mp)
-    f = summarize(tr_fast, mp, tail_s=1.0)
-    c = f"case {case}: {mp.spindle_rpm:g} rpm, {mp.axial_depth * 1e3:g} mm"
-    p = f"case{case}"
+def _esc_case_rows(p: str, c: str, mp: MillingParams, s: Summary) -> list[Row]:
+    """A Table 1 case's rows of the ESC (``s``: its summary)."""
     ecc_um = mp.eccentricity * 1e6
-    rows += [
+    return [
         Row(
             f"{p}.converge_time_s",
             s.converge_time,
@@ -730,6 +761,12 @@ def rows_case(case: int, plot_dir: Path | None) -> tuple[Section, list[str]]:
             "rev",
             "ESC: revolutions until the cost stays below 10 %",
         ),
+    ]
+
+
+def _fast_tuner_case_rows(p: str, f: Summary, s: Summary) -> list[Row]:
+    """A Table 1 case's rows of the fast tuner (``f``), beside the ESC's (``s``)."""
+    return [
         Row(
             f"{p}.fast_tuner.revolutions",
             f.revolutions,
@@ -773,6 +810,23 @@ def rows_case(case: int, plot_dir: Path | None) -> tuple[Section, list[str]]:
             "fast tuner |u - u*| / |u*| at the end",
         ),
     ]
+
+
+def rows_case(case: int, plot_dir: Path | None) -> tuple[Section, list[str]]:
+    """One Table 1 case with ESC and with the fast tuner; its figure if ``plot_dir`` is
+    given."""
+    rows: list[Row] = []
+    checks: list[Check] = []
+    seconds_esc, seconds_fast = SECONDS_ESC, SECONDS_FAST
+    mp = case_params(case)
+    tr_esc = run_case(mp, "esc", seconds_esc)
+    tr_fast = run_case(mp, "fast", seconds_fast)
+    s = summarize(tr_esc, mp)
+    f = summarize(tr_fast, mp, tail_s=1.0)
+    c = f"case {case}: {mp.spindle_rpm:g} rpm, {mp.axial_depth * 1e3:g} mm"
+    p = f"case{case}"
+    rows += _esc_case_rows(p, c, mp, s)
+    rows += _fast_tuner_case_rows(p, f, s)
     checks += [
         Check(
             f"{p}.esc_within_10pct_of_cancelling_by_15s",
@@ -1050,35 +1104,28 @@ def _excitation_split(mp: MillingParams, revs: int = 48) -> tuple[float, float]:
     return float(f_cut), float(inert)
 
 
-def rows_estimated_force_adaptive() -> Section:
-    """Issue 13 item 7: the ESC on the force of the adaptive observer (mass identified
-    at spindle order N_f + 1/8, :mod:`estimators.axis_mass`) under a nominal mass error."""
-    rows: list[Row] = []
-    checks: list[Check] = []
-    mp = case_params(1)
-
-    def adaptive(
-        me: float,
-        mpp: MillingParams = mp,
-        noise: float = 0.0,
-        seed: int = 6,
-        stop_after: int | None = None,
-    ) -> AdaptiveObserverForceSource:
-        rng = np.random.default_rng(seed)
-        return AdaptiveObserverForceSource(
-            MillingMachine(mpp),
-            mass_error=me,
-            excitation_um=EXCITATION_UM,
-            current_noise=noise,
-            rng=rng,
-            stop_after=stop_after,
-        )
-
-    tr_exact = run_case(
-        mp, "esc", SECONDS_ESC, force_source=ObserverForceSource(MillingMachine(mp))
+def _adaptive_source(
+    mp: MillingParams,
+    me: float,
+    noise: float = 0.0,
+    seed: int = 6,
+    stop_after: int | None = None,
+) -> AdaptiveObserverForceSource:
+    """The adaptive observer's force source on a fresh machine of ``mp``, nominal mass
+    error ``me``, the identification circle on."""
+    rng = np.random.default_rng(seed)
+    return AdaptiveObserverForceSource(
+        MillingMachine(mp),
+        mass_error=me,
+        excitation_um=EXCITATION_UM,
+        current_noise=noise,
+        rng=rng,
+        stop_after=stop_after,
     )
-    exact = summarize(tr_exact, mp)
-    exact_param_time = param_converge_time(tr_exact.loop)
+
+
+def _rows_fixed_minus3(mp: MillingParams) -> list[Row]:
+    """The ESC on the fixed observer's force with the nominal mass 3 % low."""
     fixed_m3 = summarize(
         run_case(
             mp,
@@ -1089,7 +1136,7 @@ def rows_estimated_force_adaptive() -> Section:
         mp,
     )
     q = "case1.estimated_force.mass_error_minus3pct"
-    rows += [
+    return [
         Row(
             f"{q}.converge_time_s",
             fixed_m3.converge_time,
@@ -1100,13 +1147,21 @@ def rows_estimated_force_adaptive() -> Section:
         Row(f"{q}.cost_reduction", fixed_m3.cost_reduction, None, "-", "the same; last 2 s"),
         Row(f"{q}.param_error", fixed_m3.param_err, None, "-", "the same"),
     ]
+
+
+def _rows_adaptive_mass(
+    mp: MillingParams, exact: Summary, exact_param_time: float
+) -> tuple[list[Row], dict[str, Summary]]:
+    """The ESC and the fast tuner on the adaptive observer, nominal mass +3 % and -3 %;
+    the ESC's summaries by label (for the checks)."""
+    rows: list[Row] = []
     results = {}
     for label, me in (("mass_error_3pct", 0.03), ("mass_error_minus3pct", -0.03)):
-        src = adaptive(me)
+        src = _adaptive_source(mp, me)
         tr = run_case(mp, "esc", SECONDS_ESC, force_source=src)
         e = summarize(tr, mp)
         results[label] = e
-        src_f = adaptive(me)
+        src_f = _adaptive_source(mp, me)
         f = summarize(
             run_case(mp, "fast", SECONDS_FAST, force_source=src_f),
             mp,
@@ -1170,12 +1225,17 @@ def rows_estimated_force_adaptive() -> Section:
                 "the same; true cost, last 1 s",
             ),
         ]
+    return rows, results
+
+
+def _rows_identify_then_hold(mp: MillingParams) -> list[Row]:
+    """The fast tuner with the mass identified for two windows, then held."""
     # the circle disturbs the fast tuner's one-revolution phasors (order 4.125 leaks into
     # them): identify for two windows (to 1.2 s), then switch the circle off and hold
-    src_h = adaptive(0.03, stop_after=2)
+    src_h = _adaptive_source(mp, 0.03, stop_after=2)
     fh = summarize(run_case(mp, "fast", SECONDS_FAST, force_source=src_h), mp, tail_s=1.0)
     ph = "case1.estimated_force.mass_error_3pct.adaptive_mass.identify_then_hold"
-    rows += [
+    return [
         Row(
             f"{ph}.fast_tuner.revolutions",
             fh.revolutions,
@@ -1186,8 +1246,12 @@ def rows_estimated_force_adaptive() -> Section:
         Row(f"{ph}.fast_tuner.cost_reduction", fh.cost_reduction, None, "-", "the same"),
         Row(f"{ph}.mass_error_x", src_h.mass_errors()[0], None, "-", "the same; held X mass"),
     ]
+
+
+def _rows_mass_identification(mp: MillingParams) -> list[Row]:
+    """How fast the mass is found, and how the circle's force splits at its order."""
     # how fast the mass is found: first time the X mass stays within 0.5 % of the truth
-    src = adaptive(0.03)
+    src = _adaptive_source(mp, 0.03)
     loop = EccentricityLoop(mp, tuner="off", machine=MillingMachine(mp), force_source=src)
     src.attach(loop.machine)
     t_in = math.inf
@@ -1198,7 +1262,7 @@ def rows_estimated_force_adaptive() -> Section:
             t_in = loop.machine.t
         elif not ok:
             t_in = math.inf
-    rows.append(
+    rows = [
         Row(
             "case1.estimated_force.mass_error_3pct.adaptive_mass.mass_time_s",
             t_in,
@@ -1207,7 +1271,7 @@ def rows_estimated_force_adaptive() -> Section:
             "time from the start until the identified X mass stays within 0.5 % of the truth "
             "(4 s run); paper column: the ESC's adaptation start",
         )
-    )
+    ]
     f_cut, inert = _excitation_split(mp)
     rows += [
         Row(
@@ -1232,13 +1296,19 @@ def rows_estimated_force_adaptive() -> Section:
             "cut / inertial at the identification order: bounds the mass bias",
         ),
     ]
+    return rows
+
+
+def _rows_other_phases(mp: MillingParams) -> list[Row]:
+    """The ESC from eccentricity phases 0 and 315 deg: exact, +3 % and adaptive mass."""
+    rows: list[Row] = []
     # other eccentricity phases (the ESC converges from these with an exact mass)
     for deg in (0, 315):
         mpd = replace(mp, eccentricity_deg=float(deg))
         for label, src_d in (
             ("exact", ObserverForceSource(MillingMachine(mpd))),
             ("mass_error_3pct", ObserverForceSource(MillingMachine(mpd), mass_error=0.03)),
-            ("adaptive_mass", adaptive(0.03, mpd)),
+            ("adaptive_mass", _adaptive_source(mpd, 0.03)),
         ):
             sd = summarize(run_case(mpd, "esc", SECONDS_ESC, force_source=src_d), mpd)
             rows.append(
@@ -1255,6 +1325,12 @@ def rows_estimated_force_adaptive() -> Section:
                     }[label],
                 )
             )
+    return rows
+
+
+def _rows_current_noise(mp: MillingParams) -> list[Row]:
+    """The ESC with current noise over seeds: exact-mass fixed and adaptive observers."""
+    rows: list[Row] = []
     # with current noise (0.05 A rms): seeds vary the noise; the exact-mass fixed observer
     # on the same seeds beside it (the ESC's dither freeze makes the cost criterion
     # statistical even with the exact mass)
@@ -1267,7 +1343,7 @@ def rows_estimated_force_adaptive() -> Section:
                 MillingMachine(mp), current_noise=0.05, rng=np.random.default_rng(n)
             ),
         ),
-        ("adaptive", lambda n: adaptive(0.03, noise=0.05, seed=n)),
+        ("adaptive", lambda n: _adaptive_source(mp, 0.03, noise=0.05, seed=n)),
     ):
         ct, pt = [], []
         for seed_n in seeds:
@@ -1306,16 +1382,34 @@ def rows_estimated_force_adaptive() -> Section:
                 "the same; median",
             ),
         ]
+    return rows
+
+
+def rows_estimated_force_adaptive() -> Section:
+    """Issue 13 item 7: the ESC on the force of the adaptive observer (mass identified
+    at spindle order N_f + 1/8, :mod:`estimators.axis_mass`) under a nominal mass error."""
+    mp = case_params(1)
+    tr_exact = run_case(
+        mp, "esc", SECONDS_ESC, force_source=ObserverForceSource(MillingMachine(mp))
+    )
+    exact = summarize(tr_exact, mp)
+    rows = _rows_fixed_minus3(mp)
+    adaptive_rows, results = _rows_adaptive_mass(mp, exact, param_converge_time(tr_exact.loop))
+    rows += adaptive_rows
+    rows += _rows_identify_then_hold(mp)
+    rows += _rows_mass_identification(mp)
+    rows += _rows_other_phases(mp)
+    rows += _rows_current_noise(mp)
     limit = 1.5 * exact.converge_time
-    for label, e in results.items():
-        checks.append(
-            Check(
-                f"case1.estimated_force.{label}.adaptive_converges_within_1.5x_exact",
-                e.converge_time <= limit and e.cost_reduction < 0.1,
-                e.converge_time,
-                limit,
-            )
+    checks = [
+        Check(
+            f"case1.estimated_force.{label}.adaptive_converges_within_1.5x_exact",
+            e.converge_time <= limit and e.cost_reduction < 0.1,
+            e.converge_time,
+            limit,
         )
+        for label, e in results.items()
+    ]
     return rows, checks
 
 

@@ -1,0 +1,131 @@
+"""The live stream's messages as typed models: the one definition of their shapes.
+
+The loop builds the ``health`` of every frame through :class:`LoopHealth`;
+:mod:`server.service.protocol` encodes ``hello`` through :class:`Hello` and the frames
+with the fields of :class:`Data`, and derives its ``SCHEMA`` from these models; the REST
+models of ``/api/health`` and ``/api/snapshot`` (:mod:`server.service.schemas`) reuse
+:class:`LoopHealth` and :class:`Accuracy`; the dashboard's schema (``web/schema.js``) is
+generated from them by ``cutwatch schema --js --out web/schema.js`` (``make schema``), and
+``tests/service/test_protocol.py`` fails when that file is stale.
+
+Each model carries its own ``VERSION`` (shown as ``x-version`` in its JSON schema and in
+the generated ``SCHEMA.versions``): raise it when its fields change meaning, and
+:data:`VERSION`, the stream's version that ``hello`` announces, when a client of the old
+stream could misread the new one.
+"""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+#: the stream's version, sent in ``hello`` (the page refuses a stream of another version)
+VERSION = 1
+
+#: a knob's value as the stream carries it
+KnobValue = bool | float | str
+
+
+def _versioned(schema: dict[str, Any], cls: type[Any]) -> None:
+    schema["x-version"] = cls.VERSION
+
+
+class Versioned(BaseModel):
+    """A message shape with its own version (``x-version`` in its JSON schema)."""
+
+    model_config = ConfigDict(json_schema_extra=_versioned)
+    VERSION: ClassVar[int] = 1
+
+
+class Channel(Versioned):
+    """One channel announced by ``hello``."""
+
+    model_config = ConfigDict(extra="forbid")
+    name: str = Field(description="the key of its samples in a frame's ch")
+    unit: str
+    group: str = Field(description="the plot it belongs to")
+    label: str
+    grid: Literal["t", "ts"] = Field(description="its display grid: t (fast) or ts (slow)")
+
+
+class Hello(Versioned):
+    """The first message after connecting, and again whenever the pipeline changes."""
+
+    model_config = ConfigDict(extra="forbid")
+    type: Literal["hello"] = "hello"
+    version: int = Field(default=VERSION, description="the stream's version")
+    channels: list[Channel]
+    sample_time: float = Field(description="the pipeline's sample time [s]")
+    scenario: str
+    knobs: dict[str, KnobValue] = Field(description="knob -> value")
+
+
+class LoopHealth(Versioned):
+    """The live loop's health (the ``health`` of every frame, of /api/health, /api/snapshot)."""
+
+    sim_t: float | None = Field(description="simulated time [s]")
+    speed: float | None = Field(description="requested speed (x real time)")
+    paused: bool
+    lag_ms: float | None = Field(description="lateness of the last block [ms]")
+    lag_p99_ms: float | None = Field(description="p99 lateness over the last 600 blocks [ms]")
+    realtime_factor: float | None = Field(description="simulated seconds per wall second")
+    clients: int = Field(description="connected WebSocket clients")
+    dropped_total: int = Field(description="frames dropped for slow clients")
+    stalls: int = Field(description="clock re-anchors after a stall")
+
+
+class Accuracy(Versioned):
+    """Rolling rms of each force estimate (the ``accuracy`` of every frame and snapshot)."""
+
+    mode: Literal["truth", "agreement"] = Field(
+        description="'truth': against the true force (simulator); 'agreement': no truth "
+        "(a replayed log, a live feed), each estimate against the mean of 'mean_of'"
+    )
+    windows: list[float] = Field(description="window lengths [s]")
+    span: list[float] = Field(description="seconds each window really covers [s]")
+    rms: dict[str, list[float | None]] = Field(
+        description="estimate -> rms error per window [N m] (against the truth or the mean)"
+    )
+    rms_q: dict[str, list[float | None]] = Field(
+        description="estimate -> rms against the Q(s)-filtered true force (empty: no truth)"
+    )
+    floor: list[float | None] = Field(
+        description="rms of the Q(s)-filtered true force against the true force, per window"
+    )
+    mean_of: list[str] = Field(description="the estimates averaged (mode 'agreement')")
+
+
+class Data(Versioned):
+    """A frame at the display rate (~20 Hz): the samples since the previous one.
+
+    A channel on grid ``t`` has one value per entry of ``t``, one on ``ts`` one per entry
+    of ``ts`` (a coarser subset of the same samples); non-finite values are ``null``.
+    """
+
+    model_config = ConfigDict(extra="forbid")
+    type: Literal["data"] = "data"
+    dropped: int = Field(default=0, description="frames this client lost since its previous frame")
+    seq: int = Field(description="frame counter of the loop")
+    wall: float = Field(description="wall-clock time of the frame [unix s]")
+    t: list[float | None] = Field(description="fast display grid [s]")
+    ts: list[float | None] = Field(description="slow display grid [s]")
+    ch: dict[str, list[float | None]] = Field(description="channel -> samples on its grid")
+    health: LoopHealth
+    knobs: dict[str, KnobValue] = Field(description="knob -> value")
+    accuracy: Accuracy
+
+
+#: every message shape of the stream, by the name ``SCHEMA`` lists its fields under
+MESSAGES: dict[str, type[Versioned]] = {
+    "hello": Hello,
+    "channel": Channel,
+    "data": Data,
+    "health": LoopHealth,
+    "accuracy": Accuracy,
+}
+
+
+def fields(model: type[BaseModel]) -> list[str]:
+    """A model's field names in their order (the order they travel in)."""
+    return list(model.model_fields)
