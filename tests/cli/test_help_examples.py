@@ -109,12 +109,22 @@ def command_line(example: str, broker_url: str) -> tuple[dict[str, str], list[st
     """The example as environment and argv, this machine's broker and ports put in."""
     env = dict(os.environ)
     env.update({"CUTWATCH_PORT": str(free_port()), "CUTWATCH_VISER_PORT": str(free_port())})
+    # a `$(command)` is run as the user's shell would (the token examples: openssl rand)
+    example = re.sub(
+        r"\$\(([^)]*)\)",
+        lambda m: subprocess.run(
+            shlex.split(m.group(1)), check=True, capture_output=True, text=True
+        ).stdout.strip(),
+        example,
+    )
     words = shlex.split(example.replace(EXAMPLE_BROKER, broker_url))
     while "=" in words[0]:  # VAR=value before the command
         key, _, value = words.pop(0).partition("=")
         env[key] = value
     assert words[0] == "cutwatch", example
     argv = [sys.executable, "-m", "server.cli.main", *words[1:]]
+    if "--host" in argv:  # servers a test starts listen on loopback only (never 0.0.0.0)
+        argv[argv.index("--host") + 1] = "127.0.0.1"
     if "--port" in argv:
         argv[argv.index("--port") + 1] = env["CUTWATCH_PORT"]
     return env, argv

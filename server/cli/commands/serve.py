@@ -4,7 +4,7 @@ Examples::
 
     cutwatch serve                       # http://127.0.0.1:8000/
     cutwatch serve --speed 0             # start paused
-    CUTWATCH_TOKEN=$(openssl rand -hex 16) cutwatch serve --host 0.0.0.0
+    CUTWATCH_TOKEN="$(openssl rand -hex 16)" cutwatch serve --host 0.0.0.0
     cutwatch serve --source mqtt --broker mqtt://127.0.0.1:1883 --machine mill-1 \
         --publish-hz 10                  # a real machine's drive data from a broker
 
