@@ -224,6 +224,215 @@ def _bin_val(a: F64, s: int, b: int, nb: int, use_max: bool) -> float:  # pragma
 
 
 @njit(cache=True)
+def _reset_block(run: F64, cur: F64, nb: int) -> None:  # pragma: no cover
+    """A new block execution: its scalar state (``_RUN``) and per-bin accumulators
+    (``_CUR``) cleared."""
+    c_n = cur[0]
+    c_sum = cur[1]
+    c_min = cur[2]
+    c_pk = cur[3]
+    c_d = cur[4]
+    run[1] = 0.0  # k_in
+    run[2] = 0.0  # tau
+    run[3] = 0.0  # L unknown until two angles are seen
+    for i in range(4, 14):
+        run[i] = 0.0
+    run[14] = 0.0
+    run[15] = 0.0
+    run[18] = 0.0
+    for b in range(nb):
+        c_n[b] = 0.0
+        c_sum[b] = 0.0
+        c_min[b] = 1e300
+        c_pk[b] = 0.0
+        c_d[b] = 0.0
+
+
+@njit(cache=True)
+def _samples_per_rev(psi_k: float, run: F64, lmax: int) -> int:  # pragma: no cover
+    """Samples per revolution ``L`` from the spindle angle's increment (0 until two angles
+    are seen in the block)."""
+    kin = int(run[1])
+    # samples per revolution from the spindle angle's increment
+    if kin > 0 and run[3] == 0.0:
+        dpsi = psi_k - run[16]
+        if dpsi > 0.0:
+            run[3] = float(min(max(round(2.0 * math.pi / dpsi), 4), lmax))
+    run[16] = psi_k
+    return int(run[3])
+
+
+@njit(cache=True)
+def _revolution(
+    f: float, psi_k: float, L: int, run: F64, fbuf: F64, rbuf: F64
+) -> tuple[float, float]:  # pragma: no cover
+    """The mean force over the last revolution and the change of the once-per-revolution
+    pattern from one revolution to the next (NaN until enough samples)."""
+    fm = math.nan
+    d = math.nan
+    if L > 0:
+        h = int(run[7])
+        # running sums over the last revolution (the ring holds L samples)
+        if run[1] >= L + 1:
+            run[4] -= fbuf[0, h]
+            run[5] -= fbuf[1, h]
+            run[6] -= fbuf[2, h]
+        c = math.cos(psi_k)
+        s = math.sin(psi_k)
+        fbuf[0, h] = f
+        fbuf[1, h] = f * c
+        fbuf[2, h] = -f * s
+        run[4] += f
+        run[5] += f * c
+        run[6] += -f * s
+        if run[1] >= L:
+            fm = run[4] / L
+            # seed003 (8), normalised by the mean: the once-per-revolution pattern
+            rre = 2.0 * run[5] / run[4] if run[4] > 0.0 else 0.0
+            rim = 2.0 * run[6] / run[4] if run[4] > 0.0 else 0.0
+            if run[1] >= 2 * L:
+                d = math.hypot(rre - rbuf[0, h], rim - rbuf[1, h])
+            rbuf[0, h] = rre
+            rbuf[1, h] = rim
+        run[7] = (h + 1) % L
+    return fm, d
+
+
+@njit(cache=True)
+def _teach_sample(cur: F64, b: int, f: float, fm: float, d: float) -> None:  # pragma: no cover
+    """One sample into this execution's accumulators of bin ``b``."""
+    c_n = cur[0]
+    c_sum = cur[1]
+    c_min = cur[2]
+    c_pk = cur[3]
+    c_d = cur[4]
+    if not math.isnan(fm):
+        c_n[b] += 1.0
+        c_sum[b] += fm
+        c_min[b] = min(c_min[b], fm)
+    c_pk[b] = max(c_pk[b], f)
+    if not math.isnan(d):
+        c_d[b] = max(c_d[b], d)
+
+
+@njit(cache=True)
+def _limits(
+    pr: F64,
+    tt: F64,
+    seg_pk: F64,
+    seg: int,
+    b: int,
+    up: float,
+    lo_s: float,
+    cut_lvl: float,
+) -> tuple[float, float, float, float, float]:  # pragma: no cover
+    """``(extreme, lower, upper, pattern_limit, count taught)`` of bin ``b`` of segment
+    ``seg`` (lower, upper and pattern limit NaN where none applies)."""
+    t_cnt = tt[0]
+    t_msum = tt[1]
+    t_msq = tt[2]
+    t_mmin = tt[3]
+    t_dmax = tt[6]
+    kband = pr[3]
+    brel = pr[4]
+    lshare = pr[5]
+    xfac = pr[6]
+    xfloor = pr[7]
+    bfac = pr[9]
+    bfloor = pr[10]
+    nb = t_cnt.shape[1]
+    lo = math.nan
+    hi = math.nan
+    dl = math.nan
+    # extreme limit on f (the block's taught peak)
+    ex = max(xfac * seg_pk[seg], xfloor) * up
+    cnt = t_cnt[seg, b]
+    if cnt > 0.0:
+        mean = t_msum[seg, b] / cnt
+        var = max(t_msq[seg, b] / cnt - mean * mean, 0.0)
+        half = kband * max(math.sqrt(var), brel * mean)
+        hi = (mean + half) * up
+        mmin = _bin_val(t_mmin, seg, b, nb, False)
+        lo = min(mean - half, lshare * mmin) * lo_s
+        if mmin > cut_lvl:
+            dl = max(bfac * _bin_val(t_dmax, seg, b, nb, True), bfloor)
+    return ex, lo, hi, dl, cnt
+
+
+@njit(cache=True)
+def _collision(
+    k: int, f: float, ex: float, nco: int, run: F64, alarms: F64, na: int
+) -> int:  # pragma: no cover
+    """Collision / overload: ``f`` over the extreme limit for ``nco`` samples; returns
+    the alarm rows written so far."""
+    if f > ex:
+        run[9] += 1.0
+    else:
+        run[9] = 0.0
+    if run[9] >= nco and run[12] == 0.0:
+        run[12] = 1.0
+        alarms[na, 0] = k
+        alarms[na, 1] = 1
+        alarms[na, 2] = f
+        alarms[na, 3] = ex
+        na += 1
+    return na
+
+
+@njit(cache=True)
+def _breakage(
+    k: int,
+    fm: float,
+    d: float,
+    lo: float,
+    dl: float,
+    nbk: int,
+    sshare: float,
+    run: F64,
+    o_sus: np.ndarray,
+    alarms: F64,
+    na: int,
+) -> int:  # pragma: no cover
+    """Breakage / chipping: the pattern's change over its limit for ``nbk`` samples where
+    the block cuts (suspected over ``sshare`` of it); returns the alarm rows written."""
+    if not math.isnan(dl) and not math.isnan(d) and fm >= lo:
+        if d > sshare * dl:
+            o_sus[k] = 1
+        if d > dl:
+            run[8] += 1.0
+        else:
+            run[8] = 0.0
+        if run[8] >= nbk and run[11] == 0.0:
+            run[11] = 1.0
+            alarms[na, 0] = k
+            alarms[na, 1] = 0
+            alarms[na, 2] = d
+            alarms[na, 3] = dl
+            na += 1
+    return na
+
+
+@njit(cache=True)
+def _missing_tool(
+    k: int, fm: float, lo: float, dl: float, L: int, run: F64, alarms: F64, na: int
+) -> int:  # pragma: no cover
+    """Missing tool: below the lower limit for one revolution where the block cuts;
+    returns the alarm rows written so far."""
+    if not math.isnan(dl) and not math.isnan(fm) and fm < lo:
+        run[10] += 1.0
+    else:
+        run[10] = 0.0
+    if L > 0 and run[10] >= L and run[13] == 0.0:
+        run[13] = 1.0
+        alarms[na, 0] = k
+        alarms[na, 1] = 2
+        alarms[na, 2] = fm
+        alarms[na, 3] = lo
+        na += 1
+    return na
+
+
+@njit(cache=True)
 def _monitor_kernel(
     fx: F64,
     fy: F64,
@@ -256,14 +465,6 @@ def _monitor_kernel(
     """
     t_cnt = tt[0]
     t_msum = tt[1]
-    t_msq = tt[2]
-    t_mmin = tt[3]
-    t_dmax = tt[6]
-    c_n = cur[0]
-    c_sum = cur[1]
-    c_min = cur[2]
-    c_pk = cur[3]
-    c_d = cur[4]
     o_f = o[0]
     o_fm = o[1]
     o_lo = o[2]
@@ -273,14 +474,7 @@ def _monitor_kernel(
     o_dl = o[6]
     ts = pr[0]
     bin_s = pr[2]
-    kband = pr[3]
-    brel = pr[4]
-    lshare = pr[5]
-    xfac = pr[6]
-    xfloor = pr[7]
     mincut = pr[8]
-    bfac = pr[9]
-    bfloor = pr[10]
     sshare = pr[11]
     nbk = int(pr[12])
     nco = int(pr[13])
@@ -289,60 +483,14 @@ def _monitor_kernel(
     lmax = fbuf.shape[1]
     na = 0
     if new_block:
-        run[1] = 0.0  # k_in
-        run[2] = 0.0  # tau
-        run[3] = 0.0  # L unknown until two angles are seen
-        for i in range(4, 14):
-            run[i] = 0.0
-        run[14] = 0.0
-        run[15] = 0.0
-        run[18] = 0.0
-        for b in range(nb):
-            c_n[b] = 0.0
-            c_sum[b] = 0.0
-            c_min[b] = 1e300
-            c_pk[b] = 0.0
-            c_d[b] = 0.0
+        _reset_block(run, cur, nb)
     up = max(override, 1.0) * gain_in
     lo_s = min(override, 1.0) * gain_in
     for k in range(fx.shape[0]):
         f = math.sqrt(fx[k] * fx[k] + fy[k] * fy[k])
-        kin = int(run[1])
-        # samples per revolution from the spindle angle's increment
-        if kin > 0 and run[3] == 0.0:
-            dpsi = psi[k] - run[16]
-            if dpsi > 0.0:
-                run[3] = float(min(max(round(2.0 * math.pi / dpsi), 4), lmax))
-        run[16] = psi[k]
-        L = int(run[3])
+        L = _samples_per_rev(psi[k], run, lmax)
         b = min(int(run[2] / bin_s), nb - 1)
-        fm = math.nan
-        d = math.nan
-        if L > 0:
-            h = int(run[7])
-            # running sums over the last revolution (the ring holds L samples)
-            if run[1] >= L + 1:
-                run[4] -= fbuf[0, h]
-                run[5] -= fbuf[1, h]
-                run[6] -= fbuf[2, h]
-            c = math.cos(psi[k])
-            s = math.sin(psi[k])
-            fbuf[0, h] = f
-            fbuf[1, h] = f * c
-            fbuf[2, h] = -f * s
-            run[4] += f
-            run[5] += f * c
-            run[6] += -f * s
-            if run[1] >= L:
-                fm = run[4] / L
-                # seed003 (8), normalised by the mean: the once-per-revolution pattern
-                rre = 2.0 * run[5] / run[4] if run[4] > 0.0 else 0.0
-                rim = 2.0 * run[6] / run[4] if run[4] > 0.0 else 0.0
-                if run[1] >= 2 * L:
-                    d = math.hypot(rre - rbuf[0, h], rim - rbuf[1, h])
-                rbuf[0, h] = rre
-                rbuf[1, h] = rim
-            run[7] = (h + 1) % L
+        fm, d = _revolution(f, psi[k], L, run, fbuf, rbuf)
         o_f[k] = f
         o_fm[k] = fm
         o_d[k] = d
@@ -352,65 +500,12 @@ def _monitor_kernel(
         ex = math.nan
         dl = math.nan
         if teach:
-            if not math.isnan(fm):
-                c_n[b] += 1.0
-                c_sum[b] += fm
-                c_min[b] = min(c_min[b], fm)
-            c_pk[b] = max(c_pk[b], f)
-            if not math.isnan(d):
-                c_d[b] = max(c_d[b], d)
+            _teach_sample(cur, b, f, fm, d)
         elif taught:
-            # extreme limit on f (the block's taught peak)
-            ex = max(xfac * seg_pk[seg], xfloor) * up
-            cnt = t_cnt[seg, b]
-            if cnt > 0.0:
-                mean = t_msum[seg, b] / cnt
-                var = max(t_msq[seg, b] / cnt - mean * mean, 0.0)
-                half = kband * max(math.sqrt(var), brel * mean)
-                hi = (mean + half) * up
-                mmin = _bin_val(t_mmin, seg, b, nb, False)
-                lo = min(mean - half, lshare * mmin) * lo_s
-                if mmin > cut_lvl:
-                    dl = max(bfac * _bin_val(t_dmax, seg, b, nb, True), bfloor)
-            # collision / overload
-            if f > ex:
-                run[9] += 1.0
-            else:
-                run[9] = 0.0
-            if run[9] >= nco and run[12] == 0.0:
-                run[12] = 1.0
-                alarms[na, 0] = k
-                alarms[na, 1] = 1
-                alarms[na, 2] = f
-                alarms[na, 3] = ex
-                na += 1
-            # breakage / chipping
-            if not math.isnan(dl) and not math.isnan(d) and fm >= lo:
-                if d > sshare * dl:
-                    o_sus[k] = 1
-                if d > dl:
-                    run[8] += 1.0
-                else:
-                    run[8] = 0.0
-                if run[8] >= nbk and run[11] == 0.0:
-                    run[11] = 1.0
-                    alarms[na, 0] = k
-                    alarms[na, 1] = 0
-                    alarms[na, 2] = d
-                    alarms[na, 3] = dl
-                    na += 1
-            # missing tool: below the lower limit for one revolution where the block cuts
-            if not math.isnan(dl) and not math.isnan(fm) and fm < lo:
-                run[10] += 1.0
-            else:
-                run[10] = 0.0
-            if L > 0 and run[10] >= L and run[13] == 0.0:
-                run[13] = 1.0
-                alarms[na, 0] = k
-                alarms[na, 1] = 2
-                alarms[na, 2] = fm
-                alarms[na, 3] = lo
-                na += 1
+            ex, lo, hi, dl, cnt = _limits(pr, tt, seg_pk, seg, b, up, lo_s, cut_lvl)
+            na = _collision(k, f, ex, nco, run, alarms, na)
+            na = _breakage(k, fm, d, lo, dl, nbk, sshare, run, o_sus, alarms, na)
+            na = _missing_tool(k, fm, lo, dl, L, run, alarms, na)
             # the block's mean against the taught one (the tracked force ratio)
             if cnt > 0.0 and not math.isnan(fm) and not math.isnan(dl):
                 run[14] += fm

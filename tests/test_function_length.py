@@ -9,8 +9,6 @@ from __future__ import annotations
 import ast
 from pathlib import Path
 
-import pytest
-
 ROOT = Path(__file__).resolve().parents[1]
 MAX_LINES = 120
 CHECKED = ("server", "estimators")
@@ -41,14 +39,6 @@ def test_the_check_counts_from_def_to_the_last_line(tmp_path: Path) -> None:
     assert long_functions(tmp_path, ("pkg",), 5) == []
 
 
-# the functions over 120 lines after the merge of the other helpers' work (none of them in
-# the parts this check came with): it reports, and the lead makes it strict at the merge
-@pytest.mark.xfail(
-    strict=False,
-    reason="over 120 lines after the merge: server/experiments/reproductions/"
-    "process_monitoring.py build (259), estimators/process_monitor.py _monitor_kernel (200), "
-    "server/records/measured_log.py load_log (167)",
-)
 def test_no_function_over_120_lines() -> None:
     offenders = long_functions(ROOT, CHECKED, MAX_LINES)
     assert offenders == [], f"functions over {MAX_LINES} lines:\n" + "\n".join(offenders)

@@ -504,6 +504,38 @@ def load_log(
     parsed = [m if isinstance(m, ColumnMap) else parse_map(m) for m in maps]
     sidecar = _read_sidecar(p)
     sidecar.update(dict(meta or {}))
+    source, is_mat = _read_source(p, progress)
+    cols = _apply_maps(p, source, parsed, is_mat)
+
+    units = _declared_units(p, sidecar)
+    nominal = _nominal(p, sidecar)
+    units = _effort_as_torque(p, cols, units, nominal, current_ok)
+
+    declared = sidecar.get("sample_time")
+    _time_from_sample_time(p, cols, declared)
+    keep, n = _kept_columns(p, cols, required)
+    ts = check_time(p, cols["t"], None if declared is None else declared)
+
+    used, left_out, phases = _selected(p, selection, source, cols, keep, n)
+    rows = np.flatnonzero(used)
+    out = _used_columns(p, cols, keep, rows, n)
+    prog = sidecar.get("program")
+    if prog is not None and (not isinstance(prog, str) or not 1 <= len(prog) <= 32):
+        raise LogFormatError(
+            f"{p}: sidecar 'program': expected a name of 1-32 characters, found {prog!r}"
+        )
+
+    k = kind if kind is not None else sidecar.get("kind")
+    if k is not None and k not in KINDS:
+        raise LogFormatError(f"{p}: kind {k!r}: expected one of {', '.join(KINDS)}")
+    return MeasuredLog(
+        p, out, ts, dict(units), k, nominal, sidecar,
+        rows=rows + 1, n_read=n, left_out=left_out, phases=phases,
+    )  # fmt: skip
+
+
+def _read_source(p: Path, progress: bool) -> tuple[Mapping[str, Any], bool]:
+    """The file's columns (``.csv``) or variables (``.mat``), and whether it is a ``.mat``."""
     suffix = p.suffix.lower()
     if suffix == ".mat":
         source: Mapping[str, Any] = _read_mat(p)
@@ -513,8 +545,11 @@ def load_log(
         is_mat = False
     else:
         raise LogFormatError(f"{p}: unknown file type {p.suffix!r} (expected .csv or .mat)")
-    cols = _apply_maps(p, source, parsed, is_mat)
+    return source, is_mat
 
+
+def _declared_units(p: Path, sidecar: Mapping[str, Any]) -> dict[str, Any]:
+    """The sidecar's ``units``, checked: an effort and a position unit of the format."""
     units = sidecar.get("units")
     if not isinstance(units, dict) or "effort" not in units or "position" not in units:
         raise LogFormatError(
@@ -530,6 +565,11 @@ def load_log(
         raise LogFormatError(
             f"{p}: units.position = {units['position']!r}: expected one of {sorted(POSITION_UNITS)}"
         )
+    return units
+
+
+def _nominal(p: Path, sidecar: Mapping[str, Any]) -> dict[str, float]:
+    """The sidecar's ``nominal`` parameters, each a finite number."""
     nominal_raw = sidecar.get("nominal", {}) or {}
     if not isinstance(nominal_raw, dict):
         raise LogFormatError(
@@ -540,7 +580,18 @@ def load_log(
         if not isinstance(v, int | float) or not math.isfinite(float(v)):
             raise LogFormatError(f"{p}: sidecar nominal.{k} = {v!r}: expected a finite number")
         nominal[k] = float(v)
-    # effort given as current: tau_m = K_t * i_m when K_t is known, else kept in A
+    return nominal
+
+
+def _effort_as_torque(
+    p: Path,
+    cols: dict[str, F64],
+    units: dict[str, Any],
+    nominal: Mapping[str, float],
+    current_ok: bool,
+) -> dict[str, Any]:
+    """Effort given as current: ``tau_m = K_t * i_m`` in ``cols`` when ``K_t`` is known
+    (the units returned then say N m), else kept in A when ``current_ok``."""
     if units["effort"] == "A":
         if "tau_m" not in cols and "i_m" in cols:
             cols["tau_m"] = cols["i_m"]
@@ -553,8 +604,11 @@ def load_log(
                 f"{p}: units.effort = 'A' (current): expected nominal.K_t "
                 "[N m/A] in the sidecar, found none"
             )
+    return units
 
-    declared = sidecar.get("sample_time")
+
+def _time_from_sample_time(p: Path, cols: dict[str, F64], declared: Any) -> None:
+    """No time column but a declared ``sample_time``: a uniform ``t`` added to ``cols``."""
     if "t" not in cols and declared is not None:
         # no time column: rows are uniform, one every sample_time seconds
         if not (isinstance(declared, int | float) and math.isfinite(declared) and declared > 0):
@@ -564,6 +618,12 @@ def load_log(
         first = next((c for c in (*REQUIRED_COLUMNS, *OPTIONAL_COLUMNS) if c in cols), None)
         if first is not None:
             cols["t"] = np.arange(len(cols[first]), dtype=np.float64) * float(declared)
+
+
+def _kept_columns(
+    p: Path, cols: Mapping[str, F64], required: Sequence[str]
+) -> tuple[list[str], int]:
+    """The format's columns present (the required ones checked) and their common length."""
     missing = [c for c in required if c not in cols]
     if missing:
         hint = " or declare sample_time" if "t" in missing else ""
@@ -579,9 +639,19 @@ def load_log(
             raise LogFormatError(
                 f"{p}: column {c!r}: expected {n} samples (as 't'), found {len(cols[c])}"
             )
-    ts = check_time(p, cols["t"], None if declared is None else declared)
+    return keep, n
 
-    # rows used: every row unless a selection leaves some out (each rule's count kept)
+
+def _selected(
+    p: Path,
+    selection: RowSelection | None,
+    source: Mapping[str, Any],
+    cols: Mapping[str, F64],
+    keep: Sequence[str],
+    n: int,
+) -> tuple[NDArray[np.bool_], list[dict[str, Any]], dict[str, NDArray[np.bool_]]]:
+    """Rows used, each rule's count left out and the phase masks: every row unless a
+    selection leaves some out (its conditions may name any column of the file)."""
     used = np.ones(n, dtype=bool)
     left_out: list[dict[str, Any]] = []
     phases: dict[str, NDArray[np.bool_]] = {}
@@ -595,7 +665,13 @@ def load_log(
         where.update({c: cols[c] for c in keep})
         chosen = select_rows(p, selection, where, n)
         used, left_out, phases = chosen.used, chosen.left_out, chosen.phases
-    rows = np.flatnonzero(used)
+    return used, left_out, phases
+
+
+def _used_columns(
+    p: Path, cols: Mapping[str, F64], keep: Sequence[str], rows: NDArray[np.intp], n: int
+) -> dict[str, F64]:
+    """The kept columns over the rows used, each value finite and identities checked."""
     out: dict[str, F64] = {}
     for c in keep:
         v = cols[c][rows] if len(rows) < n else cols[c]
@@ -609,19 +685,7 @@ def load_log(
         if c in IDENTITY_COLUMNS:
             _check_identity(p, c, v, rows)
         out[c] = np.ascontiguousarray(v)
-    prog = sidecar.get("program")
-    if prog is not None and (not isinstance(prog, str) or not 1 <= len(prog) <= 32):
-        raise LogFormatError(
-            f"{p}: sidecar 'program': expected a name of 1-32 characters, found {prog!r}"
-        )
-
-    k = kind if kind is not None else sidecar.get("kind")
-    if k is not None and k not in KINDS:
-        raise LogFormatError(f"{p}: kind {k!r}: expected one of {', '.join(KINDS)}")
-    return MeasuredLog(
-        p, out, ts, dict(units), k, nominal, sidecar,
-        rows=rows + 1, n_read=n, left_out=left_out, phases=phases,
-    )  # fmt: skip
+    return out
 
 
 def _check_identity(p: Path, c: str, v: F64, rows: NDArray[np.int64]) -> None:

@@ -611,255 +611,35 @@ def quantile_upper(x: list[float], q: float, conf: float = 0.95) -> float:
     return float(v[u]) if u < len(v) else math.inf
 
 
+_DELAY_TARGETS = {
+    "breakage": ("delay_revs", TARGET_BREAKAGE_REVS, "rev", "from the event's first sample"),
+    "collision": (
+        "delay_from_estimate_s",
+        TARGET_COLLISION_S,
+        "s",
+        "from the estimated force crossing the extreme limit",
+    ),
+    "missing_tool": ("delay_blocks", 1.0, "block", "from the event's first sample"),
+}
+
+
 def build(results: list[dict[str, Any]]) -> Reproduction:
     """Rows and checks from the cases."""
     rep = Reproduction(NAME, SOURCE)
-    targets = {
-        "breakage": ("delay_revs", TARGET_BREAKAGE_REVS, "rev", "from the event's first sample"),
-        "collision": (
-            "delay_from_estimate_s",
-            TARGET_COLLISION_S,
-            "s",
-            "from the estimated force crossing the extreme limit",
-        ),
-        "missing_tool": ("delay_blocks", 1.0, "block", "from the event's first sample"),
-    }
     for kind in ("breakage", "collision", "missing_tool"):
         for size in ("clear", "edge"):
             rs = [r for r in results if r["kind"] == kind and r["size"] == size]
             if not rs:
                 continue
-            n = len(rs)
-            k = sum(1 for r in rs if r["detected"])
-            lo, hi = clopper_pearson(k, n)
-            sv = [r["size_value"] for r in rs]
-            unit = {"breakage": "m radius", "collision": "x feed", "missing_tool": "share"}[kind]
-            cond = (
-                f"{n} events, size {min(sv):.3g}-{max(sv):.3g} {unit}; 95 % CP [{lo:.4f}, {hi:.4f}]"
-            )
-            rep.rows.append(Row(f"{kind}.{size}.detection", k / n, None, "-", cond))
-            misses = [r["seed"] for r in rs if not r["detected"]]
-            if misses:
-                rep.rows.append(
-                    Row(
-                        f"{kind}.{size}.misses",
-                        len(misses),
-                        None,
-                        "events",
-                        "seeds " + ", ".join(map(str, misses[:20])),
-                    )
-                )
-            pre = sum(r.get("pre_alarms", 0) for r in rs)
-            rep.rows.append(
-                Row(
-                    f"{kind}.{size}.alarms_before_event",
-                    pre,
-                    None,
-                    "alarms",
-                    "in the watched event parts, before the event",
-                )
-            )
-            key, target, tunit, tcond = targets[kind]
-            d = [float(r[key]) for r in rs if r["detected"] and key in r]
-            if d:
-                med = float(np.median(d))
-                p95 = float(np.percentile(d, 95))
-                p95_hi = quantile_upper(d, 0.95)
-                rep.rows.append(Row(f"{kind}.{size}.delay_median", med, None, tunit, tcond))
-                rep.rows.append(
-                    Row(
-                        f"{kind}.{size}.delay_p95",
-                        p95,
-                        None,
-                        tunit,
-                        f"95 % upper bound {p95_hi:.4g} {tunit}; target {target:g}",
-                    )
-                )
-            if kind == "collision":
-                dt = [float(r["delay_from_true_s"]) for r in rs if "delay_from_true_s" in r]
-                if dt:
-                    rep.rows.append(
-                        Row(
-                            f"collision.{size}.delay_from_true_p95",
-                            float(np.percentile(dt, 95)),
-                            None,
-                            "s",
-                            "from the true force crossing the limit",
-                        )
-                    )
-            if size == "clear":
-                rep.checks.append(
-                    Check(
-                        f"{kind}.clear.detection_lower_95 >= 0.99",
-                        lo >= TARGET_DETECTION,
-                        lo,
-                        TARGET_DETECTION,
-                    )
-                )
-                if d:
-                    rep.checks.append(
-                        Check(
-                            f"{kind}.clear.delay_median <= {target:g} {tunit}",
-                            med <= target,
-                            med,
-                            target,
-                        )
-                    )
-                    rep.checks.append(
-                        Check(
-                            f"{kind}.clear.delay_p95_upper_95 <= {target:g} {tunit}",
-                            p95_hi <= target,
-                            p95_hi,
-                            target,
-                        )
-                    )
+            _event_rows(rep, kind, size, rs)
     esc = [r for r in results if r["size"] == "canceller"]
     if esc:
-        n = len(esc)
-        k = sum(1 for r in esc if r["detected"])
-        lo, hi = clopper_pearson(k, n)
-        fl = {f: [r for r in esc if r["flutes"] == f] for f in (2, 3, 4)}
-        per = ", ".join(
-            f"{f} flutes {sum(r['detected'] for r in v)}/{len(v)}" for f, v in fl.items()
-        )
-        rep.rows.append(
-            Row(
-                "breakage.canceller.detection",
-                k / n,
-                None,
-                "-",
-                f"{n} tooth breakages with the ESC adapting; 95 % CP [{lo:.4f}, {hi:.4f}]; {per}",
-            )
-        )
-        d = [float(r["delay_revs"]) for r in esc if r["detected"]]
-        if d:
-            rep.rows.append(
-                Row(
-                    "breakage.canceller.delay_median",
-                    float(np.median(d)),
-                    None,
-                    "rev",
-                    "from the event's first sample",
-                )
-            )
-        between = [int(r["esc_updates_between"]) for r in esc if r["detected"]]
-        rep.rows.append(
-            Row(
-                "breakage.canceller.esc_updates_before_alarm",
-                max(between, default=0),
-                None,
-                "updates",
-                "largest number of ESC updates between a breakage "
-                "and its alarm (held while suspected)",
-            )
-        )
-        rep.rows.append(
-            Row(
-                "breakage.canceller.pre_alarms",
-                sum(r["pre_alarms"] for r in esc),
-                None,
-                "alarms",
-                "in the event parts before the breakage",
-            )
-        )
-        rep.checks.append(
-            Check(
-                "breakage.canceller.esc_held_until_alarm",
-                max(between, default=0) == 0,
-                max(between, default=0),
-                0,
-            )
-        )
+        _canceller_rows(rep, esc)
     free = [r for r in results if r["kind"] == "none"]
     if free:
-        hours = float(sum(r["watched_h"] for r in free))
-        for det in ("breakage", "collision", "missing_tool"):
-            k = int(sum(r["alarms"][det] for r in free))
-            lo, hi = poisson_rate(k, hours)
-            rep.rows.append(
-                Row(
-                    f"false_alarms.{det}",
-                    k / hours,
-                    None,
-                    "per hour",
-                    f"{k} in {hours:.1f} h event-free; 95 % [{lo:.4f}, {hi:.4f}]",
-                )
-            )
-            rep.checks.append(
-                Check(
-                    f"false_alarms.{det}.upper_95 <= 0.1 per hour",
-                    hi <= TARGET_FALSE_PER_HOUR,
-                    hi,
-                    TARGET_FALSE_PER_HOUR,
-                )
-            )
-        w = [r["worst"] for r in free]
-        rep.rows.append(
-            Row(
-                "free.max_force_over_extreme",
-                max(x["f_over_extreme"] for x in w),
-                None,
-                "-",
-                "largest f / extreme limit, all event-free hours",
-            )
-        )
-        rep.rows.append(
-            Row(
-                "free.min_mean_over_lower",
-                min(x["fmean_over_lower"] for x in w),
-                None,
-                "-",
-                "smallest mean force / lower limit where cutting",
-            )
-        )
-        rep.rows.append(
-            Row(
-                "free.max_pattern_over_limit",
-                max(x["pattern_over_limit"] for x in w),
-                None,
-                "-",
-                "largest d / breakage threshold",
-            )
-        )
-        hw = [h for r in free for h in r["hourly"]]
-        if hw:
-            rep.rows.append(
-                Row(
-                    "free.wear_max",
-                    max(h["wear_max"] for h in hw),
-                    None,
-                    "-",
-                    "largest edge-coefficient growth reached",
-                )
-            )
-            rep.rows.append(
-                Row(
-                    "free.tracked_gain_max",
-                    max(h["gain_max"] for h in hw),
-                    None,
-                    "-",
-                    "largest tracked force ratio moving the limits",
-                )
-            )
-        for r in (r for r in free if r["hours"] >= LONG_HOURS):
-            hh = r["hourly"]
-            if len(hh) < 2:
-                continue
-            first, last = hh[0], hh[-1]
-            for key, what in (
-                ("fmean_over_lower", "smallest mean force / lower limit"),
-                ("f_over_extreme", "largest f / extreme limit"),
-                ("gain_max", "largest tracked force ratio"),
-            ):
-                rep.rows.append(
-                    Row(
-                        f"free.long{r['seed']}.{key}.last_hour",
-                        last[key],
-                        None,
-                        "-",
-                        f"{what} in hour {len(hh)} of a continuous run; hour 1: {first[key]:.3f}",
-                    )
-                )
+        _false_alarm_rows(rep, free)
+        _free_limit_rows(rep, free)
+        _free_long_rows(rep, free)
         rep.rows.append(
             Row(
                 "free.tool_replacements",
@@ -870,6 +650,248 @@ def build(results: list[dict[str, Any]]) -> Reproduction:
             )
         )
     return rep
+
+
+def _event_rows(rep: Reproduction, kind: str, size: str, rs: list[dict[str, Any]]) -> None:
+    """Detection, misses, alarms before the event and delays of one kind and size of event."""
+    n = len(rs)
+    k = sum(1 for r in rs if r["detected"])
+    lo, hi = clopper_pearson(k, n)
+    sv = [r["size_value"] for r in rs]
+    unit = {"breakage": "m radius", "collision": "x feed", "missing_tool": "share"}[kind]
+    cond = f"{n} events, size {min(sv):.3g}-{max(sv):.3g} {unit}; 95 % CP [{lo:.4f}, {hi:.4f}]"
+    rep.rows.append(Row(f"{kind}.{size}.detection", k / n, None, "-", cond))
+    misses = [r["seed"] for r in rs if not r["detected"]]
+    if misses:
+        rep.rows.append(
+            Row(
+                f"{kind}.{size}.misses",
+                len(misses),
+                None,
+                "events",
+                "seeds " + ", ".join(map(str, misses[:20])),
+            )
+        )
+    pre = sum(r.get("pre_alarms", 0) for r in rs)
+    rep.rows.append(
+        Row(
+            f"{kind}.{size}.alarms_before_event",
+            pre,
+            None,
+            "alarms",
+            "in the watched event parts, before the event",
+        )
+    )
+    key, target, tunit, tcond = _DELAY_TARGETS[kind]
+    d = [float(r[key]) for r in rs if r["detected"] and key in r]
+    if d:
+        med = float(np.median(d))
+        p95 = float(np.percentile(d, 95))
+        p95_hi = quantile_upper(d, 0.95)
+        rep.rows.append(Row(f"{kind}.{size}.delay_median", med, None, tunit, tcond))
+        rep.rows.append(
+            Row(
+                f"{kind}.{size}.delay_p95",
+                p95,
+                None,
+                tunit,
+                f"95 % upper bound {p95_hi:.4g} {tunit}; target {target:g}",
+            )
+        )
+    if kind == "collision":
+        dt = [float(r["delay_from_true_s"]) for r in rs if "delay_from_true_s" in r]
+        if dt:
+            rep.rows.append(
+                Row(
+                    f"collision.{size}.delay_from_true_p95",
+                    float(np.percentile(dt, 95)),
+                    None,
+                    "s",
+                    "from the true force crossing the limit",
+                )
+            )
+    if size == "clear":
+        rep.checks.append(
+            Check(
+                f"{kind}.clear.detection_lower_95 >= 0.99",
+                lo >= TARGET_DETECTION,
+                lo,
+                TARGET_DETECTION,
+            )
+        )
+        if d:
+            rep.checks.append(
+                Check(
+                    f"{kind}.clear.delay_median <= {target:g} {tunit}",
+                    med <= target,
+                    med,
+                    target,
+                )
+            )
+            rep.checks.append(
+                Check(
+                    f"{kind}.clear.delay_p95_upper_95 <= {target:g} {tunit}",
+                    p95_hi <= target,
+                    p95_hi,
+                    target,
+                )
+            )
+
+
+def _canceller_rows(rep: Reproduction, esc: list[dict[str, Any]]) -> None:
+    """Tooth breakages with the ESC adapting: detection, delay and the ESC held until the alarm."""
+    n = len(esc)
+    k = sum(1 for r in esc if r["detected"])
+    lo, hi = clopper_pearson(k, n)
+    fl = {f: [r for r in esc if r["flutes"] == f] for f in (2, 3, 4)}
+    per = ", ".join(f"{f} flutes {sum(r['detected'] for r in v)}/{len(v)}" for f, v in fl.items())
+    rep.rows.append(
+        Row(
+            "breakage.canceller.detection",
+            k / n,
+            None,
+            "-",
+            f"{n} tooth breakages with the ESC adapting; 95 % CP [{lo:.4f}, {hi:.4f}]; {per}",
+        )
+    )
+    d = [float(r["delay_revs"]) for r in esc if r["detected"]]
+    if d:
+        rep.rows.append(
+            Row(
+                "breakage.canceller.delay_median",
+                float(np.median(d)),
+                None,
+                "rev",
+                "from the event's first sample",
+            )
+        )
+    between = [int(r["esc_updates_between"]) for r in esc if r["detected"]]
+    rep.rows.append(
+        Row(
+            "breakage.canceller.esc_updates_before_alarm",
+            max(between, default=0),
+            None,
+            "updates",
+            "largest number of ESC updates between a breakage and its alarm (held while suspected)",
+        )
+    )
+    rep.rows.append(
+        Row(
+            "breakage.canceller.pre_alarms",
+            sum(r["pre_alarms"] for r in esc),
+            None,
+            "alarms",
+            "in the event parts before the breakage",
+        )
+    )
+    rep.checks.append(
+        Check(
+            "breakage.canceller.esc_held_until_alarm",
+            max(between, default=0) == 0,
+            max(between, default=0),
+            0,
+        )
+    )
+
+
+def _false_alarm_rows(rep: Reproduction, free: list[dict[str, Any]]) -> None:
+    """False alarms per hour of each detector over the event-free hours."""
+    hours = float(sum(r["watched_h"] for r in free))
+    for det in ("breakage", "collision", "missing_tool"):
+        k = int(sum(r["alarms"][det] for r in free))
+        lo, hi = poisson_rate(k, hours)
+        rep.rows.append(
+            Row(
+                f"false_alarms.{det}",
+                k / hours,
+                None,
+                "per hour",
+                f"{k} in {hours:.1f} h event-free; 95 % [{lo:.4f}, {hi:.4f}]",
+            )
+        )
+        rep.checks.append(
+            Check(
+                f"false_alarms.{det}.upper_95 <= 0.1 per hour",
+                hi <= TARGET_FALSE_PER_HOUR,
+                hi,
+                TARGET_FALSE_PER_HOUR,
+            )
+        )
+
+
+def _free_limit_rows(rep: Reproduction, free: list[dict[str, Any]]) -> None:
+    """How close the event-free hours came to the limits, and the wear and gain reached."""
+    w = [r["worst"] for r in free]
+    rep.rows.append(
+        Row(
+            "free.max_force_over_extreme",
+            max(x["f_over_extreme"] for x in w),
+            None,
+            "-",
+            "largest f / extreme limit, all event-free hours",
+        )
+    )
+    rep.rows.append(
+        Row(
+            "free.min_mean_over_lower",
+            min(x["fmean_over_lower"] for x in w),
+            None,
+            "-",
+            "smallest mean force / lower limit where cutting",
+        )
+    )
+    rep.rows.append(
+        Row(
+            "free.max_pattern_over_limit",
+            max(x["pattern_over_limit"] for x in w),
+            None,
+            "-",
+            "largest d / breakage threshold",
+        )
+    )
+    hw = [h for r in free for h in r["hourly"]]
+    if hw:
+        rep.rows.append(
+            Row(
+                "free.wear_max",
+                max(h["wear_max"] for h in hw),
+                None,
+                "-",
+                "largest edge-coefficient growth reached",
+            )
+        )
+        rep.rows.append(
+            Row(
+                "free.tracked_gain_max",
+                max(h["gain_max"] for h in hw),
+                None,
+                "-",
+                "largest tracked force ratio moving the limits",
+            )
+        )
+
+
+def _free_long_rows(rep: Reproduction, free: list[dict[str, Any]]) -> None:
+    """The last hour of each long continuous event-free run against its first."""
+    for r in (r for r in free if r["hours"] >= LONG_HOURS):
+        hh = r["hourly"]
+        if len(hh) < 2:
+            continue
+        first, last = hh[0], hh[-1]
+        for key, what in (
+            ("fmean_over_lower", "smallest mean force / lower limit"),
+            ("f_over_extreme", "largest f / extreme limit"),
+            ("gain_max", "largest tracked force ratio"),
+        ):
+            rep.rows.append(
+                Row(
+                    f"free.long{r['seed']}.{key}.last_hour",
+                    last[key],
+                    None,
+                    "-",
+                    f"{what} in hour {len(hh)} of a continuous run; hour 1: {first[key]:.3f}",
+                )
+            )
 
 
 def _plot(results: list[dict[str, Any]], plot_dir: Path) -> str:
