@@ -11,8 +11,6 @@ from __future__ import annotations
 import ast
 from pathlib import Path
 
-import pytest
-
 TESTS = Path(__file__).resolve().parent
 #: test folder -> module prefixes its tests must not import
 FORBIDDEN = {
@@ -43,12 +41,6 @@ def wrong_way(folder: str, banned: tuple[str, ...]) -> list[str]:
     return found
 
 
-# a test added by the monitoring work as this check landed; the lead makes it strict
-@pytest.mark.xfail(
-    strict=False,
-    reason="tests/estimators/test_process_monitor.py:20 imports server.pipeline."
-    "eccentricity_loop (merged from main as the check landed)",
-)
 def test_tests_import_only_their_layer_and_below() -> None:
     found = [w for folder, banned in FORBIDDEN.items() for w in wrong_way(folder, banned)]
     assert found == [], "\n".join(found)
