@@ -101,21 +101,31 @@ class ServeProcess:
         sock.close()  # the child binds it again (a race with other binders is unlikely)
         self.host = f"127.0.0.1:{self.port}"
         cmd = [sys.executable, "-m", "server.cli.main", "serve", "--port", str(self.port)]
+        # the child's output goes to a file, not a pipe: a pipe nobody reads fills up (64 KiB)
+        # and then blocks the server's logging, and with it the server
+        self._log = tempfile.TemporaryFile(mode="w+")
         self.proc = subprocess.Popen(
             [*cmd, "--no-viser", *args],
             env={**os.environ, **env},
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
+            stdout=self._log,
+            stderr=subprocess.STDOUT,
             text=True,
         )
         self.stderr = ""
+
+    def output(self) -> str:
+        """What the child has written so far (stdout and stderr)."""
+        self._log.flush()
+        self._log.seek(0)
+        return self._log.read()
 
     def wait_ready(self, timeout: float = 60.0) -> None:
         """Until ``GET /api/health`` answers (AssertionError when the child exits)."""
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             if self.proc.poll() is not None:
-                raise AssertionError(f"cutwatch serve exited: {self.proc.communicate()[1]}")
+                self.proc.wait()
+                raise AssertionError(f"cutwatch serve exited: {self.output()[-3000:]}")
             try:
                 with urllib.request.urlopen(f"http://{self.host}/api/health", timeout=2):
                     return
@@ -143,10 +153,11 @@ class ServeProcess:
         if self.proc.poll() is None:
             self.proc.send_signal(sig)
         try:
-            _, self.stderr = self.proc.communicate(timeout=timeout)
+            self.proc.wait(timeout=timeout)
         except subprocess.TimeoutExpired:
             self.proc.kill()
-            _, self.stderr = self.proc.communicate()
+            self.proc.wait()
+        self.stderr = self.output()
         return int(self.proc.returncode)
 
 
@@ -161,6 +172,7 @@ def serve_process(*args: str, **env: str) -> Iterator[ServeProcess]:
     finally:
         if sp.proc.poll() is None:
             sp.stop(signal.SIGKILL)
+        sp._log.close()
 
 
 @contextmanager

@@ -58,7 +58,8 @@ class InProcess:
     def __init__(self, app: FastAPI) -> None:
         self._loop = asyncio.new_event_loop()
         transport = httpx.ASGITransport(app=app)
-        self._client = httpx.AsyncClient(transport=transport, base_url="http://cutwatch.test")
+        # a loopback Host: the app's Host allow-list answers only those on a loopback bind
+        self._client = httpx.AsyncClient(transport=transport, base_url="http://127.0.0.1")
 
     def request(self, method: str, url: str, **kw: Any) -> httpx.Response:
         return self._loop.run_until_complete(self._client.request(method, url, **kw))
