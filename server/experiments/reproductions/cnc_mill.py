@@ -7,13 +7,15 @@ current [A], a text label of the machining phase. Every ``experiment_*.csv`` fou
 is run, X and Y axes, each as ``cutwatch residual`` runs it:
 
 * the rows used: the rows that do not reflect the machine are left out: the machine idle
-  at its home position (spindle stopped, X, Y, Z at 198, 158, 119 mm), interleaved in
-  1-s blocks between machining blocks in five of the six files (:data:`IDLE`), and rows
+  at its home position (spindle stopped, every axis at the end of its travel in that
+  file; on the given files X, Y, Z at 198, 158, 119 mm), interleaved in 1-s blocks
+  between machining blocks in five of the six files (:func:`idle_rule`), and rows
   that repeat the previous row in every drive column (:data:`REPEATS`);
 * the controller's velocity and acceleration columns, not a difference of the position
   (exported to 3 significant digits: 1 mm at 198 mm);
 * the cutting load on the rows where the tool is in the part (spindle running, Z below
-  the top of the wax block, :data:`CUTTING`), not the phase label: in five of the six
+  the middle of the heights the running tool visits, :func:`cutting_rule`), not the phase
+  label: in five of the six
   files the labels are in time order but the drive rows are not (1-s blocks out of
   order: positions jump where the velocities cannot take them), so the labels disagree
   with the drive state (measured per file: ``label_disagrees``);
@@ -48,14 +50,40 @@ SOURCE = (
 AXES: tuple[str, ...] = ("X", "Y")
 #: the export has no time column: one row per 100 ms; current in A, positions in mm
 META: dict[str, Any] = {"sample_time": 0.1, "units": {"effort": "A", "position": "m"}}
-#: the machine idle at home (spindle stopped, every axis at its home position)
-IDLE = (
-    "S1_ActualVelocity<1 & X1_ActualPosition==198 & Y1_ActualPosition==158 & Z1_ActualPosition==119"
-)
 #: a stale copy of the previous row in every drive column
 REPEATS = "X1_*,Y1_*,Z1_*,S1_*"
-#: the tool in the part: spindle running, Z below the top of the wax block (30 mm)
-CUTTING = "S1_ActualVelocity>1 & Z1_ActualPosition<30"
+
+
+def idle_rule(path: Path) -> str:
+    """The machine idle at home, found in the file's own drive data: spindle stopped and
+    every axis at the end of its travel in this export (a CNC's reference point; no
+    position is taken from the given files: a machine homed elsewhere gets its own)."""
+    top = _column_extremes(path, ("X1_ActualPosition", "Y1_ActualPosition", "Z1_ActualPosition"))
+    at_home = " & ".join(f"{c}=={hi:.6g}" for c, (_, hi) in top.items())
+    return f"S1_ActualVelocity<1 & {at_home}"
+
+
+def cutting_rule(path: Path) -> str:
+    """The tool in the part, from the file's own drive data: spindle running and Z below
+    the middle of the heights the running tool visits (the layers at the bottom, the
+    clearance plane at the top; no block height is taken from the given files)."""
+    ((lo, hi),) = _column_extremes(path, ("Z1_ActualPosition",), "S1_ActualVelocity", 1.0).values()
+    return f"S1_ActualVelocity>1 & Z1_ActualPosition<{0.5 * (lo + hi):.6g}"
+
+
+def _column_extremes(
+    path: Path, cols: tuple[str, ...], where: str | None = None, above: float = 0.0
+) -> dict[str, tuple[float, float]]:
+    """(min, max) of numeric columns, over the rows where ``where`` > ``above`` if given."""
+    import csv
+
+    with path.open(newline="", encoding="utf-8") as fh:
+        rows = [r for r in csv.DictReader(fh) if where is None or float(r[where]) > above]
+    if not rows:
+        raise CutwatchError(f"{path.name}: no rows with {where} > {above} to find the rule on")
+    return {c: (min(float(r[c]) for r in rows), max(float(r[c]) for r in rows)) for c in cols}
+
+
 #: the data README's R^2 of the plain fit on experiment 1, all 1,055 rows
 README_R2 = {"X": 0.64, "Y": 0.57}
 QUICK_EXPERIMENTS = ("experiment_01.csv",)
@@ -95,7 +123,8 @@ def command(path: Path, axis: str, out: str) -> list[str]:
     args = [str(path), "--meta", json.dumps(META)]
     for m in axis_maps(axis):
         args += ["--map", m]
-    return [*args, "--drop", IDLE, "--drop-repeats", REPEATS, "--load-rows", CUTTING, "--out", out]
+    idle, cutting = idle_rule(path), cutting_rule(path)
+    return [*args, "--drop", idle, "--drop-repeats", REPEATS, "--load-rows", cutting, "--out", out]
 
 
 def order_facts(path: Path) -> dict[str, float]:
@@ -105,8 +134,8 @@ def order_facts(path: Path) -> dict[str, float]:
     from server.records.row_select import RowSelection
 
     sel = RowSelection.from_options(
-        drop=[IDLE],
-        phases={"cutting": CUTTING, "layer": "Machining_Process~^Layer"},
+        drop=[idle_rule(path)],
+        phases={"cutting": cutting_rule(path), "layer": "Machining_Process~^Layer"},
     )
     log = load_log(path, meta=META, maps=axis_maps("X"), selection=sel, current_ok=True)
     q, v = log["q_m"] * 1000.0, log["qd_m"] * 1000.0
@@ -165,7 +194,12 @@ def run(
         facts = order_facts(path)
         for axis in AXES:
             r = analyse_cnc_axis(
-                path, META, axis_maps(axis), drop=[IDLE], drop_repeats=REPEATS, load=CUTTING
+                path,
+                META,
+                axis_maps(axis),
+                drop=[idle_rule(path)],
+                drop_repeats=REPEATS,
+                load=cutting_rule(path),
             )
             r.update(exp=_exp_name(path), axis=axis, facts=facts)
             r["r2_all_raw"] = baseline_r2(path, axis)
