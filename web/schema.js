@@ -81,12 +81,47 @@ export const SCHEMA = {
     "floor",
     "mean_of"
   ],
+  "event": [
+    "type",
+    "event"
+  ],
+  "event_record": [
+    "id",
+    "kind",
+    "action",
+    "t",
+    "tool",
+    "program",
+    "line",
+    "part",
+    "value",
+    "limit",
+    "unit",
+    "message",
+    "machine",
+    "acked",
+    "acked_by",
+    "acked_wall"
+  ],
+  "status": [
+    "state",
+    "tool",
+    "program",
+    "line",
+    "part",
+    "wear_share",
+    "life_left_min",
+    "unacked"
+  ],
   "versions": {
     "hello": 1,
     "channel": 1,
     "data": 1,
     "health": 1,
-    "accuracy": 1
+    "accuracy": 1,
+    "event": 1,
+    "event_record": 1,
+    "status": 1
   },
   "version": VERSION,
   "fast_groups": FAST_GROUPS,

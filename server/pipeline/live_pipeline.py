@@ -102,6 +102,7 @@ from server.pipeline.sources import (
 from server.pipeline.stage_run import StageRun
 from server.pipeline.wear_passes import VB_LIMIT, ToolWearPasses
 from server.pipeline.workpiece import Workpiece
+from server.records.monitor_events import EventOutbox, MonitorEvent
 
 __all__ = [
     "BASE_RPM",
@@ -147,6 +148,8 @@ class LivePipeline:
         self._plant_cfg = plant
         self._force0: CuttingForce = plant.config.force
         self.source = source or SimulatorSource(plant.config, seed=seed)
+        #: events raised and not yet taken (:meth:`take_events`); kept over a reset
+        self.events = EventOutbox()
         self.reset()
 
     @property
@@ -508,6 +511,30 @@ class LivePipeline:
             self.bank.reset()
         if self.tool is not None:  # a wear pass under way spans the gap
             self.tool.interrupt()
+
+    def take_events(self) -> list[MonitorEvent]:
+        """The monitor's events raised since the last call, oldest first
+        (:mod:`server.records.monitor_events`)."""
+        return self.events.take()
+
+    def monitor_status(self) -> dict[str, object]:
+        """What an operator reads from across the shop: the monitor's ``state``
+        (``off`` without a process monitor, ``teaching``, ``watching``, ``alarm``), the
+        tool in the spindle and its flank wear as a share of the limit, the life left
+        [min] (NaN: not known), and the CNC's program, line and part (empty / 0 / -1:
+        not known)."""
+        w = self._wear_values()
+        share = w["vb_est"] / w["vb_limit"] if math.isfinite(w["vb_est"]) else math.nan
+        return {
+            "state": "off",
+            "tool": 0,
+            "program": "",
+            "line": 0,
+            "part": -1,
+            "wear_share": share,
+            "life_left_min": w["life_left"],
+            "unacked": 0,
+        }
 
     @property
     def latest(self) -> dict[str, float]:

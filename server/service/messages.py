@@ -116,6 +116,52 @@ class Data(Versioned):
     accuracy: Accuracy
 
 
+class Event(Versioned):
+    """One monitor event (:class:`server.records.monitor_events.MonitorEvent`) as the stream,
+    the snapshot and the history's REST carry it, with its acknowledgement."""
+
+    id: str
+    kind: Literal["breakage", "collision", "missing_tool", "wear_limit", "life_short"]
+    action: Literal["feed_hold", "alarm", "notice"]
+    t: float = Field(description="simulated time of the sample that raised it [s]")
+    tool: int = Field(description="tool number (0: not known)")
+    program: str = Field(description="program name ('': not known)")
+    line: int = Field(description="G-code line of the block (0: not known)")
+    part: int = Field(description="part counter (-1: not known)")
+    value: float | None = Field(description="the detector's statistic at the alarm")
+    limit: float | None = Field(description="the limit it crossed")
+    unit: str
+    message: str
+    machine: str
+    acked: bool = Field(default=False, description="acknowledged by an operator")
+    acked_by: str | None = Field(default=None, description="who acknowledged it")
+    acked_wall: float | None = Field(default=None, description="when [unix s]")
+
+
+class EventMessage(Versioned):
+    """Sent to every client when the monitor raises an event, and again when it is
+    acknowledged (same ``id``, ``acked`` true)."""
+
+    model_config = ConfigDict(extra="forbid")
+    type: Literal["event"] = "event"
+    event: Event
+
+
+class MonitorStatus(Versioned):
+    """The status strip: what an operator reads from across the shop."""
+
+    state: Literal["off", "teaching", "watching", "alarm"] = Field(
+        description="off: no process monitor; alarm: an unacknowledged alarm or feed hold"
+    )
+    tool: int = Field(description="tool in the spindle (0: not known)")
+    program: str
+    line: int
+    part: int
+    wear_share: float | None = Field(description="estimated flank wear / its limit")
+    life_left_min: float | None = Field(description="remaining tool life [min]")
+    unacked: int = Field(description="events waiting for an acknowledgement")
+
+
 #: every message shape of the stream, by the name ``SCHEMA`` lists its fields under
 MESSAGES: dict[str, type[Versioned]] = {
     "hello": Hello,
@@ -123,6 +169,9 @@ MESSAGES: dict[str, type[Versioned]] = {
     "data": Data,
     "health": LoopHealth,
     "accuracy": Accuracy,
+    "event": EventMessage,
+    "event_record": Event,
+    "status": MonitorStatus,
 }
 
 

@@ -1,0 +1,153 @@
+"""The monitor's events as one record: the same shape on the stream, the broker and in the history.
+
+An event is what a detector of the process monitor (:mod:`estimators.process_monitor`)
+or the tool-life monitor raised, with the CNC's identities of the block it happened in
+(tool, program, G-code line, part) and what the detector saw (its statistic's value and
+the limit it crossed). Every consumer takes it from here:
+
+- the live pipeline collects them in an :class:`EventOutbox` (``LivePipeline.take_events``);
+- the live loop sends each on ``/ws`` and keeps the latest for ``/api/snapshot``;
+- the broker carries them on ``cutwatch/<machine>/events`` (QoS 1) as
+  :meth:`MonitorEvent.to_wire` (``schema`` ``cutwatch.event``, ``version`` :data:`VERSION`);
+- the history keeps them (with their acknowledgements) in the service's database.
+
+The truth of a simulated event (its first sample, its size) is never part of an event:
+the detectors do not know it. A reproduction joins the two by time.
+"""
+
+from __future__ import annotations
+
+import math
+import uuid
+from collections import deque
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+#: the wire schema's name and version (``cutwatch/<machine>/events``)
+SCHEMA = "cutwatch.event"
+VERSION = 1
+
+#: what raised an event
+KINDS = ("breakage", "collision", "missing_tool", "wear_limit", "life_short")
+#: what the monitor asks for: ``feed_hold`` (a command to the edge device, which the CNC
+#: carries out), ``alarm`` (an operator must look), ``notice`` (recorded, no alarm)
+ACTIONS = ("feed_hold", "alarm", "notice")
+#: the action of each kind unless the service's settings say otherwise
+DEFAULT_ACTIONS: dict[str, str] = {
+    "breakage": "feed_hold",
+    "collision": "feed_hold",
+    "missing_tool": "feed_hold",
+    "wear_limit": "alarm",
+    "life_short": "notice",
+}
+
+
+def new_id() -> str:
+    """A unique event id (32 hex digits), unique across restarts and machines."""
+    return uuid.uuid4().hex
+
+
+@dataclass(frozen=True)
+class MonitorEvent:
+    """One event (see the module docstring).
+
+    Attributes
+    ----------
+    id : str
+        Unique id (:func:`new_id`).
+    kind : str
+        One of :data:`KINDS`.
+    action : str
+        One of :data:`ACTIONS`.
+    t : float
+        Simulated (source) time of the sample that raised it [s].
+    tool, program, line, part
+        The CNC's identities of the block: tool number (0: unknown), program name ("":
+        unknown), G-code line (0: unknown), part counter (-1: unknown).
+    value, limit : float
+        The detector's statistic at the alarm and the limit it crossed (NaN: none).
+    unit : str
+        Their unit.
+    message : str
+        One plain sentence for an operator.
+    machine : str
+        The machine's name ("" inside one service; the broker's topic names it).
+    """
+
+    kind: str
+    action: str
+    t: float
+    tool: int = 0
+    program: str = ""
+    line: int = 0
+    part: int = -1
+    value: float = math.nan
+    limit: float = math.nan
+    unit: str = ""
+    message: str = ""
+    machine: str = ""
+    id: str = field(default_factory=new_id)
+
+    def __post_init__(self) -> None:
+        if self.kind not in KINDS:
+            raise ValueError(f"kind: expected one of {', '.join(KINDS)}, got {self.kind!r}")
+        if self.action not in ACTIONS:
+            raise ValueError(f"action: expected one of {', '.join(ACTIONS)}, got {self.action!r}")
+        if not math.isfinite(self.t):
+            raise ValueError(f"t: expected a finite time [s], got {self.t!r}")
+
+    def as_dict(self) -> dict[str, Any]:
+        """A JSON-safe dict (NaN -> None)."""
+        d = asdict(self)
+        for k in ("value", "limit"):
+            if not math.isfinite(d[k]):
+                d[k] = None
+        return d
+
+    def to_wire(self) -> dict[str, Any]:
+        """The broker's message: :meth:`as_dict` with ``schema`` and ``version``."""
+        return {"schema": SCHEMA, "version": VERSION, **self.as_dict()}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> MonitorEvent:
+        """The inverse of :meth:`as_dict` / :meth:`to_wire` (unknown keys refused by name)."""
+        d = dict(d)
+        schema = d.pop("schema", SCHEMA)
+        version = d.pop("version", VERSION)
+        if schema != SCHEMA:
+            raise ValueError(f"schema: expected {SCHEMA!r}, got {schema!r}")
+        if not isinstance(version, int) or version > VERSION:
+            raise ValueError(f"version: expected an integer <= {VERSION}, got {version!r}")
+        known = set(cls.__dataclass_fields__)
+        extra = sorted(set(d) - known)
+        if extra:
+            raise ValueError(
+                f"{extra[0]}: not a field of an event (fields: {', '.join(sorted(known))})"
+            )
+        for k in ("value", "limit"):
+            if d.get(k) is None:
+                d[k] = math.nan
+        return cls(**d)
+
+
+class EventOutbox:
+    """Events raised but not yet taken by the loop; bounded (the oldest are dropped and
+    counted, never silently: :attr:`dropped`)."""
+
+    def __init__(self, maxlen: int = 1000) -> None:
+        self._q: deque[MonitorEvent] = deque(maxlen=maxlen)
+        self.dropped = 0
+
+    def put(self, ev: MonitorEvent) -> None:
+        if len(self._q) == self._q.maxlen:
+            self.dropped += 1
+        self._q.append(ev)
+
+    def take(self) -> list[MonitorEvent]:
+        """Every waiting event, oldest first; the outbox is empty afterwards."""
+        out = list(self._q)
+        self._q.clear()
+        return out
+
+    def __len__(self) -> int:
+        return len(self._q)
