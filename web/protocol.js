@@ -15,10 +15,16 @@ export function checkMessage(text) {
   const msg = JSON.parse(text);
   if (msg === null || typeof msg !== "object") throw new Error("message is not an object");
   const kind = msg.type;
-  if (kind !== "hello" && kind !== "data") throw new Error(`unknown message type ${kind}`);
+  if (kind !== "hello" && kind !== "data" && kind !== "event") {
+    throw new Error(`unknown message type ${kind}`);
+  }
   const miss = missing(msg, SCHEMA[kind]);
   if (miss.length) throw new Error(`${kind} message lacks ${miss.join(", ")}`);
-  if (kind === "hello") {
+  if (kind === "event") {
+    // a monitor event, when raised and again when acknowledged (same id)
+    const m = missing(msg.event, SCHEMA.event_record);
+    if (m.length) throw new Error(`event lacks ${m.join(", ")}`);
+  } else if (kind === "hello") {
     if (msg.version !== VERSION) {
       throw new Error(`protocol version ${msg.version}, this page speaks ${VERSION}`);
     }
@@ -32,6 +38,11 @@ export function checkMessage(text) {
     if (m.length) throw new Error(`health lacks ${m.join(", ")}`);
     const a = missing(msg.accuracy, SCHEMA.accuracy);
     if (a.length) throw new Error(`accuracy lacks ${a.join(", ")}`);
+    // the monitor's status (the strip): required once the stream's Data carries it
+    if (msg.status !== undefined && msg.status !== null) {
+      const st = missing(msg.status, SCHEMA.status);
+      if (st.length) throw new Error(`status lacks ${st.join(", ")}`);
+    }
     if (msg.accuracy.mode !== "truth" && msg.accuracy.mode !== "agreement") {
       throw new Error(`accuracy mode ${msg.accuracy.mode}`);
     }
