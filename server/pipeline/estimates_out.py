@@ -14,6 +14,9 @@ code here:
 ``wear``        ``VB_mm``, ``VB_limit_mm``, ``remaining_life_min``;
 ``alarms``      plain sentences: wear near its limit, a short remaining life, a gap in
                 the drive feed;
+``monitor``     the process monitor's ``state`` (teaching, watching, alarm), ``tool`` and
+                ``line``, from its channels ``mon_state``, ``mon_tool``, ``mon_line``
+                (only when the pipeline streams them; the fleet page shows the state);
 ``health``      the loop's health, and the drive feed's counters for a broker source.
 
 Ground truth (``*_true`` channels, the simulator's) is not published: estimates only.
@@ -37,6 +40,8 @@ from server.records.drive_wire import encode_estimates
 WEAR_ALARM_SHARE = 0.9
 LIFE_ALARM_MIN = 2.0
 GROUPS = {"force": "force", "J_L": "params", "B_L": "params", "F_CL": "params"}
+#: the process monitor's ``mon_state`` channel's values
+MONITOR_STATES = {0: "teaching", 1: "watching", 2: "alarm"}
 
 
 class EstimatesPublisher:
@@ -161,6 +166,9 @@ class EstimatesPublisher:
         }
         if feed_health:
             body["feed"] = dict(feed_health)
+        monitor = _monitor(latest)
+        if monitor is not None:
+            body["monitor"] = monitor
         return body
 
     def due(self, now: float) -> bool:
@@ -187,3 +195,16 @@ class EstimatesPublisher:
             "published": self.published,
             "rate_hz": 1.0 / self.period,
         }
+
+
+def _monitor(latest: Mapping[str, float]) -> dict[str, Any] | None:
+    """The process monitor's state, tool and line from its latest channel values."""
+    st = latest.get("mon_state")
+    if st is None or not math.isfinite(st):
+        return None
+    tool, line = latest.get("mon_tool", math.nan), latest.get("mon_line", math.nan)
+    return {
+        "state": MONITOR_STATES.get(round(st), "off"),
+        "tool": round(tool) if math.isfinite(tool) else 0,
+        "line": round(line) if math.isfinite(line) else 0,
+    }
