@@ -4,7 +4,7 @@
 
 // the monitor's states as the strip shows them (big, across the shop)
 export const STATE_WORDS = {
-  off: "MONITOR OFF", teaching: "TEACHING", watching: "WATCHING", alarm: "ALARM",
+  off: "OFF", teaching: "TEACHING", watching: "WATCHING", alarm: "ALARM",
 };
 // event kinds in words
 export const KIND_WORDS = {

@@ -68,7 +68,7 @@ def test_the_strip_reads_the_status() -> None:
     assert a["label"] == "ALARM" and a["message"] == "tool breakage: breakage seen"
     assert a["wearBar"] == 1 and a["wear"] == "130 %" and a["life"] == "–" and a["tool"] == "–"
     assert a["unackedText"] == "2 to acknowledge"
-    assert off["state"] == "off" and off["label"] == "MONITOR OFF"
+    assert off["state"] == "off" and off["label"] == "OFF"
 
 
 def test_the_timeline_is_newest_first_and_an_acknowledgement_sticks() -> None:
