@@ -34,8 +34,7 @@ TEACH_TIMEOUT_S = 240.0
 
 #: in the page: the marker pixels (exactly MARKER_RGB) in the canvas column of each marker
 #: the chart says it drew, read in one go with the attributes (no redraw in between)
-MARKER_PIXELS = (
-    """(sel) => {
+MARKER_PIXELS = """([sel, rgb]) => {
   const el = document.querySelector(sel);
   const c = el.querySelector('canvas');
   const xs = (el.dataset.markerPx || '').split(',').filter(Boolean).map(Number);
@@ -45,14 +44,12 @@ MARKER_PIXELS = (
     const d = ctx.getImageData(x, 0, 1, c.height).data;
     let n = 0;
     for (let i = 0; i < d.length; i += 4) {
-      if (d[i] === %d && d[i + 1] === %d && d[i + 2] === %d) n++;
+      if (d[i] === rgb[0] && d[i + 1] === rgb[1] && d[i + 2] === rgb[2]) n++;
     }
     return n;
   });
   return { ids, counts, height: c.height };
 }"""
-    % MARKER_RGB
-)
 
 
 def strip_state(page: Any) -> str:
@@ -117,7 +114,7 @@ def test_a_breakage_on_the_dashboard_and_the_fleet_page(tmp_path: Path) -> None:
             wait_for(
                 lambda: ev_id in (page.get_attribute("#chart-monitor", "data-marker-ids") or "")
             )
-            drawn = page.evaluate(MARKER_PIXELS, "#chart-monitor")
+            drawn = page.evaluate(MARKER_PIXELS, ["#chart-monitor", list(MARKER_RGB)])
             i = drawn["ids"].index(ev_id)
             assert drawn["counts"][i] > 0.5 * drawn["height"], drawn
             page.screenshot(path=str(out / "monitoring-alarm.png"))

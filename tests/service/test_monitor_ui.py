@@ -131,7 +131,8 @@ def test_protocol_accepts_event_messages_and_names_what_is_missing() -> None:
         "import {checkMessage} from './protocol.js';"
         "import {readFileSync} from 'node:fs';"
         "const out = JSON.parse(readFileSync(0, 'utf8')).map((m) => {"
-        " try { return checkMessage(JSON.stringify(m)).event.kind; } catch (e) { return e.message; } });"
+        " try { return checkMessage(JSON.stringify(m)).event.kind; }"
+        " catch (e) { return e.message; } });"
         "console.log(JSON.stringify(out));"
     )
     good = EventMessage(event=Event.model_validate(event("missing_tool", 1.0))).model_dump()
