@@ -150,6 +150,8 @@ class LivePipeline:
         self.source = source or SimulatorSource(plant.config, seed=seed)
         #: events raised and not yet taken (:meth:`take_events`); kept over a reset
         self.events = EventOutbox()
+        #: tools taken out of the spindle, not yet taken (:meth:`take_tool_changes`)
+        self._tool_changes: list[dict[str, object]] = []
         self.reset()
 
     @property
@@ -391,10 +393,42 @@ class LivePipeline:
 
     def _new_tool(self) -> None:
         """A sharp tool at the flank-wear limit; the CNC knows a tool change: the force's
-        DC steps back to the sharp tool's."""
+        DC steps back to the sharp tool's. The worn tool's life is recorded
+        (:meth:`take_tool_changes`)."""
         assert self.tool is not None
+        self._tool_changes.append(self._tool_life_record("wear_limit"))
         self.tool.new_tool(self._knobs.number("wear_rate"))
+        self.tool.state.tool_start_t = self.t
         self.run.note_disturbance(self.t)
+
+    def _tool_life_record(self, cause: str) -> dict[str, object]:
+        """The life of the tool in the spindle, ending now: its tool number (the CNC's,
+        when the source gives one; else the wearing tool's place in the sequence),
+        its index (1 for the first tool of the run), the source times it was mounted
+        and changed, the estimated flank wear at the change (what the service knows;
+        None before the first estimate), the simulator's true wear (None without
+        truth) and the cause."""
+        assert self.tool is not None
+        st = self.tool.state
+        index = st.tools_changed + 1
+        number = self.monitor_status().get("tool")
+        vb_est = st.vb_est if math.isfinite(st.vb_est) else None
+        return {
+            "tool": number if isinstance(number, int) and number > 0 else index,
+            "index": index,
+            "start_t": st.tool_start_t,
+            "end_t": self.t,
+            "wear_at_change_mm": vb_est,
+            "wear_true_mm": st.vb_true if self.source.has_truth else None,
+            "cause": cause,
+        }
+
+    def take_tool_changes(self) -> list[dict[str, object]]:
+        """The tools taken out of the spindle since the last call, oldest first: ``tool``,
+        ``index``, ``start_t``, ``end_t`` [s], ``wear_at_change_mm``, ``wear_true_mm``,
+        ``cause`` (``wear_limit``); the history records them."""
+        out, self._tool_changes = self._tool_changes, []
+        return out
 
     @property
     def tools_changed(self) -> int:

@@ -40,6 +40,7 @@ from server.pipeline.estimates_out import EstimatesPublisher
 from server.pipeline.knobs import Knob
 from server.pipeline.live_pipeline import LivePipeline
 from server.pipeline.mqtt_source import MqttSource
+from server.records.history import HistoryStore
 from server.service import protocol
 from server.service.messages import LoopHealth
 from server.service.settings import MAX_SPEED, Settings
@@ -215,6 +216,8 @@ class LoopParts:
     pipeline: LivePipeline
     feed: DriveFeed | None = None
     estimates_out: EstimatesPublisher | None = None
+    #: the kept history (events, acknowledgements, tool lives); None: none kept
+    history: HistoryStore | None = None
 
 
 def loop_parts(settings: Settings) -> LoopParts:
@@ -237,7 +240,16 @@ def loop_parts(settings: Settings) -> LoopParts:
         pipe = LivePipeline(seed=settings.seed, source=MqttSource(feed))
     else:
         pipe = LivePipeline(settings.scenario, seed=settings.seed)
-    return LoopParts(pipe, feed, out)
+    return LoopParts(pipe, feed, out, history_store(settings))
+
+
+def history_store(settings: Settings) -> HistoryStore | None:
+    """The service's history (``history_url``, else SQLite in the data directory), migrated
+    to the newest schema; None when ``history_url`` is ``none``."""
+    url = settings.history_url
+    if url is not None and url.strip().lower() == "none":
+        return None
+    return HistoryStore.for_data_dir(settings.data_dir, url, machine=settings.mqtt_machine)
 
 
 class LiveLoop:
@@ -259,6 +271,9 @@ class LiveLoop:
     checkpoint
         The pipeline's checkpoint file (:func:`checkpoint_path`): resumed from at start,
         written every ``settings.checkpoint_s`` wall seconds and at stop. None: none.
+    history
+        The kept history (:func:`loop_parts`): the tools the pipeline changes are written
+        to it after their block. None: nothing is kept.
     """
 
     def __init__(
@@ -270,8 +285,12 @@ class LiveLoop:
         feed: DriveFeed | None = None,
         estimates_out: EstimatesPublisher | None = None,
         checkpoint: Path | None = None,
+        history: HistoryStore | None = None,
     ) -> None:
         self.settings = settings
+        #: the kept history (:mod:`server.records.history`); None: nothing is kept
+        self.history = history
+        self._lives: list[dict[str, Any]] = []  # tool lives not yet in the history
         self.hub = hub
         #: a real machine's drive data from the broker (started and stopped with the loop)
         self.feed = feed
@@ -380,6 +399,8 @@ class LiveLoop:
             self._thread.join(timeout)
             if not self._thread.is_alive():
                 self.save_checkpoint()  # the state at shutdown
+                if self._lives:
+                    self._keep_tool_lives()
         rec = self.end_recording("the service stopped")
         if rec is not None:
             rec.wait(timeout)  # every block handed over is written before exit
@@ -448,6 +469,7 @@ class LiveLoop:
                     if got:
                         self._pending.append(out)
                         self.blocks += 1
+                        self._lives += self.pipeline.take_tool_changes()
                     else:  # a live feed with nothing yet: time stands; wait, re-anchor
                         self._anchor()
                 if not got:
@@ -457,6 +479,8 @@ class LiveLoop:
                         last_frame = time.monotonic()
                         self._publish()
                     continue
+                if self._lives:
+                    self._keep_tool_lives()
                 if self.scene is not None:
                     p = self.pipeline
                     self.scene.update(p.latest, p.workpiece_removed, p.t)
@@ -488,6 +512,19 @@ class LiveLoop:
         except Exception as exc:  # keep the service up and say why the loop stopped
             self.error = f"{type(exc).__name__}: {exc}"
             raise
+
+    def _keep_tool_lives(self) -> None:
+        """Write the tools changed to the history (committed before the loop goes on; a
+        failed write is kept and tried again after the next block)."""
+        if self.history is None:
+            self._lives.clear()
+            return
+        try:
+            self.history.add_tool_changes(self._lives)
+        except Exception as exc:  # a full disk must not stop the loop; say so, retry
+            log.warning("cutwatch: tool lives not kept yet (retried): %s", exc)
+            return
+        self._lives.clear()
 
     def _estimates(self, out: dict[str, np.ndarray]) -> None:
         pub = self.estimates_out
