@@ -6,8 +6,13 @@ import { FAST_GROUPS, INTERVALS, SCHEMA, VERSION } from "./schema.js";
 
 export { FAST_GROUPS, INTERVALS, SCHEMA, VERSION };
 
-function missing(obj, fields) {
-  return fields.filter((f) => !(f in obj));
+// fields a message may lack (the model's default: null): a stream without the process
+// monitor sends no status
+const OPTIONAL = { data: new Set(["status"]) };
+
+function missing(obj, fields, kind = "") {
+  const opt = OPTIONAL[kind] || new Set();
+  return fields.filter((f) => !(f in obj) && !opt.has(f));
 }
 
 // Parse one text message; returns the object or throws an Error naming what is wrong.
@@ -18,7 +23,7 @@ export function checkMessage(text) {
   if (kind !== "hello" && kind !== "data" && kind !== "event") {
     throw new Error(`unknown message type ${kind}`);
   }
-  const miss = missing(msg, SCHEMA[kind]);
+  const miss = missing(msg, SCHEMA[kind], kind);
   if (miss.length) throw new Error(`${kind} message lacks ${miss.join(", ")}`);
   if (kind === "event") {
     // a monitor event, when raised and again when acknowledged (same id)
