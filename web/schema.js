@@ -59,7 +59,8 @@ export const SCHEMA = {
     "ch",
     "health",
     "knobs",
-    "accuracy"
+    "accuracy",
+    "status"
   ],
   "health": [
     "sim_t",

@@ -31,11 +31,10 @@ from typing import Any
 import numpy as np
 
 from server.pipeline.broker import BrokerConfig, make_client, reason_text, topic
+from server.pipeline.wear_alarms import LIFE_ALARM_MIN, WEAR_ALARM_SHARE
 from server.records.drive_wire import encode_estimates
 
-#: wear alarms: the estimated flank wear at this share of its limit, remaining life below
-WEAR_ALARM_SHARE = 0.9
-LIFE_ALARM_MIN = 2.0
+__all__ = ["LIFE_ALARM_MIN", "WEAR_ALARM_SHARE", "EstimatesPublisher"]
 GROUPS = {"force": "force", "J_L": "params", "B_L": "params", "F_CL": "params"}
 
 

@@ -100,6 +100,7 @@ from server.pipeline.sources import (
     open_replay,
 )
 from server.pipeline.stage_run import StageRun
+from server.pipeline.wear_alarms import WearAlarms
 from server.pipeline.wear_passes import VB_LIMIT, ToolWearPasses
 from server.pipeline.workpiece import Workpiece
 from server.records.monitor_events import EventOutbox, MonitorEvent
@@ -152,6 +153,8 @@ class LivePipeline:
         self.events = EventOutbox()
         #: tools taken out of the spindle, not yet taken (:meth:`take_tool_changes`)
         self._tool_changes: list[dict[str, object]] = []
+        #: the tool-life monitor's alarms as events, once per tool (wear_limit, life_short)
+        self.wear_alarms = WearAlarms()
         self.reset()
 
     @property
@@ -355,7 +358,9 @@ class LivePipeline:
         if self.tool is not None:
             nominal = self._force0.offset * self._knobs.number("feed_scale")
             nominal *= self._spindle_factor(t0)
-            if self.tool.accumulate(n, bb.stage.f_adaptive, nominal, self.sample_time):
+            worn = self.tool.accumulate(n, bb.stage.f_adaptive, nominal, self.sample_time)
+            self._wear_events(float(block.meas.t[-1]))  # before a change resets the estimate
+            if worn:
                 self._new_tool()
         parts = BlockParts(
             b=bb.stage,
@@ -429,6 +434,16 @@ class LivePipeline:
         ``cause`` (``wear_limit``); the history records them."""
         out, self._tool_changes = self._tool_changes, []
         return out
+
+    def _wear_events(self, t: float) -> None:
+        """The tool-life monitor's alarms on the wear estimate (:mod:`server.pipeline.wear_alarms`)
+        into :attr:`events`, once per tool."""
+        assert self.tool is not None
+        s = self.tool.state
+        for ev in self.wear_alarms.check(
+            t, s.tools_changed, s.vb_est, VB_LIMIT, s.life_left, self.monitor_status()
+        ):
+            self.events.put(ev)
 
     @property
     def tools_changed(self) -> int:

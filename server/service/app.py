@@ -83,6 +83,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             pipeline=parts.pipeline,
             feed=parts.feed,
             estimates_out=parts.estimates_out,
+            events_out=parts.events_out,
             checkpoint=checkpoint_path(s),
             history=parts.history,
         )
@@ -210,7 +211,7 @@ _ALLOWED = {
 
 
 #: error types of the request models' own validators (server.service.schemas, settings)
-_OURS = frozenset({"speed", "scenario", "knob_value", "missing_for_action"})
+_OURS = frozenset({"speed", "scenario", "knob_value", "missing_for_action", "refused"})
 
 
 async def _validation_error(request: Request, exc: RequestValidationError) -> JSONResponse:
@@ -231,7 +232,7 @@ def _validation_item(request: Request, e: Any) -> dict[str, Any]:
     else:
         parts = [f"[{p}]" if isinstance(p, int) else f".{p}" for p in loc[1:]]
         field = str(ctx.get("field") or "".join(parts).lstrip(".") or loc[0])
-        got = None if kind == "missing" else sanitise(e.get("input"))
+        got = None if kind == "missing" else sanitise(ctx.get("got", e.get("input")))
     if kind == "literal_error":
         allowed = f"one of {ctx.get('expected', '')}"
     elif kind == "extra_forbidden":

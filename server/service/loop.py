@@ -12,6 +12,15 @@ a block finished against its due time). A lag beyond ``max_lag_s`` re-anchors th
 Frames for the WebSocket clients are built at ``frame_hz`` from the blocks since the last
 frame, decimated for display, encoded once and handed to :class:`Hub`, which keeps a
 bounded latest-value-wins queue per client. The loop never waits for a client.
+
+The monitor's events (:mod:`server.records.monitor_events`) are taken from the pipeline
+after every block, stamped with the machine's name (``mqtt_machine``) and handed on at
+once, not at the next frame: to the broker first (:mod:`server.pipeline.events_out`: the
+feed-hold command and the event), then to every client as an ``event`` message (never
+dropped, unlike frames), then to the history (``LiveLoop.history``). The loop keeps the
+latest :data:`EVENTS_KEPT` (with their acknowledgements) for ``/api/snapshot``, counts
+them for ``/metrics``, and sends a new client the unacknowledged ones right after its
+``hello``; every frame carries the monitor's status (``Data.status``).
 """
 
 from __future__ import annotations
@@ -19,6 +28,8 @@ from __future__ import annotations
 import asyncio
 import collections
 import contextlib
+import dataclasses
+import json
 import logging
 import math
 import threading
@@ -26,23 +37,26 @@ import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
 from common.errors import ParameterError
+from common.jsonsafe import json_safe
 from common.state_io import StateFormatError
 from server.errors import CutwatchError
 from server.pipeline.broker import BrokerConfig, parse_broker_url
 from server.pipeline.checkpoint import load_checkpoint, save_checkpoint
 from server.pipeline.drive_feed import DriveFeed
 from server.pipeline.estimates_out import EstimatesPublisher
+from server.pipeline.events_out import EventsPublisher
 from server.pipeline.knobs import Knob
 from server.pipeline.live_pipeline import LivePipeline
 from server.pipeline.mqtt_source import MqttSource
 from server.records.history import HistoryStore
+from server.records.monitor_events import KINDS, MonitorEvent
 from server.service import protocol
-from server.service.messages import LoopHealth
+from server.service.messages import Event, LoopHealth, MonitorStatus
 from server.service.settings import MAX_SPEED, Settings
 
 if TYPE_CHECKING:
@@ -60,6 +74,25 @@ LIVE_POLL_S = 0.01
 
 #: the service's log (uvicorn prints its warnings)
 log = logging.getLogger("uvicorn.error")
+
+#: events kept in memory for /api/snapshot (the history keeps all of them)
+EVENTS_KEPT = 200
+#: unacknowledged events the loop tracks for the status (the oldest forgotten beyond)
+UNACKED_KEPT = 10_000
+#: event messages waiting for one client (beyond: the oldest dropped and counted)
+CLIENT_EVENTS = 1000
+
+
+class EventHistory(Protocol):
+    """What the loop asks of the event history (``LiveLoop.history``)."""
+
+    def add_events(self, events: list[MonitorEvent]) -> None: ...
+
+    def acknowledge(self, event_id: str, by: str) -> dict[str, Any] | None: ...
+
+    def add_tool_changes(self, changes: list[dict[str, Any]]) -> Any: ...
+
+    def recent(self, n: int) -> list[dict[str, Any]]: ...
 
 
 def checkpoint_path(settings: Settings) -> Path | None:
@@ -92,6 +125,10 @@ class ClientQueue:
     def __init__(self, maxlen: int, loop: asyncio.AbstractEventLoop) -> None:
         self._frames: collections.deque[str] = collections.deque(maxlen=maxlen)
         self._hello: str | None = None  # a new hello (pipeline changed), never dropped
+        # event messages: not latest-value-wins, every one is sent (bounded for a client
+        # that reads nothing for a long time)
+        self._events: collections.deque[str] = collections.deque(maxlen=CLIENT_EVENTS)
+        self.events_dropped = 0
         self._lock = threading.Lock()
         self._loop = loop
         self.event = asyncio.Event()
@@ -107,6 +144,22 @@ class ClientQueue:
                 self.dropped += 1
                 self.dropped_total += 1
             self._frames.append(body)
+
+    def push_event(self, body: str) -> None:
+        """Append an ``event`` message (loop thread); sent whole, never replaced by a
+        later one (only a client that takes nothing for CLIENT_EVENTS events loses
+        the oldest, counted in ``events_dropped``)."""
+        with self._lock:
+            if len(self._events) == self._events.maxlen:
+                self.events_dropped += 1
+            self._events.append(body)
+
+    def take_events(self) -> list[str]:
+        """Remove and return the pending event messages, oldest first."""
+        with self._lock:
+            out = list(self._events)
+            self._events.clear()
+        return out
 
     def push_hello(self, hello: str) -> None:
         """A new ``hello`` (the pipeline changed): it goes out before any later frame and
@@ -182,6 +235,16 @@ class Hub:
             with contextlib.suppress(RuntimeError):  # event loop already closed
                 self._aio.call_soon_threadsafe(_wake, clients)
 
+    def publish_event(self, body: str) -> None:
+        """Hand an ``event`` message to every client and wake them; never blocks."""
+        with self._lock:
+            clients = list(self._clients)
+        for q in clients:
+            q.push_event(body)
+        if clients and self._aio is not None:
+            with contextlib.suppress(RuntimeError):
+                self._aio.call_soon_threadsafe(_wake, clients)
+
     def publish_hello(self, hello: str) -> None:
         """Hand a new ``hello`` to every client (after a scenario change or a replay)."""
         with self._lock:
@@ -216,16 +279,21 @@ class LoopParts:
     pipeline: LivePipeline
     feed: DriveFeed | None = None
     estimates_out: EstimatesPublisher | None = None
+    events_out: EventsPublisher | None = None
     #: the kept history (events, acknowledgements, tool lives); None: none kept
     history: HistoryStore | None = None
 
 
 def loop_parts(settings: Settings) -> LoopParts:
-    """The pipeline, the drive feed and the estimates publisher the settings ask for:
-    a real machine's feed from the broker (``source == "mqtt"``) or the simulated
-    scenario; the estimates out when ``mqtt_publish_hz > 0``."""
+    """The pipeline, the drive feed and the publishers the settings ask for: a real
+    machine's feed from the broker (``source == "mqtt"``) or the simulated scenario; the
+    estimates out when ``mqtt_publish_hz > 0``; the events and feed-hold commands out
+    whenever a broker is set (``mqtt_broker``)."""
     feed: DriveFeed | None = None
     out: EstimatesPublisher | None = None
+    events_out: EventsPublisher | None = None
+    if settings.mqtt_broker:
+        events_out = EventsPublisher(broker_config(settings), settings.mqtt_machine)
     if settings.source == "mqtt" or settings.mqtt_publish_hz > 0:
         cfg = broker_config(settings)
         if settings.source == "mqtt":
@@ -240,7 +308,7 @@ def loop_parts(settings: Settings) -> LoopParts:
         pipe = LivePipeline(seed=settings.seed, source=MqttSource(feed))
     else:
         pipe = LivePipeline(settings.scenario, seed=settings.seed)
-    return LoopParts(pipe, feed, out, history_store(settings))
+    return LoopParts(pipe, feed, out, events_out, history_store(settings))
 
 
 def history_store(settings: Settings) -> HistoryStore | None:
@@ -265,15 +333,16 @@ class LiveLoop:
         The service's settings and the client hub.
     pipeline
         The pipeline to run (default: the settings' simulated scenario).
-    feed, estimates_out
-        A drive feed and an estimates publisher (:func:`loop_parts`), started and
-        stopped with the loop.
+    feed, estimates_out, events_out
+        A drive feed, an estimates publisher and an events publisher
+        (:func:`loop_parts`), started and stopped with the loop.
+    history
+        Where the events and the tool lives are kept (:class:`EventHistory`, the service's
+        :class:`~server.records.history.HistoryStore` from :func:`loop_parts`; None:
+        nowhere but memory). The latest events are reloaded from it at start.
     checkpoint
         The pipeline's checkpoint file (:func:`checkpoint_path`): resumed from at start,
         written every ``settings.checkpoint_s`` wall seconds and at stop. None: none.
-    history
-        The kept history (:func:`loop_parts`): the tools the pipeline changes are written
-        to it after their block. None: nothing is kept.
     """
 
     def __init__(
@@ -284,18 +353,28 @@ class LiveLoop:
         pipeline: LivePipeline | None = None,
         feed: DriveFeed | None = None,
         estimates_out: EstimatesPublisher | None = None,
+        events_out: EventsPublisher | None = None,
+        history: EventHistory | None = None,
         checkpoint: Path | None = None,
-        history: HistoryStore | None = None,
     ) -> None:
         self.settings = settings
-        #: the kept history (:mod:`server.records.history`); None: nothing is kept
-        self.history = history
         self._lives: list[dict[str, Any]] = []  # tool lives not yet in the history
         self.hub = hub
         #: a real machine's drive data from the broker (started and stopped with the loop)
         self.feed = feed
         #: the estimates on cutwatch/<machine>/estimates (started and stopped with the loop)
         self.estimates_out = estimates_out
+        #: the events and feed-hold commands on cutwatch/<machine>/events, .../command
+        self.events_out = events_out
+        #: the event history (add_events, acknowledge), None: events kept in memory only
+        self.history = history
+        #: the machine's name, stamped on every event
+        self.machine = settings.mqtt_machine
+        self._ev_lock = threading.Lock()  # the kept events, their counts, client adds
+        self._events: collections.deque[dict[str, Any]] = collections.deque(maxlen=EVENTS_KEPT)
+        self._unacked: dict[str, str] = {}  # id -> action, oldest first
+        self.events_total: dict[str, int] = dict.fromkeys(KINDS, 0)
+        self.history_errors = 0
         self.pipeline = pipeline or LivePipeline(settings.scenario, seed=settings.seed)
         self.lock = threading.RLock()
         self._wake = threading.Event()
@@ -389,6 +468,9 @@ class LiveLoop:
             self.feed.start()
         if self.estimates_out is not None:
             self.estimates_out.start()
+        if self.events_out is not None:
+            self.events_out.start()
+        self._reload_events()
         self._thread = threading.Thread(target=self._run, name="cutwatch-loop", daemon=True)
         self._thread.start()
 
@@ -404,7 +486,7 @@ class LiveLoop:
         rec = self.end_recording("the service stopped")
         if rec is not None:
             rec.wait(timeout)  # every block handed over is written before exit
-        for part in (self.feed, self.estimates_out):
+        for part in (self.feed, self.estimates_out, self.events_out):
             if part is not None:
                 part.stop()
 
@@ -426,6 +508,7 @@ class LiveLoop:
         with self.lock:
             self.pipeline.step(self.block_n)
             self.pipeline.reset()
+            self.pipeline.take_events()  # the warm-up block is run again: not its events
             self._resume()
             self._anchor()
         last_frame = time.monotonic()
@@ -463,6 +546,7 @@ class LiveLoop:
                     if self.paused or self._stop.is_set():
                         continue
                     out = self.pipeline.step(self.block_n)
+                    events = self.pipeline.take_events()
                     got = len(out["t"]) > 0
                     if got and self.recording is not None and self.pipeline.last_block is not None:
                         self.recording.feed(self.pipeline.last_block)  # a queue put
@@ -472,6 +556,8 @@ class LiveLoop:
                         self._lives += self.pipeline.take_tool_changes()
                     else:  # a live feed with nothing yet: time stands; wait, re-anchor
                         self._anchor()
+                if events:  # at once, before anything else the block feeds
+                    self._emit_events(events)
                 if not got:
                     self._wake.wait(self.frame_period if paced else LIVE_POLL_S)
                     self._wake.clear()
@@ -544,6 +630,99 @@ class LiveLoop:
             )
             pub.publish(body, now)
 
+    # ------------------------------------------------------------------ events
+    def _emit_events(self, events: list[MonitorEvent]) -> None:
+        """Hand the events of a block on (loop thread): to the broker (the command's
+        latency first), to every client and the kept list, to the history."""
+        events = [e if e.machine else dataclasses.replace(e, machine=self.machine) for e in events]
+        if self.events_out is not None:
+            self.events_out.publish(events)
+        with self._ev_lock:  # a client added meanwhile gets each event once
+            for e in events:
+                rec = Event.model_validate(e.as_dict()).model_dump()
+                self._events.append(rec)
+                self.events_total[e.kind] = self.events_total.get(e.kind, 0) + 1
+                self._unacked[e.id] = e.action
+                while len(self._unacked) > UNACKED_KEPT:
+                    del self._unacked[next(iter(self._unacked))]
+                self.hub.publish_event(_event_body(rec))
+        if self.history is not None:
+            try:
+                self.history.add_events(events)
+            except Exception as exc:  # the loop goes on; the log and /metrics say so
+                self.history_errors += 1
+                log.warning("cutwatch: %d event(s) not kept in the history: %s", len(events), exc)
+
+    def _reload_events(self) -> None:
+        """The latest kept events from the history (after a restart): in the snapshot
+        again, sent to a new client and counted in the status while not acknowledged
+        (not counted in ``events_total``, which counts since this start, nor published
+        again)."""
+        if self.history is None:
+            return
+        try:
+            recs = self.history.recent(EVENTS_KEPT)
+        except Exception as exc:  # the service starts without them; the log says why
+            log.warning("cutwatch: the kept events were not reloaded: %s", exc)
+            return
+        with self._ev_lock:
+            for r in recs:
+                rec = Event.model_validate(r).model_dump()
+                self._events.append(rec)
+                if not rec["acked"]:
+                    self._unacked[rec["id"]] = rec["action"]
+
+    def announce_event(self, ev: dict[str, Any]) -> None:
+        """An event changed (acknowledged): its new record (an :class:`Event`) goes to
+        every client and replaces the kept copy; the status counts it as acknowledged."""
+        rec = Event.model_validate(ev).model_dump()
+        with self._ev_lock:
+            for i, old in enumerate(self._events):
+                if old["id"] == rec["id"]:
+                    self._events[i] = rec
+            if rec["acked"]:
+                self._unacked.pop(rec["id"], None)
+            self.hub.publish_event(_event_body(rec))
+
+    def add_client(self) -> tuple[ClientQueue, list[str]]:
+        """Register a client (from its coroutine): its queue, and the event messages of
+        the kept events not yet acknowledged (oldest first) to send after ``hello``.
+        An event raised meanwhile is in one of the two, never in both."""
+        with self._ev_lock:
+            q = self.hub.add()
+            backlog = [_event_body(r) for r in self._events if not r["acked"]]
+        return q, backlog
+
+    def recent_events(self) -> list[dict[str, Any]]:
+        """The kept events (at most :data:`EVENTS_KEPT`), newest first, as :class:`Event`."""
+        with self._ev_lock:
+            return [dict(r) for r in reversed(self._events)]
+
+    def unacked(self) -> tuple[int, bool]:
+        """Events not yet acknowledged, and whether one of them is an alarm or a feed hold."""
+        with self._ev_lock:
+            return len(self._unacked), any(a != "notice" for a in self._unacked.values())
+
+    def monitor_status(self) -> dict[str, Any]:
+        """The status strip (:class:`MonitorStatus`): the pipeline's monitor status with
+        the loop's view of the acknowledgements: ``unacked``, and state ``alarm`` while
+        an alarm or a feed hold is not acknowledged (whatever the monitor's own state)."""
+        with self.lock:
+            st = dict(self.pipeline.monitor_status())
+        n, alarm = self.unacked()
+        st["unacked"] = n
+        if alarm:
+            st["state"] = "alarm"
+        return MonitorStatus.model_validate(json_safe(st)).model_dump()
+
+    def events_summary(self) -> dict[str, Any]:
+        """The counts for /metrics: events by kind since the start, unacknowledged,
+        history errors."""
+        n, _ = self.unacked()
+        with self._ev_lock:
+            by_kind = dict(self.events_total)
+        return {"total": by_kind, "unacked": n, "history_errors": self.history_errors}
+
     def broker_status(self) -> dict[str, Any]:
         """The measurement source, and the broker parts when there are any."""
         src = self.pipeline.source
@@ -552,6 +731,8 @@ class LiveLoop:
             out["feed"] = src.status()
         if self.estimates_out is not None:
             out["estimates_out"] = self.estimates_out.health()
+        if self.events_out is not None:
+            out["events_out"] = self.events_out.health()
         return out
 
     # ------------------------------------------------------------------ checkpoints
@@ -681,7 +862,15 @@ class LiveLoop:
             # rolling rms of the force estimates, rounded and JSON-safe
             accuracy = self.pipeline.accuracy(digits=protocol.ACCURACY_DIGITS)
         body = protocol.data_body(
-            self.seq, time.time(), t, ts, ch, self.health(), self.knob_values(), accuracy
+            self.seq,
+            time.time(),
+            t,
+            ts,
+            ch,
+            self.health(),
+            self.knob_values(),
+            accuracy,
+            self.monitor_status(),
         )
         self.hub.publish(body)
 
@@ -787,6 +976,37 @@ class LiveLoop:
             self.pipeline.set_observer_effects(effects)
             return self.pipeline.effects, self.pipeline.t
 
+    def inject(
+        self,
+        kind: str,
+        size: float | None = None,
+        at_t: float | None = None,
+        at_part: int | None = None,
+    ) -> dict[str, Any]:
+        """Schedule an event in the simulator (:meth:`LivePipeline.inject`); what was
+        scheduled.
+
+        Raises
+        ------
+        ParameterError
+            A value the pipeline refuses (naming the field), or a source without a
+            simulator.
+        """
+        with self.lock:
+            return self.pipeline.inject(kind, size=size, at_t=at_t, at_part=at_part)
+
+    def relearn(self, tool: int | None = None, program: str | None = None) -> None:
+        """Teach the monitor's limits again (:meth:`LivePipeline.relearn`): of one tool,
+        one program, or all (both None).
+
+        Raises
+        ------
+        ParameterError
+            A value the pipeline refuses (naming the field).
+        """
+        with self.lock:
+            self.pipeline.relearn(tool=tool, program=program)
+
     def start_recording(
         self,
         make: Callable[[dict[str, Any]], Recording],
@@ -802,3 +1022,8 @@ class LiveLoop:
             rec = make(source_sidecar(self.pipeline.source, self.pipeline.scenario))
             self.recording = rec
             return rec
+
+
+def _event_body(rec: dict[str, Any]) -> str:
+    """The ``event`` message (:class:`EventMessage`) of an event record."""
+    return json.dumps({"type": "event", "event": json_safe(rec)}, allow_nan=False)

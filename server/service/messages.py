@@ -96,6 +96,21 @@ class Accuracy(Versioned):
     mean_of: list[str] = Field(description="the estimates averaged (mode 'agreement')")
 
 
+class MonitorStatus(Versioned):
+    """The status strip: what an operator reads from across the shop."""
+
+    state: Literal["off", "teaching", "watching", "alarm"] = Field(
+        description="off: no process monitor; alarm: an unacknowledged alarm or feed hold"
+    )
+    tool: int = Field(description="tool in the spindle (0: not known)")
+    program: str
+    line: int
+    part: int
+    wear_share: float | None = Field(description="estimated flank wear / its limit")
+    life_left_min: float | None = Field(description="remaining tool life [min]")
+    unacked: int = Field(description="events waiting for an acknowledgement")
+
+
 class Data(Versioned):
     """A frame at the display rate (~20 Hz): the samples since the previous one.
 
@@ -114,6 +129,9 @@ class Data(Versioned):
     health: LoopHealth
     knobs: dict[str, KnobValue] = Field(description="knob -> value")
     accuracy: Accuracy
+    status: MonitorStatus | None = Field(
+        default=None, description="the monitor's status strip (None: not known)"
+    )
 
 
 class Event(Versioned):
@@ -145,21 +163,6 @@ class EventMessage(Versioned):
     model_config = ConfigDict(extra="forbid")
     type: Literal["event"] = "event"
     event: Event
-
-
-class MonitorStatus(Versioned):
-    """The status strip: what an operator reads from across the shop."""
-
-    state: Literal["off", "teaching", "watching", "alarm"] = Field(
-        description="off: no process monitor; alarm: an unacknowledged alarm or feed hold"
-    )
-    tool: int = Field(description="tool in the spindle (0: not known)")
-    program: str
-    line: int
-    part: int
-    wear_share: float | None = Field(description="estimated flank wear / its limit")
-    life_left_min: float | None = Field(description="remaining tool life [min]")
-    unacked: int = Field(description="events waiting for an acknowledgement")
 
 
 #: every message shape of the stream, by the name ``SCHEMA`` lists its fields under

@@ -8,7 +8,8 @@ Two message types travel from server to client as JSON text:
 
 ``data`` (at the display rate, ~20 Hz)
     ``{"type": "data", "dropped": n, "seq": k, "wall": unix_s, "t": [...], "ts": [...],
-    "ch": {name: [...]}, "health": {...}, "knobs": {...}, "accuracy": {...}}``. Two display grids: a
+    "ch": {name: [...]}, "health": {...}, "knobs": {...}, "accuracy": {...},
+    "status": {...}}``. Two display grids: a
     channel whose ``grid`` is ``"t"`` (the forces) has one value per entry of ``t``; a
     channel on ``"ts"`` (parameters, modes, harmonics: slow signals) one per entry of
     ``ts``, a coarser subset of the same samples. ``dropped`` counts the frames this
@@ -28,6 +29,15 @@ value to 4 significant digits, null where unknown (see
 Identified parameters with intervals (issue 13): for each name in ``SCHEMA["intervals"]``
 the stream carries the estimate, the 95 % interval's bounds and an excited flag (1: the
 data determine it; 0: show it greyed, "not excited", not as a number), on the slow grid.
+
+``event`` (issue 21: when the monitor raises an event, and again when it is acknowledged)
+    ``{"type": "event", "event": {"id", "kind", "action", "t", "tool", "program",
+    "line", "part", "value", "limit", "unit", "message", "machine", "acked",
+    "acked_by", "acked_wall"}}``; never dropped for a slow client (frames are). A new
+    client gets the unacknowledged events the service keeps right after its ``hello``.
+    Every frame's ``status`` is the status strip (``SCHEMA["status"]``: state off,
+    teaching, watching or alarm; tool, program, line, part, wear_share, life_left_min,
+    unacked).
 
 JSON was measured against a binary (float32) encoding: see
 docs/live-service.md ("Stream protocol").
@@ -100,11 +110,14 @@ def data_body(
     health: dict[str, Any],
     knobs: dict[str, Any],
     accuracy: dict[str, Any],
+    status: dict[str, Any] | None = None,
 ) -> str:
     """Encode a data frame without its per-client ``dropped`` field (done once per frame).
 
     ``t``, ``ts`` and ``ch`` must already be JSON-safe lists (see :func:`samples`);
-    ``accuracy`` the pipeline's summary, JSON-safe (rounded to :data:`ACCURACY_DIGITS`).
+    ``accuracy`` the pipeline's summary, JSON-safe (rounded to :data:`ACCURACY_DIGITS`);
+    ``status`` the monitor's status (a :class:`~server.service.messages.MonitorStatus`
+    dict, JSON-safe; None: not known).
 
     :func:`with_dropped` completes it per client.
     """
@@ -119,6 +132,7 @@ def data_body(
         health=json_safe(health),
         knobs=json_safe(knobs),
         accuracy=accuracy,
+        status=status,
     )
     body = {f: getattr(frame, f) for f in _BODY_FIELDS}
     return json.dumps(body, allow_nan=False, separators=(",", ":"))

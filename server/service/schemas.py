@@ -25,7 +25,7 @@ from pydantic import (
 from pydantic_core import PydanticCustomError
 
 from server.records.history import CAUSES
-from server.service.messages import Accuracy, Event, LoopHealth
+from server.service.messages import Accuracy, Event, LoopHealth, MonitorStatus
 from server.service.settings import MAX_SPEED, ScenarioName, Speed
 
 # ------------------------------------------------------------------ errors
@@ -100,6 +100,11 @@ class Health(LoopHealth):
     estimates_out: dict[str, Any] | None = Field(
         default=None, description="the estimates publisher (mqtt_publish_hz > 0)"
     )
+    events_out: dict[str, Any] | None = Field(
+        default=None,
+        description="the events and feed-hold commands publisher (a broker set): topics, "
+        "connected, counts of events and commands handed over and refused",
+    )
 
 
 class Scenarios(BaseModel):
@@ -145,6 +150,12 @@ class Snapshot(BaseModel):
 
     pipeline: PipelineSnapshot
     health: LoopHealth
+    events: list[Event] = Field(
+        default_factory=list,
+        description="the latest monitor events the service keeps (at most 200), newest "
+        "first, with their acknowledgements (all of them: GET /api/events)",
+    )
+    status: MonitorStatus | None = Field(None, description="the monitor's status strip")
 
 
 # ------------------------------------------------------------------ params
@@ -223,23 +234,82 @@ class ParamsPatch(RootModel[dict[str, KnobValue]]):
 # ------------------------------------------------------------------ control
 
 
+#: the events ``inject`` schedules in the simulator (machine.process.EVENT_KINDS)
+InjectKind = Literal["breakage", "collision", "missing_tool"]
+#: the fields of the monitor's actions, and the action each belongs to
+_ACTION_FIELDS = {
+    "kind": "inject",
+    "size": "inject",
+    "at_t": "inject",
+    "at_part": "inject",
+    "tool": "relearn",
+    "program": "relearn",
+}
+#: what ``size`` means for each kind of event, and its check
+_SIZES: dict[str, tuple[str, Any]] = {
+    "breakage": ("a radius lost by one flute [mm] > 0", lambda v: v > 0),
+    "collision": ("a feed multiplier > 1", lambda v: v > 1),
+    "missing_tool": ("a share of the axial engagement in (0, 1]", lambda v: 0 < v <= 1),
+}
+
+
+def _refuse(field: str, allowed: str, got: Any) -> PydanticCustomError:
+    """A request model's own refusal of ``field`` (the value found: ``got``)."""
+    return PydanticCustomError(
+        "refused", "{allowed}", {"field": field, "allowed": allowed, "got": got}
+    )
+
+
 class Control(BaseModel):
-    """Body of ``POST /api/control``."""
+    """Body of ``POST /api/control``.
+
+    ``inject`` schedules an event in the simulator (a tooth breaking or chipped, a
+    collision or overload, a missing tool): ``kind``, its ``size`` (default: the
+    simulator's clear size) and when: ``at_t`` (simulated time [s]) or ``at_part`` (the
+    part counter), at most one (neither: as soon as the program allows). ``relearn``
+    teaches the monitor's limits again: of ``tool``, of ``program``, or all (neither).
+    """
 
     model_config = ConfigDict(extra="forbid")
-    action: Literal["pause", "resume", "reset", "speed", "scenario"]
+    action: Literal["pause", "resume", "reset", "speed", "scenario", "inject", "relearn"]
     value: Speed | None = Field(None, description=f"speed in [0, {MAX_SPEED:g}] (action speed)")
     scenario: ScenarioName | None = Field(None, description="scenario name (action scenario)")
+    kind: InjectKind | None = Field(None, description="the event to inject (action inject)")
+    size: float | None = Field(
+        None,
+        allow_inf_nan=False,
+        description="action inject: breakage: radius lost by one flute [mm] > 0 (at or "
+        "above the feed per tooth: a broken tooth; below: chipped); collision: the feed "
+        "multiplier > 1; missing_tool: share of the axial engagement gone in (0, 1]",
+    )
+    at_t: float | None = Field(
+        None, ge=0, allow_inf_nan=False, description="action inject: simulated time [s]"
+    )
+    at_part: int | None = Field(None, ge=0, description="action inject: part counter")
+    tool: int | None = Field(None, ge=1, description="action relearn: this tool only")
+    program: str | None = Field(
+        None, min_length=1, max_length=64, description="action relearn: this program only"
+    )
 
     @model_validator(mode="after")
     def _needs(self) -> Control:
         # the field the action needs: named like a missing field
-        for action, name in (("speed", "value"), ("scenario", "scenario")):
+        for action, name in (("speed", "value"), ("scenario", "scenario"), ("inject", "kind")):
             if self.action == action and getattr(self, name) is None:
                 raise PydanticCustomError(
                     "missing_for_action", "a value (required with action '{action}')",
                     {"field": name, "action": action},
                 )  # fmt: skip
+        for name, action in _ACTION_FIELDS.items():
+            got = getattr(self, name)
+            if got is not None and self.action != action:
+                raise _refuse(name, f"no {name} (it belongs to action '{action}')", got)
+        if self.at_t is not None and self.at_part is not None:
+            raise _refuse("at_part", "at most one of at_t and at_part", self.at_part)
+        if self.kind is not None and self.size is not None:
+            allowed, ok = _SIZES[self.kind]
+            if not ok(self.size):
+                raise _refuse("size", f"{allowed} (kind {self.kind})", self.size)
         return self
 
 
@@ -250,6 +320,9 @@ class ControlState(BaseModel):
     paused: bool
     sim_t: float
     scenario: str
+    scheduled: dict[str, JsonValue] | None = Field(
+        None, description="action inject: what the simulator scheduled (kind, size, t, part...)"
+    )
 
 
 # ------------------------------------------------------------------ replay, effects

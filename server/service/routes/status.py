@@ -40,13 +40,22 @@ def scenarios(lp: Live) -> Scenarios:
 
 @router.get(
     "/api/snapshot",
-    summary="latest values, truths, knob values and loop health",
+    summary="latest values, truths, knob values, loop health, the monitor's events and status",
     response_model=Snapshot,
     response_model_exclude_unset=True,  # "replay" only while replaying, as the pipeline says
 )
 def snapshot(lp: Live) -> Snapshot:
     snap = lp.snapshot()
-    return Snapshot.model_validate(json_safe({"pipeline": snap, "health": lp.health()}))
+    return Snapshot.model_validate(
+        json_safe(
+            {
+                "pipeline": snap,
+                "health": lp.health(),
+                "events": lp.recent_events(),
+                "status": lp.monitor_status(),
+            }
+        )
+    )
 
 
 @router.get(
@@ -120,9 +129,29 @@ def metrics(lp: Live) -> PlainTextResponse:
             ("cutwatch_estimates_published_total", "counter", "estimates messages published",
              out["published"])
         )  # fmt: skip
+    ev_out = b.get("events_out")
+    if ev_out is not None:
+        rows += [
+            ("cutwatch_events_published_total", "counter",
+             "events handed to the broker client (cutwatch/<machine>/events)", ev_out["events"]),
+            ("cutwatch_commands_published_total", "counter",
+             "feed-hold commands handed to the broker client (cutwatch/<machine>/command)",
+             ev_out["commands"]),
+            ("cutwatch_events_refused_total", "counter",
+             "events or commands the broker client refused (its queue full)", ev_out["refused"]),
+        ]  # fmt: skip
+    ev = lp.events_summary()
+    rows += [
+        ("cutwatch_events_unacked", "gauge", "monitor events not yet acknowledged", ev["unacked"]),
+        ("cutwatch_events_history_errors_total", "counter",
+         "monitor events the history could not keep", ev["history_errors"]),
+    ]  # fmt: skip
     lines = []
     for name, kind, doc, value in rows:
         lines += [f"# HELP {name} {doc}", f"# TYPE {name} {kind}", f"{name} {float(value):g}"]
+    name = "cutwatch_events_total"
+    lines += [f"# HELP {name} monitor events raised, by kind", f"# TYPE {name} counter"]
+    lines += [f'{name}{{kind="{k}"}} {n:d}' for k, n in ev["total"].items()]
     acc = lp.accuracy()
     lines += _accuracy_lines(acc)
     return PlainTextResponse(

@@ -1,4 +1,5 @@
-"""``/ws``: the live stream (a hello, then data frames; see ``server.service.protocol``)."""
+"""``/ws``: the live stream (a hello, the unacknowledged events, then data frames and
+events as they come; see ``server.service.protocol``)."""
 
 from __future__ import annotations
 
@@ -19,7 +20,7 @@ async def stream(ws: WebSocket) -> None:
     hub: Hub = ws.app.state.hub
     await ws.accept()
     try:
-        q = hub.add()
+        q, backlog = lp.add_client()
     except CutwatchError:
         await ws.close(1001, "shutting down")
         return
@@ -38,6 +39,8 @@ async def stream(ws: WebSocket) -> None:
     reader = asyncio.create_task(drain())
     try:
         await ws.send_text(lp.hello())
+        for body in backlog:  # the events raised before and not yet acknowledged
+            await ws.send_text(body)
         while True:
             await q.event.wait()
             if q.gone:
@@ -46,8 +49,11 @@ async def stream(ws: WebSocket) -> None:
                 await ws.close(1001, "server shutting down")
                 return
             hello, frames, dropped = q.take()
+            events = q.take_events()
             if hello is not None:  # the pipeline changed (scenario, replay)
                 await ws.send_text(hello)
+            for body in events:  # every one, in order (never dropped)
+                await ws.send_text(body)
             for body in frames:
                 await ws.send_text(protocol.with_dropped(body, dropped))
                 dropped = 0
