@@ -90,6 +90,10 @@ class EventHistory(Protocol):
 
     def acknowledge(self, event_id: str, by: str) -> dict[str, Any] | None: ...
 
+    def add_tool_changes(self, changes: list[dict[str, Any]]) -> Any: ...
+
+    def recent(self, n: int) -> list[dict[str, Any]]: ...
+
 
 def checkpoint_path(settings: Settings) -> Path | None:
     """Where the service keeps its pipeline's state (None: ``checkpoint_s`` is 0)."""
@@ -333,9 +337,9 @@ class LiveLoop:
         A drive feed, an estimates publisher and an events publisher
         (:func:`loop_parts`), started and stopped with the loop.
     history
-        The kept history (:func:`loop_parts`; an :class:`EventHistory`): the events and
-        the tools the pipeline changes are written to it after their block. None: events
-        kept in memory only.
+        Where the events and the tool lives are kept (:class:`EventHistory`, the service's
+        :class:`~server.records.history.HistoryStore` from :func:`loop_parts`; None:
+        nowhere but memory). The latest events are reloaded from it at start.
     checkpoint
         The pipeline's checkpoint file (:func:`checkpoint_path`): resumed from at start,
         written every ``settings.checkpoint_s`` wall seconds and at stop. None: none.
@@ -350,7 +354,7 @@ class LiveLoop:
         feed: DriveFeed | None = None,
         estimates_out: EstimatesPublisher | None = None,
         events_out: EventsPublisher | None = None,
-        history: HistoryStore | None = None,
+        history: EventHistory | None = None,
         checkpoint: Path | None = None,
     ) -> None:
         self.settings = settings
@@ -362,8 +366,7 @@ class LiveLoop:
         self.estimates_out = estimates_out
         #: the events and feed-hold commands on cutwatch/<machine>/events, .../command
         self.events_out = events_out
-        #: the kept history (:mod:`server.records.history`: add_events, acknowledge,
-        #: add_tool_changes); None: events kept in memory only
+        #: the event history (add_events, acknowledge), None: events kept in memory only
         self.history = history
         #: the machine's name, stamped on every event
         self.machine = settings.mqtt_machine
@@ -467,6 +470,7 @@ class LiveLoop:
             self.estimates_out.start()
         if self.events_out is not None:
             self.events_out.start()
+        self._reload_events()
         self._thread = threading.Thread(target=self._run, name="cutwatch-loop", daemon=True)
         self._thread.start()
 
@@ -648,6 +652,25 @@ class LiveLoop:
             except Exception as exc:  # the loop goes on; the log and /metrics say so
                 self.history_errors += 1
                 log.warning("cutwatch: %d event(s) not kept in the history: %s", len(events), exc)
+
+    def _reload_events(self) -> None:
+        """The latest kept events from the history (after a restart): in the snapshot
+        again, sent to a new client and counted in the status while not acknowledged
+        (not counted in ``events_total``, which counts since this start, nor published
+        again)."""
+        if self.history is None:
+            return
+        try:
+            recs = self.history.recent(EVENTS_KEPT)
+        except Exception as exc:  # the service starts without them; the log says why
+            log.warning("cutwatch: the kept events were not reloaded: %s", exc)
+            return
+        with self._ev_lock:
+            for r in recs:
+                rec = Event.model_validate(r).model_dump()
+                self._events.append(rec)
+                if not rec["acked"]:
+                    self._unacked[rec["id"]] = rec["action"]
 
     def announce_event(self, ev: dict[str, Any]) -> None:
         """An event changed (acknowledged): its new record (an :class:`Event`) goes to

@@ -72,7 +72,8 @@ def test_the_migrations_go_down_to_nothing_and_up_again(tmp_path: Path) -> None:
     )
     assert {n for (n,) in names} <= {"alembic_version"}
     migrate(st.engine)
-    assert st.add_events([MonitorEvent("collision", "feed_hold", 1.0)]) == 1
+    st.add_events([MonitorEvent("collision", "feed_hold", 1.0)])
+    assert st.events()[0] == 1
     st.close()
 
 
@@ -166,7 +167,7 @@ def test_an_acknowledgement_is_kept_once(tmp_path: Path) -> None:
     again = st.acknowledge(ev.id, "ben", wall=600.0)
     assert again == first  # idempotent: the first acknowledgement stands
     assert st.acknowledge("0" * 32, "anna") is None  # no such event
-    assert st.add_events([ev]) == 0  # the same event again is not stored twice
+    st.add_events([ev])  # the same event again is not stored twice
     assert st.events()[0] == 1
     st.close()
 

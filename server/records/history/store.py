@@ -115,7 +115,7 @@ def _num(x: object) -> float | None:
     return v if math.isfinite(v) else None
 
 
-def _event_row(r: Mapping[str, Any]) -> dict[str, Any]:
+def _event_row(r: Mapping[Any, Any]) -> dict[str, Any]:
     """An event as the stream and REST carry it (``Event``) with its received time."""
     return {
         "id": r["id"],
@@ -138,7 +138,7 @@ def _event_row(r: Mapping[str, Any]) -> dict[str, Any]:
     }
 
 
-def _life_row(r: Mapping[str, Any]) -> dict[str, Any]:
+def _life_row(r: Mapping[Any, Any]) -> dict[str, Any]:
     out = {k: r[k] for k in tool_life.c.keys()}
     out["index"] = out.pop("tool_index")
     out.pop("seq")
@@ -186,10 +186,9 @@ class HistoryStore:
         self.write_s += time.perf_counter() - t0
 
     # ------------------------------------------------------------------ events
-    def add_events(self, evs: Iterable[MonitorEvent], wall: float | None = None) -> int:
+    def add_events(self, evs: Iterable[MonitorEvent], wall: float | None = None) -> None:
         """Store ``evs`` (received at ``wall``, default now) in one transaction, committed
-        before the call returns; an event whose id is stored already is skipped. The
-        number stored."""
+        before the call returns; an event whose id is stored already is skipped."""
         rows = []
         now = time.time() if wall is None else wall
         for ev in evs:
@@ -199,7 +198,7 @@ class HistoryStore:
             d["received_wall"] = now
             rows.append(d)
         if not rows:
-            return 0
+            return
         t0 = time.perf_counter()
         with self._write, self.engine.begin() as conn:
             ids = [r["id"] for r in rows]
@@ -208,7 +207,6 @@ class HistoryStore:
             if new:
                 conn.execute(events.insert(), new)
         self._timed(t0)
-        return len(new)
 
     def _query(self) -> Select[Any]:
         a = acknowledgements
@@ -311,11 +309,12 @@ class HistoryStore:
                 if cause not in CAUSES:
                     raise ValueError(f"cause: expected one of {', '.join(CAUSES)}, got {cause!r}")
                 machine = str(c.get("machine") or self.machine)
-                row = {
+                start_t = _num(c.get("start_t"))
+                row: dict[str, Any] = {
                     "machine": machine,
                     "tool": int(c["tool"]),
                     "tool_index": None if c.get("index") is None else int(c["index"]),
-                    "start_t": _num(c.get("start_t")),
+                    "start_t": start_t,
                     "end_t": float(c["end_t"]),
                     "start_wall": _num(c.get("start_wall")),
                     "end_wall": _num(c.get("end_wall")) or now,
@@ -323,8 +322,8 @@ class HistoryStore:
                     "wear_true_mm": _num(c.get("wear_true_mm")),
                     "cause": cause,
                 }
-                if row["start_wall"] is None and row["start_t"] is not None:
-                    row["start_wall"] = self._mounted_wall(conn, machine, row["start_t"])
+                if row["start_wall"] is None and start_t is not None:
+                    row["start_wall"] = self._mounted_wall(conn, machine, start_t)
                 conn.execute(tool_life.insert().values(**row))
                 out.append(_life_row({"seq": 0, **row}))
         self._timed(t0)

@@ -42,9 +42,9 @@ EVENT_ID = r"^[A-Za-z0-9_.:-]{1,64}$"
 
 
 def history_of(lp: LiveLoop) -> HistoryStore:
-    """The loop's history, or a 409 saying why there is none."""
+    """The loop's history, or a 409 saying why there is none to query."""
     h = lp.history
-    if h is None:
+    if not isinstance(h, HistoryStore):
         raise conflict(
             "history",
             "a service keeping its history (CUTWATCH_HISTORY_URL unset or a database URL)",

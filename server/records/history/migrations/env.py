@@ -7,6 +7,7 @@ from __future__ import annotations
 
 from alembic import context
 from sqlalchemy import create_engine
+from sqlalchemy.engine import Connection
 
 from server.records.history.tables import metadata
 
@@ -26,7 +27,7 @@ def run() -> None:
     _migrate(conn)
 
 
-def _migrate(conn: object) -> None:
+def _migrate(conn: Connection) -> None:
     # render_as_batch: SQLite alters a table by copying it; Alembic's batch mode does that
     context.configure(connection=conn, target_metadata=metadata, render_as_batch=True)
     with context.begin_transaction():
