@@ -6,8 +6,11 @@ and serves a page (``/``) with one row per machine — status, the process monit
 and its latest unacknowledged event, force level, wear and remaining life, alarms, last
 seen, a link to that machine's dashboard — pushed to the browser over ``/ws`` as each
 message arrives (no polling delay). A machine with an unacknowledged ``feed_hold`` or
-``alarm`` event is in alarm (its row highlighted) until an acknowledged copy of the event
-(the same ``id`` with ``acked`` true) arrives. A machine that has not published for
+``alarm`` event is in alarm (its row highlighted) until the event is acknowledged: an
+acknowledged copy of it (the same ``id`` with ``acked`` true) arrives, or the machine's
+estimates say nothing waits (``monitor.unacked`` 0, which clears the events received
+:data:`ACK_GRACE_S` before them or earlier: an estimate built before an event was raised
+may arrive just after it). A machine that has not published for
 ``stale_after`` seconds shows as stale until it publishes again. ``/api/fleet`` gives the
 same rows as JSON, ``/metrics`` the counters.
 """
@@ -40,6 +43,8 @@ EVENTS_TOPIC = "cutwatch/+/events"
 EVENTS_KEPT = 50
 #: the acknowledgement fields an event may carry beside :meth:`MonitorEvent.to_wire`'s
 ACK_FIELDS = ("acked", "acked_by", "acked_wall")
+#: an estimate saying no event waits clears the events received this long before it [s]
+ACK_GRACE_S = 1.0
 
 
 class FleetEvent(BaseModel):
@@ -90,8 +95,8 @@ class FleetState:
         self.stale_after = float(stale_after)
         self._lock = threading.Lock()
         self._last: dict[str, tuple[float, dict[str, Any], int]] = {}
-        #: machine -> (wall time of its latest event, event id -> event)
-        self._events: dict[str, tuple[float, dict[str, FleetEvent]]] = {}
+        #: machine -> (wall time of its latest event, event id -> (event, received at))
+        self._events: dict[str, tuple[float, dict[str, tuple[FleetEvent, float]]]] = {}
         self.malformed = 0
         self.events_received = 0
         self.latencies: list[float] = []  # drive block publish -> arrival here [s]
@@ -108,6 +113,11 @@ class FleetState:
         with self._lock:
             _, _, count = self._last.get(machine, (0.0, {}, 0))
             self._last[machine] = (now, d, count + 1)
+            mon = d.get("monitor")
+            if isinstance(mon, dict) and mon.get("unacked") == 0 and machine in self._events:
+                for eid, (fe, got) in self._events[machine][1].items():
+                    if not fe.acked and got <= now - ACK_GRACE_S:
+                        self._events[machine][1][eid] = (fe.model_copy(update={"acked": True}), got)
             dw = d.get("drive_wall")
             if isinstance(dw, int | float):
                 self.latencies.append(now - float(dw))
@@ -141,10 +151,10 @@ class FleetState:
             self.events_received += 1
             _, evs = self._events.get(machine, (0.0, {}))
             old = evs.get(fe.id)
-            if old is None or not old.acked:  # an acknowledgement is never undone
-                evs[fe.id] = fe
+            if old is None or not old[0].acked:  # an acknowledgement is never undone
+                evs[fe.id] = (fe, now)
             while len(evs) > EVENTS_KEPT:
-                del evs[min(evs.values(), key=lambda e: e.t).id]
+                del evs[min(evs.values(), key=lambda e: e[0].t)[0].id]
             self._events[machine] = (now, evs)
         self._push(machine, now)
         return machine
@@ -154,7 +164,7 @@ class FleetState:
         with self._lock:
             seen, d, count = self._last.get(machine, (-math.inf, {}, 0))
             ev_seen, evs = self._events.get(machine, (-math.inf, {}))
-            events = sorted(evs.values(), key=lambda e: e.t, reverse=True)
+            events = sorted((e for e, _ in evs.values()), key=lambda e: e.t, reverse=True)
         seen = max(seen, ev_seen)
         age = now - seen
         alarms = [str(a) for a in d.get("alarms") or []]
@@ -163,8 +173,6 @@ class FleetState:
         monitor = str(mon["state"]) if isinstance(mon, dict) and "state" in mon else None
         if waiting:
             monitor = "alarm"
-        elif monitor == "alarm" and evs:  # the events say every alarm was acknowledged
-            monitor = "watching"
         bad = bool(alarms) or monitor == "alarm"
         status = "stale" if age > self.stale_after else ("alarm" if bad else "ok")
         wear = d.get("wear") or {}

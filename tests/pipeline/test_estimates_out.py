@@ -91,3 +91,8 @@ def test_the_monitor_state_travels_when_its_channels_are_streamed() -> None:
                      "mon_line": [110, 120]})  # fmt: skip
         body = pub.build(time.time(), p.channels(), p.t, "simulator")
         assert body["monitor"] == {"state": want, "tool": 3, "line": 120}
+    # the service's status strip, when given, is what travels (it knows the acknowledgements)
+    status = {"state": "watching", "tool": 4, "program": "O1", "line": 30, "part": 2,
+              "wear_share": 0.5, "life_left_min": 9.0, "unacked": 0}  # fmt: skip
+    body = pub.build(time.time(), p.channels(), p.t, "simulator", monitor=status)
+    assert body["monitor"] == {"state": "watching", "tool": 4, "line": 30, "unacked": 0}

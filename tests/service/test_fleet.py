@@ -180,3 +180,29 @@ def test_events_put_a_machine_in_alarm_until_acknowledged() -> None:
         finally:
             pub.loop_stop()
             pub.disconnect()
+
+
+def test_an_estimate_with_nothing_waiting_clears_the_events_before_it() -> None:
+    with broker() as bp, fleet(bp, stale_after=30.0) as hp:
+        time.sleep(0.5)
+        pub = publisher(bp)
+        try:
+            ev = monitor_event("mill-4")
+            pub.publish("cutwatch/mill-4/events", json.dumps(ev), qos=1)
+            wait_rows(hp, lambda r: len(r) == 1 and r[0]["event"] is not None)
+            # an estimate built before the event was raised, arriving just after it:
+            # the event still waits
+            quiet = {"state": "watching", "tool": 3, "line": 120, "unacked": 0}
+            pub.publish("cutwatch/mill-4/estimates", estimate("mill-4", monitor=quiet))
+            wait_rows(hp, lambda r: r[0]["messages"] == 1)
+            row = httpx.get(f"http://{hp}/api/fleet").json()[0]
+            assert row["monitor"] == "alarm" and row["event"]["id"] == ev["id"]
+            # a second later the service still says nothing waits: acknowledged there
+            time.sleep(1.1)
+            pub.publish("cutwatch/mill-4/estimates", estimate("mill-4", monitor=quiet))
+            rows = wait_rows(hp, lambda r: r[0]["messages"] == 2)
+            assert rows[0]["monitor"] == "watching" and rows[0]["event"] is None
+            assert rows[0]["status"] == "ok" and rows[0]["unacked"] == 0
+        finally:
+            pub.loop_stop()
+            pub.disconnect()
