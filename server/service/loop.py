@@ -392,6 +392,7 @@ class LiveLoop:
         self._unacked: dict[str, str] = {}  # id -> action, oldest first
         self.events_total: dict[str, int] = dict.fromkeys(KINDS, 0)
         self.history_errors = 0
+        self._block_log: Any = None  # settings.block_log, opened by start()
         self.pipeline = pipeline or LivePipeline(settings.scenario, seed=settings.seed)
         self.lock = threading.RLock()
         self._wake = threading.Event()
@@ -488,6 +489,8 @@ class LiveLoop:
         if self.events_out is not None:
             self.events_out.start()
         self._reload_events()
+        if self.settings.block_log is not None:  # line-buffered: readable while it runs
+            self._block_log = Path(self.settings.block_log).open("a", buffering=1)
         self._thread = threading.Thread(target=self._run, name="cutwatch-loop", daemon=True)
         self._thread.start()
 
@@ -506,6 +509,8 @@ class LiveLoop:
         for part in (self.feed, self.estimates_out, self.events_out):
             if part is not None:
                 part.stop()
+        if self._block_log is not None:
+            self._block_log.close()
 
     def end_recording(self, reason: str) -> Recording | None:
         """End the recording in progress, if any (its writer finishes the file)."""
@@ -562,9 +567,12 @@ class LiveLoop:
                         self.end_recording("the source has finished")
                     if self.paused or self._stop.is_set():
                         continue
+                    t_from, taken = self.pipeline.t, time.time()
                     out = self.pipeline.step(self.block_n)
                     events = self.pipeline.take_events()
                     got = len(out["t"]) > 0
+                    if got and self._block_log is not None:
+                        self._block_log.write(f"{t_from:.6f} {self.pipeline.t:.6f} {taken:.6f}\n")
                     if got and self.recording is not None and self.pipeline.last_block is not None:
                         self.recording.feed(self.pipeline.last_block)  # a queue put
                     if got:
