@@ -2,8 +2,8 @@
 // The message schema lives in protocol.js (its twin is server/protocol.py).
 import { checkMessage } from "./protocol.js";
 import { accuracyTable, accuracyTitle, intervalSeries } from "./panels.js";
-import { TIMELINE_HEAD, ackRefusal, eventRow, markersIn, mergeEvent, monitorSeries, ordered,
-  statusView, waiting } from "./monitor.js";
+import { TIMELINE_HEAD, ackRefusal, eventRow, headline, markersIn, mergeEvent, monitorSeries,
+  ordered, statusView } from "./monitor.js";
 
 const uPlot = window.uPlot;
 const $ = (id) => document.getElementById(id);
@@ -422,8 +422,7 @@ function syncKnobs(knobs) {
 // The status strip from the frame's MonitorStatus (a stream without one: monitor off).
 function showStatus(st) {
   state.status = st || null;
-  const latest = ordered(state.events).find(waiting) || null;
-  const v = statusView(st, latest);
+  const v = statusView(st, headline(state.events));
   const strip = $("strip");
   if (strip.dataset.state !== v.state) strip.dataset.state = v.state;
   const set = (id, text) => { const el = $(id); if (el.textContent !== text) el.textContent = text; };

@@ -78,11 +78,18 @@ export function waiting(ev) {
   return !ev.acked && ev.action !== "notice";
 }
 
+// The event the strip names while in alarm: the newest waiting feed hold (the machine
+// stopped for it), else the newest waiting alarm; null when none waits.
+export function headline(events) {
+  const w = ordered(events).filter(waiting);
+  return w.find((e) => e.action === "feed_hold") || w[0] || null;
+}
+
 function valueText(ev) {
   const v = num(ev.value, 3);
   const l = num(ev.limit, 3);
   if (v === null && l === null) return dash;
-  const u = ev.unit ? ` ${ev.unit}` : "";
+  const u = ev.unit && ev.unit !== "1" ? ` ${ev.unit}` : "";  // "1": a ratio
   return `${v ?? dash} vs ${l ?? dash}${u}`;
 }
 

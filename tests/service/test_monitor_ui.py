@@ -73,14 +73,15 @@ def test_the_strip_reads_the_status() -> None:
 
 def test_the_timeline_is_newest_first_and_an_acknowledgement_sticks() -> None:
     code = (
-        "import {mergeEvent, ordered, eventRow, markersIn} from './monitor.js';"
+        "import {mergeEvent, ordered, eventRow, markersIn, headline} from './monitor.js';"
         "import {readFileSync} from 'node:fs';"
         "const [e1, e2, e1acked] = JSON.parse(readFileSync(0, 'utf8'));"
         "const m = new Map();"
         "const changed = [mergeEvent(m, e1), mergeEvent(m, e2), mergeEvent(m, e1),"
         " mergeEvent(m, e1acked), mergeEvent(m, e1)];"
         "console.log(JSON.stringify({changed, rows: ordered(m).map(eventRow),"
-        " markers: markersIn(m, 0, 10), all: markersIn(m, 0, 100)}));"
+        " markers: markersIn(m, 0, 10), all: markersIn(m, 0, 100),"
+        " head: headline(m).id, none: headline(new Map())}));"
     )
     e1 = event("breakage", 5.0)
     e2 = event("collision", 20.0)
@@ -98,6 +99,20 @@ def test_the_timeline_is_newest_first_and_an_acknowledgement_sticks() -> None:
     # markers: in range only; red while waiting, grey once acknowledged
     assert [(m["t"], m["color"]) for m in got["markers"]] == [(5.0, "#8a8f98")]
     assert [m["color"] for m in got["all"]] == ["#8a8f98", "#e00000"]
+    assert got["head"] == e2["id"] and got["none"] is None
+
+
+def test_the_strip_names_a_feed_hold_before_a_newer_alarm() -> None:
+    code = (
+        "import {mergeEvent, headline, eventRow} from './monitor.js';"
+        "import {readFileSync} from 'node:fs';"
+        "const evs = JSON.parse(readFileSync(0, 'utf8'));"
+        "const m = new Map(); for (const e of evs) mergeEvent(m, e);"
+        "console.log(JSON.stringify([headline(m).kind, eventRow(evs[0]).cells[5]]));"
+    )
+    hold = event("breakage", 5.0, unit="1")
+    got = run_js(code, json.dumps([hold, event("wear_limit", 9.0), event("life_short", 9.5)]))
+    assert got == ["breakage", "4.250 vs 1.500"]  # a ratio's unit "1" is not written
 
 
 def test_acknowledge_is_for_operators() -> None:
