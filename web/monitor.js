@@ -48,8 +48,8 @@ export function statusView(status, latest = null) {
     where: where.length ? where.join(" · ") : dash,
     unacked: s.unacked || 0,
     unackedText: s.unacked ? `${s.unacked} to acknowledge` : "nothing to acknowledge",
-    message: alarm && latest ? `${KIND_WORDS[latest.kind] || latest.kind}: ${latest.message}`
-      : "",
+    // the detector's own sentence names the kind, tool and block; else the kind in words
+    message: alarm && latest ? latest.message || KIND_WORDS[latest.kind] || latest.kind : "",
   };
 }
 

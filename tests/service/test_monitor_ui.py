@@ -65,7 +65,7 @@ def test_the_strip_reads_the_status() -> None:
     assert w["where"] == "program O1001 · line 120 · part 7" and w["message"] == ""
     assert w["unackedText"] == "nothing to acknowledge"
     # in alarm: the waiting event's words; a worn-out tool fills the bar, no more
-    assert a["label"] == "ALARM" and a["message"] == "tool breakage: breakage seen"
+    assert a["label"] == "ALARM" and a["message"] == "breakage seen"
     assert a["wearBar"] == 1 and a["wear"] == "130 %" and a["life"] == "–" and a["tool"] == "–"
     assert a["unackedText"] == "2 to acknowledge"
     assert off["state"] == "off" and off["label"] == "OFF"
