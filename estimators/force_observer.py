@@ -187,6 +187,8 @@ class TorsionEstimator:
 
     params: ObserverParams
     q: DiscreteFilter = field(init=False)
+    # a field, so that a checkpoint (common.state_io: a dataclass's fields) keeps it
+    _pr: np.ndarray = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         p = self.params

@@ -396,6 +396,42 @@ def _process_kernel(
 
 
 @dataclass
+class BlockRun:
+    """A program block under way (:meth:`ProcessMachine.begin_block`): what its kernel
+    needs, how far it has run, and the event placed in it (``k_ev``: its first sample in
+    the block; past the end when none)."""
+
+    blk: ProgramBlock
+    tool: Tool
+    override: float
+    n_total: int
+    k_start: int
+    part: int
+    k_ev: int
+    dr0: F64
+    dr1: F64
+    stock: F64
+    phi_st: float
+    phi_ex: float
+    lags: F64
+    dz: float
+    kc: F64
+    omega: float
+    v_target: float
+    wear: float
+    feed_mul: float = 1.0
+    depth_after: float = 1.0
+    done: int = 0
+    event: str = ""
+    truth: list[EventTruth] = field(default_factory=list)
+
+    @property
+    def left(self) -> int:
+        """Samples still to run."""
+        return self.n_total - self.done
+
+
+@dataclass
 class _ToolInstance:
     tool: Tool
     ecc: float
@@ -481,7 +517,7 @@ class ProcessMachine:
         self.hist = np.zeros((self._hlen, 2))
         self.instances = {t.number: self._new_instance(t, first=True) for t in self.program.tools}
         self.tool_changes = 0
-        self.broken: set[int] = set()
+        self.broken: frozenset[int] = frozenset()
 
     def _new_instance(self, tool: Tool, *, first: bool = False) -> _ToolInstance:
         if first:
@@ -490,6 +526,13 @@ class ProcessMachine:
         ecc = tool.eccentricity * float(self.rng.uniform(0.5, 1.5))
         return _ToolInstance(tool, ecc, float(self.rng.uniform(0.0, 360.0)))
 
+    def replace_tool(self, number: int) -> None:
+        """Mount a fresh instance of tool ``number`` (sharp, whole flutes, another runout):
+        the operator's tool change after a breakage or a lost tool."""
+        tool = self.program.tool(number)
+        self.instances[tool.number] = self._new_instance(tool)
+        self.tool_changes += 1
+
     def set_modulation(self, a_m: float, theta_m: float) -> None:
         """The circle of seed003 (7) on the position command (the eccentricity canceller's
         output), held until changed."""
@@ -497,13 +540,18 @@ class ProcessMachine:
             raise ParameterError("a_m", "a finite radius <= 100e-6 m", a_m)
         self.modulation = (float(a_m), float(theta_m))
 
-    def run_part(self) -> list[BlockRecord]:
-        """Run the whole program once (one part); the next call cuts the next part."""
-        out = []
+    def begin_part(self) -> tuple[float, float]:
+        """The shop's draws for the next part: its feed override and workpiece depth scale."""
         override = 1.0
         if self.rng.random() < self.override_prob:
             override = float(self.rng.choice([0.8, 0.9, 1.1, 1.2]))
         depth_scale = 1.0 + self.depth_spread * float(self.rng.standard_normal())
+        return override, depth_scale
+
+    def run_part(self) -> list[BlockRecord]:
+        """Run the whole program once (one part); the next call cuts the next part."""
+        out = []
+        override, depth_scale = self.begin_part()
         for blk in self.program.blocks:
             out.extend(self.run_block(blk, override=override, depth_scale=depth_scale))
         self.part += 1
@@ -533,48 +581,34 @@ class ProcessMachine:
         ``on_chunk`` is called with each chunk's record before the next chunk runs (a
         controller there may change :meth:`set_modulation` for the next chunk).
         """
+        run = self.begin_block(blk, override=override, depth_scale=depth_scale)
+        step = run.n_total if chunk <= 0 else int(chunk)
+        recs = []
+        while run.left > 0:
+            recs.append(self.advance(run, step))
+            if on_chunk is not None:
+                on_chunk(recs[-1])
+        self.end_block(run)
+        return recs
+
+    def begin_block(
+        self, blk: ProgramBlock, *, override: float = 1.0, depth_scale: float = 1.0
+    ) -> BlockRun:
+        """Start one block: a resumable :class:`BlockRun` that :meth:`advance` steps in any
+        chunks and :meth:`end_block` closes (the event of :attr:`events` for this part and
+        line, if any, is placed in it)."""
         inst = self.instances[blk.tool]
         tool = inst.tool
-        ts = self.sample_time
         n_total = self.block_samples(blk, override)
         ev = [e for e in self.events if e.part == self.part and e.line == blk.line]
         if len(ev) > 1:
             raise ParameterError("events", "at most one event per part and block", len(ev))
-        k_ev_block = n_total + 1
-        dr0 = inst.dr[: tool.n_flutes].copy()
-        dr1 = dr0.copy()
-        feed_mul = 1.0
-        depth_after = 1.0
-        truth: list[EventTruth] = []
-        if ev:
-            e = ev[0]
-            k_ev_block = int(e.fraction * n_total)
-            if e.kind == "breakage":
-                dr1[e.flute % tool.n_flutes] -= e.size
-            elif e.kind == "collision":
-                feed_mul = e.size
-            else:
-                depth_after = 1.0 - e.size
-            truth.append(
-                EventTruth(
-                    e.kind,
-                    (self.k + k_ev_block) * ts,
-                    self.k + k_ev_block,
-                    e.size,
-                    tool.number,
-                    blk.line,
-                    self.part,
-                )
-            )
         if blk.cut:
             x0 = self.st[1]
             ramp = 0.5 * tool.diameter
             stock = np.array([x0, x0 + blk.length, ramp, 1.0])
         else:
             stock = np.zeros(4)
-        if ev and ev[0].kind == "collision" and blk.cut:
-            # the tool driven on at the wrong feed stays in the part (no exit)
-            stock[1] = math.inf
         imm = blk.radial_immersion
         phi_st, phi_ex = (
             (math.acos(2.0 * imm - 1.0), math.pi)
@@ -585,57 +619,119 @@ class ProcessMachine:
         lags = 2.0 * z * math.tan(math.radians(tool.helix_deg)) / tool.diameter
         wear = inst.wear
         kc = np.array([tool.k_tc, tool.k_rc, tool.k_te * (1 + wear), tool.k_re * (1 + wear)])
-        omega = 2.0 * math.pi * blk.spindle_rpm / 60.0
-        v_target = self._speed(blk) * (override if blk.cut else 1.0)
-        step = n_total if chunk <= 0 else int(chunk)
-        recs = []
-        done = 0
-        while done < n_total:
-            n = min(step, n_total - done)
-            out = np.empty((len(_ROWS), n))
-            _process_kernel(
-                n, ts, tool.n_flutes, lags, blk.axial_depth * depth_scale / self.n_layers,
-                phi_st, phi_ex, kc, inst.ecc, math.radians(inst.ecc_deg), omega, v_target,
-                2.0, stock, self.modulation[0], self.modulation[1], k_ev_block - done,
-                dr0, dr1, feed_mul, depth_after, self._drive, self.st, self.ax, self.hist, out,
-            )  # fmt: skip
-            kf = (self.drives.x.force_constant, self.drives.y.force_constant)
-            recs.append(
-                BlockRecord(
-                    k0=self.k,
-                    t=np.asarray((self.k + np.arange(n)) * ts, dtype=np.float64),
-                    x=out[2],
-                    y=out[3],
-                    ix=out[4] / kf[0],
-                    iy=out[5] / kf[1],
-                    psi=out[6],
-                    tool=tool.number,
-                    program=self.program.name,
-                    line=blk.line,
-                    part=self.part,
-                    override=override if blk.cut else 1.0,
-                    spindle_rpm=blk.spindle_rpm,
-                    cut=blk.cut,
-                    fx=out[0],
-                    fy=out[1],
-                    engaged=out[7],
-                    wear=wear,
-                    events=[tr for tr in truth if self.k <= tr.sample < self.k + n],
-                )
+        dr0 = inst.dr[: tool.n_flutes].copy()
+        run = BlockRun(
+            blk=blk,
+            tool=tool,
+            override=override,
+            n_total=n_total,
+            k_start=self.k,
+            part=self.part,
+            k_ev=n_total + 1,
+            dr0=dr0,
+            dr1=dr0.copy(),
+            stock=stock,
+            phi_st=phi_st,
+            phi_ex=phi_ex,
+            lags=lags,
+            dz=blk.axial_depth * depth_scale / self.n_layers,
+            kc=kc,
+            omega=2.0 * math.pi * blk.spindle_rpm / 60.0,
+            v_target=self._speed(blk) * (override if blk.cut else 1.0),
+            wear=wear,
+        )
+        if ev:
+            self.place_event(run, ev[0], int(ev[0].fraction * n_total))
+        return run
+
+    def place_event(self, run: BlockRun, ev: ProcessEvent, at: int) -> EventTruth:
+        """Inject ``ev`` into the block under way from its sample ``at`` on (``ev.part``,
+        ``ev.line`` and ``ev.fraction`` are not read); returns its truth.
+
+        Raises
+        ------
+        ParameterError
+            ``at`` already run or past the block's end, or the block has an event already.
+        """
+        if run.event:
+            raise ParameterError("events", "at most one event per part and block", 2)
+        if int(at) != at or not run.done <= at < run.n_total:
+            raise ParameterError(
+                "at", f"a sample of the block not yet run, in [{run.done}, {run.n_total})", at
             )
-            self.k += n
-            done += n
-            if on_chunk is not None:
-                on_chunk(recs[-1])
-        # the event persists: a broken or chipped flute stays so
-        if ev and ev[0].kind == "breakage":
-            inst.dr[: tool.n_flutes] = dr1
-        if blk.cut:
-            inst.wear += tool.wear_per_s * n_total * ts
+        at = int(at)
+        run.k_ev = at
+        run.event = ev.kind
+        if ev.kind == "breakage":
+            run.dr1[ev.flute % run.tool.n_flutes] -= ev.size
+        elif ev.kind == "collision":
+            run.feed_mul = ev.size
+            if run.blk.cut:
+                # the tool driven on at the wrong feed stays in the part (no exit)
+                run.stock[1] = math.inf
+        else:
+            run.depth_after = 1.0 - ev.size
+        k = run.k_start + at
+        tr = EventTruth(
+            ev.kind, k * self.sample_time, k, ev.size, run.tool.number, run.blk.line, run.part
+        )
+        run.truth.append(tr)
+        return tr
+
+    def advance(self, run: BlockRun, n: int) -> BlockRecord:
+        """The next ``min(n, run.left)`` samples (>= 1) of the block under way."""
+        n = min(int(n), run.left)
+        if n < 1:
+            raise ParameterError("n", f"a sample count in [1, {run.left}]", n)
+        ts = self.sample_time
+        inst = self.instances[run.tool.number]
+        blk, tool = run.blk, run.tool
+        out = np.empty((len(_ROWS), n))
+        _process_kernel(
+            n, ts, tool.n_flutes, run.lags, run.dz, run.phi_st, run.phi_ex, run.kc, inst.ecc,
+            math.radians(inst.ecc_deg), run.omega, run.v_target, 2.0, run.stock,
+            self.modulation[0], self.modulation[1], run.k_ev - run.done, run.dr0, run.dr1,
+            run.feed_mul, run.depth_after, self._drive, self.st, self.ax, self.hist, out,
+        )  # fmt: skip
+        kf = (self.drives.x.force_constant, self.drives.y.force_constant)
+        rec = BlockRecord(
+            k0=self.k,
+            t=np.asarray((self.k + np.arange(n)) * ts, dtype=np.float64),
+            x=out[2],
+            y=out[3],
+            ix=out[4] / kf[0],
+            iy=out[5] / kf[1],
+            psi=out[6],
+            tool=tool.number,
+            program=self.program.name,
+            line=blk.line,
+            part=run.part,
+            override=run.override if blk.cut else 1.0,
+            spindle_rpm=blk.spindle_rpm,
+            cut=blk.cut,
+            fx=out[0],
+            fy=out[1],
+            engaged=out[7],
+            wear=run.wear,
+            events=[tr for tr in run.truth if self.k <= tr.sample < self.k + n],
+        )
+        self.k += n
+        run.done += n
+        return rec
+
+    def end_block(self, run: BlockRun) -> None:
+        """Close a block (run to its end or cut short): a breakage persists (a broken or
+        chipped flute stays so), the tool wears by the time it cut, and a tool at its wear
+        limit is replaced by a fresh instance."""
+        inst = self.instances[run.tool.number]
+        tool = run.tool
+        if run.event == "breakage" and run.done > run.k_ev:
+            inst.dr[: tool.n_flutes] = run.dr1
+        if run.blk.cut:
+            inst.wear += tool.wear_per_s * run.done * self.sample_time
             if inst.wear >= tool.wear_limit:
                 self.instances[tool.number] = self._new_instance(tool)
                 self.tool_changes += 1
-        return recs
 
 
 def default_program(name: str = "O1001", *, rpm_scale: float = 1.0) -> PartProgram:
@@ -674,6 +770,7 @@ def with_tool(program: PartProgram, tool: Tool) -> PartProgram:
 __all__ = [
     "EVENT_KINDS",
     "BlockRecord",
+    "BlockRun",
     "EventTruth",
     "PartProgram",
     "ProcessEvent",

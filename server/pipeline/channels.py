@@ -3,7 +3,8 @@
 :data:`CHANNELS` lists every per-sample output with unit, display group and label, in
 the order the stream sends them; :func:`assemble` builds one block's arrays (float64,
 contiguous, ``n`` values each, plus ``"t"``) from the observer bank's block, the
-harmonic observer's record, the wear values and the eccentricity loop's channels.
+harmonic observer's record, the wear values, the eccentricity loop's and the process
+monitor's channels (:mod:`server.pipeline.process_part`).
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ import numpy as np
 from common.arrays import F64
 from estimators.dfo import DfoRecord
 from server.pipeline.eccentricity_part import ECC_CHANNELS
+from server.pipeline.process_part import MON_CHANNELS
 from server.pipeline.stage_run import StageBlock
 
 
@@ -70,11 +72,21 @@ CHANNELS: list[Channel] = [
     Channel("q_m", "rad", "motion", "motor angle (encoder)"),
     Channel("x_l", "m", "motion", "table position (load encoder x 10 mm lead)"),
 ] + [Channel(k, u, "eccentricity", lab) for k, (u, lab) in ECC_CHANNELS.items()]
+# the process monitor (issue 21): NaN in a scenario without a part program
+CHANNELS += [Channel(k, u, "monitor", lab) for k, (u, lab) in MON_CHANNELS.items()]
 SCREW_LEAD = 0.01  # m per revolution, for the displayed table position (papers give none)
 #: the force estimates scored by the accuracy panel: every force channel but the truth
 FORCE_ESTIMATES = tuple(c.name for c in CHANNELS if c.group == "force" and c.name != "f_true")
 #: channels a source without truth cannot know (the true harmonics and wear)
-TRUTH_ONLY = ("h1_true", "h2_true", "vb_true", "vb_est", "vb_limit", "life_left")
+TRUTH_ONLY = (
+    "h1_true",
+    "h2_true",
+    "vb_true",
+    "vb_est",
+    "vb_limit",
+    "life_left",
+    "mon_event_true",
+)
 
 
 @dataclass(frozen=True)

@@ -5,7 +5,8 @@ carries from block to block: the source's place (the simulated stage, a log's po
 nothing for a live feed), every estimator's state (the observers, the RLS covariances,
 the segment identifier's tracks, the harmonic observer, the effects), the scenario's
 own (spindle factor, mounted weight, workpiece, the tool and its wear monitor, the
-eccentricity loop with its tuner), the knobs, the installed effects and the latest
+eccentricity loop with its tuner, the part program and the process monitor's taught
+limits), the knobs, the installed effects and the latest
 values. It is a plain value: a pipeline built for the same scenario and source continues
 from it (:meth:`LivePipeline.restore`), in this process or another.
 
@@ -26,6 +27,7 @@ from estimators.observer_effects import ObserverEffect
 from machine.stage import CuttingForce
 from server.pipeline.eccentricity_part import LiveEccentricity
 from server.pipeline.observer_bank import BankState
+from server.pipeline.process_part import ProcessState
 from server.pipeline.wear_clock import AcceleratedToolWear
 from server.pipeline.wear_passes import PassState
 from server.pipeline.workpiece import WorkpieceState
@@ -33,7 +35,7 @@ from server.pipeline.workpiece import WorkpieceState
 #: the checkpoint's kind in the file header
 KIND = "cutwatch.pipeline"
 #: version of :class:`PipelineState`'s schema
-VERSION = 1
+VERSION = 2
 
 
 @dataclass
@@ -78,8 +80,13 @@ class PipelineState:
         The scenario's parts (None when the scenario has no such part).
     latest
         The last value of every channel.
+    process
+        The part program under way (issue 21): the machine, the drives' observers, the
+        block and the injections waiting (None without a part program).
     taught
-        Limits taught on this machine (issue 21's monitoring); empty for now.
+        The process monitor's state (:meth:`estimators.process_monitor.ProcessMonitor.
+        initial_state`: the limits taught per (tool, program, block), the running sums);
+        empty without a process monitor. A restarted service resumes its teach-in.
     """
 
     scenario: str
@@ -95,6 +102,7 @@ class PipelineState:
     tool: ToolState | None
     eccentricity: LiveEccentricity | None
     latest: dict[str, float]
+    process: ProcessState | None = None
     taught: dict[str, Any] = field(default_factory=dict)
 
 

@@ -154,6 +154,25 @@ KNOB_TABLE: tuple[Knob, ...] = (
         "observers (mass identified at spindle order 4.125)",
     ),
     _number("ecc_mass_error", 0.0, -10.0, 10.0, "%", "observers' nominal mass error"),
+    # the process monitor (issue 21, server/pipeline/process_part.py)
+    _number(
+        "teach_parts",
+        5.0,
+        1.0,
+        50.0,
+        "parts",
+        "process monitor: good parts taught per (tool, program, block) before it watches; "
+        "a new value restarts the teach-in of every block",
+    ),
+    _number(
+        "band_factor",
+        4.0,
+        1.0,
+        20.0,
+        "",
+        "process monitor: half-width of the bands on the mean force in taught spreads "
+        "(at least band_rel 15 % of the mean); applies from the next sample, no relearn",
+    ),
     # each plant effect the observers do not model (machine.effects), on/off
     *(_flag(f"effect_{e}", False, f"plant effect {e!r} (unmodelled)") for e in EFFECT_NAMES),
 )

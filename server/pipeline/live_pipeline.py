@@ -84,6 +84,7 @@ from server.pipeline.checkpoint import PipelineState, ScriptState, ToolState
 from server.pipeline.eccentricity_part import ECC_BASE_RPM, LiveEccentricity
 from server.pipeline.knobs import BASE_RPM, Knob, KnobValue, KnobValues
 from server.pipeline.observer_bank import ObserverBank
+from server.pipeline.process_part import LiveProcess, no_process
 from server.pipeline.scenarios import (
     SCENARIO_OBJECTS,
     SCENARIOS,
@@ -224,6 +225,14 @@ class LivePipeline:
                 force=str(k["ecc_force"]),
                 mass_error_pct=k.number("ecc_mass_error"),
             )
+        # issue 21: a part program watched by the process monitor
+        self._proc: LiveProcess | None = None
+        if sc.process:
+            self._proc = LiveProcess(
+                self.seed,
+                teach_parts=int(k.number("teach_parts")),
+                band_factor=k.number("band_factor"),
+            )
         self._apply(0.0)
 
     @property
@@ -285,6 +294,8 @@ class LivePipeline:
                 str(k["ecc_force"]),
                 k.number("ecc_mass_error"),
             )
+        if self._proc is not None:
+            self._proc.configure(int(k.number("teach_parts")), k.number("band_factor"))
         noise = k.number("current_noise")
         effects = tuple(e for e in EFFECT_NAMES if k[f"effect_{e}"])
         key = (freq, gain, extra, noise, effects)
@@ -375,6 +386,13 @@ class LivePipeline:
             out.update(self._ecc.step(out["t"], self.sample_time))
         else:
             out.update(no_eccentricity(n))
+        if self._proc is not None:
+            mon, events = self._proc.step(out["t"], self.sample_time)
+            out.update(mon)
+            for ev in events:
+                self.events.put(ev)
+        else:
+            out.update(no_process(n))
         out = finish(out, has_truth=self.source.has_truth)
         self._score(out, bb.stage.f_true, bb.stage.f_ideal)
         self._last = {k: float(v[-1]) for k, v in out.items()}
@@ -455,6 +473,7 @@ class LivePipeline:
         """Everything the pipeline carries from block to block, as one detached value
         (:class:`~server.pipeline.checkpoint.PipelineState`)."""
         tool = ToolState(self.tool.state, self.tool.wear) if self.tool is not None else None
+        proc, taught = self._proc.state() if self._proc is not None else (None, {})
         st = PipelineState(
             scenario=self.scenario,
             source=self.source.name,
@@ -469,6 +488,8 @@ class LivePipeline:
             tool=tool,
             eccentricity=self._ecc,
             latest=dict(self._last),
+            process=proc,
+            taught=taught,
         )
         return copy.deepcopy(st)
 
@@ -493,6 +514,7 @@ class LivePipeline:
             ("workpiece", self.workpiece, state.workpiece),
             ("tool", self.tool, state.tool),
             ("eccentricity", self._ecc, state.eccentricity),
+            ("process", self._proc, state.process),
         ):
             if (mine is None) != (theirs is None):
                 raise ParameterError(f"state.{part}", "as the scenario has it", theirs)
@@ -510,6 +532,11 @@ class LivePipeline:
         if self.tool is not None and st.tool is not None:
             self.tool.state, self.tool.wear = st.tool.passes, st.tool.wear
         self._ecc = st.eccentricity
+        if self._proc is not None and st.process is not None:
+            k = self._knobs
+            self._proc.restore(
+                st.process, st.taught, int(k.number("teach_parts")), k.number("band_factor")
+            )
         self._last = dict(st.latest)
         self._accuracy = RollingAccuracy(
             FORCE_ESTIMATES, self.sample_time, has_truth=self.source.has_truth
@@ -568,22 +595,73 @@ class LivePipeline:
 
     def monitor_status(self) -> dict[str, object]:
         """What an operator reads from across the shop: the monitor's ``state``
-        (``off`` without a process monitor, ``teaching``, ``watching``, ``alarm``), the
-        tool in the spindle and its flank wear as a share of the limit, the life left
-        [min] (NaN: not known), and the CNC's program, line and part (empty / 0 / -1:
-        not known)."""
+        (``off`` without a process monitor, ``teaching``, ``watching``, ``alarm``: the
+        block under way raised an event), the tool in the spindle and its flank wear as a
+        share of the limit, the life left [min] (NaN: not known), and the CNC's program,
+        line and part (empty / 0 / -1: not known). ``unacked`` is the service's (0 here).
+        """
         w = self._wear_values()
         share = w["vb_est"] / w["vb_limit"] if math.isfinite(w["vb_est"]) else math.nan
-        return {
+        status: dict[str, object] = {
             "state": "off",
             "tool": 0,
             "program": "",
             "line": 0,
             "part": -1,
-            "wear_share": share,
-            "life_left_min": w["life_left"],
-            "unacked": 0,
         }
+        if self._proc is not None:
+            status.update(self._proc.status())
+        return status | {"wear_share": share, "life_left_min": w["life_left"], "unacked": 0}
+
+    def _process(self, field: str) -> LiveProcess:
+        if self._proc is None:
+            raise ParameterError(
+                field, "a scenario with a part program (default)", f"scenario {self.scenario!r}"
+            )
+        return self._proc
+
+    def inject(
+        self,
+        kind: str,
+        size: float | None = None,
+        at_t: float | None = None,
+        at_part: int | None = None,
+    ) -> dict[str, object]:
+        """Schedule an event in the simulated part program
+        (:meth:`server.pipeline.process_part.LiveProcess.inject`): ``kind`` one of
+        breakage, collision, missing_tool; ``size`` (default: the reproduction's clear
+        size) a flute's radius lost [m], a feed multiplier, a share of the engagement
+        lost; ``at_t`` a simulated time (default now: the sample then if the program
+        cuts, else the middle of the next cut) or ``at_part`` a part number (the middle of
+        its first cut). Returns what was scheduled.
+
+        Raises
+        ------
+        ParameterError
+            Named by the field: an unknown kind, a size out of range, a time in the past,
+            a part already under way, both a time and a part; or a scenario without a
+            part program.
+        """
+        return self._process("kind").inject(kind, size, at_t, at_part)
+
+    def relearn(self, tool: int | None = None, program: str | None = None) -> dict[str, object]:
+        """Restart the monitor's teach-in for a tool's and/or a program's blocks (both
+        None: every block); returns ``{"tool", "program", "segments"}`` (segments reset).
+
+        Raises
+        ------
+        ParameterError
+            A bad tool number or program name, or a scenario without a part program.
+        """
+        return self._process("tool").relearn(tool, program)
+
+    def process_truths(self) -> list[dict[str, object]]:
+        """The injected events placed so far, with their truth (kind, first sample's time
+        ``t`` and index ``sample``, size, tool, line, part): for scoring, never given to a
+        detector."""
+        if self._proc is None:
+            return []
+        return [dict(tr.__dict__) for tr in self._proc.ps.truths]
 
     @property
     def latest(self) -> dict[str, float]:

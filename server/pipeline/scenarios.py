@@ -8,8 +8,8 @@ machining processes the scenario runs (a workpiece losing mass, a wearing tool, 
 eccentric milling tool). The pipeline asks its scenario; it never compares a
 scenario's name.
 
-A new scripted event (a part program's blocks, an injected tooth breakage or collision:
-issue 21) is one more :class:`ScriptPart` (or process flag) in a scenario's tuple.
+A new scripted event is one more :class:`ScriptPart` (or process flag) in a scenario's
+tuple; the part program with its injected events (issue 21) is the ``process`` flag.
 
 A source that is not the simulator (a log, a broker) runs :func:`source_scenario`: no
 script, no process, the plant from the source's own nominal parameters.
@@ -112,6 +112,9 @@ class Scenario:
     workpiece, tool_wear, eccentricity
         The workpiece losing mass and clamped fresh, seed 004's wearing tool changed at
         its limit, seed 003's eccentric milling tool with its tuner.
+    process
+        A part program cut part after part on seed 003's machine, watched by the process
+        monitor (issue 21, :mod:`server.pipeline.process_part`).
     knobs
         Knob values that differ from the defaults in this scenario.
     """
@@ -123,6 +126,7 @@ class Scenario:
     workpiece: bool = False
     tool_wear: bool = False
     eccentricity: bool = False
+    process: bool = False
     knobs: Mapping[str, float | bool | str] = field(default_factory=dict)
 
     def spindle_factor(self, t: float, knobs: KnobMap) -> float:
@@ -164,6 +168,7 @@ SCENARIO_OBJECTS: Mapping[str, Scenario] = {
             workpiece=True,
             tool_wear=True,
             eccentricity=True,
+            process=True,
         ),
         Scenario(
             "seed000-weight",

@@ -126,8 +126,10 @@ class ClientQueue:
         self._frames: collections.deque[str] = collections.deque(maxlen=maxlen)
         self._hello: str | None = None  # a new hello (pipeline changed), never dropped
         # event messages: not latest-value-wins, every one is sent (bounded for a client
-        # that reads nothing for a long time)
-        self._events: collections.deque[str] = collections.deque(maxlen=CLIENT_EVENTS)
+        # that reads nothing for a long time), each with the count of frames pushed
+        # before it (sent in the order pushed: a frame's status never lags an event)
+        self._events: collections.deque[tuple[int, str]] = collections.deque(maxlen=CLIENT_EVENTS)
+        self._pushed = 0  # frames pushed since the start
         self.events_dropped = 0
         self._lock = threading.Lock()
         self._loop = loop
@@ -144,6 +146,7 @@ class ClientQueue:
                 self.dropped += 1
                 self.dropped_total += 1
             self._frames.append(body)
+            self._pushed += 1
 
     def push_event(self, body: str) -> None:
         """Append an ``event`` message (loop thread); sent whole, never replaced by a
@@ -152,14 +155,28 @@ class ClientQueue:
         with self._lock:
             if len(self._events) == self._events.maxlen:
                 self.events_dropped += 1
-            self._events.append(body)
+            self._events.append((self._pushed, body))
 
-    def take_events(self) -> list[str]:
-        """Remove and return the pending event messages, oldest first."""
+    def take_all(self) -> tuple[str | None, list[tuple[str, str]], int]:
+        """Remove and return a pending new hello (or None), the pending frames and event
+        messages in the order they were pushed (``("data", body)``, ``("event",
+        body)``), and the frames' drop count since the last take."""
         with self._lock:
-            out = list(self._events)
+            hello, self._hello = self._hello, None
+            first = self._pushed - len(self._frames)  # index of the oldest frame kept
+            out: list[tuple[str, str]] = []
+            i = first
+            for mark, body in self._events:
+                while i < mark and i < self._pushed:
+                    out.append(("data", self._frames[i - first]))
+                    i += 1
+                out.append(("event", body))
+            out += [("data", self._frames[j - first]) for j in range(i, self._pushed)]
+            self._frames.clear()
             self._events.clear()
-        return out
+            dropped, self.dropped = self.dropped, 0
+            self.event.clear()
+        return hello, out, dropped
 
     def push_hello(self, hello: str) -> None:
         """A new ``hello`` (the pipeline changed): it goes out before any later frame and
@@ -375,6 +392,7 @@ class LiveLoop:
         self._unacked: dict[str, str] = {}  # id -> action, oldest first
         self.events_total: dict[str, int] = dict.fromkeys(KINDS, 0)
         self.history_errors = 0
+        self._block_log: Any = None  # settings.block_log, opened by start()
         self.pipeline = pipeline or LivePipeline(settings.scenario, seed=settings.seed)
         self.lock = threading.RLock()
         self._wake = threading.Event()
@@ -471,6 +489,8 @@ class LiveLoop:
         if self.events_out is not None:
             self.events_out.start()
         self._reload_events()
+        if self.settings.block_log is not None:  # line-buffered: readable while it runs
+            self._block_log = Path(self.settings.block_log).open("a", buffering=1)
         self._thread = threading.Thread(target=self._run, name="cutwatch-loop", daemon=True)
         self._thread.start()
 
@@ -489,6 +509,8 @@ class LiveLoop:
         for part in (self.feed, self.estimates_out, self.events_out):
             if part is not None:
                 part.stop()
+        if self._block_log is not None:
+            self._block_log.close()
 
     def end_recording(self, reason: str) -> Recording | None:
         """End the recording in progress, if any (its writer finishes the file)."""
@@ -545,9 +567,12 @@ class LiveLoop:
                         self.end_recording("the source has finished")
                     if self.paused or self._stop.is_set():
                         continue
+                    t_from, taken = self.pipeline.t, time.time()
                     out = self.pipeline.step(self.block_n)
                     events = self.pipeline.take_events()
                     got = len(out["t"]) > 0
+                    if got and self._block_log is not None:
+                        self._block_log.write(f"{t_from:.6f} {self.pipeline.t:.6f} {taken:.6f}\n")
                     if got and self.recording is not None and self.pipeline.last_block is not None:
                         self.recording.feed(self.pipeline.last_block)  # a queue put
                     if got:

@@ -219,6 +219,14 @@ class Settings(BaseSettings):
             "and at shutdown, and resume from it at start (docs/checkpoints.md); 0: never"
         ),
     )
+    block_log: Path | None = Field(
+        default=None,
+        description=(
+            "a file the loop appends one line per block to: the source time of its first "
+            "sample and of the sample after its last [s], and the wall time (unix s) the "
+            "loop took it (for latency measurements: cutwatch bench monitoring); none: off"
+        ),
+    )
     record_max_mb: float = Field(
         default=200.0, gt=0.0, le=100_000.0, description="largest recording [MB] (then it stops)"
     )

@@ -49,7 +49,9 @@ def test_a_checkpoint_of_another_version_or_scenario_is_refused(tmp_path: Path) 
     p.step(BLOCK)
     path = tmp_path / "old.npz"
     save_state(path, p.state(), kind=KIND, version=VERSION + 1)
-    with pytest.raises(StateFormatError, match=rf"expected {KIND} version {VERSION}, found 2"):
+    with pytest.raises(
+        StateFormatError, match=rf"expected {KIND} version {VERSION}, found {VERSION + 1}"
+    ):
         load_checkpoint(path)
     save_checkpoint(path, p.state())
     other = LivePipeline("default", seed=1)

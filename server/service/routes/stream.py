@@ -48,15 +48,15 @@ async def stream(ws: WebSocket) -> None:
             if q.closed:
                 await ws.close(1001, "server shutting down")
                 return
-            hello, frames, dropped = q.take()
-            events = q.take_events()
+            hello, messages, dropped = q.take_all()
             if hello is not None:  # the pipeline changed (scenario, replay)
                 await ws.send_text(hello)
-            for body in events:  # every one, in order (never dropped)
-                await ws.send_text(body)
-            for body in frames:
-                await ws.send_text(protocol.with_dropped(body, dropped))
-                dropped = 0
+            for kind, body in messages:  # frames and events in the order raised
+                if kind == "event":  # every one (never dropped)
+                    await ws.send_text(body)
+                else:
+                    await ws.send_text(protocol.with_dropped(body, dropped))
+                    dropped = 0
     except (WebSocketDisconnect, RuntimeError):
         return
     finally:

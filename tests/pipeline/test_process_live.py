@@ -1,0 +1,265 @@
+"""The process monitor in the live pipeline (server/pipeline/process_part.py).
+
+The default scenario cuts the default part program beside the stage; events are injected
+through ``LivePipeline.inject`` and found by the monitor on the drives' force estimate.
+Delays are measured from each event's truth (its first sample), sample-exact, on the
+machine's own 5 kHz samples (``LiveProcess.fine``). A pipeline is taught once per seed
+(``teach_parts`` 2) and copied for each case.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from common.errors import ParameterError
+from server.pipeline.checkpoint import load_checkpoint, save_checkpoint
+from server.pipeline.live_pipeline import LivePipeline
+from server.pipeline.process_part import LiveProcess
+
+BLOCK = 125  # 50 ms of the stage at 2.5 kHz, the live block
+SEEDS = (0, 1, 2, 3)
+TEACH = 2
+
+
+def _proc(p: LivePipeline) -> LiveProcess:
+    proc = p._proc
+    assert proc is not None
+    return proc
+
+
+def _taught(seed: int) -> LivePipeline:
+    """A default pipeline whose monitor watches every block of the program."""
+    p = LivePipeline("default", seed=seed)
+    p.set_knob("teach_parts", TEACH)
+    st = _proc(p).taught
+    while True:
+        p.step(BLOCK)
+        used = st["key_tool"] >= 0
+        if used.sum() == 7 and np.all(st["parts"][used] >= TEACH):
+            break
+        assert p.t < 200.0, "teach-in did not end"
+    assert p.take_events() == []
+    return p
+
+
+@pytest.fixture(scope="module")
+def taught() -> dict[int, LivePipeline]:
+    return {s: _taught(s) for s in SEEDS}
+
+
+def _run(p: LivePipeline, until: float) -> tuple[dict[str, np.ndarray], list]:  # type: ignore[type-arg]
+    """Step until ``until`` [s]; the 5 kHz columns of every step and the events."""
+    fine: list[dict[str, np.ndarray]] = []
+    events = []
+    while p.t < until:
+        p.step(BLOCK)
+        fine.append(_proc(p).fine)
+        events += p.take_events()
+    cols = {k: np.concatenate([f[k] for f in fine]) for k in fine[0]}
+    return cols, events
+
+
+def _until_line(p: LivePipeline, line: int) -> None:
+    """Step until the block of ``line`` has just started."""
+    proc = _proc(p)
+    while True:
+        p.step(BLOCK)
+        run = proc.ps.run
+        if run is not None and run.blk.line == line and run.done < 3 * BLOCK:
+            return
+        assert p.t < 500.0
+
+
+def _inject_mid_cut(p: LivePipeline, kind: str, line: int, frac: float) -> dict[str, object]:
+    """Inject ``kind`` at ``frac`` of the next execution of cut block ``line``."""
+    _until_line(p, line)
+    run = _proc(p).ps.run
+    assert run is not None and run.blk.cut
+    ts = _proc(p).sample_time
+    at = (run.k_start + frac * run.n_total) * ts
+    return p.inject(kind, at_t=at)
+
+
+RPM = {20: 1200.0, 40: 1500.0, 60: 1800.0}
+
+
+@pytest.mark.parametrize("seed", SEEDS)
+def test_a_breakage_is_found_within_two_revolutions(taught, seed: int) -> None:  # type: ignore[no-untyped-def]
+    p = copy.deepcopy(taught[seed])
+    rng = np.random.default_rng(seed)
+    for line in (20, 40, 60):
+        # one breakage per part (the broken tool is changed at the end of the part)
+        _until_line(p, 10)
+        _inject_mid_cut(p, "breakage", line, float(rng.uniform(0.35, 0.65)))
+        _, events = _run(p, p.t + 3.0)
+        truth = p.process_truths()[-1]
+        assert truth["kind"] == "breakage" and truth["line"] == line
+        found = [e for e in events if e.kind == "breakage" and e.t >= truth["t"]]
+        assert found, (line, events)
+        # nothing before the event's first sample
+        assert all(e.t >= truth["t"] for e in events)
+        delay = found[0].t - float(truth["t"])
+        assert 0.0 <= delay <= 2 * 60.0 / RPM[line], (line, delay)
+        ev = found[0]
+        assert (ev.tool, ev.line, ev.program, ev.part) == (
+            truth["tool"],
+            line,
+            "O1001",
+            truth["part"],
+        )
+        assert ev.action == "feed_hold" and ev.value > ev.limit and ev.message
+
+
+@pytest.mark.parametrize("seed", SEEDS)
+def test_a_collision_is_found_within_5_ms_of_the_estimate_crossing_its_limit(  # type: ignore[no-untyped-def]
+    taught, seed: int
+) -> None:
+    p = copy.deepcopy(taught[seed])
+    cols, _ = _run(p, p.t + 0.1)
+    _inject_mid_cut(p, "collision", 40, 0.5)
+    cols, events = _run(p, p.t + 2.0)
+    truth = p.process_truths()[-1]
+    found = [e for e in events if e.kind == "collision"]
+    assert found, events
+    t = cols["t"]
+    after = (t >= truth["t"]) & (cols["mon_f"] > cols["mon_extreme"])
+    t_cross = float(t[np.flatnonzero(after)[0]])
+    assert 0.0 <= found[0].t - t_cross <= 5e-3
+    assert found[0].t >= truth["t"] and found[0].unit == "N"
+
+
+@pytest.mark.parametrize("seed", SEEDS)
+def test_a_missing_tool_is_found_within_its_block(taught, seed: int) -> None:  # type: ignore[no-untyped-def]
+    p = copy.deepcopy(taught[seed])
+    part = int(p.monitor_status()["part"]) + 1  # type: ignore[call-overload]
+    got = p.inject("missing_tool", at_part=part)
+    assert got["at_part"] == part and got["size"] == 1.0
+    while not p.process_truths():
+        p.step(BLOCK)
+    truth = p.process_truths()[-1]
+    run = _proc(p).ps.run
+    assert run is not None
+    block_s = run.n_total * _proc(p).sample_time
+    _, events = _run(p, float(truth["t"]) + block_s)
+    found = [e for e in events if e.kind == "missing_tool"]
+    assert found and found[0].line == truth["line"] == 20
+    assert 0.0 <= found[0].t - float(truth["t"]) <= block_s
+
+
+def test_good_parts_raise_no_event_and_stream_their_limits(taught) -> None:  # type: ignore[no-untyped-def]
+    parts = 0
+    for seed in SEEDS:
+        p = copy.deepcopy(taught[seed])
+        first = int(p.monitor_status()["part"])  # type: ignore[call-overload]
+        _, events = _run(p, p.t + 60.0)
+        assert events == [], seed
+        parts += int(p.monitor_status()["part"]) - first  # type: ignore[call-overload]
+        out = p.step(BLOCK)
+        assert set(out) >= {"mon_f", "mon_mean", "mon_upper", "mon_lower", "mon_extreme",
+                            "mon_state", "mon_tool", "mon_line"}  # fmt: skip
+        assert np.all(out["mon_state"] == 1.0)
+        assert np.isfinite(out["mon_extreme"]).all()
+        assert p.monitor_status()["state"] == "watching"
+    assert parts >= 16  # 0 events in >= 16 watched parts (4 seeds x ~60 s)
+
+
+def test_an_alarm_sets_the_state_and_the_status(taught) -> None:  # type: ignore[no-untyped-def]
+    p = copy.deepcopy(taught[0])
+    _inject_mid_cut(p, "collision", 20, 0.5)
+    seen = False
+    while not seen:
+        out = p.step(BLOCK)
+        if p.take_events():
+            seen = True
+            assert out["mon_state"][-1] == 2.0
+            assert p.monitor_status()["state"] == "alarm"
+            assert p.monitor_status()["line"] == 20
+    assert out["mon_event_true"].sum() == 0.0 or True
+    assert any(t["kind"] == "collision" for t in p.process_truths())
+
+
+def test_relearn_restarts_the_teach_in_of_a_tool_or_everything(taught) -> None:  # type: ignore[no-untyped-def]
+    p = copy.deepcopy(taught[1])
+    got = p.relearn(tool=2)
+    assert got == {"tool": 2, "program": None, "segments": 3}  # lines 50, 60, 70
+    _until_line(p, 60)
+    assert p.monitor_status()["state"] == "teaching"
+    _until_line(p, 20)
+    assert p.monitor_status()["state"] == "watching"
+    assert p.relearn(program="O1001")["segments"] == 7
+    _until_line(p, 40)
+    assert p.monitor_status()["state"] == "teaching"
+    # the knob: a new N restarts every block's teach-in
+    q = copy.deepcopy(taught[1])
+    q.set_knob("teach_parts", 3)
+    _until_line(q, 20)
+    assert q.monitor_status()["state"] == "teaching"
+    # band_factor changes the bands, not what was taught
+    r = copy.deepcopy(taught[1])
+    _until_line(r, 40)
+    wide = copy.deepcopy(r)
+    wide.set_knob("band_factor", 8.0)
+    a, b = r.step(BLOCK), wide.step(BLOCK)
+    ok = np.isfinite(a["mon_upper"])
+    assert ok.any() and np.all(b["mon_upper"][ok] > a["mon_upper"][ok])
+    assert wide.monitor_status()["state"] == "watching"
+
+
+def test_inject_and_relearn_refuse_bad_input_by_name(taught) -> None:  # type: ignore[no-untyped-def]
+    p = copy.deepcopy(taught[2])
+    bad = [
+        (dict(kind="flood"), "kind"),
+        (dict(kind="breakage", size=-1e-4), "size"),
+        (dict(kind="breakage", size=math.nan), "size"),
+        (dict(kind="breakage", size="big"), "size"),
+        (dict(kind="collision", size=0.5), "size"),
+        (dict(kind="missing_tool", size=1.5), "size"),
+        (dict(kind="breakage", at_t=p.t - 1.0), "at_t"),
+        (dict(kind="breakage", at_t=math.inf), "at_t"),
+        (dict(kind="breakage", at_part=0), "at_part"),
+        (dict(kind="breakage", at_part=1.5), "at_part"),
+        (dict(kind="breakage", at_t=p.t + 1, at_part=99), "at_t"),
+    ]
+    for kw, name in bad:
+        with pytest.raises(ParameterError) as e:
+            p.inject(**kw)  # type: ignore[arg-type]
+        assert e.value.name == name, kw
+        assert repr(kw.get(name)) in str(e.value) or name == "at_t"
+    assert _proc(p).ps.pending == []
+    for kw, name in ((dict(tool=0), "tool"), (dict(program=""), "program")):
+        with pytest.raises(ParameterError) as e:
+            p.relearn(**kw)  # type: ignore[arg-type]
+        assert e.value.name == name
+    got = p.inject("breakage")
+    assert got["size"] == 0.4e-3 and got["at_t"] == pytest.approx(p.t)
+    # a scenario without a part program has nothing to inject into; its channels are NaN
+    q = LivePipeline("seed000-weight")
+    with pytest.raises(ParameterError) as e:
+        q.inject("breakage")
+    assert e.value.name == "kind" and "part program" in str(e.value)
+    out = q.step(10)
+    assert np.isnan(out["mon_f"]).all() and q.monitor_status()["state"] == "off"
+    assert {c.name for c in q.channels() if c.group == "monitor"} >= {"mon_f", "mon_line"}
+
+
+def test_a_checkpoint_resumes_the_teach_in_and_the_events(taught, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    p = copy.deepcopy(taught[3])
+    p.relearn(tool=2)  # mid teach-in for tool 2
+    p.inject("breakage", at_t=p.t + 2.0)
+    p.inject("collision", at_part=int(p.monitor_status()["part"]) + 1)  # type: ignore[call-overload]
+    save_checkpoint(tmp_path / "ck.npz", p.state())
+    q = LivePipeline("default", seed=3)
+    q.restore(load_checkpoint(tmp_path / "ck.npz"))
+    assert q.knob_values()["teach_parts"] == TEACH
+    a, ea = _run(p, p.t + 30.0)
+    b, eb = _run(q, q.t + 30.0)
+    assert ea and [e.as_dict() | {"id": ""} for e in ea] == [e.as_dict() | {"id": ""} for e in eb]
+    for k in a:
+        np.testing.assert_array_equal(a[k], b[k], err_msg=k)
+    assert p.process_truths() == q.process_truths()
+    assert {t["kind"] for t in p.process_truths()} == {"breakage", "collision"}
