@@ -179,8 +179,25 @@ def test_an_alarm_sets_the_state_and_the_status(taught) -> None:  # type: ignore
             assert out["mon_state"][-1] == 2.0
             assert p.monitor_status()["state"] == "alarm"
             assert p.monitor_status()["line"] == 20
-    assert out["mon_event_true"].sum() == 0.0 or True
-    assert any(t["kind"] == "collision" for t in p.process_truths())
+    # the truth beside the measurements: the collision's code from its first sample on
+    assert out["mon_event_true"][-1] == 2.0
+    assert [t["kind"] for t in p.process_truths()] == ["collision"]
+
+
+def test_a_broken_tool_is_changed_after_its_alarm(taught) -> None:  # type: ignore[no-untyped-def]
+    p = copy.deepcopy(taught[2])
+    proc = _proc(p)
+    assert proc.take_tool_changes() == []
+    _inject_mid_cut(p, "breakage", 40, 0.5)
+    _, events = _run(p, p.t + 3.0)
+    assert [e.kind for e in events][:1] == ["breakage"]
+    _until_line(p, 10)  # the next part: T1 changed by the operator
+    (ch,) = proc.take_tool_changes()
+    assert ch["tool"] == 1 and ch["cause"] == "breakage"
+    assert ch["start_t"] == 0.0 and ch["end_t"] == pytest.approx(p.t, abs=0.1)
+    assert not proc.ps.machine.instances[1].dr.any()  # whole flutes again
+    _, events = _run(p, p.t + 30.0)
+    assert events == []
 
 
 def test_relearn_restarts_the_teach_in_of_a_tool_or_everything(taught) -> None:  # type: ignore[no-untyped-def]
