@@ -577,6 +577,10 @@ class ToolLife(BaseModel):
     wear_true_mm: float | None = Field(
         description="the simulator's true flank wear at the change [mm] (null: no truth)"
     )
+    wear_true_share: float | None = Field(
+        description="the simulator's true wear at the change as a share of the tool's limit "
+        "(null: no truth)"
+    )
     cause: str = Field(description="why: " + ", ".join(CAUSES))
 
 
