@@ -50,21 +50,24 @@ def _ack(sp: ServeProcess, event_id: str, by: str | None = None) -> dict[str, An
     return _send(sp, "POST", f"/api/events/{event_id}/ack", {"by": by} if by else None)
 
 
-def _breakage(sp: ServeProcess, timeout: float = 240.0) -> dict[str, Any]:
-    """Teach one part, inject a tooth breakage once the monitor watches; the event kept."""
+def _breakage(sp: ServeProcess, timeout: float = 300.0) -> dict[str, Any]:
+    """Teach one part, inject a tooth breakage into a part the monitor watches (the
+    middle of its first cut); the event kept."""
     _send(sp, "PATCH", "/api/params", {"teach_parts": 1})
     deadline = time.monotonic() + timeout
-    while _get(sp, "/api/snapshot")["status"]["state"] == "teaching":
-        assert time.monotonic() < deadline, "the monitor did not finish its teach-in"
+    while (st := _get(sp, "/api/snapshot")["status"])["state"] != "watching":
+        assert time.monotonic() < deadline, f"the monitor does not watch: {st}"
         time.sleep(0.3)
-    _send(sp, "POST", "/api/control", {"action": "inject", "kind": "breakage"})
+    part = int(st["part"]) + 1
+    _send(sp, "POST", "/api/control", {"action": "inject", "kind": "breakage", "at_part": part})
     while time.monotonic() < deadline:
         found = _get(sp, "/api/events?kind=breakage")["items"]
         if found:
-            assert found[0]["action"] == "feed_hold"
+            assert found[0]["action"] == "feed_hold" and found[0]["part"] == part
             return dict(found[0])
         time.sleep(0.3)
-    raise AssertionError("the injected breakage was not kept in time")
+    snap = _get(sp, "/api/snapshot")
+    raise AssertionError(f"the breakage injected into part {part} was not kept: {snap['status']}")
 
 
 def _wait_for(sp: ServeProcess, events: int, lives: int, timeout: float = 240.0) -> None:
