@@ -50,7 +50,7 @@ import numpy as np
 from common.arrays import F64
 from common.errors import ParameterError
 from estimators.process_monitor import Alarm, MonitorParams, ProcessMonitor
-from machine.milling import MillingMachine
+from machine.milling import MillingMachine, MillingRecord
 from machine.process import (
     EVENT_KINDS,
     BlockRun,
@@ -362,7 +362,8 @@ class LiveProcess:
         """``c`` samples of the block through the drives' observer and the monitor."""
         ps = self.ps
         rec = ps.machine.advance(run, c)
-        fx, fy = ps.observer(rec)
+        # the observer reads what both records share: ix, iy, x, y
+        fx, fy = ps.observer(cast(MillingRecord, rec))
         mr = self.monitor.step(
             self.taught, fx, fy, rec.psi, tool=rec.tool, program=rec.program, line=rec.line,
             new_block=ps.new_block, override=rec.override,
