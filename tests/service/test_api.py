@@ -143,7 +143,11 @@ def test_body_size_limited(api: httpx.Client) -> None:
 @pytest.mark.parametrize(
     ("body", "message"),
     [
-        ({"action": "jump"}, r"Input should be 'pause', 'resume', 'reset', 'speed' or 'scenario'"),
+        (
+            {"action": "jump"},
+            r"Input should be 'pause', 'resume', 'reset', 'speed', 'scenario', 'inject' or"
+            r" 'relearn'",
+        ),
         ({"action": "speed"}, r"value: expected a value \(required with action 'speed'\), got"),
         ({"action": "speed", "value": 5000}, r"value: expected a speed in \[0, 1000\], got 5000$"),
         ({"action": "pause", "extra": 1}, r"Extra inputs are not permitted"),

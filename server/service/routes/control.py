@@ -17,6 +17,7 @@ router = APIRouter(responses=error_responses())
     summary="pause, resume, reset, set the speed or the scenario; inject an event, relearn",
     dependencies=[Authorised],
     response_model=ControlState,
+    response_model_exclude_none=True,  # scheduled, relearned: only for their action
     responses=error_responses(413, 422),
 )
 def control(body: Control, lp: Live) -> ControlState:
