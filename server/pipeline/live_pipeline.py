@@ -443,15 +443,45 @@ class LivePipeline:
             "end_t": self.t,
             "wear_at_change_mm": vb_est,
             "wear_true_mm": st.vb_true if self.source.has_truth else None,
+            "wear_true_share": st.vb_true / VB_LIMIT if self.source.has_truth else None,
             "cause": cause,
         }
+
+    def _part_tool_changes(self) -> list[dict[str, object]]:
+        """The part program's tool changes (:meth:`LiveProcess.take_tool_changes`) as
+        tool lives: the simulated machine's wear as a share of the tool's limit (a truth:
+        no estimate of it), the cause ``wear_limit`` for a worn tool, else the alarm after
+        which the operator changed it."""
+        if self._proc is None:
+            return []
+        program = self._proc.ps.machine.program
+        out: list[dict[str, object]] = []
+        for c in self._proc.take_tool_changes():
+            number, wear = c["tool"], c["wear"]
+            assert isinstance(number, int) and isinstance(wear, float | int)
+            cause = str(c["cause"])
+            out.append(
+                {
+                    "tool": number,
+                    "index": None,
+                    "start_t": c["start_t"],
+                    "end_t": c["end_t"],
+                    "wear_at_change_mm": None,
+                    "wear_true_share": float(wear) / program.tool(number).wear_limit,
+                    "cause": "wear_limit" if cause == "worn" else cause,
+                }
+            )
+        return out
 
     def take_tool_changes(self) -> list[dict[str, object]]:
         """The tools taken out of the spindle since the last call, oldest first: ``tool``,
         ``index``, ``start_t``, ``end_t`` [s], ``wear_at_change_mm``, ``wear_true_mm``,
-        ``cause`` (``wear_limit``); the history records them."""
+        ``wear_true_share``, ``cause``; the history records them. Two kinds: the wearing
+        tool of the stage (seed 004's wear, changed at its flank-wear limit; ``index`` its
+        place in the run) and the part program's tools (changed worn, or after a breakage
+        or missing-tool alarm; ``index`` None, no estimate of the wear)."""
         out, self._tool_changes = self._tool_changes, []
-        return out
+        return out + self._part_tool_changes()
 
     def _wear_events(self, t: float) -> None:
         """The tool-life monitor's alarms on the wear estimate (:mod:`server.pipeline.wear_alarms`)

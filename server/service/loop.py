@@ -81,6 +81,8 @@ EVENTS_KEPT = 200
 UNACKED_KEPT = 10_000
 #: event messages waiting for one client (beyond: the oldest dropped and counted)
 CLIENT_EVENTS = 1000
+#: injected events whose truth /api/snapshot shows (the latest)
+INJECTED_KEPT = 50
 
 
 class EventHistory(Protocol):
@@ -971,11 +973,15 @@ class LiveLoop:
             return self.pipeline.knobs()
 
     def snapshot(self) -> dict[str, object]:
-        """The pipeline's snapshot (:meth:`LivePipeline.snapshot`) and the checkpoint's
-        status (``checkpoint``: path, resumed, resumed_t, saved_t, refused)."""
+        """The pipeline's snapshot (:meth:`LivePipeline.snapshot`), the checkpoint's
+        status (``checkpoint``: path, resumed, resumed_t, saved_t, refused) and the truth
+        of the latest :data:`INJECTED_KEPT` injected events (``injected``: kind, the first
+        sample's time ``t`` and index, size, tool, line, part; for scoring, never given to
+        a detector)."""
         with self.lock:
             snap = self.pipeline.snapshot()
             snap["checkpoint"] = dict(self.checkpoint_status)
+            snap["injected"] = self.pipeline.process_truths()[-INJECTED_KEPT:]
             return snap
 
     def accuracy(self) -> dict[str, object]:
@@ -1021,9 +1027,9 @@ class LiveLoop:
         with self.lock:
             return self.pipeline.inject(kind, size=size, at_t=at_t, at_part=at_part)
 
-    def relearn(self, tool: int | None = None, program: str | None = None) -> None:
+    def relearn(self, tool: int | None = None, program: str | None = None) -> dict[str, Any]:
         """Teach the monitor's limits again (:meth:`LivePipeline.relearn`): of one tool,
-        one program, or all (both None).
+        one program, or all (both None); the tool, program and segments reset.
 
         Raises
         ------
@@ -1031,7 +1037,7 @@ class LiveLoop:
             A value the pipeline refuses (naming the field).
         """
         with self.lock:
-            self.pipeline.relearn(tool=tool, program=program)
+            return self.pipeline.relearn(tool=tool, program=program)
 
     def start_recording(
         self,

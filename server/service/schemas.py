@@ -24,6 +24,7 @@ from pydantic import (
 )
 from pydantic_core import PydanticCustomError
 
+from server.pipeline.process_part import CLEAR_SIZES, SIZE_RANGES
 from server.records.history import CAUSES
 from server.service.messages import Accuracy, Event, LoopHealth, MonitorStatus
 from server.service.settings import MAX_SPEED, ScenarioName, Speed
@@ -143,6 +144,11 @@ class PipelineSnapshot(BaseModel):
     observer_effects: list[PipelineEffect]
     replay: ReplayProgress | None = Field(None, description="present while replaying a log")
     accuracy: Accuracy
+    injected: list[dict[str, JsonValue]] = Field(
+        default_factory=list,
+        description="the truth of the latest injected events (kind, first sample's time t "
+        "and index, size, tool, line, part): for scoring, never given to a detector",
+    )
 
 
 class Snapshot(BaseModel):
@@ -245,12 +251,8 @@ _ACTION_FIELDS = {
     "tool": "relearn",
     "program": "relearn",
 }
-#: what ``size`` means for each kind of event, and its check
-_SIZES: dict[str, tuple[str, Any]] = {
-    "breakage": ("a radius lost by one flute [mm] > 0", lambda v: v > 0),
-    "collision": ("a feed multiplier > 1", lambda v: v > 1),
-    "missing_tool": ("a share of the axial engagement in (0, 1]", lambda v: 0 < v <= 1),
-}
+#: the longest program name (relearn)
+PROGRAM_CHARS = 32
 
 
 def _refuse(field: str, allowed: str, got: Any) -> PydanticCustomError:
@@ -263,11 +265,12 @@ def _refuse(field: str, allowed: str, got: Any) -> PydanticCustomError:
 class Control(BaseModel):
     """Body of ``POST /api/control``.
 
-    ``inject`` schedules an event in the simulator (a tooth breaking or chipped, a
-    collision or overload, a missing tool): ``kind``, its ``size`` (default: the
-    simulator's clear size) and when: ``at_t`` (simulated time [s]) or ``at_part`` (the
-    part counter), at most one (neither: as soon as the program allows). ``relearn``
-    teaches the monitor's limits again: of ``tool``, of ``program``, or all (neither).
+    ``inject`` schedules an event in the simulated part program (a tooth breaking or
+    chipped, a collision or overload, a missing tool): ``kind``, its ``size`` (default:
+    the reproduction's clear size) and when: ``at_t`` (simulated time [s]; in an air
+    move the event waits for the next cut) or ``at_part`` (the middle of that part's
+    first cut), at most one (neither: now). ``relearn`` teaches the monitor's limits
+    again: of ``tool``, of ``program``, or all (neither).
     """
 
     model_config = ConfigDict(extra="forbid")
@@ -278,9 +281,13 @@ class Control(BaseModel):
     size: float | None = Field(
         None,
         allow_inf_nan=False,
-        description="action inject: breakage: radius lost by one flute [mm] > 0 (at or "
-        "above the feed per tooth: a broken tooth; below: chipped); collision: the feed "
-        "multiplier > 1; missing_tool: share of the axial engagement gone in (0, 1]",
+        description="action inject: "
+        + "; ".join(
+            f"{k}: {what} in ({lo:g}, {hi:g}]{' ' + unit if unit else ''}"
+            for k, (lo, hi, unit, what) in SIZE_RANGES.items()
+        )
+        + " (breakage: at or above the feed per tooth the tooth is gone, below it is "
+        "chipped); default: " + ", ".join(f"{k} {v:g}" for k, v in CLEAR_SIZES.items()),
     )
     at_t: float | None = Field(
         None, ge=0, allow_inf_nan=False, description="action inject: simulated time [s]"
@@ -288,7 +295,10 @@ class Control(BaseModel):
     at_part: int | None = Field(None, ge=0, description="action inject: part counter")
     tool: int | None = Field(None, ge=1, description="action relearn: this tool only")
     program: str | None = Field(
-        None, min_length=1, max_length=64, description="action relearn: this program only"
+        None,
+        min_length=1,
+        max_length=PROGRAM_CHARS,
+        description="action relearn: this program only",
     )
 
     @model_validator(mode="after")
@@ -305,10 +315,11 @@ class Control(BaseModel):
             if got is not None and self.action != action:
                 raise _refuse(name, f"no {name} (it belongs to action '{action}')", got)
         if self.at_t is not None and self.at_part is not None:
-            raise _refuse("at_part", "at most one of at_t and at_part", self.at_part)
+            raise _refuse("at_t", "no time when at_part is given (one of them)", self.at_t)
         if self.kind is not None and self.size is not None:
-            allowed, ok = _SIZES[self.kind]
-            if not ok(self.size):
+            lo, hi, unit, what = SIZE_RANGES[self.kind]
+            if not lo < self.size <= hi:
+                allowed = f"a {what} in ({lo:g}, {hi:g}] {unit}".rstrip()
                 raise _refuse("size", f"{allowed} (kind {self.kind})", self.size)
         return self
 
@@ -322,6 +333,9 @@ class ControlState(BaseModel):
     scenario: str
     scheduled: dict[str, JsonValue] | None = Field(
         None, description="action inject: what the simulator scheduled (kind, size, t, part...)"
+    )
+    relearned: dict[str, JsonValue] | None = Field(
+        None, description="action relearn: the tool, the program and the segments reset"
     )
 
 
@@ -562,6 +576,10 @@ class ToolLife(BaseModel):
     )
     wear_true_mm: float | None = Field(
         description="the simulator's true flank wear at the change [mm] (null: no truth)"
+    )
+    wear_true_share: float | None = Field(
+        description="the simulator's true wear at the change as a share of the tool's limit "
+        "(null: no truth)"
     )
     cause: str = Field(description="why: " + ", ".join(CAUSES))
 

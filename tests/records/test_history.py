@@ -175,7 +175,7 @@ def test_an_acknowledgement_is_kept_once(tmp_path: Path) -> None:
 def test_tool_lives_chain_their_wall_times(tmp_path: Path) -> None:
     st = _store(tmp_path, machine="mill-1")
     a = {"tool": 1, "index": 1, "start_t": 0.0, "end_t": 40.0, "cause": "wear_limit",
-         "wear_at_change_mm": 0.29, "wear_true_mm": 0.301}  # fmt: skip
+         "wear_at_change_mm": 0.29, "wear_true_mm": 0.301, "wear_true_share": 1.003}  # fmt: skip
     b = {"tool": 1, "index": 2, "start_t": 40.0, "end_t": 75.5, "cause": "wear_limit",
          "wear_at_change_mm": math.nan}  # fmt: skip
     c = {"tool": 5, "start_t": 90.0, "end_t": 91.0, "cause": "breakage"}
@@ -189,6 +189,7 @@ def test_tool_lives_chain_their_wall_times(tmp_path: Path) -> None:
     assert (mid["start_wall"], mid["end_wall"]) == (1000.0, 1035.0)  # mounted at a's change
     assert new["start_wall"] is None  # 90 s is not where the last life ended
     assert old["wear_at_change_mm"] == 0.29 and old["wear_true_mm"] == 0.301
+    assert old["wear_true_share"] == 1.003 and new["wear_true_share"] is None
     assert mid["wear_at_change_mm"] is None and mid["index"] == 2
     assert new["machine"] == "mill-1" and new["cause"] == "breakage" and new["index"] is None
     assert st.tool_life(tool=1)[0] == 2

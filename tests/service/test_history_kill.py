@@ -4,9 +4,10 @@ records events and tool lives, an event is acknowledged over REST, the process i
 and acknowledgement the service had answered with is there, and the snapshot shows the
 latest events again.
 
-The events are the service's own: the tool-life monitor's ``wear_limit`` and
-``life_short`` alarms on the default scenario's wearing tool (its estimate, run fast), and
-the tool lives its changes at the flank-wear limit.
+The events are the service's own: a tooth breakage injected into the simulated part
+program (``POST /api/control`` inject) and found by the process monitor (a feed hold), the
+tool-life monitor's ``wear_limit`` and ``life_short`` alarms on the default scenario's
+wearing tool, and the tool lives of its changes at the flank-wear limit.
 """
 
 from __future__ import annotations
@@ -32,17 +33,41 @@ def _get(sp: ServeProcess, path: str) -> Any:
         return json.loads(r.read())
 
 
-def _ack(sp: ServeProcess, event_id: str, by: str | None = None) -> dict[str, Any]:
-    body = json.dumps({"by": by}).encode() if by is not None else b""
+def _send(sp: ServeProcess, method: str, path: str, body: Any = None) -> dict[str, Any]:
+    data = json.dumps(body).encode() if body is not None else b""
     req = urllib.request.Request(
-        f"{sp.base}/api/events/{event_id}/ack",
-        data=body,
-        method="POST",
-        headers={"Content-Type": "application/json"} if body else {},
+        sp.base + path,
+        data=data,
+        method=method,
+        headers={"Content-Type": "application/json"} if data else {},
     )
     with urllib.request.urlopen(req, timeout=10) as r:
         out: dict[str, Any] = json.loads(r.read())
     return out
+
+
+def _ack(sp: ServeProcess, event_id: str, by: str | None = None) -> dict[str, Any]:
+    return _send(sp, "POST", f"/api/events/{event_id}/ack", {"by": by} if by else None)
+
+
+def _breakage(sp: ServeProcess, timeout: float = 300.0) -> dict[str, Any]:
+    """Teach one part, inject a tooth breakage into a part the monitor watches (the
+    middle of its first cut); the event kept."""
+    _send(sp, "PATCH", "/api/params", {"teach_parts": 1})
+    deadline = time.monotonic() + timeout
+    while (st := _get(sp, "/api/snapshot")["status"])["state"] != "watching":
+        assert time.monotonic() < deadline, f"the monitor does not watch: {st}"
+        time.sleep(0.3)
+    part = int(st["part"]) + 1
+    _send(sp, "POST", "/api/control", {"action": "inject", "kind": "breakage", "at_part": part})
+    while time.monotonic() < deadline:
+        found = _get(sp, "/api/events?kind=breakage")["items"]
+        if found:
+            assert found[0]["action"] == "feed_hold" and found[0]["part"] == part
+            return dict(found[0])
+        time.sleep(0.3)
+    snap = _get(sp, "/api/snapshot")
+    raise AssertionError(f"the breakage injected into part {part} was not kept: {snap['status']}")
 
 
 def _wait_for(sp: ServeProcess, events: int, lives: int, timeout: float = 240.0) -> None:
@@ -81,13 +106,18 @@ def _check_kept(
     for eid, ev in seen.items():
         assert now[eid] == ev, f"event {eid} changed over the restart"
     assert {_key(x) for x in lives} <= {_key(x) for x in now_lives}, "tool lives lost"
-    # the restarted service shows the latest events again (the in-memory list reloaded)
+    # the restarted service shows the latest events again (the in-memory list reloaded),
+    # and an alarm not acknowledged before the restart still holds the status at alarm
     snap = _get(sp, "/api/snapshot")
     shown = {e["id"]: e for e in snap["events"]}
     newest = sorted(seen.values(), key=lambda e: e["received_wall"])[-5:]
     for ev in newest:
         assert ev["id"] in shown, "a kept event is not in the snapshot after the restart"
         assert shown[ev["id"]]["acked"] == ev["acked"]
+    open_alarms = [e for e in seen.values() if not e["acked"] and e["action"] != "notice"]
+    assert open_alarms, "the test expects an alarm left unacknowledged"
+    assert snap["status"]["state"] == "alarm"
+    assert snap["status"]["unacked"] >= sum(not e["acked"] for e in seen.values())
     return now
 
 
@@ -98,14 +128,13 @@ def test_events_acks_and_tool_lives_survive_a_killed_service(
     data = str(tmp_path / "data")
     args = ("--data-dir", data, "--speed", SPEED)
     with serve_process(*args) as sp:
-        _wait_for(sp, events=2, lives=1)
-        first, _ = _everything(sp)
-        oldest = min(first.values(), key=lambda e: e["received_wall"])
-        acked = _ack(sp, oldest["id"])
+        broken = _breakage(sp)
+        acked = _ack(sp, broken["id"])
         assert acked["acked"] is True and acked["acked_by"] == "operator"
-        _wait_for(sp, events=1, lives=1)  # more recorded after the acknowledgement
+        _wait_for(sp, events=2, lives=1)  # wear alarms and a tool change after the ack
         seen, lives = _everything(sp)
-        assert seen[oldest["id"]]["acked_wall"] == acked["acked_wall"]
+        assert seen[broken["id"]]["acked_wall"] == acked["acked_wall"]
+        assert {"breakage", "wear_limit"} <= {e["kind"] for e in seen.values()}
         code = sp.stop(sig)
         # uvicorn shuts down on SIGTERM, then raises the signal again: -15 either way
         assert code == -sig, sp.stderr[-2000:]
@@ -120,7 +149,7 @@ def test_events_acks_and_tool_lives_survive_a_killed_service(
         assert fresh["id"] not in now
         again = _ack(sp, fresh["id"], by="night shift")
         assert again["acked_by"] == "night shift"
-        assert _ack(sp, oldest["id"], by="someone else") == now[oldest["id"]]  # idempotent
+        assert _ack(sp, broken["id"], by="someone else") == now[broken["id"]]  # idempotent
         seen, lives = _everything(sp)
         sp.stop(sig)
     with serve_process(*args) as sp:

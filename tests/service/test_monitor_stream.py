@@ -1,10 +1,12 @@
-"""The monitor's events through the real service: on /ws (an event message, frames with the
-status strip, the unacknowledged ones to a new client), in /api/snapshot and /metrics,
-on a real Mosquitto; an acknowledgement announced to every client; inject and relearn
-refused by name.
+"""The monitor's events through the real service: on /ws (event messages, frames with the
+status strip, the unacknowledged ones to a new client), in /api/snapshot and /metrics, on
+a real Mosquitto (the event, and the feed-hold command before a breakage's event); an
+acknowledgement announced to every client; inject and relearn refused by name.
 
-The events here are the tool-life monitor's own (the default scenario's first tool
-passes 90 % of its wear limit at ~60 s of simulated time), run at the loop's top speed.
+One run of the default scenario at the loop's top speed, taught on 2 parts: a tooth
+breakage injected through ``POST /api/control`` once the monitor watches (~30 s of
+simulated time), and the tool-life monitor's own wear alarm (the first tool passes 90 %
+of its wear limit at ~60 s).
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ from _live import in_thread, serve
 from _wait import poll
 from websockets.sync.client import ClientConnection, connect
 
+from machine.process import default_program
 from server.cli.commands.serve import uvicorn_options
 from server.records.monitor_events import MonitorEvent
 from server.service.app import create_app
@@ -54,21 +57,47 @@ def serve_app(**settings: Any) -> Iterator[tuple[str, LiveLoop]]:
 
 @dataclass
 class Run:
-    """What one run of the service showed: the stream up to and after the first event,
-    the broker's messages, the loop."""
+    """What one run of the service showed: the stream, the broker's messages (arrival
+    order), the answer to the injection, the loop."""
 
     hp: str
     loop: LiveLoop
     stream: list[dict[str, Any]] = field(default_factory=list)
     mqtt: list[mqtt.MQTTMessage] = field(default_factory=list)
+    injected: dict[str, Any] = field(default_factory=dict)
 
-    def events(self) -> list[dict[str, Any]]:
-        return [m["event"] for m in self.stream if m["type"] == "event"]
+    def events(self, kind: str | None = None) -> list[dict[str, Any]]:
+        return [
+            m["event"]
+            for m in self.stream
+            if m["type"] == "event" and (kind is None or m["event"]["kind"] == kind)
+        ]
 
 
 def _recv(ws: ClientConnection) -> dict[str, Any]:
     msg: dict[str, Any] = json.loads(ws.recv(timeout=10))
     return msg
+
+
+def _drive(r: Run, ws: ClientConnection) -> None:
+    """Run at top speed; inject a breakage once the monitor watches; on until the wear
+    alarm and the breakage's event have come, and five frames more."""
+    base = f"http://{r.hp}"
+    r.stream.append(_recv(ws))  # hello
+    httpx.patch(f"{base}/api/params", json={"teach_parts": 2}).raise_for_status()
+    httpx.post(f"{base}/api/control", json={"action": "speed", "value": 1000})
+    deadline = time.monotonic() + 120
+    while not (r.events("wear_limit") and r.events("breakage")):
+        assert time.monotonic() < deadline, "no breakage and wear alarm in 120 s"
+        m = _recv(ws)
+        r.stream.append(m)
+        if not r.injected and m["type"] == "data" and m["status"]["state"] == "watching":
+            body = {"action": "inject", "kind": "breakage"}
+            ans = httpx.post(f"{base}/api/control", json=body)
+            assert ans.status_code == 200, ans.text
+            r.injected = ans.json()
+    r.stream += [_recv(ws) for _ in range(5)]
+    httpx.post(f"{base}/api/control", json={"action": "pause"})
 
 
 @pytest.fixture(scope="module")
@@ -88,15 +117,10 @@ def run() -> Iterator[Run]:
                 health = f"http://{hp}/api/health"
                 poll(lambda: httpx.get(health).json()["events_out"]["connected"], 10)
                 with connect(f"ws://{hp}/ws") as ws:
-                    r.stream.append(_recv(ws))  # hello
-                    httpx.post(f"http://{hp}/api/control", json={"action": "speed", "value": 1000})
-                    deadline = time.monotonic() + 60
-                    while not r.events() and time.monotonic() < deadline:
-                        r.stream.append(_recv(ws))
-                    for _ in range(5):  # frames after the event
-                        r.stream.append(_recv(ws))
-                    httpx.post(f"http://{hp}/api/control", json={"action": "pause"})
-                poll(lambda: got.qsize() >= 1, 10, 0.05)
+                    _drive(r, ws)
+                n = len(r.events())
+                poll(lambda: got.qsize() >= n, 10, 0.05)
+                time.sleep(0.2)
                 r.mqtt = [got.get_nowait() for _ in range(got.qsize())]
                 yield r
         finally:
@@ -104,16 +128,30 @@ def run() -> Iterator[Run]:
             sub.disconnect()
 
 
-def test_an_event_reaches_the_stream_with_its_machine(run: Run) -> None:
+def test_events_reach_the_stream_with_their_machine_and_identities(run: Run) -> None:
     assert run.stream[0]["type"] == "hello"
-    evs = run.events()
-    assert evs, "no event in 60 s"
-    msg = next(m for m in run.stream if m["type"] == "event")
-    EventMessage.model_validate(msg)  # the typed shape
-    e = evs[0]
-    assert (e["kind"], e["action"], e["unit"]) == ("wear_limit", "alarm", "mm")
-    assert e["machine"] == "m1" and e["acked"] is False and e["acked_by"] is None
-    assert e["value"] >= e["limit"] > 0 and 50 < e["t"] < 70
+    for m in run.stream:
+        if m["type"] == "event":
+            EventMessage.model_validate(m)  # the typed shape
+    wear = run.events("wear_limit")[0]
+    assert (wear["action"], wear["unit"], wear["machine"]) == ("alarm", "mm", "m1")
+    assert wear["value"] >= wear["limit"] > 0 and 50 < wear["t"] < 70
+    assert wear["acked"] is False and wear["acked_by"] is None
+    brk = run.events("breakage")[0]
+    assert brk["action"] == "feed_hold" and brk["machine"] == "m1"
+    # the CNC's identities of the block it happened in
+    assert brk["tool"] >= 1 and brk["program"] and brk["line"] > 0 and brk["part"] >= 2
+    assert run.injected["scheduled"]["kind"] == "breakage"
+    assert brk["t"] >= run.injected["scheduled"]["now"]
+
+
+def test_the_truth_of_the_injection_is_in_the_snapshot_and_the_event_follows_it(run: Run) -> None:
+    snap = httpx.get(f"http://{run.hp}/api/snapshot").json()
+    truths = [t for t in snap["pipeline"]["injected"] if t["kind"] == "breakage"]
+    assert len(truths) == 1
+    brk = run.events("breakage")[0]
+    rpm = next(b.spindle_rpm for b in default_program().blocks if b.line == brk["line"])
+    assert 0.0 <= brk["t"] - truths[0]["t"] <= 2 * 60.0 / rpm  # within two revolutions
 
 
 def test_frames_carry_the_status_and_turn_to_alarm(run: Run) -> None:
@@ -125,40 +163,59 @@ def test_frames_carry_the_status_and_turn_to_alarm(run: Run) -> None:
     i = next(i for i, m in enumerate(run.stream) if m["type"] == "event")
     before = [m["status"] for m in run.stream[:i] if m["type"] == "data"]
     after = [m["status"] for m in run.stream[i:] if m["type"] == "data"]
-    assert before and all(s["state"] == "off" and s["unacked"] == 0 for s in before)
+    assert before and all(s["state"] != "alarm" and s["unacked"] == 0 for s in before)
+    assert {s["state"] for s in before} == {"teaching", "watching"}
     assert after and all(s["state"] == "alarm" and s["unacked"] >= 1 for s in after)
-    # the wear share the strip shows rises towards the limit
     shares = [s["wear_share"] for s in before if s["wear_share"] is not None]
-    assert shares and 0.5 < shares[-1] < 1.0
+    assert shares and 0.3 < shares[-1] < 1.0
+    assert {s["tool"] for s in before} >= {1, 2}  # the tool in the spindle, changed
 
 
 def test_snapshot_and_metrics_carry_the_events(run: Run) -> None:
     snap = httpx.get(f"http://{run.hp}/api/snapshot").json()
     kept = [Event.model_validate(e) for e in snap["events"]]
-    assert [e.id for e in kept][-1] == run.events()[0]["id"]  # newest first
+    assert [e.id for e in kept] == [e["id"] for e in reversed(run.events())]  # newest first
     assert snap["status"]["state"] == "alarm" and snap["status"]["unacked"] == len(kept)
     m = httpx.get(f"http://{run.hp}/metrics").text
-    n_wear = sum(e.kind == "wear_limit" for e in kept)
-    assert f'cutwatch_events_total{{kind="wear_limit"}} {n_wear}' in m
-    assert 'cutwatch_events_total{kind="breakage"} 0' in m
+    for kind in ("breakage", "collision", "missing_tool", "wear_limit", "life_short"):
+        n = sum(e.kind == kind for e in kept)
+        assert f'cutwatch_events_total{{kind="{kind}"}} {n}' in m
+    holds = sum(e.action == "feed_hold" for e in kept)
+    assert holds >= 1
     assert f"cutwatch_events_unacked {len(kept)}" in m
     assert f"cutwatch_events_published_total {len(kept)}" in m
-    assert "cutwatch_commands_published_total 0" in m  # an alarm: no feed hold
+    assert f"cutwatch_commands_published_total {holds}" in m
 
 
-def test_the_broker_carries_the_event_and_no_command_for_an_alarm(run: Run) -> None:
-    assert {m.topic for m in run.mqtt} == {"cutwatch/m1/events"}
-    wire = json.loads(run.mqtt[0].payload)
-    assert run.mqtt[0].qos == 1
-    assert MonitorEvent.from_dict(wire).id == run.events()[0]["id"]
-    assert wire["schema"] == "cutwatch.event" and wire["machine"] == "m1"
+def test_the_broker_carries_each_event_and_a_command_before_each_feed_hold(run: Run) -> None:
+    assert all(m.qos == 1 and not m.retain for m in run.mqtt)
+    topics = [m.topic for m in run.mqtt]
+    bodies = [json.loads(m.payload) for m in run.mqtt]
+    events = [MonitorEvent.from_dict(b) for t, b in zip(topics, bodies, strict=True)
+              if t == "cutwatch/m1/events"]  # fmt: skip
+    assert [e.id for e in events] == [e["id"] for e in run.events()]
+    assert all(e.machine == "m1" for e in events)
+    commands = [(i, b) for i, (t, b) in enumerate(zip(topics, bodies, strict=True))
+                if t == "cutwatch/m1/command"]  # fmt: skip
+    holds = [e for e in events if e.action == "feed_hold"]
+    assert [b["event_id"] for _, b in commands] == [e.id for e in holds]
+    for i, cmd in commands:
+        assert cmd["schema"] == "cutwatch.command" and cmd["version"] == 1
+        assert cmd["command"] == "feed_hold" and cmd["machine"] == "m1"
+        ev = next(e for e in holds if e.id == cmd["event_id"])
+        assert cmd["t"] == ev.t
+        j = topics.index("cutwatch/m1/events", i)  # the next event on the broker is its own
+        assert bodies[j]["id"] == ev.id
+    wear = run.events("wear_limit")[0]["id"]
+    assert wear not in [b["event_id"] for _, b in commands]  # an alarm: no command
 
 
 def test_a_new_client_gets_the_unacknowledged_events_after_hello(run: Run) -> None:
+    n = len(run.events())
     with connect(f"ws://{run.hp}/ws") as ws:
-        first = [_recv(ws) for _ in range(2)]
+        first = [_recv(ws) for _ in range(1 + n)]
     assert first[0]["type"] == "hello"
-    assert first[1]["type"] == "event" and first[1]["event"]["id"] == run.events()[0]["id"]
+    assert [m["event"]["id"] for m in first[1:]] == [e["id"] for e in run.events()]
 
 
 def test_an_acknowledgement_is_announced_and_clears_the_alarm(run: Run) -> None:
@@ -178,9 +235,9 @@ def test_an_acknowledgement_is_announced_and_clears_the_alarm(run: Run) -> None:
         while frame["type"] != "data":
             frame = _recv(ws)
     assert all(a["acked"] and a["acked_by"] == "op" for a in acks)
-    assert frame["status"]["unacked"] == 0 and frame["status"]["state"] == "off"
+    assert frame["status"]["unacked"] == 0 and frame["status"]["state"] != "alarm"
     snap = httpx.get(f"http://{run.hp}/api/snapshot").json()
-    assert all(e["acked"] for e in snap["events"]) and snap["status"]["state"] == "off"
+    assert all(e["acked"] for e in snap["events"]) and snap["status"]["state"] != "alarm"
     assert "cutwatch_events_unacked 0" in httpx.get(f"http://{run.hp}/metrics").text
     with connect(f"ws://{run.hp}/ws") as ws:  # nothing left to catch up on
         assert _recv(ws)["type"] == "hello" and _recv(ws)["type"] == "data"
@@ -207,11 +264,12 @@ def hp() -> Iterator[str]:
         ({"action": "inject", "kind": "breakage", "at_t": -1}, "at_t"),
         ({"action": "inject", "kind": "breakage", "at_part": -2}, "at_part"),
         ({"action": "inject", "kind": "breakage", "at_part": 1.5}, "at_part"),
-        ({"action": "inject", "kind": "breakage", "at_t": 3, "at_part": 2}, "at_part"),
+        ({"action": "inject", "kind": "breakage", "size": 0.01}, "size"),  # 10 mm
+        ({"action": "inject", "kind": "breakage", "at_t": 3, "at_part": 2}, "at_t"),
         ({"action": "inject", "kind": "breakage", "tool": 2}, "tool"),
         ({"action": "relearn", "tool": 0}, "tool"),
         ({"action": "relearn", "program": ""}, "program"),
-        ({"action": "relearn", "program": "P" * 65}, "program"),
+        ({"action": "relearn", "program": "P" * 33}, "program"),
         ({"action": "relearn", "kind": "breakage"}, "kind"),
         ({"action": "pause", "at_t": 3}, "at_t"),
     ],

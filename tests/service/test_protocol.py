@@ -179,7 +179,7 @@ def test_python_frames_follow_schema() -> None:
         ),
         (
             '{"type": "data", "dropped": 0, "seq": 1, "wall": 0, "t": [1, 2], "ts": [1],'
-            ' "ch": {"x": [1, 2]}, "health": {}, "knobs": {},'
+            ' "ch": {"x": [1, 2]}, "health": {}, "knobs": {}, "status": null,'
             ' "accuracy": {"mode": "truth", "windows": [1, 10], "span": [0, 0], "rms": {},'
             ' "rms_q": {}, "floor": [null, null], "mean_of": []}}',
             "health lacks sim_t",
@@ -188,7 +188,7 @@ def test_python_frames_follow_schema() -> None:
             '{"type": "data", "dropped": 0, "seq": 1, "wall": 0, "t": [1, 2], "ts": [1],'
             ' "ch": {"x": [1, 2, 3]}, "health": {"sim_t": 0, "speed": 1, "paused": false,'
             ' "lag_ms": 0, "lag_p99_ms": 0, "realtime_factor": 1, "clients": 1,'
-            ' "dropped_total": 0, "stalls": 0}, "knobs": {},'
+            ' "dropped_total": 0, "stalls": 0}, "knobs": {}, "status": null,'
             ' "accuracy": {"mode": "truth", "windows": [1, 10], "span": [0, 0], "rms": {},'
             ' "rms_q": {}, "floor": [null, null], "mean_of": []}}',
             "channel x: 3 samples, t has 2, ts has 1",
@@ -197,14 +197,16 @@ def test_python_frames_follow_schema() -> None:
             '{"type": "data", "dropped": 0, "seq": 1, "wall": 0, "t": [], "ts": [],'
             ' "ch": {}, "health": {"sim_t": 0, "speed": 1, "paused": false,'
             ' "lag_ms": 0, "lag_p99_ms": 0, "realtime_factor": 1, "clients": 1,'
-            ' "dropped_total": 0, "stalls": 0}, "knobs": {}, "accuracy": {"mode": "truth"}}',
+            ' "dropped_total": 0, "stalls": 0}, "knobs": {}, "status": null,'
+            ' "accuracy": {"mode": "truth"}}',
             "accuracy lacks windows, span, rms, rms_q, floor, mean_of",
         ),
         (
             '{"type": "data", "dropped": 0, "seq": 1, "wall": 0, "t": [], "ts": [],'
             ' "ch": {}, "health": {"sim_t": 0, "speed": 1, "paused": false,'
             ' "lag_ms": 0, "lag_p99_ms": 0, "realtime_factor": 1, "clients": 1,'
-            ' "dropped_total": 0, "stalls": 0}, "knobs": {}, "accuracy": {"mode": "x",'
+            ' "dropped_total": 0, "stalls": 0}, "knobs": {}, "status": null,'
+            ' "accuracy": {"mode": "x",'
             ' "windows": [], "span": [], "rms": {}, "rms_q": {}, "floor": [], "mean_of": []}}',
             "accuracy mode x",
         ),

@@ -294,7 +294,8 @@ class HistoryStore:
     ) -> list[dict[str, Any]]:
         """Record tools taken out of the spindle (:meth:`LivePipeline.take_tool_changes`:
         ``tool``, ``index``, ``start_t``, ``end_t``, ``wear_at_change_mm``, ``cause``,
-        optionally ``wear_true_mm``, ``start_wall``, ``end_wall``, ``machine``), committed
+        optionally ``wear_true_mm``, ``wear_true_share``, ``start_wall``, ``end_wall``,
+        ``machine``), committed
         before the call returns. ``end_wall`` defaults to ``wall`` (now); ``start_wall`` to
         the ``end_wall`` of the machine's previous record when that ended at this one's
         ``start_t`` (the tool mounted then), else NULL. The records as stored."""
@@ -320,6 +321,7 @@ class HistoryStore:
                     "end_wall": _num(c.get("end_wall")) or now,
                     "wear_at_change_mm": _num(c.get("wear_at_change_mm")),
                     "wear_true_mm": _num(c.get("wear_true_mm")),
+                    "wear_true_share": _num(c.get("wear_true_share")),
                     "cause": cause,
                 }
                 if row["start_wall"] is None and start_t is not None:

@@ -78,5 +78,6 @@ tool_life = Table(
     Column("end_wall", Float, nullable=False),
     Column("wear_at_change_mm", Float, nullable=True),
     Column("wear_true_mm", Float, nullable=True),
+    Column("wear_true_share", Float, nullable=True),
     Column("cause", String(32), nullable=False),
 )

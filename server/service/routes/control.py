@@ -17,17 +17,18 @@ router = APIRouter(responses=error_responses())
     summary="pause, resume, reset, set the speed or the scenario; inject an event, relearn",
     dependencies=[Authorised],
     response_model=ControlState,
+    response_model_exclude_none=True,  # scheduled, relearned: only for their action
     responses=error_responses(413, 422),
 )
 def control(body: Control, lp: Live) -> ControlState:
     # the value and the scenario are checked by the request model (Speed, ScenarioName),
     # as are inject's and relearn's fields; what the pipeline refuses (a source without a
     # simulator, a part already made) is a ParameterError: a 422 naming the field
-    scheduled = None
+    scheduled = relearned = None
     if body.action == "inject" and body.kind is not None:
         scheduled = lp.inject(body.kind, size=body.size, at_t=body.at_t, at_part=body.at_part)
     elif body.action == "relearn":
-        lp.relearn(tool=body.tool, program=body.program)
+        relearned = lp.relearn(tool=body.tool, program=body.program)
     elif body.action == "pause":
         lp.pause()
     elif body.action == "resume":
@@ -44,4 +45,5 @@ def control(body: Control, lp: Live) -> ControlState:
         sim_t=lp.sim_t,
         scenario=lp.scenario,
         scheduled=json_safe(scheduled) if scheduled is not None else None,
+        relearned=json_safe(relearned) if relearned is not None else None,
     )

@@ -61,6 +61,7 @@ def upgrade() -> None:
         sa.Column("end_wall", sa.Float, nullable=False),
         sa.Column("wear_at_change_mm", sa.Float, nullable=True),
         sa.Column("wear_true_mm", sa.Float, nullable=True),
+        sa.Column("wear_true_share", sa.Float, nullable=True),
         sa.Column("cause", sa.String(32), nullable=False),
         sa.PrimaryKeyConstraint("seq", name="pk_tool_life"),
     )

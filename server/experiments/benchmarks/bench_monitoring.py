@@ -1,0 +1,323 @@
+"""Alarms that act: from the block holding an event's first sample to the feed-hold command
+on a real Mosquitto, through a real ``cutwatch serve`` at 1x.
+
+What runs, each real: Debian's ``mosquitto`` on a free loopback port; ``cutwatch serve``
+as a child process (its own data directory, no viser, ``--broker``, ``--machine bench``,
+the default scenario: the part program with the process monitor); in this process a paho
+subscriber of ``cutwatch/bench/command`` and ``cutwatch/bench/events``, and one WebSocket
+client reading every message (a dashboard open, so the loop encodes and sends its frames
+as it does in use). A served process rather than the loop in-process: the latency then
+holds what ``serve`` adds (uvicorn and the WebSocket in the same process, sharing the
+GIL with the loop), and ``server.experiments`` does not import ``server.service``.
+
+The measured latency of one event is ``w1 - w0``:
+
+``w0``
+    the wall clock (``time.time()``, unix s) at which the service's loop took the block
+    holding the event's first sample: read just before the loop calls
+    ``LivePipeline.step`` for that block. The loop writes it to its block log
+    (``CUTWATCH_BLOCK_LOG``: one line per block, the source time of its first sample, of
+    the sample after its last, and that wall time); the block is the one whose span
+    holds the injected event's first sample, from its truth (``GET /api/snapshot``,
+    ``pipeline.injected[].t``: the simulator's, never given to a detector).
+``w1``
+    the wall clock when this process's paho callback receives the ``feed_hold`` command
+    carrying that event's id (same host, same clock).
+
+So it holds the detection delay at 1x (the breakage detector needs up to two spindle
+revolutions of samples after the first, and at 1x those arrive in real time: one
+revolution is 33-50 ms in the default program), the blocks' computation, the publish,
+the broker and the delivery. The target: p99 < 100 ms at 1x.
+
+Procedure: teach-in at ``TEACH_SPEED`` x with ``teach_parts`` 2 until part 3 runs; then
+per event: speed 1, ``SETTLE_S`` of wall time, inject a tooth breakage now (``POST
+/api/control``; in an air move it waits for the middle of the next cut), wait for its
+command; then ``TEACH_SPEED`` x until the next part starts (the broken tool is replaced
+at the end of the part) and again. ``EVENTS`` events (``QUICK_EVENTS`` with ``--quick``);
+``repeats`` is not used (one run of that many events). Other feed holds (a false alarm)
+are counted, not timed. Heavy-ish: one service at 1x for ~2 s per event.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import getpass
+import json
+import os
+import queue
+import shutil
+import socket
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import httpx
+import numpy as np
+
+MACHINE = "bench"
+EVENTS = 40
+QUICK_EVENTS = 5
+TEACH_SPEED = 20.0
+SETTLE_S = 1.0
+COMMAND_TIMEOUT_S = 10.0
+TARGET_P99_MS = 100.0
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+@contextlib.contextmanager
+def _mosquitto(port: int) -> Iterator[None]:
+    exe = shutil.which("mosquitto") or "/usr/sbin/mosquitto"
+    if not Path(exe).exists():
+        raise RuntimeError("mosquitto is not installed (make system-deps installs it as root)")
+    with tempfile.TemporaryDirectory(prefix="cutwatch-bench-mosq-") as d:
+        conf = Path(d) / "mosquitto.conf"
+        conf.write_text(
+            f"listener {port} 127.0.0.1\nallow_anonymous true\npersistence false\n"
+            f"user {getpass.getuser()}\nlog_dest none\n"
+        )
+        p = subprocess.Popen([exe, "-c", str(conf)])
+        try:
+            deadline = time.monotonic() + 10
+            while True:
+                try:
+                    socket.create_connection(("127.0.0.1", port), timeout=0.2).close()
+                    break
+                except OSError:
+                    if p.poll() is not None or time.monotonic() > deadline:
+                        raise RuntimeError(f"mosquitto did not start on {port}") from None
+                    time.sleep(0.05)
+            yield
+        finally:
+            p.terminate()
+            p.wait(10)
+
+
+@contextlib.contextmanager
+def _service(broker_port: int, d: Path) -> Iterator[tuple[str, Path]]:
+    """``cutwatch serve`` at 1x on a free port; its base URL and its block log."""
+    port = _free_port()
+    log = d / "blocks.log"
+    env = dict(
+        os.environ,
+        CUTWATCH_DATA_DIR=str(d / "data"),
+        CUTWATCH_BLOCK_LOG=str(log),
+        CUTWATCH_CHECKPOINT_S="0",
+    )
+    cmd = [sys.executable, "-m", "server.cli.main", "serve", "--port", str(port), "--no-viser",
+           "--broker", f"mqtt://127.0.0.1:{broker_port}", "--machine", MACHINE]  # fmt: skip
+    out = (d / "serve.out").open("w")
+    proc = subprocess.Popen(cmd, env=env, stdout=out, stderr=subprocess.STDOUT)
+    base = f"http://127.0.0.1:{port}"
+    try:
+        deadline = time.monotonic() + 120
+        while True:
+            if proc.poll() is not None:
+                raise RuntimeError(f"cutwatch serve exited: {(d / 'serve.out').read_text()[-800:]}")
+            with contextlib.suppress(httpx.HTTPError):
+                h = httpx.get(f"{base}/api/health", timeout=2).json()
+                if h.get("events_out", {}).get("connected"):
+                    break
+            if time.monotonic() > deadline:
+                raise RuntimeError("cutwatch serve did not come up in 120 s")
+            time.sleep(0.2)
+        yield base, log
+    finally:
+        proc.terminate()
+        try:
+            proc.wait(30)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(5)
+        out.close()
+
+
+class _Listener:
+    """The paho subscriber: commands with their arrival wall time, events by id."""
+
+    def __init__(self, port: int) -> None:
+        import paho.mqtt.client as mqtt
+
+        self.commands: queue.Queue[tuple[float, dict[str, Any]]] = queue.Queue()
+        self.events: dict[str, dict[str, Any]] = {}
+        ready = threading.Event()
+        c = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id="cutwatch-bench-edge")
+
+        def on_message(_c: object, _u: object, m: Any) -> None:
+            w1 = time.time()  # first: the arrival
+            body = json.loads(m.payload)
+            if m.topic.endswith("/command"):
+                self.commands.put((w1, body))
+            else:
+                self.events[body["id"]] = body
+
+        c.on_message = on_message
+        c.on_subscribe = lambda *_a: ready.set()
+        c.connect("127.0.0.1", port)
+        c.loop_start()
+        c.subscribe([(f"cutwatch/{MACHINE}/command", 1), (f"cutwatch/{MACHINE}/events", 1)])
+        if not ready.wait(10):
+            raise RuntimeError("the subscriber was not subscribed in 10 s")
+        self.client = c
+
+    def close(self) -> None:
+        self.client.loop_stop()
+        self.client.disconnect()
+
+
+def _dashboard(url: str, stop: threading.Event) -> threading.Thread:
+    """A WebSocket client reading every message until ``stop``."""
+    from websockets.sync.client import connect
+
+    def read() -> None:
+        with connect(url, max_size=None) as ws:
+            while not stop.is_set():
+                with contextlib.suppress(TimeoutError):
+                    ws.recv(timeout=0.5)
+
+    th = threading.Thread(target=read, name="bench-dashboard", daemon=True)
+    th.start()
+    return th
+
+
+def _block_taken(log: Path, t_first: float) -> float:
+    """The wall time the loop took the block whose span holds ``t_first`` (NaN: none)."""
+    for line in reversed(log.read_text().splitlines()):
+        a, b, w = (float(x) for x in line.split())
+        if a - 1e-9 <= t_first < b - 1e-9:
+            return w
+    return float("nan")
+
+
+def _snapshot(base: str) -> dict[str, Any]:
+    snap: dict[str, Any] = httpx.get(f"{base}/api/snapshot", timeout=5).json()
+    return snap
+
+
+def _control(base: str, body: dict[str, Any]) -> dict[str, Any]:
+    r = httpx.post(f"{base}/api/control", json=body, timeout=10)
+    if r.status_code != 200:
+        raise RuntimeError(f"POST /api/control {body}: {r.status_code} {r.text[:300]}")
+    out: dict[str, Any] = r.json()
+    return out
+
+
+def _wait_part(base: str, part: int, timeout: float = 300.0) -> None:
+    """Until the part counter reaches ``part``."""
+    deadline = time.monotonic() + timeout
+    while _snapshot(base)["status"]["part"] < part:
+        if time.monotonic() > deadline:
+            raise RuntimeError(f"part {part} did not start in {timeout:g} s")
+        time.sleep(0.1)
+
+
+def _one_event(base: str, log: Path, sub: _Listener) -> dict[str, float]:
+    """Inject one breakage at 1x and time its command (see the module docstring)."""
+    _control(base, {"action": "speed", "value": 1.0})
+    time.sleep(SETTLE_S)
+    n_before = len(_snapshot(base)["pipeline"]["injected"])
+    _control(base, {"action": "inject", "kind": "breakage"})
+    other = 0
+    deadline = time.monotonic() + COMMAND_TIMEOUT_S
+    while True:
+        left = deadline - time.monotonic()
+        if left <= 0:
+            snap = _snapshot(base)
+            print(f"  missed: no command in {COMMAND_TIMEOUT_S:g} s; injected "
+                  f"{snap['pipeline']['injected'][n_before:]}, status {snap['status']}, "
+                  f"t {snap['pipeline']['t']:.2f}", file=sys.stderr)  # fmt: skip
+            return {"missed": 1.0, "other": float(other)}
+        try:
+            w1, cmd = sub.commands.get(timeout=left)
+        except queue.Empty:
+            continue
+        truths = _snapshot(base)["pipeline"]["injected"]
+        if len(truths) <= n_before:
+            other += 1  # a feed hold before the breakage was placed: not this one
+            continue
+        t_first = float(truths[-1]["t"])
+        ev_deadline = time.monotonic() + 5
+        while cmd["event_id"] not in sub.events and time.monotonic() < ev_deadline:
+            time.sleep(0.01)
+        ev = sub.events.get(cmd["event_id"], {})
+        if ev.get("kind") != "breakage" or float(cmd["t"]) < t_first:
+            other += 1
+            continue
+        w0 = _block_taken(log, t_first)
+        return {
+            "latency_ms": 1e3 * (w1 - w0),
+            "detect_ms": 1e3 * (float(cmd["t"]) - t_first),
+            "part": float(truths[-1]["part"]),
+            "other": float(other),
+        }
+
+
+def measure(*, repeats: int, quick: bool) -> dict[str, object]:
+    """Time ``EVENTS`` breakages (``QUICK_EVENTS`` quick) from their first sample's block
+    to their command on the broker; ``repeats`` unused (see the module docstring)."""
+    del repeats
+    n_events = QUICK_EVENTS if quick else EVENTS
+    bport = _free_port()
+    rows: list[dict[str, float]] = []
+    with tempfile.TemporaryDirectory(prefix="cutwatch-bench-mon-") as tmp, _mosquitto(bport):
+        d = Path(tmp)
+        sub = _Listener(bport)
+        stop = threading.Event()
+        try:
+            with _service(bport, d) as (base, log):
+                reader = _dashboard(base.replace("http://", "ws://") + "/ws", stop)
+                httpx.patch(f"{base}/api/params", json={"teach_parts": 2}, timeout=10)
+                _control(base, {"action": "speed", "value": TEACH_SPEED})
+                _wait_part(base, 3)  # parts 0 and 1 taught, part 2 watched whole
+                while len(rows) < n_events:
+                    row = _one_event(base, log, sub)
+                    rows.append(row)
+                    print(f"  event {len(rows)}: {row}", file=sys.stderr)
+                    _control(base, {"action": "speed", "value": TEACH_SPEED})
+                    part = int(row.get("part", _snapshot(base)["status"]["part"]))
+                    _wait_part(base, part + 1)
+                metrics = httpx.get(f"{base}/metrics", timeout=5).text
+                stop.set()
+                reader.join(5)
+        finally:
+            stop.set()
+            sub.close()
+    return _summary(rows, metrics)
+
+
+def _summary(rows: list[dict[str, float]], metrics: str) -> dict[str, object]:
+    lat = np.array([r["latency_ms"] for r in rows if "latency_ms" in r])
+    det = np.array([r["detect_ms"] for r in rows if "detect_ms" in r])
+    holds = next(
+        (int(float(ln.split()[1])) for ln in metrics.splitlines()
+         if ln.startswith("cutwatch_commands_published_total ")),
+        -1,
+    )  # fmt: skip
+    p99 = float(np.percentile(lat, 99)) if lat.size else float("nan")
+    return {
+        "configuration": "cutwatch serve at 1x (default scenario, 50 ms blocks), one "
+        "WebSocket client, Mosquitto on loopback; tooth breakages (0.4 mm) injected now",
+        "events": int(lat.size),
+        "missed": int(sum(r.get("missed", 0.0) for r in rows)),
+        "other_feed_holds": int(sum(r.get("other", 0.0) for r in rows)),
+        "latency_ms_median": float(np.median(lat)) if lat.size else float("nan"),
+        "latency_ms_p99": p99,
+        "latency_ms_max": float(lat.max()) if lat.size else float("nan"),
+        "latency_ms_min": float(lat.min()) if lat.size else float("nan"),
+        "detection_ms_median": float(np.median(det)) if det.size else float("nan"),
+        "detection_ms_max": float(det.max()) if det.size else float("nan"),
+        "commands_published": holds,
+        "target_p99_ms": TARGET_P99_MS,
+        "target_met": bool(
+            lat.size >= len(rows) and not any("missed" in r for r in rows) and p99 < TARGET_P99_MS
+        ),
+    }
