@@ -331,7 +331,8 @@ def _summary(rows: list[dict[str, float]], metrics: str) -> dict[str, object]:
     p99 = float(np.percentile(lat, 99)) if lat.size else float("nan")
     return {
         "configuration": "cutwatch serve at 1x (default scenario, 50 ms blocks), one "
-        "WebSocket client, Mosquitto on loopback; tooth breakages (0.4 mm) injected now",
+        "WebSocket client, Mosquitto on loopback; tooth breakages (0.4 mm) injected into "
+        "the next part's first cut",
         "events": int(lat.size),
         "missed": int(sum(r.get("missed", 0.0) for r in rows)),
         "not_at_1x": int(sum("latency_ms" in r and not r["paced"] for r in rows)),
