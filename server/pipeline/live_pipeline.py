@@ -152,6 +152,8 @@ class LivePipeline:
         self.source = source or SimulatorSource(plant.config, seed=seed)
         #: events raised and not yet taken (:meth:`take_events`); kept over a reset
         self.events = EventOutbox()
+        #: tools taken out of the spindle, not yet taken (:meth:`take_tool_changes`)
+        self._tool_changes: list[dict[str, object]] = []
         #: the tool-life monitor's alarms as events, once per tool (wear_limit, life_short)
         self.wear_alarms = WearAlarms()
         self.reset()
@@ -414,10 +416,72 @@ class LivePipeline:
 
     def _new_tool(self) -> None:
         """A sharp tool at the flank-wear limit; the CNC knows a tool change: the force's
-        DC steps back to the sharp tool's."""
+        DC steps back to the sharp tool's. The worn tool's life is recorded
+        (:meth:`take_tool_changes`)."""
         assert self.tool is not None
+        self._tool_changes.append(self._tool_life_record("wear_limit"))
         self.tool.new_tool(self._knobs.number("wear_rate"))
+        self.tool.state.tool_start_t = self.t
         self.run.note_disturbance(self.t)
+
+    def _tool_life_record(self, cause: str) -> dict[str, object]:
+        """The life of the tool in the spindle, ending now: its tool number (the CNC's,
+        when the source gives one; else the wearing tool's place in the sequence),
+        its index (1 for the first tool of the run), the source times it was mounted
+        and changed, the estimated flank wear at the change (what the service knows;
+        None before the first estimate), the simulator's true wear (None without
+        truth) and the cause."""
+        assert self.tool is not None
+        st = self.tool.state
+        index = st.tools_changed + 1
+        number = self.monitor_status().get("tool")
+        vb_est = st.vb_est if math.isfinite(st.vb_est) else None
+        return {
+            "tool": number if isinstance(number, int) and number > 0 else index,
+            "index": index,
+            "start_t": st.tool_start_t,
+            "end_t": self.t,
+            "wear_at_change_mm": vb_est,
+            "wear_true_mm": st.vb_true if self.source.has_truth else None,
+            "wear_true_share": st.vb_true / VB_LIMIT if self.source.has_truth else None,
+            "cause": cause,
+        }
+
+    def _part_tool_changes(self) -> list[dict[str, object]]:
+        """The part program's tool changes (:meth:`LiveProcess.take_tool_changes`) as
+        tool lives: the simulated machine's wear as a share of the tool's limit (a truth:
+        no estimate of it), the cause ``wear_limit`` for a worn tool, else the alarm after
+        which the operator changed it."""
+        if self._proc is None:
+            return []
+        program = self._proc.ps.machine.program
+        out: list[dict[str, object]] = []
+        for c in self._proc.take_tool_changes():
+            number, wear = c["tool"], c["wear"]
+            assert isinstance(number, int) and isinstance(wear, float | int)
+            cause = str(c["cause"])
+            out.append(
+                {
+                    "tool": number,
+                    "index": None,
+                    "start_t": c["start_t"],
+                    "end_t": c["end_t"],
+                    "wear_at_change_mm": None,
+                    "wear_true_share": float(wear) / program.tool(number).wear_limit,
+                    "cause": "wear_limit" if cause == "worn" else cause,
+                }
+            )
+        return out
+
+    def take_tool_changes(self) -> list[dict[str, object]]:
+        """The tools taken out of the spindle since the last call, oldest first: ``tool``,
+        ``index``, ``start_t``, ``end_t`` [s], ``wear_at_change_mm``, ``wear_true_mm``,
+        ``wear_true_share``, ``cause``; the history records them. Two kinds: the wearing
+        tool of the stage (seed 004's wear, changed at its flank-wear limit; ``index`` its
+        place in the run) and the part program's tools (changed worn, or after a breakage
+        or missing-tool alarm; ``index`` None, no estimate of the wear)."""
+        out, self._tool_changes = self._tool_changes, []
+        return out + self._part_tool_changes()
 
     def _wear_events(self, t: float) -> None:
         """The tool-life monitor's alarms on the wear estimate (:mod:`server.pipeline.wear_alarms`)

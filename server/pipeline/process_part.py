@@ -50,7 +50,7 @@ import numpy as np
 from common.arrays import F64
 from common.errors import ParameterError
 from estimators.process_monitor import Alarm, MonitorParams, ProcessMonitor
-from machine.milling import MillingMachine
+from machine.milling import MillingMachine, MillingRecord
 from machine.process import (
     EVENT_KINDS,
     BlockRun,
@@ -92,7 +92,11 @@ MON_CHANNELS: dict[str, tuple[str, str]] = {
     "mon_pattern": ("1", "change of the once-per-revolution pattern over a revolution"),
     "mon_pattern_limit": ("1", "breakage threshold on the pattern change"),
     "mon_suspected": ("", "breakage suspected (1) or not (0)"),
-    "mon_event_true": ("", "injected event's first sample: 1 breakage, 2 collision, 3 missing"),
+    "mon_event_true": (
+        "",
+        "truth: injected event from its first sample to its block's end "
+        "(1 breakage, 2 collision, 3 missing tool, 0 none)",
+    ),
 }
 
 
@@ -128,9 +132,11 @@ class ProcessState:
     new_block: bool = True
     alarmed: bool = False
     pending: list[Injection] = field(default_factory=list)
-    replace_tools: list[int] = field(default_factory=list)
+    replace_tools: list[tuple[int, str]] = field(default_factory=list)
     truths: list[EventTruth] = field(default_factory=list)
     last: dict[str, float] = field(default_factory=dict)
+    tool_since: dict[int, float] = field(default_factory=dict)
+    tool_changes: list[dict[str, object]] = field(default_factory=list)
 
 
 class LiveProcess:
@@ -293,21 +299,17 @@ class LiveProcess:
             left -= c
             if run.left == 0:
                 self._close_block(run)
-        cols = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+        if len(parts) == 1:
+            cols = parts[0]
+        else:
+            cols = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
         #: the last step's columns at the machine's own rate (5 kHz, with "t"): for a
         #: sample-exact look at the detectors
         self.fine = dict(cols)
         te = cols.pop("t")
         idx = np.clip(np.searchsorted(te, t + 1e-12, side="right") - 1, 0, te.size - 1)
         res = {k: v[idx] for k, v in cols.items()}
-        # an injected event's first sample marks the stage sample whose interval holds it
-        true = np.zeros(n)
-        for k in np.flatnonzero(cols["mon_event_true"]):
-            j = min(int(np.searchsorted(t, te[k] - 1e-12, side="left")), n - 1)
-            true[j] = cols["mon_event_true"][k]
-        res["mon_event_true"] = true
         ps.last = {k: float(v[-1]) for k, v in res.items()}
-        ps.last["mon_event_true"] = 0.0
         return res, events
 
     def _block(self) -> BlockRun:
@@ -360,14 +362,15 @@ class LiveProcess:
         """``c`` samples of the block through the drives' observer and the monitor."""
         ps = self.ps
         rec = ps.machine.advance(run, c)
-        fx, fy = ps.observer(rec)
-        seg = self.monitor.segment(self.taught, rec.tool, rec.program, rec.line)
-        teaching = self.monitor.teaching(self.taught, seg)
+        # the observer reads what both records share: ix, iy, x, y
+        fx, fy = ps.observer(cast(MillingRecord, rec))
         mr = self.monitor.step(
             self.taught, fx, fy, rec.psi, tool=rec.tool, program=rec.program, line=rec.line,
             new_block=ps.new_block, override=rec.override,
         )  # fmt: skip
         ps.new_block = False
+        # the block's segment (the monitor's running state, _RUN "seg"): taught or not
+        teaching = self.monitor.teaching(self.taught, int(self.taught["run"][0]))
         state = np.full(c, 0.0 if teaching else 1.0)
         if ps.alarmed:
             state[:] = 2.0
@@ -378,11 +381,16 @@ class LiveProcess:
             state[j:] = 2.0
             ps.alarmed = True
             events.append(self._event(a, float(rec.t[j]), run.part))
-            if a.detector in ("breakage", "missing_tool") and rec.tool not in ps.replace_tools:
-                ps.replace_tools.append(rec.tool)
-        true = np.zeros(c)
+            if a.detector in ("breakage", "missing_tool") and all(
+                number != rec.tool for number, _ in ps.replace_tools
+            ):
+                ps.replace_tools.append((rec.tool, a.detector))
+        # the truth: the injected event's kind from its first sample to its block's end
+        true = np.full(
+            c, float(KIND_CODES.get(run.event, 0)) if run.k_ev < rec.k0 - run.k_start else 0.0
+        )
         for tr in rec.events:
-            true[tr.sample - rec.k0] = KIND_CODES[tr.kind]
+            true[tr.sample - rec.k0 :] = KIND_CODES[tr.kind]
         rows = {
             "t": rec.t,
             "mon_f": mr.f,
@@ -427,21 +435,52 @@ class LiveProcess:
 
     def _close_block(self, run: BlockRun) -> None:
         ps, m = self.ps, self.ps.machine
+        number = run.tool.number
+        wear = m.instances[number].wear
+        changes = m.tool_changes
         m.end_block(run)
+        if m.tool_changes != changes:
+            wear = wear + run.tool.wear_per_s * run.done * self.sample_time
+            self._tool_change(number, wear, "worn")
         ps.run = None
         ps.block_index += 1
         if ps.block_index == len(m.program.blocks):
             ps.block_index = 0
             m.part += 1
             # the operator's tool change after a breakage or missing-tool alarm
-            for number in ps.replace_tools:
+            for number, cause in ps.replace_tools:
+                wear = m.instances[number].wear
                 m.replace_tool(number)
+                self._tool_change(number, wear, cause)
             ps.replace_tools = []
 
-    def _hold(self, n: int) -> dict[str, F64]:
-        out = {k: np.full(n, self.ps.last.get(k, math.nan)) for k in MON_CHANNELS}
-        out["mon_event_true"] = np.zeros(n)
+    def _tool_change(self, number: int, wear: float, cause: str) -> None:
+        ps = self.ps
+        t = self.t
+        ps.tool_changes.append(
+            {
+                "tool": number,
+                "start_t": ps.tool_since.get(number, 0.0),
+                "end_t": t,
+                "wear": wear,
+                "cause": cause,
+            }
+        )
+        ps.tool_since[number] = t
+        del ps.tool_changes[:-100]
+
+    def take_tool_changes(self) -> list[dict[str, object]]:
+        """The part program's tool changes since the last call, oldest first: ``tool``,
+        ``start_t`` and ``end_t`` of the instance [s], ``wear`` (its edge-coefficient
+        growth, :class:`machine.process.Tool`; the limit is the tool's ``wear_limit``)
+        and ``cause`` (``worn``: at its wear limit; ``breakage``, ``missing_tool``: changed
+        by the operator after that alarm)."""
+        out = list(self.ps.tool_changes)
+        self.ps.tool_changes.clear()
         return out
+
+    def _hold(self, n: int) -> dict[str, F64]:
+        return {k: np.full(n, self.ps.last.get(k, math.nan)) for k in MON_CHANNELS}
 
     # ------------------------------------------------------------------ status
     def status(self) -> dict[str, object]:

@@ -44,6 +44,8 @@ class PassState:
     vb_est: float = math.nan
     life_left: float = math.nan
     tools_changed: int = 0
+    #: when the tool in the spindle was mounted [s of the source] (its life record's start)
+    tool_start_t: float = 0.0
 
 
 class ToolWearPasses:

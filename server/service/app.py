@@ -85,6 +85,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             estimates_out=parts.estimates_out,
             events_out=parts.events_out,
             checkpoint=checkpoint_path(s),
+            history=parts.history,
         )
         app.state.hub, app.state.loop = hub, loop
         if s.viser:
@@ -102,6 +103,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             await asyncio.to_thread(loop.stop)
             if loop.scene is not None:
                 loop.scene.stop()
+            if parts.history is not None:
+                parts.history.close()
 
     app = FastAPI(
         title="cutwatch",

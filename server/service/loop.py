@@ -53,6 +53,7 @@ from server.pipeline.events_out import EventsPublisher
 from server.pipeline.knobs import Knob
 from server.pipeline.live_pipeline import LivePipeline
 from server.pipeline.mqtt_source import MqttSource
+from server.records.history import HistoryStore
 from server.records.monitor_events import KINDS, MonitorEvent
 from server.service import protocol
 from server.service.messages import Event, LoopHealth, MonitorStatus
@@ -90,6 +91,10 @@ class EventHistory(Protocol):
     def add_events(self, events: list[MonitorEvent]) -> None: ...
 
     def acknowledge(self, event_id: str, by: str) -> dict[str, Any] | None: ...
+
+    def add_tool_changes(self, changes: list[dict[str, Any]]) -> Any: ...
+
+    def recent(self, n: int) -> list[dict[str, Any]]: ...
 
 
 def checkpoint_path(settings: Settings) -> Path | None:
@@ -294,6 +299,8 @@ class LoopParts:
     feed: DriveFeed | None = None
     estimates_out: EstimatesPublisher | None = None
     events_out: EventsPublisher | None = None
+    #: the kept history (events, acknowledgements, tool lives); None: none kept
+    history: HistoryStore | None = None
 
 
 def loop_parts(settings: Settings) -> LoopParts:
@@ -320,7 +327,16 @@ def loop_parts(settings: Settings) -> LoopParts:
         pipe = LivePipeline(seed=settings.seed, source=MqttSource(feed))
     else:
         pipe = LivePipeline(settings.scenario, seed=settings.seed)
-    return LoopParts(pipe, feed, out, events_out)
+    return LoopParts(pipe, feed, out, events_out, history_store(settings))
+
+
+def history_store(settings: Settings) -> HistoryStore | None:
+    """The service's history (``history_url``, else SQLite in the data directory), migrated
+    to the newest schema; None when ``history_url`` is ``none``."""
+    url = settings.history_url
+    if url is not None and url.strip().lower() == "none":
+        return None
+    return HistoryStore.for_data_dir(settings.data_dir, url, machine=settings.mqtt_machine)
 
 
 class LiveLoop:
@@ -340,7 +356,9 @@ class LiveLoop:
         A drive feed, an estimates publisher and an events publisher
         (:func:`loop_parts`), started and stopped with the loop.
     history
-        Where the events are kept (:class:`EventHistory`; None: nowhere but memory).
+        Where the events and the tool lives are kept (:class:`EventHistory`, the service's
+        :class:`~server.records.history.HistoryStore` from :func:`loop_parts`; None:
+        nowhere but memory). The latest events are reloaded from it at start.
     checkpoint
         The pipeline's checkpoint file (:func:`checkpoint_path`): resumed from at start,
         written every ``settings.checkpoint_s`` wall seconds and at stop. None: none.
@@ -359,6 +377,7 @@ class LiveLoop:
         checkpoint: Path | None = None,
     ) -> None:
         self.settings = settings
+        self._lives: list[dict[str, Any]] = []  # tool lives not yet in the history
         self.hub = hub
         #: a real machine's drive data from the broker (started and stopped with the loop)
         self.feed = feed
@@ -471,6 +490,7 @@ class LiveLoop:
             self.estimates_out.start()
         if self.events_out is not None:
             self.events_out.start()
+        self._reload_events()
         if self.settings.block_log is not None:  # line-buffered: readable while it runs
             self._block_log = Path(self.settings.block_log).open("a", buffering=1)
         self._thread = threading.Thread(target=self._run, name="cutwatch-loop", daemon=True)
@@ -483,6 +503,8 @@ class LiveLoop:
             self._thread.join(timeout)
             if not self._thread.is_alive():
                 self.save_checkpoint()  # the state at shutdown
+                if self._lives:
+                    self._keep_tool_lives()
         rec = self.end_recording("the service stopped")
         if rec is not None:
             rec.wait(timeout)  # every block handed over is written before exit
@@ -558,6 +580,7 @@ class LiveLoop:
                     if got:
                         self._pending.append(out)
                         self.blocks += 1
+                        self._lives += self.pipeline.take_tool_changes()
                     else:  # a live feed with nothing yet: time stands; wait, re-anchor
                         self._anchor()
                 if events:  # at once, before anything else the block feeds
@@ -569,6 +592,8 @@ class LiveLoop:
                         last_frame = time.monotonic()
                         self._publish()
                     continue
+                if self._lives:
+                    self._keep_tool_lives()
                 if self.scene is not None:
                     p = self.pipeline
                     self.scene.update(p.latest, p.workpiece_removed, p.t)
@@ -600,6 +625,19 @@ class LiveLoop:
         except Exception as exc:  # keep the service up and say why the loop stopped
             self.error = f"{type(exc).__name__}: {exc}"
             raise
+
+    def _keep_tool_lives(self) -> None:
+        """Write the tools changed to the history (committed before the loop goes on; a
+        failed write is kept and tried again after the next block)."""
+        if self.history is None:
+            self._lives.clear()
+            return
+        try:
+            self.history.add_tool_changes(self._lives)
+        except Exception as exc:  # a full disk must not stop the loop; say so, retry
+            log.warning("cutwatch: tool lives not kept yet (retried): %s", exc)
+            return
+        self._lives.clear()
 
     def _estimates(self, out: dict[str, np.ndarray]) -> None:
         pub = self.estimates_out
@@ -641,6 +679,25 @@ class LiveLoop:
             except Exception as exc:  # the loop goes on; the log and /metrics say so
                 self.history_errors += 1
                 log.warning("cutwatch: %d event(s) not kept in the history: %s", len(events), exc)
+
+    def _reload_events(self) -> None:
+        """The latest kept events from the history (after a restart): in the snapshot
+        again, sent to a new client and counted in the status while not acknowledged
+        (not counted in ``events_total``, which counts since this start, nor published
+        again)."""
+        if self.history is None:
+            return
+        try:
+            recs = self.history.recent(EVENTS_KEPT)
+        except Exception as exc:  # the service starts without them; the log says why
+            log.warning("cutwatch: the kept events were not reloaded: %s", exc)
+            return
+        with self._ev_lock:
+            for r in recs:
+                rec = Event.model_validate(r).model_dump()
+                self._events.append(rec)
+                if not rec["acked"]:
+                    self._unacked[rec["id"]] = rec["action"]
 
     def announce_event(self, ev: dict[str, Any]) -> None:
         """An event changed (acknowledged): its new record (an :class:`Event`) goes to

@@ -25,6 +25,7 @@ from pydantic import (
 from pydantic_core import PydanticCustomError
 
 from server.pipeline.process_part import CLEAR_SIZES, SIZE_RANGES
+from server.records.history import CAUSES
 from server.service.messages import Accuracy, Event, LoopHealth, MonitorStatus
 from server.service.settings import MAX_SPEED, ScenarioName, Speed
 
@@ -530,3 +531,61 @@ class AnalysisJobs(BaseModel):
     """``GET /api/analyses``: the recent jobs, newest last."""
 
     jobs: list[AnalysisJob]
+
+
+# ------------------------------------------------------------------ history (events, tool life)
+
+
+class AckBody(BaseModel):
+    """``POST /api/events/{id}/ack`` (the body is optional)."""
+
+    model_config = ConfigDict(extra="forbid")
+    by: str | None = Field(
+        default=None,
+        min_length=1,
+        max_length=128,
+        description="who acknowledges (default: the session's role, 'operator')",
+    )
+
+
+class HistoryEvent(Event):
+    """An event as the history keeps it: the stream's :class:`Event` and when it arrived."""
+
+    received_wall: float = Field(description="when the history received it [unix s]")
+
+
+class HistoryEvents(BaseModel):
+    """A page of events, newest first."""
+
+    total: int = Field(description="events matching the filters (all pages)")
+    items: list[HistoryEvent]
+
+
+class ToolLife(BaseModel):
+    """One tool's life in the spindle, from its mounting to its change."""
+
+    machine: str
+    tool: int = Field(description="tool number (the CNC's; else the tool's place in the run)")
+    index: int | None = Field(description="the tool's place in the run (1: the first)")
+    start_t: float | None = Field(description="source time it was mounted [s] (null: unknown)")
+    end_t: float = Field(description="source time it was changed [s]")
+    start_wall: float | None = Field(description="when it was mounted [unix s] (null: unknown)")
+    end_wall: float = Field(description="when it was changed [unix s]")
+    wear_at_change_mm: float | None = Field(
+        description="estimated flank wear at the change [mm] (null: no estimate yet)"
+    )
+    wear_true_mm: float | None = Field(
+        description="the simulator's true flank wear at the change [mm] (null: no truth)"
+    )
+    wear_true_share: float | None = Field(
+        description="the simulator's true wear at the change as a share of the tool's limit "
+        "(null: no truth)"
+    )
+    cause: str = Field(description="why: " + ", ".join(CAUSES))
+
+
+class ToolLives(BaseModel):
+    """A page of tool lives, newest first."""
+
+    total: int
+    items: list[ToolLife]

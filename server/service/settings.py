@@ -202,6 +202,14 @@ class Settings(BaseSettings):
             "default: data_dir/reports"
         ),
     )
+    history_url: str | None = Field(
+        default=None,
+        description=(
+            "database of the kept history (monitor events, acknowledgements, tool lives): "
+            "a SQLAlchemy URL (e.g. postgresql+psycopg://user@host/cutwatch); default: "
+            "SQLite data_dir/history/cutwatch.sqlite; 'none': keep no history"
+        ),
+    )
     checkpoint_s: float = Field(
         default=10.0,
         ge=0.0,

@@ -259,6 +259,9 @@ def test_openapi_lists_every_endpoint(api: httpx.Client) -> None:
         "/api/control",
         "/api/snapshot",
         "/metrics",
+        "/api/events",
+        "/api/events/{event_id}/ack",
+        "/api/tool-life",
     ):
         assert p in paths
     assert "patch" in paths["/api/params"]
@@ -400,8 +403,8 @@ def test_openapi_documents_every_response(api: httpx.Client) -> None:
     ops = [(p, m, op) for p, ms in spec["paths"].items() for m, op in ms.items()]
     # 13 paths before the data routes; /api/params has GET and PATCH, effects GET/POST/DELETE;
     # + record, records (list, CSV, sidecar), uploads (POST, GET), analyses (POST, GET, GET id)
-    # + login, logout, session
-    assert len(ops) == 26
+    # + login, logout, session; + the history: events (GET), ack (POST), tool-life (GET)
+    assert len(ops) == 29
     for p, m, op in ops:
         where = f"{m.upper()} {p}"
         ok = [c for c in op["responses"] if c.startswith("2")]

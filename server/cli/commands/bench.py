@@ -5,6 +5,7 @@ Groups (modules server/experiments/benchmarks/bench_<group>.py; see docs/benchma
   disturbance-observers  seed 002's loops and the stage DFO
   eccentricity           milling with X/Y drives, ESC and the fast tuner
   fleet                  N services on broker feeds and the fleet page (mosquitto)
+  history                the kept history's cost per committed event (SQLite, fsync)
   live                   the real service with 10 WebSocket clients
   monitoring             breakage to feed-hold command on the broker at 1x (mosquitto)
   pipeline               the live service's whole pipeline, offline

@@ -64,7 +64,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--data-dir",
-        help="the service's recordings/, uploads/ and reports/ (default ./data)",
+        help="the service's recordings/, uploads/, reports/ and history/ (default ./data)",
+    )
+    p.add_argument(
+        "--history-url",
+        help="database of the kept events and tool lives: a SQLAlchemy URL (default SQLite "
+        "DATA_DIR/history/cutwatch.sqlite; 'none': keep none)",
     )
     p.add_argument("--log-level", default="warning", help="uvicorn log level")
     add_broker_options(p)
@@ -91,6 +96,7 @@ def build_settings(args: argparse.Namespace) -> Settings:
             "mqtt_machine": args.machine,
             "mqtt_publish_hz": args.publish_hz,
             "data_dir": args.data_dir,
+            "history_url": args.history_url,
         }.items()
         if v is not None
     }

@@ -7,6 +7,7 @@ from fastapi import APIRouter
 from server.service.routes import (
     analyses,
     control,
+    events,
     params,
     records,
     replay,
@@ -26,6 +27,7 @@ ROUTERS: tuple[APIRouter, ...] = (
     reports.router,
     replay.router,
     records.router,
+    events.router,
     uploads.router,
     analyses.router,
     stream.router,

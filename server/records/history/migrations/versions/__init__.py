@@ -1,0 +1,1 @@
+"""The history's migration scripts, oldest first (Alembic reads them by revision)."""
