@@ -2,6 +2,8 @@
 // The message schema lives in protocol.js (its twin is server/protocol.py).
 import { checkMessage } from "./protocol.js";
 import { accuracyTable, accuracyTitle, intervalSeries } from "./panels.js";
+import { TIMELINE_HEAD, ackRefusal, eventRow, headline, markersIn, mergeEvent, monitorSeries,
+  ordered, statusView } from "./monitor.js";
 
 const uPlot = window.uPlot;
 const $ = (id) => document.getElementById(id);
@@ -42,6 +44,10 @@ const CHARTS = {
   rls: { window: 30, series: [["mode_switching", "mode", COLORS.mode],
     ["excitation", "excitation", COLORS.excitation]] },
 };
+// the process monitor's chart (built on hello when the stream has its channels)
+const MONITOR_WINDOW = 20; // s of simulated time
+// charts that draw the events' markers
+const MARKED = new Set(["force", "monitor"]);
 const HEALTH_WINDOW = 60; // wall seconds
 const ACCURACY_WINDOW = 60; // s of simulated time in the accuracy history chart
 const BASE_SERIES = Object.fromEntries(Object.entries(CHARTS).map(([id, c]) => [id, c.series]));
@@ -50,6 +56,7 @@ const state = {
   ws: null, retry: 0, charts: {}, data: {}, zoomed: {}, channels: [], frames: 0,
   dropped: 0, dirty: false, grid: {}, health: { x: [], lag: [], rtf: [] }, healthChart: null,
   labels: {}, excited: {}, acc: { chart: null, key: "", data: [[]] },
+  events: new Map(), role: null, status: null,
 };
 
 // ---------------------------------------------------------------- charts
@@ -67,7 +74,7 @@ function width(el) {
 function makeChart(id, spec) {
   const el = $(`chart-${id}`);
   const opts = {
-    width: width(el), height: id === "force" ? 260 : 170,
+    width: width(el), height: id === "force" || id === "monitor" ? 260 : 170,
     scales: { x: { time: false } },
     axes: [{ label: "t [s]" }, { size: 70, values: (u, vals) => vals.map(fmt) },
       ...(spec.series.some((s) => s[3]) ? [{ scale: spec.series.find((s) => s[3])[3],
@@ -83,6 +90,7 @@ function makeChart(id, spec) {
     bands: spec.bands || [],
     hooks: {
       setSelect: [(u) => { if (u.select.width > 0) state.zoomed[id] = true; }],
+      ...(MARKED.has(id) ? { draw: [(u) => drawMarkers(u, id)] } : {}),
     },
   };
   const empty = [[], ...spec.series.map(() => [])];
@@ -91,6 +99,28 @@ function makeChart(id, spec) {
   state.charts[id] = chart;
   state.data[id] = empty;
   state.zoomed[id] = false;
+}
+
+// A vertical line at each event in the chart's x range, on top of the series: red while
+// the event waits for an acknowledgement, grey after. The chart's element says what it drew
+// (data-markers: how many; data-marker-px: their x in canvas pixels; data-marker-ids).
+function drawMarkers(u, id) {
+  const el = $(`chart-${id}`);
+  const t0 = u.scales.x.min;
+  const t1 = u.scales.x.max;
+  const ms = t0 == null || t1 == null ? [] : markersIn(state.events, t0, t1);
+  const { top, height } = u.bbox;
+  const ctx = u.ctx;
+  const w = Math.max(3, Math.round(2 * (window.devicePixelRatio || 1)));
+  const xs = ms.map((m) => {
+    const x = Math.round(u.valToPos(m.t, "x", true));
+    ctx.fillStyle = m.color;
+    ctx.fillRect(x - Math.floor(w / 2), top, w, height);
+    return x;
+  });
+  el.dataset.markers = String(ms.length);
+  el.dataset.markerPx = xs.join(",");
+  el.dataset.markerIds = ms.map((m) => m.id).join(",");
 }
 
 function makeHealthChart() {
@@ -176,6 +206,24 @@ function applyIntervals(channels) {
     $(`chart-${q}`).replaceChildren();
     makeChart(q, spec);
   }
+}
+
+// On hello: the process monitor's chart from the channels the stream carries (none: the
+// panel says so), built again when they change.
+function applyMonitor(channels) {
+  const names = new Set(channels.map((c) => c.name));
+  const ms = monitorSeries(names);
+  const old = CHARTS.monitor;
+  const same = old && ms && old.series.length === ms.series.length &&
+    old.series.every((s, i) => s[0] === ms.series[i][0]);
+  $("monitor-none").hidden = Boolean(ms);
+  if (same) return;
+  if (state.charts.monitor) { state.charts.monitor.destroy(); delete state.charts.monitor; }
+  $("chart-monitor").replaceChildren();
+  delete CHARTS.monitor;
+  if (!ms) return;
+  CHARTS.monitor = { window: MONITOR_WINDOW, series: ms.series, bands: ms.bands };
+  makeChart("monitor", CHARTS.monitor);
 }
 
 // The latest excited flag of each parameter: "not excited" shown while it is 0.
@@ -277,6 +325,8 @@ async function showSession() {
   const s = await fetch("/api/session").then((r) => r.json());
   if (s.access_control && !s.role) { location.assign("/login"); return; }
   $("session").textContent = s.access_control ? `signed in: ${s.role}` : "";
+  state.role = s.role;
+  renderTimeline();
   $("logout").hidden = !s.access_control;
 }
 
@@ -368,6 +418,100 @@ function syncKnobs(knobs) {
   }
 }
 
+// ---------------------------------------------------------------- process monitor
+// The status strip from the frame's MonitorStatus (a stream without one: monitor off).
+function showStatus(st) {
+  state.status = st || null;
+  const v = statusView(st, headline(state.events));
+  const strip = $("strip");
+  if (strip.dataset.state !== v.state) strip.dataset.state = v.state;
+  const set = (id, text) => { const el = $(id); if (el.textContent !== text) el.textContent = text; };
+  set("strip-state", v.label);
+  set("strip-tool", v.tool);
+  set("strip-wear", v.wear);
+  set("strip-life", v.life);
+  set("strip-where", v.where);
+  set("strip-unacked", v.unackedText);
+  set("strip-message", v.message);
+  const bar = $("strip-wearbar");
+  bar.style.width = `${(100 * v.wearBar).toFixed(1)}%`;
+  bar.className = v.wearBar >= 1 ? "over" : v.wearBar >= 0.8 ? "high" : "";
+}
+
+// The timeline, newest first, with an Acknowledge button on each event not yet
+// acknowledged (disabled, saying why, for anyone but an operator).
+function renderTimeline() {
+  const why = ackRefusal(state.role);
+  const rows = ordered(state.events).map(eventRow);
+  $("timeline-rows").replaceChildren(...rows.map((r) => {
+    const tr = document.createElement("tr");
+    tr.dataset.id = r.id;
+    tr.dataset.kind = r.kind;
+    tr.className = r.waiting ? "waiting" : r.cells[7] === "no" ? "" : "acked";
+    tr.title = r.message;
+    r.cells.forEach((c, i) => {
+      const td = document.createElement("td");
+      td.textContent = c;
+      if (i === 7 && c === "no") {
+        const b = document.createElement("button");
+        b.type = "button";
+        b.className = "ack";
+        b.textContent = "Acknowledge";
+        b.disabled = Boolean(why);
+        b.title = why || "acknowledge this event (POST /api/events/{id}/ack)";
+        b.onclick = () => acknowledge(r.id).catch(() => {});
+        td.textContent = "";
+        td.append(b);
+      }
+      tr.append(td);
+    });
+    return tr;
+  }));
+  $("timeline-empty").hidden = rows.length > 0;
+  const open = rows.filter((r) => r.cells[7] === "no").length;
+  $("ack-all").disabled = Boolean(why) || open === 0;
+  $("ack-all").title = why || "acknowledge every event listed as not acknowledged";
+  $("ack-why").textContent = why;
+  if (state.status) showStatus(state.status);
+}
+
+async function acknowledge(id) {
+  $("ack-error").textContent = "";
+  const r = await fetch(`/api/events/${encodeURIComponent(id)}/ack`,
+    { method: "POST", headers: headers(), body: "{}" });
+  toLogin(r);
+  const j = await r.json().catch(() => ({}));
+  if (!r.ok) {
+    const d = j.detail;
+    $("ack-error").textContent = `acknowledge ${id}: ` +
+      (Array.isArray(d) ? d.map((e) => e.msg || JSON.stringify(e)).join("; ") : String(d ?? r.status));
+    throw new Error($("ack-error").textContent);
+  }
+  if (j && j.id && mergeEvent(state.events, j)) { renderTimeline(); state.dirty = true; }
+  return j;
+}
+
+async function acknowledgeAll() {
+  for (const ev of ordered(state.events)) {
+    if (!ev.acked) await acknowledge(ev.id).catch(() => {});
+  }
+}
+
+// The events kept so far: the history (GET /api/events) where the service has one, the
+// snapshot's latest otherwise.
+async function loadEvents() {
+  let items = null;
+  const r = await fetch("/api/events?limit=100");
+  if (r.ok) items = (await r.json()).items;
+  else {
+    const s = await fetch("/api/snapshot").then((x) => (x.ok ? x.json() : {}));
+    items = s.events || (s.pipeline && s.pipeline.events) || [];
+  }
+  let changed = false;
+  for (const ev of items || []) changed = mergeEvent(state.events, ev) || changed;
+  if (changed) { renderTimeline(); state.dirty = true; }
+}
+
 // ---------------------------------------------------------------- stream
 function connect() {
   const proto = location.protocol === "https:" ? "wss" : "ws";
@@ -378,17 +522,23 @@ function connect() {
   ws.onmessage = (ev) => {
     let msg;
     try { msg = checkMessage(ev.data); } catch (e) { $("error").textContent = e.message; return; }
+    if (msg.type === "event") {
+      if (mergeEvent(state.events, msg.event)) { renderTimeline(); state.dirty = true; }
+      return;
+    }
     if (msg.type === "hello") {
       state.channels = msg.channels;
       state.grid = Object.fromEntries(msg.channels.map((c) => [c.name, c.grid]));
       state.labels = Object.fromEntries(msg.channels.map((c) => [c.name, c.label]));
       applyIntervals(msg.channels);
+      applyMonitor(msg.channels);
       clearData();
       conn.textContent = `live · ${msg.scenario}`;
       conn.className = "conn up";
       conn.dataset.state = "up";
       loadControls().catch((e) => { $("error").textContent = e.message; });
       loadViser().catch(() => {});
+      loadEvents().catch((e) => { $("ack-error").textContent = e.message; });
       return;
     }
     state.frames += 1;
@@ -397,6 +547,7 @@ function connect() {
     window.dispatchEvent(new CustomEvent("cutwatch:frame", { detail: msg })); // loop.js
     state.dirty = true;
     showHealth(msg.health);
+    showStatus(msg.status);
     showExcited(msg);
     showAccuracy(msg.accuracy, msg.health.sim_t);
     syncKnobs(msg.knobs);
@@ -420,6 +571,13 @@ function frameLoop() {
 
 function init() {
   for (const [id, spec] of Object.entries(CHARTS)) makeChart(id, spec);
+  $("timeline-head").replaceChildren(...TIMELINE_HEAD.map((h) => {
+    const th = document.createElement("th");
+    th.textContent = h;
+    return th;
+  }));
+  $("ack-all").onclick = () => acknowledgeAll();
+  renderTimeline();
   makeHealthChart();
   $("pause").onclick = () => control("pause");
   $("resume").onclick = () => control("resume");

@@ -1,6 +1,24 @@
 // The fleet page: one row per machine, updated as each machine's estimate arrives.
 const rows = new Map();
 const fmt = (v, d) => (v === null || v === undefined ? "–" : Number(v).toFixed(d));
+const KIND = {
+  breakage: "tool breakage", collision: "collision / overload", missing_tool: "missing tool",
+  wear_limit: "wear limit", life_short: "tool life short",
+};
+
+// the latest unacknowledged event: what, where (tool, line, part), when; its message below
+function eventCell(td, ev, unacked) {
+  td.className = "event";
+  if (!ev) { td.textContent = "–"; return; }
+  const where = [ev.tool ? `T${ev.tool}` : null, ev.line ? `line ${ev.line}` : null,
+    ev.part >= 0 ? `part ${ev.part}` : null, `t ${Number(ev.t).toFixed(2)} s`].filter(Boolean);
+  td.textContent = `${KIND[ev.kind] || ev.kind} · ${where.join(" · ")}` +
+    (unacked > 1 ? ` (+${unacked - 1} more)` : "");
+  td.dataset.kind = ev.kind;
+  const small = document.createElement("small");
+  small.textContent = ev.message;
+  td.append(small);
+}
 
 function render() {
   const body = document.getElementById("rows");
@@ -12,8 +30,11 @@ function render() {
     const tr = document.createElement("tr");
     tr.className = r.status;
     tr.dataset.machine = name;
+    tr.dataset.monitor = r.monitor || "";
     const cells = [
       name,
+      null,
+      null,
       null,
       fmt(r.force, 2),
       fmt(r.wear_vb_mm, 3),
@@ -30,7 +51,14 @@ function render() {
         s.className = `status ${r.status}`;
         s.textContent = r.status;
         td.append(s);
-      } else if (i === 8) {
+      } else if (i === 2) {
+        const s = document.createElement("span");
+        s.className = `monitor ${r.monitor || ""}`;
+        s.textContent = r.monitor || "–";
+        td.append(s);
+      } else if (i === 3) {
+        eventCell(td, r.event, r.unacked);
+      } else if (i === 10) {
         if (r.dashboard) {
           const a = document.createElement("a");
           a.href = r.dashboard;
@@ -40,7 +68,7 @@ function render() {
           td.append(a);
         } else td.textContent = "–";
       } else td.textContent = text;
-      if (i >= 2 && i <= 4) td.className = "num";
+      if (i >= 4 && i <= 6) td.className = "num";
       tr.append(td);
     });
     return tr;

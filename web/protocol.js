@@ -6,8 +6,13 @@ import { FAST_GROUPS, INTERVALS, SCHEMA, VERSION } from "./schema.js";
 
 export { FAST_GROUPS, INTERVALS, SCHEMA, VERSION };
 
-function missing(obj, fields) {
-  return fields.filter((f) => !(f in obj));
+// fields a message may lack (the model's default: null): a stream without the process
+// monitor sends no status
+const OPTIONAL = { data: new Set(["status"]) };
+
+function missing(obj, fields, kind = "") {
+  const opt = OPTIONAL[kind] || new Set();
+  return fields.filter((f) => !(f in obj) && !opt.has(f));
 }
 
 // Parse one text message; returns the object or throws an Error naming what is wrong.
@@ -15,10 +20,16 @@ export function checkMessage(text) {
   const msg = JSON.parse(text);
   if (msg === null || typeof msg !== "object") throw new Error("message is not an object");
   const kind = msg.type;
-  if (kind !== "hello" && kind !== "data") throw new Error(`unknown message type ${kind}`);
-  const miss = missing(msg, SCHEMA[kind]);
+  if (kind !== "hello" && kind !== "data" && kind !== "event") {
+    throw new Error(`unknown message type ${kind}`);
+  }
+  const miss = missing(msg, SCHEMA[kind], kind);
   if (miss.length) throw new Error(`${kind} message lacks ${miss.join(", ")}`);
-  if (kind === "hello") {
+  if (kind === "event") {
+    // a monitor event, when raised and again when acknowledged (same id)
+    const m = missing(msg.event, SCHEMA.event_record);
+    if (m.length) throw new Error(`event lacks ${m.join(", ")}`);
+  } else if (kind === "hello") {
     if (msg.version !== VERSION) {
       throw new Error(`protocol version ${msg.version}, this page speaks ${VERSION}`);
     }
@@ -32,6 +43,11 @@ export function checkMessage(text) {
     if (m.length) throw new Error(`health lacks ${m.join(", ")}`);
     const a = missing(msg.accuracy, SCHEMA.accuracy);
     if (a.length) throw new Error(`accuracy lacks ${a.join(", ")}`);
+    // the monitor's status (the strip): required once the stream's Data carries it
+    if (msg.status !== undefined && msg.status !== null) {
+      const st = missing(msg.status, SCHEMA.status);
+      if (st.length) throw new Error(`status lacks ${st.join(", ")}`);
+    }
     if (msg.accuracy.mode !== "truth" && msg.accuracy.mode !== "agreement") {
       throw new Error(`accuracy mode ${msg.accuracy.mode}`);
     }

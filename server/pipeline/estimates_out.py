@@ -14,6 +14,12 @@ code here:
 ``wear``        ``VB_mm``, ``VB_limit_mm``, ``remaining_life_min``;
 ``alarms``      plain sentences: wear near its limit, a short remaining life, a gap in
                 the drive feed;
+``monitor``     the process monitor's ``state`` (off, teaching, watching, alarm), ``tool``,
+                ``line`` and ``unacked`` (events waiting for an acknowledgement): the
+                service's status strip when given (the loop's, which knows the
+                acknowledgements), else ``state``/``tool``/``line`` from the monitor's
+                channels ``mon_state``, ``mon_tool``, ``mon_line`` when the pipeline
+                streams them (the fleet page shows the state);
 ``health``      the loop's health, and the drive feed's counters for a broker source.
 
 Ground truth (``*_true`` channels, the simulator's) is not published: estimates only.
@@ -36,6 +42,8 @@ from server.records.drive_wire import encode_estimates
 
 __all__ = ["LIFE_ALARM_MIN", "WEAR_ALARM_SHARE", "EstimatesPublisher"]
 GROUPS = {"force": "force", "J_L": "params", "B_L": "params", "F_CL": "params"}
+#: the process monitor's ``mon_state`` channel's values
+MONITOR_STATES = {0: "teaching", 1: "watching", 2: "alarm"}
 
 
 class EstimatesPublisher:
@@ -119,8 +127,10 @@ class EstimatesPublisher:
         health: Mapping[str, Any] | None = None,
         drive_wall: float | None = None,
         feed_health: Mapping[str, Any] | None = None,
+        monitor: Mapping[str, Any] | None = None,
     ) -> dict[str, Any]:
-        """The message body for the period ending now (and the period restarts)."""
+        """The message body for the period ending now (and the period restarts);
+        ``monitor``: the service's monitor status (:class:`MonitorStatus` fields)."""
         with self._lock:
             latest = dict(self._latest)
             level = math.sqrt(self._sq / self._count) if self._count else math.nan
@@ -160,6 +170,9 @@ class EstimatesPublisher:
         }
         if feed_health:
             body["feed"] = dict(feed_health)
+        mon = _monitor(latest) if monitor is None else _monitor_of_status(monitor)
+        if mon is not None:
+            body["monitor"] = mon
         return body
 
     def due(self, now: float) -> bool:
@@ -186,3 +199,21 @@ class EstimatesPublisher:
             "published": self.published,
             "rate_hz": 1.0 / self.period,
         }
+
+
+def _monitor(latest: Mapping[str, float]) -> dict[str, Any] | None:
+    """The process monitor's state, tool and line from its latest channel values."""
+    st = latest.get("mon_state")
+    if st is None or not math.isfinite(st):
+        return None
+    tool, line = latest.get("mon_tool", math.nan), latest.get("mon_line", math.nan)
+    return {
+        "state": MONITOR_STATES.get(round(st), "off"),
+        "tool": round(tool) if math.isfinite(tool) else 0,
+        "line": round(line) if math.isfinite(line) else 0,
+    }
+
+
+def _monitor_of_status(st: Mapping[str, Any]) -> dict[str, Any]:
+    """The ``monitor`` section from the service's status strip."""
+    return {k: st.get(k) for k in ("state", "tool", "line", "unacked")}

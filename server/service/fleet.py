@@ -1,9 +1,16 @@
-"""The fleet page: one row per machine, from the estimates every service publishes.
+"""The fleet page: one row per machine, from the estimates and events every service publishes.
 
-``cutwatch fleet --broker URL`` subscribes to ``cutwatch/+/estimates`` and serves a page
-(``/``) with one row per machine — status, force level, wear and remaining life, alarms,
-last seen, a link to that machine's dashboard — pushed to the browser over ``/ws`` as
-each estimate arrives (no polling delay). A machine that has not published for
+``cutwatch fleet --broker URL`` subscribes to ``cutwatch/+/estimates`` and
+``cutwatch/+/events`` (the process monitor's events, :meth:`MonitorEvent.to_wire`, QoS 1)
+and serves a page (``/``) with one row per machine — status, the process monitor's state
+and its latest unacknowledged event, force level, wear and remaining life, alarms, last
+seen, a link to that machine's dashboard — pushed to the browser over ``/ws`` as each
+message arrives (no polling delay). A machine with an unacknowledged ``feed_hold`` or
+``alarm`` event is in alarm (its row highlighted) until the event is acknowledged: an
+acknowledged copy of it (the same ``id`` with ``acked`` true) arrives, or the machine's
+estimates say nothing waits (``monitor.unacked`` 0, which clears the events received
+:data:`ACK_GRACE_S` before them or earlier: an estimate built before an event was raised
+may arrive just after it). A machine that has not published for
 ``stale_after`` seconds shows as stale until it publishes again. ``/api/fleet`` gives the
 same rows as JSON, ``/metrics`` the counters.
 """
@@ -13,6 +20,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import json
+import math
 import threading
 import time
 from collections.abc import AsyncIterator
@@ -25,9 +33,36 @@ from pydantic import BaseModel
 
 from server.pipeline.broker import BrokerConfig, make_client, reason_text
 from server.records.drive_wire import WireError, decode_estimates
+from server.records.monitor_events import MonitorEvent
 
 WEB_DIR = Path(__file__).resolve().parents[2] / "web"
 TOPIC = "cutwatch/+/estimates"
+#: the process monitor's events of every machine (QoS 1, as published)
+EVENTS_TOPIC = "cutwatch/+/events"
+#: events kept per machine (the newest)
+EVENTS_KEPT = 50
+#: the acknowledgement fields an event may carry beside :meth:`MonitorEvent.to_wire`'s
+ACK_FIELDS = ("acked", "acked_by", "acked_wall")
+#: an estimate saying no event waits clears the events received this long before it [s]
+ACK_GRACE_S = 1.0
+
+
+class FleetEvent(BaseModel):
+    """A machine's event as the fleet page shows it."""
+
+    id: str
+    kind: str
+    action: str
+    t: float
+    tool: int
+    program: str
+    line: int
+    part: int
+    value: float | None
+    limit: float | None
+    unit: str
+    message: str
+    acked: bool = False
 
 
 class MachineRow(BaseModel):
@@ -40,6 +75,12 @@ class MachineRow(BaseModel):
     wear_vb_mm: float | None = None
     remaining_life_min: float | None = None
     alarms: list[str] = []
+    #: the process monitor's state (off / teaching / watching / alarm; None: not known)
+    monitor: str | None = None
+    #: the newest event waiting for an acknowledgement (feed hold or alarm), if any
+    event: FleetEvent | None = None
+    #: events waiting for an acknowledgement
+    unacked: int = 0
     dashboard: str | None = None
     source: str | None = None
     messages: int = 0
@@ -54,7 +95,10 @@ class FleetState:
         self.stale_after = float(stale_after)
         self._lock = threading.Lock()
         self._last: dict[str, tuple[float, dict[str, Any], int]] = {}
+        #: machine -> (wall time of its latest event, event id -> (event, received at))
+        self._events: dict[str, tuple[float, dict[str, tuple[FleetEvent, float]]]] = {}
         self.malformed = 0
+        self.events_received = 0
         self.latencies: list[float] = []  # drive block publish -> arrival here [s]
         self.listeners: list[tuple[asyncio.AbstractEventLoop, asyncio.Queue[str]]] = []
 
@@ -69,28 +113,77 @@ class FleetState:
         with self._lock:
             _, _, count = self._last.get(machine, (0.0, {}, 0))
             self._last[machine] = (now, d, count + 1)
+            mon = d.get("monitor")
+            if isinstance(mon, dict) and mon.get("unacked") == 0 and machine in self._events:
+                for eid, (fe, got) in self._events[machine][1].items():
+                    if not fe.acked and got <= now - ACK_GRACE_S:
+                        self._events[machine][1][eid] = (fe.model_copy(update={"acked": True}), got)
             dw = d.get("drive_wall")
             if isinstance(dw, int | float):
                 self.latencies.append(now - float(dw))
                 del self.latencies[:-10_000]
+        self._push(machine, now)
+        return machine
+
+    def _push(self, machine: str, now: float) -> None:
         row = json.dumps(self.row(machine, now).model_dump())
         for loop, q in list(self.listeners):
             loop.call_soon_threadsafe(_offer, q, row)
+
+    def event(self, topic: str, payload: bytes, now: float | None = None) -> str | None:
+        """Take one message of ``cutwatch/<machine>/events``: the event (schema
+        ``cutwatch.event``, checked by :meth:`MonitorEvent.from_dict`), with ``acked``
+        when it is an acknowledged copy; the machine's row is pushed. The machine: the
+        event's own, else the topic's. None (and counted as malformed) when it is not one."""
+        now = time.time() if now is None else now
+        try:
+            d = json.loads(payload)
+            if not isinstance(d, dict):
+                raise ValueError("not an object")
+            ack = {k: d.pop(k) for k in ACK_FIELDS if k in d}
+            ev = MonitorEvent.from_dict(d)
+            machine = ev.machine or topic.split("/")[1]
+            fe = FleetEvent.model_validate({**ev.as_dict(), "acked": bool(ack.get("acked"))})
+        except (ValueError, TypeError, IndexError):
+            self.malformed += 1
+            return None
+        with self._lock:
+            self.events_received += 1
+            _, evs = self._events.get(machine, (0.0, {}))
+            old = evs.get(fe.id)
+            if old is None or not old[0].acked:  # an acknowledgement is never undone
+                evs[fe.id] = (fe, now)
+            while len(evs) > EVENTS_KEPT:
+                del evs[min(evs.values(), key=lambda e: e[0].t)[0].id]
+            self._events[machine] = (now, evs)
+        self._push(machine, now)
         return machine
 
     def row(self, machine: str, now: float | None = None) -> MachineRow:
         now = time.time() if now is None else now
         with self._lock:
-            seen, d, count = self._last[machine]
+            seen, d, count = self._last.get(machine, (-math.inf, {}, 0))
+            ev_seen, evs = self._events.get(machine, (-math.inf, {}))
+            events = sorted((e for e, _ in evs.values()), key=lambda e: e.t, reverse=True)
+        seen = max(seen, ev_seen)
         age = now - seen
         alarms = [str(a) for a in d.get("alarms") or []]
-        status = "stale" if age > self.stale_after else ("alarm" if alarms else "ok")
+        waiting = [e for e in events if not e.acked and e.action != "notice"]
+        mon = d.get("monitor")
+        monitor = str(mon["state"]) if isinstance(mon, dict) and "state" in mon else None
+        if waiting:
+            monitor = "alarm"
+        bad = bool(alarms) or monitor == "alarm"
+        status = "stale" if age > self.stale_after else ("alarm" if bad else "ok")
         wear = d.get("wear") or {}
         force = d.get("force") or {}
         return MachineRow(
             machine=machine,
             status=status,
             last_seen_s=round(age, 3),
+            monitor=monitor,
+            event=waiting[0] if waiting else None,
+            unacked=len(waiting),
             force=_num(force.get("level")),
             wear_vb_mm=_num(wear.get("VB_mm")),
             remaining_life_min=_num(wear.get("remaining_life_min")),
@@ -104,7 +197,7 @@ class FleetState:
     def rows(self) -> list[MachineRow]:
         now = time.time()
         with self._lock:
-            names = sorted(self._last)
+            names = sorted(set(self._last) | set(self._events))
         return [self.row(m, now) for m in names]
 
 
@@ -133,14 +226,21 @@ def create_fleet_app(cfg: BrokerConfig, stale_after: float = 5.0) -> FastAPI:
                 status.update(connected=False, error=f"refused: {reason_text(rc)}")
                 return
             status.update(connected=True, error="")
-            cl.subscribe(TOPIC, qos=0)
+            cl.subscribe([(TOPIC, 0), (EVENTS_TOPIC, 1)])
 
         def on_disconnect(_c: object, _u: object, _f: object, rc: Any, _p: object = None) -> None:
             status["connected"] = False
 
         c.on_connect = on_connect
         c.on_disconnect = on_disconnect
-        c.on_message = lambda _c, _u, m: state.update(bytes(m.payload))
+
+        def on_message(_c: object, _u: object, m: Any) -> None:
+            if m.topic.endswith("/events"):
+                state.event(str(m.topic), bytes(m.payload))
+            else:
+                state.update(bytes(m.payload))
+
+        c.on_message = on_message
         c.connect_async(cfg.host, cfg.port, keepalive=cfg.keepalive)
         c.loop_start()
         app.state.fleet = state
@@ -175,6 +275,8 @@ def create_fleet_app(cfg: BrokerConfig, stale_after: float = 5.0) -> FastAPI:
             f"cutwatch_fleet_machines {len(rows)}",
             f"cutwatch_fleet_stale_machines {sum(r.status == 'stale' for r in rows)}",
             f"cutwatch_fleet_malformed_total {state.malformed}",
+            f"cutwatch_fleet_events_total {state.events_received}",
+            f"cutwatch_fleet_alarm_machines {sum(r.monitor == 'alarm' for r in rows)}",
             f"cutwatch_fleet_broker_connected {int(status['connected'])}",
         ]
         return "\n".join(lines) + "\n"

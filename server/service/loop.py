@@ -654,6 +654,7 @@ class LiveLoop:
                 health=self.health(),
                 drive_wall=getattr(src, "last_wall", None),
                 feed_health=self.feed.health() if self.feed is not None else None,
+                monitor=self.monitor_status(),
             )
             pub.publish(body, now)
 

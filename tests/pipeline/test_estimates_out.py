@@ -75,3 +75,24 @@ def test_no_broker_never_blocks_or_raises() -> None:
         assert time.monotonic() - t0 < 0.1 and not pub.health()["connected"]
     finally:
         pub.stop()
+
+
+def test_the_monitor_state_travels_when_its_channels_are_streamed() -> None:
+    pub = EstimatesPublisher(parse_broker_url("mqtt://127.0.0.1:1"), "m1", rate_hz=5)
+    p = LivePipeline("default", seed=0)
+    pub.observe(p.step(125))
+    plain = pub.build(time.time(), p.channels(), p.t, "simulator")
+    if "mon_state" not in {c.name for c in p.channels()}:
+        assert "monitor" not in plain  # no process monitor: nothing claimed
+    # the process monitor's channels, as the pipeline streams them (0 teaching, 1
+    # watching, 2 alarm): the latest sample of the block decides
+    for states, want in (([0.0, 0.0], "teaching"), ([0.0, 1.0], "watching"), ([1, 2], "alarm")):
+        pub.observe({"t": [0.0, 1e-3], "mon_state": states, "mon_tool": [3, 3],
+                     "mon_line": [110, 120]})  # fmt: skip
+        body = pub.build(time.time(), p.channels(), p.t, "simulator")
+        assert body["monitor"] == {"state": want, "tool": 3, "line": 120}
+    # the service's status strip, when given, is what travels (it knows the acknowledgements)
+    status = {"state": "watching", "tool": 4, "program": "O1", "line": 30, "part": 2,
+              "wear_share": 0.5, "life_left_min": 9.0, "unacked": 0}  # fmt: skip
+    body = pub.build(time.time(), p.channels(), p.t, "simulator", monitor=status)
+    assert body["monitor"] == {"state": "watching", "tool": 4, "line": 30, "unacked": 0}

@@ -124,3 +124,85 @@ def test_the_fleet_page_in_a_browser(tmp_path_factory: pytest.TempPathFactory) -
         finally:
             pub.loop_stop()
             pub.disconnect()
+
+
+def monitor_event(machine: str, kind: str = "breakage", **extra: object) -> dict:
+    from server.records.monitor_events import DEFAULT_ACTIONS, MonitorEvent
+
+    ev = MonitorEvent(
+        kind=kind, action=DEFAULT_ACTIONS[kind], t=12.5, tool=3, program="O1001", line=120,
+        part=7, value=4.2, limit=1.5, unit="", message=f"{kind} on T3", machine=machine,
+    )  # fmt: skip
+    return {**ev.to_wire(), **extra}
+
+
+def test_events_put_a_machine_in_alarm_until_acknowledged() -> None:
+    with broker() as bp, fleet(bp, stale_after=30.0) as hp:
+        time.sleep(0.5)
+        pub = publisher(bp)
+        try:
+            pub.publish(
+                "cutwatch/mill-1/estimates", estimate("mill-1", monitor={"state": "watching"})
+            )
+            pub.publish(
+                "cutwatch/mill-2/estimates", estimate("mill-2", monitor={"state": "watching"})
+            )
+            wait_rows(hp, lambda r: len(r) == 2)
+            by = {r["machine"]: r for r in httpx.get(f"http://{hp}/api/fleet").json()}
+            assert by["mill-1"]["monitor"] == "watching" and by["mill-1"]["status"] == "ok"
+            ev = monitor_event("mill-1")
+            notice = monitor_event("mill-2", "life_short")
+            pub.publish("cutwatch/mill-1/events", json.dumps(ev), qos=1)
+            pub.publish("cutwatch/mill-2/events", json.dumps(notice), qos=1)
+            pub.publish("cutwatch/mill-2/events", b'{"schema": "cutwatch.event", "kind": "x"}')
+            rows = wait_rows(hp, lambda r: {x["machine"]: x for x in r}["mill-1"]["event"])
+            by = {r["machine"]: r for r in rows}
+            m1 = by["mill-1"]
+            assert m1["monitor"] == "alarm" and m1["status"] == "alarm" and m1["unacked"] == 1
+            assert m1["event"]["id"] == ev["id"] and m1["event"]["kind"] == "breakage"
+            assert (m1["event"]["tool"], m1["event"]["line"], m1["event"]["part"]) == (3, 120, 7)
+            # a notice waits for no one: no alarm
+            wait_rows(hp, lambda r: "cutwatch_fleet_events_total 2" in httpx.get(
+                f"http://{hp}/metrics").text)  # fmt: skip
+            m2 = {r["machine"]: r for r in httpx.get(f"http://{hp}/api/fleet").json()}["mill-2"]
+            assert m2["monitor"] == "watching" and m2["event"] is None
+            assert "cutwatch_fleet_malformed_total 1" in httpx.get(f"http://{hp}/metrics").text
+            # the acknowledged copy clears the alarm; a late raised copy does not bring it back
+            acked = {**ev, "acked": True, "acked_by": "operator", "acked_wall": time.time()}
+            pub.publish("cutwatch/mill-1/events", json.dumps(acked), qos=1)
+            rows = wait_rows(hp, lambda r: {x["machine"]: x for x in r}["mill-1"]["event"] is None)
+            m1 = {r["machine"]: r for r in rows}["mill-1"]
+            assert m1["monitor"] == "watching" and m1["status"] == "ok" and m1["unacked"] == 0
+            pub.publish("cutwatch/mill-1/events", json.dumps(ev), qos=1)
+            time.sleep(0.5)
+            m1 = {r["machine"]: r for r in httpx.get(f"http://{hp}/api/fleet").json()}["mill-1"]
+            assert m1["event"] is None and m1["monitor"] == "watching"
+        finally:
+            pub.loop_stop()
+            pub.disconnect()
+
+
+def test_an_estimate_with_nothing_waiting_clears_the_events_before_it() -> None:
+    with broker() as bp, fleet(bp, stale_after=30.0) as hp:
+        time.sleep(0.5)
+        pub = publisher(bp)
+        try:
+            ev = monitor_event("mill-4")
+            pub.publish("cutwatch/mill-4/events", json.dumps(ev), qos=1)
+            wait_rows(hp, lambda r: len(r) == 1 and r[0]["event"] is not None)
+            # an estimate built before the event was raised, arriving just after it:
+            # the event still waits
+            quiet = {"state": "watching", "tool": 3, "line": 120, "unacked": 0}
+            pub.publish("cutwatch/mill-4/estimates", estimate("mill-4", monitor=quiet))
+            wait_rows(hp, lambda r: r[0]["messages"] == 1)
+            row = httpx.get(f"http://{hp}/api/fleet").json()[0]
+            assert row["monitor"] == "alarm" and row["event"]["id"] == ev["id"]
+            # a second later the service still says nothing waits: acknowledged there
+            time.sleep(1.1)
+            pub.publish("cutwatch/mill-4/estimates", estimate("mill-4", monitor=quiet))
+            rows = wait_rows(hp, lambda r: r[0]["messages"] == 2)
+            assert rows[0]["monitor"] == "watching" and rows[0]["event"] is None
+            assert rows[0]["status"] == "ok" and rows[0]["unacked"] == 0
+        finally:
+            pub.loop_stop()
+            pub.disconnect()

@@ -1,8 +1,11 @@
-"""Serve the fleet page: one row per machine from ``cutwatch/+/estimates`` on a broker.
+"""Serve the fleet page: one row per machine from ``cutwatch/+/estimates`` and
+``cutwatch/+/events`` on a broker.
 
-Every ``cutwatch serve`` that publishes its estimates (``CUTWATCH_MQTT_PUBLISH_HZ`` > 0)
-appears as a row: status (ok, alarm, stale when silent for --stale-after seconds), force
-level, flank wear and remaining life, alarms, last seen, and a link to its dashboard.
+Every ``cutwatch serve`` that publishes its estimates (``CUTWATCH_MQTT_PUBLISH_HZ`` > 0) or
+its process monitor's events appears as a row: status (ok, alarm, stale when silent for
+--stale-after seconds), the monitor's state (teaching, watching, alarm) and its newest
+unacknowledged event (the row red while one waits), force level, flank wear and
+remaining life, alarms, last seen, and a link to its dashboard.
 
 Example::
 

@@ -1,0 +1,155 @@
+// Pure helpers of the process monitor's parts of the dashboard (no DOM): the status strip's
+// words, the event timeline's rows, the chart markers, the monitor chart's series.
+// tests/service/test_monitor_ui.py runs them under node; app.js draws what they return.
+
+// the monitor's states as the strip shows them (big, across the shop)
+export const STATE_WORDS = {
+  off: "OFF", teaching: "TEACHING", watching: "WATCHING", alarm: "ALARM",
+};
+// event kinds in words
+export const KIND_WORDS = {
+  breakage: "tool breakage", collision: "collision / overload", missing_tool: "missing tool",
+  wear_limit: "wear limit", life_short: "tool life short",
+};
+// actions in words
+export const ACTION_WORDS = { feed_hold: "feed hold", alarm: "alarm", notice: "notice" };
+// the colour of an event's marker on the charts: red while it waits for an operator
+export const MARKER_ALARM = "#e00000";
+export const MARKER_DONE = "#8a8f98";
+
+const dash = "–";
+
+function num(v, digits) {
+  return v === null || v === undefined || !Number.isFinite(Number(v)) ? null
+    : Number(v).toFixed(digits);
+}
+
+// The strip's fields for a MonitorStatus (SCHEMA.status); a frame without one (a stream
+// without the process monitor) shows the monitor off. `latest`: the newest event still
+// waiting for an acknowledgement (its message is shown while in alarm), or null.
+export function statusView(status, latest = null) {
+  const s = status || { state: "off", tool: 0, program: "", line: 0, part: -1,
+    wear_share: null, life_left_min: null, unacked: 0 };
+  const state = STATE_WORDS[s.state] ? s.state : "off";
+  const wear = num(s.wear_share === null || s.wear_share === undefined ? null
+    : 100 * s.wear_share, 0);
+  const where = [s.program ? `program ${s.program}` : null, s.line ? `line ${s.line}` : null,
+    s.part >= 0 ? `part ${s.part}` : null].filter(Boolean);
+  const alarm = state === "alarm";
+  return {
+    state,
+    label: STATE_WORDS[state],
+    tool: s.tool ? `T${s.tool}` : dash,
+    wear: wear === null ? dash : `${wear} %`,
+    // the bar: share of the limit, 0..1 (a worn-out tool fills it)
+    wearBar: s.wear_share === null || s.wear_share === undefined ? 0
+      : Math.max(0, Math.min(1, Number(s.wear_share))),
+    life: num(s.life_left_min, 1) === null ? dash : `${num(s.life_left_min, 1)} min`,
+    where: where.length ? where.join(" · ") : dash,
+    unacked: s.unacked || 0,
+    unackedText: s.unacked ? `${s.unacked} to acknowledge` : "nothing to acknowledge",
+    // the detector's own sentence names the kind, tool and block; else the kind in words
+    message: alarm && latest ? latest.message || KIND_WORDS[latest.kind] || latest.kind : "",
+  };
+}
+
+// Take one event (an EventMessage's event, a REST item) into `events` (a Map id -> event):
+// an acknowledgement replaces the raised copy; an older copy never undoes an
+// acknowledgement. Returns true when the map changed.
+export function mergeEvent(events, ev, keep = 200) {
+  const old = events.get(ev.id);
+  if (old && old.acked && !ev.acked) return false;
+  if (old && JSON.stringify(old) === JSON.stringify(ev)) return false;
+  events.set(ev.id, ev);
+  if (events.size > keep) {
+    const oldest = [...events.values()].sort((a, b) => a.t - b.t).slice(0, events.size - keep);
+    for (const e of oldest) events.delete(e.id);
+  }
+  return true;
+}
+
+// Newest first (by simulated time; a reset starts time again, so ties go by id).
+export function ordered(events) {
+  return [...events.values()].sort((a, b) => b.t - a.t || (a.id < b.id ? 1 : -1));
+}
+
+// Does this event wait for an operator? (every unacknowledged feed hold or alarm)
+export function waiting(ev) {
+  return !ev.acked && ev.action !== "notice";
+}
+
+// The event the strip names while in alarm: the newest waiting feed hold (the machine
+// stopped for it), else the newest waiting alarm; null when none waits.
+export function headline(events) {
+  const w = ordered(events).filter(waiting);
+  return w.find((e) => e.action === "feed_hold") || w[0] || null;
+}
+
+function valueText(ev) {
+  const v = num(ev.value, 3);
+  const l = num(ev.limit, 3);
+  if (v === null && l === null) return dash;
+  const u = ev.unit && ev.unit !== "1" ? ` ${ev.unit}` : "";  // "1": a ratio
+  return `${v ?? dash} vs ${l ?? dash}${u}`;
+}
+
+function wallText(w) {
+  if (w === null || w === undefined) return "";
+  return new Date(w * 1000).toISOString().slice(11, 19);
+}
+
+// One timeline row's cells, in the order of TIMELINE_HEAD.
+export const TIMELINE_HEAD = ["t [s]", "event", "tool", "line", "part", "value vs limit",
+  "action", "acknowledged"];
+export function eventRow(ev) {
+  return {
+    id: ev.id,
+    waiting: waiting(ev),
+    kind: ev.kind,
+    cells: [
+      Number(ev.t).toFixed(3),
+      KIND_WORDS[ev.kind] || ev.kind,
+      ev.tool ? `T${ev.tool}` : dash,
+      ev.line ? String(ev.line) : dash,
+      ev.part >= 0 ? String(ev.part) : dash,
+      valueText(ev),
+      ACTION_WORDS[ev.action] || ev.action,
+      ev.acked ? `yes${ev.acked_by ? `, ${ev.acked_by}` : ""}` +
+        `${ev.acked_wall ? ` ${wallText(ev.acked_wall)} UTC` : ""}` : "no",
+    ],
+    message: ev.message,
+  };
+}
+
+// Why an Acknowledge button is disabled ("" when it is not): the operator's role only.
+export function ackRefusal(role) {
+  if (role === "operator") return "";
+  if (role === "viewer") return "acknowledging needs the operator role (signed in as viewer)";
+  return "acknowledging needs the operator role (not signed in)";
+}
+
+// The markers in the x range [t0, t1]: [{t, color}], oldest first.
+export function markersIn(events, t0, t1) {
+  return [...events.values()].filter((e) => e.t >= t0 && e.t <= t1)
+    .sort((a, b) => a.t - b.t)
+    .map((e) => ({ t: e.t, id: e.id, color: waiting(e) ? MARKER_ALARM : MARKER_DONE }));
+}
+
+// The process monitor chart's series ([channel, label, color, scale, opts], as app.js's
+// CHARTS) for the channels the hello announces (names: a Set), or null without the
+// monitor's force channel. The taught band is shaded between upper and lower.
+export function monitorSeries(names) {
+  if (!names.has("mon_f") && !names.has("mon_mean")) return null;
+  const all = [
+    ["mon_f", "force estimate [N]", "#9aa0a6", undefined, { width: 1 }],
+    ["mon_mean", "mean over a revolution [N]", "#0072b2", undefined, { width: 2 }],
+    ["mon_upper", "taught upper band [N]", "#009e73", undefined, { width: 1.2 }],
+    ["mon_lower", "taught lower band [N]", "#009e73", undefined, { width: 1.2 }],
+    ["mon_extreme", "extreme limit [N]", "#7b3294", undefined, { width: 1.6, dash: [8, 5] }],
+  ].filter((s) => names.has(s[0]));
+  const iu = all.findIndex((s) => s[0] === "mon_upper");
+  const il = all.findIndex((s) => s[0] === "mon_lower");
+  const bands = iu >= 0 && il >= 0
+    ? [{ series: [1 + iu, 1 + il], fill: "rgba(0, 158, 115, 0.15)" }] : [];
+  return { series: all, bands };
+}
