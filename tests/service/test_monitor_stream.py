@@ -1,7 +1,8 @@
 """The monitor's events through the real service: on /ws (event messages, frames with the
 status strip, the unacknowledged ones to a new client), in /api/snapshot and /metrics, on
 a real Mosquitto (the event, and the feed-hold command before a breakage's event); an
-acknowledgement announced to every client; inject and relearn refused by name.
+acknowledgement (``POST /api/events/{id}/ack``) announced to every client; inject and
+relearn refused by name.
 
 One run of the default scenario at the loop's top speed, taught on 2 parts: a tooth
 breakage injected through ``POST /api/control`` once the monitor watches (~30 s of
@@ -224,8 +225,9 @@ def test_an_acknowledgement_is_announced_and_clears_the_alarm(run: Run) -> None:
         assert _recv(ws)["type"] == "hello"
         backlog = [_recv(ws) for _ in kept]
         assert {m["event"]["id"] for m in backlog} == {e["id"] for e in kept}
-        for e in kept:  # what the history's acknowledgement route hands the loop
-            run.loop.announce_event({**e, "acked": True, "acked_by": "op", "acked_wall": 1.0})
+        for e in kept:  # the operator's acknowledgement (the history's route)
+            r = httpx.post(f"http://{run.hp}/api/events/{e['id']}/ack")
+            assert r.status_code == 200 and r.json()["acked"] is True, r.text
         acks = []
         while len(acks) < len(kept):
             m = _recv(ws)
@@ -234,7 +236,8 @@ def test_an_acknowledgement_is_announced_and_clears_the_alarm(run: Run) -> None:
         frame = _recv(ws)
         while frame["type"] != "data":
             frame = _recv(ws)
-    assert all(a["acked"] and a["acked_by"] == "op" for a in acks)
+    assert all(a["acked"] and a["acked_by"] and a["acked_wall"] for a in acks)
+    assert {a["id"] for a in acks} == {e["id"] for e in kept}
     assert frame["status"]["unacked"] == 0 and frame["status"]["state"] != "alarm"
     snap = httpx.get(f"http://{run.hp}/api/snapshot").json()
     assert all(e["acked"] for e in snap["events"]) and snap["status"]["state"] != "alarm"

@@ -29,13 +29,22 @@ revolutions of samples after the first, and at 1x those arrive in real time: one
 revolution is 33-50 ms in the default program), the blocks' computation, the publish,
 the broker and the delivery. The target: p99 < 100 ms at 1x.
 
-Procedure: teach-in at ``TEACH_SPEED`` x with ``teach_parts`` 2 until part 3 runs; then
-per event: speed 1, ``SETTLE_S`` of wall time, inject a tooth breakage now (``POST
-/api/control``; in an air move it waits for the middle of the next cut), wait for its
-command; then ``TEACH_SPEED`` x until the next part starts (the broken tool is replaced
-at the end of the part) and again. ``EVENTS`` events (``QUICK_EVENTS`` with ``--quick``);
-``repeats`` is not used (one run of that many events). Other feed holds (a false alarm)
-are counted, not timed. Heavy-ish: one service at 1x for ~2 s per event.
+Procedure: teach-in at ``FAST_SPEED`` x with ``teach_parts`` 2 until part 3 begins; then
+per event: inject a tooth breakage (0.4 mm, the clear size) into the next part (``POST
+/api/control`` ``at_part``: the middle of that part's first cut, a place the monitor
+has taught), run at ``FAST_SPEED`` x until this part's last operation (line
+``LAST_OP_LINE``), then at 1x until the command comes (``COMMAND_TIMEOUT_S`` at most:
+else a miss, counted); the broken tool is replaced at the end of its part, and the next
+event goes into the part after. An event counts only if the ``PACED_BLOCKS`` blocks
+before its block ran at 1x (from the block log; else ``not_at_1x``). ``EVENTS`` events
+(``QUICK_EVENTS`` with ``--quick``); ``repeats`` is not used (one run of that many
+events). A feed hold that is not the injected breakage's (a false alarm) is counted in
+``other_feed_holds``, not timed. Heavy-ish: one service, ~7 s of 1x per event.
+
+Why ``at_part`` and not "now": a breakage injected at an arbitrary instant is not always
+found by the monitor (a detection-rate question, measured by ``cutwatch reproduce
+process-monitoring``, not a latency one); this benchmark times the path of the events
+that are found, at the place the reproduction calls clear.
 """
 
 from __future__ import annotations
@@ -62,9 +71,12 @@ import numpy as np
 MACHINE = "bench"
 EVENTS = 40
 QUICK_EVENTS = 5
-TEACH_SPEED = 20.0
-SETTLE_S = 1.0
-COMMAND_TIMEOUT_S = 10.0
+FAST_SPEED = 20.0
+#: the program's last operation (T2's contour): the loop goes back to 1x when it starts
+LAST_OP_LINE = 60
+#: blocks before an event's block that must have run at 1x for the event to count
+PACED_BLOCKS = 20
+COMMAND_TIMEOUT_S = 30.0
 TARGET_P99_MS = 100.0
 
 
@@ -211,21 +223,36 @@ def _control(base: str, body: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-def _wait_part(base: str, part: int, timeout: float = 300.0) -> None:
-    """Until the part counter reaches ``part``."""
+def _wait_until(base: str, part: int, line: int, timeout: float = 300.0) -> None:
+    """Until the program runs ``line`` (or a later one) of ``part``, or a later part."""
     deadline = time.monotonic() + timeout
-    while _snapshot(base)["status"]["part"] < part:
+    while True:
+        st = _snapshot(base)["status"]
+        if st["part"] > part or (st["part"] == part and st["line"] >= line):
+            return
         if time.monotonic() > deadline:
-            raise RuntimeError(f"part {part} did not start in {timeout:g} s")
-        time.sleep(0.1)
+            raise RuntimeError(f"line {line} of part {part} did not come in {timeout:g} s")
+        time.sleep(0.05)
 
 
-def _one_event(base: str, log: Path, sub: _Listener) -> dict[str, float]:
-    """Inject one breakage at 1x and time its command (see the module docstring)."""
-    _control(base, {"action": "speed", "value": 1.0})
-    time.sleep(SETTLE_S)
+def _paced(log: Path, w0: float) -> bool:
+    """The loop ran at 1x before ``w0``: the ``PACED_BLOCKS`` blocks before the event's
+    block took at least 80 % of their simulated time in wall time."""
+    rows = [tuple(float(x) for x in ln.split()) for ln in log.read_text().splitlines()]
+    before = [r for r in rows if r[2] <= w0][-PACED_BLOCKS - 1 :]
+    if len(before) <= PACED_BLOCKS:
+        return False
+    sim = before[-1][0] - before[0][0]
+    return before[-1][2] - before[0][2] >= 0.8 * sim
+
+
+def _one_event(base: str, log: Path, sub: _Listener, part: int) -> dict[str, float]:
+    """Inject a breakage into the next part, run at 1x from the last operation of this
+    one, and time its command (see the module docstring)."""
     n_before = len(_snapshot(base)["pipeline"]["injected"])
-    _control(base, {"action": "inject", "kind": "breakage"})
+    _control(base, {"action": "inject", "kind": "breakage", "at_part": part + 1})
+    _wait_until(base, part, LAST_OP_LINE)
+    _control(base, {"action": "speed", "value": 1.0})
     other = 0
     deadline = time.monotonic() + COMMAND_TIMEOUT_S
     while True:
@@ -233,29 +260,27 @@ def _one_event(base: str, log: Path, sub: _Listener) -> dict[str, float]:
         if left <= 0:
             snap = _snapshot(base)
             print(f"  missed: no command in {COMMAND_TIMEOUT_S:g} s; injected "
-                  f"{snap['pipeline']['injected'][n_before:]}, status {snap['status']}, "
-                  f"t {snap['pipeline']['t']:.2f}", file=sys.stderr)  # fmt: skip
-            return {"missed": 1.0, "other": float(other)}
+                  f"{snap['pipeline']['injected'][n_before:]}, status {snap['status']}",
+                  file=sys.stderr)  # fmt: skip
+            return {"missed": 1.0, "other": float(other), "part": float(part + 1)}
         try:
             w1, cmd = sub.commands.get(timeout=left)
         except queue.Empty:
             continue
         truths = _snapshot(base)["pipeline"]["injected"]
-        if len(truths) <= n_before:
-            other += 1  # a feed hold before the breakage was placed: not this one
-            continue
-        t_first = float(truths[-1]["t"])
         ev_deadline = time.monotonic() + 5
         while cmd["event_id"] not in sub.events and time.monotonic() < ev_deadline:
             time.sleep(0.01)
         ev = sub.events.get(cmd["event_id"], {})
-        if ev.get("kind") != "breakage" or float(cmd["t"]) < t_first:
-            other += 1
+        if len(truths) <= n_before or ev.get("kind") != "breakage":
+            other += 1  # a feed hold that is not this breakage's (a false alarm)
             continue
+        t_first = float(truths[-1]["t"])
         w0 = _block_taken(log, t_first)
         return {
             "latency_ms": 1e3 * (w1 - w0),
             "detect_ms": 1e3 * (float(cmd["t"]) - t_first),
+            "paced": float(_paced(log, w0)),
             "part": float(truths[-1]["part"]),
             "other": float(other),
         }
@@ -276,15 +301,15 @@ def measure(*, repeats: int, quick: bool) -> dict[str, object]:
             with _service(bport, d) as (base, log):
                 reader = _dashboard(base.replace("http://", "ws://") + "/ws", stop)
                 httpx.patch(f"{base}/api/params", json={"teach_parts": 2}, timeout=10)
-                _control(base, {"action": "speed", "value": TEACH_SPEED})
-                _wait_part(base, 3)  # parts 0 and 1 taught, part 2 watched whole
+                _control(base, {"action": "speed", "value": FAST_SPEED})
+                _wait_until(base, 3, 0)  # parts 0 and 1 taught, part 2 watched whole
+                part = 3
                 while len(rows) < n_events:
-                    row = _one_event(base, log, sub)
+                    row = _one_event(base, log, sub, part)
                     rows.append(row)
                     print(f"  event {len(rows)}: {row}", file=sys.stderr)
-                    _control(base, {"action": "speed", "value": TEACH_SPEED})
-                    part = int(row.get("part", _snapshot(base)["status"]["part"]))
-                    _wait_part(base, part + 1)
+                    _control(base, {"action": "speed", "value": FAST_SPEED})
+                    part = int(row["part"])
                 metrics = httpx.get(f"{base}/metrics", timeout=5).text
                 stop.set()
                 reader.join(5)
@@ -295,8 +320,9 @@ def measure(*, repeats: int, quick: bool) -> dict[str, object]:
 
 
 def _summary(rows: list[dict[str, float]], metrics: str) -> dict[str, object]:
-    lat = np.array([r["latency_ms"] for r in rows if "latency_ms" in r])
-    det = np.array([r["detect_ms"] for r in rows if "detect_ms" in r])
+    timed = [r for r in rows if "latency_ms" in r and r["paced"]]
+    lat = np.array([r["latency_ms"] for r in timed])
+    det = np.array([r["detect_ms"] for r in timed])
     holds = next(
         (int(float(ln.split()[1])) for ln in metrics.splitlines()
          if ln.startswith("cutwatch_commands_published_total ")),
@@ -305,9 +331,11 @@ def _summary(rows: list[dict[str, float]], metrics: str) -> dict[str, object]:
     p99 = float(np.percentile(lat, 99)) if lat.size else float("nan")
     return {
         "configuration": "cutwatch serve at 1x (default scenario, 50 ms blocks), one "
-        "WebSocket client, Mosquitto on loopback; tooth breakages (0.4 mm) injected now",
+        "WebSocket client, Mosquitto on loopback; tooth breakages (0.4 mm) injected into "
+        "the next part's first cut",
         "events": int(lat.size),
         "missed": int(sum(r.get("missed", 0.0) for r in rows)),
+        "not_at_1x": int(sum("latency_ms" in r and not r["paced"] for r in rows)),
         "other_feed_holds": int(sum(r.get("other", 0.0) for r in rows)),
         "latency_ms_median": float(np.median(lat)) if lat.size else float("nan"),
         "latency_ms_p99": p99,
@@ -318,6 +346,8 @@ def _summary(rows: list[dict[str, float]], metrics: str) -> dict[str, object]:
         "commands_published": holds,
         "target_p99_ms": TARGET_P99_MS,
         "target_met": bool(
-            lat.size >= len(rows) and not any("missed" in r for r in rows) and p99 < TARGET_P99_MS
+            lat.size >= min(30, len(rows))
+            and not any("missed" in r for r in rows)
+            and p99 < TARGET_P99_MS
         ),
     }
