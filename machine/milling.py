@@ -525,7 +525,7 @@ class MillingMachine:
         th = float(theta_m)
         b = float(b_m)
         ph = float(phi_m)
-        if not all(math.isfinite(v) for v in (a, th, b, ph)):
+        if not (math.isfinite(a) and math.isfinite(th) and math.isfinite(b) and math.isfinite(ph)):
             raise ParameterError("a_m/theta_m", "finite values", (a_m, theta_m, b_m, phi_m))
         total = abs(a) + abs(b)
         sat = total > self.max_modulation
