@@ -33,7 +33,7 @@ Examples::
 
     cutwatch bench stage tool-wear --json        # two groups, five runs each
     cutwatch bench pipeline --quick --repeats 1  # a smoke check of one group
-    cutwatch bench live --duration 20 --json     # a short soak of the live service
+    cutwatch bench live --duration 10 --json     # a short soak of the live service
 """
 
 from __future__ import annotations
@@ -111,7 +111,8 @@ def _soak(args: argparse.Namespace, mods: dict[str, ModuleType], wanted: list[st
         )
     if not args.duration > 0:
         raise CutwatchError(f"--duration: expected seconds > 0, got {args.duration}")
-    res = mods[wanted[0]].soak(duration_s=args.duration, warmup_s=min(300.0, args.duration / 3))
+    d = float(args.duration)
+    res = mods[wanted[0]].soak(duration_s=d, warmup_s=min(300.0, d / 3), sample_s=min(5.0, d / 20))
     if args.json:
         print(json.dumps({wanted[0]: res}, indent=2))
     else:
