@@ -119,10 +119,13 @@ def _python_part(rounds: int) -> float:
 
 
 def run_once() -> dict[str, float]:
-    """One reference run: the seconds of each part and their sum (``seconds``)."""
+    """One reference run: the seconds of each part and their sum (``seconds``, wall
+    clock like the groups), and the process's CPU time over it (``cpu_seconds``: wall
+    well above CPU means the machine was busy with other work)."""
     hist = np.zeros(256)
     _kernel(1000, hist)  # compiled or loaded from the cache: not timed
     out: dict[str, float] = {}
+    c0 = time.process_time()
     t0 = time.perf_counter()
     _kernel(_KERNEL_SAMPLES, hist)
     t1 = time.perf_counter()
@@ -130,6 +133,7 @@ def run_once() -> dict[str, float]:
     t2 = time.perf_counter()
     _python_part(_PYTHON_ROUNDS)
     t3 = time.perf_counter()
+    out["cpu_seconds"] = time.process_time() - c0
     out["numba_seconds"] = t1 - t0
     out["numpy_seconds"] = t2 - t1
     out["python_seconds"] = t3 - t2
@@ -150,11 +154,15 @@ class Reference:
 
     def as_dict(self) -> dict[str, object]:
         runs = [r["seconds"] for r in self.runs]
+        cpu = float(statistics.median(r.get("cpu_seconds", math.nan) for r in self.runs))
         return {
             "version": REFERENCE_VERSION,
             "seconds": self.seconds,
             "runs_seconds": runs,
             "spread": max(runs) / min(runs),
+            "cpu_seconds": cpu,
+            # > 1: the process waited for a core (other work on the machine)
+            "wall_over_cpu": self.seconds / cpu if cpu > 0 else math.nan,
             **{
                 f"{part}_seconds": float(statistics.median(r[f"{part}_seconds"] for r in self.runs))
                 for part in ("numba", "numpy", "python")
@@ -166,6 +174,10 @@ def measure(runs: int) -> list[dict[str, float]]:
     """``runs`` reference runs."""
     return [run_once() for _ in range(max(1, runs))]
 
+
+#: wall over CPU time of the reference above which ``cutwatch bench`` says the machine
+#: was busy (its ratios then mostly measure the share of a core the run got)
+BUSY_WALL_OVER_CPU = 1.2
 
 #: keys of a group's result that are latencies or sizes, not speeds or costs
 _NOT_SPEED = ("latency", "lag", "rss", "slope", "window", "duration", "slow_client_s", "warmup")
@@ -199,4 +211,4 @@ def normalise(key: str, value: float, ref_seconds: float) -> float | None:
     return None
 
 
-__all__ = ["REFERENCE_VERSION", "Reference", "measure", "normalise", "run_once"]
+__all__ = ["BUSY_WALL_OVER_CPU", "REFERENCE_VERSION", "Reference", "measure", "normalise", "run_once"]

@@ -26,6 +26,7 @@ def test_the_workload_calls_nothing_of_the_project() -> None:
 
 def test_one_run_times_three_parts_that_add_up() -> None:
     r = ref.run_once()
+    assert r["cpu_seconds"] > 0
     parts = r["numba_seconds"] + r["numpy_seconds"] + r["python_seconds"]
     assert all(r[k] > 0 for k in ("numba_seconds", "numpy_seconds", "python_seconds"))
     assert r["seconds"] == pytest.approx(parts, rel=1e-9)
@@ -66,9 +67,16 @@ def test_latencies_sizes_and_counts_are_not_normalised() -> None:
 
 def test_the_reference_is_the_median_of_its_runs_and_shows_their_spread() -> None:
     runs = [
-        {"seconds": s, "numba_seconds": s / 3, "numpy_seconds": s / 3, "python_seconds": s / 3}
+        {
+            "seconds": s,
+            "cpu_seconds": 0.5,
+            "numba_seconds": s / 3,
+            "numpy_seconds": s / 3,
+            "python_seconds": s / 3,
+        }
         for s in (1.0, 1.2, 3.0)
     ]
     d = ref.Reference(runs).as_dict()
     assert d["seconds"] == 1.2 and d["spread"] == 3.0
+    assert d["cpu_seconds"] == 0.5 and d["wall_over_cpu"] == pytest.approx(2.4)
     assert d["version"] == ref.REFERENCE_VERSION and d["runs_seconds"] == [1.0, 1.2, 3.0]
