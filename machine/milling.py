@@ -225,7 +225,9 @@ _IDLE_MARGIN = 1e-9
 
 
 @njit(cache=True)
-def _flute_idle(base: float, lag_max: float, phi_st: float, phi_ex: float) -> bool:  # pragma: no cover
+def _flute_idle(
+    base: float, lag_max: float, phi_st: float, phi_ex: float
+) -> bool:  # pragma: no cover
     """True when every layer of a flute at ``base`` (its immersion before the layer lags,
     ``phi = base - lag`` wrapped into [0, 2 pi) with ``0 <= lag <= lag_max``) lies
     outside the window ``[phi_st, phi_ex]`` by more than a margin, so

@@ -211,4 +211,11 @@ def normalise(key: str, value: float, ref_seconds: float) -> float | None:
     return None
 
 
-__all__ = ["BUSY_WALL_OVER_CPU", "REFERENCE_VERSION", "Reference", "measure", "normalise", "run_once"]
+__all__ = [
+    "BUSY_WALL_OVER_CPU",
+    "REFERENCE_VERSION",
+    "Reference",
+    "measure",
+    "normalise",
+    "run_once",
+]
