@@ -152,9 +152,20 @@ class Reference:
         """The reference's time on this machine now: the median over every run [s]."""
         return float(statistics.median(r["seconds"] for r in self.runs))
 
+    @property
+    def cpu_seconds(self) -> float:
+        """The process's CPU time over a reference run: the median over every run [s]."""
+        return float(statistics.median(r.get("cpu_seconds", math.nan) for r in self.runs))
+
+    @property
+    def wall_over_cpu(self) -> float:
+        """Wall over CPU time of the reference: above 1 the run waited for a core."""
+        cpu = self.cpu_seconds
+        return self.seconds / cpu if cpu > 0 else math.nan
+
     def as_dict(self) -> dict[str, object]:
         runs = [r["seconds"] for r in self.runs]
-        cpu = float(statistics.median(r.get("cpu_seconds", math.nan) for r in self.runs))
+        cpu = self.cpu_seconds
         return {
             "version": REFERENCE_VERSION,
             "seconds": self.seconds,
@@ -162,7 +173,7 @@ class Reference:
             "spread": max(runs) / min(runs),
             "cpu_seconds": cpu,
             # > 1: the process waited for a core (other work on the machine)
-            "wall_over_cpu": self.seconds / cpu if cpu > 0 else math.nan,
+            "wall_over_cpu": self.wall_over_cpu,
             **{
                 f"{part}_seconds": float(statistics.median(r[f"{part}_seconds"] for r in self.runs))
                 for part in ("numba", "numpy", "python")

@@ -15,7 +15,7 @@ from server.experiments import bench_reference as ref
 def test_the_workload_calls_nothing_of_the_project() -> None:
     # a faster project must never move the yardstick
     tree = ast.parse(Path(ref.__file__).read_text(encoding="utf-8"))
-    imported = set()
+    imported: set[str] = set()
     for node in ast.walk(tree):
         if isinstance(node, ast.Import):
             imported.update(a.name.split(".")[0] for a in node.names)

@@ -166,9 +166,9 @@ def run(args: argparse.Namespace) -> int:
         f"{len(ref.runs)} runs (max/min {refd['spread']:.2f}); ratio = the figure on a "
         "machine where the reference takes 1 s"
     )
-    if refd["wall_over_cpu"] > bench_reference.BUSY_WALL_OVER_CPU:
+    if ref.wall_over_cpu > bench_reference.BUSY_WALL_OVER_CPU:
         print(
-            f"note: the reference's wall time was {refd['wall_over_cpu']:.2f}x its CPU time: "
+            f"note: the reference's wall time was {ref.wall_over_cpu:.2f}x its CPU time: "
             "the machine was busy with other work; the figures (and less so the ratios, "
             "if the load was steady) measure the share of a core the runs got"
         )
