@@ -173,12 +173,14 @@ def _stribeck_search(s: _Search) -> dict[str, float]:
     if vmax <= 0:
         return {"v_s": math.nan}
     qf = lowpass(s.q_hz, kin.sample_time, s.q_order)
+    # the record up to the last searched row: Q(s) is causal and the basis is computed
+    # sample by sample, so the searched rows' values are those of the whole record
+    end = int(gi[-1]) + 1 if len(gi) else 0
+    w_l, a_l = kin.w_l[:end], kin.a_l[:end]
 
     def rss(vs: float) -> float:
         # the column as the fit sees it: the basis through Q(s), like the residual
-        c, _ = filter_columns(
-            qf, stribeck_basis(kin.w_l, kin.a_l, kin.sample_time, float(vs))[:, None]
-        )
+        c, _ = filter_columns(qf, stribeck_basis(w_l, a_l, kin.sample_time, float(vs))[:, None])
         return project_rss(np.column_stack([c[gi, 0], np.ones(len(gi))]), s.r_f[s.rows])
 
     return {"v_s": refine_grid(rss, np.geomspace(vmax * 1e-3, vmax * 0.5, 30), log=True)}
