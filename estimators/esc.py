@@ -75,19 +75,21 @@ def spindle_harmonic(force: ArrayLike, angle: ArrayLike) -> complex:
         raise ParameterError(
             "force/angle", "two 1-D arrays of the same length >= 4", (f.shape, a.shape)
         )
+    # scalars as Python floats (the same IEEE operations as numpy's scalars, faster:
+    # this runs once per revolution in the live service)
     n = f.size
-    step = (a[-1] - a[0]) / (n - 1)
+    step = (float(a[-1]) - float(a[0])) / (n - 1)
     w_last = 1.0  # every weight is 1 but the last sample's
     if step > 0.0:
         span = n * step
-        revs = max(1.0, round(span / (2.0 * np.pi)))
-        w_last = min(max(1.0 - (span - 2.0 * np.pi * revs) / step, 0.0), 2.0)
+        revs = max(1.0, round(span / (2.0 * math.pi)))
+        w_last = min(max(1.0 - (span - 2.0 * math.pi * revs) / step, 0.0), 2.0)
     w_sum = n - 1.0 + w_last
-    fm = f - (float(np.sum(f)) + (w_last - 1.0) * f[-1]) / w_sum  # weighted mean removed
+    fm = f - (float(np.sum(f)) + (w_last - 1.0) * float(f[-1])) / w_sum  # weighted mean removed
     c, s = np.cos(a), np.sin(a)
-    extra = (w_last - 1.0) * fm[-1]
-    re = float(fm @ c) + extra * c[-1]
-    im = float(fm @ s) + extra * s[-1]
+    extra = (w_last - 1.0) * float(fm[-1])
+    re = float(fm @ c) + extra * float(c[-1])
+    im = float(fm @ s) + extra * float(s[-1])
     return complex(2.0 / w_sum * re, -2.0 / w_sum * im)
 
 

@@ -119,11 +119,20 @@ def _full_rate(values: F64, n: int, index: NDArray[np.int64] | None = None) -> F
 
 @dataclass(frozen=True, eq=False)
 class Design:
-    """Decimated regressor, force and the full-rate columns of one model structure."""
+    """Decimated regressor, force and the full-rate columns of one model structure.
+
+    The full-rate matrix (a million rows and more) is joined from its blocks when first
+    read: most structures the selection builds are only fitted on the decimated rows.
+    """
 
     names: tuple[str, ...]
     x_dec: F64
-    x_full: F64
+    full_blocks: tuple[F64, ...]
+
+    @cached_property
+    def x_full(self) -> F64:
+        """The full-rate columns, one matrix."""
+        return np.hstack(self.full_blocks)
 
 
 def build_design(
@@ -147,7 +156,7 @@ def build_design(
         dec.append(cache[key][1])
         if e is not None:
             names.extend(f"{e.name}.{cn}" for cn in e.columns)
-    return Design(tuple(names), np.hstack(dec), np.hstack(full))
+    return Design(tuple(names), np.hstack(dec), tuple(full))
 
 
 def _independent(x: F64, base: int, fit: NDArray[np.bool_]) -> NDArray[np.bool_]:

@@ -173,12 +173,14 @@ def _stribeck_search(s: _Search) -> dict[str, float]:
     if vmax <= 0:
         return {"v_s": math.nan}
     qf = lowpass(s.q_hz, kin.sample_time, s.q_order)
+    # the record up to the last searched row: Q(s) is causal and the basis is computed
+    # sample by sample, so the searched rows' values are those of the whole record
+    end = int(gi[-1]) + 1 if len(gi) else 0
+    w_l, a_l = kin.w_l[:end], kin.a_l[:end]
 
     def rss(vs: float) -> float:
         # the column as the fit sees it: the basis through Q(s), like the residual
-        c, _ = filter_columns(
-            qf, stribeck_basis(kin.w_l, kin.a_l, kin.sample_time, float(vs))[:, None]
-        )
+        c, _ = filter_columns(qf, stribeck_basis(w_l, a_l, kin.sample_time, float(vs))[:, None])
         return project_rss(np.column_stack([c[gi, 0], np.ones(len(gi))]), s.r_f[s.rows])
 
     return {"v_s": refine_grid(rss, np.geomspace(vmax * 1e-3, vmax * 0.5, 30), log=True)}
@@ -530,6 +532,8 @@ class TwoInertiaModel:
             "and the twist disagreement T_sK - T_sM"
         )
         self.qf = lowpass(observer.q_hz, observer.sample_time, observer.q_order)
+        #: the latest state's columns joined (:meth:`_current`)
+        self._joined_of: tuple[TwoInertiaFit, F64, F64] | None = None
 
     @cached_property
     def _front(self) -> tuple[_Data, F64]:
@@ -587,8 +591,9 @@ class TwoInertiaModel:
             )  # fmt: skip
         fd, b0 = fold
         # the current model fitted without the fold: its residual there
-        r_f = d.y_f - np.hstack([d.base_f, state.cf]) @ b0.theta
-        r_s = d.y_s - np.hstack([d.base_s, state.cs]) @ b0.theta
+        xf, xs = self._current(state)
+        r_f = d.y_f - xf @ b0.theta
+        r_s = d.y_s - xs @ b0.theta
         return find_shape_two_inertia(
             name, d, r_f, r_s, fd.train, self.angular, _FOLD_SEARCH_SAMPLES,
             q_hz=ob.q_hz, q_order=ob.q_order,
@@ -615,8 +620,17 @@ class TwoInertiaModel:
             params={**shape, **dict(zip(COLUMNS[name], map(float, coefs)))},
         )
 
+    def _current(self, state: TwoInertiaFit) -> tuple[F64, F64]:
+        """``state``'s columns joined (:func:`_joined`), kept for the latest state only:
+        the fold fits and every fold's searches read them (a copy of a million rows)."""
+        kept = self._joined_of
+        if kept is None or kept[0] is not state:
+            kept = (state, *_joined(self.d, (state.cf,), (state.cs,)))
+            self._joined_of = kept
+        return kept[1], kept[2]
+
     def fold_fits(self, state: TwoInertiaFit, folds: list[Fold]) -> list[_FoldErr]:
-        return _fold_before(self.d, folds, state.cf, state.cs)
+        return _fold_before(self.d, folds, *self._current(state))
 
     def out_of_fold(
         self,
@@ -757,13 +771,12 @@ def _stacked_term(fr: _Fit, cf: F64, cs: F64) -> F64:
 
 
 def _fold_fits(
-    d: _Data, folds: list[Fold], cf: F64, cs: F64
+    d: _Data, folds: list[Fold], xf: F64, xs: F64
 ) -> list[tuple[F64, NDArray[np.bool_]]]:
     """Coefficients per fold (training rows = fitting part minus the fold and its
-    guards): the Gram matrix of the fitting part minus that of the excluded range."""
+    guards): the Gram matrix of the fitting part minus that of the excluded range.
+    ``xf``, ``xs``: the baseline's and the effects' columns, joined (:func:`_joined`)."""
     nb = d.base_f.shape[1]
-    xf = np.hstack([d.base_f, cf])
-    xs = np.hstack([d.base_s, cs])
     n_fit = folds[0].n_fit
     g_all, r_all = _gram(xf, xs, d.y_f, d.y_s, slice(0, n_fit))
     out = []
@@ -773,12 +786,17 @@ def _fold_fits(
     return out
 
 
-def _fold_before(d: _Data, folds: list[Fold], cf_cur: F64, cs_cur: F64) -> list[_FoldErr]:
-    """The current model's out-of-fold errors on each validation fold."""
+def _joined(d: _Data, cf: tuple[F64, ...], cs: tuple[F64, ...]) -> tuple[F64, F64]:
+    """The baseline's columns and ``cf`` (``cs``) joined, one matrix per channel (one
+    copy of the million rows, whatever the number of parts)."""
+    return np.hstack([d.base_f, *cf]), np.hstack([d.base_s, *cs])
+
+
+def _fold_before(d: _Data, folds: list[Fold], xf: F64, xs: F64) -> list[_FoldErr]:
+    """The current model's out-of-fold errors on each validation fold (``xf``, ``xs``:
+    its columns joined, :func:`_joined`)."""
     out = []
-    xf = np.hstack([d.base_f, cf_cur])
-    xs = np.hstack([d.base_s, cs_cur])
-    for fd, (th, _) in zip(folds, _fold_fits(d, folds, cf_cur, cs_cur)):
+    for fd, (th, _) in zip(folds, _fold_fits(d, folds, xf, xs)):
         v = slice(fd.a, fd.b)
         out.append(_FoldErr(th, d.y_f[v] - xf[v] @ th, d.y_s[v] - xs[v] @ th))
     return out
@@ -809,12 +827,12 @@ def _fold_scores(
     supp = np.zeros(n_fit, dtype=bool)
     if isinstance(cols, tuple):
         cf, cs = cols
-        fits = _fold_fits(d, folds, np.hstack([cf_cur, cf]), np.hstack([cs_cur, cs]))
+        fits = _fold_fits(d, folds, *_joined(d, (cf_cur, cf), (cs_cur, cs)))
         pairs = [(cf, cs)] * len(folds)
     else:
         pairs = cols
         fits = [
-            _fold_fits(d, [fd], np.hstack([cf_cur, cf]), np.hstack([cs_cur, cs]))[0]
+            _fold_fits(d, [fd], *_joined(d, (cf_cur, cf), (cs_cur, cs)))[0]
             for fd, (cf, cs) in zip(folds, cols)
         ]
     for fd, b0, (cf, cs), (th, _) in zip(folds, before, pairs, fits):

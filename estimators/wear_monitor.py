@@ -182,6 +182,41 @@ class ToolLifeMonitor:
         self.params = params
         self._law = WearLawPredictor(params.law) if params.law is not None else None
 
+    def _life(
+        self,
+        S: F64,
+        m: int,
+        tj: float,
+        law_ok: bool,
+        hist_rows: list[F64],
+        law: F64,
+        force_sharp: float,
+    ) -> tuple[float, float, float, float] | None:
+        """Trend, rate, remaining life and its sd at ``tj``: the wear law's (on the
+        history, ``hist_rows`` joined in place) when it applies, else the polynomial's;
+        None while the polynomial's normal equations are singular (they gate both)."""
+        p = self.params
+        if not (law_ok and self._law is not None):
+            return _polynomial_life(S, m, tj - p.trend_start, p.vb_limit)
+        # the polynomial's values would be replaced: only its gate is computed
+        if not _regular(S, m):
+            return None
+        H = np.concatenate(hist_rows)[-MAX_HISTORY:]
+        hist_rows[:] = [H]
+        return self._law.predict(
+            H[:, 0],
+            H[:, 1],
+            H[:, 2],
+            H[:, 3],
+            t_now=tj,
+            z_now=law[0],
+            crater_now=law[1],
+            force_sharp=force_sharp,
+            force_per_flank_wear=p.force_per_flank_wear,
+            vb_limit=p.vb_limit,
+            with_sd=p.life_sd,
+        )
+
     def initial_state(self) -> ToolLifeState:
         return ToolLifeState(misc=np.zeros(7), sums=np.zeros(10))
 
@@ -266,25 +301,9 @@ class ToolLifeMonitor:
             trend = rate = rul = sd = frac = math.nan
             m = int(p.trend_order) + 1
             if S[9] >= p.min_trend_passes:
-                fit = _polynomial_life(S, m, tj - p.trend_start, p.vb_limit)
+                fit = self._life(S, m, tj, law_ok, hist_rows, law, misc[0] * fj + misc[1])
                 if fit is not None:
                     trend, rate, rul, sd = fit
-                    if law_ok and self._law is not None and lp is not None:
-                        H = np.concatenate(hist_rows)[-MAX_HISTORY:]
-                        hist_rows = [H]
-                        trend, rate, rul, sd = self._law.predict(
-                            H[:, 0],
-                            H[:, 1],
-                            H[:, 2],
-                            H[:, 3],
-                            t_now=tj,
-                            z_now=law[0],
-                            crater_now=law[1],
-                            force_sharp=misc[0] * fj + misc[1],
-                            force_per_flank_wear=p.force_per_flank_wear,
-                            vb_limit=p.vb_limit,
-                            with_sd=p.life_sd,
-                        )
                     if not p.life_sd:
                         sd = math.nan
                     frac = tj / (tj + rul) if math.isfinite(rul) else 0.0
@@ -329,13 +348,23 @@ def _passes(
     return ta, Fa, fa
 
 
+def _normal_matrix(S: F64, m: int) -> F64:
+    """The trend polynomial's normal-equation matrix from the weighted sums ``S``."""
+    return np.array([[S[i + k] for k in range(m)] for i in range(m)])
+
+
+def _regular(S: F64, m: int) -> bool:
+    """Whether :func:`_polynomial_life` would give a fit (its normal equations regular)."""
+    return bool(np.linalg.cond(_normal_matrix(S, m)) < 1e12)
+
+
 def _polynomial_life(
     S: F64, m: int, tau: float, vb_limit: float
 ) -> tuple[float, float, float, float] | None:
     """Trend, wear rate, remaining life and its sd from the weighted sums ``S`` of the
     polynomial of ``m`` coefficients at ``tau`` after the trend start (None: the normal
     equations are singular)."""
-    M = np.array([[S[i + k] for k in range(m)] for i in range(m)])
+    M = _normal_matrix(S, m)
     r = S[5 : 5 + m]
     if not np.linalg.cond(M) < 1e12:
         return None

@@ -220,6 +220,28 @@ def drive_step(
     return u
 
 
+#: margin of :func:`_flute_idle` [rad] (the angles' rounding is ~1e-15 rad)
+_IDLE_MARGIN = 1e-9
+
+
+@njit(cache=True)
+def _flute_idle(
+    base: float, lag_max: float, phi_st: float, phi_ex: float
+) -> bool:  # pragma: no cover
+    """True when every layer of a flute at ``base`` (its immersion before the layer lags,
+    ``phi = base - lag`` wrapped into [0, 2 pi) with ``0 <= lag <= lag_max``) lies
+    outside the window ``[phi_st, phi_ex]`` by more than a margin, so
+    :func:`edge_force` gives exact zeros for all of them."""
+    two_pi = 2.0 * math.pi
+    b = base
+    while b < 0.0:
+        b += two_pi
+    lo = b - lag_max
+    if lo - _IDLE_MARGIN <= 0.0 or b + _IDLE_MARGIN >= two_pi:
+        return False  # the layers may wrap: decide per layer
+    return lo > phi_ex + _IDLE_MARGIN or b < phi_st - _IDLE_MARGIN
+
+
 @njit(cache=True)
 def _milling_block(
     n: int,
@@ -254,6 +276,9 @@ def _milling_block(
     """
     hlen = hist.shape[0]
     pitch = 2.0 * math.pi / n_flutes
+    lag_max = 0.0
+    for l in range(lags.shape[0]):
+        lag_max = max(lag_max, lags[l])
     tau = pitch / omega
     lag_samples = tau / ts
     # F = sum over flutes j and layers l of the edge force at phi_jl (seed003 (1)-(5)), tool centre
@@ -265,8 +290,11 @@ def _milling_block(
         ry = a_m * math.sin(psi + theta_m)
         # beyond the paper: a counter-rotating circle (with seed003 (7) it makes an ellipse,
         # which can undo a gain/phase mismatch between the axes)
-        rx += b_m * math.cos(psi + phi_m)
-        ry -= b_m * math.sin(psi + phi_m)
+        # (skipped when b_m is 0 and the sum is not a zero whose sign the term could
+        # flip: x + 0 and x - 0 are x for x != 0, so the values are the same bits)
+        if b_m != 0.0 or rx == 0.0 or ry == 0.0:
+            rx += b_m * math.cos(psi + phi_m)
+            ry -= b_m * math.sin(psi + phi_m)
         # beyond the paper: a small identification circle at spindle order ex_order (an
         # observer identifies the axis mass from it; 0 by default)
         if ex_a != 0.0:
@@ -292,6 +320,10 @@ def _milling_block(
         fy = 0.0
         p0 = psi % (2.0 * math.pi)
         for j in range(n_flutes):
+            # a flute whose layers all lie outside the window adds exact zeros: skipped
+            # (the test has a margin far beyond the rounding of the angles below)
+            if _flute_idle(p0 - j * pitch, lag_max, phi_st, phi_ex):
+                continue
             for l in range(lags.shape[0]):
                 # seed003 (1): immersion of flute j, layer l (wrapped into [0, 2 pi))
                 phi = p0 - j * pitch - lags[l]
@@ -495,7 +527,7 @@ class MillingMachine:
         th = float(theta_m)
         b = float(b_m)
         ph = float(phi_m)
-        if not all(math.isfinite(v) for v in (a, th, b, ph)):
+        if not (math.isfinite(a) and math.isfinite(th) and math.isfinite(b) and math.isfinite(ph)):
             raise ParameterError("a_m/theta_m", "finite values", (a_m, theta_m, b_m, phi_m))
         total = abs(a) + abs(b)
         sat = total > self.max_modulation

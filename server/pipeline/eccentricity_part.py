@@ -73,6 +73,23 @@ ECC_CHANNELS: dict[str, tuple[str, str]] = {
 }
 
 
+#: rows of the channels held over a block, in the order :meth:`LiveEccentricity.step` gives
+_HELD_ROWS = tuple(
+    list(ECC_CHANNELS).index(k)
+    for k in (
+        "ecc_a_cancel",
+        "ecc_theta_cancel",
+        "ecc_f1x",
+        "ecc_true_um",
+        "ecc_true_deg",
+        "ecc_fast_on",
+        "ecc_esc_on",
+        "ecc_mass_err",
+        "ecc_identifying",
+    )
+)
+
+
 class LiveEccentricity:
     """The eccentricity loop advanced by the stage's blocks.
 
@@ -222,23 +239,27 @@ class LiveEccentricity:
         mass_err, ident = self._mass_error()
         a_c, th_c = self._cancel
         a = out["a_m_um"][idx]
+        # one array for every channel: the picked rows, then the values held over the block
+        rows = np.empty((len(ECC_CHANNELS), n))
+        rows[0] = np.abs(a)
         # a negative radius is the circle at theta + 180 deg (estimators.esc)
-        th = out["theta_m_deg"][idx] + np.where(a < 0.0, 180.0, 0.0)
-        res = {
-            "ecc_a_m": np.abs(a),
-            "ecc_theta_m": np.mod(th, 360.0),
-            "ecc_a_cancel": np.full(n, a_c * 1e6),
-            "ecc_theta_cancel": np.full(n, math.degrees(th_c)),
-            "ecc_cost": out["cost"][idx],
-            "ecc_f1x": np.full(n, f1x),
-            "ecc_true_um": np.full(n, self._key[0]),
-            "ecc_true_deg": np.full(n, self._key[1]),
-            "ecc_fast_on": np.full(n, 1.0 if lp.tuner == "fast" and lp._started else 0.0),
-            "ecc_esc_on": np.full(n, 1.0 if lp.tuner == "esc" and lp._started else 0.0),
-            "ecc_mass_err": np.full(n, mass_err),
-            "ecc_identifying": np.full(n, ident),
-        }
-        self._last = {k: float(v[-1]) for k, v in res.items()}
+        rows[1] = np.mod(out["theta_m_deg"][idx] + np.where(a < 0.0, 180.0, 0.0), 360.0)
+        rows[4] = out["cost"][idx]
+        held = (
+            a_c * 1e6,
+            math.degrees(th_c),
+            f1x,
+            self._key[0],
+            self._key[1],
+            1.0 if lp.tuner == "fast" and lp._started else 0.0,
+            1.0 if lp.tuner == "esc" and lp._started else 0.0,
+            mass_err,
+            ident,
+        )
+        for row, v in zip(_HELD_ROWS, held, strict=True):
+            rows[row] = v
+        res = dict(zip(ECC_CHANNELS, rows, strict=True))
+        self._last = dict(zip(ECC_CHANNELS, rows[:, -1].tolist(), strict=True))
         return res
 
     def _hold(self, n: int) -> dict[str, F64]:

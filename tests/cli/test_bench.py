@@ -9,6 +9,8 @@ import subprocess
 import sys
 from typing import Any
 
+import pytest
+
 from server.cli.commands import bench
 
 
@@ -45,6 +47,31 @@ def test_the_top_level_realtime_factor_is_the_stage_groups() -> None:
     assert doc["realtime_factor"] != doc["pipeline"]["realtime_factor"]
     assert doc["realtime_factor_of"].startswith("stage: ")
     assert doc["stage"]["configuration"] in doc["realtime_factor_of"]
+
+
+def test_the_json_carries_the_reference_and_every_speed_as_a_ratio_to_it() -> None:
+    doc = _bench("stage", "--json")
+    ref = doc["reference"]
+    assert ref["version"] >= 1 and ref["seconds"] > 0
+    assert len(ref["runs_seconds"]) == 2  # --quick: one run before the groups, one after
+    assert ref["spread"] >= 1.0
+    ratios = doc["ratios"]["stage"]
+    for key in ("offline_block_2500.realtime_factor", "live_block_125.realtime_factor"):
+        assert ratios[key] == pytest.approx(doc["stage"][key] * ref["seconds"], rel=1e-12)
+    cost = "live_block_125.per_block_ms.run_2s"
+    assert ratios[cost] == pytest.approx(doc["stage"][cost] / ref["seconds"], rel=1e-12)
+    assert doc["realtime_factor_ratio"] == ratios["realtime_factor"]
+
+
+def test_duration_needs_one_group_with_a_soak() -> None:
+    r = subprocess.run(
+        [sys.executable, "-m", "server.cli.main", "bench", "stage", "--duration", "5"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert r.returncode == 2
+    assert "--duration" in r.stderr and "live" in r.stderr and "stage" in r.stderr
 
 
 def test_without_the_stage_group_there_is_no_headline_and_it_says_why() -> None:

@@ -208,3 +208,29 @@ def test_bad_machine_inputs_are_named() -> None:
         AxisParams(mass=0.0)
     with pytest.raises(ParameterError, match="sample_time"):
         FeedDriveParams(sample_time=0.01)
+
+
+def test_a_flute_is_skipped_only_when_every_layer_is_outside_the_window() -> None:
+    # the kernel skips a flute's layers when _flute_idle says all lie outside the
+    # engagement window: each would add exact zeros, so the force is the same bits
+    from machine.milling import _flute_idle
+
+    rng = np.random.default_rng(3)
+    two_pi = 2.0 * math.pi
+    skipped = 0
+    for _ in range(20000):
+        down = bool(rng.integers(2))
+        r = float(rng.uniform(0.02, 1.0))
+        st, ex = (math.acos(2 * r - 1), math.pi) if down else (0.0, math.acos(1 - 2 * r))
+        lags = np.sort(rng.uniform(0.0, 0.6, int(rng.integers(1, 12))))
+        base = float(rng.uniform(-8.0, two_pi))
+        if not _flute_idle(base, float(lags.max()), st, ex):
+            continue
+        skipped += 1
+        for lag in lags:
+            phi = base - lag  # as the kernel computes it
+            while phi < 0.0:
+                phi += two_pi
+            p = phi % two_pi if phi >= two_pi else phi
+            assert p < st or p > ex, (base, lag, st, ex)
+    assert skipped > 5000  # the skip is taken (it is what makes the kernel faster)

@@ -14,16 +14,28 @@ Groups (modules server/experiments/benchmarks/bench_<group>.py; see docs/benchma
   stage                  the stage with its observers and both RLS
   tool-wear              the wear model, observer and life monitor
 
---json prints {"realtime_factor": x, "realtime_factor_of": "...", "<group>": {...}}:
-the top-level realtime_factor is the stage group's (offline block of 2500 samples) and
+Every run also times a fixed reference workload of its own (numba, numpy and
+interpreter work, about 1 s; server/experiments/bench_reference.py) before and after
+the groups, and prints every speed and cost also as a ratio to it: the figure on a
+machine on which one reference run takes 1 s (speeds times the reference's seconds,
+costs divided by them). Ratios compare across machines; raw figures do not
+(docs/benchmarks.md, "Figures that compare across machines").
+
+--json prints {"realtime_factor": x, "realtime_factor_of": "...", "realtime_factor_ratio":
+r, "reference": {...}, "ratios": {"<group>": {"<key>": r}}, "<group>": {...}}: the
+top-level realtime_factor is the stage group's (offline block of 2500 samples) and
 realtime_factor_of names its configuration; without the stage group it is absent and
 realtime_factor_of says so. This is a benchmark, not a test: run it on a quiet machine
-and compare medians.
+and compare medians, or compare ratios.
+
+--duration S runs a group's soak instead (one long run: memory and CPU over time, drops;
+the live group has one): cutwatch bench live --duration 1800 --json.
 
 Examples::
 
     cutwatch bench stage tool-wear --json        # two groups, five runs each
     cutwatch bench pipeline --quick --repeats 1  # a smoke check of one group
+    cutwatch bench live --duration 10 --json     # a short soak of the live service
 """
 
 from __future__ import annotations
@@ -43,6 +55,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--repeats", type=int, default=5, help="runs per measurement (median)")
     p.add_argument("--quick", action="store_true", help="short runs (smoke check)")
     p.add_argument("--json", action="store_true", help="print JSON")
+    p.add_argument(
+        "--duration",
+        type=float,
+        metavar="S",
+        help="soak: one run of S seconds of a group that has one (live): memory, CPU, drops",
+    )
 
 
 def group_name(module: ModuleType) -> str:
@@ -61,8 +79,52 @@ def groups() -> dict[str, ModuleType]:
     return {group_name(m): m for m in plugin_modules(benchmarks)}
 
 
+def _print_group(name: str, res: dict[str, object], ratios: dict[str, float]) -> None:
+    print(f"[{name}]")
+    for k, v in res.items():
+        if isinstance(v, float):
+            r = ratios.get(k)
+            extra = f"   ratio {r:.4g}" if r is not None else ""
+            print(f"  {k:40s} {v:.4g}{extra}")
+        elif not isinstance(v, list | dict):
+            print(f"  {k:40s} {v}")
+
+
+def _ratios(res: dict[str, object], ref_s: float) -> dict[str, float]:
+    from server.experiments.bench_reference import normalise
+
+    out: dict[str, float] = {}
+    for k, v in res.items():
+        if isinstance(v, float | int) and not isinstance(v, bool):
+            r = normalise(k, float(v), ref_s)
+            if r is not None:
+                out[k] = r
+    return out
+
+
+def _soak(args: argparse.Namespace, mods: dict[str, ModuleType], wanted: list[str]) -> int:
+    from server.errors import CutwatchError
+
+    if len(wanted) != 1 or not hasattr(mods[wanted[0]], "soak"):
+        have = [g for g, m in mods.items() if hasattr(m, "soak")]
+        raise CutwatchError(
+            f"--duration: expected exactly one group with a soak ({', '.join(have)}), "
+            f"got {', '.join(wanted) or 'every group'}"
+        )
+    if not args.duration > 0:
+        raise CutwatchError(f"--duration: expected seconds > 0, got {args.duration}")
+    d = float(args.duration)
+    res = mods[wanted[0]].soak(duration_s=d, warmup_s=min(300.0, d / 3), sample_s=min(5.0, d / 20))
+    if args.json:
+        print(json.dumps({wanted[0]: res}, indent=2))
+    else:
+        _print_group(wanted[0], res, {})
+    return 0
+
+
 def run(args: argparse.Namespace) -> int:
     from server.errors import CutwatchError
+    from server.experiments import bench_reference
 
     mods = groups()
     wanted = [g.replace("_", "-") for g in args.group] or list(mods)
@@ -71,28 +133,50 @@ def run(args: argparse.Namespace) -> int:
             raise CutwatchError(f"unknown benchmark group {g!r}; known: {', '.join(mods)}")
     if args.repeats < 1:
         raise CutwatchError(f"--repeats: expected an integer >= 1, got {args.repeats}")
-    result: dict[str, object] = {}
+    if args.duration is not None:
+        return _soak(args, mods, wanted)
+    runs = bench_reference.measure(1 if args.quick else 3)
+    result: dict[str, dict[str, object]] = {}
     for g in wanted:
-        res = mods[g].measure(repeats=args.repeats, quick=args.quick)
-        result[g] = res
-        if not args.json:
-            print(f"[{g}]")
-            for k, v in res.items():
-                print(f"  {k:40s} {v:.4g}" if isinstance(v, float) else f"  {k:40s} {v}")
+        result[g] = mods[g].measure(repeats=args.repeats, quick=args.quick)
+    # again after the groups: a load that changed in between shows as a spread
+    ref = bench_reference.Reference(runs + bench_reference.measure(1 if args.quick else 2))
+    ratios = {g: _ratios(res, ref.seconds) for g, res in result.items()}
+    if not args.json:
+        for g, res in result.items():
+            _print_group(g, res, ratios[g])
     head = result.get(HEADLINE_GROUP)
+    top: dict[str, object]
     if isinstance(head, dict) and "realtime_factor" in head:
-        top: dict[str, object] = {
+        top = {
             "realtime_factor": head["realtime_factor"],
             "realtime_factor_of": f"{HEADLINE_GROUP}: {head.get('configuration', '')}, "
             "offline block of 2500 samples",
+            "realtime_factor_ratio": ratios[HEADLINE_GROUP]["realtime_factor"],
         }
     else:
         top = {
             "realtime_factor_of": f"not measured: the {HEADLINE_GROUP} group was not run "
             f"(cutwatch bench {HEADLINE_GROUP})"
         }
+    refd = ref.as_dict()
     if args.json:
-        print(json.dumps({**top, **result}, indent=2))
-    elif "realtime_factor" in top:
-        print(f"realtime_factor {top['realtime_factor']:.4g} ({top['realtime_factor_of']})")
+        print(json.dumps({**top, "reference": refd, "ratios": ratios, **result}, indent=2))
+        return 0
+    print(
+        f"reference (v{refd['version']}) {ref.seconds:.3f} s, median of "
+        f"{len(ref.runs)} runs (max/min {refd['spread']:.2f}); ratio = the figure on a "
+        "machine where the reference takes 1 s"
+    )
+    if ref.wall_over_cpu > bench_reference.BUSY_WALL_OVER_CPU:
+        print(
+            f"note: the reference's wall time was {ref.wall_over_cpu:.2f}x its CPU time: "
+            "the machine was busy with other work; the figures (and less so the ratios, "
+            "if the load was steady) measure the share of a core the runs got"
+        )
+    if "realtime_factor" in top:
+        print(
+            f"realtime_factor {top['realtime_factor']:.4g}, ratio "
+            f"{top['realtime_factor_ratio']:.4g} ({top['realtime_factor_of']})"
+        )
     return 0
