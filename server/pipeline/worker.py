@@ -58,6 +58,8 @@ PAGE_CHANNELS = (
     "f_adaptive", "f_segment", "vb_est", "vb_limit", "life_left",
     "J_L_seg", "B_L_seg", "F_CL_seg", "J_L_adaptive",
 )  # fmt: skip
+#: a machine's backlog is taken in one step of up to this many blocks
+CATCH_UP = 8
 #: a machine's feed keeps at most this many seconds of samples (beyond: oldest dropped)
 BUFFER_S = 10.0
 
@@ -295,12 +297,14 @@ class Worker:
         stalled = have > 0 and now - run.last_step > 2e-3 * self.cfg.block_ms
         if have < run.block_n and not stalled:
             return False
-        stepped = False
-        while feed.buffered >= run.block_n or (stalled and not stepped):
-            out = pipe.step(run.block_n)
-            if len(out["t"]) == 0:
-                break
-            stepped = True
+        # one step per machine per pass (round robin: a machine's backlog never starves
+        # the others); a backlog is taken in one longer step, up to CATCH_UP blocks: the
+        # estimates do not depend on the block length (bit-identical, docs/plant.md) and
+        # a longer block costs less per sample, so a worker that fell behind catches up
+        k = min(max(have // run.block_n, 1), CATCH_UP)
+        out = pipe.step(k * run.block_n)
+        stepped = len(out["t"]) > 0
+        if stepped:
             run.blocks += 1
             run.out.observe(out)
             f = out.get("f_adaptive")

@@ -100,6 +100,7 @@ def _window(
     cpu: dict[str, float] = {}
     rec: dict[str, Any] = {}
     killed = restarted = None
+    restarted_wall = 0.0
     back: dict[str, float] = {}
     rss: list[float] = []
     with connect(f"ws://127.0.0.1:{plant.fport}/ws", max_size=2**24) as ws:
@@ -111,9 +112,11 @@ def _window(
                 continue
             if killed is None and msg.get("drive_wall") is not None:
                 lat.append(now - float(msg["drive_wall"]))
-            if restarted is not None and msg["machine"] in victim and msg["machine"] not in back:
-                if msg["status"] == "ok" and msg["last_seen_s"] < 1.0:
-                    back[msg["machine"]] = time.monotonic() - restarted
+            m = msg["machine"]
+            if restarted is not None and m in victim and m not in back:
+                # an estimate of a drive block published after the restart
+                if (msg.get("drive_wall") or 0.0) > restarted_wall:
+                    back[m] = time.monotonic() - restarted
             if killed is None and el > seconds * STEADY:
                 wall = el
                 cpu1 = {k: sum(_cpu(p) for p in v) for k, v in pids.items()}
@@ -123,7 +126,7 @@ def _window(
                 plant.workers[0].wait(10)
                 killed = time.monotonic()
                 plant.workers[0] = plant.worker(0)  # the supervisor restarts it at once
-                restarted = time.monotonic()
+                restarted, restarted_wall = time.monotonic(), time.time()
     rec["rss_mb"] = rss
     rec["restart.machines_back"] = len(back)
     rec["restart.seconds_to_all_back"] = max(back.values()) if len(back) == len(victim) else None
