@@ -50,6 +50,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--machines", type=int, help="machines (default 20; --quick 4)")
     g.add_argument("--workers", type=int, default=0, help="0: a service each; W: W workers")
     g.add_argument("--seconds", type=float, help="measuring window [s] (default 60)")
+    g.add_argument(
+        "--soak", action="store_true", help="with --workers: no kill; memory over the window"
+    )
 
 
 def group_name(module: ModuleType) -> str:
@@ -84,7 +87,12 @@ def run(args: argparse.Namespace) -> int:
         raise CutwatchError(f"--workers: expected an integer >= 0, got {args.workers}")
     if args.seconds is not None and not args.seconds >= 5:
         raise CutwatchError(f"--seconds: expected a window of 5 s at least, got {args.seconds}")
-    fleet = {"machines": args.machines, "workers": args.workers, "seconds": args.seconds}
+    fleet = {
+        "machines": args.machines,
+        "workers": args.workers,
+        "seconds": args.seconds,
+        "soak": args.soak,
+    }
     result: dict[str, object] = {}
     for g in wanted:
         kw = fleet if g == "fleet" else {}

@@ -82,10 +82,11 @@ class _Plant:
 
 
 def _window(
-    plant: _Plant, seconds: float, victim: set[str]
+    plant: _Plant, seconds: float, victim: set[str], soak: bool = False
 ) -> tuple[list[float], dict[str, float], dict[str, Any]]:
     """Watch the fleet page's stream: latencies and CPU over the steady window, then kill
-    worker 0, restart it, and time its machines' return."""
+    worker 0, restart it, and time its machines' return. ``soak``: the whole window is
+    steady (no kill); the processes' memory is sampled every 30 s."""
     from websockets.sync.client import connect
 
     pids = {
@@ -103,6 +104,9 @@ def _window(
     restarted_wall = 0.0
     back: dict[str, float] = {}
     rss: list[float] = []
+    steady = 1.0 if soak else STEADY
+    series: list[tuple[float, float, float, float]] = []  # (s, workers, fleet, broker) MB
+    next_sample = 0.0
     with connect(f"ws://127.0.0.1:{plant.fport}/ws", max_size=2**24) as ws:
         while time.monotonic() - t0 < seconds:
             msg = json.loads(ws.recv(timeout=10))
@@ -117,7 +121,15 @@ def _window(
                 # an estimate of a drive block published after the restart
                 if (msg.get("drive_wall") or 0.0) > restarted_wall:
                     back[m] = time.monotonic() - restarted
-            if killed is None and el > seconds * STEADY:
+            if soak and el >= next_sample:
+                next_sample += 30.0
+                series.append((round(el, 1), sum(_rss_mb(w.pid) for w in plant.workers),
+                               _rss_mb(plant.others[1].pid), _rss_mb(plant.others[0].pid)))  # fmt: skip
+            if soak and el > seconds - 0.5 and not cpu:
+                cpu1 = {k: sum(_cpu(p) for p in v) for k, v in pids.items()}
+                cpu = {k: 100.0 * (cpu1[k] - cpu0[k]) / el for k in pids}
+                rss = [_rss_mb(w.pid) for w in plant.workers]
+            if not soak and killed is None and el > seconds * steady:
                 wall = el
                 cpu1 = {k: sum(_cpu(p) for p in v) for k, v in pids.items()}
                 cpu = {k: 100.0 * (cpu1[k] - cpu0[k]) / wall for k in pids}
@@ -128,6 +140,9 @@ def _window(
                 plant.workers[0] = plant.worker(0)  # the supervisor restarts it at once
                 restarted, restarted_wall = time.monotonic(), time.time()
     rec["rss_mb"] = rss
+    if soak:
+        rec["soak.memory_mb_series"] = series
+        return lat, cpu, rec
     rec["restart.machines_back"] = len(back)
     rec["restart.seconds_to_all_back"] = max(back.values()) if len(back) == len(victim) else None
     rec["restart.seconds_to_first_back"] = min(back.values()) if back else None
@@ -137,8 +152,31 @@ def _window(
     return lat, cpu, rec
 
 
-def run_plant(machines: int, workers: int, seconds: float, progress: bool) -> dict[str, object]:
-    """One plant run (module docstring)."""
+def _soak_figures(
+    out: dict[str, object], series: list[tuple[float, float, float, float]], lat: list[float]
+) -> None:
+    """Memory over the soak: first, last, max, and the slope of a line fitted to the
+    second half (MB per 10 min; flat memory: near 0); latency p99 per tenth."""
+    a = np.asarray(series)
+    out["soak.samples"] = len(series)
+    for j, name in ((1, "workers"), (2, "fleet"), (3, "broker")):
+        out[f"soak.memory_mb.{name}.first"] = float(a[0, j])
+        out[f"soak.memory_mb.{name}.last"] = float(a[-1, j])
+        out[f"soak.memory_mb.{name}.max"] = float(a[:, j].max())
+        h = a[len(a) // 2 :]
+        slope = float(np.polyfit(h[:, 0], h[:, j], 1)[0]) if len(h) >= 3 else float("nan")
+        out[f"soak.memory_mb.{name}.slope_per_10min_second_half"] = 600.0 * slope
+    tenth = max(len(lat) // 10, 1)
+    out["soak.latency_ms.p99_by_tenth"] = [
+        round(_pct(lat[i : i + tenth], 99), 1) for i in range(0, len(lat), tenth)
+    ][:10]
+    out["soak.memory_mb_series"] = [[round(x, 1) for x in row] for row in series]
+
+
+def run_plant(
+    machines: int, workers: int, seconds: float, progress: bool, soak: bool = False
+) -> dict[str, object]:
+    """One plant run (module docstring); ``soak``: no kill, memory sampled over time."""
     from server.pipeline.shards import shard_of
 
     work = Path(tempfile.mkdtemp(prefix="cutwatch-bench-plant-"))
@@ -194,7 +232,7 @@ def run_plant(machines: int, workers: int, seconds: float, progress: bool) -> di
             out["fleet.rows"] = len(rows)
             out["fleet.ok_at_start"] = sum(r["status"] == "ok" for r in rows)
             victim = {m for m in plant.names if shard_of(m, workers) == 0}
-            lat, cpu, rec = _window(plant, seconds, victim)
+            lat, cpu, rec = _window(plant, seconds, victim, soak)
             for k, v in cpu.items():
                 out[f"cpu_pct_one_core.{k}"] = v
             out["cpu_pct_one_core.workers_per_machine"] = cpu["workers"] / machines
@@ -207,7 +245,10 @@ def run_plant(machines: int, workers: int, seconds: float, progress: bool) -> di
             out["latency_ms.p99"] = _pct(lat, 99)
             out["latency_ms.max"] = 1e3 * max(lat) if lat else float("nan")
             out["latency.samples"] = len(lat)
-            out["restart.machines"] = len(victim)
+            if not soak:
+                out["restart.machines"] = len(victim)
+            else:
+                _soak_figures(out, rec.pop("soak.memory_mb_series"), lat)
             out.update(rec)
             time.sleep(2 * STALE_AFTER)
             rows = httpx.get(f"http://127.0.0.1:{plant.fport}/api/fleet", timeout=5).json()

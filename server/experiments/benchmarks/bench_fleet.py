@@ -296,6 +296,7 @@ def measure(
     machines: int | None = None,
     workers: int = 0,
     seconds: float | None = None,
+    soak: bool = False,
 ) -> dict[str, object]:
     """One run (the fleet is the repetition: every machine's latency counts). ``workers``
     0: one ``cutwatch serve`` per machine (today's mode); > 0: the plant mode."""
@@ -304,5 +305,5 @@ def measure(
     if workers > 0:
         from server.experiments.benchmarks._fleet_plant import run_plant
 
-        return run_plant(n, workers, secs, progress=not quick)
+        return run_plant(n, workers, secs, progress=not quick, soak=soak)
     return _run(n, secs, progress=not quick)
