@@ -221,14 +221,14 @@ class Worker:
                 if run is None:
                     if not owns(machine, self.cfg.shard, self.cfg.machines):
                         return
-                    run = self._adopt(machine)
+                    run = self.adopt(machine)
                 run.feed.push_meta(bytes(msg.payload))
             elif leaf == "drive" and run is not None:
                 run.feed.push(bytes(msg.payload))
         except Exception as exc:  # never let a message kill paho's thread
             log.warning("cutwatch worker: message on %s skipped: %r", msg.topic, exc)
 
-    def _adopt(self, machine: str) -> MachineRun:
+    def adopt(self, machine: str) -> MachineRun:
         """Start owning ``machine``: its feed and publisher, its drive subscription."""
         with self._lock:
             run = self.runs.get(machine)
@@ -414,7 +414,7 @@ class Worker:
         names = sorted(p.stem for p in (self.cfg.data_dir / "state").glob("*.npz"))
         mine = [n for n in names if owns(n, self.cfg.shard, self.cfg.machines)]
         for n in mine:
-            self._adopt(n)
+            self.adopt(n)
         return mine
 
     # ------------------------------------------------------------------ views
