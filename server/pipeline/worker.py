@@ -17,7 +17,7 @@ All machines share **one** broker connection:
   ``cutwatch.event`` wire schema; a ``feed_hold`` event also sends the command on
   ``cutwatch/<machine>/command``);
 - every ``checkpoint_s`` it writes each machine's state to ``data_dir/state/<machine>.npz``
-  (one machine per loop pass, staggered), and all of them at :meth:`Worker.stop`
+  (staggered; written by a writer thread), and all of them at :meth:`Worker.stop`
   (SIGTERM). A machine adopted by a (re)started worker resumes from its file: the wear,
   the identifiers' estimates and covariances carry on (docs/checkpoints.md); the first
   block after the restart is marked ``resumed``.
@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import logging
 import math
+import random
 import threading
 import time
 from collections import deque
@@ -43,7 +44,7 @@ from common.errors import ParameterError
 from common.jsonsafe import json_safe
 from common.state_io import StateFormatError
 from server.pipeline.broker import TOPIC_ROOT, BrokerConfig, make_client, reason_text, topic
-from server.pipeline.checkpoint import load_checkpoint, save_checkpoint
+from server.pipeline.checkpoint import PipelineState, load_checkpoint, save_checkpoint
 from server.pipeline.drive_feed import DriveFeed
 from server.pipeline.estimates_out import EstimatesPublisher
 from server.pipeline.live_pipeline import LivePipeline
@@ -145,6 +146,10 @@ class Worker:
         self._lock = threading.Lock()  # guards self.runs (paho's thread adds machines)
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        self._writer_thread: threading.Thread | None = None
+        self._writes: dict[str, tuple[MachineRun, Path, PipelineState]] = {}
+        self._writes_lock = threading.Lock()
+        self._writes_ready = threading.Event()
         self._client: Any = None
         self._ready = threading.Event()  # the kernels are compiled
 
@@ -161,15 +166,20 @@ class Worker:
             run.out.share(c)
         self._thread = threading.Thread(target=self._run, name="cutwatch-worker", daemon=True)
         self._thread.start()
+        self._writer_thread = threading.Thread(
+            target=self._writer, name="cutwatch-worker-checkpoints", daemon=True
+        )
+        self._writer_thread.start()
 
     def stop(self, timeout: float = 10.0) -> None:
         """Stop the loop, write every machine's checkpoint, disconnect."""
         self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout)
+        for t in (self._thread, self._writer_thread):
+            if t is not None:
+                t.join(timeout)
         with self._lock:
             runs = list(self.runs.values())
-        for run in runs:
+        for run in runs:  # the newest state of each, written here (pending ones replaced)
             self._save(run)
         c, self._client = self._client, None
         if c is not None:
@@ -266,13 +276,10 @@ class Worker:
                 with self._lock:
                     runs = list(self.runs.values())
                 worked = False
-                due_save: MachineRun | None = None
                 for run in runs:
                     worked |= self._serve(run)
-                    if due_save is None and self._save_due(run, t0):
-                        due_save = run
-                if due_save is not None:
-                    self._save(due_save)
+                    if self._save_due(run, t0):
+                        self._save(run, wait=False)
                 if worked:
                     self.loop_s.append(time.monotonic() - t0)
                 else:
@@ -338,7 +345,9 @@ class Worker:
                 log.warning("cutwatch worker: %s resumed from %s at t = %.3f s",
                             run.name, path, state.t)  # fmt: skip
         run.pipe = pipe
-        run.saved_at = time.monotonic()
+        # the first checkpoint at a random point of the period: machines built together
+        # (a worker's start) do not all write at once, every period after
+        run.saved_at = time.monotonic() - random.uniform(0.0, self.cfg.checkpoint_s)
 
     def _estimates(self, run: MachineRun) -> None:
         pub, pipe = run.out, run.pipe
@@ -390,13 +399,24 @@ class Worker:
             and now - run.saved_at >= self.cfg.checkpoint_s
         )
 
-    def _save(self, run: MachineRun) -> None:
+    def _save(self, run: MachineRun, *, wait: bool = True) -> None:
+        """Take the machine's state (in the loop's thread: the pipeline is not shared)
+        and write it: here (``wait``), or by the writer thread, whose file system waits
+        (the fsync of an atomic write, ~20 ms here) do not hold up the loop."""
         path, pipe = self._path(run.name), run.pipe
         run.saved_at = time.monotonic()
         if path is None or pipe is None:
             return
+        state = pipe.state()
+        if not wait:
+            with self._writes_lock:
+                self._writes[run.name] = (run, path, state)  # the newest state wins
+            self._writes_ready.set()
+            return
+        self._write(run, path, state)
+
+    def _write(self, run: MachineRun, path: Path, state: PipelineState) -> None:
         try:
-            state = pipe.state()
             path.parent.mkdir(parents=True, exist_ok=True)
             save_checkpoint(path, state)
         except OSError as exc:  # a full disk must not stop the loop; say so
@@ -404,6 +424,19 @@ class Worker:
             log.warning("cutwatch worker: %s: checkpoint not written: %s", run.name, exc)
             return
         run.checkpoint.update(saved_t=state.t, saved_wall=time.time())
+
+    def _writer(self) -> None:
+        """Write the states the loop handed over, until stopped (the rest: :meth:`stop`)."""
+        while not self._stop.is_set():
+            self._writes_ready.wait(0.5)
+            self._writes_ready.clear()
+            while True:
+                with self._writes_lock:
+                    if not self._writes:
+                        break
+                    name = next(iter(self._writes))
+                    run, path, state = self._writes.pop(name)
+                self._write(run, path, state)
 
     def adopt_saved(self) -> list[str]:
         """Own, at once, the machines of this worker that have a checkpoint file (their
