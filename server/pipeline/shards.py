@@ -66,7 +66,9 @@ def parse_shard(text: str, hostname: str | None = None) -> tuple[int, int]:
     n = int(m.group(2))
     i = host_ordinal(hostname) if m.group(1) == "host" else int(m.group(1))
     if not 0 <= i < n:
-        raise ParameterError("--shard", f"0 <= I < N (N = {n})", text if m.group(1) != "host" else i)
+        raise ParameterError(
+            "--shard", f"0 <= I < N (N = {n})", text if m.group(1) != "host" else i
+        )
     return i, n
 
 

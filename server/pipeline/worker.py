@@ -97,7 +97,9 @@ class WorkerConfig:
 
     def __post_init__(self) -> None:
         if (self.shard is None) == (self.machines is None):
-            raise ParameterError("shard/machines", "exactly one of them", (self.shard, self.machines))
+            raise ParameterError(
+                "shard/machines", "exactly one of them", (self.shard, self.machines)
+            )
         if not (10.0 <= self.block_ms <= 1000.0):
             raise ParameterError("block_ms", "10 .. 1000 ms", self.block_ms)
         if not (0 < self.publish_hz <= 50 and math.isfinite(self.publish_hz)):
@@ -478,20 +480,22 @@ class Worker:
         with self._lock:
             runs = list(self.runs.values())
         loop = np.asarray(self.loop_s) if self.loop_s else np.zeros(1)
-        return json_safe({
-            "status": "ok" if self.ready else ("error" if self.error else "starting"),
-            "worker": self.name,
-            "broker": self.broker.describe(),
-            "connected": self.connected,
-            "error": self.error or self.last_error,
-            "machines": len(runs),
-            "receiving": sum(r.pipe is not None and r.blocks > 0 for r in runs),
-            "resumed": sum(bool(r.checkpoint.get("resumed")) for r in runs),
-            "dropped_samples": sum(r.feed.counts["dropped_samples"] for r in runs),
-            "loop_ms_p50": 1e3 * float(np.median(loop)),
-            "loop_ms_max": 1e3 * float(loop.max()),
-            "warm_s": self.warm_s,
-        })
+        return json_safe(
+            {
+                "status": "ok" if self.ready else ("error" if self.error else "starting"),
+                "worker": self.name,
+                "broker": self.broker.describe(),
+                "connected": self.connected,
+                "error": self.error or self.last_error,
+                "machines": len(runs),
+                "receiving": sum(r.pipe is not None and r.blocks > 0 for r in runs),
+                "resumed": sum(bool(r.checkpoint.get("resumed")) for r in runs),
+                "dropped_samples": sum(r.feed.counts["dropped_samples"] for r in runs),
+                "loop_ms_p50": 1e3 * float(np.median(loop)),
+                "loop_ms_max": 1e3 * float(loop.max()),
+                "warm_s": self.warm_s,
+            }
+        )
 
 
 def _json(d: dict[str, Any]) -> bytes:

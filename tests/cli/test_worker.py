@@ -154,10 +154,14 @@ def test_a_killed_worker_resumes_its_machines(plant: dict[str, Any]) -> None:
                 vb, va = b["params"][k], a["params"][k]
                 assert abs(va - vb) < 0.03 * abs(vb), (m, k, vb, va)
         after = {m: est.of(m, restarted)[0] for m in mine}
+
+        def row(d: dict[str, Any]) -> list[float]:
+            return [d["t"], *(d["params"][k] for k in PARAMS)]
+
         print(json.dumps({
             "seconds_to_publish_after_restart": back,
-            "before": {m: [before[m]["t"], *(before[m]["params"][k] for k in PARAMS)] for m in mine},
-            "after": {m: [after[m]["t"], *(after[m]["params"][k] for k in PARAMS)] for m in mine},
+            "before": {m: row(before[m]) for m in mine},
+            "after": {m: row(after[m]) for m in mine},
         }))  # fmt: skip
     finally:
         est.close()

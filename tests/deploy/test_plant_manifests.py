@@ -55,7 +55,7 @@ def test_the_kubernetes_manifests_are_valid() -> None:
     assert {d["kind"] for d in docs} == {"Service", "StatefulSet"}
     for d in docs:
         kv.validate(d, K8S_VERSION, strict=True)  # raises on any schema error
-    bad = [d for d in _docs() if d["kind"] == "StatefulSet"][0]
+    bad = next(d for d in _docs() if d["kind"] == "StatefulSet")
     bad["spec"]["template"]["spec"]["containers"][0]["livenessProbe"]["httpGet"]["prot"] = 1
     with pytest.raises(kv.ValidationError):
         kv.validate(bad, K8S_VERSION, strict=True)

@@ -17,8 +17,7 @@ def test_the_shard_does_not_depend_on_the_process() -> None:
     names = [f"m{k:03d}" for k in range(50)]
     here = [shard_of(m, 7) for m in names]
     code = (
-        "from server.pipeline.shards import shard_of; "
-        f"print([shard_of(m, 7) for m in {names!r}])"
+        f"from server.pipeline.shards import shard_of; print([shard_of(m, 7) for m in {names!r}])"
     )
     for seed in ("1", "2"):  # Python's own hash() differs between these two processes
         out = subprocess.run(

@@ -66,7 +66,9 @@ def test_the_worker_publishes_estimates_and_events_and_checkpoints(tmp_path: Pat
         pub.connect("127.0.0.1", port)
         pub.loop_start()
         for m in ("mine", "theirs"):  # retained, before the worker starts
-            pub.publish(f"cutwatch/{m}/meta", encode_meta(META), qos=1, retain=True).wait_for_publish()
+            pub.publish(
+                f"cutwatch/{m}/meta", encode_meta(META), qos=1, retain=True
+            ).wait_for_publish()
         w = Worker(
             parse_broker_url(url),
             WorkerConfig(machines=frozenset({"mine"}), data_dir=tmp_path, checkpoint_s=60),

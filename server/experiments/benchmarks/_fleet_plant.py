@@ -123,8 +123,9 @@ def _window(
                     back[m] = time.monotonic() - restarted
             if soak and el >= next_sample:
                 next_sample += 30.0
-                series.append((round(el, 1), sum(_rss_mb(w.pid) for w in plant.workers),
-                               _rss_mb(plant.others[1].pid), _rss_mb(plant.others[0].pid)))  # fmt: skip
+                mb = sum(_rss_mb(w.pid) for w in plant.workers)
+                fleet_mb, broker_mb = _rss_mb(plant.others[1].pid), _rss_mb(plant.others[0].pid)
+                series.append((round(el, 1), mb, fleet_mb, broker_mb))
             if soak and el > seconds - 0.5 and not cpu:
                 cpu1 = {k: sum(_cpu(p) for p in v) for k, v in pids.items()}
                 cpu = {k: 100.0 * (cpu1[k] - cpu0[k]) / el for k in pids}
