@@ -112,5 +112,5 @@ def test_the_worker_publishes_estimates_and_events_and_checkpoints(tmp_path: Pat
                      "event_id": ev.id, "t": 1.0}]  # fmt: skip
     # stop() wrote the machine's checkpoint (its period, 60 s, had not come)
     state, _ = load_state(tmp_path / "state" / "mine.npz", kind=KIND, version=VERSION)
-    assert state.source == "mqtt" and state.t > 0  # type: ignore[attr-defined]
+    assert state.source == "mqtt" and state.t > 0
     assert not (tmp_path / "state" / "theirs.npz").exists()

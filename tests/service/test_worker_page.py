@@ -9,6 +9,7 @@ import asyncio
 from typing import Any
 
 import httpx
+from pydantic import SecretStr
 
 from server.pipeline.broker import parse_broker_url
 from server.pipeline.worker import Worker, WorkerConfig
@@ -31,7 +32,7 @@ def _get(app: Any, url: str, **kw: Any) -> httpx.Response:
 def test_the_worker_pages_use_the_services_tokens() -> None:
     w = Worker(parse_broker_url("mqtt://127.0.0.1:1"), WorkerConfig(machines=frozenset({"mill-1"})))
     w.adopt("mill-1")  # as when its meta arrives (the app's lifespan is not run here)
-    app = create_worker_app(w, Settings(token=OPERATOR, view_token=VIEWER))
+    app = create_worker_app(w, Settings(token=SecretStr(OPERATOR), view_token=SecretStr(VIEWER)))
     h = _get(app, "/api/health")
     assert h.status_code == 200 and h.json()["machines"] == 1  # public: the probes
     assert h.json()["status"] == "starting"  # not started: not ready

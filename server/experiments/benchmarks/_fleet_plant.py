@@ -197,7 +197,7 @@ def run_plant(
     }
     try:
         with _mosquitto(plant.bport) as broker:
-            plant.others.append(broker)  # type: ignore[arg-type]
+            plant.others.append(broker)
             plant.others.append(subprocess.Popen(
                 _cutwatch("fleet", "--broker", plant.url, "--port", str(plant.fport),
                           "--stale-after", str(STALE_AFTER)),

@@ -132,7 +132,9 @@ def _start_services(
                 _cutwatch("serve", "--port", str(port), "--no-viser", "--source", "mqtt",
                           "--broker", url, "--machine", name,
                           "--publish-hz", str(PUBLISH_HZ)),
-                env={**env, "CUTWATCH_PUBLIC_URL": f"http://127.0.0.1:{port}/"},
+                # each its own data directory (its checkpoint; not the caller's ./data)
+                env={**env, "CUTWATCH_PUBLIC_URL": f"http://127.0.0.1:{port}/",
+                     "CUTWATCH_DATA_DIR": str(Path(env["CUTWATCH_BENCH_WORK"]) / name)},
                 stdout=subprocess.DEVNULL,
             )
         )  # fmt: skip
@@ -206,7 +208,7 @@ def _run(machines: int, seconds: float, progress: bool) -> dict[str, object]:
     )
     bport, fport = _free_port(), _free_port()
     url = f"mqtt://127.0.0.1:{bport}"
-    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    env = {**os.environ, "PYTHONUNBUFFERED": "1", "CUTWATCH_BENCH_WORK": str(work)}
     services: list[subprocess.Popen[bytes]] = []
     feeders: dict[str, subprocess.Popen[bytes]] = {}
     fleet = None
