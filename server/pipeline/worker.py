@@ -145,6 +145,7 @@ class Worker:
         self.loop_s: deque[float] = deque(maxlen=200)  # wall time of a pass over all machines
         self.error = ""
         self.warm_s = math.nan  # seconds the kernels took to load at start
+        self._loop_p50_ms = math.nan
         self._lock = threading.Lock()  # guards self.runs (paho's thread adds machines)
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -284,6 +285,8 @@ class Worker:
                         self._save(run, wait=False)
                 if worked:
                     self.loop_s.append(time.monotonic() - t0)
+                    if len(self.loop_s) % 20 == 0:  # for the estimates' health, not per message
+                        self._loop_p50_ms = 1e3 * float(np.median(self.loop_s))
                 else:
                     self._stop.wait(0.01)
         except Exception as exc:  # say why the loop stopped (health, probes)
@@ -360,7 +363,7 @@ class Worker:
         health = {
             "worker": self.name,
             "blocks": run.blocks,
-            "loop_ms_p50": 1e3 * float(np.median(self.loop_s)) if self.loop_s else math.nan,
+            "loop_ms_p50": self._loop_p50_ms,
             "resumed": bool(run.checkpoint.get("resumed")),
         }
         src = pipe.source
