@@ -186,6 +186,10 @@ class DriveFeed:
             self.counts["malformed_schema"] += 1
             self._say("internal", f"message on {msg.topic} skipped: {exc!r}")
 
+    def push_meta(self, payload: bytes) -> None:
+        """Take one meta payload (a worker's shared connection dispatches it here)."""
+        self._meta(payload)
+
     def _meta(self, payload: bytes) -> None:
         try:
             meta = decode_meta(payload)

@@ -96,6 +96,11 @@ class EstimatesPublisher:
         c.loop_start()
         self._client = c
 
+    def share(self, client: Any) -> None:
+        """Publish through ``client``, a connection shared with other machines (a worker's;
+        the owner keeps :attr:`connected` up to date) instead of one of its own."""
+        self._client = client
+
     def stop(self) -> None:
         c, self._client = self._client, None
         if c is not None:

@@ -28,7 +28,7 @@ from estimators.force_observer import (
     cutting_force,
     cutting_force_lagged,
 )
-from estimators.rls import IdentifierParams, IdentState, LoadIdentifier
+from estimators.rls import IdentifierParams, IdentRecord, IdentState, LoadIdentifier
 from estimators.segment_id import (
     SegmentIdentifier,
     SegmentIdentifierParams,
@@ -47,6 +47,10 @@ from server.pipeline.sources import (
     SourceBlock,
     no_truth,
 )
+
+#: after a resume (:data:`RESUMED`), the RLS identifiers' estimates are held this long [s of
+#: the feed] while the restarted filters settle (their transient is within 0.1 s)
+RESUME_HOLD_S = 0.5
 
 
 @dataclass
@@ -188,6 +192,7 @@ class StageRun:
         self._prev_f = 0.0
         self._prev_qf = 0.0
         self._prev_t = 0.0
+        self._held: tuple[float, IdentState, IdentState] | None = None
 
     def state(self) -> StageRunState:
         """The estimators' state now (shares the arrays: copy it to keep it)."""
@@ -254,6 +259,8 @@ class StageRun:
         self.s_sw, rs = self.ident_sw.step(
             self.s_sw, rec.t_s, rec.acc_l, rec.vel_l, rec.sgn_l, rec.omega_l, excitation=False
         )
+        if self._held is not None:
+            ra, rs = self._hold(float(meas.t[0]), ra, rs)
         t_est = np.concatenate([[self._prev_t], meas.t[:-1]])
         # the front end's outputs refer to the previous sample (one sample time back)
         self.s_seg, rg = self.ident_seg.step(
@@ -314,6 +321,25 @@ class StageRun:
         seg = self.ident_seg.initial_state()
         self.s_seg = mark_disturbance(replace(self.s_seg, zf=seg.zf, hist=seg.hist, seg=seg.seg), t)
         self._zq = self._q.initial_state()
+        # the filters' start from rest is a transient (the positions step from 0 to where
+        # the machine is): the RLS identifiers would take it for a huge acceleration and
+        # drive J_L to its bound. Their estimates and covariances are held until it has
+        # passed (only their regressor filters run).
+        self._held = (t + RESUME_HOLD_S, self.s_ident, self.s_sw)
+
+    def _hold(self, t0: float, ra: IdentRecord, rs: IdentRecord) -> tuple[IdentRecord, IdentRecord]:
+        """Within :data:`RESUME_HOLD_S` of a resume: the identifiers' estimates and
+        covariances as they were (the regressor filters' states go on); after: released."""
+        assert self._held is not None
+        until, si, ss = self._held
+        if t0 >= until:
+            self._held = None
+            return ra, rs
+        self.s_ident = replace(si, zf=self.s_ident.zf)
+        self.s_sw = replace(ss, zf=self.s_sw.zf)
+        ra = replace(ra, theta=np.broadcast_to(self._theta_a, ra.theta.shape).copy())
+        rs = replace(rs, theta=np.broadcast_to(self._theta_s, rs.theta.shape).copy())
+        return ra, rs
 
     def note_disturbance(self, t: float) -> None:
         """A known change of the cutting condition at ``t`` (spindle step, tool change):

@@ -10,7 +10,7 @@ is a free one, and the data sets are linked where the examples expect it
 (``DATA_EMPS.mat``, ``segments.csv``, ``../shared/data/...``; ``other.csv``, "another
 table", is the same table). A finite command must exit 0
 (``reproduce`` may exit 1 after reporting a check that does not hold, as its help says);
-a server (``serve``, ``fleet``) must answer HTTP, then it is stopped.
+a server (``serve``, ``fleet``, ``worker``) must answer HTTP, then it is stopped.
 """
 
 from __future__ import annotations
@@ -36,7 +36,7 @@ pytestmark = pytest.mark.slow
 
 EXAMPLE_BROKER = "mqtt://127.0.0.1:1883"
 #: commands that serve until stopped, and the path that answers once they are up
-SERVERS = {"serve": "/api/health", "fleet": "/"}
+SERVERS = {"serve": "/api/health", "fleet": "/", "worker": "/api/health"}
 SHARED_DATA = next(
     (p / "shared" / "data" for p in Path(__file__).resolve().parents if (p / "shared").is_dir()),
     None,

@@ -4,7 +4,7 @@ Groups (modules server/experiments/benchmarks/bench_<group>.py; see docs/benchma
   broker                 the drive-block wire format: binary against JSON
   disturbance-observers  seed 002's loops and the stage DFO
   eccentricity           milling with X/Y drives, ESC and the fast tuner
-  fleet                  N services on broker feeds and the fleet page (mosquitto)
+  fleet                  N machines on broker feeds and the fleet page (mosquitto)
   history                the kept history's cost per committed event (SQLite, fsync)
   live                   the real service with 10 WebSocket clients
   monitoring             breakage to feed-hold command on the broker at 1x (mosquitto)
@@ -36,6 +36,11 @@ Examples::
     cutwatch bench stage tool-wear --json        # two groups, five runs each
     cutwatch bench pipeline --quick --repeats 1  # a smoke check of one group
     cutwatch bench live --duration 10 --json     # a short soak of the live service
+    cutwatch bench fleet --quick --machines 4 --workers 2 --seconds 15  # a plant of 4
+
+``fleet`` takes ``--machines N`` (default 20) and ``--workers W``: 0 (default) runs one
+``cutwatch serve`` per machine, W > 0 spreads the machines over W ``cutwatch worker``
+shards fed by one feeder process (docs/plant.md); ``--seconds`` is its window.
 """
 
 from __future__ import annotations
@@ -60,6 +65,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         type=float,
         metavar="S",
         help="soak: one run of S seconds of a group that has one (live): memory, CPU, drops",
+    )
+    g = p.add_argument_group("fleet", "options of the fleet group")
+    g.add_argument("--machines", type=int, help="machines (default 20; --quick 4)")
+    g.add_argument("--workers", type=int, default=0, help="0: a service each; W: W workers")
+    g.add_argument("--seconds", type=float, help="measuring window [s] (default 60)")
+    g.add_argument(
+        "--soak", action="store_true", help="with --workers: no kill; memory over the window"
     )
 
 
@@ -133,12 +145,25 @@ def run(args: argparse.Namespace) -> int:
             raise CutwatchError(f"unknown benchmark group {g!r}; known: {', '.join(mods)}")
     if args.repeats < 1:
         raise CutwatchError(f"--repeats: expected an integer >= 1, got {args.repeats}")
+    if args.machines is not None and args.machines < 1:
+        raise CutwatchError(f"--machines: expected an integer >= 1, got {args.machines}")
+    if args.workers < 0:
+        raise CutwatchError(f"--workers: expected an integer >= 0, got {args.workers}")
+    if args.seconds is not None and not args.seconds >= 5:
+        raise CutwatchError(f"--seconds: expected a window of 5 s at least, got {args.seconds}")
+    fleet = {
+        "machines": args.machines,
+        "workers": args.workers,
+        "seconds": args.seconds,
+        "soak": args.soak,
+    }
     if args.duration is not None:
         return _soak(args, mods, wanted)
     runs = bench_reference.measure(1 if args.quick else 3)
     result: dict[str, dict[str, object]] = {}
     for g in wanted:
-        result[g] = mods[g].measure(repeats=args.repeats, quick=args.quick)
+        kw = fleet if g == "fleet" else {}
+        result[g] = mods[g].measure(repeats=args.repeats, quick=args.quick, **kw)
     # again after the groups: a load that changed in between shows as a spread
     ref = bench_reference.Reference(runs + bench_reference.measure(1 if args.quick else 2))
     ratios = {g: _ratios(res, ref.seconds) for g, res in result.items()}

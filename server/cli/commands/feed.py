@@ -6,10 +6,16 @@ as a retained message. This is the tool to test the ``mqtt`` source of ``cutwatc
 and to demonstrate it: any log ``cutwatch replay``/``residual`` read (CSV + sidecar, or a
 ``.mat`` file with ``--map``) can be fed.
 
+``--machine a,b,c`` publishes the same log for several machines from this one process
+(one connection), as an edge gateway of a cell does: each machine's blocks are spread
+over the block period (machine k of M is published k/M of a block later), not all at
+once.
+
 Examples::
 
     cutwatch simulate --out run.csv --seconds 30
     cutwatch feed run.csv --broker mqtt://127.0.0.1:1883 --machine mill-1
+    cutwatch feed run.csv --broker mqtt://127.0.0.1:1883 --machine mill-1,mill-2,mill-3
     cutwatch feed DATA_EMPS.mat --map tau_m=vir*gtau --map q_m=qm \\
         --meta '{"kind": "rigid", "units": {"effort": "N", "position": "m"}}' \\
         --broker mqtt://127.0.0.1:1883 --machine emps --speed 10
@@ -30,7 +36,11 @@ HELP = "publish a measured log to an MQTT broker at real time (the mqtt source's
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("log", type=Path, help="measured log (.csv with .json sidecar, or .mat)")
     p.add_argument("--broker", required=True, help="mqtt://host[:port] or mqtts://host[:port]")
-    p.add_argument("--machine", required=True, help="machine name (the topic's second level)")
+    p.add_argument(
+        "--machine",
+        required=True,
+        help="machine name (the topic's second level); a,b,c: several machines, one log",
+    )
     p.add_argument(
         "--speed",
         type=float,
@@ -63,8 +73,11 @@ def run(args: argparse.Namespace) -> int:
         raise CutwatchError(f"--speed: expected a value in [0, 1000], got {args.speed}")
     if not (1 <= args.block_ms <= 1000):
         raise CutwatchError(f"--block-ms: expected a value in [1, 1000], got {args.block_ms}")
-    drive_topic = topic(args.machine, "drive")
-    meta_topic = topic(args.machine, "meta")
+    machines = [m.strip() for m in args.machine.split(",") if m.strip()]
+    if not machines:
+        raise CutwatchError(f"--machine: expected a name or names a,b,c, got {args.machine!r}")
+    drive_topics = [topic(m, "drive") for m in machines]
+    meta_topics = [topic(m, "meta") for m in machines]
     log = load_log(args.log, meta=load_meta(args.meta), maps=args.map)
     cfg = broker_config(args.broker, args)
     ts = log.sample_time
@@ -85,32 +98,36 @@ def run(args: argparse.Namespace) -> int:
     sidecar["units"] = {"effort": log.units.get("effort", "N m"), "position": units["position"]}
     sidecar.setdefault("kind", log.kind)
 
-    client = make_client(cfg, client_id=f"cutwatch-feed-{args.machine}-{os.getpid()}")
+    client = make_client(cfg, client_id=f"cutwatch-feed-{machines[0]}-{os.getpid()}")
     connect_blocking(client, cfg)
     import paho.mqtt.client as mqtt
 
     assert isinstance(client, mqtt.Client)
+    seq = 0
     try:
-        client.publish(meta_topic, encode_meta(sidecar), qos=1, retain=True).wait_for_publish(10)
+        for mt in meta_topics:
+            client.publish(mt, encode_meta(sidecar), qos=1, retain=True).wait_for_publish(10)
         t_col = log.columns["t"]
         start = time.monotonic()
-        seq = 0
         info = None
+        m = len(machines)
         with tqdm(
-            total=n, desc=f"feed {args.machine}", unit="sample", unit_scale=True, disable=args.quiet
-        ) as bar:
+            total=n, desc=f"feed {args.machine[:40]}", unit="sample", unit_scale=True,
+            disable=args.quiet,
+        ) as bar:  # fmt: skip
             for a in range(0, n, per):
                 b = min(n, a + per)
-                if args.speed > 0:  # the block is published when its last sample is due
-                    due = start + b * ts / args.speed
-                    delay = due - time.monotonic()
-                    if delay > 0:
-                        time.sleep(delay)
                 cols = {k: log.columns[source[k]][a:b] for k in names}
-                payload = encode_drive(
-                    seq, float(t_col[a] - t_col[0]), ts, cols, units, dtypes, wall=time.time()
-                )
-                info = client.publish(drive_topic, payload, qos=0)
+                for k, dt in enumerate(drive_topics):
+                    if args.speed > 0:  # published when its last sample is due (+ phase)
+                        due = start + (b + k * per / m) * ts / args.speed
+                        delay = due - time.monotonic()
+                        if delay > 0:
+                            time.sleep(delay)
+                    payload = encode_drive(
+                        seq, float(t_col[a] - t_col[0]), ts, cols, units, dtypes, wall=time.time()
+                    )
+                    info = client.publish(dt, payload, qos=0)
                 seq += 1
                 bar.update(b - a)
         if info is not None:
@@ -119,5 +136,6 @@ def run(args: argparse.Namespace) -> int:
         client.loop_stop()
         client.disconnect()
     if not args.quiet:
-        print(f"published {seq} blocks ({n} samples) to {drive_topic} on {cfg.describe()}")
+        where = drive_topics[0] if m == 1 else f"{m} machines' drive topics"
+        print(f"published {seq} blocks ({n} samples) to {where} on {cfg.describe()}")
     return 0

@@ -12,6 +12,17 @@ Measured over a window of ``SECONDS`` (every process is a real subprocess; CPU f
 - one machine's feeder killed mid-run and restarted: the seconds until its row shows
   ``stale`` and, after the restart, until it shows ``ok`` again.
 
+With ``workers`` > 0 (``cutwatch bench fleet --machines 100 --workers 2``) the plant
+mode instead: the machines are spread over that many ``cutwatch worker --shard I/W``
+processes, and ONE ``cutwatch feed`` publishes every machine (as an edge gateway of a
+cell does; they share this box). Measured over the steady window (the first 40 % of
+``seconds``): the rows ok, the drive-to-page latency, the CPU of the workers (sum, and
+per machine), the feeder, the broker and the fleet page, the workers' memory (RSS; per
+machine: the sum over the workers / N, and the marginal one: minus the workers' RSS when
+ready and idle); then worker 0 is SIGKILLed and restarted at once (a supervisor's
+``Restart=always``): the seconds from its restart until every one of its machines has
+published again, and whether they resumed from their checkpoints.
+
 Needs Debian's ``mosquitto`` (``make system-deps``). Linux only (``/proc``). Heavy: N
 service processes (~250 MB each) — this is a benchmark, not a test.
 """
@@ -121,7 +132,9 @@ def _start_services(
                 _cutwatch("serve", "--port", str(port), "--no-viser", "--source", "mqtt",
                           "--broker", url, "--machine", name,
                           "--publish-hz", str(PUBLISH_HZ)),
-                env={**env, "CUTWATCH_PUBLIC_URL": f"http://127.0.0.1:{port}/"},
+                # each its own data directory (its checkpoint; not the caller's ./data)
+                env={**env, "CUTWATCH_PUBLIC_URL": f"http://127.0.0.1:{port}/",
+                     "CUTWATCH_DATA_DIR": str(Path(env["CUTWATCH_BENCH_WORK"]) / name)},
                 stdout=subprocess.DEVNULL,
             )
         )  # fmt: skip
@@ -195,7 +208,7 @@ def _run(machines: int, seconds: float, progress: bool) -> dict[str, object]:
     )
     bport, fport = _free_port(), _free_port()
     url = f"mqtt://127.0.0.1:{bport}"
-    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    env = {**os.environ, "PYTHONUNBUFFERED": "1", "CUTWATCH_BENCH_WORK": str(work)}
     services: list[subprocess.Popen[bytes]] = []
     feeders: dict[str, subprocess.Popen[bytes]] = {}
     fleet = None
@@ -278,8 +291,21 @@ def _run(machines: int, seconds: float, progress: bool) -> dict[str, object]:
     return out
 
 
-def measure(*, repeats: int, quick: bool) -> dict[str, object]:
-    """One run (the fleet is the repetition: every machine's latency counts)."""
-    machines = 4 if quick else MACHINES
-    seconds = 20.0 if quick else SECONDS
-    return _run(machines, seconds, progress=not quick)
+def measure(
+    *,
+    repeats: int,
+    quick: bool,
+    machines: int | None = None,
+    workers: int = 0,
+    seconds: float | None = None,
+    soak: bool = False,
+) -> dict[str, object]:
+    """One run (the fleet is the repetition: every machine's latency counts). ``workers``
+    0: one ``cutwatch serve`` per machine (today's mode); > 0: the plant mode."""
+    n = machines if machines is not None else (4 if quick else MACHINES)
+    secs = seconds if seconds is not None else (20.0 if quick else SECONDS)
+    if workers > 0:
+        from server.experiments.benchmarks._fleet_plant import run_plant
+
+        return run_plant(n, workers, secs, progress=not quick, soak=soak)
+    return _run(n, secs, progress=not quick)

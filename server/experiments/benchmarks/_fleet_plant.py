@@ -1,0 +1,263 @@
+"""The plant mode of ``cutwatch bench fleet``: N machines over W ``cutwatch worker``
+processes, one feeder process for all machines, one ``cutwatch fleet`` page (see
+:mod:`server.experiments.benchmarks.bench_fleet`'s docstring for what is measured)."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import signal
+import subprocess
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import httpx
+import numpy as np
+
+from server.experiments.benchmarks.bench_fleet import (
+    STALE_AFTER,
+    _cpu,
+    _cutwatch,
+    _free_port,
+    _mosquitto,
+    _stop,
+    _wait_http,
+)
+
+#: share of the window that is the steady state (then worker 0 is killed and restarted)
+STEADY = 0.4
+
+
+def _rss_mb(pid: int) -> float:
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024.0
+    except OSError:
+        pass
+    return 0.0
+
+
+def _pct(a: list[float], q: float) -> float:
+    return 1e3 * float(np.percentile(np.asarray(a), q)) if a else float("nan")
+
+
+class _Plant:
+    """The processes of one run (stopped by :meth:`stop`, whatever happened)."""
+
+    def __init__(self, machines: int, workers: int, work: Path) -> None:
+        self.names = [f"m{k:03d}" for k in range(machines)]
+        self.n_workers = workers
+        self.work = work
+        self.bport, self.fport = _free_port(), _free_port()
+        self.url = f"mqtt://127.0.0.1:{self.bport}"
+        self.hports = [_free_port() for _ in range(workers)]
+        self.workers: list[subprocess.Popen[bytes]] = []
+        self.others: list[subprocess.Popen[bytes]] = []
+        self.feeder: subprocess.Popen[bytes] | None = None
+
+    def worker(self, i: int) -> subprocess.Popen[bytes]:
+        port = self.hports[i]
+        return subprocess.Popen(
+            _cutwatch("worker", "--broker", self.url, "--shard", f"{i}/{self.n_workers}",
+                      "--data-dir", str(self.work / f"w{i}"), "--port", str(port),
+                      "--public-url", f"http://127.0.0.1:{port}"),
+            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+        )  # fmt: skip
+
+    def health(self, i: int) -> dict[str, Any]:
+        try:
+            h: dict[str, Any] = httpx.get(
+                f"http://127.0.0.1:{self.hports[i]}/api/health", timeout=5
+            ).json()
+            return h
+        except (httpx.HTTPError, ValueError):
+            return {}
+
+    def stop(self) -> None:
+        procs = [p for p in (self.feeder,) if p is not None]
+        _stop(procs + self.workers + self.others)
+
+
+def _window(
+    plant: _Plant, seconds: float, victim: set[str], soak: bool = False
+) -> tuple[list[float], dict[str, float], dict[str, Any]]:
+    """Watch the fleet page's stream: latencies and CPU over the steady window, then kill
+    worker 0, restart it, and time its machines' return. ``soak``: the whole window is
+    steady (no kill); the processes' memory is sampled every 30 s."""
+    from websockets.sync.client import connect
+
+    pids = {
+        "broker": [plant.others[0].pid],
+        "fleet": [plant.others[1].pid],
+        "workers": [w.pid for w in plant.workers],
+        "feeder": [plant.feeder.pid] if plant.feeder is not None else [],
+    }
+    lat: list[float] = []
+    cpu0 = {k: sum(_cpu(p) for p in v) for k, v in pids.items()}
+    t0 = time.monotonic()
+    cpu: dict[str, float] = {}
+    rec: dict[str, Any] = {}
+    killed = restarted = None
+    restarted_wall = 0.0
+    back: dict[str, float] = {}
+    rss: list[float] = []
+    steady = 1.0 if soak else STEADY
+    series: list[tuple[float, float, float, float]] = []  # (s, workers, fleet, broker) MB
+    next_sample = 0.0
+    with connect(f"ws://127.0.0.1:{plant.fport}/ws", max_size=2**24) as ws:
+        while time.monotonic() - t0 < seconds:
+            msg = json.loads(ws.recv(timeout=10))
+            now = time.time()
+            el = time.monotonic() - t0
+            if "rows" in msg:
+                continue
+            if killed is None and msg.get("drive_wall") is not None:
+                lat.append(now - float(msg["drive_wall"]))
+            m = msg["machine"]
+            if restarted is not None and m in victim and m not in back:
+                # an estimate of a drive block published after the restart
+                if (msg.get("drive_wall") or 0.0) > restarted_wall:
+                    back[m] = time.monotonic() - restarted
+            if soak and el >= next_sample:
+                next_sample += 30.0
+                mb = sum(_rss_mb(w.pid) for w in plant.workers)
+                fleet_mb, broker_mb = _rss_mb(plant.others[1].pid), _rss_mb(plant.others[0].pid)
+                series.append((round(el, 1), mb, fleet_mb, broker_mb))
+            if soak and el > seconds - 0.5 and not cpu:
+                cpu1 = {k: sum(_cpu(p) for p in v) for k, v in pids.items()}
+                cpu = {k: 100.0 * (cpu1[k] - cpu0[k]) / el for k in pids}
+                rss = [_rss_mb(w.pid) for w in plant.workers]
+            if not soak and killed is None and el > seconds * steady:
+                wall = el
+                cpu1 = {k: sum(_cpu(p) for p in v) for k, v in pids.items()}
+                cpu = {k: 100.0 * (cpu1[k] - cpu0[k]) / wall for k in pids}
+                rss = [_rss_mb(w.pid) for w in plant.workers]
+                plant.workers[0].send_signal(signal.SIGKILL)
+                plant.workers[0].wait(10)
+                killed = time.monotonic()
+                plant.workers[0] = plant.worker(0)  # the supervisor restarts it at once
+                restarted, restarted_wall = time.monotonic(), time.time()
+    rec["rss_mb"] = rss
+    if soak:
+        rec["soak.memory_mb_series"] = series
+        return lat, cpu, rec
+    rec["restart.machines_back"] = len(back)
+    rec["restart.seconds_to_all_back"] = max(back.values()) if len(back) == len(victim) else None
+    rec["restart.seconds_to_first_back"] = min(back.values()) if back else None
+    h0 = plant.health(0)
+    rec["restart.resumed"] = h0.get("resumed")
+    rec["restart.warm_s"] = h0.get("warm_s")
+    return lat, cpu, rec
+
+
+def _soak_figures(
+    out: dict[str, object], series: list[tuple[float, float, float, float]], lat: list[float]
+) -> None:
+    """Memory over the soak: first, last, max, and the slope of a line fitted to the
+    second half (MB per 10 min; flat memory: near 0); latency p99 per tenth."""
+    a = np.asarray(series)
+    out["soak.samples"] = len(series)
+    for j, name in ((1, "workers"), (2, "fleet"), (3, "broker")):
+        out[f"soak.memory_mb.{name}.first"] = float(a[0, j])
+        out[f"soak.memory_mb.{name}.last"] = float(a[-1, j])
+        out[f"soak.memory_mb.{name}.max"] = float(a[:, j].max())
+        h = a[len(a) // 2 :]
+        slope = float(np.polyfit(h[:, 0], h[:, j], 1)[0]) if len(h) >= 3 else float("nan")
+        out[f"soak.memory_mb.{name}.slope_per_10min_second_half"] = 600.0 * slope
+    tenth = max(len(lat) // 10, 1)
+    out["soak.latency_ms.p99_by_tenth"] = [
+        round(_pct(lat[i : i + tenth], 99), 1) for i in range(0, len(lat), tenth)
+    ][:10]
+    out["soak.memory_mb_series"] = [[round(x, 1) for x in row] for row in series]
+
+
+def run_plant(
+    machines: int, workers: int, seconds: float, progress: bool, soak: bool = False
+) -> dict[str, object]:
+    """One plant run (module docstring); ``soak``: no kill, memory sampled over time."""
+    from server.pipeline.shards import shard_of
+
+    work = Path(tempfile.mkdtemp(prefix="cutwatch-bench-plant-"))
+    log = work / "drive.csv"
+    subprocess.run(
+        _cutwatch("simulate", "--out", str(log), "--seconds", str(seconds + 120)),
+        check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+    )  # fmt: skip
+    plant = _Plant(machines, workers, work)
+    out: dict[str, object] = {
+        "configuration": (
+            f"1 cutwatch feed ({machines} machines) -> mosquitto -> {workers} x cutwatch "
+            "worker (100 ms blocks, estimates at 10 Hz) -> cutwatch fleet; 2-core machine"
+        ),
+        "machines": machines,
+        "workers": workers,
+    }
+    try:
+        with _mosquitto(plant.bport) as broker:
+            plant.others.append(broker)
+            plant.others.append(subprocess.Popen(
+                _cutwatch("fleet", "--broker", plant.url, "--port", str(plant.fport),
+                          "--stale-after", str(STALE_AFTER)),
+                stdout=subprocess.DEVNULL,
+            ))  # fmt: skip
+            plant.workers = [plant.worker(i) for i in range(workers)]
+            for i in range(workers):
+                _wait_http(f"http://127.0.0.1:{plant.hports[i]}/api/health", 120)
+            deadline = time.monotonic() + 180
+            while not all(plant.health(i).get("status") == "ok" for i in range(workers)):
+                if time.monotonic() > deadline:
+                    raise RuntimeError("the workers did not get ready within 180 s")
+                time.sleep(0.5)
+            idle = [_rss_mb(w.pid) for w in plant.workers]
+            _wait_http(f"http://127.0.0.1:{plant.fport}/api/health", 60)
+            plant.feeder = subprocess.Popen(
+                _cutwatch("feed", str(log), "--broker", plant.url,
+                          "--machine", ",".join(plant.names), "--quiet"),
+                stdout=subprocess.DEVNULL,
+            )  # fmt: skip
+            deadline = time.monotonic() + 180
+            while True:
+                rows = httpx.get(f"http://127.0.0.1:{plant.fport}/api/fleet", timeout=5).json()
+                if sum(r["status"] == "ok" for r in rows) == machines:
+                    break
+                if time.monotonic() > deadline:
+                    break  # measured as it is: the rows ok say how many made it
+                time.sleep(1.0)
+            if progress:
+                print(f"  plant: {len(rows)} rows, measuring {seconds:g} s", flush=True)
+            time.sleep(2 * STALE_AFTER)
+            rows = httpx.get(f"http://127.0.0.1:{plant.fport}/api/fleet", timeout=5).json()
+            out["fleet.rows"] = len(rows)
+            out["fleet.ok_at_start"] = sum(r["status"] == "ok" for r in rows)
+            victim = {m for m in plant.names if shard_of(m, workers) == 0}
+            lat, cpu, rec = _window(plant, seconds, victim, soak)
+            for k, v in cpu.items():
+                out[f"cpu_pct_one_core.{k}"] = v
+            out["cpu_pct_one_core.workers_per_machine"] = cpu["workers"] / machines
+            rss = rec.pop("rss_mb")
+            out["memory_mb.workers"] = sum(rss)
+            out["memory_mb.workers_idle"] = sum(idle)
+            out["memory_mb.per_machine"] = sum(rss) / machines
+            out["memory_mb.per_machine_marginal"] = (sum(rss) - sum(idle)) / machines
+            out["latency_ms.p50"] = _pct(lat, 50)
+            out["latency_ms.p99"] = _pct(lat, 99)
+            out["latency_ms.max"] = 1e3 * max(lat) if lat else float("nan")
+            out["latency.samples"] = len(lat)
+            if not soak:
+                out["restart.machines"] = len(victim)
+            else:
+                _soak_figures(out, rec.pop("soak.memory_mb_series"), lat)
+            out.update(rec)
+            time.sleep(2 * STALE_AFTER)
+            rows = httpx.get(f"http://127.0.0.1:{plant.fport}/api/fleet", timeout=5).json()
+            out["fleet.ok_at_end"] = sum(r["status"] == "ok" for r in rows)
+            hs = [plant.health(i) for i in range(workers)]
+            out["workers.dropped_samples"] = sum(int(h.get("dropped_samples", 0)) for h in hs)
+            out["workers.loop_ms_p50"] = max(float(h.get("loop_ms_p50") or 0) for h in hs)
+    finally:
+        plant.stop()
+        shutil.rmtree(work, ignore_errors=True)
+    return out

@@ -1,0 +1,507 @@
+"""Many machines in one process: the runtime of ``cutwatch worker``.
+
+A :class:`Worker` runs one :class:`~server.pipeline.live_pipeline.LivePipeline` per machine
+it owns, each on an :class:`~server.pipeline.mqtt_source.MqttSource` over its own
+:class:`~server.pipeline.drive_feed.DriveFeed`, with no web server or 3D view per machine.
+All machines share **one** broker connection:
+
+- it subscribes to ``cutwatch/+/meta`` (retained, small, one message per machine) to
+  learn the plant's machines, and adopts those it owns (:func:`server.pipeline.shards.owns`:
+  its shard of a stable hash, or an explicit list); for each it subscribes to
+  ``cutwatch/<machine>/drive`` only, so a worker receives only its own machines' blocks;
+- paho's network thread dispatches each message by its topic to the machine's feed
+  (decode, order checks, a bounded buffer: :mod:`~server.pipeline.drive_feed`);
+- one loop thread steps every machine's pipeline by blocks of ``block_ms`` (default
+  100 ms: estimates at 10 Hz), publishes ``cutwatch/<machine>/estimates`` (QoS 0, at
+  ``publish_hz``) and the monitor's events on ``cutwatch/<machine>/events`` (QoS 1, the
+  ``cutwatch.event`` wire schema; a ``feed_hold`` event also sends the command on
+  ``cutwatch/<machine>/command``);
+- every ``checkpoint_s`` it writes each machine's state to ``data_dir/state/<machine>.npz``
+  (staggered; written by a writer thread), and all of them at :meth:`Worker.stop`
+  (SIGTERM). A machine adopted by a (re)started worker resumes from its file: the wear,
+  the identifiers' estimates and covariances carry on (docs/checkpoints.md); the first
+  block after the restart is marked ``resumed``.
+
+A machine that sends a new meta (other sample time or nominal parameters) gets a new
+pipeline, as in ``cutwatch serve``.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import random
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from common.errors import ParameterError
+from common.jsonsafe import json_safe
+from common.state_io import StateFormatError
+from server.pipeline.broker import TOPIC_ROOT, BrokerConfig, make_client, reason_text, topic
+from server.pipeline.checkpoint import PipelineState, load_checkpoint, save_checkpoint
+from server.pipeline.drive_feed import DriveFeed
+from server.pipeline.estimates_out import EstimatesPublisher
+from server.pipeline.live_pipeline import LivePipeline
+from server.pipeline.mqtt_source import MqttSource
+from server.pipeline.shards import owns
+from server.records.monitor_events import MonitorEvent
+
+log = logging.getLogger("cutwatch.worker")
+
+#: the channels a machine's page shows (the rest are in the estimates message)
+PAGE_CHANNELS = (
+    "f_adaptive", "f_segment", "vb_est", "vb_limit", "life_left",
+    "J_L_seg", "B_L_seg", "F_CL_seg", "J_L_adaptive",
+)  # fmt: skip
+#: a machine's backlog is taken in one step of up to this many blocks
+CATCH_UP = 8
+#: a machine's feed keeps at most this many seconds of samples (beyond: oldest dropped)
+BUFFER_S = 10.0
+
+
+@dataclass
+class WorkerConfig:
+    """What a worker runs (see :class:`Worker`).
+
+    Attributes
+    ----------
+    shard, machines
+        Its shard ``(I, N)`` or an explicit list of machine names (exactly one is set).
+    data_dir
+        Where ``state/<machine>.npz`` is kept (None: no checkpoints).
+    block_ms
+        Samples per pipeline step [ms of the feed]; 100 gives estimates at 10 Hz.
+    publish_hz
+        Estimates messages per machine per second.
+    checkpoint_s
+        Wall seconds between a machine's checkpoints (0: none written or read).
+    dashboard
+        The URL prefix of the machines' pages (``<prefix>/m/<machine>/``) for the fleet
+        page's link; None: no link.
+    """
+
+    shard: tuple[int, int] | None = None
+    machines: frozenset[str] | None = None
+    data_dir: Path | None = None
+    block_ms: float = 100.0
+    publish_hz: float = 10.0
+    checkpoint_s: float = 5.0
+    dashboard: str | None = None
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if (self.shard is None) == (self.machines is None):
+            raise ParameterError(
+                "shard/machines", "exactly one of them", (self.shard, self.machines)
+            )
+        if not (10.0 <= self.block_ms <= 1000.0):
+            raise ParameterError("block_ms", "10 .. 1000 ms", self.block_ms)
+        if not (0 < self.publish_hz <= 50 and math.isfinite(self.publish_hz)):
+            raise ParameterError("publish_hz", "0 < Hz <= 50", self.publish_hz)
+        if not (self.checkpoint_s >= 0 and math.isfinite(self.checkpoint_s)):
+            raise ParameterError("checkpoint_s", "a number of seconds >= 0", self.checkpoint_s)
+
+    def describe(self) -> str:
+        if self.shard is not None:
+            return f"shard {self.shard[0]}/{self.shard[1]}"
+        return f"machines {','.join(sorted(self.machines or ()))}"
+
+
+@dataclass
+class MachineRun:
+    """One machine of a worker: its feed, pipeline, publisher, and what became of it."""
+
+    name: str
+    feed: DriveFeed
+    out: EstimatesPublisher
+    pipe: LivePipeline | None = None
+    block_n: int = 0
+    last_step: float = 0.0
+    saved_at: float = 0.0
+    blocks: int = 0
+    events: int = 0
+    checkpoint: dict[str, Any] = field(default_factory=dict)
+    #: recent force levels (rms of a block's adaptive estimate) for the machine's page
+    levels: deque[tuple[float, float]] = field(default_factory=lambda: deque(maxlen=300))
+
+
+class Worker:
+    """The machines of one shard (module docstring). :meth:`start` / :meth:`stop`."""
+
+    def __init__(self, broker: BrokerConfig, cfg: WorkerConfig, name: str = "") -> None:
+        self.broker = broker
+        self.cfg = cfg
+        self.name = name or cfg.describe()
+        self.runs: dict[str, MachineRun] = {}
+        self.connected = False
+        self.last_error = ""
+        self.started_wall = time.time()
+        self.loop_s: deque[float] = deque(maxlen=200)  # wall time of a pass over all machines
+        self.error = ""
+        self.warm_s = math.nan  # seconds the kernels took to load at start
+        self._loop_p50_ms = math.nan
+        self._lock = threading.Lock()  # guards self.runs (paho's thread adds machines)
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._writer_thread: threading.Thread | None = None
+        self._writes: dict[str, tuple[MachineRun, Path, PipelineState]] = {}
+        self._writes_lock = threading.Lock()
+        self._writes_ready = threading.Event()
+        self._client: Any = None
+        self._ready = threading.Event()  # the kernels are compiled
+
+    # ------------------------------------------------------------------ lifecycle
+    def start(self) -> None:
+        """Start the loop thread: it compiles the kernels, then connects (so no block
+        waits in a buffer while it compiles); machines come as their metas arrive."""
+        c: Any = make_client(self.broker, client_id=f"cutwatch-worker-{self.name}")
+        c.on_connect = self._on_connect
+        c.on_disconnect = self._on_disconnect
+        c.on_message = self._on_message
+        self._client = c
+        for run in list(self.runs.values()):
+            run.out.share(c)
+        self._thread = threading.Thread(target=self._run, name="cutwatch-worker", daemon=True)
+        self._thread.start()
+        self._writer_thread = threading.Thread(
+            target=self._writer, name="cutwatch-worker-checkpoints", daemon=True
+        )
+        self._writer_thread.start()
+
+    def stop(self, timeout: float = 10.0) -> None:
+        """Stop the loop, write every machine's checkpoint, disconnect."""
+        self._stop.set()
+        for t in (self._thread, self._writer_thread):
+            if t is not None:
+                t.join(timeout)
+        with self._lock:
+            runs = list(self.runs.values())
+        for run in runs:  # the newest state of each, written here (pending ones replaced)
+            self._save(run)
+        c, self._client = self._client, None
+        if c is not None:
+            c.disconnect()
+            c.loop_stop()
+
+    @property
+    def ready(self) -> bool:
+        return self._ready.is_set() and self.connected and not self.error
+
+    # ------------------------------------------------------------------ the broker side
+    def _on_connect(self, client: Any, _u: object, _f: object, rc: Any, _p: object = None) -> None:
+        if getattr(rc, "is_failure", False):
+            self.connected = False
+            self.last_error = f"broker {self.broker.describe()} refused: {reason_text(rc)}"
+            log.warning("cutwatch worker: %s", self.last_error)
+            return
+        self.connected, self.last_error = True, ""
+        subs = [(f"{TOPIC_ROOT}/+/meta", 1)]
+        with self._lock:
+            runs = list(self.runs.values())
+        for run in runs:
+            run.feed.connected = True
+            run.out.connected = True
+            subs.append((run.feed.drive_topic, 0))
+        client.subscribe(subs)
+
+    def _on_disconnect(
+        self, _c: object, _u: object, _f: object, rc: Any, _p: object = None
+    ) -> None:
+        self.connected = False
+        with self._lock:
+            runs = list(self.runs.values())
+        for run in runs:
+            run.feed.connected = False
+            run.out.connected = False
+            run.feed.counts["disconnects"] += 1
+        if getattr(rc, "is_failure", False):
+            self.last_error = f"broker {self.broker.describe()}: disconnected ({reason_text(rc)})"
+
+    def _on_message(self, _c: object, _u: object, msg: Any) -> None:
+        parts = str(msg.topic).split("/")
+        if len(parts) != 3 or parts[0] != TOPIC_ROOT:
+            return
+        _, machine, leaf = parts
+        run = self.runs.get(machine)
+        try:
+            if leaf == "meta":
+                if run is None:
+                    if not owns(machine, self.cfg.shard, self.cfg.machines):
+                        return
+                    run = self.adopt(machine)
+                run.feed.push_meta(bytes(msg.payload))
+            elif leaf == "drive" and run is not None:
+                run.feed.push(bytes(msg.payload))
+        except Exception as exc:  # never let a message kill paho's thread
+            log.warning("cutwatch worker: message on %s skipped: %r", msg.topic, exc)
+
+    def adopt(self, machine: str) -> MachineRun:
+        """Start owning ``machine``: its feed and publisher, its drive subscription."""
+        with self._lock:
+            run = self.runs.get(machine)
+            if run is not None:
+                return run
+            feed = DriveFeed(self.broker, machine, max_samples=10**7, max_seconds=BUFFER_S)
+            dash = f"{self.cfg.dashboard.rstrip('/')}/m/{machine}/" if self.cfg.dashboard else None
+            out = EstimatesPublisher(self.broker, machine, self.cfg.publish_hz, dash)
+            run = MachineRun(machine, feed, out)
+            self.runs[machine] = run
+        c = self._client
+        if c is not None and self.connected:
+            feed.connected = out.connected = True
+            feed.counts["connects"] += 1
+            out.share(c)
+            c.subscribe(feed.drive_topic, qos=0)
+        elif c is not None:
+            out.share(c)
+        log.info("cutwatch worker %s: owns %s", self.name, machine)
+        return run
+
+    # ------------------------------------------------------------------ the loop
+    def _run(self) -> None:
+        try:
+            w0 = time.monotonic()
+            LivePipeline(seed=self.cfg.seed).step(250)  # compile the kernels once, up front
+            self.warm_s = time.monotonic() - w0
+            self._ready.set()
+            c, b = self._client, self.broker
+            if c is not None:
+                c.connect_async(b.host, b.port, keepalive=b.keepalive)
+                c.loop_start()
+            while not self._stop.is_set():
+                t0 = time.monotonic()
+                with self._lock:
+                    runs = list(self.runs.values())
+                worked = False
+                for run in runs:
+                    worked |= self._serve(run)
+                    if self._save_due(run, t0):
+                        self._save(run, wait=False)
+                if worked:
+                    self.loop_s.append(time.monotonic() - t0)
+                    if len(self.loop_s) % 20 == 0:  # for the estimates' health, not per message
+                        self._loop_p50_ms = 1e3 * float(np.median(self.loop_s))
+                else:
+                    self._stop.wait(0.01)
+        except Exception as exc:  # say why the loop stopped (health, probes)
+            self.error = f"{type(exc).__name__}: {exc}"
+            log.exception("cutwatch worker: loop stopped")
+            raise
+
+    def _serve(self, run: MachineRun) -> bool:
+        """Step one machine if a block (or the rest of a stalled one) has arrived;
+        publish its estimates and events. True when it stepped."""
+        feed = run.feed
+        if run.pipe is None or run.pipe.source.needs_rebuild:  # type: ignore[attr-defined]
+            if feed.meta is None:
+                return False
+            self._build(run)
+        pipe = run.pipe
+        assert pipe is not None
+        now = time.monotonic()
+        have = feed.buffered
+        stalled = have > 0 and now - run.last_step > 2e-3 * self.cfg.block_ms
+        if have < run.block_n and not stalled:
+            return False
+        # one step per machine per pass (round robin: a machine's backlog never starves
+        # the others); a backlog is taken in one longer step, up to CATCH_UP blocks: the
+        # estimates do not depend on the block length (bit-identical, docs/plant.md) and
+        # a longer block costs less per sample, so a worker that fell behind catches up
+        k = min(max(have // run.block_n, 1), CATCH_UP)
+        out = pipe.step(k * run.block_n)
+        stepped = len(out["t"]) > 0
+        if stepped:
+            run.blocks += 1
+            run.out.observe(out)
+            f = out.get("f_adaptive")
+            if f is not None and f.size:
+                a = f[np.isfinite(f)]
+                if a.size:
+                    run.levels.append((float(out["t"][-1]), float(np.sqrt(a @ a / a.size))))
+            self._events(run, pipe.take_events())
+        run.last_step = now
+        if stepped:
+            self._estimates(run)
+        return stepped
+
+    def _build(self, run: MachineRun) -> None:
+        """A pipeline on the machine's feed, resumed from its checkpoint if there is one."""
+        src = run.pipe.source.renewed() if run.pipe is not None else MqttSource(run.feed)  # type: ignore[attr-defined]
+        pipe = LivePipeline(seed=self.cfg.seed, source=src)
+        run.block_n = max(1, round(self.cfg.block_ms * 1e-3 / pipe.sample_time))
+        path = self._path(run.name)
+        run.checkpoint = {"path": str(path) if path else None, "resumed": False}
+        if path is not None and path.exists() and run.pipe is None:
+            try:
+                state = load_checkpoint(path)
+                pipe.restore(state)
+            except (StateFormatError, ParameterError, OSError) as exc:
+                run.checkpoint["refused"] = str(exc)
+                log.warning("cutwatch worker: %s: checkpoint refused, starting fresh: %s",
+                            run.name, exc)  # fmt: skip
+            else:
+                run.checkpoint.update(resumed=True, resumed_t=state.t)
+                log.warning("cutwatch worker: %s resumed from %s at t = %.3f s",
+                            run.name, path, state.t)  # fmt: skip
+        run.pipe = pipe
+        # the first checkpoint at a random point of the period: machines built together
+        # (a worker's start) do not all write at once, every period after
+        run.saved_at = time.monotonic() - random.uniform(0.0, self.cfg.checkpoint_s)
+
+    def _estimates(self, run: MachineRun) -> None:
+        pub, pipe = run.out, run.pipe
+        assert pipe is not None
+        now = time.time()
+        if not pub.due(now):
+            return
+        health = {
+            "worker": self.name,
+            "blocks": run.blocks,
+            "loop_ms_p50": self._loop_p50_ms,
+            "resumed": bool(run.checkpoint.get("resumed")),
+        }
+        src = pipe.source
+        body = pub.build(
+            now,
+            pipe.channels(),
+            pipe.t,
+            src.name,
+            health=health,
+            drive_wall=getattr(src, "last_wall", None),
+            feed_health=run.feed.health(),
+        )
+        pub.publish(body, now)
+
+    def _events(self, run: MachineRun, events: list[MonitorEvent]) -> None:
+        c = self._client
+        for ev in events:
+            ev = replace(ev, machine=run.name)
+            run.events += 1
+            if c is None:
+                continue
+            c.publish(topic(run.name, "events"), _json(ev.to_wire()), qos=1)
+            if ev.action == "feed_hold":
+                cmd = {"schema": "cutwatch.command", "version": 1, "command": "feed_hold",
+                       "event_id": ev.id, "t": ev.t}  # fmt: skip
+                c.publish(topic(run.name, "command"), _json(cmd), qos=1)
+
+    # ------------------------------------------------------------------ checkpoints
+    def _path(self, machine: str) -> Path | None:
+        if self.cfg.data_dir is None or self.cfg.checkpoint_s <= 0:
+            return None
+        return self.cfg.data_dir / "state" / f"{machine}.npz"
+
+    def _save_due(self, run: MachineRun, now: float) -> bool:
+        return (
+            run.pipe is not None
+            and self.cfg.checkpoint_s > 0
+            and now - run.saved_at >= self.cfg.checkpoint_s
+        )
+
+    def _save(self, run: MachineRun, *, wait: bool = True) -> None:
+        """Take the machine's state (in the loop's thread: the pipeline is not shared)
+        and write it: here (``wait``), or by the writer thread, whose file system waits
+        (the fsync of an atomic write, ~20 ms here) do not hold up the loop."""
+        path, pipe = self._path(run.name), run.pipe
+        run.saved_at = time.monotonic()
+        if path is None or pipe is None:
+            return
+        state = pipe.state()
+        if not wait:
+            with self._writes_lock:
+                self._writes[run.name] = (run, path, state)  # the newest state wins
+            self._writes_ready.set()
+            return
+        self._write(run, path, state)
+
+    def _write(self, run: MachineRun, path: Path, state: PipelineState) -> None:
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            save_checkpoint(path, state)
+        except OSError as exc:  # a full disk must not stop the loop; say so
+            run.checkpoint["error"] = f"{type(exc).__name__}: {exc}"
+            log.warning("cutwatch worker: %s: checkpoint not written: %s", run.name, exc)
+            return
+        run.checkpoint.update(saved_t=state.t, saved_wall=time.time())
+
+    def _writer(self) -> None:
+        """Write the states the loop handed over, until stopped (the rest: :meth:`stop`)."""
+        while not self._stop.is_set():
+            self._writes_ready.wait(0.5)
+            self._writes_ready.clear()
+            while True:
+                with self._writes_lock:
+                    if not self._writes:
+                        break
+                    name = next(iter(self._writes))
+                    run, path, state = self._writes.pop(name)
+                self._write(run, path, state)
+
+    def adopt_saved(self) -> list[str]:
+        """Own, at once, the machines of this worker that have a checkpoint file (their
+        drive topics are subscribed before their retained metas arrive)."""
+        if self._path("x") is None:
+            return []
+        assert self.cfg.data_dir is not None
+        names = sorted(p.stem for p in (self.cfg.data_dir / "state").glob("*.npz"))
+        mine = [n for n in names if owns(n, self.cfg.shard, self.cfg.machines)]
+        for n in mine:
+            self.adopt(n)
+        return mine
+
+    # ------------------------------------------------------------------ views
+    def machine(self, name: str) -> dict[str, Any] | None:
+        """One machine as its page shows it (None: not this worker's)."""
+        run = self.runs.get(name)
+        if run is None:
+            return None
+        pipe = run.pipe
+        latest = pipe.latest if pipe is not None else {}
+        return json_safe(
+            {
+                "machine": name,
+                "worker": self.name,
+                "t": pipe.t if pipe is not None else None,
+                "blocks": run.blocks,
+                "events": run.events,
+                "latest": {k: latest.get(k, math.nan) for k in PAGE_CHANNELS},
+                "status": pipe.monitor_status() if pipe is not None else None,
+                "feed": pipe.source.status() if pipe is not None else run.feed.health(),
+                "checkpoint": dict(run.checkpoint),
+                "estimates_out": run.out.health(),
+                "levels": list(run.levels),
+            }
+        )
+
+    def health(self) -> dict[str, Any]:
+        with self._lock:
+            runs = list(self.runs.values())
+        loop = np.asarray(self.loop_s) if self.loop_s else np.zeros(1)
+        return json_safe(
+            {
+                "status": "ok" if self.ready else ("error" if self.error else "starting"),
+                "worker": self.name,
+                "broker": self.broker.describe(),
+                "connected": self.connected,
+                "error": self.error or self.last_error,
+                "machines": len(runs),
+                "receiving": sum(r.pipe is not None and r.blocks > 0 for r in runs),
+                "resumed": sum(bool(r.checkpoint.get("resumed")) for r in runs),
+                "dropped_samples": sum(r.feed.counts["dropped_samples"] for r in runs),
+                "loop_ms_p50": 1e3 * float(np.median(loop)),
+                "loop_ms_max": 1e3 * float(loop.max()),
+                "warm_s": self.warm_s,
+            }
+        )
+
+
+def _json(d: dict[str, Any]) -> bytes:
+    import json
+
+    return json.dumps(json_safe(d), allow_nan=False).encode()
