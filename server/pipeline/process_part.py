@@ -369,7 +369,12 @@ class LiveProcess:
 
     def _place(self, run: BlockRun, inj: Injection, at: int) -> None:
         ps = self.ps
-        ev = ProcessEvent(inj.kind, run.part, run.blk.line, 0.0, inj.size, inj.flute)
+        flute = inj.flute
+        if inj.kind == "breakage":
+            # the flute with the most edge left (a flute broken already, and not yet
+            # changed, would lose nothing more)
+            flute = int(np.argmax(run.dr1[: run.tool.n_flutes]))
+        ev = ProcessEvent(inj.kind, run.part, run.blk.line, 0.0, inj.size, flute)
         ps.truths.append(ps.machine.place_event(run, ev, at))
         ps.pending.remove(inj)
 

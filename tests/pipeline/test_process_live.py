@@ -207,6 +207,17 @@ def test_an_injection_now_lands_in_the_middle_of_a_cut_and_is_found(taught) -> N
         assert events[0].t - float(truth["t"]) <= 2 * 60.0 / RPM[20]
 
 
+def test_a_second_breakage_before_the_tool_change_breaks_another_flute(taught) -> None:  # type: ignore[no-untyped-def]
+    p = copy.deepcopy(taught[0])
+    for line in (20, 40):  # one part, T1 not changed in between
+        _inject_mid_cut(p, "breakage", line, 0.5)
+        _, events, truth = _past_event(p, 1.0)
+        assert truth["line"] == line
+        assert "breakage" in [e.kind for e in events]
+    _until_line(p, 50)  # N40 closed, the part not yet over: T1 not yet changed
+    assert (_proc(p).ps.machine.instances[1].dr[:4] < 0).sum() == 2
+
+
 def test_a_broken_tool_is_changed_after_its_alarm(taught) -> None:  # type: ignore[no-untyped-def]
     p = copy.deepcopy(taught[2])
     proc = _proc(p)
