@@ -661,9 +661,10 @@ class LivePipeline:
         (:meth:`server.pipeline.process_part.LiveProcess.inject`): ``kind`` one of
         breakage, collision, missing_tool; ``size`` (default: the reproduction's clear
         size) a flute's radius lost [m], a feed multiplier, a share of the engagement
-        lost; ``at_t`` a simulated time (default now: the sample then if the program
-        cuts, else the middle of the next cut) or ``at_part`` a part number (the middle of
-        its first cut). Returns what was scheduled.
+        lost; ``at_t`` a simulated time (the sample then if the program cuts, else the
+        middle of the next cut) or ``at_part`` a part number (the middle of its first
+        cut); neither: the middle of the cut under way if not past it, else of the next
+        cut. Returns what was scheduled.
 
         Raises
         ------

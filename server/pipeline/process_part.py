@@ -22,9 +22,12 @@ undetected, a broken tooth stays broken.
 
 Injection (:meth:`LiveProcess.inject`): an event is scheduled at a simulated time
 (``at_t``: the sample at that time if the program cuts then; in an air move it waits for
-the middle of the next cut: a tooth breaks, a tool collides or goes missing in a cut) or
-at a part (``at_part``: the middle of that part's first cut). Default sizes are the
-middle of the reproduction's "clear" ranges (``docs/reproductions``,
+the middle of the next cut: a tooth breaks, a tool collides or goes missing in a cut), at
+a part (``at_part``: the middle of that part's first cut), or, with neither, at the
+middle of the cut under way if it has not passed it, else of the next cut (an operator's
+"now" that the detectors can see: a tooth broken on the entry ramp, before the block is
+taught as cutting, changes the pattern where the breakage detector does not look).
+Default sizes are the middle of the reproduction's "clear" ranges (``docs/reproductions``,
 ``server/experiments/reproductions/process_monitoring.py``): a breakage loses 0.4 mm of
 a flute's radius (the tooth is gone), a collision drives the feed to 6x, a missing tool
 has lost all its engagement.
@@ -227,7 +230,7 @@ class LiveProcess:
             if isinstance(at_part, bool) or not isinstance(at_part, int) or at_part < first:
                 raise ParameterError("at_part", f"a part number >= {first}", at_part)
         elif at_t is None:
-            at_t = now
+            pass  # the middle of the cut under way, or of the next one
         elif (
             isinstance(at_t, bool)
             or not isinstance(at_t, int | float)
@@ -244,10 +247,16 @@ class LiveProcess:
             "at_t": inj.at_t,
             "at_part": at_part,
             "now": now,
-            "where": "the sample at at_t if it cuts, else the middle of the next cut"
-            if at_part is None
-            else "the middle of that part's first cut",
+            "where": self._where(inj),
         }
+
+    @staticmethod
+    def _where(inj: Injection) -> str:
+        if inj.at_part is not None:
+            return "the middle of that part's first cut"
+        if inj.at_t is None:
+            return "the middle of the cut under way (if not past it), else of the next cut"
+        return "the sample at at_t if the program cuts then, else the middle of the next cut"
 
     def _first_part_free(self) -> int:
         """The first part whose first cut has not started."""
@@ -333,8 +342,11 @@ class LiveProcess:
         ps, m = self.ps, self.ps.machine
         first_cut = next(b.line for b in m.program.blocks if b.cut)
         for inj in list(ps.pending):
-            due = (inj.at_t is not None and inj.at_t <= m.t) or (
-                inj.at_part == run.part and run.blk.line == first_cut
+            soon = inj.at_t is None and inj.at_part is None
+            due = (
+                soon
+                or (inj.at_t is not None and inj.at_t <= m.t)
+                or (inj.at_part == run.part and run.blk.line == first_cut)
             )
             if due and not run.event:
                 self._place(run, inj, run.n_total // 2)
@@ -346,6 +358,9 @@ class LiveProcess:
         m = self.ps.machine
         for inj in self.ps.pending:
             if inj.at_t is None:
+                if inj.at_part is None and run.done <= run.n_total // 2:
+                    self._place(run, inj, run.n_total // 2)  # "now": this cut's middle
+                    return
                 continue
             k = max(math.ceil(inj.at_t / self.sample_time - 1e-9), m.k)
             if k < m.k + c:
@@ -354,7 +369,12 @@ class LiveProcess:
 
     def _place(self, run: BlockRun, inj: Injection, at: int) -> None:
         ps = self.ps
-        ev = ProcessEvent(inj.kind, run.part, run.blk.line, 0.0, inj.size, inj.flute)
+        flute = inj.flute
+        if inj.kind == "breakage":
+            # the flute with the most edge left (a flute broken already, and not yet
+            # changed, would lose nothing more)
+            flute = int(np.argmax(run.dr1[: run.tool.n_flutes]))
+        ev = ProcessEvent(inj.kind, run.part, run.blk.line, 0.0, inj.size, flute)
         ps.truths.append(ps.machine.place_event(run, ev, at))
         ps.pending.remove(inj)
 

@@ -196,6 +196,28 @@ def test_an_alarm_sets_the_state_and_the_status(taught) -> None:  # type: ignore
     assert [t["kind"] for t in p.process_truths()] == ["collision"]
 
 
+def test_an_injection_now_lands_in_the_middle_of_a_cut_and_is_found(taught) -> None:  # type: ignore[no-untyped-def]
+    for line in (10, 20):  # asked in an air move, and at the start of a cut
+        p = copy.deepcopy(taught[1])
+        _until_line(p, line)
+        p.inject("breakage")
+        _, events, truth = _past_event(p, 1.0)
+        assert truth["line"] == 20
+        assert [e.kind for e in events][:1] == ["breakage"]
+        assert events[0].t - float(truth["t"]) <= 2 * 60.0 / RPM[20]
+
+
+def test_a_second_breakage_before_the_tool_change_breaks_another_flute(taught) -> None:  # type: ignore[no-untyped-def]
+    p = copy.deepcopy(taught[0])
+    for line in (20, 40):  # one part, T1 not changed in between
+        _inject_mid_cut(p, "breakage", line, 0.5)
+        _, events, truth = _past_event(p, 1.0)
+        assert truth["line"] == line
+        assert "breakage" in [e.kind for e in events]
+    _until_line(p, 50)  # N40 closed, the part not yet over: T1 not yet changed
+    assert (_proc(p).ps.machine.instances[1].dr[:4] < 0).sum() == 2
+
+
 def test_a_broken_tool_is_changed_after_its_alarm(taught) -> None:  # type: ignore[no-untyped-def]
     p = copy.deepcopy(taught[2])
     proc = _proc(p)
@@ -265,7 +287,7 @@ def test_inject_and_relearn_refuse_bad_input_by_name(taught) -> None:  # type: i
             p.relearn(**kw)  # type: ignore[arg-type]
         assert e.value.name == name
     got = p.inject("breakage")
-    assert got["size"] == 0.4e-3 and got["at_t"] == pytest.approx(p.t)
+    assert got["size"] == 0.4e-3 and got["at_t"] is None and got["at_part"] is None
     # a scenario without a part program has nothing to inject into; its channels are NaN
     q = LivePipeline("seed000-weight")
     with pytest.raises(ParameterError) as e:

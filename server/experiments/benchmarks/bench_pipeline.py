@@ -3,10 +3,11 @@
 ``server.pipeline.live_pipeline.LivePipeline`` on the default scenario steps the two-inertia X stage
 with its three force observers and both RLS, the harmonic observer (DFO), the tool wear
 model and its life monitor, the milling machine with eccentricity on its X/Y drives
-with the ESC, and the part program on seed 003's machine with the drives' force observers
-and the process monitor (issue 21): every estimator the service runs. Simulated seconds
-per wall second (medians) at the live block (125 samples = 50 ms) and at offline blocks
-(2500 samples = 1 s), after 2 s of warm-up (compiled kernels loaded, observers settled).
+with the ESC, and the part program on seed 003's machine with the drives' force
+observers and the process monitor (issue 21): every estimator the service runs.
+Simulated seconds per wall second (medians) at the live block (125 samples = 50 ms) and
+at offline blocks (2500 samples = 1 s), after 2 s of warm-up (compiled kernels loaded,
+observers settled).
 """
 
 from __future__ import annotations
