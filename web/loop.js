@@ -126,9 +126,13 @@ async function refreshRecords() {
   const btn = $("record");
   btn.textContent = active ? "Stop" : "Record";
   btn.dataset.state = active ? "recording" : "idle";
-  $("record-status").textContent = active
-    ? `● recording ${active.name}: ${(active.seconds || 0).toFixed(1)} s, ${active.samples} samples`
-    : "";
+  // while recording: its progress; after: the "recorded ..." line stays (a refresh that
+  // lands after the stop's answer must not wipe it), a recording line goes
+  const status = $("record-status");
+  if (active) {
+    status.textContent =
+      `● recording ${active.name}: ${(active.seconds || 0).toFixed(1)} s, ${active.samples} samples`;
+  } else if (status.textContent.startsWith("●")) status.textContent = "";
   const sel = $("loop-log");
   const keep = sel.value;
   const opts = [
