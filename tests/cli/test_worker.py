@@ -62,6 +62,10 @@ class Estimates:
         with self.lock:
             return [d for w, d in self.seen.get(machine, []) if w >= since]
 
+    def seen_before(self, machine: str, until: float) -> list[tuple[float, dict[str, Any]]]:
+        with self.lock:
+            return [(w, d) for w, d in self.seen.get(machine, []) if w < until]
+
     def close(self) -> None:
         self.client.loop_stop()
         self.client.disconnect()
@@ -149,10 +153,17 @@ def test_a_killed_worker_resumes_its_machines(plant: dict[str, Any]) -> None:
             # time goes on from the checkpoint (<= 1 s + a block before the kill), not 0
             assert b["t"] - 2.0 < a["t"] < b["t"] + 1.0, (m, b["t"], a["t"])
             # the identified parameters carry on (a fresh pipeline starts from the nominal
-            # values and the first reversals); they move a little over the samples since
+            # values and the first reversals); they move a little over the samples since.
+            # The state resumed is the checkpoint's (<= 1 s before the kill), so the value
+            # to compare with is one the worker published near the resumed time, not
+            # necessarily its last: a reversal segment finished between the checkpoint and
+            # the kill moves J_L_seg by up to ~10 % (seen once in a full-suite run)
+            near = [d for w, d in est.seen_before(m, killed) if abs(d["t"] - a["t"]) <= 1.5]
+            assert near, (m, a["t"])
             for k in PARAMS:
-                vb, va = b["params"][k], a["params"][k]
-                assert abs(va - vb) < 0.03 * abs(vb), (m, k, vb, va)
+                va = a["params"][k]
+                vbs = [d["params"][k] for d in near]
+                assert min(abs(va - vb) / abs(vb) for vb in vbs) < 0.03, (m, k, vbs, va)
         after = {m: est.of(m, restarted)[0] for m in mine}
 
         def row(d: dict[str, Any]) -> list[float]:
