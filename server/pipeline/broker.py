@@ -19,6 +19,7 @@ import re
 import ssl
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any, Protocol
 from urllib.parse import unquote, urlsplit
 
 from server.errors import CutwatchError
@@ -147,6 +148,38 @@ def make_client(cfg: BrokerConfig, client_id: str = "") -> object:
     if cfg.tls:
         c.tls_set_context(tls_context(cfg))
     c.reconnect_delay_set(min_delay=1, max_delay=30)
+    return c
+
+
+class LinkState(Protocol):
+    """What a publisher shows of its broker connection."""
+
+    connected: bool
+    last_error: str
+
+
+def connect_in_background(
+    cfg: BrokerConfig, client_id: str, state: LinkState, max_queued: int = 0
+) -> Any:
+    """A client for ``cfg`` connecting (and reconnecting) on paho's network thread, its
+    link kept on ``state.connected`` and ``state.last_error``; ``max_queued`` > 0 bounds
+    the messages paho keeps while away. Returns the started ``paho`` client."""
+    c: Any = make_client(cfg, client_id=client_id)
+    if max_queued > 0:
+        c.max_queued_messages_set(max_queued)
+
+    def on_connect(_c: object, _u: object, _f: object, rc: Any, _p: object = None) -> None:
+        failed = getattr(rc, "is_failure", False)
+        state.connected = not failed
+        state.last_error = f"refused: {reason_text(rc)}" if failed else ""
+
+    def on_disconnect(_c: object, _u: object, _f: object, rc: Any, _p: object = None) -> None:
+        state.connected = False
+
+    c.on_connect = on_connect
+    c.on_disconnect = on_disconnect
+    c.connect_async(cfg.host, cfg.port, keepalive=cfg.keepalive)
+    c.loop_start()
     return c
 
 

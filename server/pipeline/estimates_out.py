@@ -36,7 +36,11 @@ from typing import Any
 
 import numpy as np
 
-from server.pipeline.broker import BrokerConfig, make_client, reason_text, topic
+from server.pipeline.broker import (
+    BrokerConfig,
+    connect_in_background,
+    topic,
+)
 from server.pipeline.wear_alarms import LIFE_ALARM_MIN, WEAR_ALARM_SHARE
 from server.records.drive_wire import encode_estimates
 
@@ -80,21 +84,7 @@ class EstimatesPublisher:
         self._client: Any = None
 
     def start(self) -> None:
-        c: Any = make_client(self.cfg, client_id=f"cutwatch-estimates-{self.machine}")
-
-        def on_connect(_c: object, _u: object, _f: object, rc: Any, _p: object = None) -> None:
-            failed = getattr(rc, "is_failure", False)
-            self.connected = not failed
-            self.last_error = f"refused: {reason_text(rc)}" if failed else ""
-
-        def on_disconnect(_c: object, _u: object, _f: object, rc: Any, _p: object = None) -> None:
-            self.connected = False
-
-        c.on_connect = on_connect
-        c.on_disconnect = on_disconnect
-        c.connect_async(self.cfg.host, self.cfg.port, keepalive=self.cfg.keepalive)
-        c.loop_start()
-        self._client = c
+        self._client = connect_in_background(self.cfg, f"cutwatch-estimates-{self.machine}", self)
 
     def share(self, client: Any) -> None:
         """Publish through ``client``, a connection shared with other machines (a worker's;

@@ -33,7 +33,11 @@ import time
 from collections.abc import Iterable
 from typing import Any
 
-from server.pipeline.broker import BrokerConfig, make_client, reason_text, topic
+from server.pipeline.broker import (
+    BrokerConfig,
+    connect_in_background,
+    topic,
+)
 from server.records.monitor_events import MonitorEvent
 
 #: the command's wire schema and version (``cutwatch/<machine>/command``)
@@ -88,22 +92,9 @@ class EventsPublisher:
 
     def start(self) -> None:
         """Connect in the background (paho's network thread; it reconnects by itself)."""
-        c: Any = make_client(self.cfg, client_id=f"cutwatch-events-{self.machine}")
-        c.max_queued_messages_set(MAX_QUEUED)
-
-        def on_connect(_c: object, _u: object, _f: object, rc: Any, _p: object = None) -> None:
-            failed = getattr(rc, "is_failure", False)
-            self.connected = not failed
-            self.last_error = f"refused: {reason_text(rc)}" if failed else ""
-
-        def on_disconnect(_c: object, _u: object, _f: object, rc: Any, _p: object = None) -> None:
-            self.connected = False
-
-        c.on_connect = on_connect
-        c.on_disconnect = on_disconnect
-        c.connect_async(self.cfg.host, self.cfg.port, keepalive=self.cfg.keepalive)
-        c.loop_start()
-        self._client = c
+        self._client = connect_in_background(
+            self.cfg, f"cutwatch-events-{self.machine}", self, max_queued=MAX_QUEUED
+        )
 
     def stop(self, timeout: float = 2.0) -> None:
         """Give the messages in flight up to ``timeout`` seconds, then disconnect."""
