@@ -121,8 +121,25 @@ def _restart_continues(data: Path, sig: int) -> None:
         est0["vb_est"], abs=0.01
     )
     assert abs(est0["J_L_seg"] - j_nom) > 0.2 * j_nom  # identified, not the prior
-    assert est1["J_L_seg"] == pytest.approx(est0["J_L_seg"], rel=0.05)
-    assert est1["J_L_adaptive"] == pytest.approx(est0["J_L_adaptive"], rel=0.1)
+    # and they go on as the same run would have gone on without the stop: the adaptive
+    # J_L itself moves by up to 16 % over 2 s of this run (4.40e-4 -> 3.71e-4 from 27 s),
+    # so the resumed estimates are compared with the uninterrupted run at the same time,
+    # not with their own values at the stop
+    ref = _uninterrupted(float(after["t"]))
+    assert est1["J_L_seg"] == pytest.approx(ref["J_L_seg"], rel=0.05)
+    assert est1["J_L_adaptive"] == pytest.approx(ref["J_L_adaptive"], rel=0.1)
+
+
+def _uninterrupted(t_end: float) -> dict[str, float]:
+    """The service's run (default scenario, seed 0) without a stop, in process, up to
+    ``t_end``: its latest estimates there."""
+    p = LivePipeline("default", seed=0)
+    out = p.step(125)
+    while out["t"][-1] < t_end - 0.5 * p.sample_time:
+        n = round((t_end - float(out["t"][-1])) / p.sample_time)
+        out = p.step(max(1, min(2500, n)))
+    assert abs(out["t"][-1] - t_end) < p.sample_time
+    return {k: float(out[k][-1]) for k in ("J_L_seg", "J_L_adaptive")}
 
 
 def test_a_service_stopped_with_sigterm_resumes_its_estimates(tmp_path: Path) -> None:
