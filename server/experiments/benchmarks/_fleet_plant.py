@@ -16,12 +16,11 @@ from typing import Any
 import httpx
 import numpy as np
 
+from server.experiments.benchmarks._local import free_port, mosquitto
 from server.experiments.benchmarks.bench_fleet import (
     STALE_AFTER,
     _cpu,
     _cutwatch,
-    _free_port,
-    _mosquitto,
     _stop,
     _wait_http,
 )
@@ -51,9 +50,9 @@ class _Plant:
         self.names = [f"m{k:03d}" for k in range(machines)]
         self.n_workers = workers
         self.work = work
-        self.bport, self.fport = _free_port(), _free_port()
+        self.bport, self.fport = free_port(), free_port()
         self.url = f"mqtt://127.0.0.1:{self.bport}"
-        self.hports = [_free_port() for _ in range(workers)]
+        self.hports = [free_port() for _ in range(workers)]
         self.workers: list[subprocess.Popen[bytes]] = []
         self.others: list[subprocess.Popen[bytes]] = []
         self.feeder: subprocess.Popen[bytes] | None = None
@@ -196,7 +195,7 @@ def run_plant(
         "workers": workers,
     }
     try:
-        with _mosquitto(plant.bport) as broker:
+        with mosquitto(plant.bport) as broker:
             plant.others.append(broker)
             plant.others.append(subprocess.Popen(
                 _cutwatch("fleet", "--broker", plant.url, "--port", str(plant.fport),

@@ -30,34 +30,28 @@ service processes (~250 MB each) — this is a benchmark, not a test.
 from __future__ import annotations
 
 import contextlib
-import getpass
 import json
 import os
 import shutil
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import httpx
 import numpy as np
 
+from server.experiments.benchmarks._local import free_port, mosquitto
+
 MACHINES = 20
 SECONDS = 60.0
 STALE_AFTER = 3.0
 PUBLISH_HZ = 10.0
 TICK = os.sysconf("SC_CLK_TCK")
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def _cpu(pid: int) -> float:
@@ -80,26 +74,6 @@ def _wait_http(url: str, timeout: float) -> None:
                 return
         time.sleep(0.2)
     raise RuntimeError(f"{url} did not answer within {timeout:g} s")
-
-
-@contextlib.contextmanager
-def _mosquitto(port: int) -> Iterator[subprocess.Popen[bytes]]:
-    exe = shutil.which("mosquitto") or "/usr/sbin/mosquitto"
-    if not Path(exe).exists():
-        raise RuntimeError("mosquitto is not installed (make system-deps installs it as root)")
-    with tempfile.TemporaryDirectory(prefix="cutwatch-bench-mosq-") as d:
-        conf = Path(d) / "mosquitto.conf"
-        conf.write_text(
-            f"listener {port} 127.0.0.1\nallow_anonymous true\npersistence false\n"
-            f"user {getpass.getuser()}\nlog_dest none\n"
-        )
-        p = subprocess.Popen([exe, "-c", str(conf)])
-        try:
-            time.sleep(0.5)
-            yield p
-        finally:
-            p.terminate()
-            p.wait(10)
 
 
 def _stop(procs: list[subprocess.Popen[Any]]) -> None:
@@ -125,7 +99,7 @@ def _start_services(
     ``services`` as they start (so the caller stops them whatever happens); their ports."""
     ports: list[int] = []
     for name in names:
-        port = _free_port()
+        port = free_port()
         ports.append(port)
         services.append(
             subprocess.Popen(
@@ -206,7 +180,7 @@ def _run(machines: int, seconds: float, progress: bool) -> dict[str, object]:
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
     )
-    bport, fport = _free_port(), _free_port()
+    bport, fport = free_port(), free_port()
     url = f"mqtt://127.0.0.1:{bport}"
     env = {**os.environ, "PYTHONUNBUFFERED": "1", "CUTWATCH_BENCH_WORK": str(work)}
     services: list[subprocess.Popen[bytes]] = []
@@ -219,7 +193,7 @@ def _run(machines: int, seconds: float, progress: bool) -> dict[str, object]:
         ),
         "machines": machines,
     }
-    with _mosquitto(bport) as broker:
+    with mosquitto(bport) as broker:
         try:
             fleet = subprocess.Popen(
                 _cutwatch("fleet", "--broker", url, "--port", str(fport),

@@ -40,14 +40,10 @@ from typing import Any
 import httpx
 import numpy as np
 
+from server.experiments.benchmarks._local import free_port
+
 CLIENTS = 10
 TICK = os.sysconf("SC_CLK_TCK")
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def _cpu_seconds(pid: int) -> float:
@@ -158,7 +154,7 @@ async def _session(
 
 def _start_service() -> tuple[subprocess.Popen[bytes], str]:
     """``cutwatch serve`` on free loopback ports, once it has simulated 1 s."""
-    port, viser_port = _free_port(), _free_port()
+    port, viser_port = free_port(), free_port()
     env = dict(os.environ, CUTWATCH_PORT=str(port), CUTWATCH_VISER_PORT=str(viser_port))
     # the child's log goes to a file: an unread pipe fills over a long run and blocks it
     log = tempfile.TemporaryFile()

@@ -50,12 +50,9 @@ that are found, at the place the reproduction calls clear.
 from __future__ import annotations
 
 import contextlib
-import getpass
 import json
 import os
 import queue
-import shutil
-import socket
 import subprocess
 import sys
 import tempfile
@@ -67,6 +64,8 @@ from typing import Any
 
 import httpx
 import numpy as np
+
+from server.experiments.benchmarks._local import free_port, mosquitto
 
 MACHINE = "bench"
 EVENTS = 40
@@ -80,44 +79,10 @@ COMMAND_TIMEOUT_S = 30.0
 TARGET_P99_MS = 100.0
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
-@contextlib.contextmanager
-def _mosquitto(port: int) -> Iterator[None]:
-    exe = shutil.which("mosquitto") or "/usr/sbin/mosquitto"
-    if not Path(exe).exists():
-        raise RuntimeError("mosquitto is not installed (make system-deps installs it as root)")
-    with tempfile.TemporaryDirectory(prefix="cutwatch-bench-mosq-") as d:
-        conf = Path(d) / "mosquitto.conf"
-        conf.write_text(
-            f"listener {port} 127.0.0.1\nallow_anonymous true\npersistence false\n"
-            f"user {getpass.getuser()}\nlog_dest none\n"
-        )
-        p = subprocess.Popen([exe, "-c", str(conf)])
-        try:
-            deadline = time.monotonic() + 10
-            while True:
-                try:
-                    socket.create_connection(("127.0.0.1", port), timeout=0.2).close()
-                    break
-                except OSError:
-                    if p.poll() is not None or time.monotonic() > deadline:
-                        raise RuntimeError(f"mosquitto did not start on {port}") from None
-                    time.sleep(0.05)
-            yield
-        finally:
-            p.terminate()
-            p.wait(10)
-
-
 @contextlib.contextmanager
 def _service(broker_port: int, d: Path) -> Iterator[tuple[str, Path]]:
     """``cutwatch serve`` at 1x on a free port; its base URL and its block log."""
-    port = _free_port()
+    port = free_port()
     log = d / "blocks.log"
     env = dict(
         os.environ,
@@ -291,9 +256,9 @@ def measure(*, repeats: int, quick: bool) -> dict[str, object]:
     to their command on the broker; ``repeats`` unused (see the module docstring)."""
     del repeats
     n_events = QUICK_EVENTS if quick else EVENTS
-    bport = _free_port()
+    bport = free_port()
     rows: list[dict[str, float]] = []
-    with tempfile.TemporaryDirectory(prefix="cutwatch-bench-mon-") as tmp, _mosquitto(bport):
+    with tempfile.TemporaryDirectory(prefix="cutwatch-bench-mon-") as tmp, mosquitto(bport):
         d = Path(tmp)
         sub = _Listener(bport)
         stop = threading.Event()
