@@ -3,12 +3,12 @@ r"""The machining centre as a simulation: ``step(state, n) -> (state, record)``.
 :class:`MachiningCentre` holds what does not change (the machine's parameters, the part
 program, the shop's variation, the events to inject); :class:`CentreState` everything
 that does (the drives' and spindle's states, the program's cursor, the magazine's tools,
-the workpiece, the random generator). :meth:`MachiningCentre.step` advances ``n``
-samples at the simulation rate (10 kHz) through the numba kernel of
-:mod:`machine.centre.kernel`, block of the part program by block, and returns a new
-state and a :class:`CentreRecord`: what the drives measure, the CNC's identities (tool,
-program, line, part, override), and the truth beside them (process forces, cutting
-torque, engagement, flank wear, the events injected).
+the workpiece, the random generators of the shop's draws and of the noise).
+:meth:`MachiningCentre.step` advances ``n`` samples at the simulation rate (10 kHz)
+through the numba kernel of :mod:`machine.centre.kernel`, block of the part program by
+block, and returns a new state and a :class:`CentreRecord`: what the drives measure, the
+CNC's identities (tool, program, line, part, override), and the truth beside them
+(process forces, cutting torque, engagement, flank wear, the events injected).
 
 The shop's variation (a choice, as in :mod:`machine.process`): one part in five runs at
 a feed override of 80-120 %, each blank's depth of cut varies by 2 % (1 sigma), a worn
@@ -104,6 +104,7 @@ class CentreState:
     spindle_tool: int
     workpiece: float
     rng: np.random.Generator
+    noise_rng: np.random.Generator
     part_override: float = 1.0
     feed_override: float = 1.0
     spindle_override: float = 1.0
@@ -115,16 +116,21 @@ class CentreState:
 
     def copy(self) -> CentreState:
         """A deep copy (the random generator included)."""
-        rng = np.random.Generator(type(self.rng.bit_generator)())
-        rng.bit_generator.state = self.rng.bit_generator.state
+        rng, noise = _copy_rng(self.rng), _copy_rng(self.noise_rng)
         return CentreState(
             self.k, self.part, self.cursor, self.ax.copy(), self.ss.copy(), self.ps.copy(),
             self.hist.copy(), self.head, self.phi.copy(), self.gam.copy(),
             {n: t.copy() for n, t in self.tools.items()}, self.spindle_tool, self.workpiece,
-            rng, self.part_override, self.feed_override, self.spindle_override,
+            rng, noise, self.part_override, self.feed_override, self.spindle_override,
             self.depth_scale, self.tool_changes, list(self.pending),
             None if self.run is None else self.run.copy(), self.mass_changed,
         )  # fmt: skip
+
+
+def _copy_rng(rng: np.random.Generator) -> np.random.Generator:
+    out = np.random.Generator(type(rng.bit_generator)())
+    out.bit_generator.state = rng.bit_generator.state
+    return out
 
 
 @dataclass
@@ -313,12 +319,12 @@ class MachiningCentre:
         return math.ceil(2.0 * max(periods, default=0.01) / self.sample_time) + 16
 
     # ------------------------------------------------------------------ state
-    def initial_state(
-        self, seed: int | None = 0, rng: np.random.Generator | None = None
-    ) -> CentreState:
+    def initial_state(self, seed: int | None = 0) -> CentreState:
         """The machine at rest at the program's start point, spindle stopped and cold,
-        fresh tools, part 0 about to start."""
-        gen = rng if rng is not None else np.random.default_rng(seed)
+        fresh tools, part 0 about to start. ``seed`` seeds two generators: the shop's
+        draws and the measurement noise (apart, so a run's draws do not depend on how it
+        is cut into steps)."""
+        shop, noise = (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(2))
         ax = np.zeros((3, kn.N_AX))
         for i, a in enumerate(self.params.axes):
             x0 = self.program.start[i]
@@ -333,7 +339,7 @@ class MachiningCentre:
         return CentreState(
             k=0, part=0, cursor=0, ax=ax, ss=np.zeros(kn.N_SS), ps=ps,
             hist=np.zeros((self._hlen, 2)), head=0, phi=phi, gam=gam, tools=tools,
-            spindle_tool=0, workpiece=self.blank, rng=gen,
+            spindle_tool=0, workpiece=self.blank, rng=shop, noise_rng=noise,
         )  # fmt: skip
 
     def _matrices(self, workpiece: float) -> tuple[F64, F64]:
@@ -351,7 +357,8 @@ class MachiningCentre:
         ids = np.zeros((3, n), dtype=np.int64)
         ovr = np.empty(n)
         vb = np.empty(n)
-        noise = st.rng.standard_normal((_NOISE_ROWS, n))
+        # drawn sample by sample (rows of 4), so any chunking of a run draws the same
+        noise = np.ascontiguousarray(st.noise_rng.standard_normal((n, _NOISE_ROWS)).T)
         events: list[EventTruth] = []
         k0, k = st.k, 0
         while k < n:
