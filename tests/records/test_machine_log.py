@@ -123,3 +123,38 @@ def test_sidecar_maps_are_applied_before_the_command_lines(tmp_path: Path) -> No
     write_log(p, cols, {**MACHINE, "maps": ["xq=xq_mm*0.001", "xq=2*xq_mm"]})
     with pytest.raises(LogFormatError, match=r"sidecar 'maps\[1\]': --map 'xq=2\*xq_mm'"):
         load_log(p)
+
+
+def test_a_recording_keeps_every_column_and_reads_back_as_the_same_machine(
+    tmp_path: Path,
+) -> None:
+    from server.records.recorder import Recorder
+
+    cols = _columns(200)
+    cols.pop("volts")
+    t = np.arange(200) * 0.002
+    rec = Recorder(tmp_path / "rec.csv", {**MACHINE, "program": "O7"})
+    for a in range(0, 200, 50):
+        rec.append({"t": t[a : a + 50], **{k: v[a : a + 50] for k, v in cols.items()}})
+    assert rec.close()["samples"] == 200
+    log = load_log(tmp_path / "rec.csv")
+    assert log.machine == load_log_machine(MACHINE)
+    for k, v in cols.items():
+        np.testing.assert_array_equal(log[k], v)  # NaN kept as NaN, values exact
+    assert log.sidecar["program"] == "O7" and log.sidecar["recording"]["samples"] == 200
+
+
+def load_log_machine(d: dict) -> object:
+    from common.machine_description import from_dict
+
+    return from_dict(d)
+
+
+def test_a_recording_refuses_a_name_no_csv_header_can_hold(tmp_path: Path) -> None:
+    from server.errors import CutwatchError
+    from server.records.recorder import Recorder
+
+    rec = Recorder(tmp_path / "r.csv", MACHINE)
+    with pytest.raises(CutwatchError, match="column name 'a,b' cannot be a CSV header"):
+        rec.append({"t": np.zeros(2), "a,b": np.zeros(2)})
+    rec.close()
