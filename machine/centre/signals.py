@@ -2,10 +2,10 @@
 
 Everything that says which simulated signal is which CNC signal lives here: the column
 name of each signal in a drive block or a measured log, its role and unit in the machine
-description of issue 30 (``axes`` with ``kind``, ``signals``, ``units``; ``spindle``;
-``identities``; ``sample_time``), and which of the simulator's rows are truth (never
-handed to an estimator). When the description's JSON Schema lands on main this module's
-:func:`description` is checked against it; until then it is a plain dict of that shape.
+description (issue 30: ``common/machine.schema.json``: ``axes`` with ``kind``,
+``signals``, ``units``; ``spindle``; ``identities``; ``sample_time``), and which of the
+simulator's rows are truth (never handed to an estimator). :func:`description` returns
+the description read and checked by :mod:`common.machine_description`.
 
 Columns: per axis ``<A>_<role>`` (``X_q_m``, ``X_q_l``, ``X_q_cmd``, ``X_qd_m``,
 ``X_i_m``; Y and Z without ``q_l``: semi-closed loop), the spindle ``S_speed``,
@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from common.arrays import F64
+from common.machine_description import MachineDescription, from_dict
 from machine.centre.params import CentreParams
 
 #: the roles an axis exports, by kind (what a CNC's trace gives per axis)
@@ -55,8 +56,14 @@ def truth_column(row: str) -> str:
     return "true_" + row.replace(".", "_")
 
 
-def description(params: CentreParams | None = None, rate_hz: float = 500.0) -> dict[str, Any]:
-    """The machine description of the centre's trace at ``rate_hz`` (issue 30's shape).
+def description(params: CentreParams | None = None, rate_hz: float = 500.0) -> MachineDescription:
+    """The machine description of the centre's trace at ``rate_hz``, checked against the
+    schema (:func:`description_dict` is the same as a dict)."""
+    return from_dict(description_dict(params, rate_hz))
+
+
+def description_dict(params: CentreParams | None = None, rate_hz: float = 500.0) -> dict[str, Any]:
+    """The machine description of the centre's trace at ``rate_hz`` (issue 30's schema).
 
     Per axis its kind, its columns by role, units (m, N: efforts are motor currents [A]
     with the force constant ``K_t`` [N/A] known from the motor data), the motor encoder's
@@ -77,7 +84,8 @@ def description(params: CentreParams | None = None, rate_hz: float = 500.0) -> d
         "axes": axes,
         "spindle": {
             "signals": {r: column("S", r) for r in SPINDLE_SIGNALS},
-            "units": {r: u for r, (_, u) in SPINDLE_SIGNALS.items()},
+            # the commanded speed's unit is the speed's (the schema names no other)
+            "units": {r: u for r, (_, u) in SPINDLE_SIGNALS.items() if r != "speed_cmd"},
         },
         "identities": {
             "program": "program",
@@ -118,5 +126,6 @@ __all__ = [
     "column",
     "columns",
     "description",
+    "description_dict",
     "truth_column",
 ]

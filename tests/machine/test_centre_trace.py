@@ -162,8 +162,12 @@ def test_a_record_out_of_order_is_refused(run) -> None:  # type: ignore[no-untyp
 def test_the_description_names_every_exported_column(run) -> None:  # type: ignore[no-untyped-def]
     _, recs = run
     (tr,) = export(CncTrace(TraceParams(500.0)), [_full(recs)])
-    d = signals.description(rate_hz=500.0)
+    d = signals.description_dict(rate_hz=500.0)
     cols = signals.columns(tr)
+    # checked against the machine description's schema (issue 30), and read back whole
+    desc = signals.description(rate_hz=500.0)
+    assert desc.to_dict() == d and desc.axis_names == ("X", "Y", "Z")
+    assert desc.axis("X").required_roles == ("q_m", "i_m", "q_l")
     assert d["sample_time"] == 0.002
     assert {a: v["kind"] for a, v in d["axes"].items()} == {
         "X": "two_inertia", "Y": "rigid", "Z": "rigid",
