@@ -11,9 +11,12 @@ advances to *k + 1*):
    the previous two flutes left (seed003 (1)-(5), the runout chip of
    :mod:`machine.process`), with the immersion window turned to the feed direction; the
    force on the workpiece (X, Y and the axial Z) and the cutting torque on the spindle.
-   **Chatter plugs in here** (issue 29): a tool/workpiece structure driven by this force
-   adds its displacement to the tool centre before the chip is taken; today the
-   structure is rigid (:data:`STRUCTURE_PLUG`).
+   **Chatter plugs in here** (issue 29): :func:`_structure` advances the tool/workpiece
+   structure (its parameters ``sp_struct``, its state ``st_struct``, packed by the
+   caller) under the previous sample's force and returns its displacement, which is
+   added to the tool centre before the chip is taken; the chip history already holds
+   the surfaces regeneration needs. Today the structure is rigid (empty arrays: no
+   displacement).
 3. **Spindle**: speed command ramped, PI speed loop on the filtered measured speed with
    the torque and power limits (integration held while limited), the current loop as a
    first-order lag after one sample of computation, the rotor under the motor, friction
@@ -76,8 +79,6 @@ CP_ECC, CP_ECC_PH, CP_RADIUS, CP_K_EV, CP_FEED_MUL, CP_LOST, CP_LOST_AFTER, CP_H
     15, 16, 17, 18, 19, 20, 21, 22,
 )  # fmt: skip
 N_CP = 23
-#: the tool/workpiece structure's plug (issue 29): none yet, the tool centre is rigid
-STRUCTURE_PLUG = "rigid"
 
 # --- per-sample output rows -------------------------------------------------------------
 #: per axis (base 7 i): commanded position [m], motor encoder [m], linear scale [m] (the
@@ -159,9 +160,12 @@ def _engagement(pp: F64, cp: F64, after: bool, xl: float, yl: float) -> float:  
 
 
 @njit(cache=True)
-def _structure(fx: float, fy: float, ts: float) -> tuple[float, float]:  # pragma: no cover
-    """The tool's displacement from its structure under the force (issue 29's plug: a
-    rigid tool today)."""
+def _structure(
+    sp_struct: F64, st_struct: F64, fx: float, fy: float, ts: float
+) -> tuple[float, float]:  # pragma: no cover
+    """The tool's displacement relative to the workpiece from their structure under the
+    force on the workpiece ``(fx, fy)`` of the previous sample (issue 29's plug: its
+    modes advance ``st_struct`` here). Today rigid: no displacement."""
     return 0.0, 0.0
 
 
@@ -322,8 +326,8 @@ def _axis(
 @njit(cache=True)
 def step_block(
     n: int, k0: int, ts: float, axp: F64, phi: F64, gam: F64, ax: F64, spp: F64, ss: F64,
-    pp: F64, ps: F64, cp: F64, lags: F64, dr0: F64, dr1: F64, hist: F64, noise: F64,
-    out: F64,
+    pp: F64, ps: F64, cp: F64, lags: F64, dr0: F64, dr1: F64, hist: F64, sp_struct: F64,
+    st_struct: F64, noise: F64, out: F64,
 ) -> int:  # pragma: no cover  # fmt: skip
     """Advance the machine up to ``n`` samples within one program block, writing columns
     ``k0, k0 + 1, ...`` of ``out``; stops early when the block is done. Returns the
@@ -342,7 +346,7 @@ def step_block(
         ecc = cp[CP_ECC]
         xl = ax[0, AX_XL]
         yl = ax[1, AX_XL]
-        dx, dy = _structure(f[0], f[1], ts)
+        dx, dy = _structure(sp_struct, st_struct, f[0], f[1], ts)
         # seed003 (6): tool centre = the axes' load positions + the runout
         px = xl + dx + ecc * math.cos(psi + cp[CP_ECC_PH])
         py = yl + dy + ecc * math.sin(psi + cp[CP_ECC_PH])

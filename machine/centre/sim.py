@@ -113,6 +113,7 @@ class CentreState:
     pending: list[ProcessEvent] = field(default_factory=list)
     run: BlockRun | None = None
     mass_changed: bool = False
+    structure: F64 = field(default_factory=lambda: np.zeros(0))
 
     def copy(self) -> CentreState:
         """A deep copy (the random generator included)."""
@@ -124,6 +125,7 @@ class CentreState:
             rng, noise, self.part_override, self.feed_override, self.spindle_override,
             self.depth_scale, self.tool_changes, list(self.pending),
             None if self.run is None else self.run.copy(), self.mass_changed,
+            self.structure.copy(),
         )  # fmt: skip
 
 
@@ -278,6 +280,9 @@ class MachiningCentre:
         self._spp = _pack_spindle(self.params)
         self._plan = self.program.walk()
         self._hlen = self._history_length()
+        #: the tool/workpiece structure's packed parameters (issue 29 plugs its modes in
+        #: here and in CentreState.structure; empty: rigid)
+        self._struct = np.zeros(0)
 
     @property
     def sample_time(self) -> float:
@@ -369,7 +374,8 @@ class MachiningCentre:
             run.cp[kn.CP_HEAD] = st.head
             used = kn.step_block(
                 n - k, k, self.sample_time, self._axp, st.phi, st.gam, st.ax, self._spp, st.ss,
-                run.pp, st.ps, run.cp, run.lags, run.dr0, run.dr1, st.hist, noise, out,
+                run.pp, st.ps, run.cp, run.lags, run.dr0, run.dr1, st.hist, self._struct,
+                st.structure, noise, out,
             )  # fmt: skip
             st.head = int(run.cp[kn.CP_HEAD])
             blk = self.program.blocks[run.index]
