@@ -222,19 +222,22 @@ def default_tools() -> tuple[MagazineTool, MagazineTool, MagazineTool]:
     return t1, t2, t3
 
 
-def default_program(name: str = "O2001") -> Program:
+def default_program(name: str = "O2001", *, rpm_scale: float = 1.0) -> Program:
     """The default part (see the module docstring): a 100 x 60 x 40 mm aluminium blank,
-    its top at Z = 0, its corner at X = Y = 0."""
+    its top at Z = 0, its corner at X = Y = 0. ``rpm_scale`` scales every spindle speed
+    (the feeds with them: the feed per tooth is held), in (0.5, 1.2]."""
+    require_in("rpm_scale", rpm_scale, 0.5, 1.2, lo_open=True)
     t1, t2, t3 = default_tools()
+    r = rpm_scale
     mm = 1e-3
     home = 200 * mm
 
     def p(x: float, y: float, z: float) -> tuple[float, float, float]:
         return (x * mm, y * mm, z * mm)
 
-    f1 = feed_for(t1, 3000, 0.20 * mm)
-    f2 = feed_for(t2, 8000, 0.06 * mm)
-    f3 = feed_for(t3, 10000, 0.04 * mm)
+    f1 = feed_for(t1, 3000 * r, 0.20 * mm)
+    f2 = feed_for(t2, 8000 * r, 0.06 * mm)
+    f3 = feed_for(t3, 10000 * r, 0.04 * mm)
     plunge = 2000 * mm / 60.0
     face = Cut(1.5 * mm, 0.7)
     side1 = Cut(10 * mm, 0.25, down_milling=True, ramp_out=False)
@@ -242,14 +245,14 @@ def default_program(name: str = "O2001") -> Program:
     slot = Cut(3 * mm, 1.0, ramp_out=False)
     blocks = (
         Block(10, "tool_change", tool=1, seconds=2.0, comment="face mill D50"),
-        Block(20, "spindle", rpm=3000.0, seconds=0.2),
+        Block(20, "spindle", rpm=3000.0 * r, seconds=0.2),
         Block(30, "rapid", p(-40, 50, 20)),
         Block(40, "feed", p(-40, 50, -1.5), feed=plunge),
         Block(50, "feed", p(-25, 50, -1.5), feed=f1),
         Block(60, "feed", p(125, 50, -1.5), feed=f1, cut=face, comment="face"),
         Block(70, "rapid", p(125, 50, 50)),
         Block(100, "tool_change", tool=2, seconds=2.0, comment="end mill D12"),
-        Block(110, "spindle", rpm=8000.0, seconds=0.2),
+        Block(110, "spindle", rpm=8000.0 * r, seconds=0.2),
         Block(120, "rapid", p(-12, -3, 20)),
         Block(130, "feed", p(-12, -3, -10), feed=plunge),
         Block(135, "feed", p(-6, -3, -10), feed=f2),
@@ -257,7 +260,7 @@ def default_program(name: str = "O2001") -> Program:
         Block(150, "feed", p(103, 66, -10), feed=f2, cut=side2, comment="side X100"),
         Block(160, "rapid", p(103, 66, 50)),
         Block(200, "tool_change", tool=3, seconds=2.0, comment="end mill D8"),
-        Block(210, "spindle", rpm=10000.0, seconds=0.2),
+        Block(210, "spindle", rpm=10000.0 * r, seconds=0.2),
         Block(220, "rapid", p(50, -10, 20)),
         Block(230, "feed", p(50, -10, -3), feed=plunge),
         Block(240, "feed", p(50, -4, -3), feed=f3),
@@ -267,6 +270,21 @@ def default_program(name: str = "O2001") -> Program:
         Block(280, "end", seconds=3.0, comment="part change"),
     )
     return Program(name, blocks, (t1, t2, t3), start=(0.0, 0.0, home))
+
+
+#: the spindle-speed scales of :func:`program_variant`, in turn
+VARIANT_SCALES = (1.0, 0.9, 1.1, 0.8, 1.05, 0.95)
+
+
+def program_variant(k: int) -> Program:
+    """Machine ``k``'s program in a plant: the default part as ``O{2001 + k}``, its spindle
+    speeds scaled by :data:`VARIANT_SCALES` in turn (other tooth frequencies, other
+    folds in a trace)."""
+    if int(k) != k or k < 0:
+        raise ParameterError("k", "a machine index >= 0", k)
+    return default_program(
+        f"O{2001 + int(k)}", rpm_scale=VARIANT_SCALES[int(k) % len(VARIANT_SCALES)]
+    )
 
 
 def blank_mass(density: float) -> float:
@@ -283,4 +301,5 @@ __all__ = [
     "default_program",
     "default_tools",
     "feed_for",
+    "program_variant",
 ]

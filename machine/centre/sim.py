@@ -511,11 +511,14 @@ class MachiningCentre:
         evs = [e for e in self.events if e.part == st.part and e.line == blk.line]
         if len(evs) > 1:
             raise ParameterError("events", "at most one event per part and block", len(evs))
+        if not evs and blk.cut is not None:
+            # a pending event: the first due in this part for this line (line 0: any cut)
+            due = [e for e in st.pending if e.part <= st.part and e.line in (0, blk.line)]
+            if due:
+                st.pending.remove(due[0])
+                evs = due[:1]
         if evs:
             ev = evs[0]
-            self._place(st, run, ev.kind, ev.size, ev.flute, int(ev.fraction * run.nominal))
-        elif st.pending and blk.cut is not None:
-            ev = st.pending.pop(0)
             self._place(st, run, ev.kind, ev.size, ev.flute, int(ev.fraction * run.nominal))
 
     def _place(self, st: CentreState, run: BlockRun, kind: str, size: float, flute: int,
@@ -555,6 +558,23 @@ class MachiningCentre:
             return st, True
         st.pending.append(ev)
         return st, False
+
+    def schedule(self, state: CentreState, event: ProcessEvent) -> CentreState:
+        """Place ``event`` later in this run: in its part (or, if that part is over, the
+        next one) at its line and where in the block it says (line 0: the next cut).
+
+        Raises
+        ------
+        ParameterError
+            ``event.line`` is neither 0 nor a cut block of the program.
+        """
+        cuts = [b.line for b in self.program.blocks if b.cut is not None]
+        if event.line not in (0, *cuts):
+            raise ParameterError("event.line", f"0 (the next cut) or a cut line of {cuts}",
+                                 event.line)  # fmt: skip
+        st = state.copy()
+        st.pending.append(event)
+        return st
 
     def replace_tool(self, state: CentreState, number: int) -> CentreState:
         """The operator mounts a fresh instance of tool ``number`` (after a breakage)."""

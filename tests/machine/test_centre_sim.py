@@ -11,7 +11,7 @@ import pytest
 from machine.centre import kernel as kn
 from machine.centre.params import CentreParams
 from machine.centre.program import Block, Cut, Program, default_program, default_tools
-from machine.centre.sim import CentreRecord, CentreState, MachiningCentre
+from machine.centre.sim import CentreRecord, CentreState, MachiningCentre, trapezoid_time
 from machine.errors import ParameterError
 from machine.process import ProcessEvent
 
@@ -327,3 +327,34 @@ def test_the_default_machine_and_program_agree_with_the_docs() -> None:
     m = MachiningCentre()
     assert m.params == CentreParams() and m.program == default_program()
     assert m.blank == pytest.approx(2700 * 0.1 * 0.06 * 0.04)
+
+
+def test_a_scheduled_event_lands_on_its_line_and_place_in_its_part() -> None:
+    m = MachiningCentre(override_prob=0.0)
+    st = m.schedule(m.initial_state(seed=0), ProcessEvent("collision", 0, 250, 0.25, 3.0))
+    st = m.schedule(st, ProcessEvent("breakage", 0, 140, 0.5, 0.3e-3))
+    st, rec = run(m, st, PART_SAMPLES)
+    got = sorted((e.line, e.kind, e.part) for e in rec.events)
+    assert got == [(140, "breakage", 0), (250, "collision", 0)]
+    (c,) = [e for e in rec.events if e.kind == "collision"]
+    on = np.flatnonzero(rec.line == 250)
+    # a quarter into the block's nominal duration (the collision shortens the block)
+    blk = next(b for b in m.program.blocks if b.line == 250)
+    nominal = round(trapezoid_time(0.040, blk.feed, 3.0) / 1e-4)
+    assert c.sample - on[0] == int(0.25 * nominal)
+    assert not st.pending
+    with pytest.raises(ParameterError, match=r"event\.line"):
+        m.schedule(st, ProcessEvent("breakage", 0, 30, 0.5, 0.3e-3))
+
+
+def test_program_variants_scale_the_spindle_and_the_feed_together() -> None:
+    from machine.centre.program import program_variant
+
+    base, v = default_program(), program_variant(3)
+    assert v.name == "O2004" and program_variant(0) == default_program()
+    for a, b in zip(base.blocks, v.blocks, strict=True):
+        assert b.rpm == pytest.approx(0.8 * a.rpm)
+        if a.cut is not None:
+            assert b.feed == pytest.approx(0.8 * a.feed)
+    with pytest.raises(ParameterError, match="rpm_scale"):
+        default_program(rpm_scale=2.0)
