@@ -115,6 +115,10 @@ def run(args: argparse.Namespace) -> int:
     machines = [m.strip() for m in args.machine.split(",") if m.strip()]
     if not machines:
         raise CutwatchError(f"--machine: expected a name or names a,b,c, got {args.machine!r}")
+    from server.pipeline.broker import check_machine
+
+    for m in machines:
+        check_machine(m)  # a bad name is refused before anything is read or simulated
     sources = _simulated(args, machines) if args.simulate else _logged(args, machines)
     return _publish(args, sources)
 
