@@ -5,7 +5,9 @@ advances to *k + 1*):
 
 1. **Interpolator**: the path parameter of the running program block (speed toward the
    programmed feed times the override, the acceleration limit, braking to an exact stop
-   at the block's end); the commanded position, velocity and acceleration per axis.
+   at the block's end); the commanded position, velocity and acceleration per axis, with
+   seed003 (7)'s modulation circle on X and Y when one is set (an eccentricity
+   canceller's output).
 2. **Cut**: the tool centre relative to the workpiece (the axes' *load* positions plus
    the runout, seed003 (6)); the chip of every flute and axial layer from the surfaces
    the previous two flutes left (seed003 (1)-(5), the runout chip of
@@ -68,8 +70,8 @@ N_PP = 12
 #: block kinds of the kernel (PP_KIND)
 K_MOVE, K_DWELL, K_SPINDLE = 0, 1, 2
 # --- interpolator state (ps[PS_*]) ----------------------------------------------------
-PS_S, PS_V, PS_T, PS_K, PS_DONE, PS_OVR, PS_SOVR = 0, 1, 2, 3, 4, 5, 6
-N_PS = 7
+PS_S, PS_V, PS_T, PS_K, PS_DONE, PS_OVR, PS_SOVR, PS_AM, PS_THM = 0, 1, 2, 3, 4, 5, 6, 7, 8
+N_PS = 9
 # --- the cut of the running block (cp[CP_*]) ------------------------------------------
 CP_ACTIVE, CP_DZ, CP_PHI_ST, CP_PHI_EX, CP_BETA, CP_RAMP, CP_RAMP_IN, CP_RAMP_OUT = (
     0, 1, 2, 3, 4, 5, 6, 7,
@@ -136,6 +138,27 @@ def _interpolate(
     ps[PS_V] = v_new
     ps[PS_T] += ts
     ps[PS_K] += 1.0
+
+
+@njit(cache=True)
+def _modulate(
+    ps: F64, psi: float, w: float, r: F64, vff: F64, aff: F64
+) -> None:  # pragma: no cover
+    """seed003 (7): the circle ``a_m [cos(psi + theta_m), sin(psi + theta_m)]`` added to
+    the X and Y commands (with its velocity and acceleration for the feed-forward), the
+    spindle angle from its encoder (the true angle: the encoder's resolution is far below
+    what matters here)."""
+    a = ps[PS_AM]
+    if a == 0.0:
+        return
+    c = math.cos(psi + ps[PS_THM])
+    s = math.sin(psi + ps[PS_THM])
+    r[0] += a * c
+    r[1] += a * s
+    vff[0] -= a * w * s
+    vff[1] += a * w * c
+    aff[0] -= a * w * w * c
+    aff[1] -= a * w * w * s
 
 
 @njit(cache=True)
@@ -342,6 +365,7 @@ def step_block(
             break
         after = ps[PS_K] >= cp[CP_K_EV]
         _interpolate(pp, ps, cp, after, ts, ra, va, aa)
+        _modulate(ps, ss[SS_PSI], ss[SS_W], ra, va, aa)
         psi = ss[SS_PSI]
         ecc = cp[CP_ECC]
         xl = ax[0, AX_XL]

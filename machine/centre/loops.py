@@ -37,8 +37,9 @@ def _axis_sample(ax: FeedAxisParams, workpiece: float, ts: float, loop: str) -> 
     [F64, float], tuple[F64, float]
 ]:  # fmt: skip
     """One sample of an axis' linear loop: ``(state, input) -> (next state, output)``;
-    input the speed setpoint (``loop='speed'``) or the position command
-    (``'position'``); output the motor speed or the load position."""
+    input the speed setpoint (``loop='speed'``), the position command (``'position'``),
+    or its velocity or acceleration feed-forward alone (``'vff'``, ``'aff'``); output the
+    motor speed or the load position."""
     from machine.centre.sim import _axis_matrices, _pack_axis
 
     phi, gam = _axis_matrices(ax, workpiece, ts)
@@ -51,9 +52,10 @@ def _axis_sample(ax: FeedAxisParams, workpiece: float, ts: float, loop: str) -> 
         xm, xl = x[0], x[2]
         vf = vf + p[kn.AP_BF] * ((xm - qprev) / ts - vf)
         fb = xl if ax.kind == "two_inertia" else xm
-        v_set = u if loop == "speed" else p[kn.AP_KV] * (u - fb)
+        r = u if loop == "position" else 0.0
+        v_set = u if loop == "speed" else p[kn.AP_KV] * (r - fb) + (u if loop == "vff" else 0.0)
         e = v_set - vf
-        f_set = p[kn.AP_KP] * e + integ
+        f_set = p[kn.AP_KP] * e + integ + (p[kn.AP_MFF] * u if loop == "aff" else 0.0)
         integ = integ + p[kn.AP_KI] * ts * e
         x_next = phi @ x + gam @ np.array([fa, 0.0])
         fa_next = fa + p[kn.AP_BI] * (f_set - fa)
@@ -109,8 +111,8 @@ def closed_loop(
     names = {a.name: a for a in pr.axes}
     if which not in names:
         raise ParameterError("which", "one of ['X', 'Y', 'Z', 'S']", which)
-    if loop not in ("speed", "position"):
-        raise ParameterError("loop", "'speed' or 'position'", loop)
+    if loop not in ("speed", "position", "vff", "aff"):
+        raise ParameterError("loop", "one of 'speed', 'position', 'vff', 'aff'", loop)
     a, b, c, d = _matrices(_axis_sample(names[which], workpiece, ts, loop), _N_AXIS)
     if names[which].kind == "rigid":
         # a rigid axis is simulated as two equal copies of one mass; nothing reads the
@@ -129,6 +131,22 @@ def response(sys: tuple[F64, F64, F64, float], f_hz: F64, ts: float) -> NDArray[
         z = complex(math.cos(2 * math.pi * f * ts), math.sin(2 * math.pi * f * ts))
         out[i] = c @ np.linalg.solve(z * eye - a, b) + d
     return out
+
+
+def tracking_response(
+    which: str, f_hz: float, params: CentreParams | None = None, *, workpiece: float = 0.0
+) -> complex:
+    """Load position over a sinusoidal command at ``f_hz`` through axis ``which``'s loop
+    with the kernel's velocity and acceleration feed-forward (the command's own derivatives,
+    ``j w r`` and ``-w^2 r``), e.g. seed003 (7)'s circle at the spindle frequency."""
+    pr = params if params is not None else CentreParams()
+    ts = pr.sample_time
+    w = 2.0 * math.pi * f_hz
+    f = np.array([f_hz])
+    g = response(closed_loop(which, pr, loop="position", workpiece=workpiece), f, ts)[0]
+    g += 1j * w * response(closed_loop(which, pr, loop="vff", workpiece=workpiece), f, ts)[0]
+    g -= w * w * response(closed_loop(which, pr, loop="aff", workpiece=workpiece), f, ts)[0]
+    return complex(g)
 
 
 def stable(sys: tuple[F64, F64, F64, float]) -> float:
@@ -152,4 +170,4 @@ def bandwidth_hz(sys: tuple[F64, F64, F64, float], ts: float, f_max: float = 200
     return float(math.exp((1 - w) * math.log(f[i - 1]) + w * math.log(f[i])))
 
 
-__all__ = ["bandwidth_hz", "closed_loop", "response", "stable"]
+__all__ = ["bandwidth_hz", "closed_loop", "response", "stable", "tracking_response"]

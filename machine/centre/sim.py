@@ -582,6 +582,35 @@ class MachiningCentre:
         self._replace(st, self.program.tool(number))
         return st
 
+    def set_modulation(self, state: CentreState, a_m: float, theta_m: float) -> CentreState:
+        """seed003 (7)'s circle on the X and Y commands from the next sample: radius
+        ``a_m`` [m] (at most 100 um; negative: the circle at ``theta_m + pi``), phase
+        ``theta_m`` [rad] to the spindle angle; held until changed (0: none)."""
+        if not (math.isfinite(a_m) and math.isfinite(theta_m)) or abs(a_m) > 100e-6:
+            raise ParameterError("a_m", "a finite radius <= 100e-6 m", a_m)
+        st = state.copy()
+        st.ps[kn.PS_AM], st.ps[kn.PS_THM] = float(a_m), float(theta_m)
+        return st
+
+    def cancelling_modulation(self, state: CentreState) -> tuple[float, float]:
+        """Truth: the ``(a_m, theta_m)`` whose carriage motion cancels the runout of the tool
+        in the spindle at the commanded speed, through the mean of the X and Y command
+        responses (:func:`machine.centre.loops.tracking_response`)."""
+        from machine.centre.loops import tracking_response
+
+        tool = state.tools.get(state.spindle_tool)
+        rpm = float(self._plan[state.cursor][2] if state.run is None else state.run.pp[kn.PP_RPM])
+        if tool is None or rpm <= 0.0:
+            raise ParameterError(
+                "state", "a tool in the turning spindle", (state.spindle_tool, rpm)
+            )
+        f = abs(rpm) * state.spindle_override / 60.0
+        g = 0.5 * sum(tracking_response(a, f, self.params, workpiece=state.workpiece)
+                      for a in ("X", "Y"))  # fmt: skip
+        u = -tool.ecc * complex(math.cos(math.radians(tool.ecc_deg)),
+                                math.sin(math.radians(tool.ecc_deg))) / g  # fmt: skip
+        return abs(u), math.atan2(u.imag, u.real) % (2.0 * math.pi)
+
     def set_overrides(
         self, state: CentreState, *, feed: float | None = None, spindle: float | None = None
     ) -> CentreState:
