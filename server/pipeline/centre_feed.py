@@ -7,8 +7,8 @@ spindle speeds scaled), its own seed (noise, overrides, depths, tool lives, runo
 its own events, exported as a CNC's trace (:mod:`machine.centre.trace`) and encoded as
 drive blocks of the broker's wire format with the machine description as the meta
 (:mod:`machine.centre.signals`). A block is simulated when it is asked for, so a feed
-costs the simulation's time (about 0.5 % of a core per machine at 1x on a quiet
-machine of this kind); a plant's bench replays recorded traces instead.
+costs the simulation's time (about 0.6 % of a core per machine at 1x on a quiet
+machine of this kind, docs/machining-centre.md); a plant's bench replays recorded traces instead.
 
 Events (a choice, as a shop would see them): each part draws, with probability
 ``event_rate``, one event into one of its cut blocks (kind, line, where in the block,
