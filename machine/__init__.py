@@ -3,11 +3,12 @@
 Imports nothing of ours outside this package. Public names of the two-inertia stage
 (seed 000) are re-exported here; the other machines are re-exported as their modules:
 ``xy_axis`` (seed 002), ``milling`` and ``feed_drives`` (seed 003), ``tool_wear``
-(seed 004). The matrix exponential they share with the estimators is
+(seed 004), ``centre`` (the 3-axis machining centre with its spindle drive and its CNC
+trace, issue 31). The matrix exponential they share with the estimators is
 :mod:`common.linalg`.
 """
 
-from machine import feed_drives, milling, tool_wear, xy_axis
+from machine import centre, feed_drives, milling, tool_wear, xy_axis
 from machine.effects import EFFECT_NAMES, PlantEffects
 from machine.errors import MachineError, ParameterError
 from machine.params import ADDED_WEIGHT_INERTIA, PRESETS, SAMPLE_TIME, StageParams, preset
@@ -39,6 +40,7 @@ __all__ = [
     "StageSim",
     "Trajectory",
     "Truth",
+    "centre",
     "feed_drives",
     "milling",
     "preset",
