@@ -1,0 +1,411 @@
+r"""Regenerative chatter: the tool/workpiece modes and the chip cut from the surface left.
+
+The pieces any milling machine of :mod:`machine` needs to chatter, as numba kernels over
+plain arrays and an explicit state:
+
+- **the modes** (:class:`common.modes.ModalModel`): each an oscillator along a direction
+  of the X-Y plane, advanced over a step :math:`\Delta t` by its exact discretisation with
+  the force held (:func:`discretise`); the relative displacement tool minus workpiece is
+  :math:`q = \sum_p u_p\eta_p` (workpiece modes with :math:`\eta` driven by :math:`F` and
+  counted with the sign that makes them add, :mod:`common.modes`);
+- **the surface memory**: a ring of past samples of the spindle angle :math:`\psi`, the
+  tool centre :math:`C` (rigid path plus :math:`q`) and the rigid centre :math:`R` alone.
+  The flute now at immersion :math:`\phi` meets the surface left by the flutes that
+  passed the same angle before, :math:`m = 1..M` tooth pitches ago (found by the spindle
+  angle, so a speed change is followed exactly). With :math:`v(\phi) = [\sin\phi,
+  -\cos\phi]` and flute radii :math:`r_j` (runout),
+
+  .. math::
+
+      h_j(t) = v^T C(t) + r_j - \max_{m=1..M}\big(v^T C(t_m) + r_{j-m}\big), \qquad
+      \psi(t_m) = \psi(t) - m\,2\pi/N
+
+  the chip from the surface the last cutting flute left (seed003 (4) with the runout chip
+  of Kline & DeVor taken ``M`` flutes back): a tool thrown out of the cut (:math:`h \le
+  0`) cuts nothing and leaves the surface as it was, the next flute meets the older one;
+- **the force**: the linear edge law of :mod:`machine.milling` per flute and axial layer,
+  over the part of each step the flute spends inside the engagement window (entry and
+  exit to a fraction of a step), at the step's midpoint (the modes' midpoint predicted
+  from their velocity): the exponential midpoint rule, second order;
+- **the forced twin**: the same modes driven by the chip of the rigid motion alone
+  (:math:`C` replaced by :math:`R`): the vibration the cut would have without
+  regeneration. The **non-forced vibration** is :math:`q - q_{twin}`; in a stable cut
+  it dies out, in chatter it grows (docs/chatter.md's definitions);
+- **the truth** over each spindle revolution: the amplitudes of the forced and the
+  non-forced vibration, :math:`A = \sqrt{2(\sigma_x^2 + \sigma_y^2)}` (a sinusoid of
+  amplitude :math:`A` along one axis has exactly this).
+
+The force passed on to the machine (the spindle housing, hence the feed drives) by the
+tool modes is :math:`F - \sum_{tool} u_p m_p\ddot\eta_p` (what does not accelerate the
+modal masses); workpiece modes pass theirs to the table.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from common.arrays import F64
+from common.linalg import zoh
+from common.modes import ModalModel
+
+#: rows of the per-step output vector of :func:`regen_substep`
+SUB_ROWS = (
+    "fx",
+    "fy",
+    "fx_forced",
+    "fy_forced",
+    "fx_base",
+    "fy_base",
+    "torque",
+    "qx",
+    "qy",
+    "nfx",
+    "nfy",
+    "chip_max",
+    "engaged",
+)
+#: truth accumulators: samples and sums of the non-forced and forced vibration over the
+#: current revolution, then the revolution index and the last revolution's amplitudes
+T_N, T_SX, T_SXX, T_SY, T_SYY, T_FX, T_FXX, T_FY, T_FYY, T_REV, T_ANF, T_AF = range(12)
+TRUTH_LEN = 12
+#: columns of the surface memory: spindle angle, tool centre (with q), rigid centre
+H_PSI, H_CX, H_CY, H_RX, H_RY = range(5)
+
+
+def discretise(modal: ModalModel, dt: float) -> F64:
+    """Per-mode exact step with the force held: rows ``[p11, p12, p21, p22, g1, g2]`` with
+    :math:`[\\eta, \\dot\\eta]^+ = P[\\eta, \\dot\\eta] + g\\,f/m`."""
+    out = np.zeros((len(modal.modes), 6))
+    for i, m in enumerate(modal.modes):
+        w = m.omega
+        a = np.array([[0.0, 1.0], [-w * w, -2.0 * m.damping * w]])
+        p, g = zoh(a, np.array([[0.0], [1.0]]), dt)
+        out[i] = (p[0, 0], p[0, 1], p[1, 0], p[1, 1], g[0, 0], g[1, 0])
+    return out
+
+
+def history_length(n_flutes: int, passes: int, rpm: float, dt: float) -> int:
+    """Samples the surface memory needs to reach ``passes`` pitches back at ``rpm``."""
+    back = passes * 60.0 / (n_flutes * rpm)
+    return math.ceil(back / dt) + 8
+
+
+@njit(cache=True)
+def fill_history(
+    hist: F64, hmeta: np.ndarray, dt: float, omega: float, feed: float, ecc: float, ecc_ph: float
+) -> None:  # pragma: no cover
+    """The past of a steady cut: straight feed along X at ``feed`` [m/s], spindle at
+    ``omega`` [rad/s], the eccentric centre of seed003 (6), no vibration; the newest
+    sample is t = 0 at ``psi = 0`` (the kernel's next sample)."""
+    n = hist.shape[0]
+    for i in range(n):
+        t = -(n - i) * dt
+        ps = omega * t
+        rx = feed * t + ecc * math.cos(ps + ecc_ph)
+        ry = ecc * math.sin(ps + ecc_ph)
+        hist[i, H_PSI] = ps
+        hist[i, H_CX] = rx
+        hist[i, H_CY] = ry
+        hist[i, H_RX] = rx
+        hist[i, H_RY] = ry
+    hmeta[0] = 0  # head: where the next sample goes
+    hmeta[1] = n  # count of valid samples
+
+
+@njit(cache=True, inline="always")
+def _hist_at(
+    hist: F64, hmeta: np.ndarray, target: float, out: F64, row: int
+) -> None:  # pragma: no cover
+    """Interpolate the memory linearly at spindle angle ``target`` into ``out[row]``
+    (``[cx, cy, rx, ry]``); the oldest sample when the memory does not reach back."""
+    n = hist.shape[0]
+    head = hmeta[0]
+    count = hmeta[1]
+    newest = head - 1 if head > 0 else n - 1
+    d = hist[newest, H_PSI] - hist[newest - 1 if newest > 0 else n - 1, H_PSI]
+    j = 0
+    if d > 0.0:
+        j = int((hist[newest, H_PSI] - target) / d)
+    j = max(0, min(j, count - 2))
+    # bracket: psi(j + 1 back) <= target <= psi(j back)
+    while j > 0 and hist[(newest - j) % n, H_PSI] < target:
+        j -= 1
+    while j < count - 2 and hist[(newest - j - 1) % n, H_PSI] > target:
+        j += 1
+    ia = (newest - j) % n
+    ib = (newest - j - 1) % n
+    span = hist[ia, H_PSI] - hist[ib, H_PSI]
+    w = 0.0
+    if span > 0.0:
+        w = (target - hist[ib, H_PSI]) / span
+        w = min(1.0, max(0.0, w))
+    for c in range(4):
+        out[row, c] = hist[ib, 1 + c] + w * (hist[ia, 1 + c] - hist[ib, 1 + c])
+
+
+@njit(cache=True, inline="always")
+def _window_part(
+    a: float, b: float, st: float, ex: float
+) -> tuple[float, float]:  # pragma: no cover
+    """Fraction of ``[a, b]`` (``0 <= a``, ``b - a < pi``) inside the window ``[st, ex]``
+    repeating every 2 pi, and the angle at the middle of that part."""
+    two_pi = 2.0 * math.pi
+    inside = 0.0
+    mid = 0.0
+    for shift in (0.0, two_pi):
+        lo = max(a, st + shift)
+        hi = min(b, ex + shift)
+        if hi > lo:
+            inside += hi - lo
+            mid = 0.5 * (lo + hi)
+    if b <= a:
+        return 0.0, a
+    return inside / (b - a), mid
+
+
+@njit(cache=True, inline="always")
+def _chip_forces(
+    psi0: float,
+    psi1: float,
+    cmx: float,
+    cmy: float,
+    rmx: float,
+    rmy: float,
+    cutp: F64,
+    lags: F64,
+    runout: F64,
+    hist: F64,
+    hmeta: np.ndarray,
+    past: F64,
+    sub: F64,
+) -> None:  # pragma: no cover
+    """Forces on the tool over the step from ``psi0`` to ``psi1`` with the tool centre
+    ``(cmx, cmy)`` and the rigid centre ``(rmx, rmy)`` at its midpoint; fills the force
+    rows of ``sub``. The centres one to ``M`` pitches back are read from the memory into
+    ``past`` when the first flute is found in the cut (not at all when none is)."""
+    nf = int(cutp[0])
+    st = cutp[1]
+    ex = cutp[2]
+    dz = cutp[7]
+    rad = cutp[8]
+    npass = int(cutp[9])
+    pitch = 2.0 * math.pi / nf
+    two_pi = 2.0 * math.pi
+    fx = fy = gx = gy = torque = hmax = engaged = 0.0
+    looked = False
+    for j in range(nf):
+        for ll in range(lags.shape[0]):
+            base = psi0 - j * pitch - lags[ll]
+            a = base - two_pi * math.floor(base / two_pi)
+            frac, phi = _window_part(a, a + (psi1 - psi0), st, ex)
+            if frac <= 0.0:
+                continue
+            if not looked:
+                psim = 0.5 * (psi0 + psi1)
+                for m in range(npass):
+                    _hist_at(hist, hmeta, psim - (m + 1) * pitch, past, m)
+                looked = True
+            s = math.sin(phi)
+            c = math.cos(phi)
+            # the surface: the highest edge reach of the flutes 1..M pitches back
+            top = -1e300
+            top_r = -1e300
+            for m in range(npass):
+                rj = runout[(j - m - 1) % nf]
+                top = max(top, past[m, 0] * s - past[m, 1] * c + rj)
+                top_r = max(top_r, past[m, 2] * s - past[m, 3] * c + rj)
+            # seed003 (4) with the surface memory: h = v.C + r_j - max_m(v.C(t_m) + r_{j-m})
+            h = cmx * s - cmy * c + runout[j] - top
+            hn = rmx * s - rmy * c + runout[j] - top_r
+            engaged += frac
+            if h > 0.0:
+                ft = (cutp[3] * h + cutp[5]) * dz * frac
+                fr = (cutp[4] * h + cutp[6]) * dz * frac
+                # force on the tool: -(ft along the edge velocity [c, s] + fr along v)
+                fx -= ft * c + fr * s
+                fy -= ft * s - fr * c
+                torque += ft * rad
+                hmax = max(hmax, h)
+            if hn > 0.0:
+                ft = (cutp[3] * hn + cutp[5]) * dz * frac
+                fr = (cutp[4] * hn + cutp[6]) * dz * frac
+                gx -= ft * c + fr * s
+                gy -= ft * s - fr * c
+    sub[0] = fx
+    sub[1] = fy
+    sub[2] = gx
+    sub[3] = gy
+    sub[6] = torque
+    sub[11] = hmax
+    sub[12] = engaged
+
+
+@njit(cache=True, inline="always")
+def _modal_advance(
+    eta: F64, modes: F64, disc: F64, fx: float, fy: float
+) -> tuple[float, float]:  # pragma: no cover
+    """Advance every mode one step under the force ``(fx, fy)`` held; returns ``q``."""
+    qx = 0.0
+    qy = 0.0
+    for p in range(modes.shape[0]):
+        f = (modes[p, 3] * fx + modes[p, 4] * fy) / modes[p, 2]
+        e0 = eta[p, 0]
+        e1 = eta[p, 1]
+        eta[p, 0] = disc[p, 0] * e0 + disc[p, 1] * e1 + disc[p, 4] * f
+        eta[p, 1] = disc[p, 2] * e0 + disc[p, 3] * e1 + disc[p, 5] * f
+        qx += modes[p, 3] * eta[p, 0]
+        qy += modes[p, 4] * eta[p, 0]
+    return qx, qy
+
+
+@njit(cache=True, inline="always")
+def _modal_q(eta: F64, modes: F64, half_dt: float) -> tuple[float, float]:  # pragma: no cover
+    """``q`` a time ``half_dt`` ahead, predicted from each mode's velocity."""
+    qx = 0.0
+    qy = 0.0
+    for p in range(modes.shape[0]):
+        e = eta[p, 0] + half_dt * eta[p, 1]
+        qx += modes[p, 3] * e
+        qy += modes[p, 4] * e
+    return qx, qy
+
+
+@njit(cache=True, inline="always")
+def _base_force(
+    eta: F64, modes: F64, fx: float, fy: float
+) -> tuple[float, float]:  # pragma: no cover
+    """Force passed to the spindle housing: ``F`` minus what accelerates the tool modes."""
+    bx = fx
+    by = fy
+    for p in range(modes.shape[0]):
+        if modes[p, 5] == 0.0:
+            continue
+        w = modes[p, 0]
+        ux = modes[p, 3]
+        uy = modes[p, 4]
+        # m eta'' = u.F - k eta - c eta'
+        mdd = ux * fx + uy * fy - modes[p, 2] * w * (w * eta[p, 0] + 2.0 * modes[p, 1] * eta[p, 1])
+        bx -= ux * mdd
+        by -= uy * mdd
+    return bx, by
+
+
+@njit(cache=True, inline="always")
+def _truth_update(
+    truth: F64, psi1: float, nfx: float, nfy: float, qfx: float, qfy: float
+) -> None:  # pragma: no cover
+    """Accumulate one sample; at a new revolution of ``psi1`` close the amplitudes."""
+    rev = math.floor(psi1 / (2.0 * math.pi))
+    if rev > truth[T_REV] and truth[T_N] > 1.0:
+        n = truth[T_N]
+        vx = truth[T_SXX] / n - (truth[T_SX] / n) ** 2
+        vy = truth[T_SYY] / n - (truth[T_SY] / n) ** 2
+        truth[T_ANF] = math.sqrt(2.0 * max(vx + vy, 0.0))
+        vx = truth[T_FXX] / n - (truth[T_FX] / n) ** 2
+        vy = truth[T_FYY] / n - (truth[T_FY] / n) ** 2
+        truth[T_AF] = math.sqrt(2.0 * max(vx + vy, 0.0))
+        for i in range(T_REV):
+            truth[i] = 0.0
+    truth[T_REV] = rev
+    truth[T_N] += 1.0
+    truth[T_SX] += nfx
+    truth[T_SXX] += nfx * nfx
+    truth[T_SY] += nfy
+    truth[T_SYY] += nfy * nfy
+    truth[T_FX] += qfx
+    truth[T_FXX] += qfx * qfx
+    truth[T_FY] += qfy
+    truth[T_FYY] += qfy * qfy
+
+
+@njit(cache=True, inline="always")
+def regen_substep(
+    psi0: float,
+    psi1: float,
+    r0x: float,
+    r0y: float,
+    r1x: float,
+    r1y: float,
+    dt: float,
+    cutp: F64,
+    lags: F64,
+    runout: F64,
+    modes: F64,
+    disc: F64,
+    eta: F64,
+    eta_f: F64,
+    hist: F64,
+    hmeta: np.ndarray,
+    truth: F64,
+    past: F64,
+    sub: F64,
+) -> None:  # pragma: no cover
+    """One step of the cut from ``psi0`` to ``psi1`` with the rigid centre moving from
+    ``r0`` to ``r1``: chip, force, modes (actual and forced twin), memory, truth.
+
+    ``sub`` receives the step's outputs (:data:`SUB_ROWS`): the forces are the step's
+    (held over it), ``q`` and the non-forced vibration those at its end.
+    """
+    half = 0.5 * dt
+    # midpoint: rigid centre interpolated, modes predicted from their velocity
+    rmx = 0.5 * (r0x + r1x)
+    rmy = 0.5 * (r0y + r1y)
+    qx, qy = _modal_q(eta, modes, half)
+    _chip_forces(
+        psi0, psi1, rmx + qx, rmy + qy, rmx, rmy, cutp, lags, runout, hist, hmeta, past, sub
+    )
+    bx, by = _base_force(eta, modes, sub[0], sub[1])
+    sub[4] = bx
+    sub[5] = by
+    qx, qy = _modal_advance(eta, modes, disc, sub[0], sub[1])
+    fx, fy = _modal_advance(eta_f, modes, disc, sub[2], sub[3])
+    sub[7] = qx
+    sub[8] = qy
+    sub[9] = qx - fx
+    sub[10] = qy - fy
+    n = hist.shape[0]
+    head = hmeta[0]
+    hist[head, H_PSI] = psi1
+    hist[head, H_CX] = r1x + qx
+    hist[head, H_CY] = r1y + qy
+    hist[head, H_RX] = r1x
+    hist[head, H_RY] = r1y
+    hmeta[0] = (head + 1) % n
+    hmeta[1] = min(hmeta[1] + 1, n)
+    _truth_update(truth, psi1, qx - fx, qy - fy, fx, fy)
+
+
+def pack_cut(
+    n_flutes: int,
+    window: tuple[float, float],
+    coeffs: tuple[float, float, float, float],
+    layer_depth: float,
+    radius: float,
+    passes: int,
+) -> F64:
+    """The kernel's cut vector: ``[N, phi_st, phi_ex, kt, kn, kte, kne, dz, R, M]``."""
+    return np.array(
+        [float(n_flutes), window[0], window[1], *coeffs, layer_depth, radius, float(passes)]
+    )
+
+
+def new_truth() -> F64:
+    """Fresh truth accumulators (no revolution closed yet)."""
+    t = np.zeros(TRUTH_LEN)
+    t[T_REV] = -1.0
+    return t
+
+
+__all__ = [
+    "SUB_ROWS",
+    "TRUTH_LEN",
+    "discretise",
+    "fill_history",
+    "history_length",
+    "new_truth",
+    "pack_cut",
+    "regen_substep",
+]
