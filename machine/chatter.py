@@ -15,7 +15,8 @@ Definitions, used by every measurement (docs/chatter.md, "Definitions"):
   *developed*: the non-forced amplitude at least the forced one;
 - *time-domain stability* (:func:`growth_over`): from rest, the non-forced amplitude
   over revolutions ``settle+46 .. settle+50`` against ``settle-4 .. settle`` (growth
-  over 50 revolutions); unstable when it grew, or when chatter is developed at the end.
+  over 50 revolutions); unstable when it grew by more than 5 % to above 1 % of the
+  forced amplitude, or when chatter is developed at the end.
 """
 
 from __future__ import annotations
@@ -226,7 +227,7 @@ class ChatterCut:
         self.dt = params.step_time
         self._disc = rg.discretise(params.modal, self.dt)
         self._modes = params.modal.packed()
-        self.truth = ChatterTruth()
+        self.truth = rg.ChatterTruth()
         self.reset()
 
     def reset(self) -> None:
@@ -251,7 +252,7 @@ class ChatterCut:
         self._st = np.array([0.0, 0.0])
         self._k = 0
         self._pack()
-        self.truth = ChatterTruth()
+        self.truth = rg.ChatterTruth()
 
     def _pack(self) -> None:
         p = self.params
@@ -295,7 +296,7 @@ class ChatterCut:
         p = self.params
         need = rg.history_length(p.cut.n_flutes, p.passes, self._rpm, self.dt)
         if need > self._hist.shape[0]:
-            self._hist, self._hmeta = _grown(self._hist, self._hmeta, need)
+            self._hist, self._hmeta = rg.grow_history(self._hist, self._hmeta, need)
 
     def set_axial_depth(self, depth: float) -> None:
         """Change the axial depth now (a step in the workpiece)."""
@@ -326,78 +327,11 @@ class ChatterCut:
         return self.step(round(revs * self.samples_per_revolution()))
 
 
-def _grown(hist: F64, hmeta: np.ndarray, need: int) -> tuple[F64, np.ndarray]:
-    """The memory unrolled (oldest first) into a longer ring, the old past kept."""
-    n = hist.shape[0]
-    head = int(hmeta[0])
-    order = np.concatenate([np.arange(head, n), np.arange(0, head)])
-    new = np.empty((need, 5))
-    # pad the far past with the oldest sample (it is never reached: too far back)
-    new[: need - n] = hist[order[0]]
-    new[need - n :] = hist[order]
-    return new, np.array([0, need], dtype=np.int64)
-
-
-@dataclass
-class ChatterTruth:
-    """Onset, development, amplitude and frequency of chatter, from the truth rows."""
-
-    onset_t: float | None = None
-    developed_t: float | None = None
-    amp_nonforced: float = 0.0
-    amp_forced: float = 0.0
-    _buf: list[F64] = field(default_factory=list)
-    _bt: list[F64] = field(default_factory=list)
-
-    def update(self, t: F64, anf: F64, af: F64, nfx: F64, nfy: F64) -> None:
-        if t.size == 0:
-            return
-        cutting = af > 0.0
-        if self.onset_t is None:
-            hit = np.flatnonzero(cutting & (anf > 0.1 * af))
-            self.onset_t = float(t[hit[0]]) if hit.size else None
-        if self.developed_t is None:
-            hit = np.flatnonzero(cutting & (anf >= af))
-            self.developed_t = float(t[hit[0]]) if hit.size else None
-        self.amp_nonforced = float(anf[-1])
-        self.amp_forced = float(af[-1])
-        self._buf.append(np.stack([nfx, nfy]))
-        self._bt.append(t)
-        while sum(b.shape[1] for b in self._buf) > 2 * FREQ_WINDOW and len(self._buf) > 1:
-            self._buf.pop(0)
-            self._bt.pop(0)
-
-    def frequency(self) -> float:
-        """The largest spectral peak [Hz] of the last :data:`FREQ_WINDOW` samples of the
-        non-forced vibration (both axes), refined by a parabola through its neighbours."""
-        if not self._buf:
-            return math.nan
-        x = np.concatenate(self._buf, axis=1)[:, -FREQ_WINDOW:]
-        t = np.concatenate(self._bt)[-FREQ_WINDOW:]
-        return dominant_frequency(x, float(np.median(np.diff(t))) if t.size > 1 else 1.0)
-
-
-#: samples of the non-forced vibration the frequency is taken from
-FREQ_WINDOW = 8192
-
-
-def dominant_frequency(x: F64, dt: float) -> float:
-    """The largest spectral peak [Hz] of the rows of ``x`` (summed power, Hann window),
-    refined by a parabola through the log power of its neighbours."""
-    n = x.shape[-1]
-    if n < 8:
-        return math.nan
-    w = np.hanning(n)
-    p = np.sum(np.abs(np.fft.rfft((x - x.mean(axis=-1, keepdims=True)) * w, axis=-1)) ** 2, axis=0)
-    p[0] = 0.0
-    i = int(np.argmax(p))
-    if 0 < i < p.size - 1 and np.all(p[i - 1 : i + 2] > 0):
-        a, b, c = np.log(p[i - 1 : i + 2])
-        den = a - 2 * b + c
-        i_f = i + (0.5 * (a - c) / den if den != 0 else 0.0)
-    else:
-        i_f = float(i)
-    return float(i_f / (n * dt))
+#: growth over 50 revolutions above which a cut is unstable (the stationary residue of a
+#: chip clipped by the forced vibration, or of regenerated runout, grows by 1.000-1.002)
+GROWTH_LIMIT = 1.05
+#: non-forced amplitude, as a fraction of the forced one, below which growth is ignored
+NEGLIGIBLE = 0.01
 
 
 @dataclass(frozen=True)
@@ -412,7 +346,10 @@ class Growth:
 
     @property
     def stable(self) -> bool:
-        return self.growth <= 1.0 and not self.developed
+        """Stable unless developed, or grown by more than :data:`GROWTH_LIMIT` to above
+        :data:`NEGLIGIBLE` of the forced vibration (docs/chatter.md, "Definitions")."""
+        grew = self.growth > GROWTH_LIMIT and self.amp_nonforced > NEGLIGIBLE * self.amp_forced
+        return not (grew or self.developed)
 
 
 def growth_over(params: ChatterCutParams, revolutions: int = 50, settle: int = 10) -> Growth:
@@ -451,15 +388,15 @@ def with_speed(params: ChatterCutParams, rpm: float) -> ChatterCutParams:
 
 
 __all__ = [
+    "GROWTH_LIMIT",
     "MIN_RPM",
+    "NEGLIGIBLE",
     "OUT_ROWS",
     "ChatterCut",
     "ChatterCutParams",
     "ChatterRecord",
-    "ChatterTruth",
     "Growth",
     "check_rpm",
-    "dominant_frequency",
     "growth_over",
     "per_revolution",
     "with_depth",
