@@ -209,6 +209,9 @@ class SemiDiscretization:
         Flutes, immersion, up/down milling, cutting coefficients.
     intervals : int
         ``m``, the intervals per tooth period (>= 2).
+    averaged : bool
+        Replace :math:`A(t)` by its mean (the zero-order term): a check, since the SD of
+        the averaged system must give the ZOA's lobes.
 
     Examples
     --------
@@ -220,7 +223,12 @@ class SemiDiscretization:
     """
 
     def __init__(
-        self, modal: ModalModel, cut: CutGeometry, intervals: int = DEFAULT_INTERVALS
+        self,
+        modal: ModalModel,
+        cut: CutGeometry,
+        intervals: int = DEFAULT_INTERVALS,
+        *,
+        averaged: bool = False,
     ) -> None:
         if int(intervals) != intervals or intervals < 2:
             raise ParameterError("intervals", "an integer >= 2", intervals)
@@ -232,6 +240,8 @@ class SemiDiscretization:
         self._zeta = np.ascontiguousarray(packed[:, 1])
         u = packed[:, 3:5]
         a_dir = cut.interval_directional(self.intervals)
+        if averaged:
+            a_dir = np.broadcast_to(a_dir.mean(axis=0), a_dir.shape)
         # W_i = M^-1 U^T A_i U (modal force per unit modal displacement per unit depth)
         self._w = np.ascontiguousarray(
             np.einsum("pi,mij,qj->mpq", u, a_dir, u) / packed[:, 2][None, :, None]

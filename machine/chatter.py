@@ -16,7 +16,9 @@ Definitions, used by every measurement (docs/chatter.md, "Definitions"):
 - *time-domain stability* (:func:`growth_over`): from rest, the non-forced amplitude
   over revolutions ``settle+46 .. settle+50`` against ``settle-4 .. settle`` (growth
   over 50 revolutions); unstable when it grew by more than 5 % to above 1 % of the
-  forced amplitude, or when chatter is developed at the end.
+  forced amplitude, when chatter is developed at the end, or when it is saturated: the
+  non-forced amplitude still above the onset level (10 % of the forced) while the tool
+  leaves the cut (no chip over more than 1 % of the engagement window).
 """
 
 from __future__ import annotations
@@ -239,11 +241,14 @@ class ChatterCut:
         self._eta = np.zeros((k, 2))
         self._eta_f = np.zeros((k, 2))
         self._truth = rg.new_truth()
-        self._past = np.zeros((p.passes, 4))
+        self._past = np.zeros((max(p.passes, 4), 4))
         self._runout = np.array(p.runout if p.runout else [0.0] * p.cut.n_flutes, dtype=float)
         self._hmeta = np.zeros(2, dtype=np.int64)
         self._hist = np.zeros(
-            (rg.history_length(p.cut.n_flutes, p.passes, min(self._rpm, 6000.0), self.dt), 5)
+            (
+                rg.history_length(p.cut.n_flutes, p.passes, min(self._rpm, 6000.0), self.dt),
+                rg.H_COLS,
+            )
         )
         rg.fill_history(
             self._hist, self._hmeta, self.dt, self.omega, self.feed_speed(),
@@ -332,6 +337,10 @@ class ChatterCut:
 GROWTH_LIMIT = 1.05
 #: non-forced amplitude, as a fraction of the forced one, below which growth is ignored
 NEGLIGIBLE = 0.01
+#: the onset level: non-forced amplitude over forced (docs/chatter.md, "Definitions")
+ONSET = 0.1
+#: share of the engagement window without a chip above which the tool leaves the cut
+OUT_OF_CUT = 0.01
 
 
 @dataclass(frozen=True)
@@ -343,13 +352,33 @@ class Growth:
     amp_forced: float  #: [m], last 5 revolutions
     amp_nonforced: float  #: [m], last 5 revolutions
     frequency_hz: float
+    out_of_cut: float = 0.0  #: share of the engagement window without a chip, last 5 revs
+
+    @property
+    def grew(self) -> bool:
+        """Grown by more than :data:`GROWTH_LIMIT` to above :data:`NEGLIGIBLE` of forced."""
+        return self.growth > GROWTH_LIMIT and self.amp_nonforced > NEGLIGIBLE * self.amp_forced
+
+    @property
+    def saturated(self) -> bool:
+        """Saturated chatter: the non-forced vibration still above the onset level (10 %
+        of the forced) while the tool leaves the cut (no chip over more than
+        :data:`OUT_OF_CUT` of the engagement window). A stable cut near the boundary can
+        still be above the onset level after 60 revolutions, decaying slowly, but it
+        does not throw the tool out of the cut."""
+        return self.amp_nonforced > ONSET * self.amp_forced and self.out_of_cut > OUT_OF_CUT
 
     @property
     def stable(self) -> bool:
-        """Stable unless developed, or grown by more than :data:`GROWTH_LIMIT` to above
-        :data:`NEGLIGIBLE` of the forced vibration (docs/chatter.md, "Definitions")."""
-        grew = self.growth > GROWTH_LIMIT and self.amp_nonforced > NEGLIGIBLE * self.amp_forced
-        return not (grew or self.developed)
+        """Stable unless it grew, is developed, or is saturated (docs/chatter.md,
+        "Definitions")."""
+        return not (self.grew or self.developed or self.saturated)
+
+    @property
+    def stable_as_first_defined(self) -> bool:
+        """The criterion as first written: stable unless it grew (by any amount) or is
+        developed; kept to report what the amendments changed."""
+        return not (self.growth > 1.0 or self.developed)
 
 
 def growth_over(params: ChatterCutParams, revolutions: int = 50, settle: int = 10) -> Growth:
@@ -366,7 +395,10 @@ def growth_over(params: ChatterCutParams, revolutions: int = 50, settle: int = 1
     late = float(np.mean(a[-5:]))
     forced = float(np.mean(f[-5:]))
     growth = late / early if early > 0 else (math.inf if late > 0 else 0.0)
-    return Growth(growth, late >= forced > 0.0, forced, late, cut.truth.frequency())
+    last = rec.t > rec.t[-1] - 5.0 * 60.0 / params.spindle_rpm
+    window = float(np.sum(rec.engaged[last]))
+    out = 1.0 - float(np.sum(rec.in_cut[last])) / window if window > 0 else 0.0
+    return Growth(growth, late >= forced > 0.0, forced, late, cut.truth.frequency(), out)
 
 
 def per_revolution(rec: ChatterRecord) -> tuple[F64, F64]:
@@ -391,6 +423,8 @@ __all__ = [
     "GROWTH_LIMIT",
     "MIN_RPM",
     "NEGLIGIBLE",
+    "ONSET",
+    "OUT_OF_CUT",
     "OUT_ROWS",
     "ChatterCut",
     "ChatterCutParams",

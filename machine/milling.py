@@ -468,12 +468,23 @@ class MillingMachine:
                 max(4, 2 * int(p.n_flutes)),
             )
             self._flex.reach(self._rpm)
+            self._flex.carriage_terms(self.drives.params)
         self.chatter_truth = ChatterTruth()
         self.reset()
 
     @property
     def sample_time(self) -> float:
         return self.drives.params.sample_time
+
+    @property
+    def substeps(self) -> int:
+        """Sub-steps of the cut per drive sample (1 with a rigid tool)."""
+        return 1 if self._flex is None else self._flex.nsub
+
+    @property
+    def structure(self) -> ModalModel | None:
+        """The flexible tool's modes (``None``: a rigid tool, seed 003's machine)."""
+        return None if self._flex is None else self._flex.structure
 
     @property
     def spindle_rpm(self) -> float:

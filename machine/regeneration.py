@@ -67,6 +67,7 @@ SUB_ROWS = (
     "nfy",
     "chip_max",
     "engaged",
+    "in_cut",
 )
 #: truth accumulators: samples and sums of the non-forced and forced vibration over the
 #: current revolution, then the revolution index and the last revolution's amplitudes
@@ -76,7 +77,12 @@ TRUTH_LEN = 12
 #: honing radius); see :func:`_chip_forces`
 EDGE_RAMP = 5e-6
 #: columns of the surface memory: spindle angle, tool centre (with q), rigid centre
-H_PSI, H_CX, H_CY, H_RX, H_RY = range(5)
+#: and the synchronous means of q - q_twin over one tooth period, two tooth periods and
+#: one revolution (see :func:`_synchronous_split`)
+H_PSI, H_CX, H_CY, H_RX, H_RY, H_K1X, H_K1Y, H_K2X, H_K2Y, H_KRX, H_KRY = range(11)
+H_COLS = 11
+#: weight of the newest period in each synchronous mean (a memory of ~10 periods)
+COMB_GAIN = 0.1
 
 
 def discretise(modal: ModalModel, dt: float) -> F64:
@@ -115,16 +121,19 @@ def fill_history(
         hist[i, H_CY] = ry
         hist[i, H_RX] = rx
         hist[i, H_RY] = ry
+        for c in range(H_K1X, H_COLS):
+            hist[i, c] = 0.0
     hmeta[0] = 0  # head: where the next sample goes
     hmeta[1] = n  # count of valid samples
 
 
 @njit(cache=True, inline="always")
 def _hist_at(
-    hist: F64, hmeta: np.ndarray, target: float, out: F64, row: int
+    hist: F64, hmeta: np.ndarray, target: float, out: F64, row: int, c0: int = 1, ncol: int = 4
 ) -> None:  # pragma: no cover
-    """Interpolate the memory linearly at spindle angle ``target`` into ``out[row]``
-    (``[cx, cy, rx, ry]``); the oldest sample when the memory does not reach back."""
+    """Interpolate columns ``c0 .. c0+ncol-1`` of the memory linearly at spindle angle
+    ``target`` into ``out[row]`` (by default ``[cx, cy, rx, ry]``); the oldest sample when
+    the memory does not reach back."""
     n = hist.shape[0]
     head = hmeta[0]
     count = hmeta[1]
@@ -146,8 +155,8 @@ def _hist_at(
     if span > 0.0:
         w = (target - hist[ib, H_PSI]) / span
         w = min(1.0, max(0.0, w))
-    for c in range(4):
-        out[row, c] = hist[ib, 1 + c] + w * (hist[ia, 1 + c] - hist[ib, 1 + c])
+    for c in range(ncol):
+        out[row, c] = hist[ib, c0 + c] + w * (hist[ia, c0 + c] - hist[ib, c0 + c])
 
 
 @njit(cache=True, inline="always")
@@ -198,7 +207,7 @@ def _chip_forces(
     npass = int(cutp[9])
     pitch = 2.0 * math.pi / nf
     two_pi = 2.0 * math.pi
-    fx = fy = gx = gy = torque = hmax = engaged = 0.0
+    fx = fy = gx = gy = torque = hmax = engaged = in_cut = 0.0
     looked = False
     for j in range(nf):
         for ll in range(lags.shape[0]):
@@ -244,6 +253,7 @@ def _chip_forces(
                 ft += cutp[3] * h * dz * frac
                 fr += cutp[4] * h * dz * frac
                 hmax = max(hmax, h)
+                in_cut += frac
             # force on the tool: -(ft along the edge velocity [c, s] + fr along v)
             fx -= ft * c + fr * s
             fy -= ft * s - fr * c
@@ -255,6 +265,7 @@ def _chip_forces(
     sub[6] = torque
     sub[11] = hmax
     sub[12] = engaged
+    sub[13] = in_cut
 
 
 @njit(cache=True, inline="always")
@@ -336,6 +347,35 @@ def _truth_update(
 
 
 @njit(cache=True, inline="always")
+def _synchronous_split(
+    hist: F64, hmeta: np.ndarray, psi1: float, n_flutes: float, dx: float, dy: float, past: F64
+) -> tuple[float, float]:  # pragma: no cover
+    """The non-forced part of ``d = q - q_twin`` at spindle angle ``psi1``; the updated
+    synchronous means go to ``past[1:4]`` (tooth, two teeth, revolution) for the memory.
+
+    The twin leaves out what the forced vibration itself does to the cut: where it
+    clips a thin chip (an up-milling entry) and how the cut regenerates the runout's
+    vibration. Both repeat with the revolution, so the revolution-synchronous mean of
+    ``d`` (an exponential mean over revolutions at the same spindle angle) is forced too.
+    Chatter does not repeat with the revolution (Hopf: a new frequency), except period
+    doubling with an even flute count: it lies at (k + 1/2) tooth frequency, a spindle
+    harmonic, and alternates sign every tooth, so it is the two-tooth mean minus the
+    one-tooth mean, given back to the non-forced part (docs/chatter.md, "Definitions").
+    """
+    pitch = 2.0 * math.pi / n_flutes
+    for r, back in ((1, pitch), (2, 2.0 * pitch), (3, 2.0 * math.pi)):
+        _hist_at(hist, hmeta, psi1 - back, past, r, H_K1X + 2 * (r - 1), 2)
+        past[r, 0] += COMB_GAIN * (dx - past[r, 0])
+        past[r, 1] += COMB_GAIN * (dy - past[r, 1])
+    nfx = dx - past[3, 0]
+    nfy = dy - past[3, 1]
+    if int(n_flutes) % 2 == 0:
+        nfx += past[2, 0] - past[1, 0]
+        nfy += past[2, 1] - past[1, 1]
+    return nfx, nfy
+
+
+@njit(cache=True, inline="always")
 def regen_substep(
     psi0: float,
     psi1: float,
@@ -376,10 +416,11 @@ def regen_substep(
     sub[5] = by
     qx, qy = _modal_advance(eta, modes, disc, sub[0], sub[1])
     fx, fy = _modal_advance(eta_f, modes, disc, sub[2], sub[3])
+    nfx, nfy = _synchronous_split(hist, hmeta, psi1, cutp[0], qx - fx, qy - fy, past)
     sub[7] = qx
     sub[8] = qy
-    sub[9] = qx - fx
-    sub[10] = qy - fy
+    sub[9] = nfx
+    sub[10] = nfy
     n = hist.shape[0]
     head = hmeta[0]
     hist[head, H_PSI] = psi1
@@ -387,9 +428,11 @@ def regen_substep(
     hist[head, H_CY] = r1y + qy
     hist[head, H_RX] = r1x
     hist[head, H_RY] = r1y
+    for c in range(6):
+        hist[head, H_K1X + c] = past[1 + c // 2, c % 2]
     hmeta[0] = (head + 1) % n
     hmeta[1] = min(hmeta[1] + 1, n)
-    _truth_update(truth, psi1, qx - fx, qy - fy, fx, fy)
+    _truth_update(truth, psi1, nfx, nfy, qx - nfx, qy - nfy)
 
 
 def pack_cut(
@@ -418,7 +461,7 @@ def grow_history(hist: F64, hmeta: np.ndarray, need: int) -> tuple[F64, np.ndarr
     n = hist.shape[0]
     head = int(hmeta[0])
     order = np.concatenate([np.arange(head, n), np.arange(0, head)])
-    new = np.empty((need, 5))
+    new = np.empty((need, hist.shape[1]))
     # pad the far past with the oldest sample (it is never reached: too far back)
     new[: need - n] = hist[order[0]]
     new[need - n :] = hist[order]

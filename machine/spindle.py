@@ -71,13 +71,24 @@ class SpindleParams:
         return np.array([self.inertia, kp, ki, self.viscous, self.max_torque, self.torque_constant])
 
 
-def torque_response(sp: SpindleParams, freq_hz: float) -> complex:
-    """Motor torque per unit cutting torque at ``freq_hz`` (continuous loop)."""
+def torque_response(sp: SpindleParams, freq_hz: float, sample_time: float | None = None) -> complex:
+    r"""Motor torque per unit cutting torque at ``freq_hz``.
+
+    Continuous loop by default; with ``sample_time`` the loop of :func:`spindle_command`
+    (PI sampled, torque held) around the continuous rotor: :math:`C(z) P_c(i\omega) /
+    (1 + C(z) P(z))` with :math:`P_c = 1/(Js + b)` and :math:`P(z) = (T/J)/(z - 1)`.
+    """
     f = require_positive("freq_hz", freq_hz)
     s = complex(0.0, 2.0 * math.pi * f)
     kp, ki = sp.gains()
-    c = kp + ki / s
-    return complex(c / (sp.inertia * s + sp.viscous + c))
+    pc = 1.0 / (sp.inertia * s + sp.viscous)
+    if sample_time is None:
+        c = kp + ki / s
+        return complex(c * pc / (1.0 + c * pc))
+    ts = require_positive("sample_time", sample_time)
+    z = complex(math.cos(2.0 * math.pi * f * ts), math.sin(2.0 * math.pi * f * ts))
+    cz = kp + ki * ts * z / (z - 1.0)
+    return complex(cz * pc / (1.0 + cz * (ts / sp.inertia) / (z - 1.0)))
 
 
 @njit(cache=True)
