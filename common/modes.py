@@ -134,6 +134,17 @@ class ModalModel:
             out += np.outer(u, u) * m.receptance(freq_hz)
         return out
 
+    def frf_many(self, freqs_hz: np.ndarray) -> np.ndarray:
+        """:meth:`frf` at each frequency of ``freqs_hz``: shape ``(n, 2, 2)``."""
+        f = np.asarray(freqs_hz, dtype=float)
+        out = np.zeros((f.size, 2, 2), dtype=np.complex128)
+        w = 2.0 * np.pi * f
+        for m in self.modes:
+            u = np.array(m.direction)
+            g = 1.0 / (m.mass * (m.omega**2 - w * w + 2j * m.damping * m.omega * w))
+            out += np.outer(u, u)[None, :, :] * g[:, None, None]
+        return out
+
     def packed(self) -> F64:
         """Per-mode rows ``[omega_n, zeta, mass, ux, uy, tool]`` for the kernels
         (``tool`` is 1.0 for a tool mode, 0.0 for a workpiece mode)."""

@@ -71,7 +71,7 @@ def zoa_lobes(
         raise ParameterError("freq_range", "0 < low < high [Hz]", freq_range)
     freqs = np.linspace(lo, hi, int(n_freq))
     a0 = cut.mean_directional()
-    lam = np.array([np.linalg.eigvals(a0 @ modal.frf(f)) for f in freqs])  # (n, 2)
+    lam = np.linalg.eigvals(a0[None, :, :] @ modal.frf_many(freqs))  # (n, 2)
     lam = np.sort_complex(lam)  # a stable branch order along the scan
     lobes = []
     for b in range(lam.shape[1]):

@@ -73,9 +73,6 @@ SUB_ROWS = (
 #: current revolution, then the revolution index and the last revolution's amplitudes
 T_N, T_SX, T_SXX, T_SY, T_SYY, T_FX, T_FXX, T_FY, T_FYY, T_REV, T_ANF, T_AF = range(12)
 TRUTH_LEN = 12
-#: nominal chip over which the edge force builds up [m] (about a sharp carbide edge's
-#: honing radius); see :func:`_chip_forces`
-EDGE_RAMP = 5e-6
 #: columns of the surface memory: spindle angle, tool centre (with q), rigid centre
 #: and the synchronous means of q - q_twin over one tooth period, two tooth periods and
 #: one revolution (see :func:`_synchronous_split`)
@@ -240,7 +237,7 @@ def _chip_forces(
             # h grows from 0; the simulator then chattered at 0.72x the lobes' depth)
             e = 0.0
             if hn > 0.0:
-                e = min(hn / EDGE_RAMP, 1.0) * dz * frac
+                e = dz * frac
                 gx -= (cutp[3] * hn * dz * frac + cutp[5] * e) * c + (
                     cutp[4] * hn * dz * frac + cutp[6] * e
                 ) * s

@@ -105,14 +105,8 @@ def plot_lobes(out: Path, charts: dict[float, LobeChart], points: list[grd.GridP
         ):
             pts = [p for p in sel if p.sim.stable == stable]
             col = ["C2" if p.agrees else "m" for p in pts]
-            ax.scatter(
-                [p.rpm for p in pts],
-                [p.depth * 1e3 for p in pts],
-                marker=mark,
-                c=col,
-                s=18,
-                label=lab,
-            )
+            ax.scatter([p.rpm for p in pts], [p.depth * 1e3 for p in pts], marker=mark, c=col, s=18)
+            ax.scatter([], [], marker=mark, c="k", s=18, label=lab)  # the legend's entry
         ax.set_xlabel("spindle speed [rpm]")
         ax.set_ylabel("axial depth [mm]")
         ax.set_title(f"Insperger-Stepan 1-DOF benchmark, down-milling a/D = {imm:g}")
