@@ -138,3 +138,33 @@ def test_bad_inputs_are_named() -> None:
         zoa_lobes(BENCHMARK_1DOF, SLOT, freq_range=(100.0, 50.0))
     with pytest.raises(ParameterError, match="lo/hi/ratio"):
         first_crossing(lambda x: True, 1.0, 0.5)
+
+
+@pytest.mark.parametrize(
+    ("modal", "cut", "rpm"),
+    [
+        (BENCHMARK_1DOF, CutGeometry(2, 0.5, False, 6e8, 2e8), 9000.0),
+        (
+            ModalModel(
+                (
+                    Mode.from_stiffness(1200, 0.02, 8e6, 0.0),
+                    Mode.from_stiffness(1000, 0.03, 6e6, 90.0),
+                )
+            ),
+            CutGeometry(3, 0.3, False, 700e6, 210e6),
+            7000.0,
+        ),
+    ],
+    ids=["1dof-up-half", "2dof-up-3flutes"],
+)
+def test_up_milling_lobes_agree_with_the_simulator(
+    modal: ModalModel, cut: CutGeometry, rpm: float
+) -> None:
+    # the grid of the reproduction is the benchmark's down-milling; here up-milling, and
+    # two directions with three flutes, each 20 % either side of the SD boundary
+    from machine.chatter import ChatterCutParams, growth_over
+
+    sd = SemiDiscretization(modal, cut, intervals_for(modal, cut, rpm))
+    b = sd_boundary(sd, rpm).depth
+    assert growth_over(ChatterCutParams(modal, cut, 0.8 * b, rpm)).stable
+    assert not growth_over(ChatterCutParams(modal, cut, 1.2 * b, rpm)).stable
