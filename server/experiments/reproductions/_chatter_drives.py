@@ -335,6 +335,7 @@ def chain_section(run: DemoRun) -> Section:
             "dB",
             "the 30 Hz speed loop, sampled at 5 kHz",
         ),
+        *_spindle_per_vibration(run, sel, w, k, np.array([qx[k], qy[k]])),
     ]
     checks = [
         Check(
@@ -357,6 +358,22 @@ def chain_section(run: DemoRun) -> Section:
         ),
     ]
     return rows, checks
+
+
+def _spindle_per_vibration(run: DemoRun, sel: slice, w: F64, k: int, q: np.ndarray) -> list[Row]:
+    """The spindle's signals per um of the tool's vibration at the chatter line (the cut's
+    own: the torque a vibration modulates depends on the cut, not on the structure)."""
+    um = float(np.linalg.norm(np.abs(q))) * 1e6
+    cut = abs(_spectrum(run.rec["cut_torque"][sel], w)[k]) / um
+    motor = abs(_spectrum(run.rec["spindle_torque"][sel], w)[k]) / um
+    kt = SpindleParams().torque_constant
+    omega = float(np.mean(run.rec["spindle_speed"][sel]))
+    cond = "demo, developed chatter; per um of tool vibration (X and Y)"
+    return [
+        Row("chain.spindle.cut_torque_nm_per_um", cut, None, "N m/um", cond),
+        Row("chain.spindle.current_ma_per_um", motor / kt * 1e3, None, "mA/um", cond),
+        Row("chain.spindle.power_w_per_um", motor * omega, None, "W/um", cond),
+    ]
 
 
 __all__ = ["DemoRun", "chain_section", "demo", "demo_section", "table_section"]

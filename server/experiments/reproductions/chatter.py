@@ -51,6 +51,7 @@ ROWS = [
     "saturated.nonforced_um|saturated.nonforced_over_forced|chatter_freq_hz|"
     "stops_after_speed_change_s|end.nonforced_over_forced>",
     "chain.<axis_current|trace500|spindle>.<measured|predicted>",
+    "chain.spindle.<cut_torque_nm_per_um|current_ma_per_um|power_w_per_um>",
 ]
 
 
