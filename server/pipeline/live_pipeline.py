@@ -353,12 +353,12 @@ class LivePipeline:
         """Ask every part whether it can run on ``view`` (in order: a part whose needed
         part does not run cannot run either); a verdict that changed is logged."""
         for part in self._parts:
-            old = self._status.get(part.name)
-            if old is not None and old.reason.startswith("stopped"):
+            old = self._status.get(part.name, PartStatus(part.name, True))
+            if old.reason.startswith("stopped"):
                 continue  # stopped on an error: until the next reset
             v = self._verdict(part, view)
             new = PartStatus(part.name, v.ok, v.reason)
-            if old is not None and old != new:
+            if old != new and part.name in self._status:
                 log.warning(
                     "cutwatch: part %s %s",
                     part.name,
@@ -655,9 +655,7 @@ class LivePipeline:
         wear part's tool, changed at its flank-wear limit; the part program's tools)."""
         out: list[dict[str, object]] = []
         for part in self._parts:
-            take = getattr(part, "take_tool_changes", None)
-            if take is not None:
-                out += take()
+            out += part.take_tool_changes()
         return out
 
     def take_events(self) -> list[MonitorEvent]:
