@@ -89,6 +89,7 @@ from server.pipeline.part import (
     Block,
     Channel,
     Chart,
+    LivePart,
     Notice,
     Part,
     PartStatus,
@@ -274,6 +275,12 @@ class LivePipeline:
                 continue
             ctx.parts[part.name] = part
             self._parts.append(part)
+        # the parts that simulate beside the machine (the others keep the hooks' defaults:
+        # not called, not timed)
+        self._hooks = {
+            h: [p for p in self._parts if _overrides(p, h)]
+            for h in ("before", "force_gain", "added_inertia")
+        }
         self._check(self._view)
 
     @property
@@ -423,7 +430,7 @@ class LivePipeline:
         simulating parts' ``before`` (the workpiece's removal and clamp, the tool's pass),
         a spindle step; then the stage's configuration for the block."""
         plan = Plan(t0, n, self.sample_time, self._knobs, self._notice)
-        for part in self._parts:
+        for part in self._hooks["before"]:
             if self._running(part):
                 w0 = time.perf_counter()
                 part.before(plan)
@@ -442,7 +449,7 @@ class LivePipeline:
         self._configure(self._view.with_spindle(k.number("spindle_rpm") * sf))
         freq = k.number("spindle_rpm") / BASE_RPM * sf
         part_gain = 1.0
-        for part in self._parts:
+        for part in self._hooks["force_gain"]:
             if self._running(part):
                 w0 = time.perf_counter()
                 part_gain *= part.force_gain(t)
@@ -456,7 +463,7 @@ class LivePipeline:
             if not math.isnan(self._weight) and self.source.knobs_apply:
                 self._notice(Notice("restart", t, ("J_L",)))
             self._weight = extra
-        for part in self._parts:
+        for part in self._hooks["added_inertia"]:
             if self._running(part):
                 w0 = time.perf_counter()
                 extra += part.added_inertia(t)
@@ -826,6 +833,12 @@ class LivePipeline:
         if status:
             snap[self.source.name] = status
         return snap
+
+
+def _overrides(part: Part, hook: str) -> bool:
+    """``part`` has its own ``hook`` (not :class:`LivePart`'s default)."""
+    mine = getattr(type(part), hook, None)
+    return not isinstance(part, LivePart) or mine is not getattr(LivePart, hook)
 
 
 def _why(exc: BaseException) -> str:

@@ -1,29 +1,46 @@
 """What the source delivers, as the live parts see it: the one place a machine is described.
 
 A part asks the machine view whether it can run (``Part.requires``,
-:mod:`server.pipeline.part`): which signals the source hands out, at which sample rate,
-at which spindle speed (when known), whether the truth travels beside them and whether
-the machine is simulated (the scenario's knobs drive it). The live pipeline builds the
-view from its source (:meth:`MachineView.of`) and builds it again when the spindle speed
+:mod:`server.pipeline.part`): which axes the source hands out (each ``rigid`` or
+``two_inertia``, with the roles of its signals: ``q_m``, ``q_l``, ``tau_m``, ``i_m``,
+``f_ext``...), the spindle's signals, the program's identities, the sample rate, the
+spindle speed (when known), whether the truth travels beside them and whether the
+machine is simulated (the scenario's knobs drive it). The live pipeline builds the view
+from its source (:meth:`MachineView.of`) and builds it again when the spindle speed
 changes; a part whose requirement stops holding pauses with the reason.
 
-The view is small and read-only on purpose: the machine description the real-axis work
-defines (a JSON Schema of axes with their kind and signal columns, a spindle, the
-program identities, one sample rate) produces it through :meth:`MachineView.of`, and the
-parts never look at a source themselves.
+The view is read from the machine description (``common/machine.schema.json``,
+:class:`common.machine_description.MachineDescription`: a broker feed's meta, a log's
+sidecar) when the source has one (its ``description``), else it is the one two-inertia
+axis of the simulated stage (:data:`SIGNALS`). It is small and read-only on purpose:
+the parts never look at a source or a description themselves.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from typing import Any
 
+from common.machine_description import MachineDescription
 from server.pipeline.sources import MeasurementSource
 
-__all__ = ["SIGNALS", "MachineView"]
+__all__ = ["SIGNALS", "AxisView", "MachineView"]
 
-#: the signals of a two-inertia axis with its reference force, as the simulator has them
-SIGNALS = frozenset({"t", "tau_m", "i_m", "q_m", "q_l", "f_ext"})
+#: the signals of the simulated stage's one axis (two-inertia, with its reference force)
+SIGNALS = frozenset({"tau_m", "i_m", "q_m", "q_l", "f_ext"})
+
+
+@dataclass(frozen=True)
+class AxisView:
+    """One feed axis as the parts see it: its name, kind and the roles of its signals."""
+
+    name: str
+    kind: str
+    roles: frozenset[str]
+
+    def has(self, *roles: str) -> bool:
+        return all(r in self.roles for r in roles)
 
 
 @dataclass(frozen=True)
@@ -34,15 +51,16 @@ class MachineView:
     ----------
     source
         The source's name (``simulator``, ``replay``, ``mqtt``...).
-    kind
-        ``two_inertia`` (motor and load positions) or ``rigid`` (motor only).
-    signals
-        The signal columns each block carries (``t``, ``tau_m``, ``i_m``, ``q_m``,
-        ``q_l``, ``f_ext``...).
     sample_time
         [s].
+    axes
+        The feed axes, in order.
+    spindle
+        The roles of the spindle's signals (``speed``, ``power``...; empty: none).
+    identities
+        The program's identities the source delivers (``program``, ``tool``...).
     spindle_rpm
-        The spindle speed in effect [rpm]; NaN when the source does not say.
+        The spindle speed in effect [rpm]; NaN when not known.
     has_truth
         The simulator's truth travels beside the measurements.
     simulated
@@ -51,9 +69,10 @@ class MachineView:
     """
 
     source: str
-    kind: str
-    signals: frozenset[str]
     sample_time: float
+    axes: tuple[AxisView, ...]
+    spindle: frozenset[str] = frozenset()
+    identities: frozenset[str] = frozenset()
     spindle_rpm: float = math.nan
     has_truth: bool = False
     simulated: bool = False
@@ -68,29 +87,67 @@ class MachineView:
         """Half the sample rate [Hz]: the highest frequency the signals can carry."""
         return 0.5 / self.sample_time
 
+    @property
+    def kind(self) -> str:
+        """The first axis' kind (``""``: no axis)."""
+        return self.axes[0].kind if self.axes else ""
+
+    @property
+    def signals(self) -> frozenset[str]:
+        """Every signal by name: the roles of the axes' signals, ``spindle.<role>``, and
+        the identities."""
+        out = {r for a in self.axes for r in a.roles}
+        out |= {f"spindle.{r}" for r in self.spindle} | set(self.identities)
+        return frozenset(out)
+
     def lacks(self, *names: str) -> tuple[str, ...]:
         """Those of ``names`` the source does not deliver."""
-        return tuple(n for n in names if n not in self.signals)
+        have = self.signals
+        return tuple(n for n in names if n not in have)
+
+    def axes_with(self, *roles: str, kind: str | None = None) -> tuple[AxisView, ...]:
+        """The axes that carry every one of ``roles`` (and are of ``kind``, if given)."""
+        return tuple(a for a in self.axes if a.has(*roles) and kind in (None, a.kind))
 
     def with_spindle(self, rpm: float) -> MachineView:
         """The same machine at spindle speed ``rpm``."""
         if rpm == self.spindle_rpm:
             return self
-        from dataclasses import replace
-
         return replace(self, spindle_rpm=float(rpm))
 
     @classmethod
     def of(cls, source: MeasurementSource, spindle_rpm: float = math.nan) -> MachineView:
-        """The view of ``source``: its own ``signals`` when it lists them (a live feed's
-        meta), else a two-inertia axis' (:data:`SIGNALS`)."""
-        signals = getattr(source, "signals", None)
+        """The view of ``source``: from its machine description when it has one (a feed's
+        meta, a log's sidecar), else the simulated stage's one axis."""
+        desc = _description(source)
+        if desc is None:
+            axes: tuple[AxisView, ...] = (AxisView("X", source.kind, SIGNALS),)
+            spindle: frozenset[str] = frozenset()
+            idents: frozenset[str] = frozenset()
+        else:
+            axes = tuple(AxisView(a.name, a.kind, frozenset(a.signals)) for a in desc.axes)
+            spindle = frozenset(desc.spindle.signals) if desc.spindle is not None else frozenset()
+            idents = frozenset(desc.identities)
         return cls(
             source=source.name,
-            kind=source.kind,
-            signals=frozenset(signals) if signals is not None else SIGNALS,
             sample_time=float(source.sample_time),
+            axes=axes,
+            spindle=spindle,
+            identities=idents,
             spindle_rpm=float(spindle_rpm),
             has_truth=bool(source.has_truth),
             simulated=bool(source.knobs_apply),
         )
+
+
+def _description(source: Any) -> MachineDescription | None:
+    """The machine description a source carries (a feed's, a log's), if any."""
+    for obj in (source, getattr(source, "feed", None), getattr(source, "log", None)):
+        for attr in ("description", "machine"):
+            try:
+                d = getattr(obj, attr, None)
+            except Exception:  # a log whose older sidecar describes no machine
+                d = None
+            if isinstance(d, MachineDescription):
+                return d
+    return None

@@ -57,6 +57,7 @@ __all__ = [
     "Plan",
     "Setup",
     "Verdict",
+    "needs_axis",
     "needs_band",
     "needs_signals",
     "needs_simulator",
@@ -101,6 +102,23 @@ def needs_signals(machine: MachineView, *names: str, what: str = "") -> Verdict:
         f"needs the signal(s) {', '.join(missing)}{why}; the {machine.source} "
         f"source delivers {have}"
     )
+
+
+def needs_axis(
+    machine: MachineView, *roles: str, kind: str | None = None, effort: bool = True, what: str = ""
+) -> Verdict:
+    """:data:`OK` when an axis (of ``kind``, if given) carries every one of ``roles`` and,
+    with ``effort``, a motor effort (``tau_m`` or ``i_m``); else the reason, with the axes
+    the machine has."""
+    for a in machine.axes_with(*roles, kind=kind):
+        if not effort or a.has("tau_m") or a.has("i_m"):
+            return OK
+    want = " ".join(x for x in (kind or "", "axis") if x)
+    sigs = ", ".join(roles) + (" and tau_m or i_m" if effort else "")
+    have = "; ".join(f"{a.name} ({a.kind}: {', '.join(sorted(a.roles))})" for a in machine.axes)
+    why = f" ({what})" if what else ""
+    return refuse(f"needs a {want} with {sigs}{why}; the {machine.source} source's machine has "
+                  f"{have or 'no axis'}")  # fmt: skip
 
 
 def needs_band(machine: MachineView, hz: float, what: str) -> Verdict:

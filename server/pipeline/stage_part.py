@@ -34,8 +34,8 @@ from server.pipeline.part import (
     Notice,
     Outputs,
     Verdict,
+    needs_axis,
     needs_band,
-    needs_signals,
 )
 from server.pipeline.sources import RESUMED, MeasurementSource
 from server.pipeline.stage_run import StageBlock, StageRun, StageRunState
@@ -200,12 +200,8 @@ class StagePart(LivePart):
 
     def requires(self, machine: MachineView) -> Verdict:
         q_hz = self.run.front.params.q_hz
-        return needs_signals(
-            machine,
-            "tau_m",
-            "q_m",
-            "q_l",
-            what="a two-inertia axis: motor effort, motor and load positions",
+        return needs_axis(
+            machine, "q_m", "q_l", kind="two_inertia", what="seed 000's shaft-twist branch"
         ) and needs_band(machine, q_hz, "the force observer's Q(s) cut-off")
 
     def notice(self, change: Notice) -> None:

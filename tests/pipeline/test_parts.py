@@ -208,3 +208,37 @@ def test_a_part_named_by_module_and_attribute() -> None:
     ):
         with pytest.raises(CutwatchError, match=msg):
             load(spec)
+
+
+def test_the_machine_view_is_read_from_the_feeds_description() -> None:
+    # a rigid axis and a spindle, as a broker meta describes them (issue 30's schema): the
+    # stage's observers need a two-inertia axis and say so, naming what the machine has
+    from server.pipeline.broker import parse_broker_url
+    from server.pipeline.drive_feed import DriveFeed
+    from server.pipeline.mqtt_source import MqttSource
+    from server.records.drive_wire import encode_meta
+
+    desc = {
+        "sample_time": 0.001,
+        "axes": {"X": {"kind": "rigid", "signals": {"q_m": "x_pos", "i_m": "x_cur"},
+                       "units": {"position": "m"}}},
+        "spindle": {"signals": {"speed": "s_rpm", "power": "s_pow"}},
+        "identities": {"tool": "tool", "line": "line"},
+    }  # fmt: skip
+    feed = DriveFeed(parse_broker_url("mqtt://127.0.0.1:1"), "lathe")
+    feed.push_meta(encode_meta(desc))
+    view = MachineView.of(MqttSource(feed), 1200.0)
+    assert [(a.name, a.kind, sorted(a.roles)) for a in view.axes] == [
+        ("X", "rigid", ["i_m", "q_m"])
+    ]
+    assert view.spindle == {"speed", "power"} and view.identities == {"tool", "line"}
+    assert view.signals >= {"q_m", "i_m", "spindle.speed", "spindle.power", "tool"}
+    p = LivePipeline(source=MqttSource(feed))
+    st = {s["name"]: s for s in p.parts()}
+    assert st["stage"] == {
+        "name": "stage",
+        "running": False,
+        "reason": "needs a two_inertia axis with q_m, q_l and tau_m or i_m (seed 000's "
+        "shaft-twist branch); the mqtt source's machine has X (rigid: i_m, q_m)",
+    }
+    assert st["dfo"]["reason"].startswith("needs the stage part, which does not run")
