@@ -25,6 +25,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from common.errors import ParameterError
 from server.errors import CutwatchError
+from server.pipeline import part_registry
 from server.records.store import DataStore
 from server.service.analysis import Analyses
 from server.service.auth import Access
@@ -77,6 +78,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         warming = asyncio.create_task(asyncio.to_thread(upload_check.warm))
         hub = Hub(s.client_buffer)
         hub.bind(asyncio.get_running_loop())
+        part_registry.use(s.parts)  # the user's own parts, before any pipeline is built
         parts = loop_parts(s)
         loop = LiveLoop(
             s,
