@@ -18,9 +18,9 @@ from typing import Any
 
 import uvicorn
 
-from server.cli.commands.serve import uvicorn_options
 from server.pipeline.broker import BrokerConfig
 from server.service.app import create_app
+from server.service.front import uvicorn_options
 from server.service.settings import Settings
 
 #: test tokens of the two roles (CUTWATCH_TOKEN, CUTWATCH_VIEW_TOKEN: 16 characters at least)
@@ -192,11 +192,15 @@ def _process(command: str, args: tuple[str, ...], env: dict[str, str]) -> Iterat
 
 
 @contextmanager
-def serve_fleet(cfg: BrokerConfig, stale_after: float = 1.0) -> Iterator[str]:
-    """The fleet page on ``cfg``'s broker in a background thread; yield ``host:port``."""
+def serve_fleet(
+    cfg: BrokerConfig, stale_after: float = 1.0, *, settings: Settings | None = None,
+    links: Any = None,
+) -> Iterator[str]:  # fmt: skip
+    """The fleet page on ``cfg``'s broker in a background thread (``links``: a
+    ``server.service.fleet.Links``); yield ``host:port``."""
     from server.service.fleet import create_fleet_app
 
-    with serve_asgi(create_fleet_app(cfg, stale_after)) as hp:
+    with serve_asgi(create_fleet_app(cfg, stale_after, settings, links), settings) as hp:
         yield hp
 
 
