@@ -16,8 +16,8 @@ from typing import Any
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse, Response
-from fastapi.routing import APIRoute
 from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.routing import Match, Mount
 
 from common.errors import ParameterError
 from server.errors import CutwatchError
@@ -76,13 +76,21 @@ async def _http_error(request: Request, exc: StarletteHTTPException) -> Response
     return _errors(exc.status_code, items, headers=headers or None)
 
 
+#: the methods a 405 may name
+METHODS = ("DELETE", "GET", "HEAD", "PATCH", "POST", "PUT")
+
+
 def _methods(request: Request) -> list[str]:
-    """The methods the app's API routes accept at this request's path (sorted)."""
-    out: set[str] = set()
-    for route in request.app.routes:
-        if isinstance(route, APIRoute) and route.path_regex.match(request.url.path):
-            out |= route.methods or set()
-    return sorted(out)
+    """The methods the app's routes accept at this request's path (sorted), asked of
+    each route as the router asks it (routers included by ``include_router`` are kept
+    whole by FastAPI); mounts (the static files) aside: they take any method."""
+    routes = [r for r in request.app.routes if not isinstance(r, Mount)]
+    out = []
+    for m in METHODS:
+        scope = {**request.scope, "method": m}
+        if any(r.matches(scope)[0] == Match.FULL for r in routes):
+            out.append(m)
+    return out
 
 
 # pydantic error type -> what the field allows (when the message alone does not say)
