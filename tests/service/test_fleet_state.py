@@ -70,3 +70,20 @@ def test_a_row_is_its_topics_machine_and_its_message_is_checked() -> None:
     assert s.event("cutwatch/mill-3/events", json.dumps({**ev, "machine": ""}).encode())
     assert [r.machine for r in s.rows()] == ["mill-1", "mill-3"]
     assert s.rows()[0].event is not None and s.malformed == len(refused) + 1
+
+
+def test_a_fleet_off_loopback_needs_a_token(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from server.cli.main import main
+
+    for var in ("CUTWATCH_TOKEN", "CUTWATCH_VIEW_TOKEN"):
+        monkeypatch.delenv(var, raising=False)
+    args = ["fleet", "--broker", "mqtt://127.0.0.1:1", "--host", "0.0.0.0", "--port", "9"]
+    assert main(args) == 2
+    assert "requires a bearer token: set CUTWATCH_TOKEN" in capsys.readouterr().err
+    monkeypatch.setenv("CUTWATCH_TOKEN", "short")
+    assert main(args) == 2
+    assert "CUTWATCH_TOKEN" in capsys.readouterr().err
+    assert main([*args[:3], "--dashboard-origin", "ftp://x"]) == 2
+    assert "--dashboard-origin: expected http(s)://host[:port]" in capsys.readouterr().err
