@@ -18,7 +18,14 @@ raised into the loop:
 - a **flood** faster than the loop consumes -> the buffer keeps its newest ``max_samples``
   and counts what it dropped (a gap for the consumer);
 - **units or sample time** that disagree with the retained meta -> counted as ``units``
-  and skipped.
+  and skipped;
+- **columns the machine does not name** (minor 2: a machine's block may carry more than
+  this receiver's description) -> ignored and counted (``ignored_columns``, the names in
+  ``health()["ignored_names"]``); the block is kept. An optional signal a block lacks
+  comes out as NaN, so every sample handed out has every column of the machine.
+
+The meta is a machine description (``common/machine.schema.json``; a meta of minor 0 is
+one axis, :func:`server.records.drive_wire.machine_of`): ``description`` holds it.
 
 The broker may be down at start or go away: paho reconnects with a backoff (1-30 s);
 ``health()`` says connected or not and the broker's last refusal (e.g. a wrong password)
@@ -32,14 +39,22 @@ import math
 import threading
 import time
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 
 from common.arrays import F64
+from common.machine_description import MachineDescription
 from server.pipeline.broker import BrokerConfig, make_client, reason_text, topic
-from server.records.drive_wire import DriveBlock, WireError, decode_drive, decode_meta
+from server.records.drive_wire import (
+    DriveBlock,
+    WireError,
+    check_block,
+    decode_drive,
+    decode_meta,
+    machine_of,
+)
 
 log = logging.getLogger("cutwatch.mqtt")
 
@@ -59,6 +74,7 @@ COUNTERS = (
     "malformed_shape",
     "malformed_value",
     "meta_errors",
+    "ignored_columns",
     "connects",
     "disconnects",
 )
@@ -73,6 +89,11 @@ class Take:
     #: True when these samples do not continue the previous ones (gap, restart, flood)
     discontinuity: bool = False
     reasons: list[str] = field(default_factory=list)
+    #: the CNC's identities per sample (``tool``, ``line``, ``override``; NaN where a
+    #: block sent none), empty when no block of the take sent any
+    identities: dict[str, F64] = field(default_factory=dict)
+    #: the running program's name of the take's last block that sent one
+    program: str | None = None
 
     @property
     def n(self) -> int:
@@ -109,6 +130,10 @@ class DriveFeed:
         self.drive_topic = topic(machine, "drive")
         self.meta_topic = topic(machine, "meta")
         self.meta: dict[str, Any] | None = None
+        #: the machine the meta describes (None until a meta arrived)
+        self.description: MachineDescription | None = None
+        #: names of the ignored columns seen (the first 16)
+        self.ignored_names: list[str] = []
         #: counts the metas that changed what the observers are built from
         self.meta_generation = 0
         self.counts = dict.fromkeys(COUNTERS, 0)
@@ -197,14 +222,15 @@ class DriveFeed:
             self.counts["meta_errors"] += 1
             self._say("meta", f"meta skipped: {exc}")
             return
-        keys = ("sample_time", "units", "kind", "nominal", "encoder_resolution")
+        machine = machine_of(meta)  # decode_meta checked it
         with self._lock:
-            old = self.meta
-            if old is None or any(old.get(k) != meta.get(k) for k in keys):
+            old = self.description
+            if old is None or old != machine:
                 self.meta_generation += 1
                 if old is not None:
                     self._pending_break.append("meta changed")
             self.meta = meta
+            self.description = machine
         self._seen_meta.set()
 
     # -- checks (also called directly by the tests) ------------------------------------
@@ -217,21 +243,22 @@ class DriveFeed:
             self.counts[f"malformed_{exc.kind}"] += 1
             self._say(exc.kind, f"drive block skipped: {exc}")
             return
-        meta = self.meta
-        if meta is not None:
-            want_ts = float(meta["sample_time"])
+        machine = self.description
+        if machine is not None:
+            want_ts = machine.sample_time
             if abs(b.sample_time - want_ts) > 1e-9 * want_ts:
                 self.counts["malformed_units"] += 1
                 self._say("units", f"sample_time {b.sample_time} != meta's {want_ts}: skipped")
                 return
-            mu = meta["units"]
-            for name, fam in (("tau_m", "effort"), ("q_m", "position"), ("q_l", "position")):
-                if name in b.units and b.units[name] != mu.get(fam):
-                    self.counts["malformed_units"] += 1
-                    self._say(
-                        "units", f"column {name} in {b.units[name]!r}, meta says {mu.get(fam)!r}"
-                    )
-                    return
+            try:
+                checked = check_block(b, machine)
+            except WireError as exc:
+                self.counts[f"malformed_{exc.kind}"] += 1
+                self._say(exc.kind, f"drive block skipped: {exc}")
+                return
+            if checked.ignored:
+                self._ignored(checked.ignored)
+            b = replace(b, columns=checked.columns)
         with self._lock:
             reasons = self._pending_break
             self._pending_break = []
@@ -270,6 +297,13 @@ class DriveFeed:
                 nb, _, nr = self._blocks[0]
                 self._blocks[0] = (nb, True, [*nr, "buffer overflow: oldest samples dropped"])
 
+    def _ignored(self, names: tuple[str, ...]) -> None:
+        self.counts["ignored_columns"] += len(names)
+        new = [k for k in names if k not in self.ignored_names]
+        if new and len(self.ignored_names) < 16:
+            self.ignored_names.extend(new[: 16 - len(self.ignored_names)])
+            self._say("ignored", f"columns {new} are not in the machine's description: ignored")
+
     def _was_taken(self, b: DriveBlock) -> bool:
         return any(s == b.seq and abs(t - b.t0) < 0.5 * b.sample_time for s, t in self._recent)
 
@@ -283,6 +317,8 @@ class DriveFeed:
         """Up to ``n`` buffered samples of one contiguous segment (possibly none)."""
         ts: list[F64] = []
         cols: dict[str, list[F64]] = {}
+        idents: list[dict[str, F64] | None] = []
+        program: str | None = None
         disc = False
         reasons: list[str] = []
         got = 0
@@ -295,24 +331,20 @@ class DriveFeed:
                     disc, reasons = True, list(why)
                 if b.wall is not None:
                     self.last_wall = b.wall
+                program = b.program if b.program is not None else program
                 k = min(n - got, b.n)
                 t = b.t[:k]
                 ts.append(t)
                 for name, v in b.columns.items():
                     cols.setdefault(name, []).append(v[:k])
+                ident = b.identities()
+                idents.append(None if ident is None else {i: v[:k] for i, v in ident.items()})
                 got += k
                 self._buffered -= k
                 if k == b.n:
                     self._blocks.popleft()
                 else:  # keep the rest of the block, continuing (no break)
-                    rest = DriveBlock(
-                        seq=b.seq,
-                        t0=b.t0 + k * b.sample_time,
-                        sample_time=b.sample_time,
-                        columns={name: v[k:] for name, v in b.columns.items()},
-                        units=b.units,
-                    )
-                    self._blocks[0] = (rest, False, [])
+                    self._blocks[0] = (b.tail(k), False, [])
         self.counts["samples"] += got
         empty = np.zeros(0)
         return Take(
@@ -320,6 +352,8 @@ class DriveFeed:
             columns={k: np.concatenate(v) for k, v in cols.items()},
             discontinuity=disc,
             reasons=reasons,
+            identities=_joined_identities(idents, [len(t) for t in ts]),
+            program=program,
         )
 
     def health(self) -> dict[str, Any]:
@@ -330,5 +364,19 @@ class DriveFeed:
             "meta": self.meta is not None,
             "error": self.last_error,
             "buffered_samples": self._buffered,
+            "ignored_names": list(self.ignored_names),
             **self.counts,
         }
+
+
+def _joined_identities(parts: list[dict[str, F64] | None], lengths: list[int]) -> dict[str, F64]:
+    """Per-sample identities of consecutive pieces (NaN for a piece that sent none)."""
+    if all(p is None for p in parts):
+        return {}
+    keys = ("tool", "line", "override")
+    return {
+        k: np.concatenate(
+            [p[k] if p is not None else np.full(m, np.nan) for p, m in zip(parts, lengths)]
+        )
+        for k in keys
+    }

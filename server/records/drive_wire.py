@@ -34,8 +34,21 @@ Three payloads travel on ``cutwatch/<machine>/...`` (docs/broker.md):
   (it reads only the ones it knows), so a new publisher stays readable by old
   receivers, and old publishers by new ones.
 
-``meta`` — retained JSON, the log sidecar's keys (``sample_time``, ``units``, ``kind``,
-``nominal``, ``encoder_resolution``) plus ``schema`` and ``version``.
+  Minor version 2 carries every column of a machine (issue 30): a column may have any
+  name its machine description gives a signal (``X_q``, ``S_speed``...; 1-200
+  characters, no control character, no comma) and any unit of :data:`UNITS_ALL`. The
+  decoder passes every well-formed column; :func:`check_block` then keeps the columns
+  the machine description names (their units checked, the required ones finite, an
+  optional one missing from a block filled with NaN) and returns the others as ignored,
+  to be counted: an unknown column never costs the block. The columns of minor 0 and 1
+  (``tau_m``, ``i_m``, ``q_m``, ``q_l``, ``f_ext``) keep their units wherever they travel.
+
+``meta`` — retained JSON: the machine description (``common/machine.schema.json``:
+``sample_time``, ``axes``, ``spindle``, ``identities``) as minor 1, plus ``schema`` and
+``version``; a one-axis machine whose signals carry the old column names also gets the
+old keys (``units``, ``kind``, ``nominal``, ``encoder_resolution``), so a receiver of
+minor 0 still reads it. A meta without ``axes`` (minor 0: the log sidecar's keys) is read
+as a one-axis machine (:func:`common.machine_description.from_legacy`).
 
 ``estimates`` — JSON, what the service publishes at a rate the user sets.
 
@@ -55,14 +68,24 @@ from typing import Any
 import numpy as np
 
 from common.arrays import F64
+from common.machine_description import (
+    DescriptionError,
+    MachineDescription,
+    Signal,
+    describe,
+    is_legacy,
+)
 from server.errors import CutwatchError
 
 DRIVE_SCHEMA = "cutwatch.drive"
 META_SCHEMA = "cutwatch.meta"
 ESTIMATES_SCHEMA = "cutwatch.estimates"
 VERSION = 1
-#: the drive schema's minor version (1: the CNC identities, program and segments)
-MINOR = 1
+#: the drive schema's minor version (1: the CNC identities, program and segments; 2: any
+#: column a machine description names)
+MINOR = 2
+#: the meta's minor version (1: the machine description)
+META_MINOR = 1
 #: the longest program name a block may carry
 MAX_PROGRAM = 32
 
@@ -79,6 +102,14 @@ UNITS: dict[str, frozenset[str]] = {
     "current": frozenset({"A"}),
     "position": frozenset({"rad", "m"}),
 }
+#: every unit a column may carry (minor 2): positions, velocities, accelerations, efforts,
+#: currents, the spindle's speed, power, torque and load
+UNITS_ALL: frozenset[str] = frozenset(
+    {"m", "rad", "m/s", "rad/s", "m/s^2", "rad/s^2", "N", "N m", "A"}
+    | {"rpm", "1/s", "W", "kW", "%", ""}
+)
+#: a column name of minor 2 (as a machine description's source, common/machine.schema.json)
+_COLUMN_NAME_MAX = 200
 DTYPES: frozenset[str] = frozenset({"<f4", "<f8"})
 #: a block larger than this is refused before parsing (a 50 ms block at 2.5 kHz of five
 #: float64 columns is 5 kB)
@@ -140,7 +171,26 @@ class DriveBlock:
 
     @property
     def n(self) -> int:
-        return len(self.columns["q_m"])
+        return len(next(iter(self.columns.values()))) if self.columns else 0
+
+    def tail(self, k: int) -> DriveBlock:
+        """The block from its sample ``k`` on (identities shifted with it)."""
+        segs: list[Segment] = []
+        for j, sg in enumerate(self.segments):
+            end = self.segments[j + 1].i if j + 1 < len(self.segments) else self.n
+            if end > k:
+                segs.append(Segment(max(sg.i - k, 0), sg.tool, sg.line, sg.override))
+        return DriveBlock(
+            seq=self.seq,
+            t0=self.t0 + k * self.sample_time,
+            sample_time=self.sample_time,
+            columns={name: v[k:] for name, v in self.columns.items()},
+            units=self.units,
+            wall=self.wall,
+            minor=self.minor,
+            program=self.program,
+            segments=tuple(segs),
+        )
 
     @property
     def t(self) -> F64:
@@ -153,7 +203,23 @@ class DriveBlock:
 
 
 def _unit_ok(name: str, unit: str) -> bool:
-    return unit in UNITS[COLUMN_FAMILY[name]]
+    """A legacy column in a unit of its family; any other column in a known unit."""
+    if name in COLUMN_FAMILY:
+        return unit in UNITS[COLUMN_FAMILY[name]]
+    return unit in UNITS_ALL
+
+
+def _name_ok(name: Any) -> bool:
+    return (
+        isinstance(name, str)
+        and 1 <= len(name) <= _COLUMN_NAME_MAX
+        and "," not in name
+        and not any(ord(c) < 32 for c in name)
+    )
+
+
+def _expected_units(name: str) -> list[str]:
+    return sorted(UNITS[COLUMN_FAMILY[name]] if name in COLUMN_FAMILY else UNITS_ALL)
 
 
 def encode_drive(
@@ -170,23 +236,29 @@ def encode_drive(
     """Encode one drive block (see the module docstring for the format).
 
     ``units`` maps a unit family (``effort``, ``position``, ``current``) or a column name
-    to its unit; ``dtypes`` maps a column to ``<f4``/``<f8`` (default: positions ``<f8``,
-    the rest ``<f4``). ``program`` and ``segments`` are the CNC's identities (minor 1).
+    to its unit (a column of another name needs its own entry); ``dtypes`` maps a column
+    to ``<f4``/``<f8`` (default: positions ``<f8``, the rest ``<f4``). ``program`` and
+    ``segments`` are the CNC's identities (minor 1); columns of other names than minor
+    0's make the block minor 2.
     """
     dtypes = dict(dtypes or {})
     head_cols = []
     parts = []
     n = None
     for name, values in columns.items():
-        if name not in COLUMN_FAMILY:
-            raise WireError("shape", f"column {name!r}: expected one of {sorted(COLUMN_FAMILY)}")
-        fam = COLUMN_FAMILY[name]
+        if not _name_ok(name):
+            raise WireError(
+                "shape", f"column {name!r}: expected a name of 1-200 characters without , "
+            )
+        fam = COLUMN_FAMILY.get(name, "")
         unit = units.get(name, units.get(fam, "A" if fam == "current" else ""))
         if not _unit_ok(name, unit):
             raise WireError(
-                "units", f"column {name!r}: unit expected one of {sorted(UNITS[fam])}, got {unit!r}"
+                "units",
+                f"column {name!r}: unit expected one of {_expected_units(name)}, got {unit!r}",
             )
-        dt = dtypes.get(name, "<f8" if fam == "position" else "<f4")
+        position = fam == "position" or unit in ("m", "rad")
+        dt = dtypes.get(name, "<f8" if position else "<f4")
         if dt not in DTYPES:
             raise WireError("shape", f"column {name!r}: dtype expected <f4 or <f8, got {dt!r}")
         a = np.ascontiguousarray(values, dtype=dt)
@@ -206,7 +278,7 @@ def encode_drive(
     }
     if wall is not None:
         header["wall"] = float(wall)
-    if program is not None or segments:
+    if program is not None or segments or any(c["name"] not in COLUMN_FAMILY for c in head_cols):
         header["minor"] = MINOR
         ident = _check_identities(program, [_segment_dict(sg) for sg in segments], int(n or 0))
         header.update(ident)
@@ -284,6 +356,38 @@ def _field(header: Mapping[str, Any], name: str, typ: type | tuple[type, ...]) -
     return v
 
 
+def _read_column(
+    c: Any, body: memoryview, pos: int, n: int, seen: Mapping[str, Any]
+) -> tuple[str, str, F64, int]:
+    """One column's name, unit, values (float64) and size in the body, read from ``body``
+    at ``pos`` and checked."""
+    if not isinstance(c, dict):
+        raise WireError("schema", f"drive header: a column entry is {type(c).__name__}")
+    name, dt, unit = c.get("name"), c.get("dtype"), c.get("unit")
+    if not _name_ok(name):
+        raise WireError("schema", f"column {name!r}: expected a name of 1-200 characters without ,")
+    name = str(name)
+    if name in seen:
+        raise WireError("schema", f"column {name!r} appears twice")
+    if dt not in DTYPES:
+        raise WireError("schema", f"column {name!r}: dtype expected <f4 or <f8, got {dt!r}")
+    if not isinstance(unit, str) or (name in COLUMN_FAMILY and not _unit_ok(name, unit)):
+        raise WireError(
+            "units", f"column {name!r}: unit expected one of {_expected_units(name)}, got {unit!r}"
+        )
+    size = n * (4 if dt == "<f4" else 8)
+    if pos + size > len(body):
+        raise WireError(
+            "shape", f"drive block: body {len(body)} bytes, columns need more ({name!r})"
+        )
+    a = np.frombuffer(body[pos : pos + size], dtype=dt).astype(np.float64)
+    # the columns of minor 0 keep their checks; a machine's others are checked against its
+    # description (check_block), where it is known which are required
+    if name in COLUMN_FAMILY and name != "f_ext" and not np.all(np.isfinite(a)):
+        raise WireError("value", f"column {name!r}: non-finite samples")
+    return name, unit, a, size
+
+
 def decode_drive(payload: bytes) -> DriveBlock:
     """Decode and check one drive block.
 
@@ -323,42 +427,22 @@ def decode_drive(payload: bytes) -> DriveBlock:
     units: dict[str, str] = {}
     pos = 0
     for c in cols:
-        if not isinstance(c, dict):
-            raise WireError("schema", f"drive header: a column entry is {type(c).__name__}")
-        name, dt, unit = c.get("name"), c.get("dtype"), c.get("unit")
-        if name not in COLUMN_FAMILY:
-            raise WireError("schema", f"column {name!r}: expected one of {sorted(COLUMN_FAMILY)}")
-        if name in out:
-            raise WireError("schema", f"column {name!r} appears twice")
-        if dt not in DTYPES:
-            raise WireError("schema", f"column {name!r}: dtype expected <f4 or <f8, got {dt!r}")
-        if not isinstance(unit, str) or not _unit_ok(name, unit):
-            fam = COLUMN_FAMILY[name]
-            raise WireError(
-                "units", f"column {name!r}: unit expected one of {sorted(UNITS[fam])}, got {unit!r}"
-            )
-        size = n * (4 if dt == "<f4" else 8)
-        if pos + size > len(body):
-            raise WireError(
-                "shape", f"drive block: body {len(body)} bytes, columns need more ({name!r})"
-            )
-        a = np.frombuffer(body[pos : pos + size], dtype=dt).astype(np.float64)
+        name, unit, a, size = _read_column(c, body, pos, n, out)
         pos += size
-        if not np.all(np.isfinite(a)) and name != "f_ext":
-            raise WireError("value", f"column {name!r}: non-finite samples")
         out[name] = a
         units[name] = unit
     if pos != len(body):
         raise WireError("shape", f"drive block: body {len(body)} bytes, columns take {pos}")
-    if "q_m" not in out or not ({"tau_m", "i_m"} & out.keys()):
-        raise WireError(
-            "schema", f"drive block: columns {sorted(out)}: expected q_m and tau_m or i_m"
-        )
     wall = header.get("wall")
     wall = float(wall) if isinstance(wall, int | float) and not isinstance(wall, bool) else None
     minor = header.get("minor", 0)
     if not _is_int(minor) or minor < 0:
         raise WireError("version", f"drive header: minor expected an integer >= 0, got {minor!r}")
+    if minor < 2 and ("q_m" not in out or not ({"tau_m", "i_m"} & out.keys())):
+        # before minor 2 a block was one axis: its position and effort are in every block
+        raise WireError(
+            "schema", f"drive block: columns {sorted(out)}: expected q_m and tau_m or i_m"
+        )
     ident = (
         _check_identities(header.get("program"), header.get("segments"), n) if minor >= 1 else {}
     )
@@ -407,15 +491,124 @@ def decode_drive_json(payload: bytes) -> dict[str, F64]:
     return {k: np.asarray(v, dtype=np.float64) for k, v in d["columns"].items()}
 
 
+@dataclass(frozen=True)
+class CheckedBlock:
+    """A drive block as its machine has it: ``columns`` holds every described signal's
+    source (NaN for an optional one this block lacks); ``ignored`` the block's other
+    columns, by name (to be counted: they never cost the block)."""
+
+    columns: dict[str, F64]
+    ignored: tuple[str, ...]
+
+
+def check_block(block: DriveBlock, machine: MachineDescription) -> CheckedBlock:
+    """The columns of ``block`` that ``machine`` describes, checked.
+
+    Raises
+    ------
+    WireError
+        ``shape``: a required signal's column is missing; ``units``: a described column
+        in another unit than the description's; ``value``: a required signal with
+        non-finite samples (the message names the column and its axis and role).
+    """
+    n = block.n
+    out: dict[str, F64] = {}
+    for sig in machine.signals():
+        if sig.owner == "identities" and sig.source not in block.columns:
+            continue  # identities travel in the header
+        required = _required(machine, sig)
+        what = f"column {sig.source!r} ({sig.owner}.{sig.role})"
+        v = block.columns.get(sig.source)
+        if v is None:
+            if required:
+                raise WireError("shape", f"{what}: missing; the machine description requires it")
+            out[sig.source] = np.full(n, np.nan)
+            continue
+        got = block.units.get(sig.source, "")
+        if sig.unit and got != sig.unit:
+            raise WireError("units", f"{what}: unit expected {sig.unit!r} (the meta), got {got!r}")
+        if required and not np.all(np.isfinite(v)):
+            raise WireError("value", f"{what}: non-finite samples")
+        out[sig.source] = v
+    ignored = tuple(k for k in block.columns if k not in out)
+    return CheckedBlock(out, ignored)
+
+
+def _required(machine: MachineDescription, sig: Signal) -> bool:
+    if sig.owner in ("spindle", "identities"):
+        return False
+    return sig.role in machine.axis(sig.owner).required_roles
+
+
+def machine_of(meta: Mapping[str, Any]) -> MachineDescription:
+    """The machine a (decoded) meta describes: its ``axes``, or the one axis of a minor-0
+    meta (:func:`common.machine_description.from_legacy`).
+
+    Raises
+    ------
+    WireError
+        The description breaks its schema (``units`` when the key is a unit, ``value``
+        for the sample time, else ``schema``), naming the key, the expected and the found.
+    """
+    try:
+        return describe(meta)
+    except DescriptionError as exc:
+        key = exc.name
+        kind = "units" if "units" in key else "value" if key == "sample_time" else "schema"
+        raise WireError(kind, f"meta: {exc}") from None
+
+
+def _legacy_keys(machine: MachineDescription) -> dict[str, Any]:
+    """The minor-0 keys of a one-axis machine whose columns have the old names, so an
+    older receiver still reads the meta; {} for any other machine."""
+    if len(machine.axes) != 1:
+        return {}
+    ax = machine.axes[0]
+    if any(src != role for role, src in ax.signals.items()):
+        return {}
+    current = "i_m" in ax.signals and "tau_m" not in ax.signals
+    nominal = dict(ax.nominal)
+    if ax.K_t is not None:
+        nominal["K_t"] = ax.K_t
+    out: dict[str, Any] = {
+        "units": {"effort": "A" if current else ax.effort_unit, "position": ax.position_unit},
+        "kind": ax.kind,
+        "nominal": nominal,
+    }
+    if ax.encoder_resolution is not None:
+        out["encoder_resolution"] = ax.encoder_resolution
+    return out
+
+
 def encode_meta(sidecar: Mapping[str, Any]) -> bytes:
-    """The retained ``meta`` message: the sidecar's keys plus schema and version."""
-    keys = ("sample_time", "units", "kind", "nominal", "encoder_resolution")
-    body = {k: sidecar[k] for k in keys if k in sidecar}
-    return json.dumps({"schema": META_SCHEMA, "version": VERSION, **body}).encode()
+    """The retained ``meta`` message (minor 1): the machine the sidecar describes (its
+    ``axes``, or a minor-0 sidecar's one axis), plus schema and version.
+
+    Raises
+    ------
+    WireError
+        The sidecar does not describe a machine (the key named).
+    """
+    machine = machine_of(sidecar)
+    body = {
+        "schema": META_SCHEMA,
+        "version": VERSION,
+        "minor": META_MINOR,
+        **_legacy_keys(machine),
+        **machine.to_dict(),
+    }
+    return json.dumps(body).encode()
 
 
 def decode_meta(payload: bytes) -> dict[str, Any]:
-    """Decode and check the ``meta`` message (sidecar format)."""
+    """Decode and check the ``meta`` message: minor 1 (a machine description) or minor 0
+    (the sidecar's keys); see :func:`machine_of` for the machine it describes.
+
+    Raises
+    ------
+    WireError
+        Not JSON, another schema or version, or not a machine (the key named).
+    """
     try:
         d = json.loads(payload)
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
@@ -424,6 +617,13 @@ def decode_meta(payload: bytes) -> dict[str, Any]:
         raise WireError("schema", f"meta: schema expected {META_SCHEMA!r}")
     if d.get("version") != VERSION:
         raise WireError("version", f"meta: version expected {VERSION}, got {d.get('version')!r}")
+    if is_legacy(d):
+        _check_legacy_meta(d)
+    machine_of(d)
+    return d
+
+
+def _check_legacy_meta(d: Mapping[str, Any]) -> None:
     ts = d.get("sample_time")
     if not isinstance(ts, int | float) or isinstance(ts, bool) or not (ts > 0):
         raise WireError("value", f"meta: sample_time expected a number > 0, got {ts!r}")
@@ -433,7 +633,6 @@ def decode_meta(payload: bytes) -> dict[str, Any]:
     for fam in ("effort", "position"):
         if units.get(fam) not in UNITS[fam] | (UNITS["current"] if fam == "effort" else set()):
             raise WireError("units", f"meta: units.{fam} got {units.get(fam)!r}")
-    return d
 
 
 def encode_estimates(machine: str, body: Mapping[str, Any]) -> bytes:

@@ -7,6 +7,13 @@ tables come in through a column map, ``COL=EXPR`` with ``EXPR`` one of ``name``,
 name of a scalar variable, e.g. ``tau_m=vir*gtau``). The map is parsed by a regular
 expression, never evaluated.
 
+A sidecar (or ``--meta``) with ``axes`` describes a machine (``common/machine.schema.json``,
+issue 30): the log then keeps every column its signals name (any column name; ``t`` or
+the description's ``sample_time`` for time), each axis' required signals must be there,
+an optional one may be absent or hold NaN, and ``MeasuredLog.description`` holds the
+machine. A sidecar without ``axes`` is the one-axis log of DESIGN's table
+(``MeasuredLog.machine`` reads it as :func:`common.machine_description.from_legacy`).
+
 Every check failure raises :class:`server.errors.LogFormatError` with a message naming
 the file, the column or row, and what was expected against what was found.
 """
@@ -28,6 +35,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from common.arrays import F64
+from common.machine_description import (
+    DescriptionError,
+    MachineDescription,
+    from_dict,
+    from_legacy,
+    is_legacy,
+)
 from server.errors import LogFormatError
 from server.records.row_select import Column, RowSelection, select_rows
 
@@ -136,6 +150,35 @@ class MeasuredLog:
     n_read: int = 0
     left_out: list[dict[str, Any]] = field(default_factory=list)
     phases: dict[str, NDArray[np.bool_]] = field(default_factory=dict)
+    #: the machine the sidecar describes (its ``axes``); None for a one-axis log of the
+    #: older sidecar (see :attr:`machine`)
+    description: MachineDescription | None = None
+
+    @property
+    def machine(self) -> MachineDescription:
+        """The machine of this log: its description, or the one axis of an older sidecar.
+
+        Raises
+        ------
+        LogFormatError
+            An older sidecar that does not describe a machine (e.g. a rate outside
+            10 Hz-10 kHz), naming the key.
+        """
+        if self.description is not None:
+            return self.description
+        side = {
+            # the median interval of a time column, to 12 digits (0.1 read from a 10 Hz
+            # column is 0.10000000000000142)
+            "sample_time": float(f"{self.sample_time:.12g}"),
+            "units": self.units,
+            "kind": self.kind,
+            "nominal": self.nominal,
+            "encoder_resolution": self.sidecar.get("encoder_resolution"),
+        }
+        try:
+            return from_legacy(side, self.columns)
+        except DescriptionError as exc:
+            raise LogFormatError(f"{self.path}: {exc}") from None
 
     @property
     def n(self) -> int:
@@ -211,6 +254,25 @@ def check_sidecar(side: Path, data: Any) -> None:
         raise bad("nominal", "an object of numbers", data["nominal"])
     if data.get("kind") is not None and not isinstance(data["kind"], str):
         raise bad("kind", "a string", data["kind"])
+
+
+def _sidecar_maps(p: Path, sidecar: Mapping[str, Any]) -> list[ColumnMap]:
+    """The sidecar's ``maps``: column maps as ``--map`` takes them, applied before the
+    command line's (so a ``--map`` of the same column wins)."""
+    raw = sidecar.get("maps")
+    if raw is None:
+        return []
+    if not isinstance(raw, list) or not all(isinstance(m, str) for m in raw):
+        raise LogFormatError(
+            f"{p}: sidecar 'maps': expected a list of COL=EXPR strings, found {raw!r:.80}"
+        )
+    out = []
+    for i, text in enumerate(raw):
+        try:
+            out.append(parse_map(text))
+        except LogFormatError as exc:
+            raise LogFormatError(f"{p}: sidecar 'maps[{i}]': {exc}") from None
+    return out
 
 
 def load_meta(text: str | os.PathLike[str] | None) -> dict[str, Any]:
@@ -370,11 +432,19 @@ def _as_vector(path: Path, name: str, value: Any) -> F64:
 
 
 def _apply_maps(
-    path: Path, source: Mapping[str, Any], maps: Sequence[ColumnMap], is_mat: bool
+    path: Path,
+    source: Mapping[str, Any],
+    maps: Sequence[ColumnMap],
+    is_mat: bool,
+    keep: set[str] | None = None,
 ) -> dict[str, F64]:
+    """The file's numeric columns and the mapped ones (``keep``: text columns of these
+    names are read as numbers too; default the log format's own columns)."""
     kind = "variable" if is_mat else "column"
     out: dict[str, F64] = {}
-    canonical = (*REQUIRED_COLUMNS, *OPTIONAL_COLUMNS, *IDENTITY_COLUMNS)
+    canonical = set(keep) | {"t"} if keep is not None else {
+        *REQUIRED_COLUMNS, *OPTIONAL_COLUMNS, *IDENTITY_COLUMNS
+    }  # fmt: skip
     for name, value in source.items():
         v = np.asarray(value)
         if v.dtype.kind in "US":
@@ -501,10 +571,15 @@ def load_log(
     p = Path(path)
     if not p.exists():
         raise LogFormatError(f"{p}: no such file (expected a .csv or .mat log)")
-    parsed = [m if isinstance(m, ColumnMap) else parse_map(m) for m in maps]
     sidecar = _read_sidecar(p)
     sidecar.update(dict(meta or {}))
+    parsed = [
+        *_sidecar_maps(p, sidecar),
+        *(m if isinstance(m, ColumnMap) else parse_map(m) for m in maps),
+    ]
     source, is_mat = _read_source(p, progress)
+    if not is_legacy(sidecar):
+        return _load_described(p, sidecar, source, parsed, is_mat, selection)
     cols = _apply_maps(p, source, parsed, is_mat)
 
     units = _declared_units(p, sidecar)
@@ -531,6 +606,55 @@ def load_log(
     return MeasuredLog(
         p, out, ts, dict(units), k, nominal, sidecar,
         rows=rows + 1, n_read=n, left_out=left_out, phases=phases,
+    )  # fmt: skip
+
+
+def _load_described(
+    p: Path,
+    sidecar: dict[str, Any],
+    source: Mapping[str, Any],
+    maps: Sequence[ColumnMap],
+    is_mat: bool,
+    selection: RowSelection | None,
+) -> MeasuredLog:
+    """A log whose sidecar describes a machine: every column its signals name, checked."""
+    try:
+        machine = from_dict(sidecar)
+    except DescriptionError as exc:
+        raise LogFormatError(f"{p}: sidecar: {exc}") from None
+    wanted = machine.sources()
+    cols = _apply_maps(p, source, maps, is_mat, keep=set(wanted))
+    _time_from_sample_time(p, cols, machine.sample_time, first=next(iter(wanted)))
+    missing = [
+        f"{s.source!r} ({s.owner}.{s.role})"
+        for a in machine.axes
+        for s in machine.signals()
+        if s.owner == a.name and s.role in a.required_roles and s.source not in cols
+    ]
+    if missing:
+        raise LogFormatError(
+            f"{p}: missing column(s) {', '.join(missing)}, which the machine description "
+            f"requires; found {', '.join(sorted(cols)) or 'none'} (map one with --map COL=EXPR)"
+        )
+    keep = ["t", *(c for c in wanted if c in cols)]
+    n = len(cols["t"])
+    for c in keep:
+        if len(cols[c]) != n:
+            raise LogFormatError(
+                f"{p}: column {c!r}: expected {n} samples (as 't'), found {len(cols[c])}"
+            )
+    ts = check_time(p, cols["t"], machine.sample_time)
+    used, left_out, phases = _selected(p, selection, source, cols, keep, n)
+    rows = np.flatnonzero(used)
+    required = {s.source for a in machine.axes for s in machine.signals()
+                if s.owner == a.name and s.role in a.required_roles}  # fmt: skip
+    identities = {src: role for role, src in machine.identities.items() if role != "program"}
+    out = _used_columns(p, cols, keep, rows, n, finite={"t", *required}, identities=identities)
+    ax = machine.axes[0]
+    return MeasuredLog(
+        p, out, ts, {"effort": ax.effort_unit, "position": ax.position_unit},
+        ax.kind if len(machine.axes) == 1 else None, dict(ax.nominal), sidecar,
+        rows=rows + 1, n_read=n, left_out=left_out, phases=phases, description=machine,
     )  # fmt: skip
 
 
@@ -607,15 +731,19 @@ def _effort_as_torque(
     return units
 
 
-def _time_from_sample_time(p: Path, cols: dict[str, F64], declared: Any) -> None:
-    """No time column but a declared ``sample_time``: a uniform ``t`` added to ``cols``."""
+def _time_from_sample_time(
+    p: Path, cols: dict[str, F64], declared: Any, first: str | None = None
+) -> None:
+    """No time column but a declared ``sample_time``: a uniform ``t`` added to ``cols``
+    (as long as column ``first``, default the first of the log format's present)."""
     if "t" not in cols and declared is not None:
         # no time column: rows are uniform, one every sample_time seconds
         if not (isinstance(declared, int | float) and math.isfinite(declared) and declared > 0):
             raise LogFormatError(
                 f"{p}: sample_time = {declared!r}: expected a finite number of seconds > 0"
             )
-        first = next((c for c in (*REQUIRED_COLUMNS, *OPTIONAL_COLUMNS) if c in cols), None)
+        if first is None or first not in cols:
+            first = next((c for c in (*REQUIRED_COLUMNS, *OPTIONAL_COLUMNS) if c in cols), None)
         if first is not None:
             cols["t"] = np.arange(len(cols[first]), dtype=np.float64) * float(declared)
 
@@ -669,33 +797,47 @@ def _selected(
 
 
 def _used_columns(
-    p: Path, cols: Mapping[str, F64], keep: Sequence[str], rows: NDArray[np.intp], n: int
+    p: Path,
+    cols: Mapping[str, F64],
+    keep: Sequence[str],
+    rows: NDArray[np.intp],
+    n: int,
+    finite: set[str] | None = None,
+    identities: Mapping[str, str] | None = None,
 ) -> dict[str, F64]:
-    """The kept columns over the rows used, each value finite and identities checked."""
+    """The kept columns over the rows used, the ``finite`` ones (default all) finite, and
+    the identity columns (``identities``: column -> identity; default ``tool``, ``line``,
+    ``override`` by name) checked."""
+    ident = {c: c for c in IDENTITY_COLUMNS} if identities is None else identities
     out: dict[str, F64] = {}
     for c in keep:
         v = cols[c][rows] if len(rows) < n else cols[c]
-        bad = np.flatnonzero(~np.isfinite(v))
+        checked = finite is None or c in finite
+        bad = np.flatnonzero(~np.isfinite(v)) if checked else np.zeros(0, dtype=np.intp)
         if bad.size:
             i = int(rows[int(bad[0])])
             raise LogFormatError(
                 f"{p}: column {c!r}, row {i + 1}: expected a finite value, "
                 f"found {float(cols[c][i])}"
             )
-        if c in IDENTITY_COLUMNS:
-            _check_identity(p, c, v, rows)
+        if c in ident:
+            _check_identity(p, c, v, rows, ident[c])
         out[c] = np.ascontiguousarray(v)
     return out
 
 
-def _check_identity(p: Path, c: str, v: F64, rows: NDArray[np.int64]) -> None:
+def _check_identity(
+    p: Path, c: str, v: F64, rows: NDArray[np.int64], role: str | None = None
+) -> None:
     """Tool and line are whole numbers >= 0; the override lies in (0, 3] (``rows``: the
-    file's 0-based row of each sample, for the message)."""
-    if c == "override":
-        bad = np.flatnonzero(~((v > 0.0) & (v <= 3.0)))
+    file's 0-based row of each sample, for the message; ``role``: which identity column
+    ``c`` holds, default its name). NaN (not known) passes."""
+    known = np.isfinite(v)
+    if (role or c) == "override":
+        bad = np.flatnonzero(known & ~((v > 0.0) & (v <= 3.0)))
         want = "a feed override in (0, 3]"
     else:
-        bad = np.flatnonzero((v < 0) | (v != np.round(v)))
+        bad = np.flatnonzero(known & ((v < 0) | (v != np.round(v))))
         want = "a whole number >= 0"
     if bad.size:
         i = int(bad[0])

@@ -7,6 +7,12 @@ whole or not at all under its name. It stops by itself at a maximum size or dura
 (``limit_reason`` says which). A discontinuity in the source (a gap in a broker feed)
 ends the uniformly sampled segment: the recorder closes the file there and says so, so
 the log stays valid for ``cutwatch residual``.
+
+A recording keeps every column it is handed: the one-axis columns of DESIGN's table
+(``tau_m``, ``q_m``...) and a machine's own (``X_q``, ``S_power``, the identities...),
+under their names, with the machine description in the sidecar (its ``axes``), so that
+the recording reads back (``load_log``) as the same machine. NaN (a value not known)
+is written as ``nan``.
 """
 
 from __future__ import annotations
@@ -23,6 +29,7 @@ import numpy as np
 
 from server.errors import CutwatchError
 
+#: the columns of DESIGN's table, written first and in this order when present
 COLUMNS = ("t", "tau_m", "i_m", "q_m", "q_l", "f_ext")
 
 
@@ -78,10 +85,17 @@ class Recorder:
         return self.t_last - self.t_first + float(self.sidecar.get("sample_time", 0.0))
 
     def append(self, block: Mapping[str, Any]) -> None:
-        """Append one block (``t`` and the columns present; same columns every block)."""
+        """Append one block (``t`` and the columns present; same columns every block).
+
+        Raises
+        ------
+        CutwatchError
+            No ``t``, a column name a CSV header cannot hold, or other columns than the
+            first block's.
+        """
         if not self.active or self._fh is None:
             return
-        names = [c for c in COLUMNS if c in block and block[c] is not None]
+        names = _names(block)
         if self.columns is None:
             self.columns = names
             head = ",".join(names) + "\n"
@@ -147,3 +161,15 @@ class Recorder:
             "active": self.active,
             "end": self.end_reason or self.limit_reason,
         }
+
+
+def _names(block: Mapping[str, Any]) -> list[str]:
+    """The block's columns in the recording's order: ``t``, DESIGN's, then the others."""
+    if "t" not in block:
+        raise CutwatchError(f"recording: a block without column 't' ({sorted(block)[:8]})")
+    present = [c for c, v in block.items() if v is not None]
+    for c in present:
+        if not c or "," in c or c != c.strip() or any(ord(ch) < 32 for ch in c):
+            raise CutwatchError(f"recording: column name {c!r} cannot be a CSV header")
+    first = [c for c in COLUMNS if c in present]
+    return first + [c for c in present if c not in COLUMNS]

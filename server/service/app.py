@@ -22,7 +22,8 @@ from server.records.store import DataStore
 from server.service import web_files
 from server.service.analysis import Analyses
 from server.service.front import protect
-from server.service.loop import Hub, LiveLoop, checkpoint_path, loop_parts
+from server.service.hub import Hub
+from server.service.loop import LiveLoop, checkpoint_path, loop_parts
 from server.service.routes import routers
 from server.service.settings import Settings, check_security
 

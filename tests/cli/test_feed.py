@@ -73,6 +73,84 @@ def test_feed_carries_the_log_to_a_subscriber(log: Path) -> None:
     np.testing.assert_allclose(t, ref["t"] - ref["t"][0], atol=1e-9)
 
 
+def _fed(port: int, argv: list[str], machine: str) -> list[tuple[str, bytes, bool]]:
+    """Everything a subscriber to ``machine``'s topics receives from one feed."""
+    c, got = subscriber(port, [f"cutwatch/{machine}/#"])
+    try:
+        assert main(["feed", *argv, "--broker", f"mqtt://127.0.0.1:{port}",
+                     "--machine", machine, "--speed", "0", "--quiet"]) == 0  # fmt: skip
+        msgs = []
+        while True:
+            try:
+                msgs.append(got.get(timeout=1))
+            except queue.Empty:
+                return msgs
+    finally:
+        c.loop_stop()
+        c.disconnect()
+
+
+ROOT = Path(__file__).resolve().parents[2]
+CNC = ROOT.parent / "shared" / "data" / "cnc-mill" / "experiment_01.csv"
+
+
+@pytest.mark.skipif(not CNC.exists(), reason="the cnc-mill data set is not present")
+def test_a_real_cnc_export_is_fed_as_one_machine_with_every_column_and_its_line() -> None:
+    """experiment_01 at 10 Hz: X, Y, Z, the spindle, the program and the G-code line."""
+    from common.machine_description import from_dict
+    from server.records.drive_wire import check_block, machine_of
+    from server.records.measured_log import load_meta
+
+    desc = ROOT / "docs" / "machines" / "cnc-mill.json"
+    with broker() as port:
+        msgs = _fed(port, [str(CNC), "--meta", str(desc)], "mill")
+    meta = [decode_meta(p) for t, p, _ in msgs if t.endswith("/meta")]
+    machine = machine_of(meta[0])
+    assert machine == from_dict({**load_meta(desc), "sample_time": 0.1})
+    blocks = [decode_drive(p) for t, p, _ in msgs if t.endswith("/drive")]
+    ref = load_log(CNC, meta=load_meta(desc))
+    assert sum(b.n for b in blocks) == ref.n == 1055
+    for b in blocks[:50]:  # every block passes the receiver's check, nothing ignored
+        assert check_block(b, machine).ignored == ()
+    assert len(blocks[0].columns) == 3 * 7 + 4  # 7 signals per axis, 4 of the spindle
+    x = np.concatenate([b.columns["X_q"] for b in blocks])
+    np.testing.assert_array_equal(x, ref["X_q"])  # positions travel as float64
+    line = np.concatenate([b.identities()["line"] for b in blocks])  # type: ignore[index]
+    np.testing.assert_array_equal(line, ref["M1_sequence_number"])
+    assert {b.program for b in blocks} == {"1"}
+
+
+def test_a_log_with_velocity_and_identities_sends_them(tmp_path: Path) -> None:
+    from server.records.measured_log import write_log
+
+    n = 300
+    t = np.arange(n) * 1e-3
+    p = tmp_path / "axis.csv"
+    write_log(
+        p,
+        {
+            "t": t,
+            "tau_m": np.sin(t),
+            "q_m": t * 0.01,
+            "qd_m": np.full(n, 0.01),
+            "tool": np.where(t < 0.1, 3.0, 4.0),
+            "line": 10 + (t // 0.05),
+            "override": np.full(n, 0.9),
+        },
+        {"units": {"effort": "N", "position": "m"}, "kind": "rigid", "program": "O42"},
+    )
+    with broker() as port:
+        msgs = _fed(port, [str(p), "--block-ms", "20"], "ax")
+    blocks = [decode_drive(p) for t, p, _ in msgs if t.endswith("/drive")]
+    assert all(set(b.columns) == {"tau_m", "q_m", "qd_m"} for b in blocks)
+    ident = [b.identities() for b in blocks]
+    tool = np.concatenate([i["tool"] for i in ident])  # type: ignore[index]
+    line = np.concatenate([i["line"] for i in ident])  # type: ignore[index]
+    np.testing.assert_array_equal(tool, np.where(t < 0.1, 3, 4))
+    np.testing.assert_array_equal(line, 10 + (t // 0.05))
+    assert {b.program for b in blocks} == {"O42"} and blocks[0].segments[0].override == 0.9
+
+
 def test_feed_paces_at_real_time(log: Path) -> None:
     with broker() as port:
         t0 = time.monotonic()

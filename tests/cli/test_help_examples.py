@@ -8,7 +8,8 @@ to a real Mosquitto started for the test (``tests/_broker.py``), a port given on
 command line (``--port``) or taken by default (``CUTWATCH_PORT``, ``CUTWATCH_VISER_PORT``)
 is a free one, and the data sets are linked where the examples expect it
 (``DATA_EMPS.mat``, ``segments.csv``, ``../shared/data/...``; ``other.csv``, "another
-table", is the same table). A finite command must exit 0
+table", is the same table), and so are the repository's example files
+(``cnc-mill.json``). A finite command must exit 0
 (``reproduce`` may exit 1 after reporting a check that does not hold, as its help says);
 a server (``serve``, ``fleet``, ``worker``) must answer HTTP, then it is stopped.
 """
@@ -48,6 +49,10 @@ DATA_LINKS = {
     "segments.csv": "turning-wear/segments.csv",
     "other.csv": "turning-wear/segments.csv",
 }
+#: files of this repository an example names in its current directory (a machine's
+#: description: docs/machine-description.md)
+REPO_LINKS = {"cnc-mill.json": "docs/machines/cnc-mill.json"}
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def examples(doc: str) -> list[str]:
@@ -90,6 +95,8 @@ def workdir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     root = tmp_path_factory.mktemp("examples")
     work = root / "work"
     (work / "web").mkdir(parents=True)  # the schema examples write web/schema.js
+    for name, target in REPO_LINKS.items():
+        (work / name).symlink_to(ROOT / target)
     if SHARED_DATA is not None:
         (root / "shared").mkdir()
         (root / "shared" / "data").symlink_to(SHARED_DATA)  # ../shared/data/... of the examples
