@@ -25,12 +25,12 @@ import threading
 import time
 from collections.abc import AsyncIterator, Iterable
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Any
 from urllib.parse import urlsplit, urlunsplit
 
 from fastapi import FastAPI, WebSocket, WebSocketDisconnect
 from fastapi.responses import PlainTextResponse
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from server.errors import CutwatchError
 from server.pipeline.broker import BrokerConfig, check_machine, make_client, reason_text
@@ -116,8 +116,8 @@ class Estimates(BaseModel):
     unknown one); the message's other fields are not read."""
 
     model_config = ConfigDict(extra="ignore", strict=True, populate_by_name=True)
-    schema_: Literal["cutwatch.estimates"] = Field(alias="schema")
-    version: Literal[1]
+    schema_: str = Field(alias="schema")
+    version: int
     machine: str
     force: _Force = Field(default_factory=_Force)
     wear: _Wear = Field(default_factory=_Wear)
@@ -126,6 +126,20 @@ class Estimates(BaseModel):
     dashboard: str | None = None
     source: str | None = None
     drive_wall: float | None = None
+
+    @field_validator("schema_")
+    @classmethod
+    def _schema(cls, v: str) -> str:
+        if v != ESTIMATES_SCHEMA:
+            raise ValueError(f"schema: expected {ESTIMATES_SCHEMA!r}, got {v!r}")
+        return v
+
+    @field_validator("version")
+    @classmethod
+    def _version(cls, v: int) -> int:
+        if v != VERSION:  # the wire format's (server.records.drive_wire)
+            raise ValueError(f"version: expected {VERSION}, got {v}")
+        return v
 
 
 def machine_of(topic: str) -> str:
