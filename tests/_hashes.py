@@ -6,7 +6,8 @@ script of knob changes, injections and a checkpoint round trip, and hashes every
 samples (sha256 of the float64 bytes, NaN made canonical), the events raised (id left
 out: a random uuid) and the tools changed. ``tests/pipeline/channel_hashes.json`` holds
 the hashes the code before the refactor gave (written by ``python tests/_hashes.py
---write`` on that code); ``tests/pipeline/test_channel_hashes.py`` compares.
+--write`` on that code, commit 67b7f98); ``tests/pipeline/test_channel_hashes.py`` compares
+and names each difference with its reason.
 
 Only the pipeline's public surface is used (``LivePipeline(scenario, seed=)``,
 ``step``, ``set_knob``, ``inject``, ``take_events``, ``take_tool_changes``, ``state``,

@@ -1,66 +1,29 @@
 // cutwatch dashboard: WebSocket stream -> uPlot charts; controls through the REST API.
-// The message schema lives in protocol.js (its twin is server/protocol.py).
+// The message schema lives in protocol.js (its twin is server/service/messages.py). The
+// charts are built from the stream's own description (the hello: charts, channels, parts;
+// charts.js): no channel's name is written in web/.
 import { checkMessage } from "./protocol.js";
-import { accuracyTable, accuracyTitle, intervalSeries } from "./panels.js";
-import { TIMELINE_HEAD, ackRefusal, eventRow, headline, markersIn, mergeEvent, monitorSeries,
-  ordered, statusView } from "./monitor.js";
+import { accuracyTable, accuracyTitle } from "./panels.js";
+import { PAGES, PALETTE, chartSpecs, forceLooks } from "./charts.js";
+import { TIMELINE_HEAD, ackRefusal, eventRow, headline, markersIn, mergeEvent, ordered,
+  statusView } from "./monitor.js";
 
 const uPlot = window.uPlot;
 const $ = (id) => document.getElementById(id);
 
-const COLORS = {
-  true: "#1d232b", fixed: "#e69f00", adaptive: "#0072b2", switching: "#cc3311",
-  dfo: "#009e73", mode: "#7b3294", excitation: "#009e73", lag: "#cc3311", rtf: "#0072b2",
-};
-
-// chart id -> {window [s of simulated time], series [[channel, label, color, scale, opts]]};
-// opts.mask = [channel, value]: the series shows only where that channel equals value;
-// opts.dash, opts.width, opts.notExcited: drawing (see makeChart)
-const CHARTS = {
-  force: { window: 0.5, series: [["f_true", "true", COLORS.true], ["f_fixed", "fixed", COLORS.fixed],
-    ["f_adaptive", "adaptive", COLORS.adaptive], ["f_switching", "switching", COLORS.switching],
-    ["f_segment", "segment identifier", "#7b3294"], ["f_dfo", "DFO", COLORS.dfo],
-    ["f_effects", "fixed + identified effects", "#56b4e9"]] },
-  harmonics: { window: 30, series: [["h1_true", "1st true", COLORS.true],
-    ["h1_amp", "1st DFO", COLORS.adaptive], ["h2_true", "2nd true", "#888888"],
-    ["h2_amp", "2nd DFO", COLORS.switching]] },
-  J_L: { window: 30, series: [["J_L_true", "true", COLORS.true],
-    ["J_L_adaptive", "RLS", COLORS.adaptive], ["J_L_switching", "switching RLS", COLORS.switching]] },
-  B_L: { window: 30, series: [["B_L_true", "true", COLORS.true],
-    ["B_L_adaptive", "RLS", COLORS.adaptive], ["B_L_switching", "switching RLS", COLORS.switching]] },
-  F_CL: { window: 30, series: [["F_CL_true", "true", COLORS.true],
-    ["F_CL_adaptive", "RLS", COLORS.adaptive], ["F_CL_switching", "switching RLS", COLORS.switching]] },
-  wear: { window: 120, series: [["vb_true", "VB true [mm]", COLORS.true],
-    ["vb_est", "VB estimated [mm]", COLORS.adaptive], ["vb_limit", "limit", "#cc3311"],
-    ["life_left", "life left [min]", COLORS.dfo, "life"]] },
-  ecc_radius: { window: 60, series: [["ecc_a_cancel", "cancelling a_m (true) [um]", COLORS.true],
-    ["ecc_a_m", "tuner a_m [um]", COLORS.adaptive], ["ecc_fast_on", "fast tuner on", COLORS.mode, "on"],
-    ["ecc_esc_on", "ESC on", COLORS.dfo, "on"]] },
-  ecc_phase: { window: 60, series: [["ecc_theta_cancel", "cancelling theta_m (true) [deg]", COLORS.true],
-    ["ecc_theta_m", "tuner theta_m [deg]", COLORS.adaptive]] },
-  ecc_cost: { window: 60, series: [["ecc_cost", "cost, eq. (8) [N]", COLORS.adaptive],
-    ["ecc_f1x", "1x force amplitude, true [N]", COLORS.true],
-    ["ecc_mass_err", "observer X mass error [%]", COLORS.switching, "pct"]] },
-  rls: { window: 30, series: [["mode_switching", "mode", COLORS.mode],
-    ["excitation", "excitation", COLORS.excitation]] },
-};
-// the process monitor's chart (built on hello when the stream has its channels)
-const MONITOR_WINDOW = 20; // s of simulated time
-// charts that draw the events' markers
-const MARKED = new Set(["force", "monitor"]);
+const COLORS = { lag: "#cc3311", rtf: "#0072b2" };
 const HEALTH_WINDOW = 60; // wall seconds
 const ACCURACY_WINDOW = 60; // s of simulated time in the accuracy history chart
-const BASE_SERIES = Object.fromEntries(Object.entries(CHARTS).map(([id, c]) => [id, c.series]));
 
 const state = {
-  ws: null, retry: 0, charts: {}, data: {}, zoomed: {}, channels: [], frames: 0,
+  ws: null, retry: 0, charts: {}, specs: {}, data: {}, zoomed: {}, channels: [], frames: 0,
   dropped: 0, dirty: false, grid: {}, health: { x: [], lag: [], rtf: [] }, healthChart: null,
-  labels: {}, excited: {}, acc: { chart: null, key: "", data: [[]] },
-  events: new Map(), role: null, status: null,
+  labels: {}, acc: { chart: null, key: "", data: [[]] },
+  events: new Map(), role: null, status: null, layout: "",
 };
 
 // ---------------------------------------------------------------- charts
-// tick labels that stay distinct for small parameters (J_L ~ 1e-4 kg m^2)
+// tick labels that stay distinct for small parameters (an inertia ~ 1e-4 kg m^2)
 function fmt(v) {
   if (v === 0) return "0";
   const a = Math.abs(v);
@@ -71,14 +34,15 @@ function width(el) {
   return Math.max(200, el.clientWidth || 400);
 }
 
-function makeChart(id, spec) {
+function makeChart(spec) {
+  const id = spec.id;
   const el = $(`chart-${id}`);
   const opts = {
-    width: width(el), height: id === "force" || id === "monitor" ? 260 : 170,
+    width: width(el), height: spec.wide ? 260 : 170,
     scales: { x: { time: false } },
     axes: [{ label: "t [s]" }, { size: 70, values: (u, vals) => vals.map(fmt) },
-      ...(spec.series.some((s) => s[3]) ? [{ scale: spec.series.find((s) => s[3])[3],
-        side: 1, size: 50, values: (u, vals) => vals.map(fmt) }] : [])],
+      ...(spec.scale ? [{ scale: spec.scale, side: 1, size: 50,
+        values: (u, vals) => vals.map(fmt) }] : [])],
     legend: { live: true },
     cursor: { drag: { x: true, y: false } },
     series: [{ label: "t" }, ...spec.series.map(([, label, color, scale, o = {}]) => ({
@@ -90,7 +54,7 @@ function makeChart(id, spec) {
     bands: spec.bands || [],
     hooks: {
       setSelect: [(u) => { if (u.select.width > 0) state.zoomed[id] = true; }],
-      ...(MARKED.has(id) ? { draw: [(u) => drawMarkers(u, id)] } : {}),
+      ...(spec.markers ? { draw: [(u) => drawMarkers(u, id)] } : {}),
     },
   };
   const empty = [[], ...spec.series.map(() => [])];
@@ -99,6 +63,46 @@ function makeChart(id, spec) {
   state.charts[id] = chart;
   state.data[id] = empty;
   state.zoomed[id] = false;
+}
+
+// A chart's panel: its title (with the "not excited" flag of an identified parameter)
+// and the element uPlot draws in.
+function panel(spec) {
+  const sec = document.createElement("section");
+  sec.className = spec.wide ? "panel wide" : "panel";
+  sec.id = `panel-${spec.id}`;
+  const h = document.createElement("h2");
+  h.textContent = spec.title;
+  if (spec.excited) {
+    const flag = document.createElement("span");
+    flag.id = `flag-${spec.id}`;
+    flag.className = "flag";
+    flag.hidden = true;
+    flag.textContent = "not excited";
+    h.append(" ", flag);
+  }
+  const div = document.createElement("div");
+  div.id = `chart-${spec.id}`;
+  div.className = "chart";
+  sec.append(h, div);
+  return sec;
+}
+
+// On hello: the charts the stream describes, on their pages; built again only when they
+// change (a new part, another pipeline).
+function buildCharts(msg) {
+  const specs = chartSpecs(msg);
+  const layout = JSON.stringify(specs);
+  if (layout === state.layout) return;
+  state.layout = layout;
+  for (const c of Object.values(state.charts)) c.destroy();
+  state.charts = {}; state.specs = {}; state.data = {}; state.zoomed = {};
+  for (const page of PAGES) {
+    const mine = specs.filter((s) => s.page === page);
+    $(`charts-${page}`).replaceChildren(...mine.map(panel));
+    $(`page-${page}`).hidden = mine.length === 0;
+  }
+  for (const spec of specs) { state.specs[spec.id] = spec; makeChart(spec); }
 }
 
 // A vertical line at each event in the chart's x range, on top of the series: red while
@@ -134,14 +138,14 @@ function makeHealthChart() {
 }
 
 function clearData() {
-  for (const [id, spec] of Object.entries(CHARTS)) {
+  for (const [id, spec] of Object.entries(state.specs)) {
     state.data[id] = [[], ...spec.series.map(() => [])];
   }
 }
 
 function append(frame) {
   if (!frame.t.length) return;
-  for (const [id, spec] of Object.entries(CHARTS)) {
+  for (const [id, spec] of Object.entries(state.specs)) {
     const d = state.data[id];
     const t = frame[state.grid[spec.series[0][0]] || "ts"];
     if (!t.length) continue;
@@ -157,7 +161,7 @@ function append(frame) {
       else if (m) d[i + 1].push(...v.map((x, j) => (m[j] === o.mask[1] ? x : null)));
       else d[i + 1].push(...v);
     });
-    const tmin = t[t.length - 1] - spec.window;
+    const tmin = t[t.length - 1] - spec.window_s;
     let cut = 0;
     while (cut < d[0].length && d[0][cut] < tmin) cut++;
     if (cut) for (const arr of d) arr.splice(0, cut);
@@ -182,55 +186,12 @@ function resize() {
   if (ac) ac.setSize({ width: width($("chart-accuracy")), height: ac.height });
 }
 
-// ---------------------------------------------------------------- interval bands
-// On hello: each identified parameter whose interval channels the stream carries gets
-// its band, greyed not-excited estimate and flag (panels.intervalSeries); a chart whose
-// series change is built again.
-function applyIntervals(channels) {
-  const names = new Set(channels.map((c) => c.name));
-  state.excited = {};
-  for (const q of Object.keys(BASE_SERIES)) {
-    const base = BASE_SERIES[q];
-    const iv = intervalSeries(q, names, 1 + base.length);
-    const series = iv ? [...base, ...iv.series] : base;
-    const spec = CHARTS[q];
-    const same = spec.series.length === series.length &&
-      spec.series.every((s, i) => s[0] === series[i][0] && s[1] === series[i][1]);
-    if (iv) state.excited[q] = iv.excited;
-    const flag = document.getElementById(`flag-${q}`);
-    if (flag && !iv) { flag.hidden = true; delete flag.dataset.excited; }
-    if (same) continue;
-    spec.series = series;
-    spec.bands = iv ? iv.bands : [];
-    state.charts[q].destroy();
-    $(`chart-${q}`).replaceChildren();
-    makeChart(q, spec);
-  }
-}
-
-// On hello: the process monitor's chart from the channels the stream carries (none: the
-// panel says so), built again when they change.
-function applyMonitor(channels) {
-  const names = new Set(channels.map((c) => c.name));
-  const ms = monitorSeries(names);
-  const old = CHARTS.monitor;
-  const same = old && ms && old.series.length === ms.series.length &&
-    old.series.every((s, i) => s[0] === ms.series[i][0]);
-  $("monitor-none").hidden = Boolean(ms);
-  if (same) return;
-  if (state.charts.monitor) { state.charts.monitor.destroy(); delete state.charts.monitor; }
-  $("chart-monitor").replaceChildren();
-  delete CHARTS.monitor;
-  if (!ms) return;
-  CHARTS.monitor = { window: MONITOR_WINDOW, series: ms.series, bands: ms.bands };
-  makeChart("monitor", CHARTS.monitor);
-}
-
-// The latest excited flag of each parameter: "not excited" shown while it is 0.
+// The latest excited flag of each identified parameter: "not excited" shown while it is 0.
 function showExcited(frame) {
-  for (const [q, ex] of Object.entries(state.excited)) {
-    const v = frame.ch[ex];
-    const flag = document.getElementById(`flag-${q}`);
+  for (const [id, spec] of Object.entries(state.specs)) {
+    if (!spec.excited) continue;
+    const v = frame.ch[spec.excited];
+    const flag = document.getElementById(`flag-${id}`);
     if (!v || !v.length || !flag) continue;
     const last = v[v.length - 1];
     flag.hidden = last !== 0;
@@ -238,11 +199,30 @@ function showExcited(frame) {
   }
 }
 
-// ---------------------------------------------------------------- accuracy panel
-const PALETTE = ["#e69f00", "#0072b2", "#cc3311", "#009e73", "#56b4e9", "#7b3294", "#888888"];
+// The parts of the pipeline: running, or why not (hello and every frame).
+function showParts(parts) {
+  const key = JSON.stringify(parts || []);
+  const el = $("parts");
+  if (el.dataset.key === key) return;
+  el.dataset.key = key;
+  el.replaceChildren(...(parts || []).map((p) => {
+    const tr = document.createElement("tr");
+    tr.dataset.part = p.name;
+    tr.dataset.running = String(p.running);
+    for (const text of [p.name, p.running ? "running" : "not running", p.reason]) {
+      const td = document.createElement("td");
+      td.textContent = text;
+      tr.append(td);
+    }
+    return tr;
+  }));
+  const down = (parts || []).filter((p) => !p.running).length;
+  $("parts-summary").textContent = down ? `${down} not running` : "all running";
+}
 
+// ---------------------------------------------------------------- accuracy panel
 function accuracyChart(acc) {
-  const force = Object.fromEntries(BASE_SERIES.force.map(([ch, label, color]) => [ch, [label, color]]));
+  const force = forceLooks(state.channels);
   const names = Object.keys(acc.rms);
   const el = $("chart-accuracy");
   if (state.acc.chart) state.acc.chart.destroy();
@@ -257,7 +237,7 @@ function accuracyChart(acc) {
     legend: { live: true },
     series: [{ label: "t" }, ...names.map((k, i) => ({
       label: (force[k] || [state.labels[k] || k])[0],
-      stroke: (force[k] || [null, PALETTE[i % PALETTE.length]])[1],
+      stroke: (force[k] && force[k][1]) || PALETTE[i % PALETTE.length],
       width: 1.4, points: { show: false } })), ...floor],
   }, [[], ...names.map(() => []), ...floor.map(() => [])], el);
   state.acc.data = [[], ...names.map(() => []), ...floor.map(() => [])];
@@ -530,9 +510,10 @@ function connect() {
       state.channels = msg.channels;
       state.grid = Object.fromEntries(msg.channels.map((c) => [c.name, c.grid]));
       state.labels = Object.fromEntries(msg.channels.map((c) => [c.name, c.label]));
-      applyIntervals(msg.channels);
-      applyMonitor(msg.channels);
+      buildCharts(msg);
       clearData();
+      showParts(msg.parts);
+      window.dispatchEvent(new CustomEvent("cutwatch:hello", { detail: msg })); // loop.js
       conn.textContent = `live · ${msg.scenario}`;
       conn.className = "conn up";
       conn.dataset.state = "up";
@@ -550,6 +531,7 @@ function connect() {
     showStatus(msg.status);
     showExcited(msg);
     showAccuracy(msg.accuracy, msg.health.sim_t);
+    showParts(msg.parts);
     syncKnobs(msg.knobs);
     document.body.dataset.frames = String(state.frames);
   };
@@ -570,7 +552,6 @@ function frameLoop() {
 }
 
 function init() {
-  for (const [id, spec] of Object.entries(CHARTS)) makeChart(id, spec);
   $("timeline-head").replaceChildren(...TIMELINE_HEAD.map((h) => {
     const th = document.createElement("th");
     th.textContent = h;

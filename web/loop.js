@@ -3,7 +3,9 @@
 // install its effects into the live observer, and compare the live error before and after.
 // The live error is the force estimate minus the reference (the simulator's true force, or
 // the log's / feed's f_ext): rms over the last ERR_WINDOW seconds of the stream, for the
-// fixed observer (f_fixed) and the fixed observer with the identified effects (f_effects).
+// observer without and with the identified effects. Which channels those are, the hello
+// says (their roles: reference, without_effects, with_effects; charts.js roles()).
+import { roles } from "./charts.js";
 
 const $ = (id) => document.getElementById(id);
 const ERR_WINDOW = 5; // s of simulated time
@@ -11,6 +13,7 @@ const POLL_MS = 500;
 const SETTLE = 1; // s after an install before the "after" window starts (filters settle)
 
 const st = {
+  roles: {}, // role -> channel name (from the hello)
   err: { t: [], fixed: [], effects: [] }, // recent errors (decimated stream samples)
   install: null, // {t, before: {fixed, effects}, after: null | {...}}
   job: null,
@@ -48,8 +51,8 @@ function rms(a) {
 }
 
 function onFrame(msg) {
-  const t = msg.t; const ch = msg.ch;
-  const ft = ch.f_true; const ff = ch.f_fixed; const fe = ch.f_effects;
+  const t = msg.t; const ch = msg.ch; const r = st.roles;
+  const ft = ch[r.reference]; const ff = ch[r.without_effects]; const fe = ch[r.with_effects];
   if (!t.length || !ft || !ff || !fe) return;
   const e = st.err;
   if (e.t.length && t[0] < e.t[e.t.length - 1]) { e.t.length = 0; e.fixed.length = 0; e.effects.length = 0; }
@@ -244,6 +247,7 @@ async function uninstall() {
 }
 
 function init() {
+  window.addEventListener("cutwatch:hello", (ev) => { st.roles = roles(ev.detail.channels); });
   window.addEventListener("cutwatch:frame", (ev) => onFrame(ev.detail));
   $("record").onclick = () => toggleRecord().catch(() => {});
   $("loop-upload").onchange = (e) => upload(e.target.files).catch(() => {}).finally(() => { e.target.value = ""; });

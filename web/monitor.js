@@ -1,5 +1,5 @@
 // Pure helpers of the process monitor's parts of the dashboard (no DOM): the status strip's
-// words, the event timeline's rows, the chart markers, the monitor chart's series.
+// words, the event timeline's rows, the chart markers.
 // tests/service/test_monitor_ui.py runs them under node; app.js draws what they return.
 
 // the monitor's states as the strip shows them (big, across the shop)
@@ -133,23 +133,4 @@ export function markersIn(events, t0, t1) {
   return [...events.values()].filter((e) => e.t >= t0 && e.t <= t1)
     .sort((a, b) => a.t - b.t)
     .map((e) => ({ t: e.t, id: e.id, color: waiting(e) ? MARKER_ALARM : MARKER_DONE }));
-}
-
-// The process monitor chart's series ([channel, label, color, scale, opts], as app.js's
-// CHARTS) for the channels the hello announces (names: a Set), or null without the
-// monitor's force channel. The taught band is shaded between upper and lower.
-export function monitorSeries(names) {
-  if (!names.has("mon_f") && !names.has("mon_mean")) return null;
-  const all = [
-    ["mon_f", "force estimate [N]", "#9aa0a6", undefined, { width: 1 }],
-    ["mon_mean", "mean over a revolution [N]", "#0072b2", undefined, { width: 2 }],
-    ["mon_upper", "taught upper band [N]", "#009e73", undefined, { width: 1.2 }],
-    ["mon_lower", "taught lower band [N]", "#009e73", undefined, { width: 1.2 }],
-    ["mon_extreme", "extreme limit [N]", "#7b3294", undefined, { width: 1.6, dash: [8, 5] }],
-  ].filter((s) => names.has(s[0]));
-  const iu = all.findIndex((s) => s[0] === "mon_upper");
-  const il = all.findIndex((s) => s[0] === "mon_lower");
-  const bands = iu >= 0 && il >= 0
-    ? [{ series: [1 + iu, 1 + il], fill: "rgba(0, 158, 115, 0.15)" }] : [];
-  return { series: all, bands };
 }

@@ -1,14 +1,14 @@
-// The live stream's message checks (client side). The schema itself (VERSION, FAST_GROUPS,
-// INTERVALS, SCHEMA) is web/schema.js, generated from the server's message models
+// The live stream's message checks (client side). The schema itself (VERSION, SCHEMA and
+// every message's JSDoc type) is web/schema.js, generated from the server's message models
 // (server/service/messages.py) by `make schema`; tests/service/test_protocol.py fails when
 // it is stale, and runs checkMessage under node on the frames the server really sends.
-import { FAST_GROUPS, INTERVALS, SCHEMA, VERSION } from "./schema.js";
+import { SCHEMA, VERSION } from "./schema.js";
 
-export { FAST_GROUPS, INTERVALS, SCHEMA, VERSION };
+export { SCHEMA, VERSION };
 
-// fields a message may lack (the model's default: null): a stream without the process
-// monitor sends no status
-const OPTIONAL = { data: new Set(["status"]) };
+// fields a message may lack (the model's default): a stream without the process monitor
+// sends no status; parts default to none
+const OPTIONAL = { data: new Set(["status", "parts"]) };
 
 function missing(obj, fields, kind = "") {
   const opt = OPTIONAL[kind] || new Set();
@@ -37,6 +37,14 @@ export function checkMessage(text) {
       const m = missing(c, SCHEMA.channel);
       if (m.length) throw new Error(`channel lacks ${m.join(", ")}`);
       if (c.grid !== "t" && c.grid !== "ts") throw new Error(`channel ${c.name}: grid ${c.grid}`);
+    }
+    for (const c of msg.charts) {
+      const m = missing(c, SCHEMA.chart);
+      if (m.length) throw new Error(`chart lacks ${m.join(", ")}`);
+    }
+    for (const p of msg.parts) {
+      const m = missing(p, SCHEMA.part);
+      if (m.length) throw new Error(`part lacks ${m.join(", ")}`);
     }
   } else {
     const m = missing(msg.health, SCHEMA.health);

@@ -2,42 +2,17 @@
 // in server/service/messages.py and server/service/protocol.py. Do not edit by hand:
 // tests/service/test_protocol.py fails when this file differs from what the command writes.
 
-export const VERSION = 1;
-
-// channel groups on the fast grid t; every other group is on ts
-export const FAST_GROUPS = [
-  "force"
-];
-
-// identified parameter -> its channels: estimate, 95 % bounds, excited flag (1/0;
-// 0: show the parameter greyed, "not excited", not as a number)
-export const INTERVALS = {
-  "J_L": {
-    "estimate": "J_L_seg",
-    "lower": "J_L_lo",
-    "upper": "J_L_hi",
-    "excited": "J_L_excited"
-  },
-  "B_L": {
-    "estimate": "B_L_seg",
-    "lower": "B_L_lo",
-    "upper": "B_L_hi",
-    "excited": "B_L_excited"
-  },
-  "F_CL": {
-    "estimate": "F_CL_seg",
-    "lower": "F_CL_lo",
-    "upper": "F_CL_hi",
-    "excited": "F_CL_excited"
-  }
-};
+export const VERSION = 2;
 
 // the fields of each message, and each message shape's version
 export const SCHEMA = {
+  "version": 2,
   "hello": [
     "type",
     "version",
     "channels",
+    "charts",
+    "parts",
     "sample_time",
     "scenario",
     "knobs"
@@ -47,7 +22,39 @@ export const SCHEMA = {
     "unit",
     "group",
     "label",
-    "grid"
+    "grid",
+    "chart",
+    "page",
+    "order",
+    "truth",
+    "color",
+    "dash",
+    "width",
+    "axis",
+    "interval",
+    "fill_to",
+    "role",
+    "legend"
+  ],
+  "chart": [
+    "id",
+    "title",
+    "page",
+    "order",
+    "window_s",
+    "fast",
+    "wide",
+    "markers"
+  ],
+  "interval": [
+    "lower",
+    "upper",
+    "excited"
+  ],
+  "part": [
+    "name",
+    "running",
+    "reason"
   ],
   "data": [
     "type",
@@ -60,7 +67,8 @@ export const SCHEMA = {
     "health",
     "knobs",
     "accuracy",
-    "status"
+    "status",
+    "parts"
   ],
   "health": [
     "sim_t",
@@ -115,16 +123,165 @@ export const SCHEMA = {
     "unacked"
   ],
   "versions": {
-    "hello": 1,
-    "channel": 1,
-    "data": 1,
+    "hello": 2,
+    "channel": 2,
+    "chart": 1,
+    "interval": 1,
+    "part": 1,
+    "data": 2,
     "health": 1,
     "accuracy": 1,
     "event": 1,
     "event_record": 1,
     "status": 1
-  },
-  "version": VERSION,
-  "fast_groups": FAST_GROUPS,
-  "intervals": INTERVALS
+  }
 };
+
+// the messages' types
+/**
+ * Rolling rms of each force estimate (the ``accuracy`` of every frame and snapshot).
+ * @typedef {Object} Accuracy
+ * @property {("truth"|"agreement")} mode - 'truth': against the true force (simulator); 'agreement': no truth (a replayed log, a live feed), each estimate against the mean of 'mean_of'
+ * @property {Array<number>} windows - window lengths [s]
+ * @property {Array<number>} span - seconds each window really covers [s]
+ * @property {Object<string, Array<(number|null)>>} rms - estimate -> rms error per window [N m] (against the truth or the mean)
+ * @property {Object<string, Array<(number|null)>>} rms_q - estimate -> rms against the Q(s)-filtered true force (empty: no truth)
+ * @property {Array<(number|null)>} floor - rms of the Q(s)-filtered true force against the true force, per window
+ * @property {Array<string>} mean_of - the estimates averaged (mode 'agreement')
+ */
+
+/**
+ * One channel announced by ``hello``, as the part that streams it declared it.
+ * @typedef {Object} Channel
+ * @property {string} name - the key of its samples in a frame's ch
+ * @property {string} unit
+ * @property {string} group - the quantity it belongs to (force, J_L, wear...)
+ * @property {string} label
+ * @property {("t"|"ts")} grid - its display grid: t (fast) or ts (slow)
+ * @property {string} chart - the id of the chart it is drawn on ('': not drawn)
+ * @property {("operator"|"research")} page - the page of its chart: operator or research
+ * @property {number} order - its place among its chart's series
+ * @property {boolean} truth - the simulator's truth (the reference), not an estimate
+ * @property {string} color - a CSS colour ('': the page's palette)
+ * @property {Array<number>} dash - dash pattern (empty: a solid line)
+ * @property {number} width - line width [px]
+ * @property {string} axis - a second y axis' name ('': the chart's first axis)
+ * @property {(Interval|null)} interval - drawn with its 95 % band (None: no band)
+ * @property {string} fill_to - the area between it and this channel is shaded ('': none)
+ * @property {string} role - what the residual loop's panel compares: reference, without_effects, with_effects ('': nothing)
+ * @property {string} legend - its short name in the chart's legend ('': its label)
+ */
+
+/**
+ * A chart of the dashboard, declared by a part.
+ * @typedef {Object} Chart
+ * @property {string} id - its name (the page's element chart-<id>)
+ * @property {string} title
+ * @property {("operator"|"research")} page
+ * @property {number} order - its place on its page
+ * @property {number} window_s - seconds of the machine's time it shows
+ * @property {boolean} fast - its channels are on the fast grid t
+ * @property {boolean} wide - drawn across the page
+ * @property {boolean} markers - the events are drawn on it
+ */
+
+/**
+ * A frame at the display rate (~20 Hz): the samples since the previous one. A channel on grid ``t`` has one value per entry of ``t``, one on ``ts`` one per entry of ``ts`` (a coarser subset of the same samples); non-finite values are ``null``.
+ * @typedef {Object} Data
+ * @property {"data"} [type]
+ * @property {number} [dropped] - frames this client lost since its previous frame
+ * @property {number} seq - frame counter of the loop
+ * @property {number} wall - wall-clock time of the frame [unix s]
+ * @property {Array<(number|null)>} t - fast display grid [s]
+ * @property {Array<(number|null)>} ts - slow display grid [s]
+ * @property {Object<string, Array<(number|null)>>} ch - channel -> samples on its grid
+ * @property {LoopHealth} health
+ * @property {Object<string, (boolean|number|string)>} knobs - knob -> value
+ * @property {Accuracy} accuracy
+ * @property {(MonitorStatus|null)} [status] - the monitor's status strip (None: not known)
+ * @property {Array<PartStatus>} [parts] - the pipeline's parts: running, or why not
+ */
+
+/**
+ * One monitor event (:class:`server.records.monitor_events.MonitorEvent`) as the stream, the snapshot and the history's REST carry it, with its acknowledgement.
+ * @typedef {Object} Event
+ * @property {string} id
+ * @property {("breakage"|"collision"|"missing_tool"|"wear_limit"|"life_short")} kind
+ * @property {("feed_hold"|"alarm"|"notice")} action
+ * @property {number} t - simulated time of the sample that raised it [s]
+ * @property {number} tool - tool number (0: not known)
+ * @property {string} program - program name ('': not known)
+ * @property {number} line - G-code line of the block (0: not known)
+ * @property {number} part - part counter (-1: not known)
+ * @property {(number|null)} value - the detector's statistic at the alarm
+ * @property {(number|null)} limit - the limit it crossed
+ * @property {string} unit
+ * @property {string} message
+ * @property {string} machine
+ * @property {boolean} [acked] - acknowledged by an operator
+ * @property {(string|null)} [acked_by] - who acknowledged it
+ * @property {(number|null)} [acked_wall] - when [unix s]
+ */
+
+/**
+ * Sent to every client when the monitor raises an event, and again when it is acknowledged (same ``id``, ``acked`` true).
+ * @typedef {Object} EventMessage
+ * @property {"event"} [type]
+ * @property {Event} event
+ */
+
+/**
+ * The first message after connecting, and again whenever the pipeline changes.
+ * @typedef {Object} Hello
+ * @property {"hello"} [type]
+ * @property {number} [version] - the stream's version
+ * @property {Array<Channel>} channels
+ * @property {Array<Chart>} charts
+ * @property {Array<PartStatus>} parts
+ * @property {number} sample_time - the pipeline's sample time [s]
+ * @property {string} scenario
+ * @property {Object<string, (boolean|number|string)>} knobs - knob -> value
+ */
+
+/**
+ * An estimate's 95 % interval: the channels of its bounds and its excited flag.
+ * @typedef {Object} Interval
+ * @property {string} lower
+ * @property {string} upper
+ * @property {string} excited - 1: the data determine it; 0: show it greyed, 'not excited'
+ */
+
+/**
+ * The live loop's health (the ``health`` of every frame, of /api/health, /api/snapshot).
+ * @typedef {Object} LoopHealth
+ * @property {(number|null)} sim_t - simulated time [s]
+ * @property {(number|null)} speed - requested speed (x real time)
+ * @property {boolean} paused
+ * @property {(number|null)} lag_ms - lateness of the last block [ms]
+ * @property {(number|null)} lag_p99_ms - p99 lateness over the last 600 blocks [ms]
+ * @property {(number|null)} realtime_factor - simulated seconds per wall second
+ * @property {number} clients - connected WebSocket clients
+ * @property {number} dropped_total - frames dropped for slow clients
+ * @property {number} stalls - clock re-anchors after a stall
+ */
+
+/**
+ * The status strip: what an operator reads from across the shop.
+ * @typedef {Object} MonitorStatus
+ * @property {("off"|"teaching"|"watching"|"alarm")} state - off: no process monitor; alarm: an unacknowledged alarm or feed hold
+ * @property {number} tool - tool in the spindle (0: not known)
+ * @property {string} program
+ * @property {number} line
+ * @property {number} part
+ * @property {(number|null)} wear_share - estimated flank wear / its limit
+ * @property {(number|null)} life_left_min - remaining tool life [min]
+ * @property {number} unacked - events waiting for an acknowledgement
+ */
+
+/**
+ * A part of the pipeline: running, or why not.
+ * @typedef {Object} PartStatus
+ * @property {string} name
+ * @property {boolean} running
+ * @property {string} reason - why it does not run ('' while it runs)
+ */

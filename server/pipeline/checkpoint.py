@@ -2,18 +2,19 @@
 
 :class:`PipelineState` is everything a :class:`~server.pipeline.live_pipeline.LivePipeline`
 carries from block to block: the source's place (the simulated stage, a log's position;
-nothing for a live feed), every estimator's state (the observers, the RLS covariances,
-the segment identifier's tracks, the harmonic observer, the effects), the scenario's
-own (spindle factor, mounted weight, workpiece, the tool and its wear monitor, the
-eccentricity loop with its tuner, the part program and the process monitor's taught
-limits), the knobs, the installed effects and the latest
-values. It is a plain value: a pipeline built for the same scenario and source continues
-from it (:meth:`LivePipeline.restore`), in this process or another.
+a live feed's time), the scenario script's memory (spindle factor, mounted weight, the
+plant configuration applied), every part's state by its name (:meth:`Part.state`: the
+stage observers' filters, RLS covariances and segment tracks; the DFO; the installed
+effects; the workpiece; the tool and its wear monitor; the eccentricity loop with its
+tuner; the part program and the process monitor's taught limits), the knobs and the
+latest values. It is a plain value: a pipeline built for the same scenario, source and
+parts continues from it (:meth:`LivePipeline.restore`), in this process or another.
 
 The file is :mod:`common.state_io`'s (npz + JSON header), of kind :data:`KIND` and
 version :data:`VERSION`: bump it when a field of the state changes meaning; a file of
 another version is refused with :class:`~common.state_io.StateFormatError` naming both
-(docs/checkpoints.md).
+(docs/checkpoints.md). Version 3 (issue 26): the parts' states by name, each part's its
+own (version 2 kept the eccentricity part as the object itself).
 """
 
 from __future__ import annotations
@@ -23,19 +24,12 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from common.state_io import StateFormatError, load_state, save_state
-from estimators.observer_effects import ObserverEffect
 from machine.stage import CuttingForce
-from server.pipeline.eccentricity_part import LiveEccentricity
-from server.pipeline.observer_bank import BankState
-from server.pipeline.process_part import ProcessState
-from server.pipeline.wear_clock import AcceleratedToolWear
-from server.pipeline.wear_passes import PassState
-from server.pipeline.workpiece import WorkpieceState
 
 #: the checkpoint's kind in the file header
 KIND = "cutwatch.pipeline"
 #: version of :class:`PipelineState`'s schema
-VERSION = 2
+VERSION = 3
 
 
 @dataclass
@@ -47,14 +41,6 @@ class ScriptState:
     weight: float
     applied: tuple[Any, ...]
     force: CuttingForce
-
-
-@dataclass
-class ToolState:
-    """The tool: its pass under way and the wear model with its life monitor."""
-
-    passes: PassState
-    wear: AcceleratedToolWear
 
 
 @dataclass
@@ -70,23 +56,17 @@ class PipelineState:
         The simulation's seed.
     t
         Time of the source [s] when the state was taken.
-    knobs, effects
-        The knob values and the installed observer effects.
+    knobs
+        The knob values.
     source_state
         The source's own state (:meth:`MeasurementSource.state`).
-    estimators
-        The observer bank's state.
-    script, workpiece, tool, eccentricity
-        The scenario's parts (None when the scenario has no such part).
+    script
+        The scenario script's memory.
+    parts
+        Every part's state (:meth:`Part.state`), by the part's name; a pipeline restores
+        only a state of the same parts.
     latest
         The last value of every channel.
-    process
-        The part program under way (issue 21): the machine, the drives' observers, the
-        block and the injections waiting (None without a part program).
-    taught
-        The process monitor's state (:meth:`estimators.process_monitor.ProcessMonitor.
-        initial_state`: the limits taught per (tool, program, block), the running sums);
-        empty without a process monitor. A restarted service resumes its teach-in.
     """
 
     scenario: str
@@ -94,16 +74,10 @@ class PipelineState:
     seed: int
     t: float
     knobs: dict[str, float | bool | str]
-    effects: tuple[ObserverEffect, ...]
     source_state: object
-    estimators: BankState
     script: ScriptState
-    workpiece: WorkpieceState | None
-    tool: ToolState | None
-    eccentricity: LiveEccentricity | None
-    latest: dict[str, float]
-    process: ProcessState | None = None
-    taught: dict[str, Any] = field(default_factory=dict)
+    parts: dict[str, Any] = field(default_factory=dict)
+    latest: dict[str, float] = field(default_factory=dict)
 
 
 def save_checkpoint(path: str | os.PathLike[str], state: PipelineState) -> None:
@@ -133,7 +107,6 @@ __all__ = [
     "VERSION",
     "PipelineState",
     "ScriptState",
-    "ToolState",
     "load_checkpoint",
     "save_checkpoint",
 ]

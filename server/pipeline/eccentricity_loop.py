@@ -15,6 +15,7 @@ live service can call it with its block length; the reproductions call
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -22,8 +23,8 @@ from typing import Any
 import numpy as np
 
 from common.arrays import F64
-from estimators.esc import EscParams, ExtremumSeekingController, positive_polar
-from estimators.fast_tuner import FastTuner, FastTunerParams
+from estimators.esc import EscParams, EscState, ExtremumSeekingController, positive_polar
+from estimators.fast_tuner import FastTuner, FastTunerParams, FastTunerState
 from estimators.force_observer import LoadParams, TorsionEstimator, TorsionState
 from machine.milling import MillingMachine, MillingParams, MillingRecord
 
@@ -221,6 +222,11 @@ class AdaptiveObserverForceSource(ObserverForceSource):
         machine.set_excitation(*self.excitation)
         self._excited = machine
 
+    def relink(self, machine: MillingMachine) -> None:
+        """The machine the circle is on is ``machine`` (after a restore), if attached."""
+        if self._excited is not None:
+            self._excited = machine
+
     def restart(self) -> None:
         """Identify again from the current estimate (circle back on if attached)."""
         for i, idf in enumerate(self._ident):
@@ -290,6 +296,31 @@ STEP_KEYS = (
 )
 
 
+@dataclass
+class LoopState:
+    """Everything an :class:`EccentricityLoop` carries from sample to sample, as a value
+    (a checkpoint): the simulated machine (its state, cut, generator), the drives' force
+    observers (None: the dynamometer), the tuner's mode, state and modulation, and the
+    revolution under way."""
+
+    machine: MillingMachine
+    force_source: Any
+    tuner: str
+    adapt_start_s: float
+    esc: EscState
+    fast: FastTunerState
+    #: a_um, theta_deg, b_um, phi_deg, a_n_um, theta_n_deg
+    modulation: tuple[float, float, float, float, float, float]
+    saturated: bool
+    last_cost: float
+    started: bool
+    rev_start_t: float
+    next_boundary: float
+    buf: list[MillingRecord]
+    est: list[tuple[F64, F64]]
+    log: RevolutionLog
+
+
 def _joined(parts: list[F64]) -> F64:
     """The chunks of one revolution as one array (the chunk itself when it is one)."""
     return parts[0] if len(parts) == 1 else np.concatenate(parts)
@@ -339,6 +370,8 @@ class EccentricityLoop:
         self.cost_axis = cost_axis
         self.adapt_start_s = float(adapt_start_s)
         self.force_source = force_source
+        #: wall seconds spent in the simulated machine (not in the tuner or the observers)
+        self.sim_s = 0.0
         self.reset()
 
     def reset(self) -> None:
@@ -389,6 +422,7 @@ class EccentricityLoop:
         while left > 0:
             m = self.samples_to_boundary()
             c = min(m, left)
+            w0 = time.perf_counter()
             rec = self.machine.step(
                 c,
                 self.a_um * 1e-6,
@@ -396,6 +430,7 @@ class EccentricityLoop:
                 self.b_um * 1e-6,
                 math.radians(self.phi_deg),
             )
+            self.sim_s += time.perf_counter() - w0
             self.saturated = rec.saturated
             est = self.force_source(rec) if self.force_source is not None else (rec.fx, rec.fy)
             self._buf.append(rec)
@@ -446,6 +481,43 @@ class EccentricityLoop:
             "true.cancelling_a_um": a_s * 1e6,
             "true.cancelling_theta_deg": math.degrees(th_s),
         }
+
+    def loop_state(self) -> LoopState:
+        """The loop's state (:class:`LoopState`; shares its objects: copy it to keep it)."""
+        return LoopState(
+            machine=self.machine,
+            force_source=self.force_source,
+            tuner=self.tuner,
+            adapt_start_s=self.adapt_start_s,
+            esc=self.esc_state,
+            fast=self.fast_state,
+            modulation=(self.a_um, self.theta_deg, self.b_um, self.phi_deg, self.a_n_um,
+                        self.theta_n_deg),
+            saturated=self.saturated,
+            last_cost=self.last_cost,
+            started=self._started,
+            rev_start_t=self._rev_start_t,
+            next_boundary=self._next_boundary,
+            buf=self._buf,
+            est=self._est,
+            log=self.log,
+        )  # fmt: skip
+
+    def restore_loop(self, st: LoopState) -> None:
+        """Continue from a :meth:`loop_state` (taken over, not copied). The adaptive
+        observers' identification circle is put back on this machine (a state read from
+        a file holds its own copy of the machine it excites)."""
+        self.machine = st.machine
+        self.force_source = st.force_source
+        if isinstance(st.force_source, AdaptiveObserverForceSource):
+            st.force_source.relink(self.machine)
+        self.tuner, self.adapt_start_s = st.tuner, st.adapt_start_s
+        self.esc_state, self.fast_state = st.esc, st.fast
+        (self.a_um, self.theta_deg, self.b_um, self.phi_deg, self.a_n_um,
+         self.theta_n_deg) = st.modulation  # fmt: skip
+        self.saturated, self.last_cost, self._started = st.saturated, st.last_cost, st.started
+        self._rev_start_t, self._next_boundary = st.rev_start_t, st.next_boundary
+        self._buf, self._est, self.log = st.buf, st.est, st.log
 
     def run_revolutions(self, n_revs: int) -> None:
         """Advance whole revolutions (the reproduction's driver)."""
@@ -516,6 +588,7 @@ __all__ = [
     "AdaptiveObserverForceSource",
     "EccentricityLoop",
     "ForceSource",
+    "LoopState",
     "ObserverForceSource",
     "RevolutionLog",
 ]

@@ -1,10 +1,13 @@
 """Eccentricity and its cancellation, run beside the live stage (seed 003 in the loop).
 
-:class:`LiveEccentricity` wraps :class:`server.pipeline.eccentricity_loop.EccentricityLoop` (milling
-machine on its X/Y feed drives at 5 kHz, extremum seeking controller or fast tuner) for the
-live pipeline: each block of the stage (2.5 kHz) advances it by the same simulated time
-(the fractional remainder carried over), and its per-revolution values are picked on the
-stage's sample grid so they stream with every other channel.
+:class:`EccentricityPart` is the live part (:mod:`server.pipeline.part`): its channels and
+charts are declared here; it simulates seed 003's milling machine beside the stage, so it
+runs with the simulator only. :class:`LiveEccentricity` wraps
+:class:`server.pipeline.eccentricity_loop.EccentricityLoop` (milling machine on its X/Y
+feed drives at 5 kHz, extremum seeking controller or fast tuner) for the live pipeline:
+each block of the stage (2.5 kHz) advances it by the same simulated time (the fractional
+remainder carried over), and its per-revolution values are picked on the stage's sample
+grid so they stream with every other channel.
 
 Choices
 -------
@@ -28,18 +31,32 @@ Choices
 from __future__ import annotations
 
 import math
-from dataclasses import replace
+from collections.abc import Mapping
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from common.arrays import F64
+from common.errors import ParameterError
 from estimators.esc import EscParams
 from machine.milling import MillingParams
 from server.pipeline.eccentricity_loop import (
     AdaptiveObserverForceSource,
     EccentricityLoop,
     ForceSource,
+    LoopState,
     ObserverForceSource,
+)
+from server.pipeline.machine_view import MachineView
+from server.pipeline.part import (
+    Block,
+    Channel,
+    Chart,
+    LivePart,
+    Outputs,
+    Setup,
+    Verdict,
+    needs_simulator,
 )
 
 #: revolutions of the tuner's log kept in the live service
@@ -270,4 +287,138 @@ class LiveEccentricity:
         return self.loop.state()
 
 
-__all__ = ["ECC_CHANNELS", "FORCE_SOURCES", "TUNERS", "LiveEccentricity"]
+#: the charts of the tuner: radius, phase, cost (the research page)
+ECC_RADIUS = Chart(
+    "ecc_radius", "Eccentricity: ESC radius (tuner vs cancelling)", order=60, window_s=60.0
+)
+ECC_PHASE = Chart("ecc_phase", "Eccentricity: ESC phase", order=61, window_s=60.0)
+ECC_COST = Chart(
+    "ecc_cost", "Eccentricity: cost, 1x force, observer mass error", order=62, window_s=60.0
+)
+#: how each channel is drawn: chart, truth, colour, second axis, legend
+_DRAWN: dict[str, tuple[Chart | None, bool, str, str, str]] = {
+    "ecc_a_cancel": (ECC_RADIUS, True, "#1d232b", "", "cancelling a_m (true) [um]"),
+    "ecc_a_m": (ECC_RADIUS, False, "#0072b2", "", "tuner a_m [um]"),
+    "ecc_fast_on": (ECC_RADIUS, False, "#7b3294", "on", "fast tuner on"),
+    "ecc_esc_on": (ECC_RADIUS, False, "#009e73", "on", "ESC on"),
+    "ecc_theta_cancel": (ECC_PHASE, True, "#1d232b", "", "cancelling theta_m (true) [deg]"),
+    "ecc_theta_m": (ECC_PHASE, False, "#0072b2", "", "tuner theta_m [deg]"),
+    "ecc_cost": (ECC_COST, False, "#0072b2", "", "cost, eq. (8) [N]"),
+    "ecc_f1x": (ECC_COST, True, "#1d232b", "", "1x force amplitude, true [N]"),
+    "ecc_mass_err": (ECC_COST, False, "#cc3311", "pct", "observer X mass error [%]"),
+    "ecc_true_um": (None, True, "", "", ""),
+    "ecc_true_deg": (None, True, "", "", ""),
+    "ecc_identifying": (None, False, "", "", ""),
+}
+
+
+def _channels() -> tuple[Channel, ...]:
+    """:data:`ECC_CHANNELS` declared (each on its chart, in the order listed there)."""
+    out: list[Channel] = []
+    for chart in (ECC_RADIUS, ECC_PHASE, ECC_COST, None):
+        mine = [k for k, d in _DRAWN.items() if d[0] is chart]
+        chans = [
+            Channel(k, ECC_CHANNELS[k][0], ECC_CHANNELS[k][1], "eccentricity", truth=_DRAWN[k][1],
+                    color=_DRAWN[k][2], axis=_DRAWN[k][3],
+                legend=_DRAWN[k][4])
+            for k in mine
+        ]  # fmt: skip
+        out += chart.series(*chans) if chart is not None else chans
+    return tuple(out)
+
+
+@dataclass
+class EccentricityState:
+    """The eccentricity part's state (checkpointed): the knobs it applied (radius, angle,
+    tuner mode, milling spindle speed, force source, mass error), the fractional sample
+    carried to the next block, the latest values and the true cancelling modulation, and
+    the loop's own state (the simulated machine, the force observers, the tuner)."""
+
+    key: tuple[float, float, str, float, str, float]
+    carry: float
+    last: dict[str, float]
+    cancel: tuple[float, float]
+    loop: LoopState
+
+
+class EccentricityPart(LivePart):
+    """Seed 003's eccentric milling tool and its tuner, beside the stage (module docstring).
+
+    Parameters
+    ----------
+    live
+        The loop, advanced by the stage's blocks.
+    """
+
+    name = "eccentricity"
+    charts = (ECC_RADIUS, ECC_PHASE, ECC_COST)
+    channels = _channels()
+
+    def __init__(self, live: LiveEccentricity) -> None:
+        self.live = live
+
+    @property
+    def simulated_s(self) -> float:  # type: ignore[override]
+        """Seconds in seed 003's simulated milling machine (the rest: tuner, observers)."""
+        return self.live.loop.sim_s
+
+    @classmethod
+    def from_knobs(cls, k: Mapping[str, float | bool | str]) -> EccentricityPart:
+        """The part as the knobs set it (radius, angle, tuner, on/off, force, mass error)."""
+        return cls(
+            LiveEccentricity(
+                float(k["eccentricity_um"]),
+                float(k["eccentricity_deg"]),
+                tuner=str(k["tuner"]),
+                enabled=bool(k["esc_on"]),
+                force=str(k["ecc_force"]),
+                mass_error_pct=float(k["ecc_mass_error"]),
+            )
+        )
+
+    def requires(self, machine: MachineView) -> Verdict:
+        return needs_simulator(machine, "seed 003's milling machine with its eccentric tool")
+
+    def configure(self, setup: Setup) -> None:
+        """The knobs, and the milling spindle following the machine's spindle."""
+        from server.pipeline.knobs import BASE_RPM  # (knobs lists this module's choices)
+
+        k = setup.knobs
+        self.live.configure(
+            float(k["eccentricity_um"]),
+            float(k["eccentricity_deg"]),
+            str(k["tuner"]),
+            bool(k["esc_on"]),
+            ECC_BASE_RPM * (setup.machine.spindle_rpm / BASE_RPM),
+            str(k["ecc_force"]),
+            float(k["ecc_mass_error"]),
+        )
+
+    def step(self, block: Block) -> Outputs:
+        return self.live.step(block.t, block.sample_time), []
+
+    def state(self) -> EccentricityState:
+        lv = self.live
+        return EccentricityState(
+            lv._key, lv._carry, dict(lv._last), lv._cancel, lv.loop.loop_state()
+        )
+
+    def restore(self, state: object) -> None:
+        if not isinstance(state, EccentricityState):
+            raise ParameterError(
+                "state.parts.eccentricity", "an EccentricityState", type(state).__name__
+            )
+        lv = self.live
+        lv._key, lv._carry, lv._last = state.key, state.carry, dict(state.last)
+        lv._cancel = state.cancel
+        lv.loop.restore_loop(state.loop)
+
+
+__all__ = [
+    "ECC_CHANNELS",
+    "FORCE_SOURCES",
+    "TUNERS",
+    "EccentricityPart",
+    "EccentricityState",
+    "LiveEccentricity",
+]

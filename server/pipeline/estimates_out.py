@@ -80,7 +80,9 @@ class EstimatesPublisher:
         self._next_t = 0.0  # the machine's time of the next message (a live feed)
         self._lock = threading.Lock()
         self._latest: dict[str, float] = {}
-        self._sq = 0.0
+        #: the squares of the force over the period, block by block (summed exactly at the
+        #: message: the level does not depend on how the period's blocks were cut)
+        self._sq: list[np.ndarray] = []
         self._count = 0
         self._client: Any = None
 
@@ -111,7 +113,7 @@ class EstimatesPublisher:
             if f is not None:
                 a = np.asarray(f, dtype=np.float64)
                 a = a[np.isfinite(a)]
-                self._sq += float(a @ a)
+                self._sq.append(a * a)
                 self._count += a.size
 
     def build(
@@ -129,8 +131,9 @@ class EstimatesPublisher:
         ``monitor``: the service's monitor status (:class:`MonitorStatus` fields)."""
         with self._lock:
             latest = dict(self._latest)
-            level = math.sqrt(self._sq / self._count) if self._count else math.nan
-            self._sq, self._count = 0.0, 0
+            sq = math.fsum(np.concatenate(self._sq)) if self._sq else 0.0
+            level = math.sqrt(sq / self._count) if self._count else math.nan
+            self._sq, self._count = [], 0
         groups: dict[str, dict[str, float]] = {"force": {"level": level}, "params": {}}
         harmonics: dict[str, float] = {}
         for ch in channels:

@@ -1,11 +1,14 @@
-"""Pipeline wiring for the live service: the simulated stage feeding every force observer.
+"""The live pipeline: a measurement source and the parts that watch it, block by block.
 
-The public surface is the contract the live service builds on:
+The public surface is the contract the live runtime builds on
+(:mod:`server.pipeline.runtime`):
 
 - ``LivePipeline(scenario: str = "default", seed: int = 0, source=None)``; a log replay
   is ``LivePipeline.from_log(path)``
 - ``.sample_time`` (s), ``.t`` (time of the source, s), ``.finished`` (a log has ended)
-- ``.channels() -> list[Channel]``: every per-sample output, with unit and group
+- ``.channels() -> list[Channel]``, ``.charts() -> list[Chart]``: what the parts stream
+  and where the dashboard draws it (:mod:`server.pipeline.part`)
+- ``.parts() -> list[dict]``: every part with ``name``, ``running`` and ``reason``
 - ``.step(n) -> dict[str, np.ndarray]``: advance ``n`` samples; one float64 array of
   length ``n`` per channel name (plus ``"t"``)
 - ``.knobs() -> dict[str, Knob]``: live-tweakable parameters with their ranges (frozen
@@ -13,53 +16,61 @@ The public surface is the contract the live service builds on:
 - ``.set_knob(name, value)``, ``.set_knobs(changes)``: validated (``Knob.check``); raise
   ``ParameterError`` naming the field, the allowed range and the value; nothing changes
   on error
-- ``.reset()``; ``.snapshot() -> dict`` (latest values, truths, knob values, accuracy)
+- ``.reset()``; ``.snapshot() -> dict`` (latest values, truths, knob values, accuracy,
+  parts)
 - ``.state() -> PipelineState``, ``.restore(state)``: everything carried from block to
   block as one value (:mod:`server.pipeline.checkpoint`, docs/checkpoints.md)
 - ``.accuracy() -> dict``: rolling rms of each force estimate over 1 s and 10 s
   (:mod:`server.pipeline.accuracy`)
 - ``SCENARIOS``: name -> one-line description
 
-The parts: the scenario (:mod:`server.pipeline.scenarios`: the plant, the script of
-spindle steps and mounted weights, the workpiece, tool-wear and eccentricity processes:
-:mod:`server.pipeline.workpiece`, :mod:`server.pipeline.wear_passes`,
-:mod:`server.pipeline.eccentricity_part`), the observer bank
-(:mod:`server.pipeline.observer_bank`) and the channel assembly
-(:mod:`server.pipeline.channels`). The pipeline asks its scenario what to do; it never
-compares a scenario's name and never reaches into the simulator.
+The pipeline is a coordinator. Its parts (:mod:`server.pipeline.part`; which ones:
+:mod:`server.pipeline.part_registry`) each say what they need of the machine
+(``requires``, asked of a :class:`~server.pipeline.machine_view.MachineView` at build and
+again whenever the view changes: a spindle step, a new sample rate), what they stream
+(their channels and charts) and how they run; the pipeline loops over them in order:
 
-Behind the bank is :class:`server.pipeline.stage_run.StageRun`: a measurement source
-(:mod:`server.pipeline.sources`; by default the simulated two-inertia stage of seed 000,
-or a replayed log, or a live feed) with the fixed-parameter, adaptive (ordinary RLS) and
-switching-RLS force observers. The estimators see the Measurements only; the truth
-columns are for display (NaN, but for the reference force, from a source without Truth).
-A source's block marked as a discontinuity resets every observer before it is run; a
-block of no samples changes nothing.
+1. the scenario's script before the source's block (:meth:`LivePipeline._prepare`): the
+   simulating parts' ``before`` (the workpiece's removal, the tool's pass), a spindle
+   step, the knobs and the machine given to the parts (``configure``) when they changed,
+   and the simulated stage reconfigured (:meth:`LivePipeline._apply`: force gain and
+   frequencies, added inertia, noise, plant effects);
+2. the source's block, wrapped once in a :class:`~server.pipeline.part.Block`;
+3. every running part's ``step``: its channels (later parts read earlier ones' from the
+   block), its events; a part that raises is stopped with its reason (and the parts
+   that need it), the others go on; a part that does not run streams NaN;
+4. the force estimates scored (:mod:`server.pipeline.accuracy`).
+
+What each costs is measured as it runs (:meth:`LivePipeline.costs`): per part, the wall
+time of its estimation apart from its simulation (the simulated machine's script, and
+what a simulating part reports as :attr:`~server.pipeline.part.LivePart.simulated_s`),
+the source's (the simulator's stage), and the pipeline's own coordination; ``cutwatch
+bench pipeline`` reports them per machine-second.
+
+What the CNC knows (a spindle step, a tool change, a fresh workpiece, a weight put on)
+goes to every part at once as a :class:`~server.pipeline.part.Notice`.
 
 Scenario events are scheduled on simulated time, so a run is the same whatever the
 wall-clock speed. The default scenario: the stage reciprocates while milling; the
 workpiece (an inertia of the size of seed 000's added weight) loses mass at
 ``removal_rate`` % per second until a fresh blank is clamped; every 15 s the spindle
 speed steps between the knob's value and 80 % of it (force gain and frequencies, as in
-seed 001 Fig. 9).
-
-Identification you can trust (issue 13, ``docs/live-identification.md``): the gated
-segment identifier (:mod:`estimators.segment_id`) streams J_L, B_L, F_CL with 95 %
-interval bounds and an excited flag (channels ``<p>_seg``, ``<p>_lo``, ``<p>_hi``,
-``<p>_excited``). The pipeline tells it what the CNC knows: a spindle step and a tool
-change change the cutting force's DC (the reversal segment around them is discarded), a
-fresh workpiece changes J_L (it restarts). The wear grows the force smoothly (no steps
-at pass boundaries, which fall on the reversals), and a fresh blank is clamped just before
-a reversal (the table at its stroke end), not in the middle of a stroke.
+seed 001 Fig. 9). Identification you can trust (issue 13,
+``docs/live-identification.md``): the gated segment identifier streams J_L, B_L, F_CL
+with 95 % interval bounds and an excited flag.
 """
 
 from __future__ import annotations
 
+import collections
 import copy
+import logging
 import math
 import os
-from collections.abc import Mapping
+import time
+from collections.abc import Iterable, Mapping
 from dataclasses import replace
+from typing import Any
 
 import numpy as np
 
@@ -69,22 +80,28 @@ from estimators.rls import IdentifierParams
 from machine.effects import EFFECT_NAMES, PlantEffects
 from machine.params import ADDED_WEIGHT_INERTIA
 from machine.stage import SEED000_FORCE, CuttingForce, StageConfig
+from server.errors import CutwatchError
 from server.pipeline.accuracy import RollingAccuracy
-from server.pipeline.channels import (
-    CHANNELS,
-    FORCE_ESTIMATES,
-    BlockParts,
-    Channel,
-    empty_block,
-    finish,
-    no_eccentricity,
-    stage_channels,
-)
-from server.pipeline.checkpoint import PipelineState, ScriptState, ToolState
-from server.pipeline.eccentricity_part import ECC_BASE_RPM, LiveEccentricity
+from server.pipeline.checkpoint import PipelineState, ScriptState
 from server.pipeline.knobs import BASE_RPM, Knob, KnobValue, KnobValues
-from server.pipeline.observer_bank import ObserverBank
-from server.pipeline.process_part import LiveProcess, no_process
+from server.pipeline.machine_view import MachineView
+from server.pipeline.part import (
+    Block,
+    Channel,
+    Chart,
+    LivePart,
+    Notice,
+    Part,
+    PartStatus,
+    Plan,
+    Setup,
+    Verdict,
+    nan_channels,
+)
+from server.pipeline.part import (
+    Plant as BlockPlant,
+)
+from server.pipeline.part_registry import BUILTIN, BuildContext, extra_factories
 from server.pipeline.scenarios import (
     SCENARIO_OBJECTS,
     SCENARIOS,
@@ -93,7 +110,6 @@ from server.pipeline.scenarios import (
     source_scenario,
 )
 from server.pipeline.sources import (
-    RESUMED,
     MeasurementSource,
     ReplaySource,
     SimulatorSource,
@@ -101,14 +117,10 @@ from server.pipeline.sources import (
     open_replay,
 )
 from server.pipeline.stage_run import StageRun
-from server.pipeline.wear_alarms import WearAlarms
-from server.pipeline.wear_passes import VB_LIMIT, ToolWearPasses
-from server.pipeline.workpiece import Workpiece
 from server.records.monitor_events import EventOutbox, MonitorEvent
 
 __all__ = [
     "BASE_RPM",
-    "CHANNELS",
     "FORCE_ESTIMATES",
     "SCENARIOS",
     "Channel",
@@ -116,9 +128,39 @@ __all__ = [
     "LivePipeline",
 ]
 
+log = logging.getLogger("uvicorn.error")
+
+
+def _force_estimates(channels: Iterable[Channel]) -> tuple[str, ...]:
+    """The force estimates the accuracy panel scores: group ``force``, not the truth."""
+    return tuple(c.name for c in channels if c.group == "force" and not c.truth)
+
+
+def _builtin_force_estimates() -> tuple[str, ...]:
+    from server.pipeline.dfo_part import DfoPart
+    from server.pipeline.effects_part import EffectsPart
+    from server.pipeline.stage_part import StagePart
+
+    return _force_estimates(c for p in (StagePart, EffectsPart, DfoPart) for c in p.channels)
+
+
+#: the force estimates of the built-in parts, in the order the pipeline streams them
+FORCE_ESTIMATES = _builtin_force_estimates()
+
+#: the status strip before any part says more (``MonitorStatus`` fields)
+_STATUS: dict[str, object] = {
+    "state": "off",
+    "tool": 0,
+    "program": "",
+    "line": 0,
+    "part": -1,
+    "wear_share": math.nan,
+    "life_left_min": math.nan,
+}
+
 
 class LivePipeline:
-    """The stage and its observers, advanced block by block, with live knobs.
+    """A source and its parts, advanced block by block, with live knobs (module docstring).
 
     Parameters
     ----------
@@ -145,17 +187,13 @@ class LivePipeline:
         self.script: Scenario = sc
         self.seed = seed
         self._knobs = KnobValues(sc.knobs)
-        self.effects: tuple[ObserverEffect, ...] = ()
+        self._effects0: tuple[ObserverEffect, ...] = ()
         plant = self._plant(source)
         self._plant_cfg = plant
         self._force0: CuttingForce = plant.config.force
         self.source = source or SimulatorSource(plant.config, seed=seed)
         #: events raised and not yet taken (:meth:`take_events`); kept over a reset
         self.events = EventOutbox()
-        #: tools taken out of the spindle, not yet taken (:meth:`take_tool_changes`)
-        self._tool_changes: list[dict[str, object]] = []
-        #: the tool-life monitor's alarms as events, once per tool (wear_limit, life_short)
-        self.wear_alarms = WearAlarms()
         self.reset()
 
     @property
@@ -190,16 +228,9 @@ class LivePipeline:
 
     def reset(self) -> None:
         """Start the source (the simulation from t = 0, a log from its first sample) and
-        every estimator again (knobs kept)."""
-        sc, k = self.script, self._knobs
+        every part again, built afresh (knobs and installed effects kept)."""
+        effects = self.effects if hasattr(self, "_parts") else self._effects0
         self.source.reset()
-        self.bank = ObserverBank(
-            self.source,
-            self._plant_cfg.ident,
-            self._plant_cfg.design,
-            tuple(self._force0.frequencies),
-            self.effects,
-        )
         self.sample_time = float(self.source.sample_time)
         self.last_block: SourceBlock | None = None
         self._weight = math.nan  # seed 000's weight on the load (none applied yet)
@@ -207,38 +238,92 @@ class LivePipeline:
         self._last: dict[str, float] = {}
         self._applied: tuple[object, ...] = ()
         self._force_applied = self._force0
-        # the workpiece needs the table's reversals: the simulated trajectory's
-        hp = self._plant_cfg.config.trajectory.half_period
-        self.workpiece = Workpiece(hp, self._spindle_factor) if sc.workpiece else None
-        self.tool = ToolWearPasses(k.number("wear_rate")) if sc.tool_wear else None
+        self._knob_version = 0
+        self._configured: tuple[int, MachineView] | None = None
+        self._view = MachineView.of(self.source, self._spindle_rpm(0.0))
+        self.reset_costs()
+        self._build(effects)
         self._accuracy = RollingAccuracy(
-            FORCE_ESTIMATES, self.sample_time, has_truth=self.source.has_truth
+            self.force_estimates(), self.sample_time, has_truth=self.source.has_truth
         )
-        # seed 003's milling machine with eccentricity and its tuner
-        self._ecc: LiveEccentricity | None = None
-        if sc.eccentricity:
-            self._ecc = LiveEccentricity(
-                k.number("eccentricity_um"),
-                k.number("eccentricity_deg"),
-                tuner=str(k["tuner"]),
-                enabled=bool(k["esc_on"]),
-                force=str(k["ecc_force"]),
-                mass_error_pct=k.number("ecc_mass_error"),
-            )
-        # issue 21: a part program watched by the process monitor
-        self._proc: LiveProcess | None = None
-        if sc.process:
-            self._proc = LiveProcess(
-                self.seed,
-                teach_parts=int(k.number("teach_parts")),
-                band_factor=k.number("band_factor"),
-            )
         self._apply(0.0)
+
+    def _build(self, effects: tuple[ObserverEffect, ...]) -> None:
+        """Every part of this pipeline, built in order; one that cannot be built is
+        listed with the reason (and so are the parts that need it)."""
+        ctx = BuildContext(
+            self.script,
+            self.source,
+            self.seed,
+            self._knobs,
+            self._plant_cfg,
+            self._spindle_factor,
+            effects,
+        )
+        self._parts: list[Part] = []
+        self._status: dict[str, PartStatus] = {}
+        factories = [*BUILTIN, *((f"extra {i}", f) for i, f in enumerate(extra_factories()))]
+        for name, factory in factories:
+            try:
+                part = factory(ctx)
+            except Exception as exc:  # a part that cannot be built is said, not fatal
+                why = str(exc) if isinstance(exc, CutwatchError | ParameterError) else _why(exc)
+                ctx.failed[name] = why
+                self._status[name] = PartStatus(name, False, f"not built: {why}")
+                continue
+            if part is None:
+                continue
+            ctx.parts[part.name] = part
+            self._parts.append(part)
+        # the parts that simulate beside the machine (the others keep the hooks' defaults:
+        # not called, not timed)
+        self._hooks = {
+            h: [p for p in self._parts if _overrides(p, h)]
+            for h in ("before", "force_gain", "added_inertia")
+        }
+        self._check(self._view)
 
     @property
     def run(self) -> StageRun:
-        """The stage observers and identifiers (:class:`~server.pipeline.stage_run.StageRun`)."""
-        return self.bank.run
+        """The stage observers and identifiers (:class:`~server.pipeline.stage_run.StageRun`).
+
+        Raises
+        ------
+        ParameterError
+            The pipeline has no stage part.
+        """
+        return self._part("stage", "run").run
+
+    @property
+    def tool(self) -> Any:
+        """The wearing tool (:class:`~server.pipeline.wear_passes.ToolWearPasses`), None
+        without the wear part."""
+        wear = self.part("wear")
+        return wear.tool if wear is not None else None
+
+    @property
+    def workpiece(self) -> Any:
+        """The workpiece (:class:`~server.pipeline.workpiece.Workpiece`), None without it."""
+        wp = self.part("workpiece")
+        return wp.workpiece if wp is not None else None
+
+    def part(self, name: str) -> Any:
+        """The part ``name`` of this pipeline (None: it has none)."""
+        return next((p for p in self._parts if p.name == name), None)
+
+    def _part(self, name: str, field: str) -> Any:
+        p = self.part(name)
+        if p is None:
+            raise ParameterError(
+                field, f"a pipeline with the {name} part", f"the {self.scenario} pipeline"
+            )
+        return p
+
+    @property
+    def effects(self) -> tuple[ObserverEffect, ...]:
+        """The observer effects installed (the effects part's)."""
+        fx = self.part("effects")
+        return tuple(fx.effects) if fx is not None else ()
 
     def set_observer_effects(self, effects: tuple[ObserverEffect, ...]) -> None:
         """Install identified effects (issue 4 section 4) into the live observer; ``()``
@@ -248,10 +333,10 @@ class LivePipeline:
         Raises
         ------
         ParameterError
-            An effect without its fitted coefficients.
+            An effect without its fitted coefficients, or a pipeline without the effects
+            part.
         """
-        self.bank.set_effects(tuple(effects))
-        self.effects = self.bank.effects
+        self._part("effects", "effects").install(tuple(effects))
 
     @property
     def t(self) -> float:
@@ -263,47 +348,134 @@ class LivePipeline:
         """True once the source hands out no more samples (the end of a replayed log)."""
         return bool(self.source.finished)
 
+    # ------------------------------------------------------------------ the parts
+    def parts(self) -> list[dict[str, object]]:
+        """Every part with ``name``, ``running`` and ``reason`` (why not), in order."""
+        return [s.as_dict() for s in self._status.values()]
+
+    def _running(self, part: Part) -> bool:
+        return self._status[part.name].running
+
+    def _check(self, view: MachineView) -> None:
+        """Ask every part whether it can run on ``view`` (in order: a part whose needed
+        part does not run cannot run either); a verdict that changed is logged."""
+        for part in self._parts:
+            old = self._status.get(part.name, PartStatus(part.name, True))
+            if old.reason.startswith("stopped"):
+                continue  # stopped on an error: until the next reset
+            v = self._verdict(part, view)
+            new = PartStatus(part.name, v.ok, v.reason)
+            if old != new and part.name in self._status:
+                log.warning(
+                    "cutwatch: part %s %s",
+                    part.name,
+                    "runs again" if v.ok else f"paused: {v.reason}",
+                )
+            self._status[part.name] = new
+
+    def _verdict(self, part: Part, view: MachineView) -> Verdict:
+        for need in part.needs:
+            st = self._status.get(need)
+            if st is None:
+                return Verdict(False, f"needs the {need} part, which this pipeline does not run")
+            if not st.running:
+                return Verdict(False, f"needs the {need} part, which does not run ({st.reason})")
+        try:
+            return part.requires(view)
+        except Exception as exc:
+            return Verdict(False, f"requires: {_why(exc)}")
+
+    def _stop(self, part: Part, exc: BaseException, where: str) -> None:
+        """Stop ``part`` (it raised in ``where``) and every part that needs it."""
+        reason = f"stopped: {where} raised {_why(exc)}"
+        log.warning("cutwatch: part %s %s", part.name, reason)
+        self._status[part.name] = PartStatus(part.name, False, reason)
+        for other in self._parts:
+            if part.name in other.needs and self._running(other):
+                self._status[other.name] = PartStatus(
+                    other.name, False, f"stopped: needs the {part.name} part, which stopped"
+                )
+
+    def channels(self) -> list[Channel]:
+        """Every per-sample output of :meth:`step`, part by part, with how to draw it."""
+        return [c for p in self._parts for c in p.channels]
+
+    def charts(self) -> list[Chart]:
+        """The charts the parts' channels are drawn on (each once, in part order)."""
+        seen: dict[str, Chart] = {}
+        for p in self._parts:
+            for c in p.charts:
+                seen.setdefault(c.id, c)
+        return list(seen.values())
+
+    def force_estimates(self) -> tuple[str, ...]:
+        """The force estimates the accuracy panel scores, in stream order."""
+        return _force_estimates(self.channels())
+
+    def _notice(self, change: Notice) -> None:
+        """Tell every running part of a change the CNC knows of, at once."""
+        for part in self._parts:
+            if self._running(part):
+                part.notice(change)
+
     # ------------------------------------------------------------------ scenario
     def _spindle_factor(self, t: float) -> float:
         return self.script.spindle_factor(t, self._knobs)
 
+    def _spindle_rpm(self, t: float) -> float:
+        return self._knobs.number("spindle_rpm") * self._spindle_factor(t)
+
+    def _prepare(self, t0: float, n: int) -> None:
+        """The scenario's script before the block of ``n`` samples starting at ``t0``: the
+        simulating parts' ``before`` (the workpiece's removal and clamp, the tool's pass),
+        a spindle step; then the stage's configuration for the block."""
+        plan = Plan(t0, n, self.sample_time, self._knobs, self._notice)
+        for part in self._hooks["before"]:
+            if self._running(part):
+                w0 = time.perf_counter()
+                part.before(plan)
+                self._cost[part.name][1] += time.perf_counter() - w0
+        factor = self._spindle_factor(t0)
+        if factor != self._prev_factor:  # a spindle step: the force's DC changes
+            self._notice(Notice("disturbance", t0))
+            self._prev_factor = factor
+        self._apply(t0)
+
     def _apply(self, t: float) -> None:
-        """Set the stage's configuration for the block starting at ``t``."""
+        """The machine and the knobs to the parts (when either changed), and the simulated
+        stage's configuration for the block starting at ``t``."""
         k = self._knobs
         sf = self._spindle_factor(t)
+        self._configure(self._view.with_spindle(k.number("spindle_rpm") * sf))
         freq = k.number("spindle_rpm") / BASE_RPM * sf
-        wear_gain = self.tool.gain(t) if self.tool is not None else 1.0
-        gain = k.number("feed_scale") * sf * wear_gain
+        part_gain = 1.0
+        for part in self._hooks["force_gain"]:
+            if self._running(part):
+                w0 = time.perf_counter()
+                part_gain *= part.force_gain(t)
+                self._cost[part.name][1] += time.perf_counter() - w0
+        gain = k.number("feed_scale") * sf * part_gain
         extra = ADDED_WEIGHT_INERTIA if k["weight_on"] else 0.0
         scripted = self.script.extra_inertia(t, k)
         if scripted is not None:
             extra = scripted
         if extra != self._weight:  # the weight mounted or removed: a known J_L change
             if not math.isnan(self._weight) and self.source.knobs_apply:
-                self.run.note_restart(J_L=True)
+                self._notice(Notice("restart", t, ("J_L",)))
             self._weight = extra
-        if self.workpiece is not None:
-            extra += self.workpiece.inertia(t)
-        if self._ecc is not None:
-            self._ecc.configure(
-                k.number("eccentricity_um"),
-                k.number("eccentricity_deg"),
-                str(k["tuner"]),
-                bool(k["esc_on"]),
-                ECC_BASE_RPM * freq,
-                str(k["ecc_force"]),
-                k.number("ecc_mass_error"),
-            )
-        if self._proc is not None:
-            self._proc.configure(int(k.number("teach_parts")), k.number("band_factor"))
+        for part in self._hooks["added_inertia"]:
+            if self._running(part):
+                w0 = time.perf_counter()
+                extra += part.added_inertia(t)
+                self._cost[part.name][1] += time.perf_counter() - w0
         noise = k.number("current_noise")
         effects = tuple(e for e in EFFECT_NAMES if k[f"effect_{e}"])
         key = (freq, gain, extra, noise, effects)
         if key == self._applied:
             return
         self._applied = key
-        self.bank.retune(tuple(f * freq for f in self._force0.frequencies))
         self._force_applied = replace(self._force0, freq_scale=freq, gain=gain)
+        w0 = time.perf_counter()
         # a log or a live feed ignores it (sources.MeasurementSource.knobs_apply)
         self.source.reconfigure(
             force=self._force_applied,
@@ -311,12 +483,27 @@ class LivePipeline:
             current_noise=noise,
             effects=PlantEffects().with_enabled(*effects),
         )
+        self._cost["source"][1] += time.perf_counter() - w0
 
-    # ------------------------------------------------------------------ contract
-    def channels(self) -> list[Channel]:
-        """Every per-sample output of :meth:`step`, with unit and display group."""
-        return list(CHANNELS)
+    def _configure(self, view: MachineView) -> None:
+        """A new machine view: every part asked again whether it can run; new knobs or a
+        new view: every running part configured."""
+        if view != self._view:
+            self._view = view
+            self._check(view)
+        now = (self._knob_version, view)
+        if now == self._configured:
+            return
+        self._configured = now
+        setup = Setup(self._knobs, view)
+        for part in self._parts:
+            if self._running(part):
+                try:
+                    part.configure(setup)
+                except Exception as exc:  # a part's failure is its own
+                    self._stop(part, exc, "configure")
 
+    # ------------------------------------------------------------------ knobs
     def knobs(self) -> dict[str, Knob]:
         """Live-tweakable parameters with their ranges and current values (frozen copies:
         change them with :meth:`set_knob`)."""
@@ -336,6 +523,7 @@ class LivePipeline:
             Unknown name, wrong type, or a value outside the knob's range.
         """
         self._knobs.set(name, value)
+        self._knob_version += 1
 
     def set_knobs(self, changes: Mapping[str, object]) -> None:
         """Set several knobs, all or nothing.
@@ -346,7 +534,9 @@ class LivePipeline:
             The first refused change (nothing is changed then).
         """
         self._knobs.update(changes)
+        self._knob_version += 1
 
+    # ------------------------------------------------------------------ stepping
     def step(self, n: int) -> dict[str, np.ndarray]:
         """Advance ``n`` samples; return ``"t"`` and every channel, ``n`` values each.
 
@@ -354,250 +544,109 @@ class LivePipeline:
         time they refer to, and the truth columns are aligned to it. A source that has
         fewer samples (the end of a log, a live feed) gives fewer values, or none: then
         nothing changes, not even ``t``. A block the source marks as a discontinuity
-        resets every observer first (:meth:`_discontinuity`).
+        restarts every part's estimators on it (each part knows how).
         """
+        w_start = time.perf_counter()
         t0 = float(self.source.t)
-        self._script(t0, n)
-        block = self.source.step(n)
-        self.last_block = block  # the measurements as the source gave them (recording)
-        n = block.n
-        if n == 0:
-            return empty_block()
-        if block.discontinuity is not None:
-            self._discontinuity(block.discontinuity, float(block.meas.t[0]))
-        bb = self.bank.process(block)
-        if self.tool is not None:
-            nominal = self._force0.offset * self._knobs.number("feed_scale")
-            nominal *= self._spindle_factor(t0)
-            worn = self.tool.accumulate(n, bb.stage.f_adaptive, nominal, self.sample_time)
-            self._wear_events(float(block.meas.t[-1]))  # before a change resets the estimate
-            if worn:
-                self._new_tool()
-        parts = BlockParts(
-            b=bb.stage,
-            dfo=bb.dfo,
-            f_effects=bb.f_effects,
-            true_amplitudes=self._true_amplitudes(),
-            wear=self._wear_values(),
-            spindle_rpm=self._knobs.number("spindle_rpm") * self._spindle_factor(t0),
-        )
-        out = stage_channels(parts, self.sample_time)
-        if self._ecc is not None:
-            out.update(self._ecc.step(out["t"], self.sample_time))
-        else:
-            out.update(no_eccentricity(n))
-        if self._proc is not None:
-            mon, events = self._proc.step(out["t"], self.sample_time)
-            out.update(mon)
-            for ev in events:
-                self.events.put(ev)
-        else:
-            out.update(no_process(n))
-        out = finish(out, has_truth=self.source.has_truth)
-        self._score(out, bb.stage.f_true, bb.stage.f_ideal)
-        self._last = {k: float(v[-1]) for k, v in out.items()}
-        return out
+        self._prepare(t0, n)
+        w0 = time.perf_counter()
+        src = self.source.step(n)
+        self._cost["source"][1] += time.perf_counter() - w0
+        self.last_block = src  # the measurements as the source gave them (recording)
+        if src.n == 0:
+            return {"t": np.zeros(0)} | {c.name: np.zeros(0) for c in self.channels()}
+        block = self._block(src, t0)
+        out = block.outputs
+        for part in self._parts:
+            if self._running(part):
+                self._step_part(part, block)
+            else:
+                out.update(nan_channels(part.channels, src.n))
+        res = {k: np.ascontiguousarray(v, dtype=np.float64) for k, v in out.items()}
+        self._score(res, block)
+        self._last = {k: float(v[-1]) for k, v in res.items()}
+        self._samples += src.n
+        self._wall += time.perf_counter() - w_start
+        return res
 
-    def _script(self, t0: float, n: int) -> None:
-        """The scenario's events before the block of ``n`` samples starting at ``t0``:
-        the workpiece's removal and clamp, the tool's pass, a spindle step; then the
-        stage's configuration for the block."""
-        if self.workpiece is not None:
-            rate = self._knobs.number("removal_rate") / 100.0
-            if self.workpiece.advance(t0, n, self.sample_time, rate):
-                self.run.note_restart(J_L=True)  # a fresh blank: J_L changes
-        if self.tool is not None:
-            self.tool.begin(t0, self._knobs.number("wear_rate"))
-        factor = self._spindle_factor(t0)
-        if factor != self._prev_factor:  # a spindle step: the force's DC changes
-            self.run.note_disturbance(t0)
-            self._prev_factor = factor
-        self._apply(t0)
-
-    def _new_tool(self) -> None:
-        """A sharp tool at the flank-wear limit; the CNC knows a tool change: the force's
-        DC steps back to the sharp tool's. The worn tool's life is recorded
-        (:meth:`take_tool_changes`)."""
-        assert self.tool is not None
-        self._tool_changes.append(self._tool_life_record("wear_limit"))
-        self.tool.new_tool(self._knobs.number("wear_rate"))
-        self.tool.state.tool_start_t = self.t
-        self.run.note_disturbance(self.t)
-
-    def _tool_life_record(self, cause: str) -> dict[str, object]:
-        """The life of the tool in the spindle, ending now: its tool number (the CNC's,
-        when the source gives one; else the wearing tool's place in the sequence),
-        its index (1 for the first tool of the run), the source times it was mounted
-        and changed, the estimated flank wear at the change (what the service knows;
-        None before the first estimate), the simulator's true wear (None without
-        truth) and the cause."""
-        assert self.tool is not None
-        st = self.tool.state
-        index = st.tools_changed + 1
-        number = self.monitor_status().get("tool")
-        vb_est = st.vb_est if math.isfinite(st.vb_est) else None
-        return {
-            "tool": number if isinstance(number, int) and number > 0 else index,
-            "index": index,
-            "start_t": st.tool_start_t,
-            "end_t": self.t,
-            "wear_at_change_mm": vb_est,
-            "wear_true_mm": st.vb_true if self.source.has_truth else None,
-            "wear_true_share": st.vb_true / VB_LIMIT if self.source.has_truth else None,
-            "cause": cause,
-        }
-
-    def _part_tool_changes(self) -> list[dict[str, object]]:
-        """The part program's tool changes (:meth:`LiveProcess.take_tool_changes`) as
-        tool lives: the simulated machine's wear as a share of the tool's limit (a truth:
-        no estimate of it), the cause ``wear_limit`` for a worn tool, else the alarm after
-        which the operator changed it."""
-        if self._proc is None:
-            return []
-        program = self._proc.ps.machine.program
-        out: list[dict[str, object]] = []
-        for c in self._proc.take_tool_changes():
-            number, wear = c["tool"], c["wear"]
-            assert isinstance(number, int) and isinstance(wear, float | int)
-            cause = str(c["cause"])
-            out.append(
-                {
-                    "tool": number,
-                    "index": None,
-                    "start_t": c["start_t"],
-                    "end_t": c["end_t"],
-                    "wear_at_change_mm": None,
-                    "wear_true_share": float(wear) / program.tool(number).wear_limit,
-                    "cause": "wear_limit" if cause == "worn" else cause,
-                }
-            )
-        return out
-
-    def take_tool_changes(self) -> list[dict[str, object]]:
-        """The tools taken out of the spindle since the last call, oldest first: ``tool``,
-        ``index``, ``start_t``, ``end_t`` [s], ``wear_at_change_mm``, ``wear_true_mm``,
-        ``wear_true_share``, ``cause``; the history records them. Two kinds: the wearing
-        tool of the stage (seed 004's wear, changed at its flank-wear limit; ``index`` its
-        place in the run) and the part program's tools (changed worn, or after a breakage
-        or missing-tool alarm; ``index`` None, no estimate of the wear)."""
-        out, self._tool_changes = self._tool_changes, []
-        return out + self._part_tool_changes()
-
-    def _wear_events(self, t: float) -> None:
-        """The tool-life monitor's alarms on the wear estimate (:mod:`server.pipeline.wear_alarms`)
-        into :attr:`events`, once per tool."""
-        assert self.tool is not None
-        s = self.tool.state
-        for ev in self.wear_alarms.check(
-            t, s.tools_changed, s.vb_est, VB_LIMIT, s.life_left, self.monitor_status()
-        ):
+    def _step_part(self, part: Part, block: Block) -> None:
+        """One part's block: its channels into the block, its events kept, its cost
+        counted (its simulation apart); a part that raises is stopped, NaN streamed."""
+        sim0 = part.simulated_s
+        w0 = time.perf_counter()
+        try:
+            ch, events = part.step(block)
+        except Exception as exc:  # a part's failure is its own: the others go on
+            self._stop(part, exc, "step")
+            block.outputs.update(nan_channels(part.channels, block.n))
+            return
+        sim = part.simulated_s - sim0
+        cost = self._cost[part.name]
+        cost[0] += time.perf_counter() - w0 - sim
+        cost[1] += sim
+        block.outputs.update(ch)
+        for ev in events:
             self.events.put(ev)
 
-    @property
-    def tools_changed(self) -> int:
-        """Tools changed at the flank-wear limit since the start (0 without tool wear)."""
-        return self.tool.state.tools_changed if self.tool is not None else 0
+    # ------------------------------------------------------------------ costs
+    def reset_costs(self) -> None:
+        """Start counting the costs (:meth:`costs`) again."""
+        self._cost: dict[str, list[float]] = collections.defaultdict(lambda: [0.0, 0.0])
+        self._samples = 0
+        self._wall = 0.0
 
-    # ------------------------------------------------------------------ state
-    def state(self) -> PipelineState:
-        """Everything the pipeline carries from block to block, as one detached value
-        (:class:`~server.pipeline.checkpoint.PipelineState`)."""
-        tool = ToolState(self.tool.state, self.tool.wear) if self.tool is not None else None
-        proc, taught = self._proc.state() if self._proc is not None else (None, {})
-        st = PipelineState(
-            scenario=self.scenario,
-            source=self.source.name,
-            seed=self.seed,
-            t=self.t,
-            knobs=self._knobs.as_dict(),
-            effects=self.effects,
-            source_state=self.source.state(),
-            estimators=self.bank.state(),
-            script=ScriptState(self._prev_factor, self._weight, self._applied, self._force_applied),
-            workpiece=self.workpiece.state if self.workpiece is not None else None,
-            tool=tool,
-            eccentricity=self._ecc,
-            latest=dict(self._last),
-            process=proc,
-            taught=taught,
-        )
-        return copy.deepcopy(st)
-
-    def restore(self, state: PipelineState) -> None:
-        """Continue from ``state`` (taken from a pipeline of the same scenario and source
-        kind): the next :meth:`step` gives what the pipeline that took it would have
-        given. The rolling accuracy starts empty.
-
-        Raises
-        ------
-        ParameterError
-            Another scenario or source, or parts the scenario does not have; nothing is
-            changed then.
-        """
-        if (state.scenario, state.source) != (self.scenario, self.source.name):
-            raise ParameterError(
-                "state",
-                f"a state of scenario {self.scenario!r} on the {self.source.name} source",
-                f"scenario {state.scenario!r} on the {state.source} source",
-            )
-        for part, mine, theirs in (
-            ("workpiece", self.workpiece, state.workpiece),
-            ("tool", self.tool, state.tool),
-            ("eccentricity", self._ecc, state.eccentricity),
-            ("process", self._proc, state.process),
-        ):
-            if (mine is None) != (theirs is None):
-                raise ParameterError(f"state.{part}", "as the scenario has it", theirs)
-        st = copy.deepcopy(state)
-        self._knobs.update(st.knobs)
-        self.seed = st.seed
-        self.set_observer_effects(st.effects)
-        self.source.restore(st.source_state)
-        self.bank.restore(st.estimators)
-        sc = st.script
-        self._prev_factor, self._weight = sc.spindle_factor, sc.weight
-        self._applied, self._force_applied = sc.applied, sc.force
-        if self.workpiece is not None and st.workpiece is not None:
-            self.workpiece.state = st.workpiece
-        if self.tool is not None and st.tool is not None:
-            self.tool.state, self.tool.wear = st.tool.passes, st.tool.wear
-        self._ecc = st.eccentricity
-        if self._proc is not None and st.process is not None:
-            k = self._knobs
-            self._proc.restore(
-                st.process, st.taught, int(k.number("teach_parts")), k.number("band_factor")
-            )
-        self._last = dict(st.latest)
-        self._accuracy = RollingAccuracy(
-            FORCE_ESTIMATES, self.sample_time, has_truth=self.source.has_truth
-        )
-
-    def _true_amplitudes(self) -> np.ndarray:
-        """The harmonics' true amplitudes of the force the stage is given (NaN when the
-        source has no truth: the force applied is then not the one measured)."""
-        if not self.source.has_truth:
-            return np.full(len(self._force0.amplitudes), math.nan)
-        f = self._force_applied
-        return np.asarray(f.amplitudes, dtype=np.float64) * f.gain
-
-    def _wear_values(self) -> dict[str, float]:
-        s = self.tool.state if self.tool is not None else None
+    def costs(self) -> dict[str, Any]:
+        """Wall time spent since :meth:`reset_costs` (or the start), over the machine's
+        seconds stepped: ``machine_s``; ``wall_s`` (every step); ``parts``: per part its
+        ``estimation_s`` and ``simulation_s``; ``source`` (the simulator's stage, or a
+        log's or a feed's reading, and the stage's reconfiguration); ``pipeline`` (the
+        coordination: the block, the NaN of parts that do not run, the accuracy)."""
+        parts = {
+            p.name: {"estimation_s": self._cost[p.name][0], "simulation_s": self._cost[p.name][1]}
+            for p in self._parts
+        }
+        source = self._cost["source"][1]
+        spent = source + sum(v["estimation_s"] + v["simulation_s"] for v in parts.values())
         return {
-            "vb_true": s.vb_true if s is not None else 0.0,
-            "vb_est": s.vb_est if s is not None else math.nan,
-            "vb_limit": VB_LIMIT,
-            "life_left": s.life_left if s is not None else math.nan,
+            "machine_s": self._samples * self.sample_time,
+            "wall_s": self._wall,
+            "parts": parts,
+            "source": {"simulation_s": source},
+            "pipeline": {"estimation_s": max(self._wall - spent, 0.0)},
         }
 
-    def _score(self, out: dict[str, np.ndarray], f_true: np.ndarray, f_ideal: np.ndarray) -> None:
+    def _block(self, src: SourceBlock, t0: float) -> Block:
+        """The source's block, wrapped once for every part."""
+        nominal = self._force0.offset * self._knobs.number("feed_scale")
+        nominal *= self._spindle_factor(t0)
+        sim = self.source.knobs_apply
+        t = src.meas.t - self.sample_time
+        return Block(
+            source=src,
+            t=t,
+            t_end=float(self.source.t),
+            machine=self._view,
+            knobs=self._knobs,
+            plant=BlockPlant(self._force_applied if sim else None, nominal if sim else math.nan),
+            notice=self._notice,
+            status=self.monitor_status,
+            outputs={"t": t},
+        )
+
+    def _score(self, out: dict[str, np.ndarray], block: Block) -> None:
         """The block into the rolling accuracy (:mod:`server.pipeline.accuracy`): against
-        the truth, or without one the estimates' agreement with their mean (f_effects
-        left out of it while no effect is installed: it is then f_fixed again)."""
+        the truth, or without one the estimates' agreement with their mean (a part that
+        repeats another's channel left out of it: the effects part with none installed)."""
+        stage = block.shared.get("stage")
+        if stage is None:
+            return
         if self.source.has_truth:
-            self._accuracy.update(out, f_true, f_ideal)
-        else:
-            skip = () if self.bank.fx is not None else ("f_effects",)
-            self._accuracy.update(out, mean_of=[k for k in FORCE_ESTIMATES if k not in skip])
+            self._accuracy.update(out, stage.f_true, stage.f_ideal)
+            return
+        skip = {
+            c.name for p in self._parts if getattr(p, "repeats", lambda: "")() for c in p.channels
+        }
+        self._accuracy.update(out, mean_of=[k for k in self._accuracy.names if k not in skip])
 
     def accuracy(self, digits: int | None = None) -> dict[str, object]:
         """Rolling rms of every force estimate over the last 1 s and 10 s
@@ -605,50 +654,96 @@ class LivePipeline:
         JSON-safe)."""
         return self._accuracy.summary(digits)
 
-    def _discontinuity(self, reason: str, t: float) -> None:
-        """The source's next block (starting at ``t``) does not continue the last one (a
-        gap, a restart): every observer starts again from its initial state, as in a
-        fresh pipeline; after a restart from a checkpoint (:data:`RESUMED`) only the
-        filters on the measurements do. The wear pass under way is not given to the
-        monitor."""
-        if reason == RESUMED:
-            self.bank.restart_filters(t)
-        else:
-            self.bank.reset()
-        if self.tool is not None:  # a wear pass under way spans the gap
-            self.tool.interrupt()
+    # ------------------------------------------------------------------ what the parts end
+    def take_tool_changes(self) -> list[dict[str, object]]:
+        """The tools taken out of the spindle since the last call, part by part, oldest
+        first: ``tool``, ``index``, ``start_t``, ``end_t`` [s], ``wear_at_change_mm``,
+        ``wear_true_mm``, ``wear_true_share``, ``cause``; the history records them (the
+        wear part's tool, changed at its flank-wear limit; the part program's tools)."""
+        out: list[dict[str, object]] = []
+        for part in self._parts:
+            out += part.take_tool_changes()
+        return out
 
     def take_events(self) -> list[MonitorEvent]:
-        """The monitor's events raised since the last call, oldest first
+        """The parts' events raised since the last call, oldest first
         (:mod:`server.records.monitor_events`)."""
         return self.events.take()
 
-    def monitor_status(self) -> dict[str, object]:
-        """What an operator reads from across the shop: the monitor's ``state``
-        (``off`` without a process monitor, ``teaching``, ``watching``, ``alarm``: the
-        block under way raised an event), the tool in the spindle and its flank wear as a
-        share of the limit, the life left [min] (NaN: not known), and the CNC's program,
-        line and part (empty / 0 / -1: not known). ``unacked`` is the service's (0 here).
-        """
-        w = self._wear_values()
-        share = w["vb_est"] / w["vb_limit"] if math.isfinite(w["vb_est"]) else math.nan
-        status: dict[str, object] = {
-            "state": "off",
-            "tool": 0,
-            "program": "",
-            "line": 0,
-            "part": -1,
-        }
-        if self._proc is not None:
-            status.update(self._proc.status())
-        return status | {"wear_share": share, "life_left_min": w["life_left"], "unacked": 0}
+    @property
+    def tools_changed(self) -> int:
+        """Tools changed at the flank-wear limit since the start (0 without tool wear)."""
+        wear = self.part("wear")
+        return int(wear.tools_changed) if wear is not None else 0
 
-    def _process(self, field: str) -> LiveProcess:
-        if self._proc is None:
+    # ------------------------------------------------------------------ state
+    def state(self) -> PipelineState:
+        """Everything the pipeline carries from block to block, as one detached value
+        (:class:`~server.pipeline.checkpoint.PipelineState`)."""
+        st = PipelineState(
+            scenario=self.scenario,
+            source=self.source.name,
+            seed=self.seed,
+            t=self.t,
+            knobs=self._knobs.as_dict(),
+            source_state=self.source.state(),
+            script=ScriptState(self._prev_factor, self._weight, self._applied, self._force_applied),
+            parts={p.name: p.state() for p in self._parts},
+            latest=dict(self._last),
+        )
+        return copy.deepcopy(st)
+
+    def restore(self, state: PipelineState) -> None:
+        """Continue from ``state`` (taken from a pipeline of the same scenario, source
+        kind and parts): the next :meth:`step` gives what the pipeline that took it would
+        have given. The rolling accuracy starts empty.
+
+        Raises
+        ------
+        ParameterError
+            Another scenario or source, or other parts; nothing is changed then.
+        """
+        if (state.scenario, state.source) != (self.scenario, self.source.name):
             raise ParameterError(
-                field, "a scenario with a part program (default)", f"scenario {self.scenario!r}"
+                "state",
+                f"a state of scenario {self.scenario!r} on the {self.source.name} source",
+                f"scenario {state.scenario!r} on the {state.source} source",
             )
-        return self._proc
+        mine = [p.name for p in self._parts]
+        if sorted(state.parts) != sorted(mine):
+            raise ParameterError(
+                "state.parts", f"the parts {', '.join(mine)}", ", ".join(state.parts) or "none"
+            )
+        st = copy.deepcopy(state)
+        self._knobs.update(st.knobs)
+        self._knob_version += 1
+        self.seed = st.seed
+        self.source.restore(st.source_state)
+        sc = st.script
+        self._prev_factor, self._weight = sc.spindle_factor, sc.weight
+        self._applied, self._force_applied = sc.applied, sc.force
+        for part in self._parts:
+            part.restore(st.parts[part.name])
+        self._last = dict(st.latest)
+        self._accuracy = RollingAccuracy(
+            self.force_estimates(), self.sample_time, has_truth=self.source.has_truth
+        )
+
+    # ------------------------------------------------------------------ status
+    def monitor_status(self) -> dict[str, object]:
+        """What an operator reads from across the shop: the monitor's ``state`` (``off``
+        without a process monitor, ``teaching``, ``watching``, ``alarm``: the block under
+        way raised an event), the tool in the spindle and its flank wear as a share of
+        the limit, the life left [min] (NaN: not known), and the CNC's program, line and
+        part (empty / 0 / -1: not known), each from the running part that says it (the
+        process monitor: state, tool, program, line, part; the wear: its share and life).
+        ``unacked`` is the runtime's (0 here)."""
+        status = dict(_STATUS)
+        for part in self._parts:
+            if self._running(part):
+                status.update(part.status())
+        status["unacked"] = 0
+        return status
 
     def inject(
         self,
@@ -673,7 +768,8 @@ class LivePipeline:
             a part already under way, both a time and a part; or a scenario without a
             part program.
         """
-        return self._process("kind").inject(kind, size, at_t, at_part)
+        proc = self._process("kind")
+        return proc.live.inject(kind, size, at_t, at_part)
 
     def relearn(self, tool: int | None = None, program: str | None = None) -> dict[str, object]:
         """Restart the monitor's teach-in for a tool's and/or a program's blocks (both
@@ -684,15 +780,24 @@ class LivePipeline:
         ParameterError
             A bad tool number or program name, or a scenario without a part program.
         """
-        return self._process("tool").relearn(tool, program)
+        return self._process("tool").live.relearn(tool, program)
+
+    def _process(self, field: str) -> Any:
+        proc = self.part("process")
+        if proc is None:
+            raise ParameterError(
+                field, "a scenario with a part program (default)", f"scenario {self.scenario!r}"
+            )
+        return proc
 
     def process_truths(self) -> list[dict[str, object]]:
         """The injected events placed so far, with their truth (kind, first sample's time
         ``t`` and index ``sample``, size, tool, line, part): for scoring, never given to a
         detector."""
-        if self._proc is None:
+        proc = self.part("process")
+        if proc is None:
             return []
-        return [dict(tr.__dict__) for tr in self._proc.ps.truths]
+        return [dict(tr.__dict__) for tr in proc.live.ps.truths]
 
     @property
     def latest(self) -> dict[str, float]:
@@ -702,12 +807,13 @@ class LivePipeline:
     @property
     def workpiece_removed(self) -> float:
         """Fraction of the current blank removed (default scenario; else 0)."""
-        return self.workpiece.state.removed if self.workpiece is not None else 0.0
+        wp = self.workpiece
+        return float(wp.state.removed) if wp is not None else 0.0
 
     def snapshot(self) -> dict[str, object]:
-        """Latest value of every channel, the truth the source knows and the knob values;
-        a source's own status under its name (``"replay"``: path, samples, fed, finished).
-        """
+        """Latest value of every channel, the truth the source knows, the knob values, the
+        parts; a source's own status under its name (``"replay"``: path, samples, fed,
+        finished)."""
         truth = self.source.truth_summary()
         if self.source.has_truth:
             truth["workpiece_removed"] = self.workpiece_removed
@@ -721,8 +827,20 @@ class LivePipeline:
                 {"name": e.name, "shape": dict(e.shape), "coef": list(e.coef)} for e in self.effects
             ],
             "accuracy": self.accuracy(),
+            "parts": self.parts(),
         }
         status = self.source.status()
         if status:
             snap[self.source.name] = status
         return snap
+
+
+def _overrides(part: Part, hook: str) -> bool:
+    """``part`` has its own ``hook`` (not :class:`LivePart`'s default)."""
+    mine = getattr(type(part), hook, None)
+    return not isinstance(part, LivePart) or mine is not getattr(LivePart, hook)
+
+
+def _why(exc: BaseException) -> str:
+    """An exception as a reason: its type and message."""
+    return f"{type(exc).__name__}: {exc}"

@@ -1,10 +1,14 @@
 """Process monitoring, run beside the live stage (issue 21 in the loop).
 
-:class:`LiveProcess` runs a part program on seed 003's milling machine and X/Y feed
-drives (:class:`machine.process.ProcessMachine`, 5 kHz), estimates the cutting force
-from the drives (:class:`server.pipeline.eccentricity_loop.ObserverForceSource`: the
-seed-000 observers on each feed axis, scale quantised, current noise, a 2 % mass error;
-never the simulator's force) and watches it with the teach-in monitor
+:class:`ProcessPart` is the live part (:mod:`server.pipeline.part`): its channels and the
+monitor's chart are declared here, its share of the status strip is the monitor's state and
+the CNC's tool, program, line and part; it simulates the part program beside the stage, so
+it runs with the simulator only. :class:`LiveProcess` runs a part program on seed 003's
+milling machine and X/Y feed drives (:class:`machine.process.ProcessMachine`, 5 kHz),
+estimates the cutting force from the drives
+(:class:`server.pipeline.eccentricity_loop.ObserverForceSource`: the seed-000 observers on
+each feed axis, scale quantised, current noise, a 2 % mass error; never the simulator's
+force) and watches it with the teach-in monitor
 (:class:`estimators.process_monitor.ProcessMonitor`). Each block of the stage (2.5 kHz)
 advances it by the same simulated time (the fractional remainder carried over, as
 :mod:`server.pipeline.eccentricity_part` does) and its values are picked on the stage's
@@ -45,6 +49,8 @@ cases (``run_canceller_case``: ESC on the monitored machine, held while suspecte
 from __future__ import annotations
 
 import math
+import time
+from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from typing import Any, cast
 
@@ -63,6 +69,17 @@ from machine.process import (
     default_program,
 )
 from server.pipeline.eccentricity_loop import ObserverForceSource
+from server.pipeline.machine_view import MachineView
+from server.pipeline.part import (
+    Block,
+    Channel,
+    Chart,
+    LivePart,
+    Outputs,
+    Setup,
+    Verdict,
+    needs_simulator,
+)
 from server.records.monitor_events import DEFAULT_ACTIONS, MonitorEvent
 
 #: default size of each injected kind: the middle of the reproduction's clear range
@@ -176,6 +193,8 @@ class LiveProcess:
         #: the monitor's state: the taught tables and its running sums (a dict of arrays)
         self.taught: dict[str, np.ndarray] = self.monitor.initial_state()
         self.fine: dict[str, F64] = {}
+        #: wall seconds spent simulating the machine and its program (not estimating)
+        self.sim_s = 0.0
 
     # ------------------------------------------------------------------ knobs
     def configure(self, teach_parts: int, band_factor: float) -> None:
@@ -299,15 +318,19 @@ class LiveProcess:
         events: list[MonitorEvent] = []
         left = m
         while left > 0:
+            w0 = time.perf_counter()
             run = self._block()
             c = min(left, run.left)
             self._place_pending(run, c)
+            self.sim_s += time.perf_counter() - w0
             rows, evs = self._chunk(run, c)
             parts.append(rows)
             events += evs
             left -= c
             if run.left == 0:
+                w0 = time.perf_counter()
                 self._close_block(run)
+                self.sim_s += time.perf_counter() - w0
         if len(parts) == 1:
             cols = parts[0]
         else:
@@ -381,13 +404,22 @@ class LiveProcess:
     def _chunk(self, run: BlockRun, c: int) -> tuple[dict[str, F64], list[MonitorEvent]]:
         """``c`` samples of the block through the drives' observer and the monitor."""
         ps = self.ps
+        w0 = time.perf_counter()
         rec = ps.machine.advance(run, c)
+        self.sim_s += time.perf_counter() - w0
         # the observer reads what both records share: ix, iy, x, y
         fx, fy = ps.observer(cast(MillingRecord, rec))
         mr = self.monitor.step(
-            self.taught, fx, fy, rec.psi, tool=rec.tool, program=rec.program, line=rec.line,
-            new_block=ps.new_block, override=rec.override,
-        )  # fmt: skip
+            self.taught,
+            fx,
+            fy,
+            rec.psi,
+            tool=rec.tool,
+            program=rec.program,
+            line=rec.line,
+            new_block=ps.new_block,
+            override=rec.override,
+        )
         ps.new_block = False
         # the block's segment (the monitor's running state, _RUN "seg"): taught or not
         teaching = self.monitor.teaching(self.taught, int(self.taught["run"][0]))
@@ -449,9 +481,18 @@ class LiveProcess:
                 f"the lower limit {a.limit:.1f} N."
             )
         return MonitorEvent(
-            kind=kind, action=DEFAULT_ACTIONS[kind], t=t, tool=a.tool, program=a.program,
-            line=a.line, part=part, value=a.value, limit=a.limit, unit=_UNITS[kind], message=msg,
-        )  # fmt: skip
+            kind=kind,
+            action=DEFAULT_ACTIONS[kind],
+            t=t,
+            tool=a.tool,
+            program=a.program,
+            line=a.line,
+            part=part,
+            value=a.value,
+            limit=a.limit,
+            unit=_UNITS[kind],
+            message=msg,
+        )
 
     def _close_block(self, run: BlockRun) -> None:
         ps, m = self.ps, self.ps.machine
@@ -545,18 +586,141 @@ class LiveProcess:
         self.monitor = ProcessMonitor(p)
 
 
-def no_process(n: int) -> dict[str, F64]:
-    """The monitor's channels of a scenario without a part program (NaN)."""
-    return {k: np.full(n, math.nan) for k in MON_CHANNELS}
+#: the monitor's chart: the force, its mean over a revolution and the taught limits
+MONITOR = Chart(
+    "monitor",
+    "Process monitor: force and taught limits (red lines: events waiting for an "
+    "acknowledgement; grey: acknowledged)",
+    page="operator",
+    order=10,
+    window_s=20.0,
+    wide=True,
+    markers=True,
+)
+_BAND = "#009e73"
+
+
+def _channels() -> tuple[Channel, ...]:
+    """:data:`MON_CHANNELS` declared: the force and the limits on the monitor's chart (the
+    taught band shaded), the rest streamed beside it."""
+
+    def ch(k: str, **kw: Any) -> Channel:
+        u, lab = MON_CHANNELS[k]
+        return Channel(k, u, lab, "monitor", **kw)
+
+    drawn = MONITOR.series(
+        ch("mon_f", legend="force estimate [N]", color="#9aa0a6", width=1.0),
+        ch("mon_mean", legend="mean over a revolution [N]", color="#0072b2", width=2.0),
+        ch(
+            "mon_upper", legend="taught upper band [N]", color=_BAND, width=1.2, fill_to="mon_lower"
+        ),
+        ch("mon_lower", legend="taught lower band [N]", color=_BAND, width=1.2),
+        ch("mon_extreme", legend="extreme limit [N]", color="#7b3294", width=1.6, dash=(8.0, 5.0)),
+    )
+    names = {c.name for c in drawn}
+    rest = tuple(ch(k, truth=k == "mon_event_true") for k in MON_CHANNELS if k not in names)
+    return drawn + rest
+
+
+@dataclass
+class ProcessPartState:
+    """The process part's state (checkpointed): the part program under way (the machine,
+    the drives' observers, the block, the injections waiting), the monitor's taught
+    tables and running sums, and the monitor's parameters in effect."""
+
+    process: ProcessState
+    taught: dict[str, np.ndarray]
+    teach_parts: int
+    band_factor: float
+
+
+class ProcessPart(LivePart):
+    """The part program and the process monitor beside the stage (module docstring).
+
+    Parameters
+    ----------
+    live
+        The program, the drives' force estimate and the monitor.
+    """
+
+    name = "process"
+    charts = (MONITOR,)
+    channels = _channels()
+
+    def __init__(self, live: LiveProcess) -> None:
+        self.live = live
+
+    @property
+    def simulated_s(self) -> float:  # type: ignore[override]
+        """Seconds in the simulated machine and its program (the rest: observers, monitor)."""
+        return self.live.sim_s
+
+    @classmethod
+    def from_knobs(cls, seed: int, k: Mapping[str, float | bool | str]) -> ProcessPart:
+        """The part of seed ``seed`` as the knobs set it (teach parts, band factor)."""
+        return cls(
+            LiveProcess(
+                seed, teach_parts=int(float(k["teach_parts"])), band_factor=float(k["band_factor"])
+            )
+        )
+
+    def requires(self, machine: MachineView) -> Verdict:
+        return needs_simulator(machine, "a part program on seed 003's milling machine")
+
+    def configure(self, setup: Setup) -> None:
+        k = setup.knobs
+        self.live.configure(int(float(k["teach_parts"])), float(k["band_factor"]))
+
+    def step(self, block: Block) -> Outputs:
+        return self.live.step(block.t, block.sample_time)
+
+    def status(self) -> dict[str, object]:
+        return self.live.status()
+
+    def take_tool_changes(self) -> list[dict[str, object]]:
+        """The part program's tool changes as tool lives: the simulated machine's wear as
+        a share of the tool's limit (a truth: no estimate of it), the cause ``wear_limit``
+        for a worn tool, else the alarm after which the operator changed it."""
+        program = self.live.ps.machine.program
+        out: list[dict[str, object]] = []
+        for c in self.live.take_tool_changes():
+            number, wear = c["tool"], c["wear"]
+            assert isinstance(number, int) and isinstance(wear, float | int)
+            cause = str(c["cause"])
+            out.append(
+                {
+                    "tool": number,
+                    "index": None,
+                    "start_t": c["start_t"],
+                    "end_t": c["end_t"],
+                    "wear_at_change_mm": None,
+                    "wear_true_share": float(wear) / program.tool(number).wear_limit,
+                    "cause": "wear_limit" if cause == "worn" else cause,
+                }
+            )
+        return out
+
+    def state(self) -> ProcessPartState:
+        p = self.live.monitor.params
+        return ProcessPartState(
+            self.live.ps, self.live.taught, int(p.teach_parts), float(p.band_factor)
+        )
+
+    def restore(self, state: object) -> None:
+        if not isinstance(state, ProcessPartState):
+            raise ParameterError("state.parts.process", "a ProcessPartState", type(state).__name__)
+        self.live.restore(state.process, state.taught, state.teach_parts, state.band_factor)
 
 
 __all__ = [
     "CLEAR_SIZES",
     "KIND_CODES",
+    "MONITOR",
     "MON_CHANNELS",
     "STATES",
     "Injection",
     "LiveProcess",
+    "ProcessPart",
+    "ProcessPartState",
     "ProcessState",
-    "no_process",
 ]

@@ -358,6 +358,9 @@ class Worker:
             )
             run.runtime.resume()
         run.block_n = max(1, round(self.cfg.block_ms * 1e-3 / run.runtime.pipeline.sample_time))
+        # the first step waits for a whole block too (a stall: for 2 blocks' time), so the
+        # blocks, and the estimates with them, fall on the machine's block grid
+        run.last_step = time.monotonic()
         # the first checkpoint at a random point of the period: machines built together
         # (a worker's start) do not all write at once, every period after
         run.saved_at = time.monotonic() - random.uniform(0.0, self.cfg.checkpoint_s)

@@ -5,6 +5,11 @@ The blank is an inertia of the size of seed 000's added weight; it loses
 steps (:data:`REMOVAL_STEP`) applied mid-stroke, and a fresh blank is clamped just before
 a reversal (the table at its stroke end), at the last such reversal before the blank is
 used up (docs/live-identification.md).
+
+:class:`WorkpiecePart` is the live part (:mod:`server.pipeline.part`): before each block
+it advances the removal (a fresh blank: J_L changes, the CNC knows it) and adds the
+blank's inertia to the simulated stage's load. It streams no channel of its own (the
+stage's ``J_L_true`` shows the mass); it simulates, so it runs with the simulator only.
 """
 
 from __future__ import annotations
@@ -13,7 +18,18 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from common.errors import ParameterError
 from machine.params import ADDED_WEIGHT_INERTIA
+from server.pipeline.machine_view import MachineView
+from server.pipeline.part import (
+    Block,
+    LivePart,
+    Notice,
+    Outputs,
+    Plan,
+    Verdict,
+    needs_simulator,
+)
 
 WORKPIECE_INERTIA = ADDED_WEIGHT_INERTIA  # a blank as heavy as seed 000's weight
 REMOVAL_STEP = 0.05  # the workpiece's inertia is updated in steps of 5 % of the blank
@@ -98,3 +114,34 @@ class Workpiece:
         # would stay unknown until the next one (the DFO then reads a wrong J_L's
         # acceleration as harmonics, measured: amplitudes 33 % low for 4 s)
         return self._factor(rev - 1.0) == self._factor(rev + 1.0)
+
+
+class WorkpiecePart(LivePart):
+    """The blank on the simulated stage (module docstring); see :class:`Workpiece`."""
+
+    name = "workpiece"
+
+    def __init__(self, half_period: float, spindle_factor: Callable[[float], float]) -> None:
+        self.workpiece = Workpiece(half_period, spindle_factor)
+
+    def requires(self, machine: MachineView) -> Verdict:
+        return needs_simulator(machine, "a workpiece losing mass on the stage")
+
+    def before(self, plan: Plan) -> None:
+        rate = float(plan.knobs["removal_rate"]) / 100.0
+        if self.workpiece.advance(plan.t0, plan.n, plan.sample_time, rate):
+            plan.notice(Notice("restart", plan.t0, ("J_L",)))  # a fresh blank: J_L changes
+
+    def added_inertia(self, t: float) -> float:
+        return self.workpiece.inertia(t)
+
+    def step(self, block: Block) -> Outputs:
+        return {}, []
+
+    def state(self) -> WorkpieceState:
+        return self.workpiece.state
+
+    def restore(self, state: object) -> None:
+        if not isinstance(state, WorkpieceState):
+            raise ParameterError("state.parts.workpiece", "a WorkpieceState", type(state).__name__)
+        self.workpiece.state = state

@@ -18,6 +18,7 @@ from collections.abc import AsyncIterator
 
 from fastapi import FastAPI
 
+from server.pipeline import part_registry
 from server.records.store import DataStore
 from server.service import web_files
 from server.service.analysis import Analyses
@@ -60,6 +61,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         warming = asyncio.create_task(asyncio.to_thread(upload_check.warm))
         hub = Hub(s.client_buffer)
         hub.bind(asyncio.get_running_loop())
+        part_registry.use(s.parts)  # the user's own parts, before any pipeline is built
         parts = loop_parts(s)
         loop = LiveLoop(
             s,

@@ -28,7 +28,6 @@ monitor's status (``Data.status``).
 from __future__ import annotations
 
 import collections
-import json
 import logging
 import math
 import threading
@@ -40,7 +39,6 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from common.jsonsafe import json_safe
 from server.errors import CutwatchError
 from server.pipeline.broker import BrokerConfig, parse_broker_url
 from server.pipeline.drive_feed import DriveFeed
@@ -202,7 +200,7 @@ class LiveLoop:
             writer=CheckpointWriter("cutwatch-checkpoint"),
             host="serve",
         )
-        self.runtime.listeners.append(lambda rec: self.hub.publish_event(_event_body(rec)))
+        self.runtime.listeners.append(lambda rec: self.hub.publish_event(protocol.event_body(rec)))
         self._block_log: Any = None  # settings.block_log, opened by start()
         self.lock = self.runtime.lock
         self._wake = threading.Event()
@@ -470,7 +468,7 @@ class LiveLoop:
         the kept events not yet acknowledged (oldest first) to send after ``hello``.
         An event raised meanwhile is in one of the two, never in both."""
         q, backlog = self.runtime.listen(self.hub.add)
-        return q, [_event_body(r) for r in backlog]
+        return q, [protocol.event_body(r) for r in backlog]
 
     def recent_events(self) -> list[dict[str, Any]]:
         """The kept events (at most :data:`~server.pipeline.runtime.EVENTS_KEPT`), newest
@@ -522,7 +520,7 @@ class LiveLoop:
     ) -> tuple[list[float | None], list[float | None], dict[str, list[float | None]]]:
         with self.lock:
             blocks, self._pending = self._pending, []
-            grids = {c.name: protocol.grid_of(c.group) for c in self.pipeline.channels()}
+            grids = {c.name: c.grid for c in self.pipeline.channels()}
             sample_time = self.pipeline.sample_time
         if not blocks:
             return [], [], {}
@@ -556,20 +554,17 @@ class LiveLoop:
         return t, ts, ch
 
     def hello(self) -> str:
-        """The ``hello`` message of the current pipeline (channels, sample time, knobs)."""
+        """The ``hello`` message of the current pipeline: its channels and charts as its
+        parts declare them, the parts, the sample time, the knobs."""
         with self.lock:
-            chans = [
-                {
-                    "name": c.name,
-                    "unit": c.unit,
-                    "group": c.group,
-                    "label": c.label,
-                    "grid": protocol.grid_of(c.group),
-                }
-                for c in self.pipeline.channels()
-            ]
+            p = self.pipeline
             return protocol.hello(
-                chans, self.pipeline.sample_time, self.pipeline.scenario, self.knob_values()
+                [c.describe() for c in p.channels()],
+                [c.describe() for c in p.charts()],
+                p.parts(),
+                p.sample_time,
+                p.scenario,
+                self.knob_values(),
             )
 
     def _publish(self) -> None:
@@ -588,18 +583,20 @@ class LiveLoop:
         with self.lock:
             # rolling rms of the force estimates, rounded and JSON-safe
             accuracy = self.pipeline.accuracy(digits=protocol.ACCURACY_DIGITS)
-        body = protocol.data_body(
-            self.seq,
-            time.time(),
-            t,
-            ts,
-            ch,
-            self.health(),
-            self.knob_values(),
-            accuracy,
-            self.monitor_status(),
-        )
-        self.hub.publish(body)
+            parts = self.pipeline.parts()
+        frame = {
+            "seq": self.seq,
+            "wall": time.time(),
+            "t": t,
+            "ts": ts,
+            "ch": ch,
+            "health": self.health(),
+            "knobs": self.knob_values(),
+            "accuracy": accuracy,
+            "status": self.monitor_status(),
+            "parts": parts,
+        }
+        self.hub.publish(protocol.data_body(frame))
 
     # ------------------------------------------------------------------ status
     def realtime_factor(self) -> float:
@@ -633,6 +630,11 @@ class LiveLoop:
             dropped_total=self.hub.dropped(),
             stalls=self.stalls,
         ).model_dump()
+
+    def parts(self) -> list[dict[str, Any]]:
+        """The pipeline's parts: name, running, and why not."""
+        with self.lock:
+            return self.pipeline.parts()
 
     def knob_values(self) -> dict[str, Any]:
         with self.lock:
@@ -753,8 +755,3 @@ class LiveLoop:
             rec = make(source_sidecar(self.pipeline.source, self.pipeline.scenario))
             self.recording = rec
             return rec
-
-
-def _event_body(rec: dict[str, Any]) -> str:
-    """The ``event`` message (:class:`EventMessage`) of an event record."""
-    return json.dumps({"type": "event", "event": json_safe(rec)}, allow_nan=False)

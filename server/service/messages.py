@@ -1,12 +1,18 @@
 """The live stream's messages as typed models: the one definition of their shapes.
 
 The loop builds the ``health`` of every frame through :class:`LoopHealth`;
-:mod:`server.service.protocol` encodes ``hello`` through :class:`Hello` and the frames
-with the fields of :class:`Data`, and derives its ``SCHEMA`` from these models; the REST
+:mod:`server.service.protocol` encodes every message through its model (``hello``:
+:class:`Hello`, frames: :class:`Data`, events: :class:`EventMessage`; validated, then
+serialised by the model) and derives its ``SCHEMA`` from these models; the REST
 models of ``/api/health`` and ``/api/snapshot`` (:mod:`server.service.schemas`) reuse
 :class:`LoopHealth` and :class:`Accuracy`; the dashboard's schema (``web/schema.js``) is
-generated from them by ``cutwatch schema --js --out web/schema.js`` (``make schema``), and
-``tests/service/test_protocol.py`` fails when that file is stale.
+generated from them by ``cutwatch schema --js --out web/schema.js`` (``make schema``), with
+each message's JSDoc type, and ``tests/service/test_protocol.py`` fails when that file is
+stale.
+
+The stream describes itself (version 2, issue 26): ``hello`` carries the charts and every
+channel's chart, page, order and drawing, and the parts with why those that do not run do
+not; the dashboard builds its charts from it and writes no channel's name.
 
 Each model carries its own ``VERSION`` (shown as ``x-version`` in its JSON schema and in
 the generated ``SCHEMA.versions``): raise it when its fields change meaning, and
@@ -21,7 +27,7 @@ from typing import Any, ClassVar, Literal
 from pydantic import BaseModel, ConfigDict, Field
 
 #: the stream's version, sent in ``hello`` (the page refuses a stream of another version)
-VERSION = 1
+VERSION = 2
 
 #: a knob's value as the stream carries it
 KnobValue = bool | float | str
@@ -38,24 +44,78 @@ class Versioned(BaseModel):
     VERSION: ClassVar[int] = 1
 
 
-class Channel(Versioned):
-    """One channel announced by ``hello``."""
+Page = Literal["operator", "research"]
 
+
+class Interval(Versioned):
+    """An estimate's 95 % interval: the channels of its bounds and its excited flag."""
+
+    model_config = ConfigDict(extra="forbid")
+    lower: str
+    upper: str
+    excited: str = Field(description="1: the data determine it; 0: show it greyed, 'not excited'")
+
+
+class Channel(Versioned):
+    """One channel announced by ``hello``, as the part that streams it declared it."""
+
+    VERSION: ClassVar[int] = 2
     model_config = ConfigDict(extra="forbid")
     name: str = Field(description="the key of its samples in a frame's ch")
     unit: str
-    group: str = Field(description="the plot it belongs to")
+    group: str = Field(description="the quantity it belongs to (force, J_L, wear...)")
     label: str
     grid: Literal["t", "ts"] = Field(description="its display grid: t (fast) or ts (slow)")
+    chart: str = Field(description="the id of the chart it is drawn on ('': not drawn)")
+    page: Page = Field(description="the page of its chart: operator or research")
+    order: int = Field(description="its place among its chart's series")
+    truth: bool = Field(description="the simulator's truth (the reference), not an estimate")
+    color: str = Field(description="a CSS colour ('': the page's palette)")
+    dash: list[float] = Field(description="dash pattern (empty: a solid line)")
+    width: float = Field(description="line width [px]")
+    axis: str = Field(description="a second y axis' name ('': the chart's first axis)")
+    interval: Interval | None = Field(description="drawn with its 95 % band (None: no band)")
+    fill_to: str = Field(description="the area between it and this channel is shaded ('': none)")
+    role: str = Field(
+        description="what the residual loop's panel compares: reference, without_effects, "
+        "with_effects ('': nothing)"
+    )
+    legend: str = Field(description="its short name in the chart's legend ('': its label)")
+
+
+class Chart(Versioned):
+    """A chart of the dashboard, declared by a part."""
+
+    model_config = ConfigDict(extra="forbid")
+    id: str = Field(description="its name (the page's element chart-<id>)")
+    title: str
+    page: Page
+    order: int = Field(description="its place on its page")
+    window_s: float = Field(description="seconds of the machine's time it shows")
+    fast: bool = Field(description="its channels are on the fast grid t")
+    wide: bool = Field(description="drawn across the page")
+    markers: bool = Field(description="the events are drawn on it")
+
+
+class PartStatus(Versioned):
+    """A part of the pipeline: running, or why not."""
+
+    model_config = ConfigDict(extra="forbid")
+    name: str
+    running: bool
+    reason: str = Field(description="why it does not run ('' while it runs)")
 
 
 class Hello(Versioned):
     """The first message after connecting, and again whenever the pipeline changes."""
 
+    VERSION: ClassVar[int] = 2
     model_config = ConfigDict(extra="forbid")
     type: Literal["hello"] = "hello"
     version: int = Field(default=VERSION, description="the stream's version")
     channels: list[Channel]
+    charts: list[Chart]
+    parts: list[PartStatus]
     sample_time: float = Field(description="the pipeline's sample time [s]")
     scenario: str
     knobs: dict[str, KnobValue] = Field(description="knob -> value")
@@ -118,6 +178,7 @@ class Data(Versioned):
     of ``ts`` (a coarser subset of the same samples); non-finite values are ``null``.
     """
 
+    VERSION: ClassVar[int] = 2
     model_config = ConfigDict(extra="forbid")
     type: Literal["data"] = "data"
     dropped: int = Field(default=0, description="frames this client lost since its previous frame")
@@ -131,6 +192,9 @@ class Data(Versioned):
     accuracy: Accuracy
     status: MonitorStatus | None = Field(
         default=None, description="the monitor's status strip (None: not known)"
+    )
+    parts: list[PartStatus] = Field(
+        default_factory=list, description="the pipeline's parts: running, or why not"
     )
 
 
@@ -169,6 +233,9 @@ class EventMessage(Versioned):
 MESSAGES: dict[str, type[Versioned]] = {
     "hello": Hello,
     "channel": Channel,
+    "chart": Chart,
+    "interval": Interval,
+    "part": PartStatus,
     "data": Data,
     "health": LoopHealth,
     "accuracy": Accuracy,

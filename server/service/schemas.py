@@ -26,7 +26,7 @@ from pydantic_core import PydanticCustomError
 
 from server.pipeline.process_part import CLEAR_SIZES, SIZE_RANGES
 from server.records.history import CAUSES
-from server.service.messages import Accuracy, Event, LoopHealth, MonitorStatus
+from server.service.messages import Accuracy, Event, LoopHealth, MonitorStatus, PartStatus
 from server.service.settings import MAX_SPEED, ScenarioName, Speed
 
 # ------------------------------------------------------------------ errors
@@ -84,7 +84,13 @@ def error_responses(*codes: int, json_route: bool = True) -> dict[int | str, dic
 class Health(LoopHealth):
     """``GET /api/health``."""
 
-    status: Literal["ok", "error"] = Field(description="'error' once the loop has stopped")
+    status: Literal["ok", "degraded", "error"] = Field(
+        description="'error' once the loop has stopped; 'degraded' while a part of the "
+        "pipeline does not run (parts says which and why); else 'ok'"
+    )
+    parts: list[PartStatus] = Field(
+        description="every part of the pipeline: name, running, and why not (reason)"
+    )
     loop_error: str | None = Field(description="why the loop stopped, if it did")
     viser_port: int
     viser_running: bool
@@ -144,6 +150,9 @@ class PipelineSnapshot(BaseModel):
     observer_effects: list[PipelineEffect]
     replay: ReplayProgress | None = Field(None, description="present while replaying a log")
     accuracy: Accuracy
+    parts: list[PartStatus] = Field(
+        default_factory=list, description="the pipeline's parts: name, running, and why not"
+    )
     injected: list[dict[str, JsonValue]] = Field(
         default_factory=list,
         description="the truth of the latest injected events (kind, first sample's time t "

@@ -144,6 +144,13 @@ class Settings(BaseSettings):
         default=12.0, gt=0.0, le=24.0 * 30, description="lifetime of a browser session [h]"
     )
     seed: int = Field(default=0, ge=0, description="seed of the simulation's random generators")
+    parts: str = Field(
+        default="",
+        description=(
+            "live parts to add to the pipeline, comma-separated module:attribute (a part "
+            "class or factory on the Python path; docs/adding-a-part.md)"
+        ),
+    )
     viser: bool = Field(default=True, description="start the viser 3D view on viser_port")
     source: Literal["simulator", "mqtt"] = Field(
         default="simulator",

@@ -28,8 +28,8 @@ UPLOT_DIR = WEB_DIR / "node_modules" / "uplot" / "dist"
 LOGIN = ("login.html", "login.js", "style.css")
 #: the live dashboard of ``cutwatch serve`` (``/`` is its index.html)
 DASHBOARD = (
-    "index.html", "app.js", "loop.js", "panels.js", "monitor.js", "protocol.js",
-    "schema.js", "style.css",
+    "index.html", "app.js", "charts.js", "loop.js", "panels.js", "monitor.js",
+    "protocol.js", "schema.js", "style.css",
 )  # fmt: skip
 #: the fleet page of ``cutwatch fleet``: its script (the page, fleet.html, is ``/``)
 FLEET = ("fleet.js",)

@@ -91,3 +91,47 @@ def test_an_unknown_group_is_named_with_the_known_ones() -> None:
     assert r.returncode == 2
     assert "no-such-group" in r.stderr and "residual-two-inertia" in r.stderr
     assert "Traceback" not in r.stderr
+
+
+def test_the_pipeline_costs_estimation_apart_from_simulation_by_part_and_before_after() -> None:
+    # one JSON document on stdout (json.loads of the whole of it); the children's output
+    # and the progress on stderr
+    doc = _bench("pipeline", "--json", "--against", "HEAD")["pipeline"]
+    parts = ("stage", "effects", "dfo", "wear", "workpiece", "eccentricity", "process")
+    for p in parts:
+        assert doc[f"part.{p}.estimation_ms"] >= 0.0 and doc[f"part.{p}.simulation_ms"] >= 0.0
+    # the stage's observers estimate; the workpiece only simulates; the process part both
+    assert doc["part.stage.estimation_ms"] > 10 * doc["part.stage.simulation_ms"]
+    assert doc["part.workpiece.simulation_ms"] > doc["part.workpiece.estimation_ms"]
+    assert doc["part.process.simulation_ms"] > 0.0 and doc["part.process.estimation_ms"] > 0.0
+    total = doc["cost.estimation_ms"] + doc["cost.simulation_ms"]
+    assert total == pytest.approx(doc["cost.wall_ms"], rel=1e-6)
+    assert doc["before_after.before"] == "HEAD"
+    assert doc["before_after.before_ms"] > 0 and doc["before_after.after_ms"] > 0
+    assert doc["before_after.after_over_before"] == pytest.approx(
+        doc["before_after.after_ms"] / doc["before_after.before_ms"]
+    )
+
+
+def test_against_an_unknown_commit_is_refused_by_git() -> None:
+    r = subprocess.run(
+        [sys.executable, "-m", "server.cli.main", "bench", "pipeline", "--quick", "--repeats",
+         "1", "--against", "no-such-ref-here"],
+        capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert r.returncode != 0
+    assert "--against 'no-such-ref-here': git archive failed" in r.stderr
+
+
+def test_a_benchmarks_mosquitto_writes_nothing_on_stdout() -> None:
+    # as root it warns at start: that goes to stderr, never before a --json document
+    from _broker import need_mosquitto
+
+    need_mosquitto()
+    code = (
+        "from server.experiments.benchmarks._local import free_port, mosquitto\n"
+        "with mosquitto(free_port()):\n    print('inside', flush=True)\n"
+    )
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout == "inside\n"

@@ -4,7 +4,7 @@ Fixed-seed runs (``tests/_hashes.py``: the default scenario with knob changes, i
 and a checkpoint round trip; the two seed scenarios; a replayed log) hashed channel by
 channel, with their events and tool changes, against the hashes the code before the
 refactor wrote (``tests/pipeline/channel_hashes.json``). A difference fails with every
-channel named.
+channel named, unless it is one of :data:`EXPECTED`, each with its reason.
 """
 
 from __future__ import annotations
@@ -17,9 +17,35 @@ from _hashes import HASHES, RUNS, compare, run_hashes
 
 pytestmark = pytest.mark.slow
 
+#: the channels of the parts a scenario does not run: streamed before as placeholders
+#: (NaN, or the wear's 0 / 0.3 mm), not streamed now (a pipeline streams its parts')
+_NOT_RUN = {
+    "eccentricity (seed 003's milling tool: the default scenario's)": (
+        "ecc_a_cancel ecc_a_m ecc_cost ecc_esc_on ecc_f1x ecc_fast_on ecc_identifying "
+        "ecc_mass_err ecc_theta_cancel ecc_theta_m ecc_true_deg ecc_true_um"
+    ),
+    "process (the part program and its monitor: the default scenario's)": (
+        "mon_event_true mon_extreme mon_f mon_line mon_lower mon_mean mon_override mon_part "
+        "mon_pattern mon_pattern_limit mon_state mon_suspected mon_tool mon_upper"
+    ),
+    "wear (seed 004's wearing tool: the default scenario's)": "life_left vb_est vb_limit vb_true",
+}
+#: run -> the differences expected, each a line of :func:`_hashes.compare`, with the reason
+EXPECTED: dict[str, dict[str, str]] = {
+    run: {
+        f"channel {name}: gone": f"the {part.split(' ')[0]} part does not run here: {part}"
+        for part, names in _NOT_RUN.items()
+        for name in names.split()
+    }
+    for run in ("seed000-weight-0", "seed001-spindle-0", "replay-0")
+}
+
 
 @pytest.mark.parametrize("name", list(RUNS))
 def test_channels_identical_to_before_the_parts(name: str, tmp_path: Path) -> None:
     want = json.loads(HASHES.read_text())[name]
     got = run_hashes(RUNS[name], tmp_path)
-    assert compare(want, got) == []
+    diff = compare(want, got)
+    expected = EXPECTED.get(name, {})
+    assert [d for d in diff if d not in expected] == []
+    assert sorted(diff) == sorted(expected)  # each expected difference is really there

@@ -34,9 +34,9 @@ def _process_events(p: LivePipeline) -> list:  # type: ignore[type-arg]
 
 
 def _proc(p: LivePipeline) -> LiveProcess:
-    proc = p._proc
-    assert proc is not None
-    return proc
+    part = p.part("process")
+    assert part is not None
+    return part.live  # type: ignore[no-any-return]
 
 
 def _taught(seed: int) -> LivePipeline:
@@ -295,14 +295,16 @@ def test_inject_and_relearn_refuse_bad_input_by_name(taught) -> None:  # type: i
         assert e.value.name == name
     got = p.inject("breakage")
     assert got["size"] == 0.4e-3 and got["at_t"] is None and got["at_part"] is None
-    # a scenario without a part program has nothing to inject into; its channels are NaN
+    # a scenario without a part program has nothing to inject into, and no process part:
+    # it streams none of the monitor's channels (the dashboard draws no monitor chart)
     q = LivePipeline("seed000-weight")
     with pytest.raises(ParameterError) as e:
         q.inject("breakage")
     assert e.value.name == "kind" and "part program" in str(e.value)
     out = q.step(10)
-    assert np.isnan(out["mon_f"]).all() and q.monitor_status()["state"] == "off"
-    assert {c.name for c in q.channels() if c.group == "monitor"} >= {"mon_f", "mon_line"}
+    assert "mon_f" not in out and q.monitor_status()["state"] == "off"
+    assert not [c for c in q.channels() if c.group == "monitor"]
+    assert q.part("process") is None and "process" not in [s["name"] for s in q.parts()]
 
 
 def test_a_checkpoint_resumes_the_teach_in_and_the_events(taught, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]

@@ -258,23 +258,27 @@ def test_interval_bands_and_the_not_excited_state(tmp_path: Path) -> None:
     # next reversal determines it again
     import httpx
 
-    from server.service.protocol import INTERVALS
+    # the identified parameters with an interval: their charts (declared by the stage part)
+    from server.pipeline.live_pipeline import LivePipeline
+
+    intervals = [c.chart for c in LivePipeline().channels() if c.interval is not None]
+    assert intervals == ["J_L", "B_L", "F_CL"]
 
     with serve() as hostport, chromium_page(1280, 900) as (page, errors):
         page.goto(f"http://{hostport}/")
         page.wait_for_selector("#conn[data-state=up]", timeout=20000)
-        for q in INTERVALS:  # every parameter's chart has its band series
+        for q in intervals:  # every parameter's chart has its band series
             legend = page.text_content(f"#chart-{q} .u-legend") or ""
             assert "95 % upper" in legend and "not excited" in legend, legend
 
         def excited(q: str) -> str | None:
             return page.get_attribute(f"#flag-{q}", "data-excited")
 
-        wait_for(lambda: all(excited(q) == "1" for q in INTERVALS), timeout=30)
-        assert all(page.is_hidden(f"#flag-{q}") for q in INTERVALS)
+        wait_for(lambda: all(excited(q) == "1" for q in intervals), timeout=30)
+        assert all(page.is_hidden(f"#flag-{q}") for q in intervals)
         # the band grows as the stream goes on (J_L's is a few pixels high: +-4 %);
         # without the band, 7 pixels of this colour were measured (anti-aliasing)
-        for q in INTERVALS:
+        for q in intervals:
             wait_for(lambda q=q: colour_pixels(page, f"#chart-{q} canvas", BAND_RGB) > 150)
         out = Path("out")
         out.mkdir(exist_ok=True)

@@ -284,7 +284,7 @@ def test_only_the_pages_own_files_are_served(plant: Plant) -> None:
             r = httpx.get(f"http://{hp}{path}", headers=VIEW, timeout=10)
             assert r.status_code == 404, (hp, path, r.status_code)
             assert shaped(r)["field"] == "path"
-    own = ("/", "/index.html", "/app.js", "/loop.js", "/panels.js", "/monitor.js",
+    own = ("/", "/index.html", "/app.js", "/charts.js", "/loop.js", "/panels.js", "/monitor.js",
            "/protocol.js", "/schema.js", "/style.css", "/login", "/login.js",
            "/vendor/uplot/uPlot.iife.min.js", "/vendor/uplot/uPlot.min.css")  # fmt: skip
     for path in own:

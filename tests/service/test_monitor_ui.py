@@ -125,22 +125,6 @@ def test_acknowledge_is_for_operators() -> None:
     assert "not signed in" in nobody
 
 
-def test_monitor_chart_series_follow_the_streamed_channels() -> None:
-    code = (
-        "import {monitorSeries} from './monitor.js';"
-        "import {readFileSync} from 'node:fs';"
-        "const sets = JSON.parse(readFileSync(0, 'utf8')).map((n) => new Set(n));"
-        "console.log(JSON.stringify(sets.map((s) => { const m = monitorSeries(s);"
-        " return m && {names: m.series.map((x) => x[0]), bands: m.bands}; })))"
-    )
-    full = ["mon_f", "mon_mean", "mon_upper", "mon_lower", "mon_extreme", "mon_state"]
-    got = run_js(code, json.dumps([full, ["mon_f", "mon_extreme"], ["f_true"]]))
-    assert isinstance(got, list)
-    assert got[0]["names"] == full[:5] and got[0]["bands"][0]["series"] == [3, 4]
-    assert got[1] == {"names": ["mon_f", "mon_extreme"], "bands": []}
-    assert got[2] is None
-
-
 def test_protocol_accepts_event_messages_and_names_what_is_missing() -> None:
     code = (
         "import {checkMessage} from './protocol.js';"

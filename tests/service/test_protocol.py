@@ -17,6 +17,7 @@ import pytest
 
 from server.cli.commands import schema
 from server.pipeline.accuracy import RollingAccuracy
+from server.pipeline.part import Channel, Chart
 from server.service import protocol
 from server.service.hub import Hub
 from server.service.loop import LiveLoop
@@ -101,12 +102,19 @@ def accuracy(has_truth: bool) -> dict[str, object]:
     return acc.summary(digits=protocol.ACCURACY_DIGITS)
 
 
+#: a part's declarations: a chart with a fast truth channel and a slow one
+CHART = Chart("toy", "a toy chart", fast=True)
+CHANNELS = (
+    *CHART.series(Channel("force_true", "N", "true", "force", truth=True)),
+    Channel("J_L", "kg m^2", "J_L", "J_L"),
+)
+
+
 def frames(has_truth: bool = True) -> list[str]:
     hello = protocol.hello(
-        [
-            {"name": "force_true", "unit": "N", "group": "force", "label": "true", "grid": "t"},
-            {"name": "J_L", "unit": "kg m^2", "group": "J_L", "label": "J_L", "grid": "ts"},
-        ],
+        [c.describe() for c in CHANNELS],
+        [CHART.describe()],
+        [{"name": "toy", "running": True, "reason": ""}],
         4e-4,
         "default",
         {"spindle_rpm": 1500.0},
@@ -123,14 +131,17 @@ def frames(has_truth: bool = True) -> list[str]:
         stalls=0,
     ).model_dump()
     body = protocol.data_body(
-        3,
-        1.0,
-        [0.1, 0.2],
-        [0.1],
-        {"force_true": protocol.samples([1.0, float("nan")]), "J_L": [2.8e-4]},
-        health,
-        {"spindle_rpm": 1500.0},
-        accuracy(has_truth),
+        {
+            "seq": 3,
+            "wall": 1.0,
+            "t": [0.1, 0.2],
+            "ts": [0.1],
+            "ch": {"force_true": protocol.samples([1.0, float("nan")]), "J_L": [2.8e-4]},
+            "health": health,
+            "knobs": {"spindle_rpm": 1500.0},
+            "accuracy": accuracy(has_truth),
+            "parts": [{"name": "toy", "running": False, "reason": "it is a toy"}],
+        }
     )
     return [hello, protocol.with_dropped(body, 7)]
 
@@ -174,9 +185,9 @@ def test_python_frames_follow_schema() -> None:
         ('{"type": "nope"}', "unknown message type nope"),
         ('{"type": "hello", "version": 1}', "hello message lacks channels"),
         (
-            '{"type": "hello", "version": 99, "channels": [], "sample_time": 1, "scenario": "",'
-            ' "knobs": {}}',
-            "protocol version 99, this page speaks 1",
+            '{"type": "hello", "version": 99, "channels": [], "charts": [], "parts": [],'
+            ' "sample_time": 1, "scenario": "", "knobs": {}}',
+            "protocol version 99, this page speaks 2",
         ),
         (
             '{"type": "data", "dropped": 0, "seq": 1, "wall": 0, "t": [1, 2], "ts": [1],'
@@ -236,37 +247,91 @@ def test_interval_channels_are_streamed_by_the_live_pipeline() -> None:
     from server.pipeline.live_pipeline import LivePipeline
 
     chans = {c.name: c for c in LivePipeline().channels()}
-    for q, names in protocol.INTERVALS.items():
-        assert set(names) == {"estimate", "lower", "upper", "excited"}
-        for name in names.values():
-            assert name in chans, name
-            assert chans[name].group == q  # plotted on the parameter's own chart
-            assert protocol.grid_of(chans[name].group) == "ts"
+    with_band = [c for c in chans.values() if c.interval is not None]
+    assert {c.name for c in with_band} == {"J_L_seg", "B_L_seg", "F_CL_seg"}
+    for c in with_band:
+        assert c.interval is not None and c.chart == c.group  # on the parameter's chart
+        for name in c.interval:
+            assert name in chans and chans[name].grid == "ts", name
+
+
+def hello_of_the_default_pipeline() -> str:
+    from server.pipeline.live_pipeline import LivePipeline
+
+    p = LivePipeline()
+    return protocol.hello(
+        [c.describe() for c in p.channels()],
+        [c.describe() for c in p.charts()],
+        p.parts(),
+        p.sample_time,
+        p.scenario,
+        p.knob_values(),
+    )
 
 
 @needs_node
-def test_panels_draw_bands_only_for_streamed_interval_channels() -> None:
-    # web/panels.js: a parameter's band series and band from SCHEMA.intervals, or none
-    # when the hello lacks one of its four channels
-    names = [n for iv in protocol.SCHEMA["intervals"].values() for n in iv.values()]
+def test_charts_are_built_from_the_hello() -> None:
+    # web/charts.js: every chart the parts declare, by page and order, each channel on its
+    # chart in its order; an interval drawn as a band (greyed where not excited); a shaded
+    # area between two channels; no channel name written in web/ for any of it
     code = (
-        "import {intervalSeries, accuracyTable, accuracyTitle} from './panels.js';"
+        "import {chartSpecs, roles} from './charts.js';"
         "import {readFileSync} from 'node:fs';"
-        "const names = new Set(JSON.parse(readFileSync(0, 'utf8')));"
-        "const all = intervalSeries('J_L', names, 4);"
-        "names.delete('B_L_lo');"
-        "console.log(JSON.stringify({series: all.series.map((s) => [s[0], s[1], s[4].mask]),"
-        " bands: all.bands, excited: all.excited, B_L: intervalSeries('B_L', names, 4)}));"
+        "const hello = JSON.parse(readFileSync(0, 'utf8'));"
+        "const specs = chartSpecs(hello);"
+        "const n = new Set(hello.channels.map((c) => c.name)); n.delete('B_L_lo');"
+        "const cut = chartSpecs({...hello, channels: hello.channels.filter((c) => n.has(c.name))});"
+        "console.log(JSON.stringify({ids: specs.map((s) => [s.id, s.page]),"
+        " J_L: specs.find((s) => s.id === 'J_L'), monitor: specs.find((s) => s.id === 'monitor'),"
+        " B_L: cut.find((s) => s.id === 'B_L'), roles: roles(hello.channels)}));"
     )
-    got = json.loads(run_js(code, json.dumps(names)))
-    assert got["series"] == [
+    got = json.loads(run_js(code, hello_of_the_default_pipeline()))
+    ids = [i for i, _ in got["ids"]]
+    assert ids[:2] == ["monitor", "wear"] and {p for _, p in got["ids"][:2]} == {"operator"}
+    assert ids[2] == "force" and {p for _, p in got["ids"][2:]} == {"research"}
+    jl = got["J_L"]
+    assert [s[0] for s in jl["series"]][:3] == ["J_L_true", "J_L_adaptive", "J_L_switching"]
+    assert [[s[0], s[1], s[4]["mask"]] for s in jl["series"][3:]] == [
         ["J_L_seg", "identified, 95 % band", ["J_L_excited", 1]],
         ["J_L_seg", "not excited", ["J_L_excited", 0]],
         ["J_L_hi", "95 % upper", ["J_L_excited", 1]],
         ["J_L_lo", "95 % lower", ["J_L_excited", 1]],
     ]
-    assert got["bands"][0]["series"] == [6, 7]  # uPlot indices of upper and lower
-    assert got["excited"] == "J_L_excited" and got["B_L"] is None
+    assert jl["bands"][0]["series"] == [6, 7] and jl["excited"] == "J_L_excited"
+    # without one of its interval's channels, B_L's estimate is a plain series
+    assert [s[0] for s in got["B_L"]["series"]][-1] == "B_L_seg" and got["B_L"]["bands"] == []
+    mon = got["monitor"]
+    names = [s[0] for s in mon["series"]]
+    assert mon["bands"][0]["series"] == [1 + names.index("mon_upper"), 1 + names.index("mon_lower")]
+    assert got["roles"] == {"reference": "f_true", "without_effects": "f_fixed",
+                            "with_effects": "f_effects"}  # fmt: skip
+
+
+def test_no_channel_name_is_written_in_web() -> None:
+    # the dashboard builds its charts from the hello: a channel's name in web/ (but the
+    # generated schema.js, which names none either) would be a chart that a part cannot
+    # change by declaring it
+    import re
+
+    from server.pipeline.live_pipeline import LivePipeline
+
+    names = {c.name for c in LivePipeline().channels()}
+    found = {}
+    for f in [*WEB.glob("*.js"), *WEB.glob("*.html")]:
+        text = f.read_text(encoding="utf-8")
+        hits = {n for n in names if re.search(rf"\b{re.escape(n)}\b", text)}
+        if hits:
+            found[f.name] = sorted(hits)
+    assert found == {}
+
+
+def test_schema_js_carries_a_type_for_every_message() -> None:
+    js = (WEB / "schema.js").read_text(encoding="utf-8")
+    for model in ("Hello", "Data", "Channel", "Chart", "PartStatus", "EventMessage", "Event",
+                  "LoopHealth", "Accuracy", "MonitorStatus", "Interval"):  # fmt: skip
+        assert f"@typedef {{Object}} {model}\n" in js, model
+    assert " * @property {Array<Channel>} channels" in js
+    assert ' * @property {("operator"|"research")} page' in js
 
 
 @needs_node

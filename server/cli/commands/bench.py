@@ -2,6 +2,7 @@
 
 Groups (modules server/experiments/benchmarks/bench_<group>.py; see docs/benchmarks.md):
   broker                 the drive-block wire format: binary against JSON
+  chatter                the regenerative cut, the flexible-tool machine, the lobes
   disturbance-observers  seed 002's loops and the stage DFO
   eccentricity           milling with X/Y drives, ESC and the fast tuner
   fleet                  N machines on broker feeds and the fleet page (mosquitto)
@@ -21,7 +22,13 @@ machine on which one reference run takes 1 s (speeds times the reference's secon
 costs divided by them). Ratios compare across machines; raw figures do not
 (docs/benchmarks.md, "Figures that compare across machines").
 
---json prints {"realtime_factor": x, "realtime_factor_of": "...", "realtime_factor_ratio":
+``pipeline`` reports what watching a machine costs (estimation) apart from simulating it,
+per part, in ms of wall time per machine-second (``cost.*``, ``part.<name>.*``), and with
+``--against REF`` the same pipeline on the code of git commit REF, run in turn with this
+tree's in child processes: ``before_after.*``.
+
+--json prints exactly one JSON document on stdout (progress, and any child process's
+output, on stderr): {"realtime_factor": x, "realtime_factor_of": "...", "realtime_factor_ratio":
 r, "reference": {...}, "ratios": {"<group>": {"<key>": r}}, "<group>": {...}}: the
 top-level realtime_factor is the stage group's (offline block of 2500 samples) and
 realtime_factor_of names its configuration; without the stage group it is absent and
@@ -65,6 +72,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         type=float,
         metavar="S",
         help="soak: one run of S seconds of a group that has one (live): memory, CPU, drops",
+    )
+    g = p.add_argument_group("pipeline", "options of the pipeline group")
+    g.add_argument(
+        "--against",
+        metavar="REF",
+        help="also measure the pipeline on the code of git commit REF (e.g. main), side by "
+        "side with this tree's in one run: before/after, medians of --repeats runs each",
     )
     g = p.add_argument_group("fleet", "options of the fleet group")
     g.add_argument("--machines", type=int, help="machines (default 20; --quick 4)")
@@ -163,6 +177,8 @@ def run(args: argparse.Namespace) -> int:
     result: dict[str, dict[str, object]] = {}
     for g in wanted:
         kw = fleet if g == "fleet" else {}
+        if g == "pipeline" and args.against:
+            kw = {"against": args.against}
         result[g] = mods[g].measure(repeats=args.repeats, quick=args.quick, **kw)
     # again after the groups: a load that changed in between shows as a spread
     ref = bench_reference.Reference(runs + bench_reference.measure(1 if args.quick else 2))

@@ -67,6 +67,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="database of the kept events and tool lives: a SQLAlchemy URL (default SQLite "
         "DATA_DIR/history/cutwatch.sqlite; 'none': keep none)",
     )
+    p.add_argument(
+        "--part",
+        action="append",
+        metavar="MODULE:ATTR",
+        help="add a live part (a class or factory on the Python path) to every pipeline; "
+        "repeatable (CUTWATCH_PARTS; docs/adding-a-part.md)",
+    )
     p.add_argument("--log-level", default="warning", help="uvicorn log level")
     add_broker_options(p)
 
@@ -93,6 +100,7 @@ def build_settings(args: argparse.Namespace) -> Settings:
             "mqtt_publish_hz": args.publish_hz,
             "data_dir": args.data_dir,
             "history_url": args.history_url,
+            "parts": ",".join(args.part) if args.part else None,
         }.items()
         if v is not None
     }
@@ -108,10 +116,12 @@ def build_settings(args: argparse.Namespace) -> Settings:
 def run(args: argparse.Namespace) -> int:
     import uvicorn
 
+    from server.pipeline import part_registry
     from server.service.app import create_app
     from server.service.front import uvicorn_options
 
     settings = build_settings(args)
+    part_registry.use(settings.parts)  # a part that cannot be loaded: said before serving
     app = create_app(settings)
     if settings.viser:
         from server.service.viser_scene import VISER_HOST, check_port_free

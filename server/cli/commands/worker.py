@@ -61,6 +61,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="this worker's URL as browsers reach it; the fleet rows link <url>/m/<machine>/",
     )
     p.add_argument("--seed", type=int, default=0, help="seed of the pipelines")
+    p.add_argument(
+        "--part",
+        action="append",
+        metavar="MODULE:ATTR",
+        help="add a live part (a class or factory on the Python path) to every machine's "
+        "pipeline; repeatable (CUTWATCH_PARTS; docs/adding-a-part.md)",
+    )
     add_broker_options(p)
 
 
@@ -99,8 +106,11 @@ def run(args: argparse.Namespace) -> int:
     except ParameterError as exc:
         raise CutwatchError(f"--{exc.name.replace('_', '-')}: expected {exc.expected}, "
                             f"got {exc.got!r}") from exc  # fmt: skip
+    from server.pipeline import part_registry
+
     settings = Settings(host=args.host, port=args.port)
     check_security(settings)
+    part_registry.use([*settings.parts.split(","), *(args.part or [])])
     worker = Worker(broker_config(args.broker, args), cfg)
     app = create_worker_app(worker, settings)  # its log lines on stderr from here
     print(f"cutwatch worker ({cfg.describe()}): http://{args.host}:{args.port}/api/health",

@@ -8,6 +8,7 @@ import json
 import shutil
 import signal
 import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -226,7 +227,8 @@ def run_plant(
                     break  # measured as it is: the rows ok say how many made it
                 time.sleep(1.0)
             if progress:
-                print(f"  plant: {len(rows)} rows, measuring {seconds:g} s", flush=True)
+                print(f"  plant: {len(rows)} rows, measuring {seconds:g} s", file=sys.stderr,
+                      flush=True)  # fmt: skip
             time.sleep(2 * STALE_AFTER)
             rows = httpx.get(f"http://127.0.0.1:{plant.fport}/api/fleet", timeout=5).json()
             out["fleet.rows"] = len(rows)

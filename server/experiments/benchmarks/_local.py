@@ -34,7 +34,9 @@ def mosquitto(port: int) -> Iterator[subprocess.Popen[bytes]]:
             f"listener {port} 127.0.0.1\nallow_anonymous true\npersistence false\n"
             f"user {getpass.getuser()}\nlog_dest none\n"
         )
-        p = subprocess.Popen([exe, "-c", str(conf)])
+        # its output (as root: a warning at start) to our stderr: a --json run prints one
+        # document on stdout, and nothing of a child's
+        p = subprocess.Popen([exe, "-c", str(conf)], stdout=2, stderr=2)
         try:
             deadline = time.monotonic() + 10
             while True:

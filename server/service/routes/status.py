@@ -17,12 +17,15 @@ from server.service.schemas import Health, Scenarios, Snapshot, error_responses
 router = APIRouter(responses=error_responses())
 
 
-@router.get("/api/health", summary="liveness and loop health", response_model=Health)
+@router.get("/api/health", summary="liveness, loop health and the parts", response_model=Health)
 def health(lp: Live, s: Config) -> Health:
     h = lp.health()
+    parts = lp.parts()
+    status = "ok" if all(p["running"] for p in parts) else "degraded"
     return Health.model_validate(
         {
-            "status": "ok" if lp.running else "error",
+            "status": status if lp.running else "error",
+            "parts": parts,
             "loop_error": lp.error,
             "viser_port": s.viser_port,
             "viser_running": lp.scene is not None,

@@ -1,0 +1,257 @@
+"""Which parts a live pipeline is made of: the built-in ones, and those a user adds.
+
+A part factory takes a :class:`BuildContext` (the scenario, the source, the knobs, the
+simulated plant, the parts built before it) and returns a part, or None when the part is
+not one of this pipeline's (the eccentricity loop belongs to the default scenario, not to
+a replayed log). :data:`BUILTIN` lists cutwatch's own, in the order they run:
+
+=============  ==============================================  =========================
+name           what                                            where
+=============  ==============================================  =========================
+workpiece      a blank losing mass on the simulated stage      server/pipeline/workpiece.py
+stage          seed 000/001's observers and the identifiers    server/pipeline/stage_part.py
+effects        the residual loop's identified effects          server/pipeline/effects_part.py
+dfo            seed 002's harmonic observer                    server/pipeline/dfo_part.py
+wear           seed 004's wearing tool and its life monitor    server/pipeline/wear_part.py
+eccentricity   seed 003's milling tool and its tuner           server/pipeline/eccentricity_part.py
+process        the part program and the process monitor        server/pipeline/process_part.py
+=============  ==============================================  =========================
+
+More parts come after these, in the order they were added: :func:`register` (in
+process, e.g. a test: :func:`registered` is its context manager) or by name,
+``module:attribute`` (:func:`load`; ``cutwatch serve --part`` and ``cutwatch worker
+--part``, the setting ``CUTWATCH_PARTS``): the attribute is a part class or any callable
+that takes the :class:`BuildContext` and returns a part (or None). docs/adding-a-part.md
+walks through one.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import importlib
+from collections.abc import Callable, Iterator, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+from estimators.observer_effects import ObserverEffect
+from server.errors import CutwatchError
+from server.pipeline.part import Part
+from server.pipeline.scenarios import Plant, Scenario
+from server.pipeline.sources import MeasurementSource
+
+__all__ = [
+    "BUILTIN",
+    "BuildContext",
+    "PartFactory",
+    "extra_factories",
+    "load",
+    "register",
+    "registered",
+    "unregister",
+    "use",
+]
+
+
+@dataclass
+class BuildContext:
+    """What a part factory may build its part from.
+
+    Attributes
+    ----------
+    scenario
+        The scenario (its flags say which simulated processes it runs).
+    source
+        The measurement source (sample time, nominal parameters).
+    seed
+        The pipeline's seed (a simulating part draws its own generator from it).
+    knobs
+        The knob values at build.
+    plant
+        The simulated stage's configuration and the observers' design.
+    spindle_factor
+        The scenario's factor on the spindle speed at a time.
+    effects
+        The observer effects to install at build.
+    parts
+        The parts built so far, by name.
+    """
+
+    scenario: Scenario
+    source: MeasurementSource
+    seed: int
+    knobs: Mapping[str, float | bool | str]
+    plant: Plant
+    spindle_factor: Callable[[float], float]
+    effects: tuple[ObserverEffect, ...] = ()
+    parts: dict[str, Part] = field(default_factory=dict)
+    #: the parts that could not be built, with the reason
+    failed: dict[str, str] = field(default_factory=dict)
+
+    def part(self, name: str) -> Any:
+        """The part ``name`` built before this one.
+
+        Raises
+        ------
+        CutwatchError
+            No such part (not in this pipeline, or it could not be built: the reason).
+        """
+        if name in self.failed:
+            raise CutwatchError(f"needs the {name} part, which was not built ({self.failed[name]})")
+        if name not in self.parts:
+            raise CutwatchError(f"needs the {name} part, which this pipeline does not run")
+        return self.parts[name]
+
+
+#: a part factory: the context -> a part, or None when the part is not this pipeline's
+PartFactory = Callable[[BuildContext], Part | None]
+
+
+def _workpiece(c: BuildContext) -> Part | None:
+    from server.pipeline.workpiece import WorkpiecePart
+
+    if not c.scenario.workpiece:
+        return None
+    return WorkpiecePart(c.plant.config.trajectory.half_period, c.spindle_factor)
+
+
+def _stage(c: BuildContext) -> Part:
+    from server.pipeline.stage_part import StagePart
+
+    return StagePart(c.source, c.plant.ident, dict(c.plant.design))
+
+
+def _effects(c: BuildContext) -> Part:
+    from server.pipeline.effects_part import EffectsPart
+
+    return EffectsPart(c.part("stage"), c.effects)
+
+
+def _dfo(c: BuildContext) -> Part:
+    from server.pipeline.dfo_part import DfoPart
+
+    return DfoPart(c.part("stage"), tuple(c.plant.config.force.frequencies))
+
+
+def _wear(c: BuildContext) -> Part | None:
+    from server.pipeline.wear_part import WearPart
+
+    return WearPart(float(c.knobs["wear_rate"])) if c.scenario.tool_wear else None
+
+
+def _eccentricity(c: BuildContext) -> Part | None:
+    from server.pipeline.eccentricity_part import EccentricityPart
+
+    return EccentricityPart.from_knobs(c.knobs) if c.scenario.eccentricity else None
+
+
+def _process(c: BuildContext) -> Part | None:
+    from server.pipeline.process_part import ProcessPart
+
+    return ProcessPart.from_knobs(c.seed, c.knobs) if c.scenario.process else None
+
+
+#: cutwatch's own parts, by name, in the order they run (module docstring)
+BUILTIN: tuple[tuple[str, PartFactory], ...] = (
+    ("workpiece", _workpiece),
+    ("stage", _stage),
+    ("effects", _effects),
+    ("dfo", _dfo),
+    ("wear", _wear),
+    ("eccentricity", _eccentricity),
+    ("process", _process),
+)
+
+#: the parts added: what was registered (a class or a factory) -> its factory
+_EXTRA: dict[Any, PartFactory] = {}
+
+
+def register(part: type[Any] | PartFactory) -> None:
+    """Add a part to every pipeline built from now on (after the built-in ones): a part
+    class (built with the :class:`BuildContext` when its constructor takes an argument,
+    else with none) or a factory."""
+    _EXTRA[part] = _factory(part)
+
+
+def unregister(part: type[Any] | PartFactory) -> None:
+    """Take a part added by :func:`register` out again (pipelines built from now on)."""
+    _EXTRA.pop(part, None)
+
+
+@contextlib.contextmanager
+def registered(*parts: type[Any] | PartFactory) -> Iterator[None]:
+    """``parts`` added for the ``with`` block (a test's toy part)."""
+    for p in parts:
+        register(p)
+    try:
+        yield
+    finally:
+        for p in parts:
+            unregister(p)
+
+
+_LOADED: dict[str, PartFactory] = {}
+
+
+def use(specs: str | list[str]) -> list[str]:
+    """Load and register the parts named ``module:attribute`` (comma-separated, or a list),
+    each once however often it is asked for (the service's settings are read by every
+    app the process builds). The specs now in use.
+
+    Raises
+    ------
+    CutwatchError
+        A spec that cannot be loaded (:func:`load`).
+    """
+    items = specs.split(",") if isinstance(specs, str) else list(specs)
+    for spec in (s.strip() for s in items):
+        if spec and spec not in _LOADED:
+            _LOADED[spec] = load(spec)
+            _EXTRA[spec] = _LOADED[spec]
+    return sorted(_LOADED)
+
+
+def extra_factories() -> tuple[PartFactory, ...]:
+    """The parts added, in order."""
+    return tuple(_EXTRA.values())
+
+
+def load(spec: str) -> PartFactory:
+    """The part factory named ``module:attribute`` (imported now).
+
+    Raises
+    ------
+    CutwatchError
+        Not of the form ``module:attribute``, a module that cannot be imported, no such
+        attribute, or one that is not callable: the message names which.
+    """
+    mod_name, sep, attr = spec.partition(":")
+    if not sep or not mod_name or not attr:
+        raise CutwatchError(f"part {spec!r}: expected module:attribute (e.g. mypkg.parts:MyPart)")
+    try:
+        mod = importlib.import_module(mod_name)
+    except Exception as exc:
+        raise CutwatchError(f"part {spec!r}: module {mod_name!r} not importable: {exc}") from None
+    obj = getattr(mod, attr, None)
+    if obj is None:
+        raise CutwatchError(f"part {spec!r}: module {mod_name!r} has no attribute {attr!r}")
+    if not callable(obj):
+        raise CutwatchError(
+            f"part {spec!r}: expected a part class or factory, found {type(obj).__name__}"
+        )
+    return _factory(obj)
+
+
+def _factory(obj: Callable[..., Any]) -> PartFactory:
+    """A part class (built with the context when its constructor takes one argument, else
+    with none) or a factory, as a :data:`PartFactory`."""
+    if isinstance(obj, type):
+        import inspect
+
+        takes = len(inspect.signature(obj).parameters)
+
+        def build(c: BuildContext) -> Part | None:
+            part: Part = obj(c) if takes else obj()
+            return part
+
+        return build
+    return obj
