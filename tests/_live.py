@@ -14,12 +14,13 @@ import urllib.request
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
 
 import uvicorn
 
-from server.cli.commands.serve import uvicorn_options
 from server.pipeline.broker import BrokerConfig
 from server.service.app import create_app
+from server.service.front import uvicorn_options
 from server.service.settings import Settings
 
 #: test tokens of the two roles (CUTWATCH_TOKEN, CUTWATCH_VIEW_TOKEN: 16 characters at least)
@@ -91,21 +92,23 @@ def serve(*, sndbuf: int | None = None, **settings: object) -> Iterator[str]:
 
 
 class ServeProcess:
-    """``cutwatch serve`` as a child process on a free loopback port (see
-    :func:`serve_process`); ``stop(sig)`` ends it with that signal and waits."""
+    """``cutwatch serve`` (or ``command``: ``fleet``) as a child process on a free loopback
+    port (see :func:`serve_process`); ``stop(sig)`` ends it with that signal and waits."""
 
-    def __init__(self, args: list[str], env: dict[str, str]) -> None:
+    def __init__(self, args: list[str], env: dict[str, str], command: str = "serve") -> None:
         sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
         sock.bind(("127.0.0.1", 0))
         self.port = int(sock.getsockname()[1])
         sock.close()  # the child binds it again (a race with other binders is unlikely)
         self.host = f"127.0.0.1:{self.port}"
-        cmd = [sys.executable, "-m", "server.cli.main", "serve", "--port", str(self.port)]
+        cmd = [sys.executable, "-m", "server.cli.main", command, "--port", str(self.port)]
+        if command == "serve":
+            cmd.append("--no-viser")
         # the child's output goes to a file, not a pipe: a pipe nobody reads fills up (64 KiB)
         # and then blocks the server's logging, and with it the server
         self._log = tempfile.TemporaryFile(mode="w+")
         self.proc = subprocess.Popen(
-            [*cmd, "--no-viser", *args],
+            [*cmd, *args],
             env={**os.environ, **env},
             stdout=self._log,
             stderr=subprocess.STDOUT,
@@ -125,13 +128,13 @@ class ServeProcess:
         while time.monotonic() < deadline:
             if self.proc.poll() is not None:
                 self.proc.wait()
-                raise AssertionError(f"cutwatch serve exited: {self.output()[-3000:]}")
+                raise AssertionError(f"cutwatch exited: {self.output()[-3000:]}")
             try:
                 with urllib.request.urlopen(f"http://{self.host}/api/health", timeout=2):
                     return
             except OSError:
                 time.sleep(0.2)
-        raise AssertionError("cutwatch serve did not answer in time")
+        raise AssertionError("cutwatch did not answer in time")
 
     @property
     def base(self) -> str:
@@ -165,7 +168,20 @@ class ServeProcess:
 def serve_process(*args: str, **env: str) -> Iterator[ServeProcess]:
     """Run ``cutwatch serve <args>`` (environment ``env`` added), ready; killed at exit
     if still running."""
-    sp = ServeProcess(list(args), dict(env))
+    with _process("serve", args, env) as sp:
+        yield sp
+
+
+@contextmanager
+def fleet_process(*args: str, **env: str) -> Iterator[ServeProcess]:
+    """Run ``cutwatch fleet <args>`` (environment ``env`` added), ready; killed at exit."""
+    with _process("fleet", args, env) as sp:
+        yield sp
+
+
+@contextmanager
+def _process(command: str, args: tuple[str, ...], env: dict[str, str]) -> Iterator[ServeProcess]:
+    sp = ServeProcess(list(args), dict(env), command)
     try:
         sp.wait_ready()
         yield sp
@@ -176,17 +192,27 @@ def serve_process(*args: str, **env: str) -> Iterator[ServeProcess]:
 
 
 @contextmanager
-def serve_fleet(cfg: BrokerConfig, stale_after: float = 1.0) -> Iterator[str]:
-    """The fleet page on ``cfg``'s broker in a background thread; yield ``host:port``."""
+def serve_fleet(
+    cfg: BrokerConfig, stale_after: float = 1.0, *, settings: Settings | None = None,
+    links: Any = None,
+) -> Iterator[str]:  # fmt: skip
+    """The fleet page on ``cfg``'s broker in a background thread (``links``: a
+    ``server.service.fleet.Links``); yield ``host:port``."""
     from server.service.fleet import create_fleet_app
-    from server.service.http_guard import GuardedHttpToolsProtocol
 
-    app = create_fleet_app(cfg, stale_after)
+    with serve_asgi(create_fleet_app(cfg, stale_after, settings, links), settings) as hp:
+        yield hp
+
+
+@contextmanager
+def serve_asgi(app: Any, settings: Settings | None = None) -> Iterator[str]:
+    """Any of cutwatch's apps (the fleet page's, a worker's) on a free loopback port in a
+    background thread, run as its command runs it (``uvicorn_options``); ``host:port``."""
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         port = int(s.getsockname()[1])
-    config = uvicorn.Config(
-        app, host="127.0.0.1", port=port, log_level="error", http=GuardedHttpToolsProtocol
-    )
+    options = uvicorn_options(settings if settings is not None else Settings())
+    del options["workers"]
+    config = uvicorn.Config(app, host="127.0.0.1", port=port, log_level="error", **options)  # type: ignore[arg-type]
     with in_thread(uvicorn.Server(config)):
         yield f"127.0.0.1:{port}"

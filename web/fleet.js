@@ -1,5 +1,15 @@
 // The fleet page: one row per machine, updated as each machine's estimate arrives.
 const rows = new Map();
+
+// a row's link: an http(s) URL only (the fleet chose it; a script URL never becomes a link)
+function safeLink(url) {
+  try {
+    const u = new URL(url, location.href);
+    return u.protocol === "http:" || u.protocol === "https:" ? u.href : null;
+  } catch {
+    return null;
+  }
+}
 const fmt = (v, d) => (v === null || v === undefined ? "–" : Number(v).toFixed(d));
 const KIND = {
   breakage: "tool breakage", collision: "collision / overload", missing_tool: "missing tool",
@@ -59,9 +69,10 @@ function render() {
       } else if (i === 3) {
         eventCell(td, r.event, r.unacked);
       } else if (i === 10) {
-        if (r.dashboard) {
+        const href = r.dashboard ? safeLink(r.dashboard) : null;
+        if (href) {
           const a = document.createElement("a");
-          a.href = r.dashboard;
+          a.href = href;
           a.textContent = "open";
           a.target = "_blank";
           a.rel = "noopener";

@@ -181,36 +181,80 @@ def host_allowed(conn: HTTPConnection) -> bool:
     return "*" in hosts or host_name(conn.headers.get("host", "")) in hosts
 
 
+def host_repeated(conn: HTTPConnection) -> bool:
+    """True when the request carries more than one Host header (RFC 9112, section 3.2:
+    such a request must be answered 400, whatever the first one says)."""
+    return sum(1 for k, _ in conn.scope.get("headers", []) if k.lower() == b"host") > 1
+
+
+#: the port of a scheme when its URL gives none
+DEFAULT_PORTS = {"http": 80, "https": 443}
+Origin = tuple[str, str, int]
+
+
+def origin_of(url: str) -> Origin | None:
+    """``(scheme, host, port)`` of an origin (``http://a.b:8000``; the port defaulted by
+    the scheme), or None when it is not an http(s) origin (another scheme, a path, a user,
+    no host, a bad port)."""
+    try:
+        u = urlsplit(url.strip())
+        port = u.port
+    except ValueError:
+        return None
+    scheme = u.scheme.lower()
+    if scheme not in DEFAULT_PORTS or not u.hostname or u.username is not None:
+        return None
+    if u.path not in ("", "/") or u.query or u.fragment:
+        return None
+    return scheme, u.hostname.lower(), port or DEFAULT_PORTS[scheme]
+
+
+def own_origin(conn: HTTPConnection) -> Origin | None:
+    """This request's own origin: the scheme it arrived by (``ws``/``wss`` as
+    ``http``/``https``; behind a TLS proxy, uvicorn takes it from ``X-Forwarded-Proto``
+    when the proxy is a trusted address), the Host header's name and port."""
+    scheme = {"ws": "http", "wss": "https"}.get(conn.url.scheme, conn.url.scheme)
+    return origin_of(f"{scheme}://{conn.headers.get('host', '').strip()}")
+
+
 def same_origin(conn: HTTPConnection) -> bool:
     """False for a request a browser sends from another origin.
 
     ``Origin`` (sent by browsers on every cross-origin request, on POSTs and on
-    WebSocket upgrades) must name the same host and port as ``Host``; ``null`` (a
-    sandboxed frame, a file) is refused; without ``Origin``, ``Sec-Fetch-Site:
-    cross-site`` is refused. A request without either is not a browser's cross-site
-    one (curl, scripts): it passes here and still needs its credentials.
+    WebSocket upgrades) must name the same scheme, host and port as the request itself
+    (:func:`own_origin`); ``null`` (a sandboxed frame, a file) is refused; without
+    ``Origin``, ``Sec-Fetch-Site: cross-site`` is refused. A request without either is
+    not a browser's cross-site one (curl, scripts): it passes here and still needs its
+    credentials.
     """
     origin = conn.headers.get("origin")
     if origin is None:
         return conn.headers.get("sec-fetch-site", "same-origin") in {
             "same-origin", "none", "same-site"
         }  # fmt: skip
-    if origin == "null":
-        return False
-    try:
-        netloc = urlsplit(origin).netloc.lower()
-    except ValueError:
-        return False
-    return bool(netloc) and netloc == conn.headers.get("host", "").strip().lower()
+    theirs = origin_of(origin)
+    return theirs is not None and theirs == own_origin(conn)
 
 
 def refusal_origin(conn: HTTPConnection) -> dict[str, Any]:
     got = conn.headers.get("origin") or conn.headers.get("sec-fetch-site")
+    own = own_origin(conn)
+    mine = f"{own[0]}://{own[1]}:{own[2]}" if own else "this service's own origin"
     return error(
         "origin",
-        "this service's own origin (no cross-site requests)",
+        f"{mine} (the same scheme, host and port; no cross-site requests)",
         got,
         "a cross-origin browser request may not change anything here (Origin check)",
+    )
+
+
+def refusal_repeated_host(conn: HTTPConnection) -> dict[str, Any]:
+    found = [v.decode("latin-1")[:100] for k, v in conn.scope["headers"] if k.lower() == b"host"]
+    return error(
+        "host",
+        "exactly one Host header naming this service (RFC 9112, section 3.2)",
+        ", ".join(found)[:200],
+        f"a request with {len(found)} Host headers is refused, whatever the first one says",
     )
 
 
@@ -227,7 +271,7 @@ def refusal_host(conn: HTTPConnection) -> dict[str, Any]:
 async def admit(ws: WebSocket, need: Role = "viewer") -> Role | None:
     """Gate of a WebSocket route, before ``accept``: Host, Origin and role checked;
     refused: a 403 handshake answer (the connection never opens) and None."""
-    if not host_allowed(ws) or not same_origin(ws):
+    if host_repeated(ws) or not host_allowed(ws) or not same_origin(ws):
         await ws.close(1008)
         return None
     role, _, _ = check(ws, need)

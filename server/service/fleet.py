@@ -23,19 +23,24 @@ import json
 import math
 import threading
 import time
-from collections.abc import AsyncIterator
-from pathlib import Path
+from collections.abc import AsyncIterator, Iterable
+from dataclasses import dataclass
 from typing import Any
+from urllib.parse import urlsplit, urlunsplit
 
 from fastapi import FastAPI, WebSocket, WebSocketDisconnect
-from fastapi.responses import FileResponse, PlainTextResponse
-from pydantic import BaseModel
+from fastapi.responses import PlainTextResponse
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
-from server.pipeline.broker import BrokerConfig, make_client, reason_text
-from server.records.drive_wire import WireError, decode_estimates
+from server.errors import CutwatchError
+from server.pipeline.broker import BrokerConfig, check_machine, make_client, reason_text
+from server.records.drive_wire import ESTIMATES_SCHEMA, VERSION
 from server.records.monitor_events import MonitorEvent
+from server.service import web_files
+from server.service.auth import Origin, origin_of
+from server.service.front import protect
+from server.service.settings import Settings
 
-WEB_DIR = Path(__file__).resolve().parents[2] / "web"
 TOPIC = "cutwatch/+/estimates"
 #: the process monitor's events of every machine (QoS 1, as published)
 EVENTS_TOPIC = "cutwatch/+/events"
@@ -88,13 +93,137 @@ class MachineRow(BaseModel):
     drive_wall: float | None = None
 
 
+class _Force(BaseModel):
+    model_config = ConfigDict(extra="ignore", strict=True)
+    level: float | None = None
+
+
+class _Wear(BaseModel):
+    model_config = ConfigDict(extra="ignore", strict=True)
+    VB_mm: float | None = None
+    remaining_life_min: float | None = None
+
+
+class _Monitor(BaseModel):
+    model_config = ConfigDict(extra="ignore", strict=True)
+    state: str | None = None
+    unacked: int | None = None
+
+
+class Estimates(BaseModel):
+    """What the fleet reads of an estimates message (``cutwatch.estimates``, version 1,
+    docs/broker.md), each field checked by its type (JSON numbers, ``null`` for an
+    unknown one); the message's other fields are not read."""
+
+    model_config = ConfigDict(extra="ignore", strict=True, populate_by_name=True)
+    schema_: str = Field(alias="schema")
+    version: int
+    machine: str
+    force: _Force = Field(default_factory=_Force)
+    wear: _Wear = Field(default_factory=_Wear)
+    alarms: list[str] = []
+    monitor: _Monitor | None = None
+    dashboard: str | None = None
+    source: str | None = None
+    drive_wall: float | None = None
+
+    @field_validator("schema_")
+    @classmethod
+    def _schema(cls, v: str) -> str:
+        if v != ESTIMATES_SCHEMA:
+            raise ValueError(f"schema: expected {ESTIMATES_SCHEMA!r}, got {v!r}")
+        return v
+
+    @field_validator("version")
+    @classmethod
+    def _version(cls, v: int) -> int:
+        if v != VERSION:  # the wire format's (server.records.drive_wire)
+            raise ValueError(f"version: expected {VERSION}, got {v}")
+        return v
+
+
+def machine_of(topic: str) -> str:
+    """The machine of a topic ``cutwatch/<machine>/<kind>`` (a valid machine name).
+
+    Raises
+    ------
+    ValueError
+        Not such a topic, or not a machine name (``check_machine``).
+    """
+    parts = topic.split("/")
+    if len(parts) != 3 or parts[0] != "cutwatch":
+        raise ValueError(f"topic {topic!r}: expected cutwatch/<machine>/<kind>")
+    try:
+        return check_machine(parts[1])
+    except CutwatchError as exc:
+        raise ValueError(str(exc)) from None
+
+
+@dataclass(frozen=True)
+class Links:
+    """Where a row's link to its machine's page goes, decided by the fleet's own
+    configuration, never by a message alone.
+
+    ``template`` (``cutwatch fleet --machine-url``, e.g. ``http://plant.lan/m/{machine}/``):
+    every row links it, ``{machine}`` being the machine of the row's topic. Otherwise a
+    message's ``dashboard`` is linked when it is an http(s) URL whose origin (scheme,
+    host and port) is one of ``origins`` (``--dashboard-origin``: the workers' and the
+    services' public URLs). Otherwise no link.
+    """
+
+    template: str | None = None
+    origins: frozenset[Origin] = frozenset()
+
+    @classmethod
+    def parse(cls, template: str | None, origins: Iterable[str]) -> Links:
+        """From the options' text.
+
+        Raises
+        ------
+        CutwatchError
+            A template without ``{machine}`` or not an http(s) URL, or an origin that is
+            not ``http(s)://host[:port]``; the option and what it was given are named.
+        """
+        found: set[Origin] = set()
+        for o in origins:
+            parsed = origin_of(o)
+            if parsed is None or urlsplit(o).path not in ("", "/"):
+                raise CutwatchError(
+                    f"--dashboard-origin: expected http(s)://host[:port], got {o!r}"
+                )
+            found.add(parsed)
+        if template is not None:
+            u = urlsplit(template.replace("{machine}", "m"))
+            if "{machine}" not in template or origin_of(f"{u.scheme}://{u.netloc}") is None:
+                raise CutwatchError(
+                    "--machine-url: expected an http(s) URL holding {machine}, e.g. "
+                    f"http://plant.lan/m/{{machine}}/, got {template!r}"
+                )
+        return cls(template, frozenset(found))
+
+    def link(self, machine: str, claimed: str | None) -> str | None:
+        """The link of ``machine``'s row; ``claimed``: its message's ``dashboard``."""
+        if self.template is not None:
+            return self.template.replace("{machine}", machine)
+        if claimed is None or not claimed.isprintable() or " " in claimed:
+            return None
+        try:
+            u = urlsplit(claimed)
+        except ValueError:
+            return None
+        if origin_of(f"{u.scheme}://{u.netloc}") not in self.origins:
+            return None
+        return urlunsplit((u.scheme.lower(), u.netloc, u.path or "/", u.query, ""))
+
+
 class FleetState:
     """The latest estimate of every machine; thread-safe (paho's thread writes)."""
 
-    def __init__(self, stale_after: float = 5.0) -> None:
+    def __init__(self, stale_after: float = 5.0, links: Links | None = None) -> None:
         self.stale_after = float(stale_after)
+        self.links = links if links is not None else Links()
         self._lock = threading.Lock()
-        self._last: dict[str, tuple[float, dict[str, Any], int]] = {}
+        self._last: dict[str, tuple[float, Estimates, int]] = {}
         #: machine -> (wall time of its latest event, event id -> (event, received at))
         self._events: dict[str, tuple[float, dict[str, tuple[FleetEvent, float]]]] = {}
         self.malformed = 0
@@ -102,25 +231,28 @@ class FleetState:
         self.latencies: list[float] = []  # drive block publish -> arrival here [s]
         self.listeners: list[tuple[asyncio.AbstractEventLoop, asyncio.Queue[str]]] = []
 
-    def update(self, payload: bytes, now: float | None = None) -> str | None:
+    def update(self, topic: str, payload: bytes, now: float | None = None) -> str | None:
+        """Take one message of ``cutwatch/<machine>/estimates``, checked by its model
+        (:class:`Estimates`); the row is the topic's machine, and a message whose body
+        names another machine is refused. None (counted as malformed) when refused."""
         now = time.time() if now is None else now
         try:
-            d = decode_estimates(payload)
-            machine = str(d["machine"])
-        except (WireError, ValueError, KeyError, TypeError):
+            machine = machine_of(topic)
+            d = Estimates.model_validate_json(payload)
+            if d.machine != machine:
+                raise ValueError(f"body says machine {d.machine!r} on {topic!r}")
+        except (ValidationError, ValueError):
             self.malformed += 1
             return None
         with self._lock:
-            _, _, count = self._last.get(machine, (0.0, {}, 0))
+            _, _, count = self._last.get(machine, (0.0, d, 0))
             self._last[machine] = (now, d, count + 1)
-            mon = d.get("monitor")
-            if isinstance(mon, dict) and mon.get("unacked") == 0 and machine in self._events:
+            if d.monitor is not None and d.monitor.unacked == 0 and machine in self._events:
                 for eid, (fe, got) in self._events[machine][1].items():
                     if not fe.acked and got <= now - ACK_GRACE_S:
                         self._events[machine][1][eid] = (fe.model_copy(update={"acked": True}), got)
-            dw = d.get("drive_wall")
-            if isinstance(dw, int | float):
-                self.latencies.append(now - float(dw))
+            if d.drive_wall is not None:
+                self.latencies.append(now - d.drive_wall)
                 del self.latencies[:-10_000]
         self._push(machine, now)
         return machine
@@ -133,18 +265,21 @@ class FleetState:
     def event(self, topic: str, payload: bytes, now: float | None = None) -> str | None:
         """Take one message of ``cutwatch/<machine>/events``: the event (schema
         ``cutwatch.event``, checked by :meth:`MonitorEvent.from_dict`), with ``acked``
-        when it is an acknowledged copy; the machine's row is pushed. The machine: the
-        event's own, else the topic's. None (and counted as malformed) when it is not one."""
+        when it is an acknowledged copy; the machine's row is pushed. The machine is the
+        topic's; an event that names another is refused. None (and counted as malformed)
+        when it is not one."""
         now = time.time() if now is None else now
         try:
+            machine = machine_of(topic)
             d = json.loads(payload)
             if not isinstance(d, dict):
                 raise ValueError("not an object")
             ack = {k: d.pop(k) for k in ACK_FIELDS if k in d}
             ev = MonitorEvent.from_dict(d)
-            machine = ev.machine or topic.split("/")[1]
+            if ev.machine and ev.machine != machine:
+                raise ValueError(f"event of machine {ev.machine!r} on {topic!r}")
             fe = FleetEvent.model_validate({**ev.as_dict(), "acked": bool(ack.get("acked"))})
-        except (ValueError, TypeError, IndexError):
+        except (ValueError, TypeError):
             self.malformed += 1
             return None
         with self._lock:
@@ -162,21 +297,17 @@ class FleetState:
     def row(self, machine: str, now: float | None = None) -> MachineRow:
         now = time.time() if now is None else now
         with self._lock:
-            seen, d, count = self._last.get(machine, (-math.inf, {}, 0))
+            seen, d, count = self._last.get(machine, (-math.inf, _NO_ESTIMATES, 0))
             ev_seen, evs = self._events.get(machine, (-math.inf, {}))
             events = sorted((e for e, _ in evs.values()), key=lambda e: e.t, reverse=True)
         seen = max(seen, ev_seen)
         age = now - seen
-        alarms = [str(a) for a in d.get("alarms") or []]
         waiting = [e for e in events if not e.acked and e.action != "notice"]
-        mon = d.get("monitor")
-        monitor = str(mon["state"]) if isinstance(mon, dict) and "state" in mon else None
+        monitor = d.monitor.state if d.monitor is not None else None
         if waiting:
             monitor = "alarm"
-        bad = bool(alarms) or monitor == "alarm"
+        bad = bool(d.alarms) or monitor == "alarm"
         status = "stale" if age > self.stale_after else ("alarm" if bad else "ok")
-        wear = d.get("wear") or {}
-        force = d.get("force") or {}
         return MachineRow(
             machine=machine,
             status=status,
@@ -184,14 +315,14 @@ class FleetState:
             monitor=monitor,
             event=waiting[0] if waiting else None,
             unacked=len(waiting),
-            force=_num(force.get("level")),
-            wear_vb_mm=_num(wear.get("VB_mm")),
-            remaining_life_min=_num(wear.get("remaining_life_min")),
-            alarms=alarms,
-            dashboard=d.get("dashboard") if isinstance(d.get("dashboard"), str) else None,
-            source=d.get("source") if isinstance(d.get("source"), str) else None,
+            force=_num(d.force.level),
+            wear_vb_mm=_num(d.wear.VB_mm),
+            remaining_life_min=_num(d.wear.remaining_life_min),
+            alarms=list(d.alarms),
+            dashboard=self.links.link(machine, d.dashboard),
+            source=d.source,
             messages=count,
-            drive_wall=_num(d.get("drive_wall")),
+            drive_wall=_num(d.drive_wall),
         )
 
     def rows(self) -> list[MachineRow]:
@@ -201,8 +332,13 @@ class FleetState:
         return [self.row(m, now) for m in names]
 
 
-def _num(v: Any) -> float | None:
-    return float(v) if isinstance(v, int | float) and not isinstance(v, bool) else None
+def _num(v: float | None) -> float | None:
+    return float(v) if v is not None and math.isfinite(v) else None
+
+
+#: a machine known only from its events: no estimate yet
+_NO_ESTIMATES = Estimates.model_validate({"schema": ESTIMATES_SCHEMA, "version": VERSION,
+                                          "machine": "-"})  # fmt: skip
 
 
 def _offer(q: asyncio.Queue[str], item: str) -> None:
@@ -212,9 +348,16 @@ def _offer(q: asyncio.Queue[str], item: str) -> None:
     q.put_nowait(item)
 
 
-def create_fleet_app(cfg: BrokerConfig, stale_after: float = 5.0) -> FastAPI:
-    """The fleet page's app; the broker subscription lives as long as the app."""
-    state = FleetState(stale_after)
+def create_fleet_app(
+    cfg: BrokerConfig, stale_after: float = 5.0, settings: Settings | None = None,
+    links: Links | None = None,
+) -> FastAPI:  # fmt: skip
+    """The fleet page's app; the broker subscription lives as long as the app.
+
+    ``settings``: the tokens, Host allow-list and limits (every process's, read from
+    ``CUTWATCH_*`` when omitted; :func:`server.service.front.protect`); ``links``: where
+    a row's link goes (:class:`Links`; none by default)."""
+    state = FleetState(stale_after, links)
     status: dict[str, Any] = {"connected": False, "error": ""}
 
     @contextlib.asynccontextmanager
@@ -238,7 +381,7 @@ def create_fleet_app(cfg: BrokerConfig, stale_after: float = 5.0) -> FastAPI:
             if m.topic.endswith("/events"):
                 state.event(str(m.topic), bytes(m.payload))
             else:
-                state.update(bytes(m.payload))
+                state.update(str(m.topic), bytes(m.payload))
 
         c.on_message = on_message
         c.connect_async(cfg.host, cfg.port, keepalive=cfg.keepalive)
@@ -251,14 +394,8 @@ def create_fleet_app(cfg: BrokerConfig, stale_after: float = 5.0) -> FastAPI:
             c.loop_stop()
 
     app = FastAPI(title="cutwatch fleet", lifespan=lifespan)
-
-    @app.get("/", include_in_schema=False)
-    def page() -> FileResponse:
-        return FileResponse(WEB_DIR / "fleet.html")
-
-    @app.get("/fleet.js", include_in_schema=False)
-    def script() -> FileResponse:
-        return FileResponse(WEB_DIR / "fleet.js", media_type="text/javascript")
+    # the service's tokens, login, Host/Origin checks, headers and 4xx shape
+    protect(app, settings if settings is not None else Settings())
 
     @app.get("/api/fleet", summary="one row per machine")
     def fleet() -> list[MachineRow]:
@@ -308,4 +445,5 @@ def create_fleet_app(cfg: BrokerConfig, stale_after: float = 5.0) -> FastAPI:
         finally:
             state.listeners.remove(entry)
 
+    app.mount("/", web_files.page_files(web_files.FLEET, index=web_files.FLEET_PAGE), name="web")
     return app

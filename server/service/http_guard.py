@@ -20,7 +20,9 @@ and so for the image, whose entry point it is:
   one more is answered 503 and closed at once (a WebSocket leaves the count when it is
   upgraded: the stream's own limits hold it).
 
-Idle kept-alive connections are closed by uvicorn after ``timeout_keep_alive`` (5 s). Once
+Idle kept-alive connections are closed by uvicorn after ``timeout_keep_alive`` (5 s).
+:class:`WebSocketProtocol` is uvicorn's websockets-sansio implementation with a refused
+upgrade not logged as an error (see there). Once
 the headers and body are in, the request is the app's: nothing here limits how long the
 app or a WebSocket (after its upgrade) takes. The answers of this layer carry the
 service's one error body (``server.service.http_errors``), as does httptools' own 400 for
@@ -34,6 +36,7 @@ import json
 from typing import Any, ClassVar
 
 from uvicorn.protocols.http.httptools_impl import STATUS_LINE, HttpToolsProtocol
+from uvicorn.protocols.websockets.websockets_sansio_impl import WebSocketsSansIOProtocol
 
 from server.service.http_errors import error
 
@@ -263,3 +266,21 @@ def guarded_protocol(
             "open_per_client": {},
         },
     )
+
+
+class WebSocketProtocol(WebSocketsSansIOProtocol):
+    """uvicorn's websockets-sansio WebSocket protocol, counting the handshake as done once
+    a denial response has been sent.
+
+    A refused upgrade (the Guard's 401/403 with the error body, sent through ASGI's
+    ``websocket.http.response`` extension) leaves uvicorn 0.54's ``handshake_complete``
+    false, so every refusal is also logged at ERROR as "ASGI callable returned without
+    completing handshake" (uvicorn's wsproto implementation marks it done; the same fix
+    is proposed upstream, Kludex/uvicorn pull request 3138). A refusal is an answer, not
+    an error of the process.
+    """
+
+    async def send(self, message: Any) -> None:
+        await super().send(message)
+        if message["type"] == "websocket.http.response.body" and not message.get("more_body"):
+            self.handshake_complete = True

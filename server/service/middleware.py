@@ -9,6 +9,7 @@ from typing import Any
 
 from starlette.requests import HTTPConnection
 from starlette.types import ASGIApp, Receive, Scope, Send
+from starlette.websockets import WebSocketDisconnect
 
 from server.service import auth
 from server.service.http_errors import error
@@ -83,6 +84,114 @@ class BodyLimit:
         await send({"type": "http.response.body", "body": body})
 
 
+#: the names of UTF-8 a Content-Type's charset may give
+UTF8 = frozenset({"utf-8", "utf8"})
+#: byte-order marks, longest first (UTF-32LE's begins with UTF-16LE's)
+_BOMS = (
+    (b"\xff\xfe\x00\x00", "UTF-32LE"), (b"\x00\x00\xfe\xff", "UTF-32BE"),
+    (b"\xff\xfe", "UTF-16LE"), (b"\xfe\xff", "UTF-16BE"),
+)  # fmt: skip
+
+
+def charset_of(content_type: str) -> str | None:
+    """The ``charset`` parameter of a Content-Type (lower case, unquoted), if any."""
+    for param in content_type.split(";")[1:]:
+        name, _, value = param.partition("=")
+        if name.strip().lower() == "charset":
+            return value.strip().strip('"').strip().lower()
+    return None
+
+
+def json_type(content_type: str) -> bool:
+    """A body FastAPI reads as JSON: no Content-Type, ``application/json`` or
+    ``application/*+json``."""
+    kind = content_type.split(";")[0].strip().lower()
+    return not kind or kind == "application/json" or (
+        kind.startswith("application/") and kind.endswith("+json")
+    )  # fmt: skip
+
+
+def sniff_encoding(head: bytes) -> str | None:
+    """The UTF-16 or UTF-32 a JSON text's first bytes show (a byte-order mark, or the NUL
+    pattern of RFC 4627 section 3: a JSON text begins with an ASCII character); None
+    for UTF-8 (with or without its byte-order mark, which RFC 8259 lets a parser
+    ignore)."""
+    for bom, name in _BOMS:
+        if head.startswith(bom):
+            return name
+    if len(head) >= 4 and head[1:4] == b"\0\0\0":
+        return "UTF-32LE"
+    if len(head) >= 4 and head[:3] == b"\0\0\0":
+        return "UTF-32BE"
+    if len(head) >= 2 and (head[0] == 0) != (head[1] == 0):
+        return "UTF-16BE" if head[0] == 0 else "UTF-16LE"
+    return None
+
+
+class Utf8Bodies:
+    """ASGI middleware: request bodies in UTF-8 only (JSON between systems is UTF-8, RFC
+    8259 section 8.1; Python's ``json.loads`` would otherwise read UTF-16 and UTF-32).
+
+    A Content-Type whose ``charset`` is not UTF-8, and a JSON body (what FastAPI parses
+    as JSON: :func:`json_type`) whose first bytes are UTF-16 or UTF-32
+    (:func:`sniff_encoding`), are answered 415 in the service's one error body, naming
+    the charset found. ``raw``: paths whose bodies are files kept as bytes (uploads),
+    not checked.
+    """
+
+    def __init__(self, app: ASGIApp, raw: frozenset[str] = frozenset()) -> None:
+        self.app = app
+        self.raw = raw
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http" or scope.get("path", "") in self.raw:
+            await self.app(scope, receive, send)
+            return
+        headers = {k.lower(): v.decode("latin-1") for k, v in scope.get("headers", [])}
+        ctype = headers.get(b"content-type", "")
+        declared = charset_of(ctype)
+        if declared is not None and declared not in UTF8:
+            await _refuse_charset(send, declared, f"the Content-Type says charset={declared}")
+            return
+        has_body = headers.get(b"content-length", "0").strip() != "0" or (
+            b"transfer-encoding" in headers
+        )  # fmt: skip
+        if not (has_body and json_type(ctype)):
+            await self.app(scope, receive, send)
+            return
+        held, head = await _peek(receive, 4)
+        found = sniff_encoding(head)
+        if found is not None:
+            await _refuse_charset(send, found, f"the body's first bytes are {found}")
+            return
+
+        async def replay() -> Message:
+            return held.pop(0) if held else await receive()
+
+        await self.app(scope, replay, send)
+
+
+async def _peek(receive: Receive, n: int) -> tuple[list[Message], bytes]:
+    """The messages read until ``n`` bytes of the body (or all of it) came, and them."""
+    held: list[Message] = []
+    head = b""
+    while len(head) < n:
+        msg = await receive()
+        held.append(msg)
+        if msg["type"] != "http.request":
+            break
+        head += msg.get("body", b"")
+        if not msg.get("more_body", False):
+            break
+    return held, head[:n]
+
+
+async def _refuse_charset(send: Send, found: str, how: str) -> None:
+    allowed = "UTF-8 (JSON between systems is UTF-8: RFC 8259, section 8.1)"
+    msg = f"request body in {found} refused ({how}); send it in UTF-8"
+    await send_json(send, 415, error("charset", allowed, found, msg))
+
+
 #: headers added to every HTTP answer: no framing by other sites, no MIME sniffing
 SECURITY_HEADERS = [
     (b"x-frame-options", b"DENY"),
@@ -98,13 +207,16 @@ _NOT_LOGGED = {"/api/login": "(a token, not logged)", "/api/uploads": None}
 
 
 class Guard:
-    """ASGI middleware: the Host allow-list, the Origin check of state-changing
-    requests and WebSocket upgrades, the role check (:func:`server.service.auth.check`)
-    of every request but the public paths, the security headers, and one audit log line
-    per state-changing request (role, method, route, status, the body sent).
+    """ASGI middleware: a repeated Host header refused, the Host allow-list, the Origin
+    check of state-changing requests and WebSocket upgrades, the role check
+    (:func:`server.service.auth.check`) of every request but the public paths, the
+    security headers, and one audit log line per state-changing request (role, method,
+    route, status, the body sent).
 
     A browser asking for a page without a session is sent to ``/login`` (303); every
-    other refusal has the service's one error body.
+    other refusal has the service's one error body. A WebSocket client that leaves (its
+    close, or its connection gone) ends the route with ``WebSocketDisconnect`` where the
+    route does not catch it: that is logged at debug (``cutwatch.ws``), not as an error.
     """
 
     def __init__(self, app: ASGIApp) -> None:
@@ -118,16 +230,7 @@ class Guard:
         ws = scope["type"] == "websocket"
         method = "GET" if ws else scope["method"]
         need = auth.needed_role(method)
-        refusal: tuple[int, dict[str, Any]] | None = None
-        role: str | None = None
-        if not auth.host_allowed(conn):
-            refusal = (400, auth.refusal_host(conn))
-        elif (ws or need == "operator") and not auth.same_origin(conn):
-            refusal = (403, auth.refusal_origin(conn))
-        elif scope.get("path", "") not in auth.PUBLIC:
-            role, status, item = auth.check(conn, need)
-            if item is not None:
-                refusal = (status, item)
+        role, refusal = _decide(conn, ws, need)
         if refusal is not None:
             if need == "operator":
                 who = auth.access_of(conn).role_of(conn)[0]  # a viewer refused: say so
@@ -139,10 +242,12 @@ class Guard:
             else:
                 await send_json(send, refusal[0], refusal[1])
             return
-        if ws or need != "operator":
+        if ws:
+            await _websocket(self.app, conn, scope, receive, send)
+        elif need != "operator":
             await self.app(scope, receive, _with_headers(send))
-            return
-        await self._audited(conn, method, role, scope, receive, send)
+        else:
+            await self._audited(conn, method, role, scope, receive, send)
 
     async def _audited(
         self, conn: HTTPConnection, method: str, role: str | None, scope: Scope,
@@ -179,6 +284,36 @@ class Guard:
             else:
                 what = bytes(seen).decode("utf-8", "backslashreplace")
             _audit(conn, method, role, status, what)
+
+
+def _decide(
+    conn: HTTPConnection, ws: bool, need: auth.Role
+) -> tuple[str | None, tuple[int, dict[str, Any]] | None]:
+    """The caller's role (None when not checked: a public path) and the refusal, if any."""
+    if auth.host_repeated(conn):
+        return None, (400, auth.refusal_repeated_host(conn))
+    if not auth.host_allowed(conn):
+        return None, (400, auth.refusal_host(conn))
+    if (ws or need == "operator") and not auth.same_origin(conn):
+        return None, (403, auth.refusal_origin(conn))
+    if conn.scope.get("path", "") in auth.PUBLIC:
+        return None, None
+    role, status, item = auth.check(conn, need)
+    return role, None if item is None else (status, item)
+
+
+ws_log = logging.getLogger("cutwatch.ws")
+
+
+async def _websocket(
+    app: ASGIApp, conn: HTTPConnection, scope: Scope, receive: Receive, send: Send
+) -> None:
+    """Run a WebSocket route; a client that has left is a debug line, not an error."""
+    try:
+        await app(scope, receive, send)
+    except WebSocketDisconnect as exc:
+        who = f"{conn.client.host}:{conn.client.port}" if conn.client else "?"
+        ws_log.debug("%s %s: the client left (code %s)", who, ascii(conn.url.path), exc.code)
 
 
 def _audit(conn: HTTPConnection, method: str, role: str | None, status: int, what: str) -> None:

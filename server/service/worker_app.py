@@ -18,9 +18,11 @@ Routes:
 ``GET /m/{name}/``             the machine's page (``web/machine.html``)
 ``GET /metrics``               Prometheus counters
 
-The access model is the service's (:mod:`server.service.auth`): the same tokens
-(``CUTWATCH_TOKEN`` / ``CUTWATCH_VIEW_TOKEN``), the login page and its session cookie,
-the Host allow-list, the Guard middleware; every route but the health needs a viewer.
+What is in front of the routes is every process's (:func:`server.service.front.protect`):
+the same tokens (``CUTWATCH_TOKEN`` / ``CUTWATCH_VIEW_TOKEN``), the login page and its
+session cookie, the Host allow-list and Origin checks, the headers, the 4xx shape; every
+route but the health needs a viewer. No answer carries a server path: a checkpoint is
+named by its file inside the data directory (:func:`public_checkpoint`).
 """
 
 from __future__ import annotations
@@ -35,13 +37,14 @@ from fastapi import FastAPI, HTTPException
 from fastapi.responses import FileResponse, JSONResponse, PlainTextResponse
 
 from server.pipeline.worker import Worker
-from server.service.auth import Access
+from server.service import web_files
+from server.service.front import protect
 from server.service.http_errors import error
-from server.service.middleware import Guard
-from server.service.routes import session
 from server.service.settings import Settings
 
-WEB_DIR = Path(__file__).resolve().parents[2] / "web"
+#: what a machine's answer says of its checkpoint (its file by its name in the data
+#: directory: no answer carries a server path)
+CHECKPOINT_KEYS = ("resumed", "resumed_t", "saved_t", "saved_wall", "refused", "error")
 
 
 def create_worker_app(worker: Worker, settings: Settings) -> FastAPI:
@@ -57,9 +60,8 @@ def create_worker_app(worker: Worker, settings: Settings) -> FastAPI:
             await asyncio.to_thread(worker.stop)
 
     app = FastAPI(title="cutwatch worker", lifespan=lifespan)
-    app.state.settings = settings
-    app.state.access = Access.from_settings(settings)
-    app.include_router(session.router)
+    protect(app, settings)  # the service's tokens, login, Host/Origin, headers, 4xx shape
+    data_dir = worker.cfg.data_dir
 
     @app.get("/api/health", summary="the worker's status (public: probes)")
     def health() -> JSONResponse:
@@ -72,6 +74,7 @@ def create_worker_app(worker: Worker, settings: Settings) -> FastAPI:
         for name in sorted(worker.runs):
             m = worker.machine(name)
             if m is not None:
+                m = {**m, "checkpoint": public_checkpoint(m["checkpoint"], data_dir)}
                 out.append({k: m[k] for k in ("machine", "t", "blocks", "events", "checkpoint")})
         return out
 
@@ -87,16 +90,13 @@ def create_worker_app(worker: Worker, settings: Settings) -> FastAPI:
 
     @app.get("/api/machines/{name}", summary="one machine's latest estimates and state")
     def machine(name: str) -> dict[str, Any]:
-        return owned(name)
+        m = owned(name)
+        return {**m, "checkpoint": public_checkpoint(m["checkpoint"], data_dir)}
 
     @app.get("/m/{name}/", include_in_schema=False)
     def page(name: str) -> FileResponse:
         owned(name)
-        return FileResponse(WEB_DIR / "machine.html", media_type="text/html")
-
-    @app.get("/machine.js", include_in_schema=False)
-    def script() -> FileResponse:
-        return FileResponse(WEB_DIR / "machine.js", media_type="text/javascript")
+        return FileResponse(web_files.WEB_DIR / web_files.MACHINE_PAGE, media_type="text/html")
 
     @app.get("/metrics", response_class=PlainTextResponse, summary="Prometheus metrics")
     def metrics() -> str:
@@ -111,5 +111,27 @@ def create_worker_app(worker: Worker, settings: Settings) -> FastAPI:
         ]
         return "\n".join(lines) + "\n"
 
-    app.add_middleware(Guard)
+    app.mount("/", web_files.page_files(web_files.MACHINE), name="web")
     return app
+
+
+def public_checkpoint(cp: dict[str, Any], data_dir: Path | None) -> dict[str, Any]:
+    """A machine's checkpoint as its answers give it: the file by its name inside the
+    data directory (``state/<machine>.npz``), and the data directory's path taken out of
+    the messages (a refused file's error names it)."""
+    out: dict[str, Any] = {k: cp[k] for k in CHECKPOINT_KEYS if k in cp}
+    path = cp.get("path")
+    out["file"] = None
+    if path and data_dir is not None:
+        file = Path(path)
+        for d in (data_dir, data_dir.resolve()):
+            if file.is_relative_to(d):
+                out["file"] = file.relative_to(d).as_posix()
+                break
+    dirs = (data_dir, data_dir.resolve()) if data_dir is not None else ()
+    roots = sorted({f"{d}/" for d in dirs if d.is_absolute()}, key=len, reverse=True)
+    for key in ("refused", "error"):
+        if isinstance(out.get(key), str):
+            for root in roots:
+                out[key] = out[key].replace(root, "DATA_DIR/")
+    return out

@@ -33,6 +33,15 @@ def test_dashboard_moves_and_pauses(hp: str, tmp_path: Path) -> None:
             return int(page.get_attribute("body", "data-frames") or 0)
 
         wait_for(lambda: frames() > 10)
+        # the two uPlot files the page needs loaded (served from the npm tree's dist);
+        # the npm tree itself is not served
+        assert page.evaluate("typeof uPlot") == "function"
+        assert page.evaluate(
+            "[...document.styleSheets].some(s => (s.href || '').endsWith('/uPlot.min.css')"
+            " && s.cssRules.length > 0)"
+        )
+        for path in ("/package.json", "/node_modules/uplot/package.json"):
+            assert page.evaluate(f"async () => (await fetch('{path}')).status") == 404
         t0 = sim_t()
         wait_for(lambda: sim_t() > t0 + 0.3)  # the charts' time axis moves
         # the force chart has drawn data: its canvas is not blank

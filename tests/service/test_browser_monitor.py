@@ -23,6 +23,7 @@ from _browser import MARKS, chromium_page, log_in, wait_for
 from _live import OPERATOR, VIEWER, serve_fleet, serve_process
 
 from server.pipeline.broker import parse_broker_url
+from server.service.fleet import Links
 
 pytestmark = [*MARKS, pytest.mark.slow]
 
@@ -82,9 +83,11 @@ def test_a_breakage_on_the_dashboard_and_the_fleet_page(tmp_path: Path) -> None:
     out.mkdir(exist_ok=True)
     with broker() as bp:
         url = f"mqtt://127.0.0.1:{bp}"
-        # the fleet page subscribes before the service publishes
+        # the fleet page subscribes before the service publishes; it links the
+        # service's page (its origin is one the fleet is told of)
+        links = Links.parse(None, [PUBLIC_URL])
         with (
-            serve_fleet(parse_broker_url(url), stale_after=10.0) as fleet_hp,
+            serve_fleet(parse_broker_url(url), stale_after=10.0, links=links) as fleet_hp,
             serve_process(
                 "--broker",
                 url,

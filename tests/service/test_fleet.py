@@ -1,4 +1,5 @@
-"""The fleet page through a real broker: rows appear, go stale, recover; the page shows them."""
+"""The fleet page through a real broker: rows appear, go stale, recover; the page shows
+them, behind the service's login (a real ``cutwatch fleet`` in Chromium)."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ import paho.mqtt.client as mqtt
 import pytest
 from _broker import broker
 from _browser import CHROMIUM, chromium_page
-from _live import serve_fleet
+from _live import OPERATOR, VIEWER, fleet_process, serve_fleet
 from websockets.sync.client import connect
 
 from server.pipeline.broker import parse_broker_url
@@ -103,27 +104,50 @@ def test_the_page_is_pushed_each_estimate() -> None:
 
 @pytest.mark.browser
 @pytest.mark.skipif(not CHROMIUM.exists(), reason="/usr/bin/chromium is not installed")
-def test_the_fleet_page_in_a_browser(tmp_path_factory: pytest.TempPathFactory) -> None:
+def test_the_fleet_page_in_a_browser_after_logging_in() -> None:
+    """A real ``cutwatch fleet`` with the service's tokens, a real Mosquitto, a real
+    Chromium: the page sends it to the login page, the viewer's token logs it in, the
+    rows come; a row links only where the fleet was told it may (``--dashboard-origin``)."""
     from pathlib import Path
 
-    with broker() as bp, fleet(bp, stale_after=1.0) as hp:
-        time.sleep(0.5)
+    with (
+        broker() as bp,
+        fleet_process("--broker", f"mqtt://127.0.0.1:{bp}", "--stale-after", "1",
+                      "--dashboard-origin", "http://mill.shop.test:8000",
+                      CUTWATCH_TOKEN=OPERATOR, CUTWATCH_VIEW_TOKEN=VIEWER) as fp,
+        chromium_page(1280, 720) as (page, errors),
+    ):  # fmt: skip
+        page.goto(f"{fp.base}/")
+        page.wait_for_url("**/login", timeout=15000)  # no session: the login page
+        page.fill("#token", "not-the-token-at-all")
+        page.click("#submit")
+        page.wait_for_selector("#error:has-text('CUTWATCH_TOKEN')", timeout=15000)
+        page.fill("#token", VIEWER)
+        page.click("#submit")
+        page.wait_for_url(f"{fp.base}/", timeout=15000)
+        page.wait_for_selector("#conn.up", timeout=15000)
         pub = publisher(bp)
         try:
-            with chromium_page(1280, 720) as (page, _errors):
-                page.goto(f"http://{hp}/")
-                page.wait_for_selector("#conn.up")
-                for m in ("a-1", "b-2"):
-                    pub.publish(f"cutwatch/{m}/estimates", estimate(m))
-                page.wait_for_selector("tr[data-machine='b-2']")
-                assert page.locator("tr[data-machine='a-1'] .status").inner_text() == "ok"
-                page.wait_for_selector("tr[data-machine='a-1'].stale", timeout=5000)
-                out = Path("out")
-                out.mkdir(exist_ok=True)
-                page.screenshot(path=str(out / "fleet.png"), full_page=True)
+            own = "http://mill.shop.test:8000/"
+            pub.publish("cutwatch/a-1/estimates", estimate("a-1", dashboard=own))
+            pub.publish("cutwatch/b-2/estimates", estimate("b-2", dashboard="javascript:alert(1)"))
+            pub.publish("cutwatch/b-2/estimates", estimate("c-3"))  # another's: refused
+            page.wait_for_selector("tr[data-machine='b-2']", timeout=15000)
+            page.wait_for_selector("tr[data-machine='a-1']", timeout=15000)
+            assert page.locator("tr[data-machine='a-1'] .status").inner_text() == "ok"
+            assert page.locator("tr[data-machine='a-1'] a").get_attribute("href") == own
+            assert page.locator("tr[data-machine='b-2'] a").count() == 0
+            assert page.locator("tr[data-machine='c-3']").count() == 0
+            page.wait_for_selector("tr[data-machine='a-1'].stale", timeout=5000)
+            out = Path("out")
+            out.mkdir(exist_ok=True)
+            page.screenshot(path=str(out / "fleet.png"), full_page=True)
         finally:
             pub.loop_stop()
             pub.disconnect()
+        assert errors == []
+        log = fp.output()
+        assert "Traceback" not in log and "ERROR" not in log, log[-3000:]
 
 
 def monitor_event(machine: str, kind: str = "breakage", **extra: object) -> dict:

@@ -32,9 +32,9 @@ from _wait import poll
 from websockets.sync.client import ClientConnection, connect
 
 from machine.process import default_program
-from server.cli.commands.serve import uvicorn_options
 from server.records.monitor_events import MonitorEvent
 from server.service.app import create_app
+from server.service.front import uvicorn_options
 from server.service.loop import LiveLoop
 from server.service.messages import Data, Event, EventMessage, MonitorStatus
 from server.service.settings import Settings

@@ -27,10 +27,6 @@ if TYPE_CHECKING:
 
 HELP = "serve the live dashboard, REST API and WebSocket stream (one uvicorn worker)"
 
-WS_IMPL = "websockets-sansio"
-#: largest WebSocket message accepted from a client (clients need send nothing)
-WS_MAX_SIZE = 65536
-
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--host", help="address to bind (default 127.0.0.1)")
@@ -117,33 +113,12 @@ def build_settings(args: argparse.Namespace) -> Settings:
         raise CutwatchError(f"{field}: {first['msg']}, got {first.get('input')!r}") from None
 
 
-def uvicorn_options(settings: Settings) -> dict[str, object]:
-    """The uvicorn options of the service (one worker; shared by the tests' server)."""
-    from server.service.http_guard import guarded_protocol
-
-    return {
-        "workers": 1,
-        # uvicorn's httptools protocol with header/body timeouts and a header-size limit
-        "http": guarded_protocol(
-            header_timeout=settings.header_timeout_s,
-            body_timeout=settings.body_timeout_s,
-            body_min_rate=settings.body_min_rate,
-            max_header_bytes=settings.max_header_bytes,
-            max_per_client=settings.max_connections_per_client,
-        ),
-        "ws": WS_IMPL,
-        "ws_max_size": WS_MAX_SIZE,
-        # each client would deflate the same frame again: off unless asked for
-        "ws_per_message_deflate": settings.ws_deflate,
-        "lifespan": "on",
-    }
-
-
 def run(args: argparse.Namespace) -> int:
     import uvicorn
 
     from server.pipeline import part_registry
     from server.service.app import create_app
+    from server.service.front import uvicorn_options
 
     settings = build_settings(args)
     part_registry.use(settings.parts)  # a part that cannot be loaded: said before serving

@@ -72,8 +72,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import logging
-
     import uvicorn
 
     from common.errors import ParameterError
@@ -81,6 +79,7 @@ def run(args: argparse.Namespace) -> int:
     from server.pipeline.broker import check_machine
     from server.pipeline.shards import parse_shard
     from server.pipeline.worker import Worker, WorkerConfig
+    from server.service.front import uvicorn_options
     from server.service.settings import Settings, check_security
     from server.service.worker_app import create_worker_app
 
@@ -113,18 +112,10 @@ def run(args: argparse.Namespace) -> int:
     check_security(settings)
     part_registry.use([*settings.parts.split(","), *(args.part or [])])
     worker = Worker(broker_config(args.broker, args), cfg)
-    logging.getLogger("cutwatch").setLevel(logging.INFO)
-    if not logging.getLogger("cutwatch").handlers:
-        h = logging.StreamHandler()
-        h.setFormatter(logging.Formatter("%(asctime)s %(name)s %(levelname)s: %(message)s"))
-        logging.getLogger("cutwatch").addHandler(h)
+    app = create_worker_app(worker, settings)  # its log lines on stderr from here
     print(f"cutwatch worker ({cfg.describe()}): http://{args.host}:{args.port}/api/health",
           flush=True)  # fmt: skip
-    uvicorn.run(
-        create_worker_app(worker, settings),
-        host=args.host,
-        port=args.port,
-        log_level="warning",
-        lifespan="on",
-    )
+    # every process's HTTP limits (slow clients dropped) and WebSocket settings
+    uvicorn.run(app, host=args.host, port=args.port, log_level="warning",
+                **uvicorn_options(settings))  # type: ignore[arg-type]  # fmt: skip
     return 0
