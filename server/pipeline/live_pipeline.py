@@ -262,7 +262,8 @@ class LivePipeline:
         )
         self._parts: list[Part] = []
         self._status: dict[str, PartStatus] = {}
-        factories = [*BUILTIN, *((f"extra {i}", f) for i, f in enumerate(extra_factories()))]
+        self._order: list[str] = []  # every part's name, built or not, in order
+        factories = [*BUILTIN, *extra_factories()]
         for name, factory in factories:
             try:
                 part = factory(ctx)
@@ -270,11 +271,13 @@ class LivePipeline:
                 why = str(exc) if isinstance(exc, CutwatchError | ParameterError) else _why(exc)
                 ctx.failed[name] = why
                 self._status[name] = PartStatus(name, False, f"not built: {why}")
+                self._order.append(name)
                 continue
             if part is None:
                 continue
             ctx.parts[part.name] = part
             self._parts.append(part)
+            self._order.append(part.name)
         # the parts that simulate beside the machine (the others keep the hooks' defaults:
         # not called, not timed)
         self._hooks = {
@@ -351,7 +354,7 @@ class LivePipeline:
     # ------------------------------------------------------------------ the parts
     def parts(self) -> list[dict[str, object]]:
         """Every part with ``name``, ``running`` and ``reason`` (why not), in order."""
-        return [s.as_dict() for s in self._status.values()]
+        return [self._status[n].as_dict() for n in self._order]
 
     def _running(self, part: Part) -> bool:
         return self._status[part.name].running

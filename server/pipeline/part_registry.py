@@ -210,9 +210,17 @@ def use(specs: str | list[str]) -> list[str]:
     return sorted(_LOADED)
 
 
-def extra_factories() -> tuple[PartFactory, ...]:
-    """The parts added, in order."""
-    return tuple(_EXTRA.values())
+def extra_factories() -> tuple[tuple[str, PartFactory], ...]:
+    """The parts added, in order, each with a name to list it by should it fail to build
+    (its class's ``name``, else what it was registered as)."""
+    return tuple((_label(k), f) for k, f in _EXTRA.items())
+
+
+def _label(key: Any) -> str:
+    name = getattr(key, "name", None)
+    if isinstance(name, str) and name:
+        return name
+    return str(getattr(key, "__name__", key))
 
 
 def load(spec: str) -> PartFactory:

@@ -415,6 +415,7 @@ class Worker:
                 "events": run.events,
                 "latest": {k: latest.get(k, math.nan) for k in PAGE_CHANNELS},
                 "status": rt.monitor_status() if rt is not None else None,
+                "parts": pipe.parts() if pipe is not None else [],
                 "feed": pipe.source.status() if pipe is not None else run.feed.health(),
                 "checkpoint": dict(run.checkpoint),
                 "estimates_out": run.out.health(),

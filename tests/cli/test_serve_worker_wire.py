@@ -189,7 +189,10 @@ def test_serve_and_worker_send_the_same_messages(tmp_path: Path) -> None:
     # the periods both cut the same way: the message before was at the same time in both
     prev = {t: max((u for u in serve if u < t), default=None) for t in common}
     same_period = [t for t in common if prev[t] is not None and prev[t] in worker]
-    assert len(same_period) >= 0.5 * len(worker), (len(same_period), len(worker))
+    # a worker that fell behind takes several blocks in one step: its next message then
+    # covers more than one period (measured: 41 of 50 compared on a loaded machine, 19 of
+    # 49 at load 13); every pair compared must be equal, and there must be enough of them
+    assert len(same_period) >= 10, (len(same_period), len(worker))
     for t in same_period:
         a, b = dict(serve[t]), dict(worker[t])
         assert set(a["health"]) == set(b["health"])

@@ -242,3 +242,20 @@ def test_the_machine_view_is_read_from_the_feeds_description() -> None:
         "shaft-twist branch); the mqtt source's machine has X (rigid: i_m, q_m)",
     }
     assert st["dfo"]["reason"].startswith("needs the stage part, which does not run")
+
+
+class NoBuild(LivePart):
+    """Cannot even be built here."""
+
+    name = "no_build"
+
+    def __init__(self) -> None:
+        raise RuntimeError("its filter needs 10 kHz")
+
+
+def test_a_part_that_cannot_be_built_is_listed_by_its_name() -> None:
+    with registered(NoBuild):
+        p = LivePipeline("seed000-weight")
+    why = "not built: RuntimeError: its filter needs 10 kHz"
+    assert p.parts()[-1] == {"name": "no_build", "running": False, "reason": why}
+    assert np.isfinite(p.step(BLOCK)["f_segment"]).all()
