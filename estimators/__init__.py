@@ -5,9 +5,10 @@ estimator takes measurements and parameters and returns estimates with diagnosti
 Public names of the cutting force observer and the identifiers are re-exported here; the
 other estimators are re-exported as their modules (each with its own ``__all__`` or
 documented public functions): ``dfo`` and ``imbdo`` (seed 002), ``esc`` and
-``fast_tuner`` (seed 003), ``ud_rls``, ``wear_linear``, ``wear_observer`` and
-``wear_monitor`` (seed 004), ``idim``, and the residual loop: ``residual_engine`` (the
-one ``analyse`` over a residual model), ``residual`` (the rigid model),
+``fast_tuner`` (seed 003), ``lobes``, ``lobes_zoa`` and ``lobes_sd`` (milling stability:
+zero-order and semi-discretization, docs/chatter.md), ``ud_rls``, ``wear_linear``,
+``wear_observer`` and ``wear_monitor`` (seed 004), ``idim``, and the residual loop:
+``residual_engine`` (the one ``analyse`` over a residual model), ``residual`` (the rigid model),
 ``residual_families`` (its family registry), ``residual_two_inertia`` (the observer
 model), ``residual_selection`` (the decision rule), ``residual_shapes`` (shared shape
 searches), ``residual_cv`` (cross-validated figures) and ``observer_effects``.
@@ -19,6 +20,9 @@ from estimators import (
     fast_tuner,
     idim,
     imbdo,
+    lobes,
+    lobes_sd,
+    lobes_zoa,
     observer_effects,
     residual,
     residual_cv,
@@ -90,6 +94,9 @@ __all__ = [
     "highpass",
     "idim",
     "imbdo",
+    "lobes",
+    "lobes_sd",
+    "lobes_zoa",
     "lowpass",
     "observer_effects",
     "residual",

@@ -118,6 +118,13 @@ def axis_response(ax: AxisParams, ts: float, freq_hz: float) -> complex:
     The loop is the PID difference equation of the kernel around the exact ZOH carriage;
     Coulomb friction is left out (it is not linear).
     """
+    c, p = loop_terms(ax, ts, freq_hz)
+    return complex(c * p / (1.0 + c * p))
+
+
+def loop_terms(ax: AxisParams, ts: float, freq_hz: float) -> tuple[complex, complex]:
+    """The PID :math:`C(z)` and the carriage under a held force :math:`P(z)` (force to
+    position, exact ZOH) of one axis at ``freq_hz``."""
     kp, ki, kd = ax.gains()
     e1, e2, e3 = zoh_terms(ax.mass, ax.viscous, ts)
     z = complex(math.cos(2 * math.pi * freq_hz * ts), math.sin(2 * math.pi * freq_hz * ts))
@@ -128,7 +135,7 @@ def axis_response(ax: AxisParams, ts: float, freq_hz: float) -> complex:
     p = (e3 * e2 / (z - e1) + e4) / (z - 1.0)
     # PID on the error e = r - x: u = kp e + ki T z/(z-1) e + kd (1 - 1/z)/T e
     c = kp + ki * ts * z / (z - 1.0) + kd * (1.0 - 1.0 / z) / ts
-    return complex(c * p / (1.0 + c * p))
+    return c, p
 
 
 class FeedDrives:
@@ -149,4 +156,11 @@ class FeedDrives:
         return axis_response(self.params.x, ts, f), axis_response(self.params.y, ts, f)
 
 
-__all__ = ["AxisParams", "FeedDriveParams", "FeedDrives", "axis_response", "zoh_terms"]
+__all__ = [
+    "AxisParams",
+    "FeedDriveParams",
+    "FeedDrives",
+    "axis_response",
+    "loop_terms",
+    "zoh_terms",
+]

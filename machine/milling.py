@@ -34,14 +34,21 @@ Al7050 example: 796 / 168.8 N/mm^2, edge 27.7 / 30.8 N/mm).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numba import njit
 
 from common.arrays import F64
+from common.modes import ModalModel
 from machine.errors import ParameterError, require_in, require_nonnegative, require_positive
 from machine.feed_drives import FeedDriveParams, FeedDrives
+from machine.regeneration import ChatterTruth, pack_cut
+from machine.spindle import SpindleParams
+
+if TYPE_CHECKING:
+    from machine.milling_regen import RegenState
 
 #: Slowest spindle the chip history is sized for [rpm] (the tooth period must fit).
 MIN_RPM = 60.0
@@ -220,6 +227,37 @@ def drive_step(
     return u
 
 
+@njit(cache=True, inline="always")
+def position_command(
+    psi: float,
+    path_x: float,
+    a_m: float,
+    theta_m: float,
+    b_m: float,
+    phi_m: float,
+    ex_a: float,
+    ex_order: float,
+) -> tuple[float, float]:  # pragma: no cover
+    """The axes' position command at spindle angle ``psi``: the feed path ``path_x`` plus
+    the modulation circles (shared by every kernel that drives these axes)."""
+    # seed003 (7): circular modulation added to the feed path in the position command
+    rx = path_x + a_m * math.cos(psi + theta_m)
+    ry = a_m * math.sin(psi + theta_m)
+    # beyond the paper: a counter-rotating circle (with seed003 (7) it makes an ellipse,
+    # which can undo a gain/phase mismatch between the axes)
+    # (skipped when b_m is 0 and the sum is not a zero whose sign the term could
+    # flip: x + 0 and x - 0 are x for x != 0, so the values are the same bits)
+    if b_m != 0.0 or rx == 0.0 or ry == 0.0:
+        rx += b_m * math.cos(psi + phi_m)
+        ry -= b_m * math.sin(psi + phi_m)
+    # beyond the paper: a small identification circle at spindle order ex_order (an
+    # observer identifies the axis mass from it; 0 by default)
+    if ex_a != 0.0:
+        rx += ex_a * math.cos(ex_order * psi)
+        ry += ex_a * math.sin(ex_order * psi)
+    return rx, ry
+
+
 #: margin of :func:`_flute_idle` [rad] (the angles' rounding is ~1e-15 rad)
 _IDLE_MARGIN = 1e-9
 
@@ -285,21 +323,7 @@ def _milling_block(
     #  per seed003 (6)-(7)
     for k in range(n):
         psi = st[0]
-        # seed003 (7): circular modulation added to the feed path in the position command
-        rx = st[1] + a_m * math.cos(psi + theta_m)
-        ry = a_m * math.sin(psi + theta_m)
-        # beyond the paper: a counter-rotating circle (with seed003 (7) it makes an ellipse,
-        # which can undo a gain/phase mismatch between the axes)
-        # (skipped when b_m is 0 and the sum is not a zero whose sign the term could
-        # flip: x + 0 and x - 0 are x for x != 0, so the values are the same bits)
-        if b_m != 0.0 or rx == 0.0 or ry == 0.0:
-            rx += b_m * math.cos(psi + phi_m)
-            ry -= b_m * math.sin(psi + phi_m)
-        # beyond the paper: a small identification circle at spindle order ex_order (an
-        # observer identifies the axis mass from it; 0 by default)
-        if ex_a != 0.0:
-            rx += ex_a * math.cos(ex_order * psi)
-            ry += ex_a * math.sin(ex_order * psi)
+        rx, ry = position_command(psi, st[1], a_m, theta_m, b_m, phi_m, ex_a, ex_order)
         # seed003 (6): geometric tool centre = carriage + eccentricity (workpiece coordinates)
         px = ax_state[0, 0] + ecc * math.cos(psi + ecc_phase)
         py = ax_state[1, 0] + ecc * math.sin(psi + ecc_phase)
@@ -373,6 +397,9 @@ class MillingRecord:
     saturated: bool
     b_m: float = 0.0
     phi_m: float = 0.0
+    #: with a flexible tool (``structure``): :data:`machine.milling_regen.EXTRA_ROWS`,
+    #: plus ``spindle_current`` [A] and ``spindle_power`` [W]; ``None`` otherwise
+    chatter: dict[str, F64] | None = None
 
 
 @dataclass
@@ -395,6 +422,12 @@ class MillingMachine:
     max_modulation : float
         Largest modulation radius accepted [m]; larger requests are clamped and the block
         record says ``saturated``.
+    structure : ModalModel, optional
+        The tool's (and workpiece's) modes: the cut regenerates (chatter) through
+        :mod:`machine.milling_regen`; the spindle then has a speed loop (``spindle``).
+        Without it the tool is rigid and the machine is seed 003's, unchanged.
+    spindle : SpindleParams, optional
+        The spindle drive with a ``structure`` (default :class:`SpindleParams()`).
 
     Examples
     --------
@@ -408,6 +441,8 @@ class MillingMachine:
         drives: FeedDriveParams | None = None,
         *,
         max_modulation: float = MAX_MODULATION,
+        structure: ModalModel | None = None,
+        spindle: SpindleParams | None = None,
     ) -> None:
         self.milling = milling if milling is not None else MillingParams()
         self.drives = FeedDrives(drives)
@@ -419,11 +454,37 @@ class MillingMachine:
         self._window = p.engagement()
         self._rpm = self.milling.spindle_rpm
         self.excitation: tuple[float, float] = (0.0, 0.0)
+        self._flex: RegenState | None = None
+        if structure is not None:
+            from machine.milling_regen import STEPS_PER_MODE_PERIOD, RegenState
+
+            p = self.milling
+            self._flex = RegenState(
+                structure,
+                spindle if spindle is not None else SpindleParams(),
+                self.sample_time,
+                STEPS_PER_MODE_PERIOD,
+                int(p.n_flutes),
+                max(4, 2 * int(p.n_flutes)),
+            )
+            self._flex.reach(self._rpm)
+            self._flex.carriage_terms(self.drives.params)
+        self.chatter_truth = ChatterTruth()
         self.reset()
 
     @property
     def sample_time(self) -> float:
         return self.drives.params.sample_time
+
+    @property
+    def substeps(self) -> int:
+        """Sub-steps of the cut per drive sample (1 with a rigid tool)."""
+        return 1 if self._flex is None else self._flex.nsub
+
+    @property
+    def structure(self) -> ModalModel | None:
+        """The flexible tool's modes (``None``: a rigid tool, seed 003's machine)."""
+        return None if self._flex is None else self._flex.structure
 
     @property
     def spindle_rpm(self) -> float:
@@ -459,8 +520,17 @@ class MillingMachine:
         self.excitation = (float(a), float(o))
 
     def set_spindle_rpm(self, rpm: float) -> None:
-        """Change the spindle speed (the feed rate follows, feed per tooth held)."""
-        self._rpm = check_rpm(rpm)
+        """Change the spindle speed (the feed rate follows, feed per tooth held). With a
+        flexible tool the speed loop takes the machine there (its bandwidth)."""
+        v = check_rpm(rpm)
+        if self._flex is not None:
+            self._flex.reach(v)
+        self._rpm = v
+
+    def set_axial_depth(self, depth: float) -> None:
+        """Change the axial depth of cut now (a step in the workpiece)."""
+        self.milling = replace(self.milling, axial_depth=depth)
+        self._lags = self.milling.layer_lags()
 
     def reset(self) -> None:
         """Steady cut at the nominal feed, no modulation, history filled with the path."""
@@ -487,6 +557,9 @@ class MillingMachine:
         xp = self.drives.params.x
         ax[0, 2] = (xp.viscous * v + xp.coulomb * math.tanh(v / 1e-3)) / ki
         self._s = _State(st=np.array([0.0, 0.0, 0.0]), ax=ax, hist=hist)
+        if self._flex is not None:
+            self._flex.reset(omega, v, ecc, th)
+            self.chatter_truth = ChatterTruth()
 
     def cancelling_modulation(self, rpm: float | None = None) -> tuple[float, float]:
         """Truth: the ``(a_m [m], theta_m [rad])`` whose drive response cancels seed003 (6).
@@ -535,6 +608,8 @@ class MillingMachine:
             a *= self.max_modulation / total
             b *= self.max_modulation / total
         n = int(n)
+        if self._flex is not None:
+            return self._flexible_step(self._flex, n, a, th, b, ph, sat)
         p = self.milling
         out = np.empty((9, n))
         st0, ph_ex = self._window
@@ -584,6 +659,43 @@ class MillingMachine:
             b_m=b,
             phi_m=ph,
         )
+
+    def _flexible_step(
+        self, flex: RegenState, n: int, a: float, th: float, b: float, ph: float, sat: bool
+    ) -> MillingRecord:
+        """:meth:`step` with the flexible tool (:mod:`machine.milling_regen`)."""
+        from machine.milling_regen import EXTRA_ROWS, run_block
+
+        p = self.milling
+        cutp = pack_cut(
+            int(p.n_flutes),
+            self._window,
+            (p.k_tc, p.k_rc, p.k_te, p.k_re),
+            p.axial_depth / p.n_layers,
+            0.5 * p.diameter,
+            flex.passes,
+        )
+        geometry = (cutp, self._lags, np.zeros(int(p.n_flutes)), p.eccentricity,
+                    math.radians(p.eccentricity_deg))  # fmt: skip
+        cmd = np.array([a, th, b, ph, self.excitation[0], self.excitation[1]])
+        out = run_block(
+            flex, n, self.sample_time, 2.0 * math.pi * self._rpm / 60.0, self.feed_speed(),
+            cmd, geometry, self._drive, self._s.st, self._s.ax,
+        )  # fmt: skip
+        t = np.asarray((self._s.k + np.arange(n)) * self.sample_time, dtype=np.float64)
+        self._s.k += n
+        kf = (self.drives.params.x.force_constant, self.drives.params.y.force_constant)
+        extra = {name: out[9 + i] for i, name in enumerate(EXTRA_ROWS)}
+        extra["spindle_current"] = extra["spindle_torque"] / flex.spindle.torque_constant
+        extra["spindle_power"] = extra["spindle_torque"] * extra["spindle_speed"]
+        self.chatter_truth.update(
+            t, extra["amp_nonforced"], extra["amp_forced"], extra["nfx"], extra["nfy"]
+        )
+        return MillingRecord(
+            t=t, fx=out[0], fy=out[1], x=out[2], y=out[3], rx=out[4], ry=out[5],
+            ix=out[6] / kf[0], iy=out[7] / kf[1], psi=out[8], a_m=a, theta_m=th,
+            saturated=sat, b_m=b, phi_m=ph, chatter=extra,
+        )  # fmt: skip
 
 
 __all__ = [

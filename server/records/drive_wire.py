@@ -136,6 +136,35 @@ class Segment:
     override: float | None = None
 
 
+def identity_segments(tool: Any, line: Any, override: Any) -> list[Segment]:
+    """The identities of one block's samples as segments: one per run of equal values.
+
+    ``tool`` and ``line`` are per-sample arrays (or None: not known, sent as 0) of whole
+    numbers >= 0 (anything else: 0); ``override`` per sample (or None), sent only where
+    it is in (0, 3]. No identity at all: no segments.
+    """
+    if tool is None and line is None and override is None:
+        return []
+    n = len(next(v for v in (tool, line, override) if v is not None))
+    tl, ln = _whole_ids(tool, n), _whole_ids(line, n)
+    ov = np.full(n, np.nan) if override is None else np.asarray(override, dtype=np.float64)
+    key = np.column_stack([tl, ln, np.nan_to_num(ov, nan=-1.0)])
+    starts = np.flatnonzero(np.r_[True, np.any(key[1:] != key[:-1], axis=1)])
+    return [
+        Segment(int(i), int(tl[i]), int(ln[i]), float(ov[i]) if 0 < ov[i] <= 3 else None)
+        for i in starts
+    ]
+
+
+def _whole_ids(v: Any, n: int) -> np.ndarray:
+    """A tool or line identity as whole numbers >= 0 (0: not known)."""
+    if v is None:
+        return np.zeros(n, dtype=np.int64)
+    x = np.asarray(v, dtype=np.float64)
+    ok = np.isfinite(x) & (x >= 0)
+    return np.where(ok, np.round(np.where(ok, x, 0.0)), 0).astype(np.int64)
+
+
 @dataclass(frozen=True)
 class DriveBlock:
     """One decoded drive block."""

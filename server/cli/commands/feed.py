@@ -1,4 +1,5 @@
-"""Publish a measured log to an MQTT broker at real time, as a machine's edge device would.
+"""Publish a measured log (or simulated machining centres) to an MQTT broker at real time,
+as a machine's edge device would.
 
 Each block of ``--block-ms`` of samples (at least one sample) goes to
 ``cutwatch/<machine>/drive`` in the binary wire format (docs/broker.md) with every column
@@ -15,6 +16,12 @@ any log ``cutwatch replay``/``residual`` read (CSV + sidecar, or a ``.mat`` file
 over the block period (machine k of M is published k/M of a block later), not all at
 once.
 
+``--simulate`` publishes simulated machining centres instead of a log
+(docs/machining-centre.md): ``--machines N`` of them (``NAME-1`` ... ``NAME-N``, machine
+k with seed ``--seed`` + k, program O2001+k and its own events, ``--event-rate`` per
+part), each its CNC's trace at ``--rate`` (500 Hz, 1, 2.5 or 5 kHz; ``--trace-mode``
+a point sample per cycle or the cycle's mean), for ``--seconds`` or until interrupted.
+
 Examples::
 
     cutwatch simulate --out run.csv --seconds 30
@@ -25,6 +32,9 @@ Examples::
         --broker mqtt://127.0.0.1:1883 --machine emps --speed 10
     cutwatch feed ../shared/data/cnc-mill/experiment_01.csv --meta cnc-mill.json \\
         --broker mqtt://127.0.0.1:1883 --machine mill-1 --speed 0   # docs/machines/
+    cutwatch feed --simulate --broker mqtt://127.0.0.1:1883 --machine vmc --seconds 5
+    cutwatch feed --simulate --broker mqtt://127.0.0.1:1883 --machine vmc --machines 3 \\
+        --rate 1000 --trace-mode mean --seconds 5
 """
 
 from __future__ import annotations
@@ -32,8 +42,9 @@ from __future__ import annotations
 import argparse
 import os
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from server.cli.broker_options import add_broker_options, broker_config
 
@@ -41,16 +52,23 @@ if TYPE_CHECKING:
     from server.records.drive_wire import Segment
     from server.records.measured_log import MeasuredLog
 
-HELP = "publish a measured log to an MQTT broker at real time (the mqtt source's test feed)"
+HELP = (
+    "publish a measured log, or simulated machining centres, to an MQTT broker at real time "
+    "(the mqtt source's test feed)"
+)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("log", type=Path, help="measured log (.csv with .json sidecar, or .mat)")
+    p.add_argument(
+        "log", type=Path, nargs="?",
+        help="measured log (.csv with .json sidecar, or .mat); not with --simulate",
+    )  # fmt: skip
     p.add_argument("--broker", required=True, help="mqtt://host[:port] or mqtts://host[:port]")
     p.add_argument(
         "--machine",
         required=True,
-        help="machine name (the topic's second level); a,b,c: several machines, one log",
+        help="machine name (the topic's second level); a,b,c: several machines, one log; "
+        "with --machines N: the names NAME-1 ... NAME-N",
     )
     p.add_argument(
         "--speed",
@@ -61,6 +79,20 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--block-ms", type=float, default=50.0, help="samples per message [ms of log]")
     p.add_argument("--map", action="append", default=[], help="column map COL=EXPR (repeatable)")
     p.add_argument("--meta", help="sidecar keys as a JSON file or inline JSON object")
+    sim = p.add_argument_group("a simulated machining centre (docs/machining-centre.md)")
+    sim.add_argument("--simulate", action="store_true",
+                     help="publish simulated machining centres' traces, not a log")  # fmt: skip
+    sim.add_argument("--machines", type=int, default=1,
+                     help="how many (each its own seed, program O2001+k and events)")  # fmt: skip
+    sim.add_argument("--rate", type=float, default=500.0,
+                     help="the trace's rate [Hz]: 500, 1000, 2500 or 5000")  # fmt: skip
+    sim.add_argument("--trace-mode", choices=("sample", "mean"), default="sample",
+                     help="a point sample per cycle or the cycle's mean")  # fmt: skip
+    sim.add_argument("--seconds", type=float, default=0.0,
+                     help="how long to simulate [s]; 0: until interrupted")  # fmt: skip
+    sim.add_argument("--seed", type=int, default=0, help="machine k's seed is SEED + k")
+    sim.add_argument("--event-rate", type=float, default=0.05,
+                     help="chance per part of a breakage, collision or missing tool")  # fmt: skip
     add_broker_options(p)
     p.add_argument(
         "--float64", action="store_true", help="send efforts as float64 too (default float32)"
@@ -69,65 +101,131 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from tqdm import tqdm
-
     from server.errors import CutwatchError
-    from server.pipeline.broker import (
-        connect_blocking,
-        make_client,
-        topic,
-    )
-    from server.records.measured_log import load_log, load_meta
 
     if not (0 <= args.speed <= 1000):
         raise CutwatchError(f"--speed: expected a value in [0, 1000], got {args.speed}")
     if not (1 <= args.block_ms <= 1000):
         raise CutwatchError(f"--block-ms: expected a value in [1, 1000], got {args.block_ms}")
+    if args.simulate == (args.log is not None):
+        raise CutwatchError(
+            "expected a log to feed or --simulate (one of the two), got "
+            + ("both" if args.simulate else "neither")
+        )
     machines = [m.strip() for m in args.machine.split(",") if m.strip()]
     if not machines:
         raise CutwatchError(f"--machine: expected a name or names a,b,c, got {args.machine!r}")
-    drive_topics = [topic(m, "drive") for m in machines]
-    meta_topics = [topic(m, "meta") for m in machines]
+    from server.pipeline.broker import check_machine
+
+    for m in machines:
+        check_machine(m)  # a bad name is refused before anything is read or simulated
+    sources = _simulated(args, machines) if args.simulate else _logged(args, machines)
+    return _publish(args, sources)
+
+
+class _Source:
+    """What one machine publishes: its name, meta, sample time, samples per block, how
+    many samples (None: until interrupted), and its blocks in order (``block(seq, a,
+    wall)``: the block from sample ``a``)."""
+
+    def __init__(
+        self, name: str, meta: bytes, sample_time: float, per: int, n: int | None,
+        block: Callable[[int, int, float], bytes],
+    ) -> None:  # fmt: skip
+        self.name, self.meta, self.sample_time = name, meta, sample_time
+        self.per, self.n, self.block = per, n, block
+
+
+def _logged(args: argparse.Namespace, machines: list[str]) -> list[_Source]:
+    """The log, the same for every machine named."""
+    from server.records.measured_log import load_log, load_meta
+
     log = load_log(args.log, meta=load_meta(args.meta), maps=args.map)
-    cfg = broker_config(args.broker, args)
     plan = feed_plan(log, args.block_ms, args.float64)
-    n = log.n
-    client = make_client(cfg, client_id=f"cutwatch-feed-{machines[0]}-{os.getpid()}")
+    n, per = log.n, plan.per
+
+    def block(seq: int, a: int, wall: float) -> bytes:
+        return plan.block(seq, a, min(n, a + per), wall=wall)
+
+    return [_Source(m, plan.meta, plan.sample_time, per, n, block) for m in machines]
+
+
+def _simulated(args: argparse.Namespace, machines: list[str]) -> list[_Source]:
+    """``--machines`` simulated machining centres (server.pipeline.centre_feed)."""
+    from server.errors import CutwatchError
+    from server.pipeline.centre_feed import CentreFeed, CentreFeedParams, plant
+
+    if len(machines) != 1:
+        raise CutwatchError(f"--machine: expected one name with --simulate, got {args.machine!r}")
+    if not 1 <= args.machines <= 1000:
+        raise CutwatchError(f"--machines: expected a count in [1, 1000], got {args.machines}")
+    if not 0 <= args.seconds <= 1e7:
+        raise CutwatchError(f"--seconds: expected a value in [0, 1e7], got {args.seconds}")
+    params = CentreFeedParams(args.rate, args.trace_mode, args.block_ms, args.event_rate)
+    names = (
+        machines if args.machines == 1 else [f"{machines[0]}-{k + 1}" for k in range(args.machines)]
+    )
+    out = []
+    for name, feed in zip(names, plant(args.machines, args.seed, params), strict=True):
+        per = feed.per
+        blocks = max(1, round(args.seconds / (per * feed.sample_time)))
+        n = None if args.seconds == 0 else blocks * per
+
+        def block(seq: int, a: int, wall: float, f: CentreFeed = feed) -> bytes:
+            return f.next_block(seq, wall)
+
+        out.append(_Source(name, feed.meta, feed.sample_time, per, n, block))
+    return out
+
+
+def _publish(args: argparse.Namespace, sources: list[_Source]) -> int:
+    """Publish every source's meta (retained), then their blocks at ``--speed``, machine k
+    of M k/M of a block later than the first, on one connection."""
+    from tqdm import tqdm
+
+    from server.pipeline.broker import connect_blocking, make_client, topic
+
+    cfg = broker_config(args.broker, args)
+    client = make_client(cfg, client_id=f"cutwatch-feed-{sources[0].name}-{os.getpid()}")
     connect_blocking(client, cfg)
     import paho.mqtt.client as mqtt
 
     assert isinstance(client, mqtt.Client)
+    first = sources[0]
+    ts, per, m, n = first.sample_time, first.per, len(sources), first.n
+    drive = [topic(s.name, "drive") for s in sources]
     seq = 0
-    m = len(machines)
     try:
-        for mt in meta_topics:
-            client.publish(mt, plan.meta, qos=1, retain=True).wait_for_publish(10)
+        for s in sources:
+            client.publish(topic(s.name, "meta"), s.meta, qos=1, retain=True).wait_for_publish(10)
         start = time.monotonic()
         info = None
-        ts, per = plan.sample_time, plan.per
         with tqdm(
-            total=n, desc=f"feed {args.machine[:40]}", unit="sample", unit_scale=True,
-            disable=args.quiet,
+            total=n, desc=f"feed {args.machine[:40]}",
+            unit="sample", unit_scale=True, disable=args.quiet,
         ) as bar:  # fmt: skip
-            for a in range(0, n, per):
-                b = min(n, a + per)
-                for k, dt in enumerate(drive_topics):
+            while n is None or seq * per < n:
+                a = seq * per
+                for k, s in enumerate(sources):
                     if args.speed > 0:  # published when its last sample is due (+ phase)
-                        due = start + (b + k * per / m) * ts / args.speed
+                        due = start + (a + per + k * per / m) * ts / args.speed
                         delay = due - time.monotonic()
                         if delay > 0:
                             time.sleep(delay)
-                    info = client.publish(dt, plan.block(seq, a, b, wall=time.time()), qos=0)
+                    info = client.publish(drive[k], s.block(seq, a, time.time()), qos=0)
                 seq += 1
-                bar.update(b - a)
+                bar.update(per if n is None else min(per, n - a))
         if info is not None:
             info.wait_for_publish(30)
+    except KeyboardInterrupt:
+        pass
     finally:
         client.loop_stop()
         client.disconnect()
     if not args.quiet:
-        where = drive_topics[0] if m == 1 else f"{m} machines' drive topics"
-        print(f"published {seq} blocks ({n} samples) to {where} on {cfg.describe()}")
+        where = drive[0] if m == 1 else f"{m} machines' drive topics"
+        sent = seq * per if n is None else min(seq * per, n)
+        print(f"published {seq} blocks ({sent} samples) to {where} on {cfg.describe()}")
     return 0
 
 
@@ -175,39 +273,16 @@ class FeedPlan:
         return str(int(v)) if v == int(v) else f"{v:g}"
 
     def _segments(self, a: int, b: int) -> list[Segment]:
-        """The identities of samples ``a:b`` as segments: one per run of equal values
-        (an identity not known is tool 0 / line 0, an override not known is not sent)."""
-        tool = self.ident.get("tool")
-        line = self.ident.get("line")
-        ovr = self.ident.get("override")
-        import numpy as np
+        """The identities of samples ``a:b`` as segments (an identity not known is tool 0
+        / line 0, an override not known is not sent)."""
+        from server.records.drive_wire import identity_segments
 
-        from server.records.drive_wire import Segment
-
-        if tool is None and line is None and ovr is None:
-            return []
-        n = b - a
-        tl = _whole(tool, a, b, n)
-        ln = _whole(line, a, b, n)
-        ov = ovr[a:b] if ovr is not None else np.full(n, np.nan)
-        key = np.column_stack([tl, ln, np.nan_to_num(ov, nan=-1.0)])
-        starts = np.flatnonzero(np.r_[True, np.any(key[1:] != key[:-1], axis=1)])
-        return [
-            Segment(int(i), int(tl[i]), int(ln[i]),
-                    None if not (0 < ov[i] <= 3) else float(ov[i]))
-            for i in starts
-        ]  # fmt: skip
-
-
-def _whole(v: Any, a: int, b: int, n: int) -> Any:
-    """A tool or line identity as whole numbers >= 0 (0: not known)."""
-    import numpy as np
-
-    if v is None:
-        return np.zeros(n, dtype=np.int64)
-    x = np.asarray(v[a:b], dtype=np.float64)
-    ok = np.isfinite(x) & (x >= 0)
-    return np.where(ok, np.round(np.where(ok, x, 0.0)), 0).astype(np.int64)
+        tool, line, ovr = (self.ident.get(k) for k in ("tool", "line", "override"))
+        return identity_segments(
+            None if tool is None else tool[a:b],
+            None if line is None else line[a:b],
+            None if ovr is None else ovr[a:b],
+        )
 
 
 def feed_plan(log: MeasuredLog, block_ms: float, float64: bool) -> FeedPlan:
