@@ -77,6 +77,7 @@ class EstimatesPublisher:
         self.last_error = ""
         self.published = 0
         self._last_pub = -math.inf
+        self._next_t = 0.0  # the machine's time of the next message (a live feed)
         self._lock = threading.Lock()
         self._latest: dict[str, float] = {}
         self._sq = 0.0
@@ -170,13 +171,24 @@ class EstimatesPublisher:
             body["monitor"] = mon
         return body
 
-    def due(self, now: float) -> bool:
-        return now - self._last_pub >= self.period
+    def due(self, now: float, t: float | None = None, *, paced: bool = True) -> bool:
+        """A message is due: a period of wall time since the last (a paced source: the
+        simulator, a replay at any speed), or, for a live feed (``paced`` False), the
+        machine's time ``t`` past the next multiple of the period: a feed's messages then
+        fall on the same machine times whoever runs it (``cutwatch serve`` or a worker)
+        and however its blocks arrived."""
+        if paced or t is None:
+            return now - self._last_pub >= self.period
+        # (time that went back: a new pipeline on the feed starts the grid again)
+        return t >= self._next_t - 1e-9 or t < self._next_t - 2.0 * self.period
 
-    def publish(self, body: Mapping[str, Any], now: float) -> bool:
-        """Send ``body`` (never blocks; False when not connected)."""
+    def publish(self, body: Mapping[str, Any], now: float, t: float | None = None) -> bool:
+        """Send ``body`` (never blocks; False when not connected); ``t``: the machine's
+        time of the message (the next is due a period of it later, on its grid)."""
         # on the period's grid (a late publish does not push the next one later)
         self._last_pub = max(self._last_pub + self.period, now - self.period)
+        if t is not None:
+            self._next_t = (math.floor(t / self.period + 1e-9) + 1) * self.period
         c = self._client
         if c is None or not self.connected:
             return False

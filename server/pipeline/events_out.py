@@ -89,6 +89,7 @@ class EventsPublisher:
         self.refused = 0  # messages the client refused (its queue full)
         self._lock = threading.Lock()
         self._client: Any = None
+        self._shared = False
 
     def start(self) -> None:
         """Connect in the background (paho's network thread; it reconnects by itself)."""
@@ -96,10 +97,17 @@ class EventsPublisher:
             self.cfg, f"cutwatch-events-{self.machine}", self, max_queued=MAX_QUEUED
         )
 
+    def share(self, client: Any) -> None:
+        """Publish through ``client``, a connection shared with other machines (a worker's;
+        the owner keeps :attr:`connected` up to date) instead of one of its own."""
+        self._client = client
+        self._shared = True
+
     def stop(self, timeout: float = 2.0) -> None:
-        """Give the messages in flight up to ``timeout`` seconds, then disconnect."""
+        """Give the messages in flight up to ``timeout`` seconds, then disconnect (a
+        shared connection is its owner's to close)."""
         c, self._client = self._client, None
-        if c is None:
+        if c is None or self._shared:
             return
         deadline = time.monotonic() + timeout
         while self.connected and c.want_write() and time.monotonic() < deadline:

@@ -1,7 +1,8 @@
 """Many machines in one process: the runtime of ``cutwatch worker``.
 
-A :class:`Worker` runs one :class:`~server.pipeline.live_pipeline.LivePipeline` per machine
-it owns, each on an :class:`~server.pipeline.mqtt_source.MqttSource` over its own
+A :class:`Worker` runs one :class:`~server.pipeline.runtime.MachineRuntime` per machine it
+owns (the runtime ``cutwatch serve`` wraps too: the same events, commands, estimates and
+checkpoints), each on an :class:`~server.pipeline.mqtt_source.MqttSource` over its own
 :class:`~server.pipeline.drive_feed.DriveFeed`, with no web server or 3D view per machine.
 All machines share **one** broker connection:
 
@@ -15,9 +16,9 @@ All machines share **one** broker connection:
   100 ms: estimates at 10 Hz), publishes ``cutwatch/<machine>/estimates`` (QoS 0, at
   ``publish_hz``) and the monitor's events on ``cutwatch/<machine>/events`` (QoS 1, the
   ``cutwatch.event`` wire schema; a ``feed_hold`` event also sends the command on
-  ``cutwatch/<machine>/command``);
+  ``cutwatch/<machine>/command``), all built by the runtime as the service builds them;
 - every ``checkpoint_s`` it writes each machine's state to ``data_dir/state/<machine>.npz``
-  (staggered; written by a writer thread), and all of them at :meth:`Worker.stop`
+  (staggered; written by one writer thread), and all of them at :meth:`Worker.stop`
   (SIGTERM). A machine adopted by a (re)started worker resumes from its file: the wear,
   the identifiers' estimates and covariances carry on (docs/checkpoints.md); the first
   block after the restart is marked ``resumed``.
@@ -34,7 +35,7 @@ import random
 import threading
 import time
 from collections import deque
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -42,15 +43,14 @@ import numpy as np
 
 from common.errors import ParameterError
 from common.jsonsafe import json_safe
-from common.state_io import StateFormatError
-from server.pipeline.broker import TOPIC_ROOT, BrokerConfig, make_client, reason_text, topic
-from server.pipeline.checkpoint import PipelineState, load_checkpoint, save_checkpoint
+from server.pipeline.broker import TOPIC_ROOT, BrokerConfig, make_client, reason_text
 from server.pipeline.drive_feed import DriveFeed
 from server.pipeline.estimates_out import EstimatesPublisher
+from server.pipeline.events_out import EventsPublisher
 from server.pipeline.live_pipeline import LivePipeline
 from server.pipeline.mqtt_source import MqttSource
+from server.pipeline.runtime import CheckpointWriter, MachineRuntime
 from server.pipeline.shards import owns
-from server.records.monitor_events import MonitorEvent
 
 log = logging.getLogger("cutwatch.worker")
 
@@ -115,20 +115,35 @@ class WorkerConfig:
 
 @dataclass
 class MachineRun:
-    """One machine of a worker: its feed, pipeline, publisher, and what became of it."""
+    """One machine of a worker: its feed, publishers and runtime (built at its first meta)."""
 
     name: str
     feed: DriveFeed
     out: EstimatesPublisher
-    pipe: LivePipeline | None = None
+    events_out: EventsPublisher
+    runtime: MachineRuntime | None = None
     block_n: int = 0
     last_step: float = 0.0
     saved_at: float = 0.0
-    blocks: int = 0
-    events: int = 0
-    checkpoint: dict[str, Any] = field(default_factory=dict)
     #: recent force levels (rms of a block's adaptive estimate) for the machine's page
     levels: deque[tuple[float, float]] = field(default_factory=lambda: deque(maxlen=300))
+
+    @property
+    def pipe(self) -> LivePipeline | None:
+        """The machine's pipeline (None before its first meta)."""
+        return self.runtime.pipeline if self.runtime is not None else None
+
+    @property
+    def blocks(self) -> int:
+        return self.runtime.blocks if self.runtime is not None else 0
+
+    @property
+    def events(self) -> int:
+        return sum(self.runtime.events_total.values()) if self.runtime is not None else 0
+
+    @property
+    def checkpoint(self) -> dict[str, Any]:
+        return dict(self.runtime.checkpoint_status) if self.runtime is not None else {}
 
 
 class Worker:
@@ -145,14 +160,10 @@ class Worker:
         self.loop_s: deque[float] = deque(maxlen=200)  # wall time of a pass over all machines
         self.error = ""
         self.warm_s = math.nan  # seconds the kernels took to load at start
-        self._loop_p50_ms = math.nan
         self._lock = threading.Lock()  # guards self.runs (paho's thread adds machines)
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
-        self._writer_thread: threading.Thread | None = None
-        self._writes: dict[str, tuple[MachineRun, Path, PipelineState]] = {}
-        self._writes_lock = threading.Lock()
-        self._writes_ready = threading.Event()
+        self.writer = CheckpointWriter("cutwatch-worker-checkpoints")
         self._client: Any = None
         self._ready = threading.Event()  # the kernels are compiled
 
@@ -167,22 +178,20 @@ class Worker:
         self._client = c
         for run in list(self.runs.values()):
             run.out.share(c)
+            run.events_out.share(c)
         self._thread = threading.Thread(target=self._run, name="cutwatch-worker", daemon=True)
         self._thread.start()
-        self._writer_thread = threading.Thread(
-            target=self._writer, name="cutwatch-worker-checkpoints", daemon=True
-        )
-        self._writer_thread.start()
+        self.writer.start()
 
     def stop(self, timeout: float = 10.0) -> None:
         """Stop the loop, write every machine's checkpoint, disconnect."""
         self._stop.set()
-        for t in (self._thread, self._writer_thread):
-            if t is not None:
-                t.join(timeout)
+        if self._thread is not None:
+            self._thread.join(timeout)
+        self.writer.stop(timeout)
         with self._lock:
             runs = list(self.runs.values())
-        for run in runs:  # the newest state of each, written here (pending ones replaced)
+        for run in runs:  # the newest state of each, written here
             self._save(run)
         c, self._client = self._client, None
         if c is not None:
@@ -206,7 +215,7 @@ class Worker:
             runs = list(self.runs.values())
         for run in runs:
             run.feed.connected = True
-            run.out.connected = True
+            run.out.connected = run.events_out.connected = True
             subs.append((run.feed.drive_topic, 0))
         client.subscribe(subs)
 
@@ -218,7 +227,7 @@ class Worker:
             runs = list(self.runs.values())
         for run in runs:
             run.feed.connected = False
-            run.out.connected = False
+            run.out.connected = run.events_out.connected = False
             run.feed.counts["disconnects"] += 1
         if getattr(rc, "is_failure", False):
             self.last_error = f"broker {self.broker.describe()}: disconnected ({reason_text(rc)})"
@@ -250,16 +259,18 @@ class Worker:
             feed = DriveFeed(self.broker, machine, max_samples=10**7, max_seconds=BUFFER_S)
             dash = f"{self.cfg.dashboard.rstrip('/')}/m/{machine}/" if self.cfg.dashboard else None
             out = EstimatesPublisher(self.broker, machine, self.cfg.publish_hz, dash)
-            run = MachineRun(machine, feed, out)
+            run = MachineRun(machine, feed, out, EventsPublisher(self.broker, machine))
             self.runs[machine] = run
         c = self._client
         if c is not None and self.connected:
-            feed.connected = out.connected = True
+            feed.connected = out.connected = run.events_out.connected = True
             feed.counts["connects"] += 1
             out.share(c)
+            run.events_out.share(c)
             c.subscribe(feed.drive_topic, qos=0)
         elif c is not None:
             out.share(c)
+            run.events_out.share(c)
         log.info("cutwatch worker %s: owns %s", self.name, machine)
         return run
 
@@ -285,8 +296,6 @@ class Worker:
                         self._save(run, wait=False)
                 if worked:
                     self.loop_s.append(time.monotonic() - t0)
-                    if len(self.loop_s) % 20 == 0:  # for the estimates' health, not per message
-                        self._loop_p50_ms = 1e3 * float(np.median(self.loop_s))
                 else:
                     self._stop.wait(0.01)
         except Exception as exc:  # say why the loop stopped (health, probes)
@@ -314,82 +323,44 @@ class Worker:
         # estimates do not depend on the block length (bit-identical, docs/plant.md) and
         # a longer block costs less per sample, so a worker that fell behind catches up
         k = min(max(have // run.block_n, 1), CATCH_UP)
-        out = pipe.step(k * run.block_n)
+        rt = run.runtime
+        assert rt is not None
+        out, events = rt.step(k * run.block_n)
         stepped = len(out["t"]) > 0
         if stepped:
-            run.blocks += 1
-            run.out.observe(out)
+            rt.emit(events)
+            rt.keep_tool_lives()
             f = out.get("f_adaptive")
             if f is not None and f.size:
                 a = f[np.isfinite(f)]
                 if a.size:
                     run.levels.append((float(out["t"][-1]), float(np.sqrt(a @ a / a.size))))
-            self._events(run, pipe.take_events())
+            rt.estimates(out, time.time(), feed_health=run.feed.health())
         run.last_step = now
-        if stepped:
-            self._estimates(run)
         return stepped
 
     def _build(self, run: MachineRun) -> None:
-        """A pipeline on the machine's feed, resumed from its checkpoint if there is one."""
-        src = run.pipe.source.renewed() if run.pipe is not None else MqttSource(run.feed)  # type: ignore[attr-defined]
-        pipe = LivePipeline(seed=self.cfg.seed, source=src)
-        run.block_n = max(1, round(self.cfg.block_ms * 1e-3 / pipe.sample_time))
-        path = self._path(run.name)
-        run.checkpoint = {"path": str(path) if path else None, "resumed": False}
-        if path is not None and path.exists() and run.pipe is None:
-            try:
-                state = load_checkpoint(path)
-                pipe.restore(state)
-            except (StateFormatError, ParameterError, OSError) as exc:
-                run.checkpoint["refused"] = str(exc)
-                log.warning("cutwatch worker: %s: checkpoint refused, starting fresh: %s",
-                            run.name, exc)  # fmt: skip
-            else:
-                run.checkpoint.update(resumed=True, resumed_t=state.t)
-                log.warning("cutwatch worker: %s resumed from %s at t = %.3f s",
-                            run.name, path, state.t)  # fmt: skip
-        run.pipe = pipe
+        """A pipeline on the machine's feed; the first one in a runtime resumed from the
+        machine's checkpoint if there is one (a new meta: a new pipeline, the runtime
+        and its counts go on)."""
+        if run.runtime is not None:
+            src = run.runtime.pipeline.source.renewed()  # type: ignore[attr-defined]
+            run.runtime.set_pipeline(LivePipeline(seed=self.cfg.seed, source=src))
+        else:
+            run.runtime = MachineRuntime(
+                run.name,
+                LivePipeline(seed=self.cfg.seed, source=MqttSource(run.feed)),
+                events_out=run.events_out,
+                estimates_out=run.out,
+                checkpoint=self._path(run.name),
+                writer=self.writer,
+                host=f"worker {self.name}",
+            )
+            run.runtime.resume()
+        run.block_n = max(1, round(self.cfg.block_ms * 1e-3 / run.runtime.pipeline.sample_time))
         # the first checkpoint at a random point of the period: machines built together
         # (a worker's start) do not all write at once, every period after
         run.saved_at = time.monotonic() - random.uniform(0.0, self.cfg.checkpoint_s)
-
-    def _estimates(self, run: MachineRun) -> None:
-        pub, pipe = run.out, run.pipe
-        assert pipe is not None
-        now = time.time()
-        if not pub.due(now):
-            return
-        health = {
-            "worker": self.name,
-            "blocks": run.blocks,
-            "loop_ms_p50": self._loop_p50_ms,
-            "resumed": bool(run.checkpoint.get("resumed")),
-        }
-        src = pipe.source
-        body = pub.build(
-            now,
-            pipe.channels(),
-            pipe.t,
-            src.name,
-            health=health,
-            drive_wall=getattr(src, "last_wall", None),
-            feed_health=run.feed.health(),
-        )
-        pub.publish(body, now)
-
-    def _events(self, run: MachineRun, events: list[MonitorEvent]) -> None:
-        c = self._client
-        for ev in events:
-            ev = replace(ev, machine=run.name)
-            run.events += 1
-            if c is None:
-                continue
-            c.publish(topic(run.name, "events"), _json(ev.to_wire()), qos=1)
-            if ev.action == "feed_hold":
-                cmd = {"schema": "cutwatch.command", "version": 1, "command": "feed_hold",
-                       "event_id": ev.id, "t": ev.t}  # fmt: skip
-                c.publish(topic(run.name, "command"), _json(cmd), qos=1)
 
     # ------------------------------------------------------------------ checkpoints
     def _path(self, machine: str) -> Path | None:
@@ -399,7 +370,7 @@ class Worker:
 
     def _save_due(self, run: MachineRun, now: float) -> bool:
         return (
-            run.pipe is not None
+            run.runtime is not None
             and self.cfg.checkpoint_s > 0
             and now - run.saved_at >= self.cfg.checkpoint_s
         )
@@ -408,40 +379,9 @@ class Worker:
         """Take the machine's state (in the loop's thread: the pipeline is not shared)
         and write it: here (``wait``), or by the writer thread, whose file system waits
         (the fsync of an atomic write, ~20 ms here) do not hold up the loop."""
-        path, pipe = self._path(run.name), run.pipe
         run.saved_at = time.monotonic()
-        if path is None or pipe is None:
-            return
-        state = pipe.state()
-        if not wait:
-            with self._writes_lock:
-                self._writes[run.name] = (run, path, state)  # the newest state wins
-            self._writes_ready.set()
-            return
-        self._write(run, path, state)
-
-    def _write(self, run: MachineRun, path: Path, state: PipelineState) -> None:
-        try:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            save_checkpoint(path, state)
-        except OSError as exc:  # a full disk must not stop the loop; say so
-            run.checkpoint["error"] = f"{type(exc).__name__}: {exc}"
-            log.warning("cutwatch worker: %s: checkpoint not written: %s", run.name, exc)
-            return
-        run.checkpoint.update(saved_t=state.t, saved_wall=time.time())
-
-    def _writer(self) -> None:
-        """Write the states the loop handed over, until stopped (the rest: :meth:`stop`)."""
-        while not self._stop.is_set():
-            self._writes_ready.wait(0.5)
-            self._writes_ready.clear()
-            while True:
-                with self._writes_lock:
-                    if not self._writes:
-                        break
-                    name = next(iter(self._writes))
-                    run, path, state = self._writes.pop(name)
-                self._write(run, path, state)
+        if run.runtime is not None:
+            run.runtime.save(wait=wait)
 
     def adopt_saved(self) -> list[str]:
         """Own, at once, the machines of this worker that have a checkpoint file (their
@@ -461,7 +401,7 @@ class Worker:
         run = self.runs.get(name)
         if run is None:
             return None
-        pipe = run.pipe
+        pipe, rt = run.pipe, run.runtime
         latest = pipe.latest if pipe is not None else {}
         return json_safe(
             {
@@ -471,7 +411,7 @@ class Worker:
                 "blocks": run.blocks,
                 "events": run.events,
                 "latest": {k: latest.get(k, math.nan) for k in PAGE_CHANNELS},
-                "status": pipe.monitor_status() if pipe is not None else None,
+                "status": rt.monitor_status() if rt is not None else None,
                 "feed": pipe.source.status() if pipe is not None else run.feed.health(),
                 "checkpoint": dict(run.checkpoint),
                 "estimates_out": run.out.health(),
@@ -500,8 +440,3 @@ class Worker:
             }
         )
 
-
-def _json(d: dict[str, Any]) -> bytes:
-    import json
-
-    return json.dumps(json_safe(d), allow_nan=False).encode()

@@ -17,6 +17,7 @@ the detectors do not know it. A reproduction joins the two by time.
 
 from __future__ import annotations
 
+import hashlib
 import math
 import uuid
 from collections import deque
@@ -40,6 +41,25 @@ DEFAULT_ACTIONS: dict[str, str] = {
     "wear_limit": "alarm",
     "life_short": "notice",
 }
+
+
+#: an event record's fields (:meth:`MonitorEvent.record`), in the stream model's order
+RECORD_FIELDS = (
+    "id", "kind", "action", "t", "tool", "program", "line", "part", "value", "limit",
+    "unit", "message", "machine", "acked", "acked_by", "acked_wall",
+)  # fmt: skip
+
+
+def event_id(ev: MonitorEvent, machine: str) -> str:
+    """The stable id of an event raised on ``machine``: a hash of what it is (kind, time,
+    tool, program, line, part, message), so the same event raised again (a run resumed
+    from a checkpoint computes the same seconds again) has the same id: the history
+    keeps it once and an edge device acts on its feed hold once."""
+    key = "|".join(
+        (machine, ev.kind, float(ev.t).hex(), str(ev.tool), ev.program, str(ev.line),
+         str(ev.part), ev.message)
+    )  # fmt: skip
+    return hashlib.sha256(key.encode("utf-8")).hexdigest()[:32]
 
 
 def new_id() -> str:
@@ -103,6 +123,17 @@ class MonitorEvent:
             if not math.isfinite(d[k]):
                 d[k] = None
         return d
+
+    def record(self) -> dict[str, Any]:
+        """The event as the stream, the snapshot and the history's REST carry it (the
+        fields of ``server.service.messages.Event``, in its order): :meth:`as_dict` with
+        its acknowledgement (none yet)."""
+        d = self.as_dict()
+        return {k: d[k] for k in RECORD_FIELDS if k in d} | {
+            "acked": False,
+            "acked_by": None,
+            "acked_wall": None,
+        }
 
     def to_wire(self) -> dict[str, Any]:
         """The broker's message: :meth:`as_dict` with ``schema`` and ``version``."""

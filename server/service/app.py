@@ -35,7 +35,8 @@ from server.service.http_errors import (
     error,
     sanitise,
 )
-from server.service.loop import Hub, LiveLoop, checkpoint_path, loop_parts
+from server.service.hub import Hub
+from server.service.loop import LiveLoop, checkpoint_path, loop_parts
 from server.service.middleware import BodyLimit, Guard
 from server.service.routes import ROUTERS
 from server.service.settings import Settings, check_security

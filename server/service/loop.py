@@ -1,8 +1,9 @@
-"""The live runtime: one background thread advancing the pipeline, and the client hub.
+"""The live service's loop: one machine's runtime, paced, and its frames for the browsers.
 
-:class:`LiveLoop` owns simulated time. It steps the
-:class:`~server.pipeline.live_pipeline.LivePipeline`
-in whole blocks (``block_ms``) on a schedule anchored to the wall clock,
+:class:`LiveLoop` wraps one :class:`~server.pipeline.runtime.MachineRuntime` (the
+pipeline with its events, estimates, checkpoints and tool lives: what a plant's worker
+runs too) with pacing and the browser frames. It owns simulated time: it steps the
+pipeline in whole blocks (``block_ms``) on a schedule anchored to the wall clock,
 ``due(T) = wall0 + (T - sim0) / speed``; a block whose end lies at simulated time ``T``
 is computed at ``due(T)``. Samples are never skipped or duplicated: after a host stall
 the loop runs blocks back to back until it has caught up, and reports the lag (how late
@@ -11,24 +12,22 @@ a block finished against its due time). A lag beyond ``max_lag_s`` re-anchors th
 
 Frames for the WebSocket clients are built at ``frame_hz`` from the blocks since the last
 frame, decimated for display, encoded once and handed to :class:`Hub`, which keeps a
-bounded latest-value-wins queue per client. The loop never waits for a client.
+bounded latest-value-wins queue per client (:mod:`server.service.hub`). The loop never
+waits for a client.
 
 The monitor's events (:mod:`server.records.monitor_events`) are taken from the pipeline
-after every block, stamped with the machine's name (``mqtt_machine``) and handed on at
-once, not at the next frame: to the broker first (:mod:`server.pipeline.events_out`: the
-feed-hold command and the event), then to every client as an ``event`` message (never
-dropped, unlike frames), then to the history (``LiveLoop.history``). The loop keeps the
-latest :data:`EVENTS_KEPT` (with their acknowledgements) for ``/api/snapshot``, counts
-them for ``/metrics``, and sends a new client the unacknowledged ones right after its
-``hello``; every frame carries the monitor's status (``Data.status``).
+after every block and handed on by the runtime at once, not at the next frame: to the
+broker first (the feed-hold command and the event), then to every client as an ``event``
+message (never dropped, unlike frames: the hub listens to the runtime), then to the
+history (``LiveLoop.history``). The runtime keeps the latest events (with their
+acknowledgements) for ``/api/snapshot``, counts them for ``/metrics``, and a new client
+gets the unacknowledged ones right after its ``hello``; every frame carries the
+monitor's status (``Data.status``).
 """
 
 from __future__ import annotations
 
-import asyncio
 import collections
-import contextlib
-import dataclasses
 import json
 import logging
 import math
@@ -37,25 +36,23 @@ import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from common.errors import ParameterError
 from common.jsonsafe import json_safe
-from common.state_io import StateFormatError
 from server.errors import CutwatchError
 from server.pipeline.broker import BrokerConfig, parse_broker_url
-from server.pipeline.checkpoint import load_checkpoint, save_checkpoint
 from server.pipeline.drive_feed import DriveFeed
 from server.pipeline.estimates_out import EstimatesPublisher
 from server.pipeline.events_out import EventsPublisher
 from server.pipeline.knobs import Knob
 from server.pipeline.live_pipeline import LivePipeline
 from server.pipeline.mqtt_source import MqttSource
+from server.pipeline.runtime import CheckpointWriter, EventHistory, MachineRuntime
 from server.records.history import HistoryStore
-from server.records.monitor_events import KINDS, MonitorEvent
 from server.service import protocol
+from server.service.hub import ClientQueue, Hub
 from server.service.messages import Event, LoopHealth, MonitorStatus
 from server.service.settings import MAX_SPEED, Settings
 
@@ -75,26 +72,8 @@ LIVE_POLL_S = 0.01
 #: the service's log (uvicorn prints its warnings)
 log = logging.getLogger("uvicorn.error")
 
-#: events kept in memory for /api/snapshot (the history keeps all of them)
-EVENTS_KEPT = 200
-#: unacknowledged events the loop tracks for the status (the oldest forgotten beyond)
-UNACKED_KEPT = 10_000
-#: event messages waiting for one client (beyond: the oldest dropped and counted)
-CLIENT_EVENTS = 1000
 #: injected events whose truth /api/snapshot shows (the latest)
 INJECTED_KEPT = 50
-
-
-class EventHistory(Protocol):
-    """What the loop asks of the event history (``LiveLoop.history``)."""
-
-    def add_events(self, events: list[MonitorEvent]) -> None: ...
-
-    def acknowledge(self, event_id: str, by: str) -> dict[str, Any] | None: ...
-
-    def add_tool_changes(self, changes: list[dict[str, Any]]) -> Any: ...
-
-    def recent(self, n: int) -> list[dict[str, Any]]: ...
 
 
 def checkpoint_path(settings: Settings) -> Path | None:
@@ -115,180 +94,6 @@ def broker_config(settings: Settings) -> BrokerConfig:
         certfile=settings.mqtt_certfile,
         keyfile=settings.mqtt_keyfile,
     )
-
-
-class ClientQueue:
-    """Bounded, latest-value-wins frame queue of one WebSocket client.
-
-    Written by the loop thread, read by the client's coroutine; ``dropped`` counts the
-    frames pushed out of the full queue since the client last took its frames.
-    """
-
-    def __init__(self, maxlen: int, loop: asyncio.AbstractEventLoop) -> None:
-        self._frames: collections.deque[str] = collections.deque(maxlen=maxlen)
-        self._hello: str | None = None  # a new hello (pipeline changed), never dropped
-        # event messages: not latest-value-wins, every one is sent (bounded for a client
-        # that reads nothing for a long time), each with the count of frames pushed
-        # before it (sent in the order pushed: a frame's status never lags an event)
-        self._events: collections.deque[tuple[int, str]] = collections.deque(maxlen=CLIENT_EVENTS)
-        self._pushed = 0  # frames pushed since the start
-        self.events_dropped = 0
-        self._lock = threading.Lock()
-        self._loop = loop
-        self.event = asyncio.Event()
-        self.dropped = 0
-        self.dropped_total = 0
-        self.closed = False  # the service stops
-        self.gone = False  # the client went away
-
-    def push(self, body: str) -> None:
-        """Append a frame body (loop thread); the oldest is dropped when full."""
-        with self._lock:
-            if len(self._frames) == self._frames.maxlen:
-                self.dropped += 1
-                self.dropped_total += 1
-            self._frames.append(body)
-            self._pushed += 1
-
-    def push_event(self, body: str) -> None:
-        """Append an ``event`` message (loop thread); sent whole, never replaced by a
-        later one (only a client that takes nothing for CLIENT_EVENTS events loses
-        the oldest, counted in ``events_dropped``)."""
-        with self._lock:
-            if len(self._events) == self._events.maxlen:
-                self.events_dropped += 1
-            self._events.append((self._pushed, body))
-
-    def take_all(self) -> tuple[str | None, list[tuple[str, str]], int]:
-        """Remove and return a pending new hello (or None), the pending frames and event
-        messages in the order they were pushed (``("data", body)``, ``("event",
-        body)``), and the frames' drop count since the last take."""
-        with self._lock:
-            hello, self._hello = self._hello, None
-            first = self._pushed - len(self._frames)  # index of the oldest frame kept
-            out: list[tuple[str, str]] = []
-            i = first
-            for mark, body in self._events:
-                while i < mark and i < self._pushed:
-                    out.append(("data", self._frames[i - first]))
-                    i += 1
-                out.append(("event", body))
-            out += [("data", self._frames[j - first]) for j in range(i, self._pushed)]
-            self._frames.clear()
-            self._events.clear()
-            dropped, self.dropped = self.dropped, 0
-            self.event.clear()
-        return hello, out, dropped
-
-    def push_hello(self, hello: str) -> None:
-        """A new ``hello`` (the pipeline changed): it goes out before any later frame and
-        is never dropped; frames still queued belong to the old pipeline and are
-        discarded (not counted as dropped: the client could not use them)."""
-        with self._lock:
-            self._hello = hello
-            self._frames.clear()
-
-    def take(self) -> tuple[str | None, list[str], int]:
-        """Remove and return a pending new hello (or None), the pending frame bodies and
-        the drop count since the last take."""
-        with self._lock:
-            hello, self._hello = self._hello, None
-            frames = list(self._frames)
-            self._frames.clear()
-            dropped, self.dropped = self.dropped, 0
-            self.event.clear()
-        return hello, frames, dropped
-
-    def __len__(self) -> int:
-        return len(self._frames)
-
-
-class Hub:
-    """The set of connected clients; thread-safe publish from the loop thread."""
-
-    def __init__(self, maxlen: int) -> None:
-        self.maxlen = maxlen
-        self._clients: set[ClientQueue] = set()
-        self._lock = threading.Lock()
-        self._aio: asyncio.AbstractEventLoop | None = None
-        self.dropped_total = 0
-        self.frames_total = 0
-        self.closed = False
-
-    def bind(self, loop: asyncio.AbstractEventLoop) -> None:
-        """Attach the event loop the client coroutines run on."""
-        self._aio = loop
-
-    def add(self) -> ClientQueue:
-        """Register a client (from its coroutine)."""
-        if self.closed:
-            raise CutwatchError("the service is shutting down")
-        q = ClientQueue(self.maxlen, asyncio.get_running_loop())
-        with self._lock:
-            self._clients.add(q)
-        return q
-
-    def remove(self, q: ClientQueue) -> None:
-        """Unregister a client."""
-        with self._lock:
-            self._clients.discard(q)
-            self.dropped_total += q.dropped_total
-
-    @property
-    def clients(self) -> int:
-        return len(self._clients)
-
-    def dropped(self) -> int:
-        """Frames dropped over every client, connected or gone."""
-        with self._lock:
-            return self.dropped_total + sum(q.dropped_total for q in self._clients)
-
-    def publish(self, body: str) -> None:
-        """Hand a frame to every client and wake their coroutines; never blocks on them."""
-        with self._lock:
-            clients = list(self._clients)
-        self.frames_total += 1
-        for q in clients:
-            q.push(body)
-        if clients and self._aio is not None:
-            with contextlib.suppress(RuntimeError):  # event loop already closed
-                self._aio.call_soon_threadsafe(_wake, clients)
-
-    def publish_event(self, body: str) -> None:
-        """Hand an ``event`` message to every client and wake them; never blocks."""
-        with self._lock:
-            clients = list(self._clients)
-        for q in clients:
-            q.push_event(body)
-        if clients and self._aio is not None:
-            with contextlib.suppress(RuntimeError):
-                self._aio.call_soon_threadsafe(_wake, clients)
-
-    def publish_hello(self, hello: str) -> None:
-        """Hand a new ``hello`` to every client (after a scenario change or a replay)."""
-        with self._lock:
-            clients = list(self._clients)
-        for q in clients:
-            q.push_hello(hello)
-        if clients and self._aio is not None:
-            with contextlib.suppress(RuntimeError):
-                self._aio.call_soon_threadsafe(_wake, clients)
-
-    def close(self) -> None:
-        """Tell every client coroutine that the service stops."""
-        self.closed = True
-        with self._lock:
-            clients = list(self._clients)
-        for q in clients:
-            q.closed = True
-        if clients and self._aio is not None:
-            with contextlib.suppress(RuntimeError):
-                self._aio.call_soon_threadsafe(_wake, clients)
-
-
-def _wake(clients: list[ClientQueue]) -> None:
-    for q in clients:
-        q.event.set()
 
 
 @dataclass(frozen=True)
@@ -377,7 +182,6 @@ class LiveLoop:
         checkpoint: Path | None = None,
     ) -> None:
         self.settings = settings
-        self._lives: list[dict[str, Any]] = []  # tool lives not yet in the history
         self.hub = hub
         #: a real machine's drive data from the broker (started and stopped with the loop)
         self.feed = feed
@@ -385,18 +189,22 @@ class LiveLoop:
         self.estimates_out = estimates_out
         #: the events and feed-hold commands on cutwatch/<machine>/events, .../command
         self.events_out = events_out
-        #: the event history (add_events, acknowledge), None: events kept in memory only
-        self.history = history
         #: the machine's name, stamped on every event
         self.machine = settings.mqtt_machine
-        self._ev_lock = threading.Lock()  # the kept events, their counts, client adds
-        self._events: collections.deque[dict[str, Any]] = collections.deque(maxlen=EVENTS_KEPT)
-        self._unacked: dict[str, str] = {}  # id -> action, oldest first
-        self.events_total: dict[str, int] = dict.fromkeys(KINDS, 0)
-        self.history_errors = 0
+        #: the machine's runtime: pipeline, events, estimates, checkpoints, tool lives
+        self.runtime = MachineRuntime(
+            settings.mqtt_machine,
+            pipeline or LivePipeline(settings.scenario, seed=settings.seed),
+            events_out=events_out,
+            estimates_out=estimates_out,
+            history=history,
+            checkpoint=checkpoint,
+            writer=CheckpointWriter("cutwatch-checkpoint"),
+            host="serve",
+        )
+        self.runtime.listeners.append(lambda rec: self.hub.publish_event(_event_body(rec)))
         self._block_log: Any = None  # settings.block_log, opened by start()
-        self.pipeline = pipeline or LivePipeline(settings.scenario, seed=settings.seed)
-        self.lock = threading.RLock()
+        self.lock = self.runtime.lock
         self._wake = threading.Event()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -416,13 +224,39 @@ class LiveLoop:
         self._hello_due = False  # the pipeline changed: clients need a new hello
         self.scene: StageScene | None = None  # the viser view, if started
         self.recording: Recording | None = None  # POST /api/record
-        #: the checkpoint file (settings.checkpoint_s > 0) and what became of it
-        self.checkpoint = checkpoint
-        self._home = (self.pipeline.scenario, self.pipeline.source.name)
         self._saved_at = time.monotonic()
-        self._writer: threading.Thread | None = None
-        self.checkpoint_status: dict[str, Any] = {"path": str(self.checkpoint), "resumed": False}
         self._anchor()
+
+    # ------------------------------------------------------------------ the runtime's
+    @property
+    def pipeline(self) -> LivePipeline:
+        """The pipeline running (the runtime's)."""
+        return self.runtime.pipeline
+
+    @property
+    def history(self) -> EventHistory | None:
+        """The event history (events, acknowledgements, tool lives); None: memory only."""
+        return self.runtime.history
+
+    @property
+    def checkpoint(self) -> Path | None:
+        """The checkpoint file (``settings.checkpoint_s`` > 0)."""
+        return self.runtime.checkpoint
+
+    @property
+    def checkpoint_status(self) -> dict[str, Any]:
+        """What became of the checkpoint: path, resumed, resumed_t, saved_t, refused."""
+        return self.runtime.checkpoint_status
+
+    @property
+    def events_total(self) -> dict[str, int]:
+        """Events raised since the start, by kind."""
+        return self.runtime.events_total
+
+    @property
+    def history_errors(self) -> int:
+        """Writes of events the history refused (the loop went on)."""
+        return self.runtime.history_errors
 
     # ------------------------------------------------------------------ control
     def _anchor(self) -> None:
@@ -470,9 +304,7 @@ class LiveLoop:
         effects carry over. Not paused: a replay starts at once."""
         with self.lock:
             self.end_recording("the pipeline changed")
-            if self.pipeline.effects:
-                pipe.set_observer_effects(self.pipeline.effects)
-            self.pipeline = pipe
+            self.runtime.set_pipeline(pipe)
             self.block_n = max(1, round(self.settings.block_ms * 1e-3 / pipe.sample_time))
             self._pending.clear()
             self._hello_due = True  # sent by the loop thread before its next frame
@@ -490,7 +322,9 @@ class LiveLoop:
             self.estimates_out.start()
         if self.events_out is not None:
             self.events_out.start()
-        self._reload_events()
+        self.runtime.reload_events()
+        if self.runtime.writer is not None:
+            self.runtime.writer.start()
         if self.settings.block_log is not None:  # line-buffered: readable while it runs
             self._block_log = Path(self.settings.block_log).open("a", buffering=1)
         self._thread = threading.Thread(target=self._run, name="cutwatch-loop", daemon=True)
@@ -503,8 +337,9 @@ class LiveLoop:
             self._thread.join(timeout)
             if not self._thread.is_alive():
                 self.save_checkpoint()  # the state at shutdown
-                if self._lives:
-                    self._keep_tool_lives()
+                self.runtime.keep_tool_lives()
+        if self.runtime.writer is not None:
+            self.runtime.writer.stop(timeout)
         rec = self.end_recording("the service stopped")
         if rec is not None:
             rec.wait(timeout)  # every block handed over is written before exit
@@ -533,7 +368,8 @@ class LiveLoop:
             self.pipeline.step(self.block_n)
             self.pipeline.reset()
             self.pipeline.take_events()  # the warm-up block is run again: not its events
-            self._resume()
+            self.pipeline.take_tool_changes()
+            self.runtime.resume()
             self._anchor()
         last_frame = time.monotonic()
         next_frame = last_frame  # wall time of the next frame's slot
@@ -570,8 +406,7 @@ class LiveLoop:
                     if self.paused or self._stop.is_set():
                         continue
                     t_from, taken = self.pipeline.t, time.time()
-                    out = self.pipeline.step(self.block_n)
-                    events = self.pipeline.take_events()
+                    out, events = self.runtime.step(self.block_n)
                     got = len(out["t"]) > 0
                     if got and self._block_log is not None:
                         self._block_log.write(f"{t_from:.6f} {self.pipeline.t:.6f} {taken:.6f}\n")
@@ -580,11 +415,9 @@ class LiveLoop:
                     if got:
                         self._pending.append(out)
                         self.blocks += 1
-                        self._lives += self.pipeline.take_tool_changes()
                     else:  # a live feed with nothing yet: time stands; wait, re-anchor
                         self._anchor()
-                if events:  # at once, before anything else the block feeds
-                    self._emit_events(events)
+                self.runtime.emit(events)  # at once, before anything else the block feeds
                 if not got:
                     self._wake.wait(self.frame_period if paced else LIVE_POLL_S)
                     self._wake.clear()
@@ -592,13 +425,13 @@ class LiveLoop:
                         last_frame = time.monotonic()
                         self._publish()
                     continue
-                if self._lives:
-                    self._keep_tool_lives()
+                self.runtime.keep_tool_lives()
                 if self.scene is not None:
                     p = self.pipeline
                     self.scene.update(p.latest, p.workpiece_removed, p.t)
                 if self.estimates_out is not None:
-                    self._estimates(out)
+                    feed = self.feed.health() if self.feed is not None else None
+                    self.runtime.estimates(out, time.time(), feed_health=feed)
                 done = time.monotonic()
                 lag = max(0.0, done - due)
                 self.lag_s = lag
@@ -626,129 +459,40 @@ class LiveLoop:
             self.error = f"{type(exc).__name__}: {exc}"
             raise
 
-    def _keep_tool_lives(self) -> None:
-        """Write the tools changed to the history (committed before the loop goes on; a
-        failed write is kept and tried again after the next block)."""
-        if self.history is None:
-            self._lives.clear()
-            return
-        try:
-            self.history.add_tool_changes(self._lives)
-        except Exception as exc:  # a full disk must not stop the loop; say so, retry
-            log.warning("cutwatch: tool lives not kept yet (retried): %s", exc)
-            return
-        self._lives.clear()
-
-    def _estimates(self, out: dict[str, np.ndarray]) -> None:
-        pub = self.estimates_out
-        assert pub is not None
-        pub.observe(out)
-        now = time.time()
-        if pub.due(now):
-            src = self.pipeline.source
-            body = pub.build(
-                now,
-                self.pipeline.channels(),
-                self.pipeline.t,
-                src.name,
-                health=self.health(),
-                drive_wall=getattr(src, "last_wall", None),
-                feed_health=self.feed.health() if self.feed is not None else None,
-                monitor=self.monitor_status(),
-            )
-            pub.publish(body, now)
-
     # ------------------------------------------------------------------ events
-    def _emit_events(self, events: list[MonitorEvent]) -> None:
-        """Hand the events of a block on (loop thread): to the broker (the command's
-        latency first), to every client and the kept list, to the history."""
-        events = [e if e.machine else dataclasses.replace(e, machine=self.machine) for e in events]
-        if self.events_out is not None:
-            self.events_out.publish(events)
-        with self._ev_lock:  # a client added meanwhile gets each event once
-            for e in events:
-                rec = Event.model_validate(e.as_dict()).model_dump()
-                self._events.append(rec)
-                self.events_total[e.kind] = self.events_total.get(e.kind, 0) + 1
-                self._unacked[e.id] = e.action
-                while len(self._unacked) > UNACKED_KEPT:
-                    del self._unacked[next(iter(self._unacked))]
-                self.hub.publish_event(_event_body(rec))
-        if self.history is not None:
-            try:
-                self.history.add_events(events)
-            except Exception as exc:  # the loop goes on; the log and /metrics say so
-                self.history_errors += 1
-                log.warning("cutwatch: %d event(s) not kept in the history: %s", len(events), exc)
-
-    def _reload_events(self) -> None:
-        """The latest kept events from the history (after a restart): in the snapshot
-        again, sent to a new client and counted in the status while not acknowledged
-        (not counted in ``events_total``, which counts since this start, nor published
-        again)."""
-        if self.history is None:
-            return
-        try:
-            recs = self.history.recent(EVENTS_KEPT)
-        except Exception as exc:  # the service starts without them; the log says why
-            log.warning("cutwatch: the kept events were not reloaded: %s", exc)
-            return
-        with self._ev_lock:
-            for r in recs:
-                rec = Event.model_validate(r).model_dump()
-                self._events.append(rec)
-                if not rec["acked"]:
-                    self._unacked[rec["id"]] = rec["action"]
-
     def announce_event(self, ev: dict[str, Any]) -> None:
         """An event changed (acknowledged): its new record (an :class:`Event`) goes to
         every client and replaces the kept copy; the status counts it as acknowledged."""
-        rec = Event.model_validate(ev).model_dump()
-        with self._ev_lock:
-            for i, old in enumerate(self._events):
-                if old["id"] == rec["id"]:
-                    self._events[i] = rec
-            if rec["acked"]:
-                self._unacked.pop(rec["id"], None)
-            self.hub.publish_event(_event_body(rec))
+        self.runtime.announce(Event.model_validate(ev).model_dump())
 
     def add_client(self) -> tuple[ClientQueue, list[str]]:
         """Register a client (from its coroutine): its queue, and the event messages of
         the kept events not yet acknowledged (oldest first) to send after ``hello``.
         An event raised meanwhile is in one of the two, never in both."""
-        with self._ev_lock:
-            q = self.hub.add()
-            backlog = [_event_body(r) for r in self._events if not r["acked"]]
-        return q, backlog
+        q, backlog = self.runtime.listen(self.hub.add)
+        return q, [_event_body(r) for r in backlog]
 
     def recent_events(self) -> list[dict[str, Any]]:
-        """The kept events (at most :data:`EVENTS_KEPT`), newest first, as :class:`Event`."""
-        with self._ev_lock:
-            return [dict(r) for r in reversed(self._events)]
+        """The kept events (at most :data:`~server.pipeline.runtime.EVENTS_KEPT`), newest
+        first, as :class:`Event`."""
+        return self.runtime.recent_events()
 
     def unacked(self) -> tuple[int, bool]:
         """Events not yet acknowledged, and whether one of them is an alarm or a feed hold."""
-        with self._ev_lock:
-            return len(self._unacked), any(a != "notice" for a in self._unacked.values())
+        return self.runtime.unacked()
 
     def monitor_status(self) -> dict[str, Any]:
         """The status strip (:class:`MonitorStatus`): the pipeline's monitor status with
-        the loop's view of the acknowledgements: ``unacked``, and state ``alarm`` while
-        an alarm or a feed hold is not acknowledged (whatever the monitor's own state)."""
-        with self.lock:
-            st = dict(self.pipeline.monitor_status())
-        n, alarm = self.unacked()
-        st["unacked"] = n
-        if alarm:
-            st["state"] = "alarm"
-        return MonitorStatus.model_validate(json_safe(st)).model_dump()
+        the runtime's view of the acknowledgements: ``unacked``, and state ``alarm``
+        while an alarm or a feed hold is not acknowledged (whatever the monitor's own
+        state)."""
+        return MonitorStatus.model_validate(self.runtime.monitor_status()).model_dump()
 
     def events_summary(self) -> dict[str, Any]:
         """The counts for /metrics: events by kind since the start, unacknowledged,
         history errors."""
         n, _ = self.unacked()
-        with self._ev_lock:
-            by_kind = dict(self.events_total)
+        by_kind = dict(self.events_total)
         return {"total": by_kind, "unacked": n, "history_errors": self.history_errors}
 
     def broker_status(self) -> dict[str, Any]:
@@ -764,58 +508,13 @@ class LiveLoop:
         return out
 
     # ------------------------------------------------------------------ checkpoints
-    def _resume(self) -> None:
-        """Continue from the checkpoint file, if there is one of this pipeline's scenario
-        and source; otherwise start fresh and say why (``checkpoint_status``, log)."""
-        path = self.checkpoint
-        if path is None or not path.exists():
-            return
-        try:
-            state = load_checkpoint(path)
-            self.pipeline.restore(state)
-        except (StateFormatError, ParameterError) as exc:
-            msg = f"checkpoint refused, starting fresh: {exc}"
-            self.checkpoint_status.update(resumed=False, refused=str(exc))
-            log.warning("cutwatch: %s", msg)
-            return
-        self.checkpoint_status.update(resumed=True, resumed_t=state.t)
-        log.warning("cutwatch: resumed from %s at t = %.3f s", path, state.t)
-
     def save_checkpoint(self, *, wait: bool = True) -> bool:
         """Write the pipeline's state to the checkpoint file (when the pipeline running is
-        the one the service started with: not a replay or another scenario). The state
-        is taken under the lock; the file is written by a writer thread (``wait``: this
-        call waits for it), one at a time. True when a write was started."""
-        path = self.checkpoint
+        the one the service started with: not a replay or another scenario): taken under
+        the lock, written here (``wait``) or by the runtime's writer thread. True when a
+        state was taken."""
         self._saved_at = time.monotonic()
-        if path is None:
-            return False
-        writer = self._writer
-        if writer is not None and writer.is_alive():
-            if not wait:
-                return False  # the previous file is still being written: next time
-            writer.join()
-        with self.lock:
-            p = self.pipeline
-            if (p.scenario, p.source.name) != self._home:
-                return False
-            state = p.state()
-
-        def write() -> None:
-            try:
-                path.parent.mkdir(parents=True, exist_ok=True)
-                save_checkpoint(path, state)
-            except OSError as exc:  # a full disk must not stop the loop; say so
-                self.checkpoint_status.update(error=f"{type(exc).__name__}: {exc}")
-                log.warning("cutwatch: checkpoint not written: %s", exc)
-                return
-            self.checkpoint_status.update(saved_t=state.t, saved_wall=time.time())
-
-        self._writer = threading.Thread(target=write, name="cutwatch-checkpoint", daemon=True)
-        self._writer.start()
-        if wait:
-            self._writer.join()
-        return True
+        return self.runtime.save(wait=wait)
 
     # ------------------------------------------------------------------ frames
     def _decimated(

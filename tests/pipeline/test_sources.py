@@ -25,7 +25,8 @@ from server.pipeline.sources import (
     open_replay,
 )
 from server.records.measured_log import write_log
-from server.service.loop import Hub, LiveLoop
+from server.service.hub import Hub
+from server.service.loop import LiveLoop
 from server.service.settings import Settings
 
 N_LOG = 10000  # 4 s at 0.4 ms

@@ -21,7 +21,7 @@ from server.pipeline.broker import parse_broker_url
 from server.pipeline.checkpoint import KIND, VERSION
 from server.pipeline.worker import Worker, WorkerConfig
 from server.records.drive_wire import encode_drive, encode_meta
-from server.records.monitor_events import MonitorEvent
+from server.records.monitor_events import MonitorEvent, event_id
 
 pytestmark = pytest.mark.slow
 
@@ -106,10 +106,13 @@ def test_the_worker_publishes_estimates_and_events_and_checkpoints(tmp_path: Pat
         est = got.get("cutwatch/mine/estimates", [])
     assert est and "cutwatch/theirs/estimates" not in got
     assert len(events) == 1 and events[0]["schema"] == "cutwatch.event"
-    assert events[0]["machine"] == "mine" and events[0]["id"] == ev.id
+    # the runtime's stable id (the machine's name and what the event is)
+    assert events[0]["machine"] == "mine" and events[0]["id"] == event_id(ev, "mine")
     assert events[0]["kind"] == "breakage" and events[0]["tool"] == 3
+    # the service's command (events_out.command_body), built by the same runtime
+    assert len(cmds) == 1 and 0 < time.time() - cmds[0].pop("wall") < 120
     assert cmds == [{"schema": "cutwatch.command", "version": 1, "command": "feed_hold",
-                     "event_id": ev.id, "t": 1.0}]  # fmt: skip
+                     "event_id": event_id(ev, "mine"), "machine": "mine", "t": 1.0}]  # fmt: skip
     # stop() wrote the machine's checkpoint (its period, 60 s, had not come)
     state, _ = load_state(tmp_path / "state" / "mine.npz", kind=KIND, version=VERSION)
     assert state.source == "mqtt" and state.t > 0

@@ -18,7 +18,8 @@ from server.records.history import HistoryStore, default_url
 from server.records.monitor_events import MonitorEvent
 from server.service.app import create_app
 from server.service.deps import live_loop
-from server.service.loop import Hub, LiveLoop, loop_parts
+from server.service.hub import Hub
+from server.service.loop import LiveLoop, loop_parts
 from server.service.settings import Settings
 
 OPERATOR = "operator-token-for-tests"

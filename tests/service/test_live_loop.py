@@ -12,7 +12,8 @@ import pytest
 from _wait import poll
 
 from server.errors import CutwatchError
-from server.service.loop import Hub, LiveLoop
+from server.service.hub import Hub
+from server.service.loop import LiveLoop
 from server.service.settings import Settings
 
 

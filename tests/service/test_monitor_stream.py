@@ -296,7 +296,7 @@ def test_inject_and_relearn_refusals_name_the_field(
 def test_events_go_out_in_order_with_the_frames_and_are_never_dropped() -> None:
     import asyncio
 
-    from server.service.loop import ClientQueue
+    from server.service.hub import ClientQueue
 
     async def make() -> ClientQueue:
         return ClientQueue(3, asyncio.get_running_loop())

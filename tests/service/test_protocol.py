@@ -18,7 +18,8 @@ import pytest
 from server.cli.commands import schema
 from server.pipeline.accuracy import RollingAccuracy
 from server.service import protocol
-from server.service.loop import Hub, LiveLoop
+from server.service.hub import Hub
+from server.service.loop import LiveLoop
 from server.service.messages import Accuracy, Data, Hello, LoopHealth, fields
 from server.service.settings import Settings
 

@@ -201,7 +201,8 @@ def test_a_gap_in_a_broker_feed_ends_the_recording_in_the_loop(tmp_path: Path) -
     from server.pipeline.drive_feed import DriveFeed
     from server.pipeline.mqtt_source import MqttSource
     from server.records.drive_wire import encode_drive
-    from server.service.loop import Hub, LiveLoop
+    from server.service.hub import Hub
+    from server.service.loop import LiveLoop
     from server.service.recording import source_sidecar
     from server.service.settings import Settings
 

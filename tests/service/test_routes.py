@@ -25,7 +25,8 @@ from hypothesis import strategies as st
 
 from server.service.app import create_app
 from server.service.deps import live_loop
-from server.service.loop import Hub, LiveLoop
+from server.service.hub import Hub
+from server.service.loop import LiveLoop
 from server.service.settings import Settings
 
 JSON = st.recursive(

@@ -19,7 +19,7 @@ from websockets.sync.client import ClientConnection, connect
 
 from server.pipeline.live_pipeline import LivePipeline
 from server.service import protocol
-from server.service.loop import ClientQueue, Hub
+from server.service.hub import ClientQueue, Hub
 
 
 @pytest.fixture(scope="module")

@@ -9,7 +9,8 @@ from fastapi import APIRouter, WebSocket, WebSocketDisconnect
 
 from server.errors import CutwatchError
 from server.service import protocol
-from server.service.loop import Hub, LiveLoop
+from server.service.hub import Hub
+from server.service.loop import LiveLoop
 
 router = APIRouter()
 
