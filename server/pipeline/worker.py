@@ -439,4 +439,3 @@ class Worker:
                 "warm_s": self.warm_s,
             }
         )
-
