@@ -79,6 +79,10 @@ BASE: tuple[str, ...] = ("M", "Fv", "Fc", "offset")
 ROW_RATE_HZ = 100.0
 #: the benchmark's position filter [Hz], kept at and above 1 kHz
 FILTER_HZ = 100.0
+#: the forgetting's memory holds at least this many rows: 10 s at 100 rows per second,
+#: 100 s of motion at 10 Hz (where each row is a coarser snapshot of a move)
+MEMORY_ROWS = 1000
+MEMORY_S = 10.0
 #: families whose columns need a record's past and future: not causal, not live
 NOT_LIVE: dict[str, str] = {
     "delay": "its column is the effort shifted in time around the sample (needs the future)",
@@ -177,7 +181,7 @@ def rigid_design(
     velocity_given: bool = False,
     acceleration_given: bool = False,
     effects: Sequence[LiveEffect] = (),
-    memory_s: float = 10.0,
+    memory_s: float | None = None,
 ) -> tuple[RigidIdParams, dict[str, str]]:
     """The identifier for an axis sampled every ``sample_time`` s, and what cannot run.
 
@@ -185,7 +189,8 @@ def rigid_design(
     decimated to about 100 per second, velocity and acceleration differenced. Below: no
     filter, every row, the CNC's velocity (``velocity_given``; else differenced) and
     acceleration (``acceleration_given``; else the mass is not identified). Effects a
-    live model cannot hold or this rate cannot show are left out.
+    live model cannot hold or this rate cannot show are left out. The memory (default):
+    10 s of motion, or :data:`MEMORY_ROWS` rows where that is longer.
 
     Returns
     -------
@@ -213,10 +218,13 @@ def rigid_design(
                 f"at {fs:g} Hz an acceleration phase lasts one or two samples and cannot be "
                 "had by differencing: the mass needs the CNC's acceleration (qdd_m or qdd_cmd)"
             )
+    decimation = 1 if low else max(1, int(round(fs / ROW_RATE_HZ)))
+    if memory_s is None:
+        memory_s = max(MEMORY_S, MEMORY_ROWS * decimation / fs)
     params = RigidIdParams(
         sample_time=sample_time,
         filter_hz=math.nan if low else min(FILTER_HZ, 0.1 * fs),
-        decimation=1 if low else max(1, int(round(fs / ROW_RATE_HZ))),
+        decimation=decimation,
         velocity="given" if low and velocity_given else "differenced",
         acceleration=acc,
         memory_s=memory_s,
@@ -276,6 +284,10 @@ class RigidIdRecord:
     residual_rms: float
     #: the friction level of each direction (Fc_pos, Fc_neg): value and 95 % half-width
     directions: dict[str, tuple[float, float]] = field(default_factory=dict)
+    #: the two levels differ: the 95 % interval of their difference excludes 0 (on a
+    #: rigid model that is an offset: gravity, an amplifier's offset, or friction that
+    #: differs by direction, which moving rows cannot tell apart)
+    direction_differs: bool = False
 
 
 @njit(cache=True)
@@ -604,8 +616,12 @@ class RigidIdentifier:
         half = self._z * np.sqrt(np.diag(st.cov))
         th = st.theta
         dirs: dict[str, tuple[float, float]] = {}
+        differs = False
         if np.all(np.isfinite(th[self._fc : self._fc + 2])):
             dirs = direction_friction(self.names, th, st.cov)
+            # Fc_pos - Fc_neg = 2 offset (+ a report's dir_pos): its interval
+            off = self._fc + 1
+            differs = bool(abs(th[off]) > half[off]) and st.stats[ST_REVERSALS] >= 1
         return RigidIdRecord(
             t=t, force=force, force_sd=sd, effort=eff, theta=th.copy(),
             lower=th - half, upper=th + half,
@@ -615,6 +631,7 @@ class RigidIdentifier:
             moving_time=float(st.stats[ST_MOVING_T]), bandwidth=int(st.stats[ST_BANDWIDTH]),
             residual_rms=float(math.sqrt(st.stats[ST_S2])),
             directions={k: (v, self._z * s) for k, (v, s) in dirs.items()},
+            direction_differs=differs,
         )  # fmt: skip
 
     def _excited(self, st: RigidIdState, half: F64) -> NDArray[np.bool_]:
@@ -631,6 +648,8 @@ class RigidIdentifier:
             ex[:nb] = (half[:nb] <= self.params.excited_rel * scale) & np.isfinite(half[:nb])
         if st.stats[ST_REVERSALS] < 1:
             ex[nb - 3 : nb] = False
+        if not st.stats[ST_S2] > 0:  # a perfect fit: the effort holds no signal (all 0)
+            ex[:] = False
         return ex
 
 

@@ -148,6 +148,11 @@ def test_a_column_the_others_span_is_left_out() -> None:
     d = recs[-1].directions
     assert d["Fc_pos"][0] == pytest.approx(17.0, abs=0.1)
     assert d["Fc_neg"][0] == pytest.approx(23.0, abs=0.1)
+    assert recs[-1].direction_differs  # an offset of -3 N: the levels differ by 6 N
+    sym = simulate_rigid_axis(dataclasses.replace(CLEAN, offset=0.0, noise_rms=0.5), 30.0,
+                              np.random.default_rng(2))  # fmt: skip
+    _, recs0 = run(rigid_design(CLEAN.sample_time)[0], sym)
+    assert not recs0[-1].direction_differs
 
 
 def test_blocks_of_any_size_give_the_same_estimate() -> None:

@@ -41,6 +41,13 @@ def test_emps_live_against_idim_ls_and_the_report(capsys: pytest.CaptureFixture[
     assert rows["emps.live.reversals_to_target"]["ours"] <= 7  # the record has 7
     without = rows["emps.live.relerr_last40_without"]["ours"]
     assert rows["emps.live.relerr_last40_with_report"]["ours"] < without < 6.0
+    # a real CNC's 10 Hz export: Fc per axis from the CNC's velocity and acceleration,
+    # beside the batch fit on every moving row; Z's current column is 0 throughout
+    for ax in ("X", "Y"):
+        fc = rows[f"cnc.experiment_01.{ax}.Fc"]
+        assert abs(fc["ours"] / fc["paper"] - 1) < 0.1 and fc["condition"].startswith("excited")
+        assert rows[f"cnc.experiment_01.{ax}.M"]["condition"].startswith("not excited")
+    assert "cnc.experiment_01.Z.effort_silent" in rows
     # coverage: plain least squares narrower than Newey-West on every parameter
     for k in ("M", "Fv", "Fc", "offset"):
         assert rows[f"coverage.ripple_noise.{k}.width_ratio"]["ours"] > 1.2

@@ -14,6 +14,11 @@ Two experiments:
   loaded into the live model, and the process force's relative error
   ``||F - model|| / ||F||`` on the last 40 % is compared with the live model without
   them (the force a priori: each block with the estimate held before it).
+* **A real CNC's export at 10 Hz** (``../shared/data/cnc-mill/experiment_NN.csv`` with
+  ``docs/machines/cnc-mill.json``: X, Y, Z rigid, each with the CNC's velocity and
+  acceleration): per axis the live M, Fv, Fc, offset at the end of the record with their
+  half-widths and excitation, beside a batch least-squares fit on every moving row of the
+  file (the figure a user would get offline).
 * **Coverage** (``machine/rigid_axis.py``: a simulated rigid axis whose effort also holds
   a ripple periodic in position and a coloured noise, each seed drawing the axis, the
   motion and the disturbances): the share of seeds whose 95 % interval at the end
@@ -196,6 +201,61 @@ def _emps_rows(
     return rows, checks
 
 
+#: the exports run (``quick``: the first only)
+CNC_EXPERIMENTS = ("experiment_01.csv", "experiment_06.csv", "experiment_11.csv")
+
+
+def cnc_axis(log: Any, axis: Any) -> dict[str, Any]:
+    """One axis of a CNC export through the live identifier (the CNC's velocity and
+    acceleration), and the batch least squares on its moving rows."""
+    from estimators.rigid_id import RigidIdentifier, rigid_design
+
+    s = axis.signals
+    t, q, i, v, a = (log[k] for k in ("t", s["q_m"], s["i_m"], s["qd_m"], s["qdd_m"]))
+    p, _ = rigid_design(log.sample_time, velocity_given=True, acceleration_given=True)
+    ident = RigidIdentifier(p)
+    st = ident.initial_state()
+    for k in range(0, log.n, 5):  # 0.5 s blocks
+        sl = slice(k, k + 5)
+        st, r = ident.step(st, t[sl], q[sl], i[sl], qd=v[sl], qdd=a[sl])
+    mv = np.abs(v) > p.moving_rel * np.max(np.abs(v))
+    x = np.column_stack([a, v, np.sign(v), np.ones_like(v)])[mv]
+    batch = np.linalg.lstsq(x, i[mv], rcond=None)[0] if np.any(i[mv]) else np.full(4, np.nan)
+    return {"last": r, "batch": batch, "memory": p.memory_s, "silent": not np.any(i != 0)}
+
+
+def cnc_section(quick: bool) -> tuple[list[Row], list[Check]]:
+    from server.experiments.reproductions.cnc_mill import data_dir
+    from server.records.measured_log import load_log, load_meta
+
+    desc = Path(__file__).resolve().parents[3] / "docs" / "machines" / "cnc-mill.json"
+    rows: list[Row] = []
+    checks: list[Check] = []
+    for name in CNC_EXPERIMENTS[:1] if quick else CNC_EXPERIMENTS:
+        log = load_log(data_dir() / name, meta=load_meta(desc))
+        for ax in log.machine.axes:
+            res = cnc_axis(log, ax)
+            r, key = res["last"], f"cnc.{name[:-4]}.{ax.name}"
+            if res["silent"]:
+                rows.append(Row(f"{key}.effort_silent", 1.0, None, "", "the current column is 0 "
+                                "on every row: nothing to identify (not excited)"))  # fmt: skip
+                checks.append(Check(f"{key}.silent_not_excited", not r.excited.any(), 0.0, 0.0))
+                continue
+            for j, k in enumerate(("M", "Fv", "Fc", "offset")):
+                half = (r.upper - r.lower)[j] / 2
+                cond = (f"{'excited' if r.excited[j] else 'not excited'}; 95 % half-width "
+                        f"{100 * half / abs(r.theta[j]):.3g} %; {r.reversals} reversals; memory "
+                        f"{res['memory']:g} s of motion")  # fmt: skip
+                unit = {"M": "A s^2/m", "Fv": "A s/m", "Fc": "A", "offset": "A"}[k]
+                rows.append(
+                    Row(f"{key}.{k}", float(r.theta[j]), float(res["batch"][j]), unit, cond)
+                )
+            if ax.name in ("X", "Y"):
+                rel = float((r.upper - r.lower)[2] / 2 / abs(r.theta[2]))
+                checks.append(Check(f"{key}.Fc_excited", bool(r.excited[2]), rel, 0.1))
+    return rows, checks
+
+
 def _mc_axis(seed: int, friction_along_travel: bool) -> Any:
     from machine.rigid_axis import RigidAxisParams
 
@@ -256,6 +316,7 @@ def run(
     rep = Reproduction(NAME, SOURCE)
     rows, checks, runs = emps_section(quick)
     rep.add((rows, checks))
+    rep.add(cnc_section(quick))
     seeds, seconds = (40, 30.0) if quick else (200, 60.0)
     cond = (
         f"{seeds} seeds x {seconds:g} s, binomial sd {100 * math.sqrt(0.95 * 0.05 / seeds):.1f} %"
