@@ -42,7 +42,7 @@ def test_two_axes_are_identified_each_in_its_units() -> None:
     units = {c.name: c.unit for c in ai.channels()}
     assert units["X.M"] == "N s^2/m" and units["Y.Fv"] == "N s/m"  # Y's current x K_t
     assert ai.reasons == {"X": {}, "Y": {}}
-    cols = _columns(40.0)
+    cols = _columns(25.0)
     st = ai.initial_state()
     for a in range(0, len(cols["t"]), 50):
         st, out = ai.step(st, cols["t"][a : a + 50], {k: v[a : a + 50] for k, v in cols.items()})
@@ -65,7 +65,7 @@ def test_at_10_hz_without_an_acceleration_the_mass_says_why() -> None:
                                    "qdd_cmd": "X_ac"}}}  # fmt: skip
     ai2 = AxisIdentification(from_dict(d))
     assert ai2.reasons == {"X": {}}  # the commanded velocity and acceleration stand in
-    x = simulate_rigid_axis(X, 200.0, np.random.default_rng(3))
+    x = simulate_rigid_axis(X, 120.0, np.random.default_rng(3))
     sub = {"t": x["t"][::100], "X_q": x["q_m"][::100], "X_f": x["tau_m"][::100],
            "X_vc": x["qd"][::100], "X_ac": x["qdd"][::100]}  # fmt: skip
     st = ai2.initial_state()

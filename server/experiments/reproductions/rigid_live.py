@@ -45,6 +45,13 @@ SOURCE = (
     "EMPS benchmark (Janot, Gautier, Brunot 2019), ../shared/data/emps/README: IDIM-LS "
     "M 95.1089 kg, Fv 203.5034 N s/m, Fc 20.3935 N, offset -3.1648 N; issue 30 items 3-4"
 )
+ROWS = [
+    "emps.live.<M|Fv|Fc|offset> (paper: IDIM-LS), _half_pct, _half_plain_pct",
+    "emps.live.<time_to_target|reversals_to_target|bandwidth>",
+    "emps.live.relerr_last40_<without|with_report>",
+    "cnc.<experiment>.<X|Y|Z>.<M|Fv|Fc|offset> (paper: batch LS on the moving rows)",
+    "coverage.<ripple_noise|friction_along_travel>.<param>.<newey_west|plain|width_ratio>",
+]
 #: the offline IDIM-LS of the data README (the reference the live estimates are scored on)
 IDIM = {"M": 95.1089, "Fv": 203.5034, "Fc": 20.3935, "offset": -3.1648}
 #: issue 30: M and Fv within 5 %, Fc within 10 %, half-widths at most 10 %

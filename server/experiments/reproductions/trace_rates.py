@@ -34,6 +34,10 @@ from server.pipeline.sources import SimulatorSource, SourceBlock
 
 NAME = "trace-rates"
 SOURCE = "issue 30 item 5; seed 000 stage (Table I), the default live scenario"
+ROWS = [
+    "<2500|1000|500>Hz.<point|average>.J_L_within_10_of_excited (paper: the 80 % target)",
+    "<rate>.<model>.<J_L_excited|force_rms|force_rms_ratio_to_2500 (paper: 1.5)>",
+]
 DRIVE_TS = 2e-4  # the simulated drive's own rate: 5 kHz
 #: the trace rates and their factor on the drive's rate
 RATES = {2500: 2, 1000: 5, 500: 10}
@@ -147,10 +151,10 @@ def design_note(rate: int) -> str:
 def run(
     *, quick: bool = False, plot_dir: Path | None = None, progress: bool = True
 ) -> Reproduction:
-    """Every rate and trace model (``quick``: 1 seed x 2 min, else 3 seeds x 5 min)."""
+    """Every rate and trace model (``quick``: 1 seed x 1.5 min, else 3 seeds x 5 min)."""
     from tqdm import tqdm
 
-    seeds, minutes = ([0], 2.0) if quick else ([0, 1, 2], 5.0)
+    seeds, minutes = ([0], 1.5) if quick else ([0, 1, 2], 5.0)
     cases = [(r, m) for r in RATES for m in MODELS]
     res: dict[tuple[int, str], list[dict[str, float]]] = {c: [] for c in cases}
     bar = tqdm(total=len(cases) * len(seeds), desc=NAME, disable=not progress, leave=False)
