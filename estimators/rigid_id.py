@@ -448,6 +448,32 @@ class RigidIdentifier:
         return RigidIdState(fresh.z, fresh.prev, state.G, state.b, state.rows, state.theta,
                             state.cov, state.cov_plain, state.active, st)  # fmt: skip
 
+    def adopt(self, state: RigidIdState, names: Sequence[str]) -> RigidIdState:
+        """The state of an identifier of another design (a rate change mid-stream: the
+        columns ``names``) carried into this one: the identified parameters, their
+        information and rows kept by name (in physical units, whatever the rate), the
+        filters restarted. A column this design has and the other had not starts empty;
+        one it no longer has is dropped."""
+        fresh = self.initial_state()
+        old = {n: i for i, n in enumerate(names)}
+        pairs = [(i, old[n]) for i, n in enumerate(self.names) if n in old]
+        new_i = np.array([a for a, _ in pairs], dtype=np.intp)
+        old_i = np.array([b for _, b in pairs], dtype=np.intp)
+        for attr in ("G", "cov", "cov_plain"):
+            getattr(fresh, attr)[np.ix_(new_i, new_i)] = getattr(state, attr)[np.ix_(old_i, old_i)]
+        for attr in ("b", "theta", "active"):
+            getattr(fresh, attr)[new_i] = getattr(state, attr)[old_i]
+        rows = np.zeros((len(state.rows), 2 + self.p))
+        rows[:, :2] = state.rows[:, :2]
+        rows[:, 2 + new_i] = state.rows[:, 2 + old_i]
+        fresh.rows = rows[-self._keep :]
+        keep = (ST_VMAX, ST_ROWS, ST_REVERSALS, ST_SIGN, ST_MOVING_T, ST_BANDWIDTH, ST_S2,
+                ST_NEFF, ST_SAMPLES)  # fmt: skip
+        for k in keep:
+            fresh.stats[k] = state.stats[k]
+        fresh.stats[ST_SINCE_HAC] = self.params.hac_every_s  # refresh at the next rows
+        return fresh
+
     # ------------------------------------------------------------------ step
     def step(
         self,

@@ -177,3 +177,28 @@ def test_bad_parameters_are_named() -> None:
     ident = RigidIdentifier(p)
     with pytest.raises(ParameterError, match="qd"):
         ident.step(ident.initial_state(), np.zeros(3), np.zeros(3), np.zeros(3))
+
+
+def test_a_rate_change_keeps_what_was_identified() -> None:
+    """1 kHz for 20 s, then the feed drops to 500 Hz: the 500 Hz identifier adopts the
+    state (parameters, information, rows), restarts its filters and goes on; at 10 Hz
+    without an acceleration the mass column is dropped, the friction kept."""
+    rec = simulate_rigid_axis(dataclasses.replace(CLEAN, noise_rms=0.5), 40.0,
+                              np.random.default_rng(9))  # fmt: skip
+    p1, _ = rigid_design(1e-3)
+    a, _ = run(p1, {k: v[:20_000] for k, v in rec.items()})
+    p2, _ = rigid_design(2e-3)
+    i2 = RigidIdentifier(p2)
+    st = i2.adopt(a, p1.names())
+    np.testing.assert_array_equal(st.theta, a.theta)
+    assert st.prev[-1] == 0.0  # the filters start again
+    half = {k: v[20_000::2] for k, v in rec.items()}
+    for k in range(0, len(half["t"]), 25):
+        st, r = i2.step(st, half["t"][k : k + 25], half["q_m"][k : k + 25],
+                        half["tau_m"][k : k + 25])  # fmt: skip
+        assert np.all(np.isfinite(r.theta[:4]))
+    np.testing.assert_allclose(r.theta[:4], [95.0, 200.0, 20.0, -3.0], rtol=0.02, atol=0.1)
+    p3, _ = rigid_design(0.1)
+    st3 = RigidIdentifier(p3).adopt(st, p2.names())
+    assert p3.names() == ("Fv", "Fc", "offset")
+    np.testing.assert_allclose(st3.theta, st.theta[1:4])
