@@ -255,7 +255,8 @@ class RigidIdState:
     prev: F64  # PV_*
     G: F64  # (p, p) exponentially weighted information matrix
     b: F64  # (p,) its right-hand side
-    rows: F64  # (m, 2 + p) kept rows: t, y, x (oldest first)
+    rows: F64  # (m, 2 + p) kept rows: t, y, x (oldest first), as of the last refresh
+    pending: F64  # (k, 2 + p) rows since the last refresh (merged into rows there)
     theta: F64  # (p,) the estimate (nan: not identifiable yet)
     cov: F64  # (p, p) Newey-West covariance
     cov_plain: F64  # (p, p) plain least-squares covariance (for comparison)
@@ -431,6 +432,7 @@ class RigidIdentifier:
             G=np.zeros((p, p)),
             b=np.zeros(p),
             rows=np.zeros((0, 2 + p)),
+            pending=np.zeros((0, 2 + p)),
             theta=np.full(p, math.nan),
             cov=np.full((p, p), math.nan),
             cov_plain=np.full((p, p), math.nan),
@@ -445,8 +447,8 @@ class RigidIdentifier:
         st = state.stats.copy()
         st[ST_START_T] = math.nan
         st[ST_PHASE] = 0.0
-        return RigidIdState(fresh.z, fresh.prev, state.G, state.b, state.rows, state.theta,
-                            state.cov, state.cov_plain, state.active, st)  # fmt: skip
+        return RigidIdState(fresh.z, fresh.prev, state.G, state.b, state.rows, state.pending,
+                            state.theta, state.cov, state.cov_plain, state.active, st)  # fmt: skip
 
     def adopt(self, state: RigidIdState, names: Sequence[str]) -> RigidIdState:
         """The state of an identifier of another design (a rate change mid-stream: the
@@ -463,9 +465,10 @@ class RigidIdentifier:
             getattr(fresh, attr)[np.ix_(new_i, new_i)] = getattr(state, attr)[np.ix_(old_i, old_i)]
         for attr in ("b", "theta", "active"):
             getattr(fresh, attr)[new_i] = getattr(state, attr)[old_i]
-        rows = np.zeros((len(state.rows), 2 + self.p))
-        rows[:, :2] = state.rows[:, :2]
-        rows[:, 2 + new_i] = state.rows[:, 2 + old_i]
+        kept = np.vstack([state.rows, state.pending])
+        rows = np.zeros((len(kept), 2 + self.p))
+        rows[:, :2] = kept[:, :2]
+        rows[:, 2 + new_i] = kept[:, 2 + old_i]
         fresh.rows = rows[-self._keep :]
         keep = (ST_VMAX, ST_ROWS, ST_REVERSALS, ST_SIGN, ST_MOVING_T, ST_BANDWIDTH, ST_S2,
                 ST_NEFF, ST_SAMPLES)  # fmt: skip
@@ -524,8 +527,8 @@ class RigidIdentifier:
     @staticmethod
     def _copy(s: RigidIdState) -> RigidIdState:
         return RigidIdState(s.z.copy(), s.prev.copy(), s.G.copy(), s.b.copy(), s.rows,
-                            s.theta.copy(), s.cov.copy(), s.cov_plain.copy(), s.active.copy(),
-                            s.stats.copy())  # fmt: skip
+                            s.pending, s.theta.copy(), s.cov.copy(), s.cov_plain.copy(),
+                            s.active.copy(), s.stats.copy())  # fmt: skip
 
     def _kinematics(
         self, st: RigidIdState, a: dict[str, Any], n: int, t_out: F64
@@ -590,8 +593,9 @@ class RigidIdentifier:
         decay = self.lam**m
         st.G = decay * st.G + (xr * w[:, None]).T @ xr
         st.b = decay * st.b + (xr * w[:, None]).T @ yr
-        rows = np.column_stack([t[use], yr, xr])
-        st.rows = np.vstack([st.rows, rows])[-self._keep :]
+        # the kept rows grow at the refresh only (a copy of the whole buffer per block
+        # would cost more than the block's own work)
+        st.pending = np.vstack([st.pending, np.column_stack([t[use], yr, xr])])
         st.stats[ST_ROWS] += m
         st.stats[ST_MOVING_T] += m * pr.row_time
         st.stats[ST_SINCE_HAC] += m * pr.row_time
@@ -616,6 +620,8 @@ class RigidIdentifier:
         active = _ordered_active(st.G)
         st.active = active.astype(np.float64)
         st.theta = _solve(st.G, st.b, active)
+        st.rows = np.vstack([st.rows, st.pending])[-self._keep :]
+        st.pending = st.pending[:0]
         rows = st.rows
         m = len(rows)
         w = self.lam ** np.arange(m - 1, -1, -1, dtype=np.float64)
@@ -690,19 +696,13 @@ def direction_friction(
     i = {n: k for k, n in enumerate(names)}
     out = {}
     for d, sign in (("pos", 1.0), ("neg", -1.0)):
-        g = np.zeros(len(names))
-        g[i["Fc"]] = 1.0
-        g[i["offset"]] = sign
-        if (
-            d == "pos"
-            and "coulomb_asymmetry.dir_pos" in i
-            and np.isfinite(theta[i["coulomb_asymmetry.dir_pos"]])
-        ):
-            g[i["coulomb_asymmetry.dir_pos"]] = 1.0
-        ok = g != 0
-        val = float(g[ok] @ theta[ok])
-        sd = float(math.sqrt(max(g[ok] @ cov[np.ix_(ok, ok)] @ g[ok], 0.0)))
-        out[f"Fc_{d}"] = (val, sd)
+        terms = [(i["Fc"], 1.0), (i["offset"], sign)]
+        j = i.get("coulomb_asymmetry.dir_pos")
+        if d == "pos" and j is not None and math.isfinite(theta[j]):
+            terms.append((j, 1.0))
+        val = sum(g * float(theta[k]) for k, g in terms)
+        var = sum(g * h * float(cov[k, m]) for k, g in terms for m, h in terms)
+        out[f"Fc_{d}"] = (val, math.sqrt(max(var, 0.0)))
     return out
 
 
