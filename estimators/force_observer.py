@@ -46,23 +46,73 @@ class ObserverParams:
     K: float
     sample_time: float = 4e-4
     encoder_resolution: float = 2 * math.pi / 2**20
-    q_hz: float = 250.0  # Q(s) cut-off (seed 000 Table II)
+    # Q(s) cut-off; nan: designed from the rate, q_cutoff (seed 000 Table II: 250 Hz at
+    # 2.5 kHz)
+    q_hz: float = math.nan
     q_order: int = 1  # seed 000 III.A: "Q(s) is a first-order LPF"
     err3_J_M: float = 0.05
     err3_B_M: float = 0.5
     err3_K: float = 0.3
     err3_F_CM: float = 0.5
+    # "minimum_variance": seed000 (5)'s mix of the motor-side DOB and the shaft twist;
+    # "twist": the load-side relation only (T_s = K dtheta, alpha = 0), for a rate whose
+    # Nyquist frequency lies below the torsion (observer_design)
+    mix: str = "minimum_variance"
 
     def __post_init__(self) -> None:
         for n in ("J_M", "K", "sample_time", "encoder_resolution"):
             require_positive(n, getattr(self, n))
         for n in ("B_M", "F_CM", "err3_J_M", "err3_B_M", "err3_K", "err3_F_CM"):
             require_nonnegative(n, getattr(self, n))
+        if math.isnan(self.q_hz):
+            object.__setattr__(self, "q_hz", q_cutoff(self.sample_time))
+        if self.mix not in ("minimum_variance", "twist"):
+            raise ParameterError("mix", "'minimum_variance' or 'twist'", self.mix)
         nyq = 0.5 / self.sample_time
         if not (0 < self.q_hz < nyq) or not math.isfinite(self.q_hz):
             raise ParameterError("q_hz", f"a cut-off in (0, {nyq:g}) Hz (below Nyquist)", self.q_hz)
         if int(self.q_order) != self.q_order or self.q_order < 1:
             raise ParameterError("q_order", "an integer >= 1", self.q_order)
+
+
+#: Q(s)'s cut-off at and above 625 Hz (seed 000 Table II, at 2.5 kHz) [Hz]
+Q_HZ = 250.0
+
+
+def q_cutoff(sample_time: float) -> float:
+    """Q(s)'s cut-off for a rate: seed 000's 250 Hz, at most 0.4 of the rate (0.8 of the
+    Nyquist frequency, where the Tustin pre-warp still maps it)."""
+    return min(Q_HZ, 0.4 / require_positive("sample_time", sample_time))
+
+
+def torsion_frequencies(J_M: float, J_L: float, K: float) -> tuple[float, float]:
+    r"""The two-inertia stage's resonance and anti-resonance [Hz]:
+    :math:`\sqrt{K (1/J_M + 1/J_L)}/2\pi` and :math:`\sqrt{K/J_L}/2\pi`."""
+    return (
+        math.sqrt(K * (1.0 / J_M + 1.0 / J_L)) / (2 * math.pi),
+        math.sqrt(K / J_L) / (2 * math.pi),
+    )
+
+
+def observer_design(
+    J_M: float, J_L: float, K: float, sample_time: float
+) -> tuple[dict[str, object], str]:
+    """The observer's design for a rate, and why it departs from seed 000's (``""``:
+    it does not). Q(s) at :func:`q_cutoff`; when the torsion's resonance lies at or above
+    the Nyquist frequency, the motor-side observer's acceleration folds the torsion into
+    the band (a point sample aliases it, a cycle average only damps it): the load-side
+    relation only (``mix="twist"``: the shaft torque from its twist)."""
+    f_res, f_anti = torsion_frequencies(J_M, J_L, K)
+    nyq = 0.5 / sample_time
+    design: dict[str, object] = {"q_hz": q_cutoff(sample_time)}
+    if f_res < nyq:
+        return design, ""
+    design["mix"] = "twist"
+    return design, (
+        f"the torsion ({f_res:.0f} Hz resonance, {f_anti:.0f} Hz anti-resonance) lies above "
+        f"the Nyquist frequency {nyq:g} Hz: the motor-side observer is aliased; the "
+        "load-side relation (the shaft's twist) only"
+    )
 
 
 @dataclass(frozen=True)
@@ -110,8 +160,8 @@ _N_CH = 8
 # (seed000 (6)-(7)) and of the quantisation (seed000 (8))
 PR_TS, PR_J_M, PR_B_M, PR_F_CM, PR_K = 0, 1, 2, 3, 4
 PR_VAR_J_M, PR_VAR_B_M, PR_VAR_K, PR_VAR_F_CM = 5, 6, 7, 8
-PR_VAR_W, PR_VAR_DW, PR_VAR_Q = 9, 10, 11
-PR_SIZE = 12
+PR_VAR_W, PR_VAR_DW, PR_VAR_Q, PR_MIX = 9, 10, 11, 12
+PR_SIZE = 13
 # Index of each entry of the kernel's history ``prev`` (TorsionState.prev): the angles and
 # torques one and two samples back, and the samples-seen flag
 PV_QM1, PV_QM2, PV_QL1, PV_QL2, PV_TAU1, PV_TAU2, PV_SEEN = 0, 1, 2, 3, 4, 5, 6
@@ -169,8 +219,10 @@ def _torsion_kernel(
         v_m = acc_m * acc_m * s2J + vel_m * vel_m * s2B + JM * JM * var_dw + BM * BM * var_w + s2F
         # seed000 (7): error variance of T_sK; both encoders quantised alike (seed000 (8))
         v_k = dth_f * dth_f * s2K + 2.0 * K * K * var_q
-        # seed000 (5): minimum-variance mixing ratio
+        # seed000 (5): minimum-variance mixing ratio (the load-side relation alone: 0)
         al = v_k / (v_m + v_k) if (v_m + v_k) > 0 else 0.5
+        if pr[PR_MIX] == 1.0:
+            al = 0.0
         o_ts[k] = al * tsm + (1.0 - al) * tsk
         o_tsm[k] = tsm
         o_tsk[k] = tsk
@@ -207,6 +259,7 @@ class TorsionEstimator:
         pr[PR_VAR_W] = (qn / ts) ** 2 / 12
         pr[PR_VAR_DW] = (qn / ts**2) ** 2 / 12
         pr[PR_VAR_Q] = qn**2 / 12
+        pr[PR_MIX] = 1.0 if p.mix == "twist" else 0.0
         self._pr = pr
 
     def initial_state(self) -> TorsionState:

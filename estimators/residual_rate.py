@@ -52,7 +52,8 @@ LOW_RATE_FAMILIES: tuple[str, ...] = (
 )
 
 
-def _low_rate_reasons(fs: float) -> dict[str, str]:
+def low_rate_reasons(fs: float) -> dict[str, str]:
+    """Why each family a static map cannot show is not identifiable at ``fs`` Hz."""
     ms = 1000.0 / fs
     return {
         "inertia": f"a feed axis accelerates within tens of ms; at {fs:g} Hz ({ms:g} ms per "
@@ -134,7 +135,7 @@ def rate_plan(sample_time: float, *, velocity_given: bool = False) -> RatePlan:
         )
     if fs < LOW_RATE_HZ:
         families = LOW_RATE_FAMILIES
-        reasons = _low_rate_reasons(fs)
+        reasons = low_rate_reasons(fs)
         note += (
             f". At {fs:g} Hz only static maps are identifiable: friction against velocity "
             "and position, a process load on the marked rows, a slow drift; not inertia, "

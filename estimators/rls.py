@@ -245,6 +245,16 @@ def rls_update(P, r, th, buf_phi, buf_y, meta, phi, y, lo, hi, p0, follow):  # p
     return was_reset
 
 
+#: Q_RLS's cut-off (seed 000 Table II) [Hz] and the RLS window (100 samples at 2.5 kHz) [s]
+Q_RLS_HZ = 12.0
+WINDOW_S = 0.04
+
+
+def q_rls_cutoff(sample_time: float) -> float:
+    """Q_RLS's cut-off for a rate: seed 000's 12 Hz, at most a tenth of the rate."""
+    return min(Q_RLS_HZ, 0.1 / require_positive("sample_time", sample_time))
+
+
 @dataclass(frozen=True)
 class IdentifierParams:
     """Load-side identification on the regression model of seed000 (14).
@@ -253,14 +263,18 @@ class IdentifierParams:
     """
 
     sample_time: float = 4e-4
-    q_rls_hz: float = 12.0  # seed 000 Table II (seed 001 Table 2: 40 Hz)
+    # seed 000 Table II (seed 001 Table 2: 40 Hz); nan: designed from the rate, 12 Hz or a
+    # tenth of the rate below 120 Hz (q_rls_cutoff)
+    q_rls_hz: float = math.nan
     # Q_RLS order. The papers name only "an LPF". A first-order Q_RLS at 12 Hz passes
     # 12 % of the 100 Hz force, which is strongly correlated with the 100 Hz load
     # acceleration it causes and biases J_L; second order passes 1.4 %, third 0.17 %.
     # Measured, batch LS over every excited sample of the seed-000 run: J_L = 2.59e-4
     # (second order), 2.82e-4 (third; truth 2.80e-4), negative (first).
     q_rls_order: int = 3
-    window: int = 100  # L (seed 000 Table II)
+    # L (seed 000 Table II: 100 samples, 40 ms at 2.5 kHz); 0: designed from the rate,
+    # the window's 40 ms (WINDOW_S)
+    window: int = 0
     acc_threshold: float = 50.0  # |Q_RLS d omega_L/dt| above this: update [rad/s^2]
     scale: tuple[float, float, float, float] = (2.8e-4, 2e-3, 0.15, 1.0)
     # seed 000 IV.A: J_L, B_L, F_CL in (0, R), F_cut_DC in R
@@ -276,6 +290,10 @@ class IdentifierParams:
 
     def __post_init__(self) -> None:
         require_positive("sample_time", self.sample_time)
+        if math.isnan(self.q_rls_hz):
+            object.__setattr__(self, "q_rls_hz", q_rls_cutoff(self.sample_time))
+        if self.window == 0:
+            object.__setattr__(self, "window", max(4, round(WINDOW_S / self.sample_time)))
         nyq = 0.5 / self.sample_time
         if not (0 < self.q_rls_hz < nyq):
             raise ParameterError("q_rls_hz", f"a cut-off in (0, {nyq:g}) Hz", self.q_rls_hz)

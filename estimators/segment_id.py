@@ -72,9 +72,11 @@ from scipy import stats
 from common.arrays import F64
 from estimators.errors import ParameterError, require_positive
 from estimators.filters import DiscreteFilter, lowpass
-from estimators.rls import filter_regressors
+from estimators.rls import filter_regressors, q_rls_cutoff
 
 NAMES = ("J_L", "B_L", "F_CL")
+#: the rows per second the segment fit keeps (every 10th sample at 2.5 kHz)
+HISTORY_HZ = 250.0
 
 
 @dataclass(frozen=True)
@@ -83,15 +85,16 @@ class SegmentIdentifierParams:
 
     nominal: tuple[float, float, float]  # prior estimate (the drive's nominal model)
     sample_time: float = 4e-4
-    q_rls_hz: float = 12.0  # seed 000 Table II, as the RLS
+    q_rls_hz: float = math.nan  # seed 000 Table II, as the RLS (nan: q_rls_cutoff)
     q_rls_order: int = 3  # as estimators.rls.IdentifierParams (why: there)
     acc_threshold: float = 50.0  # |Q_RLS d omega_L/dt| that opens a segment [rad/s^2]
     pre: float = 0.3  # s of data kept before the first gated sample
     post: float = 0.5  # s after the last gated sample (Q_RLS's settling, ~3 x 13 ms x 3)
     max_segment: float = 2.0  # a gated stretch longer than this is not a reversal [s]
     # the segment fit keeps one sample in ``decimation``: its signals are low-passed at
-    # 12 Hz (third order), so 250 Hz loses nothing, and the kept history stays small
-    decimation: int = 10
+    # 12 Hz (third order), so 250 Hz loses nothing, and the kept history stays small;
+    # 0: designed from the rate, rows at about HISTORY_HZ (10 at 2.5 kHz)
+    decimation: int = 0
     level: float = 0.95  # interval coverage
     # Kalman filter across segments. J_L: white noise on its slope, relative to the
     # nominal, [1/s^1.5]; B_L, F_CL: random walk, relative [1/s^0.5]
@@ -114,6 +117,11 @@ class SegmentIdentifierParams:
         for v in self.nominal:
             require_positive("nominal", v)
         require_positive("sample_time", self.sample_time)
+        if math.isnan(self.q_rls_hz):
+            object.__setattr__(self, "q_rls_hz", q_rls_cutoff(self.sample_time))
+        if self.decimation == 0:
+            dec = max(1, round(1.0 / (self.sample_time * HISTORY_HZ)))
+            object.__setattr__(self, "decimation", dec)
         nyq = 0.5 / self.sample_time
         if not (0 < self.q_rls_hz < nyq):
             raise ParameterError("q_rls_hz", f"a cut-off in (0, {nyq:g}) Hz", self.q_rls_hz)

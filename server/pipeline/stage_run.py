@@ -28,6 +28,7 @@ from estimators.force_observer import (
     cutting_force,
     cutting_force_lagged,
 )
+from estimators.force_observer import observer_design as rate_observer_design
 from estimators.rls import IdentifierParams, IdentRecord, IdentState, LoadIdentifier
 from estimators.segment_id import (
     SegmentIdentifier,
@@ -142,9 +143,17 @@ class StageRun:
         src = self.source
         nom = src.nominal
         self.nominal_load = LoadParams(J_L=nom.J_L, B_L=nom.B_L, F_CL=nom.F_CL)
+        # designed from the rate (Q's cut-off; the load-side relation when the torsion
+        # lies above the Nyquist frequency), a scenario's design on top
+        rate_design, self.design_note = rate_observer_design(
+            nom.J_M, nom.J_L, nom.K, src.sample_time
+        )
         self.front = TorsionEstimator(
             _observer_params(
-                nom, src.sample_time, src.encoder_resolution, **(observer_design or {})
+                nom,
+                src.sample_time,
+                src.encoder_resolution,
+                **{**rate_design, **(observer_design or {})},
             )
         )
         ip = ident or IdentifierParams(sample_time=src.sample_time)

@@ -167,9 +167,7 @@ class MeasuredLog:
         if self.description is not None:
             return self.description
         side = {
-            # the median interval of a time column, to 12 digits (0.1 read from a 10 Hz
-            # column is 0.10000000000000142)
-            "sample_time": float(f"{self.sample_time:.12g}"),
+            "sample_time": self.sample_time,
             "units": self.units,
             "kind": self.kind,
             "nominal": self.nominal,

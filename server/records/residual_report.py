@@ -109,9 +109,15 @@ def report_dict(
             }
             for c in res.candidates
         ],
-        # the selected effects in order, each with its physical meaning and parameters
+        # the selected effects in order, each with its physical meaning, parameters and
+        # shape (what a live model loads: cutwatch serve --model REPORT.json)
         "effects": [
-            {"name": c.name, "meaning": MEANING.get(c.name, ""), "params": c.params}
+            {
+                "name": c.name,
+                "meaning": MEANING.get(c.name, ""),
+                "params": c.params,
+                "shape": dict(e.shape),
+            }
             for e in res.effects
             for c in res.candidates
             if c.name == e.name
@@ -135,6 +141,45 @@ def report_dict(
     if validation is not None:
         rep["validation"] = dict(validation)
     return json_safe(rep)
+
+
+def live_effects(report: Mapping[str, Any], source: str = "report") -> list[Any]:
+    """The effects a residual report selected, as the live rigid model loads them
+    (:class:`estimators.rigid_id.LiveEffect`: family and shape; the coefficients are
+    identified live). A report written before the ``shape`` key: the shape is its
+    ``params`` less the family's coefficients and derived figures.
+
+    Raises
+    ------
+    server.errors.LogFormatError
+        Not a rigid residual report, or an effect of an unknown family (named).
+    """
+    from estimators.rigid_id import LiveEffect
+    from server.errors import LogFormatError
+
+    effects = report.get("effects") if isinstance(report, Mapping) else None
+    if not isinstance(effects, list) or report.get("kind", "rigid") != "rigid":
+        raise LogFormatError(
+            f"{source}: expected a rigid residual report (report.json with 'effects'), "
+            f"found kind {report.get('kind') if isinstance(report, Mapping) else report!r}"
+        )
+    out = []
+    zero = {"M": 0.0, "Fv": 0.0, "Fc": 0.0, "offset": 0.0}
+    for i, e in enumerate(effects):
+        name = e.get("name") if isinstance(e, Mapping) else None
+        fam = RIGID_FAMILIES.get(name) if isinstance(name, str) else None
+        params = e.get("params", {}) if isinstance(e, Mapping) else {}
+        if fam is None or not isinstance(params, Mapping):
+            raise LogFormatError(
+                f"{source}: effects[{i}]: expected a family of {sorted(RIGID_FAMILIES)}, "
+                f"found {name!r}"
+            )
+        shape = e.get("shape")
+        if not isinstance(shape, Mapping):  # an older report: params less coefficients
+            drop = set(fam.column_names(params)) | set(fam.derived(params, params, zero))
+            shape = {k: v for k, v in params.items() if k not in drop}
+        out.append(LiveEffect.of(str(name), {k: float(v) for k, v in shape.items()}))
+    return out
 
 
 def _png(fig: Any) -> str:

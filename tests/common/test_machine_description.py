@@ -153,6 +153,13 @@ def test_a_misspelt_key_is_named_beside_the_missing_one() -> None:
         from_dict(d)
 
 
+def test_a_rate_at_a_bound_read_from_a_time_column_is_accepted() -> None:
+    ts = 0.10000000000000142  # the median interval of a 10 Hz time column
+    assert from_dict({**CENTRE, "sample_time": ts}).sample_time == ts
+    with pytest.raises(DescriptionError, match="sample_time"):
+        from_dict({**CENTRE, "sample_time": 0.1001})
+
+
 def test_top_level_keys_of_the_carrier_are_left_alone() -> None:
     m = from_dict({**CENTRE, "schema": "cutwatch.meta", "recording": {"samples": 3}})
     assert m == from_dict(CENTRE)

@@ -155,7 +155,7 @@ def test_interval_widens_with_the_time_since_the_last_segment() -> None:
         ({"walk": (1.0,)}, "walk"),
         ({"excited_rel": (0.1, 0.2)}, "excited_rel"),
         ({"model_error": (0.1, 0.2, 1.5)}, "model_error"),
-        ({"decimation": 0}, "decimation"),
+        ({"decimation": -1}, "decimation"),  # 0: designed from the rate
         ({"pre": -1.0}, "pre"),
     ],
 )

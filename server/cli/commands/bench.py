@@ -13,6 +13,7 @@ Groups (modules server/experiments/benchmarks/bench_<group>.py; see docs/benchma
   pipeline               the live service's whole pipeline, offline
   residual               residual analysis of 1,000,000 samples (rigid)
   residual-two-inertia   the same for the two-inertia observer
+  rigid-axis             the live rigid identifier of one axis (1 kHz, 500 Hz)
   stage                  the stage with its observers and both RLS
   tool-wear              the wear model, observer and life monitor
 

@@ -238,9 +238,11 @@ class FeedPlan:
 
         self.log = log
         machine = log.machine
-        self.sample_time = machine.sample_time
+        # a described machine's declared rate; an older log's own interval (a replay of
+        # the same log then sees the same times, to the last bit)
+        self.sample_time = machine.sample_time if log.description else log.sample_time
         self.per = max(1, int(round(block_ms * 1e-3 / self.sample_time)))
-        self.meta = encode_meta(machine.to_dict())
+        self.meta = encode_meta({**machine.to_dict(), "sample_time": self.sample_time})
         sig = [s for s in machine.signals() if s.owner != "identities" and s.source in log.columns]
         self.units = {s.source: s.unit for s in sig}
         self.names = list(self.units)
