@@ -7,8 +7,9 @@ the counts before the issue's work (and after it). What is counted, in ``common/
 
 ``event_kind_vocabularies``
     Modules that spell the vocabulary of event kinds: a tuple, list or set display, the
-    keys of a dict display, or a ``Literal[...]`` holding two or more of the kinds'
-    strings (:data:`EVENT_KINDS`). One definition imported everywhere counts once.
+    keys of a dict display, a ``Literal[...]`` or a class body (an enumeration) holding
+    two or more of the kinds' strings (:data:`EVENT_KINDS`). One definition imported
+    everywhere counts once.
 ``event_kind_literals``
     Modules with any kind's string as a constant outside docstrings (a use spelled by
     hand: ``if kind == "breakage"``); reported beside the vocabularies.
@@ -193,6 +194,9 @@ def _vocabulary_displays(tree: ast.Module) -> Iterator[tuple[int, set[str]]]:
         elif isinstance(node, ast.Subscript) and _name(node.value) == "Literal":
             s = node.slice
             kinds = _kinds_of(list(s.elts) if isinstance(s, ast.Tuple) else [s])
+        elif isinstance(node, ast.ClassDef):  # an enumeration: NAME = "kind" in its body
+            values = [b.value for b in node.body if isinstance(b, ast.Assign)]
+            kinds = _kinds_of(list(values))
         if len(kinds) >= 2:
             yield node.lineno, kinds
 

@@ -69,20 +69,22 @@ def test_event_kind_vocabularies_are_counted_by_module(tmp_path: Path) -> None:
         "keys.py": 'SIZES = {"breakage": 1.0, "missing_tool": 2.0}\n',
         "uses.py": '"""Docstring: breakage."""\ndef f(k):\n    return k == "breakage"\n',
         "one.py": 'ONLY = ("breakage", "other")\n',
+        "enum.py": 'class K(StrEnum):\n    A = "collision"\n    B = "life_short"\n',
     }
     table = summary(count(_tree(tmp_path, files), ("pkg",)))
     found = count(tmp_path, ("pkg",)).places
     vocab = sorted({p.split(":")[0] for p in found["event_kind_vocabularies"]})
-    assert vocab == ["pkg/defines.py", "pkg/keys.py", "pkg/literal.py"]
+    assert vocab == ["pkg/defines.py", "pkg/enum.py", "pkg/keys.py", "pkg/literal.py"]
     literals = sorted({p.split(":")[0] for p in found["event_kind_literals"]})
     assert literals == [
         "pkg/defines.py",
+        "pkg/enum.py",
         "pkg/keys.py",
         "pkg/literal.py",
         "pkg/one.py",
         "pkg/uses.py",
     ]
-    assert table["event_kind_vocabularies"]["total"] == 3
+    assert table["event_kind_vocabularies"]["total"] == 4
 
 
 def test_long_positional_functions_leave_self_aside(tmp_path: Path) -> None:
