@@ -24,6 +24,7 @@ from pydantic import (
 )
 from pydantic_core import PydanticCustomError
 
+from common.event_kinds import ProcessEventKind
 from server.pipeline.process_part import CLEAR_SIZES, SIZE_RANGES
 from server.records.history import CAUSES
 from server.service.messages import Accuracy, Event, LoopHealth, MonitorStatus, PartStatus
@@ -249,8 +250,6 @@ class ParamsPatch(RootModel[dict[str, KnobValue]]):
 # ------------------------------------------------------------------ control
 
 
-#: the events ``inject`` schedules in the simulator (machine.process.EVENT_KINDS)
-InjectKind = Literal["breakage", "collision", "missing_tool"]
 #: the fields of the monitor's actions, and the action each belongs to
 _ACTION_FIELDS = {
     "kind": "inject",
@@ -286,7 +285,7 @@ class Control(BaseModel):
     action: Literal["pause", "resume", "reset", "speed", "scenario", "inject", "relearn"]
     value: Speed | None = Field(None, description=f"speed in [0, {MAX_SPEED:g}] (action speed)")
     scenario: ScenarioName | None = Field(None, description="scenario name (action scenario)")
-    kind: InjectKind | None = Field(None, description="the event to inject (action inject)")
+    kind: ProcessEventKind | None = Field(None, description="the event to inject (action inject)")
     size: float | None = Field(
         None,
         allow_inf_nan=False,
