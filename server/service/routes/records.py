@@ -1,7 +1,7 @@
 """Recording the live source: ``POST /api/record``, ``GET /api/records`` and the files.
 
-A recording is a measured log in DESIGN's format (CSV + JSON sidecar) in the
-recordings area of the data directory; it is what the residual loop reads next
+A recording is a measured log in the design's format (docs/design.md: CSV + JSON sidecar)
+in the recordings area of the data directory; it is what the residual loop reads next
 (``POST /api/analyses``, ``cutwatch residual``).
 """
 
