@@ -1,4 +1,4 @@
-"""DESIGN's canonical effect names ("Canonical effect names"), defined once.
+"""The canonical effect names (docs/design.md, "Residual report"), defined once.
 
 The simulator (:data:`machine.effects.EFFECT_NAMES`: what it can produce) and the
 residual analyses (``FAMILIES`` plus ``NOT_OFFERED`` in :mod:`estimators.residual` and
@@ -25,10 +25,10 @@ CANONICAL_EFFECT_NAMES: tuple[str, ...] = (
     "drift",
 )
 
-#: effects of a real drive, beyond DESIGN's list (docs/residual-emps.md): friction that
+#: effects of a real drive, beyond the first list (docs/residual-emps.md): friction that
 #: varies along the travel, a force periodic in position of a searched period with a
 #: direction part, the whole effort acting late, a first-order force-loop lag. The rigid
-#: analysis fits them; DESIGN's list grows by these names (said in the closing note:
+#: analysis fits them; the design's list grows by these names (said in the closing note:
 #: the design card lives outside this repository).
 REAL_DRIVE_EFFECT_NAMES: tuple[str, ...] = (
     "position_friction",

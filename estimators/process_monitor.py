@@ -76,10 +76,11 @@ import numpy as np
 from numba import njit
 
 from common.arrays import F64
+from common.event_kinds import ProcessEventKind
 from estimators.errors import ParameterError, require_in, require_positive
 
 #: the detectors, in the order of their ids in the alarm table
-DETECTORS = ("breakage", "collision", "missing_tool")
+DETECTORS: tuple[ProcessEventKind, ...] = tuple(ProcessEventKind)
 #: teach arrays per (segment, bin)
 _TEACH = ("cnt", "m_sum", "m_sq", "m_min", "pk_sum", "pk_max", "d_max")
 #: per-execution accumulators per bin
@@ -181,7 +182,7 @@ class Alarm:
     """One alarm: detector, the sample (index in the monitor's own count), the segment
     key and the statistic beside its limit."""
 
-    detector: str
+    detector: ProcessEventKind
     sample: int
     tool: int
     program: str

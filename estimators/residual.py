@@ -3,7 +3,7 @@ r"""The rigid residual model: IDIM-LS of a one-position axis and its effect fami
 The nominal model is the rigid inverse dynamic model of :mod:`estimators.idim`,
 identified by IDIM-LS on the fitting part of the record (the first
 ``1 - holdout_fraction``). Each candidate effect is a family of extra regressor columns
-(the registry :data:`FAMILIES`, :mod:`estimators.residual_families`: DESIGN's canonical
+(the registry :data:`FAMILIES`, :mod:`estimators.residual_families`: the canonical
 families and the real-drive ones) whose *shape* parameters (period, frequency, velocity
 scale, delay) are searched on the residual; its *linear* coefficients are refitted
 jointly with the nominal parameters. :class:`RigidModel` is this model as the engine
@@ -62,7 +62,8 @@ from estimators.residual_shapes import SEARCH_SAMPLES, unexplained_structure
 
 #: the rigid model's family registry (estimators.residual_families: one entry per family)
 FAMILIES: Mapping[str, Family] = OFFERED
-#: families of DESIGN not offered for a rigid one-position log, with the reason
+#: canonical families (docs/design.md) not offered for a rigid one-position log, with the
+#: reason
 NOT_OFFERED: dict[str, str] = {
     "torque_ripple": "needs motor and load positions (q_l) to separate from position_periodic",
     "backlash": "needs a load-side position (q_l)",

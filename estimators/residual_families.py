@@ -4,7 +4,7 @@ Each family is a set of extra regressor columns of the rigid inverse dynamic mod
 (:mod:`estimators.idim`), linear in its coefficients, with *shape* parameters (a delay,
 a period, a polynomial order) fixed beforehand from the residual of the current model.
 :data:`FAMILIES` holds all of them, one :class:`Family` entry each (columns, column
-names, shape search, derived figures, meaning): DESIGN's canonical families
+names, shape search, derived figures, meaning): the canonical families (docs/design.md)
 (:data:`CANONICAL`: offset, inertia, viscous, coulomb_asymmetry, stribeck,
 position_periodic, harmonic, delay, drift; columns in the comment above it) and the
 real-drive families (:data:`DRIVE`, below); :data:`OFFERED` is what
@@ -43,7 +43,7 @@ given (contiguous blocks in time; the fewest columns within 0.5 % of the best he
 error), so a family does not grow columns the data cannot support; when no structure
 beats the constant alone, the family has no shape (it is not scored). Where the data
 supports only one or two harmonics independent of the direction, ``position_harmonics``
-stands back (no shape): that is DESIGN's ``position_periodic``, offered under its name.
+stands back (no shape): that is the canonical ``position_periodic``, offered under its name.
 
 ``force_lag`` is 0 within :data:`LAG_EDGE_S` of both ends of a record (the position
 filter's edge transient, differentiated three times). ``viscous_asymmetry`` and
@@ -473,7 +473,7 @@ def _none(
 
 
 # ------------------------------------------------------------- the canonical families
-# (DESIGN's names; columns with v = qd: offset 1, inertia qdd, viscous v,
+# (the canonical names; columns with v = qd: offset 1, inertia qdd, viscous v,
 # coulomb_asymmetry 1[v>0] and |v|, stribeck sign(v) exp(-(|v|/v_s)^2), position_periodic
 # cos, sin(2 pi k q / P) for k = 1, 2, harmonic cos, sin(2 pi f t), delay P(t-d) - P(t)
 # with P the nominal effort, drift (t - t0) / T)

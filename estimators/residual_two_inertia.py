@@ -79,7 +79,8 @@ from estimators.residual_shapes import (
     unexplained_structure,
 )
 
-#: families of DESIGN not offered for a two-inertia log, with the reason (measured)
+#: canonical families (docs/design.md) not offered for a two-inertia log, with the reason
+#: (measured)
 NOT_OFFERED_TWO_INERTIA: dict[str, str] = {
     "delay": (
         "its column tau(t-d) - tau(t) fits the observer's own discretisation floor in the "

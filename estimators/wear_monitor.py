@@ -136,11 +136,17 @@ class ToolLifeParams:
             )
 
 
+# Index of each entry of ToolLifeState.misc: the static gain D and the offset of seed004
+# (24)-(25), the previous pass's feed f and mean force F, the passes so far, the previous
+# pass's end time and the first pass's
+MISC_D, MISC_OFFSET, MISC_FEED, MISC_FORCE, MISC_PASSES, MISC_T, MISC_T_FIRST = range(7)
+
+
 @dataclass(frozen=True, eq=False)
 class ToolLifeState:
     """Explicit state: static gain, offset, last pass, and the trend's weighted sums."""
 
-    misc: F64  # [D, offset, f_prev, F_prev, passes, t_prev, t_first]
+    misc: F64  # [D, offset, f_prev, F_prev, passes, t_prev, t_first]: the MISC_* indices
     sums: F64  # weighted sums of t^0..t^4, t^0..t^2 VB, VB^2; pass count
     # wear law: [z (low-passed F/(f d)), force lost to the crater C [N]]
     law: F64 = field(default_factory=lambda: np.zeros(2))
@@ -249,25 +255,28 @@ class ToolLifeMonitor:
         lam = float(p.trend_forgetting)
         for j in range(n):
             tj, Fj, fj = float(ta[j]), float(Fa[j]), float(fa[j])
-            feed_changed = misc[4] > 0.5 and abs(fj - misc[2]) > p.feed_tolerance * misc[2]
-            if misc[4] < 0.5:
+            feed_changed = (
+                misc[MISC_PASSES] > 0.5
+                and abs(fj - misc[MISC_FEED]) > p.feed_tolerance * misc[MISC_FEED]
+            )
+            if misc[MISC_PASSES] < 0.5:
                 # seed004 (25): the first pass is cut with a sharp tool
-                misc[0] = Fj / fj
-                misc[1] = 0.0
-                misc[6] = tj
-            elif misc[4] < 1.5 and p.extrapolate_sharp_force and not feed_changed:
+                misc[MISC_D] = Fj / fj
+                misc[MISC_OFFSET] = 0.0
+                misc[MISC_T_FIRST] = tj
+            elif misc[MISC_PASSES] < 1.5 and p.extrapolate_sharp_force and not feed_changed:
                 # seed004 (25) with y(0) extrapolated to t = 0 from the first two pass means
-                m1 = 0.5 * misc[6]
-                m2 = 0.5 * (misc[6] + tj)
-                f0 = misc[3] - (Fj - misc[3]) * m1 / (m2 - m1)
-                misc[0] = f0 / fj
+                m1 = 0.5 * misc[MISC_T_FIRST]
+                m2 = 0.5 * (misc[MISC_T_FIRST] + tj)
+                f0 = misc[MISC_FORCE] - (Fj - misc[MISC_FORCE]) * m1 / (m2 - m1)
+                misc[MISC_D] = f0 / fj
             elif feed_changed:
                 # section 4.3.1: D from the change of force over the change of feed
-                d_new = (Fj - misc[3]) / (fj - misc[2])
-                misc[1] += (misc[0] - d_new) * misc[2]
-                misc[0] = d_new
+                d_new = (Fj - misc[MISC_FORCE]) / (fj - misc[MISC_FEED])
+                misc[MISC_OFFSET] += (misc[MISC_D] - d_new) * misc[MISC_FEED]
+                misc[MISC_D] = d_new
             # seed004 (24)
-            dy = Fj - misc[0] * fj - misc[1]
+            dy = Fj - misc[MISC_D] * fj - misc[MISC_OFFSET]
             lp = p.law
             # the law's constants hold for one feed: passes at another feed use the
             # polynomial trend and the constant crater rate (and do not enter the law)
@@ -275,7 +284,7 @@ class ToolLifeMonitor:
             if law_ok and lp is not None and self._law is not None:
                 # the wear law's inputs over this pass (force held over the pass):
                 # seed004 (3)'s low-pass of F/(f d) and seed004 (5)'s crater force loss
-                dt = tj - (misc[5] if misc[4] > 0.5 else 0.0)
+                dt = tj - (misc[MISC_T] if misc[MISC_PASSES] > 0.5 else 0.0)
                 e = math.exp(-dt / lp.tau_abrasive)
                 u = Fj / (fj * lp.depth)
                 zbar = u + (law[0] - u) * lp.tau_abrasive / dt * (1.0 - e)
@@ -301,7 +310,9 @@ class ToolLifeMonitor:
             trend = rate = rul = sd = frac = math.nan
             m = int(p.trend_order) + 1
             if S[9] >= p.min_trend_passes:
-                fit = self._life(S, m, tj, law_ok, hist_rows, law, misc[0] * fj + misc[1])
+                fit = self._life(
+                    S, m, tj, law_ok, hist_rows, law, misc[MISC_D] * fj + misc[MISC_OFFSET]
+                )
                 if fit is not None:
                     trend, rate, rul, sd = fit
                     if not p.life_sd:
@@ -309,11 +320,11 @@ class ToolLifeMonitor:
                     frac = tj / (tj + rul) if math.isfinite(rul) else 0.0
                     warn[j] = frac >= p.warning_fraction
                     alarm[j] = frac >= p.alarm_fraction or trend >= p.vb_limit
-            out["dy"][j], out["D"][j], out["vb"][j] = dy, misc[0], vb
+            out["dy"][j], out["D"][j], out["vb"][j] = dy, misc[MISC_D], vb
             out["trend"][j], out["rate"][j], out["rul"][j] = trend, rate, rul
             out["sd"][j], out["frac"][j] = sd, frac
-            misc[2], misc[3], misc[5] = fj, Fj, tj
-            misc[4] += 1.0
+            misc[MISC_FEED], misc[MISC_FORCE], misc[MISC_T] = fj, Fj, tj
+            misc[MISC_PASSES] += 1.0
         rec = ToolLifeRecord(
             ta.copy(), out["dy"], out["D"], out["vb"], out["trend"], out["rate"], out["rul"],
             out["sd"], out["frac"], warn, alarm,
@@ -342,7 +353,7 @@ def _passes(
     if not np.all(np.isfinite(fa)) or np.any(fa <= 0):
         bad = fa[~(np.isfinite(fa) & (fa > 0))][0]
         raise ParameterError("feed", "a feed > 0 mm/rev for every pass", float(bad))
-    prev_t = state.misc[5] if state.misc[4] > 0.5 else 0.0
+    prev_t = state.misc[MISC_T] if state.misc[MISC_PASSES] > 0.5 else 0.0
     if np.any(np.diff(np.concatenate([[prev_t], ta])) <= 0):
         raise ParameterError("t", "strictly increasing cutting times", ta.tolist()[:5])
     return ta, Fa, fa

@@ -1,4 +1,4 @@
-"""Optional plant effects, all off by default (DESIGN's canonical names).
+"""Optional plant effects, all off by default (the canonical names of docs/design.md).
 
 They make the simulated stage differ from the model the estimators are told about, so
 that the residual loop has something real to find. Each effect has a magnitude and its
@@ -14,7 +14,7 @@ import numpy as np
 
 from machine.errors import ParameterError, require_nonnegative, require_positive
 
-#: DESIGN's canonical names of the effects the simulator can produce.
+#: The canonical names (docs/design.md) of the effects the simulator can produce.
 EFFECT_NAMES: tuple[str, ...] = (
     "offset",
     "coulomb_asymmetry",

@@ -40,12 +40,14 @@ import numpy as np
 from numba import njit
 
 from common.arrays import F64
+from common.event_kinds import ProcessEventKind
 from machine.errors import ParameterError, require_in, require_nonnegative, require_positive
 from machine.feed_drives import FeedDriveParams
 from machine.milling import check_rpm, drive_step
 
 #: event kinds the simulator injects
-EVENT_KINDS = ("breakage", "collision", "missing_tool")
+#: the kinds of event the simulator injects (:class:`common.event_kinds.ProcessEventKind`)
+EVENT_KINDS: tuple[ProcessEventKind, ...] = tuple(ProcessEventKind)
 #: per-sample output rows of :func:`_process_kernel`
 _ROWS = ("fx", "fy", "x", "y", "ix", "iy", "psi", "engaged")
 
@@ -201,14 +203,14 @@ class ProcessEvent:
 
     def __post_init__(self) -> None:
         if self.kind not in EVENT_KINDS:
-            raise ParameterError("kind", f"one of {EVENT_KINDS}", self.kind)
+            raise ParameterError("kind", "one of " + ", ".join(EVENT_KINDS), self.kind)
         if int(self.part) != self.part or self.part < 0:
             raise ParameterError("part", "a part index >= 0", self.part)
         require_in("fraction", self.fraction, 0.0, 1.0, hi_open=True)
         require_positive("size", self.size)
-        if self.kind == "collision" and self.size <= 1.0:
+        if self.kind == ProcessEventKind.COLLISION and self.size <= 1.0:
             raise ParameterError("size", "a feed multiplier > 1 for a collision", self.size)
-        if self.kind == "missing_tool" and self.size > 1.0:
+        if self.kind == ProcessEventKind.MISSING_TOOL and self.size > 1.0:
             raise ParameterError("size", "a share in (0, 1] for a missing tool", self.size)
 
 
@@ -662,9 +664,9 @@ class ProcessMachine:
         at = int(at)
         run.k_ev = at
         run.event = ev.kind
-        if ev.kind == "breakage":
+        if ev.kind == ProcessEventKind.BREAKAGE:
             run.dr1[ev.flute % run.tool.n_flutes] -= ev.size
-        elif ev.kind == "collision":
+        elif ev.kind == ProcessEventKind.COLLISION:
             run.feed_mul = ev.size
             if run.blk.cut:
                 # the tool driven on at the wrong feed stays in the part (no exit)
@@ -725,7 +727,7 @@ class ProcessMachine:
         limit is replaced by a fresh instance."""
         inst = self.instances[run.tool.number]
         tool = run.tool
-        if run.event == "breakage" and run.done > run.k_ev:
+        if run.event == ProcessEventKind.BREAKAGE and run.done > run.k_ev:
             inst.dr[: tool.n_flutes] = run.dr1
         if run.blk.cut:
             inst.wear += tool.wear_per_s * run.done * self.sample_time

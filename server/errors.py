@@ -12,7 +12,7 @@ class CutwatchError(Exception):
 
 
 class LogFormatError(CutwatchError, ValueError):
-    """A measured log (file, column, row) does not match DESIGN's log format."""
+    """A measured log (file, column, row) does not match the log format (docs/design.md)."""
 
 
 def is_user_error(exc: BaseException) -> bool:

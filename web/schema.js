@@ -206,8 +206,8 @@ export const SCHEMA = {
  * One monitor event (:class:`server.records.monitor_events.MonitorEvent`) as the stream, the snapshot and the history's REST carry it, with its acknowledgement.
  * @typedef {Object} Event
  * @property {string} id
- * @property {("breakage"|"collision"|"missing_tool"|"wear_limit"|"life_short")} kind
- * @property {("feed_hold"|"alarm"|"notice")} action
+ * @property {EventKind} kind
+ * @property {EventAction} action
  * @property {number} t - simulated time of the sample that raised it [s]
  * @property {number} tool - tool number (0: not known)
  * @property {string} program - program name ('': not known)
@@ -221,6 +221,16 @@ export const SCHEMA = {
  * @property {boolean} [acked] - acknowledged by an operator
  * @property {(string|null)} [acked_by] - who acknowledged it
  * @property {(number|null)} [acked_wall] - when [unix s]
+ */
+
+/**
+ * What the monitor asks for when it raises an event.
+ * @typedef {("feed_hold"|"alarm"|"notice")} EventAction
+ */
+
+/**
+ * What raised a monitor event: a process detector or the tool-life monitor.
+ * @typedef {("breakage"|"collision"|"missing_tool"|"wear_limit"|"life_short")} EventKind
  */
 
 /**

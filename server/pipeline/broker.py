@@ -7,7 +7,7 @@ paho reconnects by itself with an exponential backoff (``reconnect_delay_set``),
 aiomqtt is itself a wrapper around paho for asyncio code. ``cutwatch feed`` and the
 fleet page use the same client.
 
-Topics (DESIGN "Broker"): ``cutwatch/<machine>/drive`` (blocks in),
+Topics (docs/design.md, "Broker"): ``cutwatch/<machine>/drive`` (blocks in),
 ``cutwatch/<machine>/meta`` (retained sidecar), ``cutwatch/<machine>/estimates``,
 ``cutwatch/<machine>/events`` and ``cutwatch/<machine>/command`` (out). Who may publish
 what is the broker's access list (deploy/mosquitto/acl, docs/broker.md).

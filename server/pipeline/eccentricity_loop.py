@@ -26,6 +26,7 @@ from common.arrays import F64
 from estimators.esc import EscParams, EscState, ExtremumSeekingController, positive_polar
 from estimators.fast_tuner import FastTuner, FastTunerParams, FastTunerState
 from estimators.force_observer import LoadParams, TorsionEstimator, TorsionState
+from machine.feed_drives import FeedDriveParams
 from machine.milling import MillingMachine, MillingParams, MillingRecord
 
 #: A force estimator: takes a machine block record, returns (fx_hat, fy_hat) [N].
@@ -65,8 +66,9 @@ class ObserverForceSource:
 
     Parameters
     ----------
-    machine : MillingMachine
-        Supplies the nominal mass, friction and force constant of each axis.
+    drives : FeedDriveParams
+        The feed drives: the nominal mass, friction and force constant of each axis
+        (``MillingMachine.drives.params``, ``ProcessMachine.drives``).
     mass_error : float
         Relative error of the observer's nominal mass (0: exact).
     resolution : float
@@ -81,7 +83,7 @@ class ObserverForceSource:
 
     def __init__(
         self,
-        machine: MillingMachine,
+        drives: FeedDriveParams,
         *,
         mass_error: float = 0.0,
         resolution: float = 5e-9,
@@ -98,7 +100,7 @@ class ObserverForceSource:
             raise CutwatchError("current_noise > 0 needs a seeded rng (numpy Generator)")
         self.current_noise = float(current_noise)
         self.rng = rng
-        dp = machine.drives.params
+        dp = drives
         self.resolution = float(resolution)
         self._est: list[TorsionEstimator] = []
         self._state: list[TorsionState] = []
@@ -187,7 +189,7 @@ class AdaptiveObserverForceSource(ObserverForceSource):
             excitation_order,
         )
 
-        super().__init__(machine, mass_error=mass_error, **kw)
+        super().__init__(machine.drives.params, mass_error=mass_error, **kw)
         order = excitation_order(machine.milling.n_flutes, window_revs)
         self.excitation = (excitation_um * 1e-6, order)
         self.stop_after = stop_after

@@ -163,7 +163,7 @@ class LiveEccentricity:
         src: ForceSource | None = None
         me = mass_error_pct / 100.0
         if force == "observer":
-            src = ObserverForceSource(m, mass_error=me)
+            src = ObserverForceSource(m.drives.params, mass_error=me)
         elif force == "adaptive":
             # identify, then hold, when the fast tuner runs (module docstring)
             stop = 2 if lp.tuner == "fast" else None

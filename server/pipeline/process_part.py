@@ -58,8 +58,9 @@ import numpy as np
 
 from common.arrays import F64
 from common.errors import ParameterError
+from common.event_kinds import EventKind, ProcessEventKind
 from estimators.process_monitor import Alarm, MonitorParams, ProcessMonitor
-from machine.milling import MillingMachine, MillingRecord
+from machine.milling import MillingRecord
 from machine.process import (
     EVENT_KINDS,
     BlockRun,
@@ -83,19 +84,29 @@ from server.pipeline.part import (
 from server.records.monitor_events import DEFAULT_ACTIONS, MonitorEvent
 
 #: default size of each injected kind: the middle of the reproduction's clear range
-CLEAR_SIZES: dict[str, float] = {"breakage": 0.4e-3, "collision": 6.0, "missing_tool": 1.0}
+CLEAR_SIZES: dict[ProcessEventKind, float] = {
+    ProcessEventKind.BREAKAGE: 0.4e-3,
+    ProcessEventKind.COLLISION: 6.0,
+    ProcessEventKind.MISSING_TOOL: 1.0,
+}
 #: the sizes an injection accepts: (lower bound (open), upper bound (closed), unit, what)
-SIZE_RANGES: dict[str, tuple[float, float, str, str]] = {
-    "breakage": (0.0, 2e-3, "m", "radius lost by the flute"),
-    "collision": (1.0, 20.0, "", "feed multiplier"),
-    "missing_tool": (0.0, 1.0, "", "share of the engagement lost"),
+SIZE_RANGES: dict[ProcessEventKind, tuple[float, float, str, str]] = {
+    ProcessEventKind.BREAKAGE: (0.0, 2e-3, "m", "radius lost by the flute"),
+    ProcessEventKind.COLLISION: (1.0, 20.0, "", "feed multiplier"),
+    ProcessEventKind.MISSING_TOOL: (0.0, 1.0, "", "share of the engagement lost"),
 }
 #: the monitor's states, as streamed in ``mon_state``
 STATES = ("teaching", "watching", "alarm")
 #: an injected event's kind, as streamed in ``mon_event_true`` (0: none)
-KIND_CODES = {k: i + 1 for i, k in enumerate(EVENT_KINDS)}
+KIND_CODES: dict[str, int] = {k: i + 1 for i, k in enumerate(EVENT_KINDS)}
+#: the detectors whose alarm means the tool is lost (the shop changes it)
+_TOOL_LOST = (ProcessEventKind.BREAKAGE, ProcessEventKind.MISSING_TOOL)
 #: unit of each detector's statistic
-_UNITS = {"breakage": "1", "collision": "N", "missing_tool": "N"}
+_UNITS = {
+    ProcessEventKind.BREAKAGE: "1",
+    ProcessEventKind.COLLISION: "N",
+    ProcessEventKind.MISSING_TOOL: "N",
+}
 
 #: channel name -> (unit, label); group "monitor"
 MON_CHANNELS: dict[str, tuple[str, str]] = {
@@ -118,13 +129,6 @@ MON_CHANNELS: dict[str, tuple[str, str]] = {
         "(1 breakage, 2 collision, 3 missing tool, 0 none)",
     ),
 }
-
-
-class _DriveShape:
-    """What :class:`ObserverForceSource` reads of a machine: ``drives.params``."""
-
-    def __init__(self, params: Any) -> None:
-        self.drives = type("drives", (), {"params": params})()
 
 
 @dataclass
@@ -178,7 +182,7 @@ class LiveProcess:
         rng = np.random.default_rng([21, int(seed)])
         machine = ProcessMachine(default_program(), rng=np.random.default_rng(rng.integers(2**32)))
         observer = ObserverForceSource(
-            cast(MillingMachine, _DriveShape(machine.drives)),
+            machine.drives,
             mass_error=0.02,
             current_noise=0.01,
             rng=np.random.default_rng(rng.integers(2**32)),
@@ -232,9 +236,9 @@ class LiveProcess:
         """
         if kind not in EVENT_KINDS:
             raise ParameterError("kind", "one of " + ", ".join(EVENT_KINDS), kind)
-        lo, hi, unit, what = SIZE_RANGES[kind]
+        lo, hi, unit, what = SIZE_RANGES[ProcessEventKind(kind)]
         if size is None:
-            size = CLEAR_SIZES[kind]
+            size = CLEAR_SIZES[ProcessEventKind(kind)]
         if (
             isinstance(size, bool)
             or not isinstance(size, int | float)
@@ -393,7 +397,7 @@ class LiveProcess:
     def _place(self, run: BlockRun, inj: Injection, at: int) -> None:
         ps = self.ps
         flute = inj.flute
-        if inj.kind == "breakage":
+        if inj.kind == ProcessEventKind.BREAKAGE:
             # the flute with the most edge left (a flute broken already, and not yet
             # changed, would lose nothing more)
             flute = int(np.argmax(run.dr1[: run.tool.n_flutes]))
@@ -433,7 +437,7 @@ class LiveProcess:
             state[j:] = 2.0
             ps.alarmed = True
             events.append(self._event(a, float(rec.t[j]), run.part))
-            if a.detector in ("breakage", "missing_tool") and all(
+            if a.detector in _TOOL_LOST and all(
                 number != rec.tool for number, _ in ps.replace_tools
             ):
                 ps.replace_tools.append((rec.tool, a.detector))
@@ -463,14 +467,14 @@ class LiveProcess:
         return rows, events
 
     def _event(self, a: Alarm, t: float, part: int) -> MonitorEvent:
-        kind = a.detector
+        kind = EventKind(a.detector)
         where = f"T{a.tool} at N{a.line} (program {a.program}, part {part})"
-        if kind == "breakage":
+        if kind == EventKind.BREAKAGE:
             msg = (
                 f"Tool breakage suspected on {where}: the once-per-revolution force pattern "
                 f"changed by {a.value:.2f} of the mean force (limit {a.limit:.2f})."
             )
-        elif kind == "collision":
+        elif kind == EventKind.COLLISION:
             msg = (
                 f"Collision or overload on {where}: force {a.value:.0f} N over the extreme "
                 f"limit {a.limit:.0f} N."
@@ -490,7 +494,7 @@ class LiveProcess:
             part=part,
             value=a.value,
             limit=a.limit,
-            unit=_UNITS[kind],
+            unit=_UNITS[a.detector],
             message=msg,
         )
 
@@ -695,7 +699,7 @@ class ProcessPart(LivePart):
                     "end_t": c["end_t"],
                     "wear_at_change_mm": None,
                     "wear_true_share": float(wear) / program.tool(number).wear_limit,
-                    "cause": "wear_limit" if cause == "worn" else cause,
+                    "cause": EventKind.WEAR_LIMIT if cause == "worn" else cause,
                 }
             )
         return out

@@ -1,11 +1,13 @@
 """Measurement sources: where the live pipeline's Measurements come from.
 
-A simulated run, a recorded log and (next) a live feed from a real machine are the same
-thing to the observers (DESIGN, "measurement source"): a stream of blocks of
+A simulated run, a recorded log and a live feed from a real machine are the same thing to
+the observers (docs/design.md, "measurement source"): a stream of blocks of
 :class:`machine.stage.Measurements`, with :class:`machine.stage.Truth` beside them only
 when the source is the simulator. :class:`server.pipeline.live_pipeline.LivePipeline`
 consumes any object that satisfies :class:`MeasurementSource`; it never asks which kind
-of source it has.
+of source it has. The sources: :class:`SimulatorSource` and :class:`ReplaySource` (a
+measured log) here, :class:`server.pipeline.mqtt_source.MqttSource` (a machine's drive
+data from a broker) beside them.
 
 The interface
 -------------

@@ -98,7 +98,11 @@ class StageRunState:
 
 
 def observer_params_for(cfg: StageConfig, **design: Any) -> ObserverParams:
-    return _observer_params(cfg.nominal or cfg.params, cfg.sample_time, cfg.encoder_resolution)
+    """The force observer's parameters for a simulated stage: its nominal (or true)
+    parameters, its sample time and encoder, and ``design`` (e.g. ``q_hz``) on top."""
+    return _observer_params(
+        cfg.nominal or cfg.params, cfg.sample_time, cfg.encoder_resolution, **design
+    )
 
 
 def _observer_params(

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import math
 
+from common.event_kinds import EventKind
 from server.records.monitor_events import DEFAULT_ACTIONS, MonitorEvent
 
 #: wear alarms: the estimated flank wear at this share of its limit, remaining life below
@@ -75,8 +76,8 @@ class WearAlarms:
         tool, line, part = ids.get("tool", 0), ids.get("line", 0), ids.get("part", -1)
         return [
             MonitorEvent(
-                kind=kind,
-                action=DEFAULT_ACTIONS[kind],
+                kind=EventKind(kind),
+                action=DEFAULT_ACTIONS[EventKind(kind)],
                 t=t,
                 tool=int(tool) if isinstance(tool, int | float) else 0,
                 program=str(ids.get("program", "") or ""),

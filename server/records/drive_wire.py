@@ -10,11 +10,11 @@ Three payloads travel on ``cutwatch/<machine>/...`` (docs/broker.md):
               "sample_time": s, "n": samples,
               "columns": [{"name": "tau_m", "dtype": "<f4", "unit": "N m"}, ...]}
 
-  The body holds each column's ``n`` values in the header's order, little-endian
-  (``<f4`` float32 or ``<f8`` float64 per column). Sample ``i`` is at ``t0 + i *
-  sample_time``: time is uniform within a block (DESIGN's log contract), so it costs no
-  column. ``seq`` counts blocks from 0 per publisher run; with ``t0`` it reveals gaps,
-  duplicates and blocks out of order. An optional ``wall`` (the publisher's clock at
+  The body holds each column's ``n`` values in the header's order, little-endian (``<f4``
+  float32 or ``<f8`` float64 per column). Sample ``i`` is at ``t0 + i * sample_time``:
+  time is uniform within a block (the measured log's contract, docs/design.md), so it
+  costs no column. ``seq`` counts blocks from 0 per publisher run; with ``t0`` it reveals
+  gaps, duplicates and blocks out of order. An optional ``wall`` (the publisher's clock at
   publishing, unix s) lets the receivers measure latency. Columns: ``q_m`` and one of
   ``tau_m``/``i_m`` are required; ``q_l`` and ``f_ext`` are optional. Positions should
   travel as ``<f8``: a float32 angle of 1000 rad resolves only 6e-5 rad, coarser than a

@@ -1,6 +1,6 @@
 """Measured logs: read and check them (CSV + JSON sidecar, MATLAB ``.mat``), write them.
 
-The format is DESIGN's "Measured log": a CSV with a header row, one sample per row,
+The format is docs/design.md's "Measured log": a CSV with a header row, one sample per row,
 uniform sampling, SI units, and an optional JSON sidecar with the same stem. Other
 tables come in through a column map, ``COL=EXPR`` with ``EXPR`` one of ``name``,
 ``name*scale`` or ``name*scale+offset`` (``scale`` a number or, in a ``.mat`` file, the
@@ -11,7 +11,7 @@ A sidecar (or ``--meta``) with ``axes`` describes a machine (``common/machine.sc
 issue 30): the log then keeps every column its signals name (any column name; ``t`` or
 the description's ``sample_time`` for time), each axis' required signals must be there,
 an optional one may be absent or hold NaN, and ``MeasuredLog.description`` holds the
-machine. A sidecar without ``axes`` is the one-axis log of DESIGN's table
+machine. A sidecar without ``axes`` is the one-axis log of the design's table
 (``MeasuredLog.machine`` reads it as :func:`common.machine_description.from_legacy`).
 
 Every check failure raises :class:`server.errors.LogFormatError` with a message naming
@@ -534,7 +534,7 @@ def load_log(
     selection: RowSelection | None = None,
     current_ok: bool = False,
 ) -> MeasuredLog:
-    """Read a measured log and check it against DESIGN's log format.
+    """Read a measured log and check it against the log format (docs/design.md).
 
     Parameters
     ----------

@@ -22,24 +22,38 @@ import math
 import uuid
 from collections import deque
 from dataclasses import asdict, dataclass, field
+from enum import StrEnum
 from typing import Any
+
+from common.event_kinds import EventKind
 
 #: the wire schema's name and version (``cutwatch/<machine>/events``)
 SCHEMA = "cutwatch.event"
 VERSION = 1
 
-#: what raised an event
-KINDS = ("breakage", "collision", "missing_tool", "wear_limit", "life_short")
-#: what the monitor asks for: ``feed_hold`` (a command to the edge device, which the CNC
-#: carries out), ``alarm`` (an operator must look), ``notice`` (recorded, no alarm)
-ACTIONS = ("feed_hold", "alarm", "notice")
-#: the action of each kind unless the service's settings say otherwise
-DEFAULT_ACTIONS: dict[str, str] = {
-    "breakage": "feed_hold",
-    "collision": "feed_hold",
-    "missing_tool": "feed_hold",
-    "wear_limit": "alarm",
-    "life_short": "notice",
+#: what raised an event (:class:`common.event_kinds.EventKind`)
+KINDS: tuple[EventKind, ...] = tuple(EventKind)
+
+
+class EventAction(StrEnum):
+    """What the monitor asks for when it raises an event."""
+
+    #: a command to the edge device, which the CNC carries out
+    FEED_HOLD = "feed_hold"
+    #: an operator must look
+    ALARM = "alarm"
+    #: recorded, no alarm
+    NOTICE = "notice"
+
+
+ACTIONS: tuple[EventAction, ...] = tuple(EventAction)
+#: the action of each kind
+DEFAULT_ACTIONS: dict[EventKind, EventAction] = {
+    EventKind.BREAKAGE: EventAction.FEED_HOLD,
+    EventKind.COLLISION: EventAction.FEED_HOLD,
+    EventKind.MISSING_TOOL: EventAction.FEED_HOLD,
+    EventKind.WEAR_LIMIT: EventAction.ALARM,
+    EventKind.LIFE_SHORT: EventAction.NOTICE,
 }
 
 
@@ -94,8 +108,8 @@ class MonitorEvent:
         The machine's name ("" inside one service; the broker's topic names it).
     """
 
-    kind: str
-    action: str
+    kind: EventKind
+    action: EventAction
     t: float
     tool: int = 0
     program: str = ""
@@ -115,6 +129,9 @@ class MonitorEvent:
             raise ValueError(f"action: expected one of {', '.join(ACTIONS)}, got {self.action!r}")
         if not math.isfinite(self.t):
             raise ValueError(f"t: expected a finite time [s], got {self.t!r}")
+        # a string read back (JSON, the database, the broker) becomes its member
+        object.__setattr__(self, "kind", EventKind(self.kind))
+        object.__setattr__(self, "action", EventAction(self.action))
 
     def as_dict(self) -> dict[str, Any]:
         """A JSON-safe dict (NaN -> None)."""

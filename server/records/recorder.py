@@ -1,4 +1,4 @@
-"""Record what the live source delivers into a measured log (DESIGN's format).
+"""Record what the live source delivers into a measured log (docs/design.md's format).
 
 A :class:`Recorder` appends blocks of samples to a temporary CSV in the recordings
 directory as they come (nothing is held in memory but the current block), and on
@@ -8,7 +8,7 @@ whole or not at all under its name. It stops by itself at a maximum size or dura
 ends the uniformly sampled segment: the recorder closes the file there and says so, so
 the log stays valid for ``cutwatch residual``.
 
-A recording keeps every column it is handed: the one-axis columns of DESIGN's table
+A recording keeps every column it is handed: the one-axis columns of the design's table
 (``tau_m``, ``q_m``...) and a machine's own (``X_q``, ``S_power``, the identities...),
 under their names, with the machine description in the sidecar (its ``axes``), so that
 the recording reads back (``load_log``) as the same machine. NaN (a value not known)
@@ -29,7 +29,7 @@ import numpy as np
 
 from server.errors import CutwatchError
 
-#: the columns of DESIGN's table, written first and in this order when present
+#: the columns of the design's table (docs/design.md), written first and in this order
 COLUMNS = ("t", "tau_m", "i_m", "q_m", "q_l", "f_ext")
 
 
@@ -41,7 +41,7 @@ class Recorder:
     path : Path
         Final CSV path (its sidecar goes beside it, ``.json``).
     sidecar : mapping
-        Sample time, units, kind, nominal... (DESIGN's sidecar keys).
+        Sample time, units, kind, nominal... (the design's sidecar keys).
     max_bytes, max_seconds : float
         Limits; the recorder stops itself when one is reached.
     """
@@ -164,7 +164,7 @@ class Recorder:
 
 
 def _names(block: Mapping[str, Any]) -> list[str]:
-    """The block's columns in the recording's order: ``t``, DESIGN's, then the others."""
+    """The block's columns in the recording's order: ``t``, the design's, then the others."""
     if "t" not in block:
         raise CutwatchError(f"recording: a block without column 't' ({sorted(block)[:8]})")
     present = [c for c, v in block.items() if v is not None]

@@ -1,4 +1,4 @@
-"""The residual report of DESIGN: ``report.json``, ``estimates.csv`` and ``report.html``.
+"""The residual report (docs/design.md): ``report.json``, ``estimates.csv``, ``report.html``.
 
 All three files are rendered in memory, written to a temporary directory beside the
 output directory and moved into place only when complete, so a failure leaves no
@@ -70,7 +70,7 @@ def report_dict(
     validation: Mapping[str, Any] | None = None,
     notes: Sequence[str] = (),
 ) -> dict[str, Any]:
-    """The ``report.json`` object (DESIGN's contract keys plus details; ``notes``: what
+    """The ``report.json`` object (the design's contract keys plus details; ``notes``: what
     the rate, the rows used and the unit mean for this record)."""
     rep: dict[str, Any] = {
         "log": str(log.path),

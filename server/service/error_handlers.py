@@ -11,11 +11,12 @@ and Starlette's ``HTTPException`` (ours with a structured detail; the framework'
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, get_args
 
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse, Response
+from pydantic import BaseModel
 from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.routing import Match, Mount
 
@@ -114,6 +115,9 @@ async def _validation_error(request: Request, exc: RequestValidationError) -> JS
 
 
 def _validation_item(request: Request, e: Any) -> dict[str, Any]:
+    tagged = _tagged_union(request)
+    if tagged is not None:
+        e = _untagged(e, *tagged)
     loc = list(e.get("loc") or ["body"])
     kind = str(e.get("type", ""))
     ctx = e.get("ctx") or {}
@@ -126,10 +130,10 @@ def _validation_item(request: Request, e: Any) -> dict[str, Any]:
         parts = [f"[{p}]" if isinstance(p, int) else f".{p}" for p in loc[1:]]
         field = str(ctx.get("field") or "".join(parts).lstrip(".") or loc[0])
         got = None if kind == "missing" else sanitise(ctx.get("got", e.get("input")))
-    if kind == "literal_error":
+    if kind in ("literal_error", "enum"):
         allowed = f"one of {ctx.get('expected', '')}"
     elif kind == "extra_forbidden":
-        names = _body_fields(request)
+        names = ctx.get("fields") or _body_fields(request)
         allowed = "only " + ", ".join(names) if names else "no extra fields"
     elif kind in _ALLOWED:
         allowed = _ALLOWED[kind]
@@ -141,6 +145,60 @@ def _validation_item(request: Request, e: Any) -> dict[str, Any]:
     item = error(field, allowed, None, msg)
     item["got"] = got  # the input as sent (bounded), a structure kept a structure
     return item
+
+
+def _tagged_union(request: Request) -> tuple[str, dict[str, type[BaseModel]]] | None:
+    """The route's body when it is a union of models told apart by one field (``Control``
+    by its ``action``): that field, and each of its values' model."""
+    route = request.scope.get("route")
+    info = getattr(getattr(route, "body_field", None), "field_info", None)
+    tag = getattr(info, "discriminator", None)
+    if not isinstance(tag, str):
+        return None
+    models: dict[str, type[BaseModel]] = {}
+    for model in get_args(getattr(info, "annotation", None)):
+        field = getattr(model, "model_fields", {}).get(tag)
+        if field is not None:
+            models.update({str(v): model for v in get_args(field.annotation)})
+    return tag, models
+
+
+def _or_list(tags: str) -> str:
+    """``'a', 'b', 'c'`` as pydantic lists the values a literal allows: ``'a', 'b' or 'c'``."""
+    head, sep, last = tags.rpartition(", ")
+    return f"{head} or {last}" if sep else tags
+
+
+def _untagged(e: Any, tag: str, models: dict[str, type[BaseModel]]) -> Any:
+    """A tagged union's error as the same error of one flat model: the tag field refused
+    as a literal, the tag left out of a field's location, a field of the action missing
+    or belonging to another action said in those words."""
+    loc, kind, ctx = tuple(e.get("loc") or ()), e.get("type"), e.get("ctx") or {}
+    if kind == "union_tag_invalid":
+        allowed = _or_list(str(ctx.get("expected_tags", "")))
+        msg = f"Input should be {allowed}"
+        body = e.get("input")
+        got = body.get(tag) if isinstance(body, dict) else ctx.get("tag")
+        return {"type": "literal_error", "loc": (*loc, tag), "msg": msg, "input": got,
+                "ctx": {"expected": allowed}}  # fmt: skip
+    if kind == "union_tag_not_found":
+        return {"type": "missing", "loc": (*loc, tag), "msg": "Field required", "input": None}
+    if len(loc) < 2 or loc[1] not in models:
+        return e
+    action, name = str(loc[1]), loc[-1]
+    loc = (loc[0], *loc[2:])
+    if kind == "missing":
+        allowed = f"a value (required with action '{action}')"
+        return {"type": "missing_for_action", "loc": loc, "msg": allowed,
+                "ctx": {"field": name, "got": None}}  # fmt: skip
+    if kind == "extra_forbidden":
+        owner = next((t for t, m in models.items() if name in m.model_fields), None)
+        if owner is not None:
+            allowed = f"no {name} (it belongs to action '{owner}')"
+            return {"type": "refused", "loc": loc, "msg": allowed,
+                    "ctx": {"field": name, "got": e.get("input")}}  # fmt: skip
+        return {**e, "loc": loc, "ctx": {**ctx, "fields": list(models[action].model_fields)}}
+    return {**e, "loc": loc}
 
 
 def _body_fields(request: Request) -> list[str]:

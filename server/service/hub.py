@@ -96,17 +96,6 @@ class ClientQueue:
             self._hello = hello
             self._frames.clear()
 
-    def take(self) -> tuple[str | None, list[str], int]:
-        """Remove and return a pending new hello (or None), the pending frame bodies and
-        the drop count since the last take."""
-        with self._lock:
-            hello, self._hello = self._hello, None
-            frames = list(self._frames)
-            self._frames.clear()
-            dropped, self.dropped = self.dropped, 0
-            self.event.clear()
-        return hello, frames, dropped
-
     def __len__(self) -> int:
         return len(self._frames)
 

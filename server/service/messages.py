@@ -26,6 +26,9 @@ from typing import Any, ClassVar, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from common.event_kinds import EventKind
+from server.records.monitor_events import EventAction
+
 #: the stream's version, sent in ``hello`` (the page refuses a stream of another version)
 VERSION = 2
 
@@ -203,8 +206,8 @@ class Event(Versioned):
     the snapshot and the history's REST carry it, with its acknowledgement."""
 
     id: str
-    kind: Literal["breakage", "collision", "missing_tool", "wear_limit", "life_short"]
-    action: Literal["feed_hold", "alarm", "notice"]
+    kind: EventKind
+    action: EventAction
     t: float = Field(description="simulated time of the sample that raised it [s]")
     tool: int = Field(description="tool number (0: not known)")
     program: str = Field(description="program name ('': not known)")

@@ -226,9 +226,10 @@ def _typedefs() -> list[str]:
 
 
 def _typedef(name: str, schema: dict[str, Any]) -> str:
+    kind = _js_type(schema) if "enum" in schema else "Object"  # an enumeration: its values
     lines = [
         f"/**\n * {_one_line(schema.get('description', name))}",
-        f" * @typedef {{Object}} {name}",
+        f" * @typedef {{{kind}}} {name}",
     ]
     required = set(schema.get("required", []))
     for field, sub in schema.get("properties", {}).items():

@@ -24,6 +24,7 @@ from pydantic import (
 )
 from pydantic_core import PydanticCustomError
 
+from common.event_kinds import ProcessEventKind
 from server.pipeline.process_part import CLEAR_SIZES, SIZE_RANGES
 from server.records.history import CAUSES
 from server.service.messages import Accuracy, Event, LoopHealth, MonitorStatus, PartStatus
@@ -249,17 +250,6 @@ class ParamsPatch(RootModel[dict[str, KnobValue]]):
 # ------------------------------------------------------------------ control
 
 
-#: the events ``inject`` schedules in the simulator (machine.process.EVENT_KINDS)
-InjectKind = Literal["breakage", "collision", "missing_tool"]
-#: the fields of the monitor's actions, and the action each belongs to
-_ACTION_FIELDS = {
-    "kind": "inject",
-    "size": "inject",
-    "at_t": "inject",
-    "at_part": "inject",
-    "tool": "relearn",
-    "program": "relearn",
-}
 #: the longest program name (relearn)
 PROGRAM_CHARS = 32
 
@@ -271,66 +261,95 @@ def _refuse(field: str, allowed: str, got: Any) -> PydanticCustomError:
     )
 
 
-class Control(BaseModel):
-    """Body of ``POST /api/control``.
-
-    ``inject`` schedules an event in the simulated part program (a tooth breaking or
-    chipped, a collision or overload, a missing tool): ``kind``, its ``size`` (default:
-    the reproduction's clear size) and when: ``at_t`` (simulated time [s]; in an air
-    move the event waits for the next cut) or ``at_part`` (the middle of that part's
-    first cut), at most one (neither: now). ``relearn`` teaches the monitor's limits
-    again: of ``tool``, of ``program``, or all (neither).
-    """
+class _Action(BaseModel):
+    """One action of ``POST /api/control``: its fields and no other."""
 
     model_config = ConfigDict(extra="forbid")
-    action: Literal["pause", "resume", "reset", "speed", "scenario", "inject", "relearn"]
-    value: Speed | None = Field(None, description=f"speed in [0, {MAX_SPEED:g}] (action speed)")
-    scenario: ScenarioName | None = Field(None, description="scenario name (action scenario)")
-    kind: InjectKind | None = Field(None, description="the event to inject (action inject)")
-    size: float | None = Field(
-        None,
-        allow_inf_nan=False,
-        description="action inject: "
-        + "; ".join(
-            f"{k}: {what} in ({lo:g}, {hi:g}]{' ' + unit if unit else ''}"
-            for k, (lo, hi, unit, what) in SIZE_RANGES.items()
-        )
-        + " (breakage: at or above the feed per tooth the tooth is gone, below it is "
-        "chipped); default: " + ", ".join(f"{k} {v:g}" for k, v in CLEAR_SIZES.items()),
+
+
+class Pause(_Action):
+    """Hold the loop (the simulated time stands still)."""
+
+    action: Literal["pause"]
+
+
+class Resume(_Action):
+    """Run again at the speed set (1x after a speed of 0)."""
+
+    action: Literal["resume"]
+
+
+class Reset(_Action):
+    """Restart the simulation and every estimator from t = 0 (knob values kept)."""
+
+    action: Literal["reset"]
+
+
+class SetSpeed(_Action):
+    """Simulated seconds per wall second (0 pauses)."""
+
+    action: Literal["speed"]
+    value: Speed = Field(description=f"speed in [0, {MAX_SPEED:g}]")
+
+
+class SetScenario(_Action):
+    """Switch to another scenario: a fresh pipeline from t = 0, its default knobs."""
+
+    action: Literal["scenario"]
+    scenario: ScenarioName = Field(description="scenario name")
+
+
+_SIZE_DOC = (
+    "; ".join(
+        f"{k}: {what} in ({lo:g}, {hi:g}]{' ' + unit if unit else ''}"
+        for k, (lo, hi, unit, what) in SIZE_RANGES.items()
     )
-    at_t: float | None = Field(
-        None, ge=0, allow_inf_nan=False, description="action inject: simulated time [s]"
-    )
-    at_part: int | None = Field(None, ge=0, description="action inject: part counter")
-    tool: int | None = Field(None, ge=1, description="action relearn: this tool only")
-    program: str | None = Field(
-        None,
-        min_length=1,
-        max_length=PROGRAM_CHARS,
-        description="action relearn: this program only",
-    )
+    + " (breakage: at or above the feed per tooth the tooth is gone, below it is "
+    "chipped); default: " + ", ".join(f"{k} {v:g}" for k, v in CLEAR_SIZES.items())
+)
+
+
+class Inject(_Action):
+    """Schedule an event in the simulated part program (a tooth breaking or chipped, a
+    collision or overload, a missing tool): ``kind``, its ``size`` (default: the
+    reproduction's clear size) and when: ``at_t`` (simulated time [s]; in an air move the
+    event waits for the next cut) or ``at_part`` (the middle of that part's first cut),
+    at most one (neither: now)."""
+
+    action: Literal["inject"]
+    kind: ProcessEventKind = Field(description="the event to inject")
+    size: float | None = Field(None, allow_inf_nan=False, description=_SIZE_DOC)
+    at_t: float | None = Field(None, ge=0, allow_inf_nan=False, description="simulated time [s]")
+    at_part: int | None = Field(None, ge=0, description="part counter")
 
     @model_validator(mode="after")
-    def _needs(self) -> Control:
-        # the field the action needs: named like a missing field
-        for action, name in (("speed", "value"), ("scenario", "scenario"), ("inject", "kind")):
-            if self.action == action and getattr(self, name) is None:
-                raise PydanticCustomError(
-                    "missing_for_action", "a value (required with action '{action}')",
-                    {"field": name, "action": action},
-                )  # fmt: skip
-        for name, action in _ACTION_FIELDS.items():
-            got = getattr(self, name)
-            if got is not None and self.action != action:
-                raise _refuse(name, f"no {name} (it belongs to action '{action}')", got)
+    def _when_and_size(self) -> Inject:
         if self.at_t is not None and self.at_part is not None:
             raise _refuse("at_t", "no time when at_part is given (one of them)", self.at_t)
-        if self.kind is not None and self.size is not None:
+        if self.size is not None:
             lo, hi, unit, what = SIZE_RANGES[self.kind]
             if not lo < self.size <= hi:
                 allowed = f"a {what} in ({lo:g}, {hi:g}] {unit}".rstrip()
                 raise _refuse("size", f"{allowed} (kind {self.kind})", self.size)
         return self
+
+
+class Relearn(_Action):
+    """Teach the monitor's limits again: of ``tool``, of ``program``, or all (neither)."""
+
+    action: Literal["relearn"]
+    tool: int | None = Field(None, ge=1, description="this tool only")
+    program: str | None = Field(
+        None, min_length=1, max_length=PROGRAM_CHARS, description="this program only"
+    )
+
+
+#: body of ``POST /api/control``: one of the actions, told apart by ``action``; a field
+#: of another action is refused by name (server.service.error_handlers)
+Control = Annotated[
+    Pause | Resume | Reset | SetSpeed | SetScenario | Inject | Relearn,
+    Field(discriminator="action"),
+]
 
 
 class ControlState(BaseModel):

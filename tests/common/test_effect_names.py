@@ -1,4 +1,5 @@
-"""The effect names: DESIGN's canonical list once (common/effects.py), subsets by meaning."""
+"""The effect names: the canonical list once (common/effects.py, docs/design.md), subsets
+by meaning."""
 
 from __future__ import annotations
 

@@ -276,9 +276,9 @@ def test_observer_source_needs_a_seeded_rng_for_noise() -> None:
     from server.pipeline.eccentricity_loop import ObserverForceSource
 
     with pytest.raises(CutwatchError, match="rng"):
-        ObserverForceSource(MillingMachine(), current_noise=0.1)
+        ObserverForceSource(MillingMachine().drives.params, current_noise=0.1)
     with pytest.raises(CutwatchError, match="current_noise"):
-        ObserverForceSource(MillingMachine(), current_noise=-1.0)
+        ObserverForceSource(MillingMachine().drives.params, current_noise=-1.0)
 
 
 def test_loop_rejects_unknown_tuner() -> None:

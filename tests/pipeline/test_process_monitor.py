@@ -8,28 +8,22 @@ from __future__ import annotations
 
 import copy
 from pathlib import Path
-from typing import Any, cast
+from typing import Any
 
 import numpy as np
 import pytest
 
 from estimators.errors import ParameterError
 from estimators.process_monitor import MonitorParams, ProcessMonitor
-from machine.milling import MillingMachine
 from machine.process import ProcessEvent, ProcessMachine, default_program
 from server.pipeline.eccentricity_loop import ObserverForceSource
-
-
-class _Drives:
-    def __init__(self, params: Any) -> None:
-        self.drives = type("drives", (), {"params": params})()
 
 
 @pytest.fixture(scope="module")
 def taught() -> tuple[ProcessMachine, ObserverForceSource, ProcessMonitor, dict[str, Any]]:
     m = ProcessMachine(default_program(), rng=np.random.default_rng(5), override_prob=0.0)
     obs = ObserverForceSource(
-        cast(MillingMachine, _Drives(m.drives)), resolution=5e-9, q_hz=1000.0,
+        m.drives, resolution=5e-9, q_hz=1000.0,
         mass_error=0.02, current_noise=0.01, rng=np.random.default_rng(6),
     )  # fmt: skip
     mon = ProcessMonitor(MonitorParams(teach_parts=4))

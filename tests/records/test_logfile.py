@@ -1,4 +1,4 @@
-"""Measured-log reading and writing (DESIGN "Measured log"): checks and error messages."""
+"""Measured-log reading and writing (docs/design.md, "Measured log"): checks and error messages."""
 
 from __future__ import annotations
 

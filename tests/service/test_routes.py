@@ -189,3 +189,100 @@ def test_control_any_body_is_carried_out_or_refused(
         if body["action"] == "speed":
             assert loop.speed == float(body["value"])
     loop.set_speed(1.0)
+
+
+#: refusals of ``POST /api/control`` (one action per model, told apart by ``action``):
+#: body -> (the field named, the allowed named, the message); the same answers as the one
+#: flat model with its if/elif chain gave (tests/service/test_api.py checks them over HTTP)
+CONTROL_REFUSALS: list[tuple[dict[str, Any], str, str, str]] = [
+    ({"action": "jump"}, "action",
+     "one of 'pause', 'resume', 'reset', 'speed', 'scenario', 'inject' or 'relearn'",
+     "action: Input should be 'pause', 'resume', 'reset', 'speed', 'scenario', 'inject' or"
+     " 'relearn'"),
+    ({}, "action", "a value (the field is required)", "action: Field required"),
+    ({"action": "speed"}, "value", "a value (required with action 'speed')",
+     "value: expected a value (required with action 'speed'), got None"),
+    ({"action": "speed", "value": 5000}, "value", "a speed in [0, 1000]",
+     "value: expected a speed in [0, 1000], got 5000"),
+    ({"action": "pause", "extra": 1}, "extra", "only action",
+     "extra: Extra inputs are not permitted"),
+    ({"action": "scenario"}, "scenario", "a value (required with action 'scenario')",
+     "scenario: expected a value (required with action 'scenario'), got None"),
+    ({"action": "inject", "kind": "meteor"}, "kind",
+     "one of 'breakage', 'collision' or 'missing_tool'",
+     "kind: Input should be 'breakage', 'collision' or 'missing_tool'"),
+    ({"action": "inject", "kind": "collision", "size": 0.5}, "size",
+     "a feed multiplier in (1, 20] (kind collision)",
+     "size: expected a feed multiplier in (1, 20] (kind collision), got 0.5"),
+    ({"action": "inject", "kind": "breakage", "at_t": 3, "at_part": 2}, "at_t",
+     "no time when at_part is given (one of them)",
+     "at_t: expected no time when at_part is given (one of them), got 3.0"),
+    ({"action": "inject", "kind": "breakage", "tool": 2}, "tool",
+     "no tool (it belongs to action 'relearn')",
+     "tool: expected no tool (it belongs to action 'relearn'), got 2"),
+    ({"action": "relearn", "kind": "breakage"}, "kind",
+     "no kind (it belongs to action 'inject')",
+     "kind: expected no kind (it belongs to action 'inject'), got 'breakage'"),
+    ({"action": "pause", "at_t": 3}, "at_t", "no at_t (it belongs to action 'inject')",
+     "at_t: expected no at_t (it belongs to action 'inject'), got 3"),
+    ({"action": 5}, "action",
+     "one of 'pause', 'resume', 'reset', 'speed', 'scenario', 'inject' or 'relearn'",
+     "action: Input should be 'pause', 'resume', 'reset', 'speed', 'scenario', 'inject' or"
+     " 'relearn'"),
+]  # fmt: skip
+
+
+#: routes whose routers are given their tags later (see the test below)
+_TAGGED_LATER = {"/api/health", "/api/scenarios", "/api/snapshot", "/metrics", "/api/events",
+                 "/api/events/{event_id}/ack", "/api/tool-life"}  # fmt: skip
+
+
+@pytest.mark.parametrize(("body", "field", "allowed", "msg"), CONTROL_REFUSALS)
+def test_control_refuses_each_field_by_name(
+    routed: tuple[InProcess, LiveLoop], body: dict[str, Any], field: str, allowed: str, msg: str
+) -> None:
+    client, loop = routed
+    before = (loop.speed, loop.paused, loop.pipeline.t)
+    r = client.post("/api/control", json=body)
+    assert r.status_code == 422, r.text
+    (d,) = r.json()["detail"]
+    assert (d["field"], d["allowed"], d["msg"]) == (field, allowed, msg)
+    assert d["got"] == body.get(field, None if field != "at_t" else 3.0)
+    assert (loop.speed, loop.paused, loop.pipeline.t) == before
+
+
+def test_control_inject_and_relearn_reach_the_monitor(routed: tuple[InProcess, LiveLoop]) -> None:
+    client, _ = routed
+    r = client.post("/api/control", json={"action": "inject", "kind": "collision", "at_part": 3})
+    assert r.status_code == 200, r.text
+    assert r.json()["scheduled"]["kind"] == "collision" and r.json()["scheduled"]["at_part"] == 3
+    assert "relearned" not in r.json()
+    r = client.post("/api/control", json={"action": "relearn", "tool": 1})
+    assert r.status_code == 200 and r.json()["relearned"]["tool"] == 1
+    assert "scheduled" not in r.json()
+
+
+def test_the_openapi_document_tells_the_actions_apart_and_tags_every_route(
+    routed: tuple[InProcess, LiveLoop],
+) -> None:
+    client, _ = routed
+    doc = client.get("/openapi.json").json()
+    body = doc["paths"]["/api/control"]["post"]["requestBody"]["content"]["application/json"]
+    schema = body["schema"]
+    assert schema["discriminator"]["propertyName"] == "action"
+    assert sorted(schema["discriminator"]["mapping"]) == sorted(
+        ["pause", "resume", "reset", "speed", "scenario", "inject", "relearn"]
+    )
+    untagged = [
+        p for p, ms in doc["paths"].items() for m, op in ms.items() if not op.get("tags")
+    ]  # fmt: skip
+    # status.py and events.py get their prefix and tags once the machining centre's and
+    # the turning-wear lines, which add routes to them, have landed (issue 34's note)
+    assert set(untagged) <= _TAGGED_LATER, sorted(set(untagged) - _TAGGED_LATER)
+    # the paths the routers' prefixes make are the paths the service always had
+    for path in ("/api/params", "/api/record", "/api/records", "/api/records/{name}",
+                 "/api/records/{name}/sidecar", "/api/replay", "/api/observer-effects",
+                 "/api/uploads", "/api/analyses", "/api/analyses/{job_id}", "/residual",
+                 "/residual/{name}/", "/residual/{name}/report.json", "/api/login",
+                 "/api/logout", "/api/session"):  # fmt: skip
+        assert path in doc["paths"], path

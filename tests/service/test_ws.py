@@ -196,21 +196,26 @@ def metric(api: httpx.Client, suffix: str) -> float:
     raise AssertionError(f"no metric *{suffix}")
 
 
+def _data(*bodies: str) -> list[tuple[str, str]]:
+    """Frame bodies as :meth:`ClientQueue.take_all` hands them out."""
+    return [("data", b) for b in bodies]
+
+
 def test_client_queue_is_bounded_latest_wins() -> None:
     async def main() -> None:
         q = ClientQueue(3, asyncio.get_running_loop())
         for i in range(10):
             q.push(str(i))
         assert len(q) == 3
-        hello, frames, dropped = q.take()
-        assert hello is None and frames == ["7", "8", "9"] and dropped == 7
-        assert q.take() == (None, [], 0)
+        hello, frames, dropped = q.take_all()
+        assert hello is None and frames == _data("7", "8", "9") and dropped == 7
+        assert q.take_all() == (None, [], 0)
         # a new hello clears the old pipeline's frames and is never dropped by later ones
         q.push("old")
         q.push_hello("H")
         for i in range(5):
             q.push(f"n{i}")
-        assert q.take() == ("H", ["n2", "n3", "n4"], 2)
+        assert q.take_all() == ("H", _data("n2", "n3", "n4"), 2)
 
     asyncio.run(main())
 
@@ -224,7 +229,7 @@ def test_hub_publish_never_blocks_and_counts() -> None:
             hub.publish(str(i))
         await asyncio.sleep(0)
         assert a.event.is_set()
-        assert a.take() == (None, ["3", "4"], 3)
+        assert a.take_all() == (None, _data("3", "4"), 3)
         assert hub.dropped() == 6  # a's 3 and b's 3
         hub.remove(b)
         assert hub.dropped() == 6 and hub.clients == 1

@@ -1,4 +1,4 @@
-"""Simulate the stage and write the run as a measured log (DESIGN's log format).
+"""Simulate the stage and write the run as a measured log (docs/design.md's log format).
 
 The log holds what a drive sees (t, tau_m, i_m, q_m, q_l) and the load-side reference
 force f_ext; the sidecar holds the sample time, units, kind and the NOMINAL parameters

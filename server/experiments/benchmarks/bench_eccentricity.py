@@ -35,7 +35,7 @@ def measure(*, repeats: int, quick: bool) -> dict[str, object]:
 
     def observer_loop() -> EccentricityLoop:
         loop = EccentricityLoop(mp, tuner="esc", esc=ESC_TABLE1, adapt_start_s=0.0)
-        loop.force_source = ObserverForceSource(loop.machine)
+        loop.force_source = ObserverForceSource(loop.machine.drives.params)
         return loop
 
     res: dict[str, object] = {

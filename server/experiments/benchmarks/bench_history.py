@@ -31,8 +31,9 @@ def measure(*, repeats: int, quick: bool) -> dict[str, object]:
     ``quick``), FULL and NORMAL interleaved, and every fourth event acknowledged (FULL)."""
     from sqlalchemy import event
 
+    from common.event_kinds import EventKind
     from server.records.history import HistoryStore, default_url
-    from server.records.monitor_events import MonitorEvent
+    from server.records.monitor_events import EventAction, MonitorEvent
 
     n = repeats * (20 if quick else 100)
     times: dict[str, list[float]] = {"full": [], "normal": [], "ack": []}
@@ -47,8 +48,8 @@ def measure(*, repeats: int, quick: bool) -> dict[str, object]:
         normal.engine.dispose()  # new connections get it
         for i in range(n):
             for name, st in (("full", full), ("normal", normal)):
-                ev = MonitorEvent("breakage", "feed_hold", float(i), tool=1, value=3.0,
-                                  limit=2.0, unit="", message="x" * 80)  # fmt: skip
+                ev = MonitorEvent(EventKind.BREAKAGE, EventAction.FEED_HOLD, float(i), tool=1,
+                                  value=3.0, limit=2.0, unit="", message="x" * 80)  # fmt: skip
                 t0 = time.perf_counter()
                 st.add_events([ev])
                 times[name].append(time.perf_counter() - t0)

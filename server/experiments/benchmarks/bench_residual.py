@@ -1,4 +1,4 @@
-"""Residual analysis speed: 1,000,000 samples (DESIGN budget: < 10 s).
+"""Residual analysis speed: 1,000,000 samples (budget, docs/design.md: < 10 s).
 
 A closed-form rigid-axis record (M = 20 kg, Fv = 100, Fc = 8, offset = -1, a 3 N
 position-periodic effect of period 2.5 mm, 1 N noise) sampled at 1 kHz. Measured:

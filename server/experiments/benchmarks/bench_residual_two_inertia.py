@@ -1,4 +1,4 @@
-"""Two-inertia residual analysis speed: 1,000,000 samples (DESIGN budget: < 10 s).
+"""Two-inertia residual analysis speed: 1,000,000 samples (budget, docs/design.md: < 10 s).
 
 The record is the simulated stage (seed 000 preset, 400 s at 2.5 kHz) with an
 undeclared motor torque ripple, generated in memory. Measured: the analysis alone

@@ -38,14 +38,15 @@ import sys
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, cast
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from common.event_kinds import ProcessEventKind
 from server.experiments.reproduction import Check, Reproduction, Row
 
 if TYPE_CHECKING:
-    from machine.milling import MillingMachine
+    pass
 
 NAME = "process-monitoring"
 SOURCE = "issue 21 (process monitoring on seed 003's feed drives); targets from the issue"
@@ -68,15 +69,15 @@ TARGET_COLLISION_S = 5e-3
 TARGET_FALSE_PER_HOUR = 0.1
 TEACH_PARTS = 5
 
-_SIZES = {
+_SIZES: dict[tuple[str, str], tuple[float, float]] = {
     # breakage: radius lost [m] (clear: the tooth is gone; edge: a chip of the edge, a
     # share of the feed per tooth); collision: feed multiplier; missing: engagement lost
-    ("breakage", "clear"): (0.2e-3, 0.6e-3),
-    ("breakage", "edge"): (0.15, 0.3),
-    ("collision", "clear"): (4.0, 8.0),
-    ("collision", "edge"): (2.3, 2.8),
-    ("missing_tool", "clear"): (1.0, 1.0),
-    ("missing_tool", "edge"): (0.6, 0.8),
+    (ProcessEventKind.BREAKAGE, "clear"): (0.2e-3, 0.6e-3),
+    (ProcessEventKind.BREAKAGE, "edge"): (0.15, 0.3),
+    (ProcessEventKind.COLLISION, "clear"): (4.0, 8.0),
+    (ProcessEventKind.COLLISION, "edge"): (2.3, 2.8),
+    (ProcessEventKind.MISSING_TOOL, "clear"): (1.0, 1.0),
+    (ProcessEventKind.MISSING_TOOL, "edge"): (0.6, 0.8),
 }
 
 
@@ -88,13 +89,6 @@ class Case:
     size: str
     seed: int
     hours: float = 0.0
-
-
-class _DriveShape:
-    """What :class:`ObserverForceSource` reads of a machine: ``drives.params``."""
-
-    def __init__(self, params: Any) -> None:
-        self.drives = type("drives", (), {"params": params})()
 
 
 def _tool(rng: np.random.Generator, number: int, wear_per_s: float) -> Any:
@@ -198,7 +192,7 @@ def _setup(program: Any, rng: np.random.Generator, noise: dict[str, float], **kw
 
     machine = ProcessMachine(program, rng=rng, **kw)
     obs = ObserverForceSource(
-        cast("MillingMachine", _DriveShape(machine.drives)),
+        machine.drives,
         q_hz=1000.0,
         rng=np.random.default_rng(rng.integers(2**32)),
         **noise,
@@ -251,10 +245,10 @@ def run_event_case(case: Case) -> dict[str, Any]:
     tool = program.tool(blk.tool)
     lo, hi = _SIZES[(case.kind, case.size)]
     size = float(rng.uniform(lo, hi))
-    if case.kind == "breakage" and case.size == "edge":
+    if case.kind == ProcessEventKind.BREAKAGE and case.size == "edge":
         size *= blk.feed_per_tooth  # a chip: a share of the feed per tooth
     frac = float(rng.uniform(0.2, 0.8))
-    if case.kind == "missing_tool" and rng.random() < 0.5:
+    if case.kind == ProcessEventKind.MISSING_TOOL and rng.random() < 0.5:
         frac = 0.0  # no tool from the block's start (not loaded at the tool change)
     ev = ProcessEvent(case.kind, machine.part, line, frac, size, int(rng.integers(tool.n_flutes)))
     machine.events = [ev]
@@ -292,7 +286,7 @@ def run_event_case(case: Case) -> dict[str, Any]:
             res.update(detected=True, delay_s=(k_al - k_ev) * ts)
             res["delay_revs"] = res["delay_s"] * blk.spindle_rpm / 60.0
             res["delay_blocks"] = res["delay_s"] / (r.n * ts)
-            if case.kind == "collision":
+            if case.kind == ProcessEventKind.COLLISION:
                 ex = mrec.extreme
                 est = np.flatnonzero(mrec.f[k_ev:] > ex[k_ev:])
                 true = np.flatnonzero(np.hypot(r.fx, r.fy)[k_ev:] > ex[k_ev:])
@@ -432,9 +426,9 @@ def run_canceller_case(case: Case) -> dict[str, Any]:
     line = int(rng.choice([20, 40]))
     blk = next(b for b in program.blocks if b.line == line)
     tool = program.tool(blk.tool)
-    size = float(rng.uniform(*_SIZES[("breakage", "clear")]))
+    size = float(rng.uniform(*_SIZES[(ProcessEventKind.BREAKAGE, "clear")]))
     ev = ProcessEvent(
-        "breakage",
+        ProcessEventKind.BREAKAGE,
         machine.part,
         line,
         float(rng.uniform(0.2, 0.8)),
@@ -454,7 +448,11 @@ def run_canceller_case(case: Case) -> dict[str, Any]:
     }
     alarms = ctl["alarms"][pre:]
     res["pre_alarms"] = sum(1 for a in alarms if a.sample < k_ev)
-    hits = [a for a in alarms if a.detector == "breakage" and a.sample >= k_ev and a.line == line]
+    hits = [
+        a
+        for a in alarms
+        if a.detector == ProcessEventKind.BREAKAGE and a.sample >= k_ev and a.line == line
+    ]
     if hits:
         k_al = hits[0].sample
         res.update(detected=True, delay_s=(k_al - k_ev) * ts)
@@ -486,8 +484,8 @@ def _cases(quick: bool) -> list[Case]:
         out = [Case("none", "", 100 + s, LONG_HOURS) for s in range(LONG_RUNS)]
         rest = FREE_HOURS - LONG_RUNS * LONG_HOURS
         out += [Case("none", "", s, per) for s in range(round(rest / per))]
-    out += [Case("breakage", "canceller", s) for s in range(n_esc)]
-    for kind in ("breakage", "collision", "missing_tool"):
+    out += [Case(ProcessEventKind.BREAKAGE, "canceller", s) for s in range(n_esc)]
+    for kind in ProcessEventKind:
         out += [Case(kind, "clear", s) for s in range(n_clear)]
         out += [Case(kind, "edge", s) for s in range(n_edge)]
     return out
@@ -611,22 +609,33 @@ def quantile_upper(x: list[float], q: float, conf: float = 0.95) -> float:
     return float(v[u]) if u < len(v) else math.inf
 
 
-_DELAY_TARGETS = {
-    "breakage": ("delay_revs", TARGET_BREAKAGE_REVS, "rev", "from the event's first sample"),
-    "collision": (
+#: the unit of each kind's size
+_SIZE_UNITS: dict[str, str] = {
+    ProcessEventKind.BREAKAGE: "m radius",
+    ProcessEventKind.COLLISION: "x feed",
+    ProcessEventKind.MISSING_TOOL: "share",
+}
+_DELAY_TARGETS: dict[str, tuple[str, float, str, str]] = {
+    ProcessEventKind.BREAKAGE: (
+        "delay_revs",
+        TARGET_BREAKAGE_REVS,
+        "rev",
+        "from the event's first sample",
+    ),
+    ProcessEventKind.COLLISION: (
         "delay_from_estimate_s",
         TARGET_COLLISION_S,
         "s",
         "from the estimated force crossing the extreme limit",
     ),
-    "missing_tool": ("delay_blocks", 1.0, "block", "from the event's first sample"),
+    ProcessEventKind.MISSING_TOOL: ("delay_blocks", 1.0, "block", "from the event's first sample"),
 }
 
 
 def build(results: list[dict[str, Any]]) -> Reproduction:
     """Rows and checks from the cases."""
     rep = Reproduction(NAME, SOURCE)
-    for kind in ("breakage", "collision", "missing_tool"):
+    for kind in ProcessEventKind:
         for size in ("clear", "edge"):
             rs = [r for r in results if r["kind"] == kind and r["size"] == size]
             if not rs:
@@ -658,7 +667,7 @@ def _event_rows(rep: Reproduction, kind: str, size: str, rs: list[dict[str, Any]
     k = sum(1 for r in rs if r["detected"])
     lo, hi = clopper_pearson(k, n)
     sv = [r["size_value"] for r in rs]
-    unit = {"breakage": "m radius", "collision": "x feed", "missing_tool": "share"}[kind]
+    unit = _SIZE_UNITS[kind]
     cond = f"{n} events, size {min(sv):.3g}-{max(sv):.3g} {unit}; 95 % CP [{lo:.4f}, {hi:.4f}]"
     rep.rows.append(Row(f"{kind}.{size}.detection", k / n, None, "-", cond))
     misses = [r["seed"] for r in rs if not r["detected"]]
@@ -698,7 +707,7 @@ def _event_rows(rep: Reproduction, kind: str, size: str, rs: list[dict[str, Any]
                 f"95 % upper bound {p95_hi:.4g} {tunit}; target {target:g}",
             )
         )
-    if kind == "collision":
+    if kind == ProcessEventKind.COLLISION:
         dt = [float(r["delay_from_true_s"]) for r in rs if "delay_from_true_s" in r]
         if dt:
             rep.rows.append(
@@ -797,7 +806,7 @@ def _canceller_rows(rep: Reproduction, esc: list[dict[str, Any]]) -> None:
 def _false_alarm_rows(rep: Reproduction, free: list[dict[str, Any]]) -> None:
     """False alarms per hour of each detector over the event-free hours."""
     hours = float(sum(r["watched_h"] for r in free))
-    for det in ("breakage", "collision", "missing_tool"):
+    for det in ProcessEventKind:
         k = int(sum(r["alarms"][det] for r in free))
         lo, hi = poisson_rate(k, hours)
         rep.rows.append(
@@ -904,9 +913,9 @@ def _plot(results: list[dict[str, Any]], plot_dir: Path) -> str:
     for ax, (kind, key, unit, target) in zip(
         axs,
         (
-            ("breakage", "delay_revs", "rev", TARGET_BREAKAGE_REVS),
-            ("collision", "delay_from_estimate_s", "s", TARGET_COLLISION_S),
-            ("missing_tool", "delay_blocks", "block", 1.0),
+            (ProcessEventKind.BREAKAGE, "delay_revs", "rev", TARGET_BREAKAGE_REVS),
+            (ProcessEventKind.COLLISION, "delay_from_estimate_s", "s", TARGET_COLLISION_S),
+            (ProcessEventKind.MISSING_TOOL, "delay_blocks", "block", 1.0),
         ),
         strict=True,
     ):
@@ -940,7 +949,9 @@ def example_figure(plot_dir: Path) -> str:
     noise = {"resolution": 5e-9, "current_noise": 0.01, "mass_error": 0.02}
     machine, obs, mon, state = _setup(default_program(), rng, noise, override_prob=0.0)
     _teach(machine, obs, mon, state)
-    machine.events = [ProcessEvent("breakage", machine.part, 40, 0.5, 0.3e-3, flute=1)]
+    machine.events = [
+        ProcessEvent(ProcessEventKind.BREAKAGE, machine.part, 40, 0.5, 0.3e-3, flute=1)
+    ]
     for b in machine.program.blocks:
         (r,) = machine.run_block(b)
         _, m = _watch(obs, mon, state, r)
@@ -948,7 +959,7 @@ def example_figure(plot_dir: Path) -> str:
             break
     ts = machine.sample_time
     k_ev = r.events[0].sample - r.k0
-    al = next(a for a in m.alarms if a.detector == "breakage")
+    al = next(a for a in m.alarms if a.detector == ProcessEventKind.BREAKAGE)
     k_al = al.sample - (int(state["samples"][0]) - r.n)
     sl = slice(max(0, k_ev - 1500), min(r.n, k_ev + 1500))
     t = (np.arange(r.n)[sl] - k_ev) * ts * 1e3

@@ -33,7 +33,7 @@ the default) and phase. Rows per kind, family and length:
 The full run keeps each finished case in a JSON-lines cache keyed by the hash of the
 code it depends on (:func:`cache_path`), so an interrupted run resumes.
 
-Checks (DESIGN's and the issue's targets, every length): right first (or rightly
+Checks (the targets of docs/design.md and the issue, every length): right first (or rightly
 indistinguishable) >= 95 %, false positives on ``none`` <= 5 %, spurious extras
 <= 5 %, median ratio <= 0.5.
 """

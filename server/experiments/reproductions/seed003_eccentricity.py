@@ -937,10 +937,14 @@ def rows_estimated_force() -> Section:
         ("estimated_force.current_noise", 0.0, 0.05),
     ):
         rng = np.random.default_rng(6)
-        obs = ObserverForceSource(MillingMachine(mp), mass_error=me, current_noise=noise, rng=rng)
+        obs = ObserverForceSource(
+            MillingMachine(mp).drives.params, mass_error=me, current_noise=noise, rng=rng
+        )
         tr_e = run_case(mp, "esc", seconds_esc, force_source=obs)
         e = summarize(tr_e, mp)
-        obs_f = ObserverForceSource(MillingMachine(mp), mass_error=me, current_noise=noise, rng=rng)
+        obs_f = ObserverForceSource(
+            MillingMachine(mp).drives.params, mass_error=me, current_noise=noise, rng=rng
+        )
         f = summarize(run_case(mp, "fast", seconds_fast, force_source=obs_f), mp, tail_s=1.0)
         cond = "observer nominal mass " + ("exact" if me == 0 else f"+{me:.0%}")
         if noise > 0:
@@ -1002,7 +1006,7 @@ def _settle_phasors(
     revolution of the true X force, the fixed observer's estimated X force, the X motor
     force and the X carriage acceleration."""
     m = MillingMachine(mp)
-    obs = ObserverForceSource(MillingMachine(mp), mass_error=mass_error)
+    obs = ObserverForceSource(MillingMachine(mp).drives.params, mass_error=mass_error)
     a, th = abs(u_um) * 1e-6, math.atan2(u_um.imag, u_um.real)
     n = round(m.samples_per_revolution())
     for _ in range(revs):
@@ -1131,7 +1135,7 @@ def _rows_fixed_minus3(mp: MillingParams) -> list[Row]:
             mp,
             "esc",
             SECONDS_ESC,
-            force_source=ObserverForceSource(MillingMachine(mp), mass_error=-0.03),
+            force_source=ObserverForceSource(MillingMachine(mp).drives.params, mass_error=-0.03),
         ),
         mp,
     )
@@ -1306,8 +1310,11 @@ def _rows_other_phases(mp: MillingParams) -> list[Row]:
     for deg in (0, 315):
         mpd = replace(mp, eccentricity_deg=float(deg))
         for label, src_d in (
-            ("exact", ObserverForceSource(MillingMachine(mpd))),
-            ("mass_error_3pct", ObserverForceSource(MillingMachine(mpd), mass_error=0.03)),
+            ("exact", ObserverForceSource(MillingMachine(mpd).drives.params)),
+            (
+                "mass_error_3pct",
+                ObserverForceSource(MillingMachine(mpd).drives.params, mass_error=0.03),
+            ),
             ("adaptive_mass", _adaptive_source(mpd, 0.03)),
         ):
             sd = summarize(run_case(mpd, "esc", SECONDS_ESC, force_source=src_d), mpd)
@@ -1340,7 +1347,9 @@ def _rows_current_noise(mp: MillingParams) -> list[Row]:
         (
             "exact_fixed",
             lambda n: ObserverForceSource(
-                MillingMachine(mp), current_noise=0.05, rng=np.random.default_rng(n)
+                MillingMachine(mp).drives.params,
+                current_noise=0.05,
+                rng=np.random.default_rng(n),
             ),
         ),
         ("adaptive", lambda n: _adaptive_source(mp, 0.03, noise=0.05, seed=n)),
@@ -1390,7 +1399,7 @@ def rows_estimated_force_adaptive() -> Section:
     at spindle order N_f + 1/8, :mod:`estimators.axis_mass`) under a nominal mass error."""
     mp = case_params(1)
     tr_exact = run_case(
-        mp, "esc", SECONDS_ESC, force_source=ObserverForceSource(MillingMachine(mp))
+        mp, "esc", SECONDS_ESC, force_source=ObserverForceSource(MillingMachine(mp).drives.params)
     )
     exact = summarize(tr_exact, mp)
     rows = _rows_fixed_minus3(mp)

@@ -15,7 +15,7 @@ from server.service.deps import Authorised, Store, conflict
 from server.service.http_errors import FieldError, error
 from server.service.schemas import AnalysisBody, AnalysisJob, AnalysisJobs, error_responses
 
-router = APIRouter(responses=error_responses())
+router = APIRouter(prefix="/api/analyses", tags=["analyses"], responses=error_responses())
 
 _REPORT_RULE = "a plain name: 1-120 of A-Z a-z 0-9 _ . - starting with a letter or digit"
 
@@ -26,7 +26,7 @@ def jobs(request: Request) -> Analyses:
 
 
 @router.post(
-    "/api/analyses",
+    "",
     summary="analyse a recording or an upload (cutwatch residual) as a background job",
     dependencies=[Authorised],
     response_model=AnalysisJob,
@@ -49,7 +49,7 @@ def start_analysis(body: AnalysisBody, request: Request, st: Store) -> AnalysisJ
     return AnalysisJob.model_validate(job.view())
 
 
-@router.get("/api/analyses", summary="recent analysis jobs", response_model=AnalysisJobs)
+@router.get("", summary="recent analysis jobs", response_model=AnalysisJobs)
 def list_analyses(request: Request) -> AnalysisJobs:
     return AnalysisJobs(
         jobs=[AnalysisJob.model_validate(j.view()) for j in jobs(request).jobs.values()]
@@ -57,7 +57,7 @@ def list_analyses(request: Request) -> AnalysisJobs:
 
 
 @router.get(
-    "/api/analyses/{job_id}",
+    "/{job_id}",
     summary="one analysis job: state and progress",
     response_model=AnalysisJob,
     responses=error_responses(404),

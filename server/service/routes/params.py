@@ -8,11 +8,11 @@ from fastapi import APIRouter, HTTPException
 
 from common.errors import ParameterError
 from server.pipeline.knobs import Knob
-from server.service.deps import Authorised, Live
+from server.service.deps import Authorised, Knobs
 from server.service.http_errors import echo, error
 from server.service.schemas import Params, ParamsPatch, error_responses
 
-router = APIRouter(responses=error_responses())
+router = APIRouter(prefix="/api/params", tags=["params"], responses=error_responses())
 
 
 def _knob_dict(k: Knob) -> dict[str, Any]:
@@ -42,25 +42,23 @@ def _check_knob(name: str, k: Knob, value: Any) -> tuple[Any, dict[str, Any] | N
         return None, error(name, exc.expected, value, msg)
 
 
-@router.get(
-    "/api/params", summary="live parameters with their allowed ranges", response_model=Params
-)
-def params(lp: Live) -> Params:
-    return _params(lp.knobs())
+@router.get("", summary="live parameters with their allowed ranges", response_model=Params)
+def params(live: Knobs) -> Params:
+    return _params(live.knobs())
 
 
 @router.patch(
-    "/api/params",
+    "",
     summary="change live parameters (all or nothing)",
     dependencies=[Authorised],
     response_model=Params,
     responses=error_responses(413, 422),
 )
-def patch_params(body: ParamsPatch, lp: Live) -> Params:
+def patch_params(body: ParamsPatch, live: Knobs) -> Params:
     # types are the request model's to check (KnobValue: a huge integer or a list never
     # reaches the knob), ranges and choices the knob's (Knob.check, one message)
     changes = body.root
-    knobs = lp.knobs()
+    knobs = live.knobs()
     errors: list[dict[str, Any]] = []
     clean: dict[str, Any] = {}
     if not changes:
@@ -86,4 +84,4 @@ def patch_params(body: ParamsPatch, lp: Live) -> Params:
             clean[name] = v
     if errors:
         raise HTTPException(422, detail=errors)
-    return _params(lp.set_knobs(clean))
+    return _params(live.set_knobs(clean))

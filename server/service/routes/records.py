@@ -1,7 +1,7 @@
 """Recording the live source: ``POST /api/record``, ``GET /api/records`` and the files.
 
-A recording is a measured log in DESIGN's format (CSV + JSON sidecar) in the
-recordings area of the data directory; it is what the residual loop reads next
+A recording is a measured log in the design's format (docs/design.md: CSV + JSON sidecar)
+in the recordings area of the data directory; it is what the residual loop reads next
 (``POST /api/analyses``, ``cutwatch residual``).
 """
 
@@ -17,13 +17,19 @@ from fastapi import APIRouter, HTTPException
 from fastapi.responses import FileResponse
 
 from server.records.store import DataStore, NotFound, check_name
-from server.service.deps import Authorised, Config, Live, Store, conflict
+from server.service.deps import (
+    Authorised,
+    Config,
+    RecordingControl,
+    Recordings,
+    Store,
+    conflict,
+)
 from server.service.http_errors import FieldError, error
-from server.service.loop import LiveLoop
 from server.service.recording import Recording, default_name
 from server.service.schemas import RecordBody, RecordInfo, Records, RecordState, error_responses
 
-router = APIRouter(responses=error_responses())
+router = APIRouter(prefix="/api", tags=["recordings"], responses=error_responses())
 
 _NAME_RULE = "a plain name: 1-128 of A-Z a-z 0-9 _ . - starting with a letter or digit, '.csv'"
 
@@ -34,7 +40,7 @@ def not_found(exc: NotFound) -> HTTPException:
     return HTTPException(404, detail=[error("name", allowed, exc.name, str(exc))])
 
 
-def nothing_runs(lp: LiveLoop) -> str | None:
+def nothing_runs(lp: RecordingControl) -> str | None:
     """Why nothing runs to record (None: the loop runs a source)."""
     if not lp.running:
         why = f" ({lp.error})" if lp.error else ""
@@ -56,13 +62,13 @@ def _record_name(name: str | None) -> str:
 
 
 @router.post(
-    "/api/record",
+    "/record",
     summary="start or stop recording what the live source delivers",
     dependencies=[Authorised],
     response_model=RecordState,
     responses=error_responses(409, 413, 422),
 )
-async def record(body: RecordBody, lp: Live, s: Config, st: Store) -> RecordState:
+async def record(body: RecordBody, lp: Recordings, s: Config, st: Store) -> RecordState:
     if body.action == "stop":
         if body.name is not None:
             raise FieldError("name", "no name with action 'stop'", body.name, "stop takes no name")
@@ -100,7 +106,7 @@ async def record(body: RecordBody, lp: Live, s: Config, st: Store) -> RecordStat
     return RecordState(recording=RecordInfo.model_validate(started.summary()))
 
 
-def recordings(st: DataStore, lp: LiveLoop) -> list[dict[str, Any]]:
+def recordings(st: DataStore, lp: RecordingControl) -> list[dict[str, Any]]:
     """The recording in progress (if any) and those on disk, newest first."""
     out: list[dict[str, Any]] = []
     rec = lp.recording
@@ -123,8 +129,8 @@ def _on_disk(p: Path) -> dict[str, Any]:
     return info
 
 
-@router.get("/api/records", summary="recordings (in progress and on disk)", response_model=Records)
-def list_records(lp: Live, st: Store) -> Records:
+@router.get("/records", summary="recordings (in progress and on disk)", response_model=Records)
+def list_records(lp: Recordings, st: Store) -> Records:
     return Records.model_validate({"records": recordings(st, lp)})
 
 
@@ -139,7 +145,7 @@ def _recording_csv(st: DataStore, name: str) -> Path:
 
 
 @router.get(
-    "/api/records/{name}",
+    "/records/{name}",
     summary="download a recording (its CSV)",
     response_class=FileResponse,
     responses={
@@ -153,7 +159,7 @@ def get_record(name: str, st: Store) -> FileResponse:
 
 
 @router.get(
-    "/api/records/{name}/sidecar",
+    "/records/{name}/sidecar",
     summary="a recording's JSON sidecar",
     response_class=FileResponse,
     responses={

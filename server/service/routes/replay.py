@@ -12,7 +12,7 @@ from fastapi import APIRouter
 from common.jsonsafe import json_safe
 from server.errors import CutwatchError
 from server.service.datafiles import find_log, find_report, refuse_path, scrub
-from server.service.deps import Authorised, Config, Live, Store
+from server.service.deps import Authorised, Config, LiveEffects, Store
 from server.service.http_errors import FieldError
 from server.service.schemas import (
     Effects,
@@ -23,20 +23,20 @@ from server.service.schemas import (
     error_responses,
 )
 
-router = APIRouter(responses=error_responses())
+router = APIRouter(prefix="/api", tags=["replay"], responses=error_responses())
 
 _LOG_RULE = "a two_inertia log (.csv with its .json sidecar, or .mat) in the data areas"
 
 
 @router.post(
-    "/api/replay",
+    "/replay",
     summary="replay a two_inertia log (a recording or an upload, by name) through the live "
     "observers",
     dependencies=[Authorised],
     response_model=ReplayStarted,
     responses=error_responses(413, 422),
 )
-def replay(body: Replay, lp: Live, s: Config, st: Store) -> ReplayStarted:
+def replay(body: Replay, lp: LiveEffects, s: Config, st: Store) -> ReplayStarted:
     from server.pipeline.live_pipeline import LivePipeline
     from server.pipeline.sources import ReplaySource, open_replay
 
@@ -64,22 +64,22 @@ def replay(body: Replay, lp: Live, s: Config, st: Store) -> ReplayStarted:
 
 
 @router.get(
-    "/api/observer-effects",
+    "/observer-effects",
     summary="effects installed in the live observer",
     response_model=Effects,
 )
-def get_effects(lp: Live) -> Effects:
+def get_effects(lp: LiveEffects) -> Effects:
     return Effects.model_validate({"observer_effects": _effects_json(lp.observer_effects())})
 
 
 @router.post(
-    "/api/observer-effects",
+    "/observer-effects",
     summary="install identified effects (a residual report by name, or its observer_effects)",
     dependencies=[Authorised],
     response_model=EffectsInstalled,
     responses=error_responses(413, 422),
 )
-def post_effects(body: EffectsBody, lp: Live, st: Store) -> EffectsInstalled:
+def post_effects(body: EffectsBody, lp: LiveEffects, st: Store) -> EffectsInstalled:
     if body.path is not None:
         raise refuse_path(body.path, "report")
     if (body.report is None) == (body.observer_effects is None):
@@ -98,13 +98,13 @@ def post_effects(body: EffectsBody, lp: Live, st: Store) -> EffectsInstalled:
 
 
 @router.delete(
-    "/api/observer-effects",
+    "/observer-effects",
     summary="remove the installed effects",
     dependencies=[Authorised],
     response_model=Effects,
     responses=error_responses(),
 )
-def delete_effects(lp: Live) -> Effects:
+def delete_effects(lp: LiveEffects) -> Effects:
     lp.set_observer_effects(())
     return Effects(observer_effects=[])
 

@@ -13,7 +13,7 @@ from server.service.deps import Config
 from server.service.http_errors import error
 from server.service.schemas import ResidualReport, error_responses
 
-router = APIRouter(responses=error_responses())
+router = APIRouter(prefix="/residual", tags=["reports"], responses=error_responses())
 
 _NAME_RULE = "a directory name: letters, digits, '.', '_', '-', not starting with '.'"
 
@@ -47,7 +47,7 @@ def report_file(root: Path, name: str, leaf: str) -> Path:
 
 
 @router.get(
-    "/residual",
+    "",
     response_class=HTMLResponse,
     summary="residual reports on disk",
     responses=error_responses(json_route=False),
@@ -66,7 +66,7 @@ def residual_index(s: Config) -> HTMLResponse:
 
 
 @router.get(
-    "/residual/{name}/",
+    "/{name}/",
     response_class=HTMLResponse,
     summary="one residual report (its report.html)",
     responses=error_responses(404, json_route=False),
@@ -76,7 +76,7 @@ def residual_report(name: str, s: Config) -> FileResponse:
 
 
 @router.get(
-    "/residual/{name}/report.json",
+    "/{name}/report.json",
     summary="one residual report (its report.json)",
     response_model=None,
     responses={200: {"model": ResidualReport}, **error_responses(404)},

@@ -14,7 +14,7 @@ from server.service import auth
 from server.service.http_errors import error
 from server.service.schemas import error_responses
 
-router = APIRouter(responses=error_responses())
+router = APIRouter(tags=["session"], responses=error_responses())
 
 LOGIN_PAGE = Path(__file__).resolve().parents[3] / "web" / "login.html"
 #: a refused login waits this long before answering (guessing slowed down)

@@ -12,7 +12,7 @@ from server.service import protocol
 from server.service.hub import Hub
 from server.service.loop import LiveLoop
 
-router = APIRouter()
+router = APIRouter(tags=["stream"])
 
 
 @router.websocket("/ws")

@@ -31,7 +31,7 @@ from server.service.schemas import UploadInfo, Uploads, error_responses
 from server.service.settings import Settings
 from server.service.upload_check import Limits, run_check
 
-router = APIRouter(responses=error_responses())
+router = APIRouter(prefix="/api/uploads", tags=["uploads"], responses=error_responses())
 
 SUFFIXES = (".csv", ".mat", ".json")
 _NAME_RULE = (
@@ -66,7 +66,7 @@ def _info(p: Path, checked: dict[str, Any] | None = None) -> UploadInfo:
 
 
 @router.post(
-    "/api/uploads",
+    "",
     summary="upload a measured log or its sidecar (the raw file as the body)",
     dependencies=[Authorised],
     response_model=UploadInfo,
@@ -172,7 +172,7 @@ async def _check(st: DataStore, qdir: Path, name: str, s: Settings) -> dict[str,
     raise FieldError("body", allowed, name, msg)
 
 
-@router.get("/api/uploads", summary="uploaded logs and sidecars", response_model=Uploads)
+@router.get("", summary="uploaded logs and sidecars", response_model=Uploads)
 def list_uploads(st: Store) -> Uploads:
     files = [p for p in st.list("uploads") if p.is_file() and p.suffix.lower() in SUFFIXES]
     return Uploads(uploads=[_info(p) for p in files])
