@@ -156,6 +156,10 @@ _STATUS: dict[str, object] = {
     "part": -1,
     "wear_share": math.nan,
     "life_left_min": math.nan,
+    "wear_tool": 0,
+    "wear_of": "",
+    "wear_limit_mm": math.nan,
+    "wear_alarm_share": math.nan,
 }
 
 
@@ -736,11 +740,15 @@ class LivePipeline:
     def monitor_status(self) -> dict[str, object]:
         """What an operator reads from across the shop: the monitor's ``state`` (``off``
         without a process monitor, ``teaching``, ``watching``, ``alarm``: the block under
-        way raised an event), the tool in the spindle and its flank wear as a share of
-        the limit, the life left [min] (NaN: not known), and the CNC's program, line and
-        part (empty / 0 / -1: not known), each from the running part that says it (the
-        process monitor: state, tool, program, line, part; the wear: its share and life).
-        ``unacked`` is the runtime's (0 here)."""
+        way raised an event), the tool in the spindle and the CNC's program, line and
+        part (0 / empty / 0 / -1: not known); the wear of one tool, ``wear_tool``, from one
+        source: its flank wear as a share of its limit ``wear_limit_mm`` (the alarm at
+        ``wear_alarm_share`` of it) and its life left [min] (NaN: not known), with
+        ``wear_of`` saying whose tool that is when it is not the spindle's (issue 28: the
+        default scenario's wear model is seed 004's turning tool on the stage, not the
+        milling machine's T1/T2). Each field comes from the running part that says it
+        (the process monitor: state, tool, program, line, part; the wear part: the
+        ``wear_*`` fields and the life). ``unacked`` is the runtime's (0 here)."""
         status = dict(_STATUS)
         for part in self._parts:
             if self._running(part):
