@@ -25,7 +25,7 @@ from typing import Any
 from common.machine_description import MachineDescription
 from server.pipeline.sources import MeasurementSource
 
-__all__ = ["SIGNALS", "AxisView", "MachineView"]
+__all__ = ["SIGNALS", "AxisView", "MachineView", "description_of"]
 
 #: the signals of the simulated stage's one axis (two-inertia, with its reference force)
 SIGNALS = frozenset({"tau_m", "i_m", "q_m", "q_l", "f_ext"})
@@ -66,6 +66,11 @@ class MachineView:
     simulated
         The machine is simulated: the scenario's knobs drive it (its parts may simulate
         beside it).
+    nominal
+        The source gives the nominal two-inertia parameters, in the stage's units (rad,
+        N m), the stage's observers are built from (the simulated stage, a log's
+        sidecar, a feed's meta); False for a described machine without them (the
+        machining centre: linear axes in m and N, no prior).
     """
 
     source: str
@@ -76,6 +81,7 @@ class MachineView:
     spindle_rpm: float = math.nan
     has_truth: bool = False
     simulated: bool = False
+    nominal: bool = True
 
     @property
     def sample_rate(self) -> float:
@@ -119,7 +125,7 @@ class MachineView:
     def of(cls, source: MeasurementSource, spindle_rpm: float = math.nan) -> MachineView:
         """The view of ``source``: from its machine description when it has one (a feed's
         meta, a log's sidecar), else the simulated stage's one axis."""
-        desc = _description(source)
+        desc = description_of(source)
         if desc is None:
             axes: tuple[AxisView, ...] = (AxisView("X", source.kind, SIGNALS),)
             spindle: frozenset[str] = frozenset()
@@ -137,10 +143,11 @@ class MachineView:
             spindle_rpm=float(spindle_rpm),
             has_truth=bool(source.has_truth),
             simulated=bool(source.knobs_apply),
+            nominal=bool(getattr(source, "has_nominal", True)),
         )
 
 
-def _description(source: Any) -> MachineDescription | None:
+def description_of(source: Any) -> MachineDescription | None:
     """The machine description a source carries (a feed's, a log's), if any."""
     for obj in (source, getattr(source, "feed", None), getattr(source, "log", None)):
         for attr in ("description", "machine"):

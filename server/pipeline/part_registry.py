@@ -150,6 +150,28 @@ def _process(c: BuildContext) -> Part | None:
     return ProcessPart.from_knobs(c.seed, c.knobs) if c.scenario.process else None
 
 
+def _description(c: BuildContext) -> Any:
+    """The machine description of a source that hands out its columns (the machining
+    centre's trace), else None (the stage, a log, a one-axis feed)."""
+    return getattr(c.source, "description", None) if getattr(c.source, "columns", False) else None
+
+
+def _spindle(c: BuildContext) -> Part | None:
+    from server.pipeline.spindle_part import SpindlePart
+
+    desc = _description(c)
+    if desc is None or desc.spindle is None:
+        return None
+    return SpindlePart(desc, str(getattr(c.source, "program", "")))
+
+
+def _axes(c: BuildContext) -> Part | None:
+    from server.pipeline.axes_part import AxesPart
+
+    desc = _description(c)
+    return AxesPart(desc) if desc is not None and desc.axes else None
+
+
 #: cutwatch's own parts, by name, in the order they run (module docstring)
 BUILTIN: tuple[tuple[str, PartFactory], ...] = (
     ("workpiece", _workpiece),
@@ -159,6 +181,8 @@ BUILTIN: tuple[tuple[str, PartFactory], ...] = (
     ("wear", _wear),
     ("eccentricity", _eccentricity),
     ("process", _process),
+    ("spindle", _spindle),
+    ("axes", _axes),
 )
 
 #: the parts added: what was registered (a class or a factory) -> its factory

@@ -118,11 +118,16 @@ class SourceBlock:
     discontinuity : str or None
         Why this block does not continue the previous one (``"gap"``, ``"reset"``...);
         the pipeline resets its observers before running it. None: it continues.
+    columns : mapping or None
+        A described machine's every signal by its column name (the machine
+        description's names: ``X_q_m``, ``S_power``, ``tool``...), ``t`` among them;
+        None when the source has only ``meas`` (the stage, a log, a one-axis feed).
     """
 
     meas: Measurements
     truth: Truth | None = None
     discontinuity: str | None = None
+    columns: Mapping[str, F64] | None = None
 
     @property
     def n(self) -> int:

@@ -36,6 +36,7 @@ from server.pipeline.part import (
     Verdict,
     needs_axis,
     needs_band,
+    needs_nominal,
 )
 from server.pipeline.sources import RESUMED, MeasurementSource
 from server.pipeline.stage_run import StageBlock, StageRun, StageRunState
@@ -200,9 +201,13 @@ class StagePart(LivePart):
 
     def requires(self, machine: MachineView) -> Verdict:
         q_hz = self.run.front.params.q_hz
-        return needs_axis(
-            machine, "q_m", "q_l", kind="two_inertia", what="seed 000's shaft-twist branch"
-        ) and needs_band(machine, q_hz, "the force observer's Q(s) cut-off")
+        return (
+            needs_axis(
+                machine, "q_m", "q_l", kind="two_inertia", what="seed 000's shaft-twist branch"
+            )
+            and needs_nominal(machine, "the stage's observers")
+            and needs_band(machine, q_hz, "the force observer's Q(s) cut-off")
+        )
 
     def notice(self, change: Notice) -> None:
         if change.kind == "disturbance":

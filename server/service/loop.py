@@ -636,6 +636,11 @@ class LiveLoop:
         with self.lock:
             return self.pipeline.parts()
 
+    def machine_info(self) -> dict[str, Any]:
+        """The machine and its parts (:meth:`LivePipeline.machine`)."""
+        with self.lock:
+            return self.pipeline.machine()
+
     def knob_values(self) -> dict[str, Any]:
         with self.lock:
             return {k: v.value for k, v in self.pipeline.knobs().items()}
