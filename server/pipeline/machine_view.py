@@ -22,8 +22,8 @@ import math
 from dataclasses import dataclass, replace
 from typing import Any
 
-from common.machine_description import MachineDescription
-from server.pipeline.sources import MeasurementSource
+from common.machine_description import AxisDescription, MachineDescription
+from server.pipeline.sources import NOMINAL, MeasurementSource
 
 __all__ = ["SIGNALS", "AxisView", "MachineView"]
 
@@ -33,11 +33,14 @@ SIGNALS = frozenset({"tau_m", "i_m", "q_m", "q_l", "f_ext"})
 
 @dataclass(frozen=True)
 class AxisView:
-    """One feed axis as the parts see it: its name, kind and the roles of its signals."""
+    """One feed axis as the parts see it: its name, kind, the roles of its signals, and
+    whether its nominal holds every two-inertia parameter (``prior``: the simulator's
+    and a replayed log's do; a feed's only when its description gives them)."""
 
     name: str
     kind: str
     roles: frozenset[str]
+    prior: bool = True
 
     def has(self, *roles: str) -> bool:
         return all(r in self.roles for r in roles)
@@ -125,7 +128,9 @@ class MachineView:
             spindle: frozenset[str] = frozenset()
             idents: frozenset[str] = frozenset()
         else:
-            axes = tuple(AxisView(a.name, a.kind, frozenset(a.signals)) for a in desc.axes)
+            axes = tuple(
+                AxisView(a.name, a.kind, frozenset(a.signals), _has_prior(a)) for a in desc.axes
+            )
             spindle = frozenset(desc.spindle.signals) if desc.spindle is not None else frozenset()
             idents = frozenset(desc.identities)
         return cls(
@@ -138,6 +143,12 @@ class MachineView:
             has_truth=bool(source.has_truth),
             simulated=bool(source.knobs_apply),
         )
+
+
+def _has_prior(ax: AxisDescription) -> bool:
+    """The axis' nominal gives every two-inertia parameter (K_t its own key or the nominal's)."""
+    have = set(ax.nominal) | ({"K_t"} if ax.K_t is not None else set())
+    return all(k in have for k in NOMINAL)
 
 
 def _description(source: Any) -> MachineDescription | None:
