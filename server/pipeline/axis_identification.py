@@ -122,7 +122,7 @@ class AxisIdentification:
                 AxisChannel(f"{n}.Fc_neg", u["Fc"], f"{n} friction, v < 0", f"{n}.Fc"),
                 AxisChannel(f"{n}.F", u["F"], f"{n} process force", "force"),
                 AxisChannel(
-                    f"{n}.F_sd", u["F"], f"{n} process force, standard uncertainty", "force"
+                    f"{n}.F_sd", u["F"], f"{n} process force, standard uncertainty", "force_sd"
                 ),
             ]
         return out

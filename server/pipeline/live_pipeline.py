@@ -188,6 +188,8 @@ class LivePipeline:
         self.seed = seed
         self._knobs = KnobValues(sc.knobs)
         self._effects0: tuple[ObserverEffect, ...] = ()
+        #: per axis, the residual report's effects the axes' live models hold
+        self.axis_effects: dict[str, tuple[Any, ...]] = {}
         plant = self._plant(source)
         self._plant_cfg = plant
         self._force0: CuttingForce = plant.config.force
@@ -257,6 +259,7 @@ class LivePipeline:
             self._plant_cfg,
             self._spindle_factor,
             effects,
+            dict(self.axis_effects),
         )
         self._parts: list[Part] = []
         self._status: dict[str, PartStatus] = {}
@@ -356,6 +359,34 @@ class LivePipeline:
 
     def _running(self, part: Part) -> bool:
         return self._status[part.name].running
+
+    def idle(self) -> str:
+        """Why nothing is estimated (``""``: something is): no part runs on this machine,
+        or a live feed has handed out no sample yet (its state: waiting for meta, the
+        broker not connected...). Health is never ``ok`` while this says something."""
+        if not any(s.running for s in self._status.values()):
+            return "no part runs on this machine (parts says why)"
+        src = self.source
+        if not src.paced and not src.knobs_apply and float(src.t) == 0.0:
+            st = src.status()
+            said = str(st.get("state", "")) or "nothing received"
+            if st.get("problem"):
+                said += f": {st['problem']}"
+            return f"no sample from the {src.name} feed yet ({said})"
+        return ""
+
+    def carry(self, old: LivePipeline) -> None:
+        """Continue ``old``'s identification (the same machine's feed, described again:
+        a new meta, a new sample rate): every part that can (``carry``) takes the
+        identified parameters of ``old``'s part of its name, its filters restarted."""
+        for part in self._parts:
+            take = getattr(part, "carry", None)
+            prev = old.part(part.name)
+            if take is not None and prev is not None:
+                take(prev, old.t)
+                said = getattr(part, "said", "")
+                if said and self._status[part.name].running:
+                    self._status[part.name] = PartStatus(part.name, True, said)
 
     def _check(self, view: MachineView) -> None:
         """Ask every part whether it can run on ``view`` (in order: a part whose needed
@@ -841,6 +872,9 @@ class LivePipeline:
             "accuracy": self.accuracy(),
             "parts": self.parts(),
         }
+        axes = self.part("axes")
+        if axes is not None:  # per axis, what does not run and why
+            snap["axes"] = axes.notes()
         status = self.source.status()
         if status:
             snap[self.source.name] = status

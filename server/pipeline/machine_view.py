@@ -25,7 +25,7 @@ from typing import Any
 from common.machine_description import AxisDescription, MachineDescription
 from server.pipeline.sources import NOMINAL, MeasurementSource
 
-__all__ = ["SIGNALS", "AxisView", "MachineView"]
+__all__ = ["SIGNALS", "AxisView", "MachineView", "description_of"]
 
 #: the signals of the simulated stage's one axis (two-inertia, with its reference force)
 SIGNALS = frozenset({"tau_m", "i_m", "q_m", "q_l", "f_ext"})
@@ -122,7 +122,7 @@ class MachineView:
     def of(cls, source: MeasurementSource, spindle_rpm: float = math.nan) -> MachineView:
         """The view of ``source``: from its machine description when it has one (a feed's
         meta, a log's sidecar), else the simulated stage's one axis."""
-        desc = _description(source)
+        desc = description_of(source)
         if desc is None:
             axes: tuple[AxisView, ...] = (AxisView("X", source.kind, SIGNALS),)
             spindle: frozenset[str] = frozenset()
@@ -151,7 +151,7 @@ def _has_prior(ax: AxisDescription) -> bool:
     return all(k in have for k in NOMINAL)
 
 
-def _description(source: Any) -> MachineDescription | None:
+def description_of(source: Any) -> MachineDescription | None:
     """The machine description a source carries (a feed's, a log's), if any."""
     for obj in (source, getattr(source, "feed", None), getattr(source, "log", None)):
         for attr in ("description", "machine"):

@@ -21,10 +21,12 @@ router = APIRouter(responses=error_responses())
 def health(lp: Live, s: Config) -> Health:
     h = lp.health()
     parts = lp.parts()
-    status = "ok" if all(p["running"] for p in parts) else "degraded"
+    idle = lp.idle()
+    status = "idle" if idle else "ok" if all(p["running"] for p in parts) else "degraded"
     return Health.model_validate(
         {
             "status": status if lp.running else "error",
+            "idle": idle,
             "parts": parts,
             "loop_error": lp.error,
             "viser_port": s.viser_port,
