@@ -15,8 +15,8 @@ interval (``_lo``, ``_hi``) and excitation (``_excited``), the friction of each
 direction (``Fc_pos``, ``Fc_neg``), and the process force ``F`` with its standard
 uncertainty ``F_sd``, the velocity reversals and the seconds of motion learnt from
 (``reversals``, ``moving_s``), as channels named ``<axis>.<name>``;
-:attr:`AxisIdentification.reasons` says, per axis, what does not run and why (the mass at 10 Hz without an acceleration, an
-effect a live model cannot hold).
+:attr:`AxisIdentification.reasons` says, per axis, what does not run and why (the mass at
+10 Hz without an acceleration, an effect a live model cannot hold).
 """
 
 from __future__ import annotations
