@@ -399,7 +399,7 @@ def test_demodulation_delays_each_channel_by_its_phase() -> None:
 
 
 def test_dither_lag_of_a_one_revolution_delay_is_a_quarter_period() -> None:
-    from server.experiments.reproductions.seed003_eccentricity import dither_lag
+    from server.experiments.reproductions._seed003_esc_ablations import dither_lag
 
     assert dither_lag(1.0, 4) == pytest.approx(0.0, abs=1e-12)
     assert dither_lag(0.0, 4) == pytest.approx(math.pi / 2)
@@ -413,8 +413,8 @@ def test_a_radius_step_shows_in_the_cost_mostly_one_revolution_late() -> None:
     shows in the cost of its own revolution only partly (drive transient and the
     previous tooth's surface, eq. 4), a phase step almost fully."""
     from machine.milling import MillingMachine
-    from server.experiments.reproductions.seed003_eccentricity import (
-        case_params,
+    from server.experiments.reproductions._seed003_cut import case_params
+    from server.experiments.reproductions._seed003_esc_ablations import (
         first_revolution_response,
     )
 
@@ -428,7 +428,8 @@ def test_a_radius_step_shows_in_the_cost_mostly_one_revolution_late() -> None:
 def test_table1_gains_on_a_static_cone_need_far_more_than_10_s() -> None:
     """With a true gradient (no plant dynamics) Table 1's step sizes under our unit reading
     are slow because the 2 deg phase dither moves the circle only a * 0.035 um."""
-    from server.experiments.reproductions.seed003_eccentricity import ESC_TABLE1, static_cone_time
+    from server.experiments.reproductions._seed003_cut import ESC_TABLE1
+    from server.experiments.reproductions._seed003_esc_ablations import static_cone_time
 
     u_star = 15.55 * np.exp(1j * math.radians(234.7))
     t = static_cone_time(ESC_TABLE1, 12.18, u_star, 0.05, 60.0)

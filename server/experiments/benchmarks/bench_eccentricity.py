@@ -10,7 +10,7 @@ from __future__ import annotations
 import statistics
 import time
 
-from server.experiments.reproductions.seed003_eccentricity import ESC_TABLE1, case_params
+from server.experiments.reproductions._seed003_cut import ESC_TABLE1, case_params
 from server.pipeline.eccentricity_loop import EccentricityLoop, ObserverForceSource
 
 
