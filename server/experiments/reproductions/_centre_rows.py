@@ -40,7 +40,7 @@ TARGET_BREAKAGE_REVS = 2.0
 TARGET_COLLISION_S = 5e-3
 TARGET_MISSING_BLOCKS = 1.0
 #: what each detector needs to confirm, in samples of its own rate (MonitorParams)
-CONFIRM = {
+CONFIRM: dict[str, str] = {
     ProcessEventKind.BREAKAGE: "d over its threshold for 3 samples, d comparing the last "
     "revolution with the one before",
     ProcessEventKind.COLLISION: "the force over its extreme limit for 2 consecutive samples",

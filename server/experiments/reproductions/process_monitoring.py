@@ -24,8 +24,14 @@ rate per hour the exact Poisson (Garwood) upper bound, a delay quantile the
 distribution-free upper bound (order statistics). A check holds only when the bound on
 the target's side meets the target.
 
+The machining centre (issue 32, :mod:`._centre_monitoring`, rows by :mod:`._centre_rows`):
+each seed simulated once at 10 kHz and exported as the CNC's trace at 5 kHz, 1 kHz and
+500 Hz, each trace watched on the spindle alone, the axes alone and both, so every
+comparison is paired; rows ``<kind>.clear.<set>.<what>_at_<rate>hz``.
+
 The full run keeps each finished case in a JSON-lines cache keyed by the hash of the code
-it depends on (:func:`cache_path`), so an interrupted run resumes.
+it depends on (:func:`cache_path`, :func:`centre_cache_path`), so an interrupted run
+resumes.
 """
 
 from __future__ import annotations
@@ -505,13 +511,20 @@ CENTRE_HOURS = 30
 
 
 def centre_cases(quick: bool) -> list[Any]:
-    """The machining centre's cases: the events first, then the event-free hours (a run
-    cut short has its detection rows whole)."""
+    """The machining centre's cases: every kind's events seed by seed, an event-free hour
+    after every ten seeds."""
     from server.experiments.reproductions._centre_monitoring import CentreCase
 
     n, hours, per = (2, 0.02, 0.02) if quick else (N_CENTRE, CENTRE_HOURS, 1.0)
-    out = [CentreCase(str(kind), s) for s in range(n) for kind in ProcessEventKind]
-    out += [CentreCase("none", s, per) for s in range(max(1, round(hours / per)))]
+    events = [CentreCase(str(kind), s) for s in range(n) for kind in ProcessEventKind]
+    free = [CentreCase("none", s, per) for s in range(max(1, round(hours / per)))]
+    # interleaved (an event-free hour after every ten seeds' events), so that a run cut
+    # short still has every kind of row
+    out: list[Any] = []
+    step = 30
+    for i in range(max(len(free), math.ceil(len(events) / step))):
+        out += events[i * step : (i + 1) * step]
+        out += free[i : i + 1]
     return out
 
 
