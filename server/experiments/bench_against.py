@@ -4,9 +4,10 @@
 archive`` in a temporary folder; each tree runs the group's ``measure(repeats=1,
 quick=...)`` in child processes of its own, in turn (before, after, before, after, ...),
 ``repeats`` times each, after one warm-up run each (numba compiles each tree's kernels
-into that tree's cache, imports warm). Every number the group reports is given as the
-median of each tree's runs, their spread (max / min) and the ratio after / before: both
-trees measured under the same load, so the ratio is what to read on a busy machine.
+into that tree's cache, imports warm; none with ``quick``, a smoke check). Every number
+the group reports is given as the median of each tree's runs, their spread (max / min)
+and the ratio after / before: both trees measured under the same load, so the ratio is
+what to read on a busy machine.
 
 A child runs with the tree as its working directory and its only ``PYTHONPATH`` entry,
 and says which ``server`` package it imported (refused if not the tree's); its output goes
@@ -23,8 +24,9 @@ import subprocess
 import sys
 import tempfile
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TypedDict
 
 from server.errors import CutwatchError
 
@@ -85,9 +87,64 @@ def module_name(group: str) -> str:
     return "bench_" + group.replace("-", "_")
 
 
-def child(tree: Path, group: str, quick: bool, kwargs: dict[str, Any]) -> dict[str, Any]:
-    """One run of ``group``'s ``measure(repeats=1, quick=quick, **kwargs)`` in a child
-    process on ``tree``'s code (its stderr ours); the group's result.
+#: one run's numeric figures by name
+Figures = dict[str, float]
+#: options passed on to a group's ``measure`` (the fleet group's: machines, workers, ...)
+Options = dict[str, int | float | bool | None]
+
+
+class Row(TypedDict):
+    """One figure of both trees: medians, spreads (max / min) and after / before."""
+
+    before: float
+    before_spread: float
+    after: float
+    after_spread: float
+    after_over_before: float
+
+
+class BeforeAfter(TypedDict):
+    """The comparison: the ref as given, its commit, runs per tree, the figures."""
+
+    ref: str
+    commit: str
+    runs: int
+    figures: dict[str, Row]
+
+
+@dataclass(frozen=True)
+class Run:
+    """One child's result: its numeric figures and its other plain values as text."""
+
+    figures: Figures
+    labels: dict[str, str]
+
+
+@dataclass(frozen=True)
+class Comparison:
+    """The group on both trees: this tree's medians and labels, and the comparison."""
+
+    figures: Figures
+    labels: dict[str, str]
+    before_after: BeforeAfter
+
+
+def split(res: dict[str, object]) -> Run:
+    """A result's numeric figures (booleans aside) and its other plain values as text
+    (nested values left out)."""
+    figs: Figures = {}
+    labels: dict[str, str] = {}
+    for k, v in res.items():
+        if isinstance(v, int | float) and not isinstance(v, bool):
+            figs[k] = float(v)
+        elif isinstance(v, str | bool):
+            labels[k] = str(v)
+    return Run(figs, labels)
+
+
+def child(tree: Path, group: str, quick: bool, options: Options) -> Run:
+    """One run of ``group``'s ``measure(repeats=1, quick=quick, **options)`` in a child
+    process on ``tree``'s code (its stderr ours).
 
     Raises
     ------
@@ -96,43 +153,37 @@ def child(tree: Path, group: str, quick: bool, kwargs: dict[str, Any]) -> dict[s
     """
     r = subprocess.run(
         [sys.executable, "-c", _CHILD, module_name(group), "1" if quick else "0",
-         json.dumps(kwargs)],
+         json.dumps(options)],
         cwd=tree, env={**os.environ, "PYTHONPATH": str(tree)},
         stdout=subprocess.PIPE, stderr=2, text=True, check=False,
     )  # fmt: skip
     if r.returncode != 0:
         raise CutwatchError(f"bench {group} on {tree} failed (exit {r.returncode}): see above")
-    doc: dict[str, Any] = json.loads(r.stdout.strip().splitlines()[-1])
+    doc = json.loads(r.stdout.strip().splitlines()[-1])
     if not str(doc["server"]).startswith(str(tree)):
         raise CutwatchError(f"the child ran {doc['server']}, not the code of {tree}")
-    res: dict[str, Any] = doc["result"]
-    return res
+    return split(doc["result"])
 
 
-def numbers(res: dict[str, Any]) -> dict[str, float]:
-    """The numeric figures of one result (booleans, strings and nested values left out)."""
-    return {
-        k: float(v)
-        for k, v in res.items()
-        if isinstance(v, int | float) and not isinstance(v, bool)
-    }
-
-
-def side_by_side(runs: dict[str, list[dict[str, Any]]]) -> dict[str, dict[str, float]]:
-    """Per figure both trees report: the medians of each tree's runs, their spreads
-    (max / min) and the ratio of the medians after / before."""
-    nums = {k: [numbers(r) for r in v] for k, v in runs.items()}
-    keys = [k for k in nums["after"][0] if all(k in r for rs in nums.values() for r in rs)]
-    out: dict[str, dict[str, float]] = {}
+def side_by_side(runs: dict[str, list[Figures]]) -> dict[str, Row]:
+    """Per figure both trees report in every run: the medians of each tree's runs, their
+    spreads (max / min) and the ratio of the medians after / before."""
+    keys = [k for k in runs["after"][0] if all(k in r for rs in runs.values() for r in rs)]
+    out: dict[str, Row] = {}
     for key in keys:
-        row: dict[str, float] = {}
+        med, spread = {}, {}
         for side in ("before", "after"):
-            vals = [r[key] for r in nums[side]]
-            row[side] = float(statistics.median(vals))
+            vals = [r[key] for r in runs[side]]
+            med[side] = float(statistics.median(vals))
             lo, hi = min(vals), max(vals)
-            row[f"{side}_spread"] = hi / lo if lo > 0 else float("nan")
-        row["after_over_before"] = row["after"] / row["before"] if row["before"] else float("nan")
-        out[key] = row
+            spread[side] = hi / lo if lo > 0 else float("nan")
+        out[key] = Row(
+            before=med["before"],
+            before_spread=spread["before"],
+            after=med["after"],
+            after_spread=spread["after"],
+            after_over_before=med["after"] / med["before"] if med["before"] else float("nan"),
+        )
     return out
 
 
@@ -142,21 +193,17 @@ def measure_against(
     *,
     repeats: int,
     quick: bool,
-    kwargs: dict[str, Any] | None = None,
+    options: Options | None = None,
     progress: Callable[[str], None] | None = None,
-) -> dict[str, Any]:
+) -> Comparison:
     """``group`` on this tree and on commit ``ref``'s code, in turn (module doc).
-
-    The result is the group's own, from this tree's runs (numbers: medians; the rest from
-    the last run), plus ``before_after``: the ref, its commit, the runs per tree, and per
-    figure the medians, spreads and ratio (:func:`side_by_side`).
 
     Raises
     ------
     CutwatchError
         No such commit, the group missing in its code, or a run failed.
     """
-    kw = kwargs or {}
+    opts = options or {}
     say = progress or (lambda m: print(m, file=sys.stderr, flush=True))
     sha = commit_of(ref)
     with tempfile.TemporaryDirectory(prefix="cutwatch-bench-before-") as d:
@@ -164,17 +211,19 @@ def measure_against(
         path = Path("server/experiments/benchmarks") / f"{module_name(group)}.py"
         if not (trees["before"] / path).exists():
             raise CutwatchError(f"--against {ref!r}: no benchmark group {group!r} there ({path})")
-        for side, t in trees.items():  # warm-up: kernels compiled and cached, imports warm
+        for side, t in trees.items() if not quick else ():
+            # warm-up: kernels compiled and cached, imports warm (--quick: a smoke check,
+            # none; the first runs then carry the compilation)
             say(f"  {group}: warm-up on {side} ({t})")
-            child(t, group, True, kw)
-        runs: dict[str, list[dict[str, Any]]] = {"before": [], "after": []}
+            child(t, group, True, opts)
+        runs: dict[str, list[Run]] = {"before": [], "after": []}
         for i in range(repeats):
             say(f"  {group}: before/after run {i + 1}/{repeats}")
             for side, t in trees.items():
-                runs[side].append(child(t, group, quick, kw))
-    after = runs["after"]
-    out: dict[str, Any] = {k: v for k, v in after[-1].items() if k not in numbers(after[-1])}
-    table = side_by_side(runs)
-    out.update({k: row["after"] for k, row in table.items()})
-    out["before_after"] = {"ref": ref, "commit": sha, "runs": repeats, "figures": table}
-    return out
+                runs[side].append(child(t, group, quick, opts))
+    table = side_by_side({k: [r.figures for r in v] for k, v in runs.items()})
+    return Comparison(
+        figures={k: row["after"] for k, row in table.items()},
+        labels=runs["after"][-1].labels,
+        before_after=BeforeAfter(ref=ref, commit=sha, runs=repeats, figures=table),
+    )

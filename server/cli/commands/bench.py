@@ -62,7 +62,10 @@ from __future__ import annotations
 import argparse
 import json
 from types import ModuleType
-from typing import Any
+from typing import TYPE_CHECKING, cast
+
+if TYPE_CHECKING:
+    from server.experiments.bench_against import BeforeAfter, Options
 
 HELP = "measure speed (medians of several runs); a benchmark, not a test"
 
@@ -123,7 +126,7 @@ def _print_group(name: str, res: dict[str, object], ratios: dict[str, float]) ->
             print(f"  {k:40s} {v}")
 
 
-def _print_before_after(name: str, ba: dict[str, Any]) -> None:
+def _print_before_after(name: str, ba: BeforeAfter) -> None:
     print(
         f"[{name}] before = {ba['ref']} ({ba['commit'][:10]}), after = this tree; medians of "
         f"{ba['runs']} runs each, in turn"
@@ -187,7 +190,7 @@ def run(args: argparse.Namespace) -> int:
         raise CutwatchError(f"--workers: expected an integer >= 0, got {args.workers}")
     if args.seconds is not None and not args.seconds >= 5:
         raise CutwatchError(f"--seconds: expected a window of 5 s at least, got {args.seconds}")
-    fleet = {
+    fleet: Options = {
         "machines": args.machines,
         "workers": args.workers,
         "seconds": args.seconds,
@@ -200,11 +203,12 @@ def run(args: argparse.Namespace) -> int:
     if args.against:
         commit_of(args.against)  # a bad commit refused before anything is measured
     for g in wanted:
-        kw = fleet if g == "fleet" else {}
+        kw: Options = fleet if g == "fleet" else {}
         if args.against:
-            result[g] = measure_against(
-                g, args.against, repeats=args.repeats, quick=args.quick, kwargs=kw
+            cmp = measure_against(
+                g, args.against, repeats=args.repeats, quick=args.quick, options=kw
             )
+            result[g] = {**cmp.labels, **cmp.figures, "before_after": cmp.before_after}
         else:
             result[g] = mods[g].measure(repeats=args.repeats, quick=args.quick, **kw)
     # again after the groups: a load that changed in between shows as a spread
@@ -213,8 +217,9 @@ def run(args: argparse.Namespace) -> int:
     if not args.json:
         for g, res in result.items():
             _print_group(g, res, ratios[g])
-            if isinstance(res.get("before_after"), dict):
-                _print_before_after(g, res["before_after"])  # type: ignore[arg-type]
+            ba = res.get("before_after")
+            if isinstance(ba, dict):
+                _print_before_after(g, cast("BeforeAfter", ba))
     head = result.get(HEADLINE_GROUP)
     top: dict[str, object]
     if isinstance(head, dict) and "realtime_factor" in head:
