@@ -18,10 +18,11 @@ entries and exits, a new workpiece (depth spread) every part, feed overrides now
 wear going on and worn tools replaced by new instances (another runout); every alarm
 after the teach-in is false.
 
-Rates carry 95 % Clopper-Pearson intervals (``scipy.stats.beta``); a false-alarm rate per
-hour carries the exact Poisson (Garwood) interval, its analogue for a count in a time. A
-check holds only when the interval's bound meets the target. Delay quantiles carry the
-distribution-free upper bound of the quantile (order statistics, binomial).
+Rates carry one-sided 95 % bounds (:mod:`server.experiments.confidence`, the one place
+every reproduction takes them from): a share its Clopper-Pearson bounds, a false-alarm
+rate per hour the exact Poisson (Garwood) upper bound, a delay quantile the
+distribution-free upper bound (order statistics). A check holds only when the bound on
+the target's side meets the target.
 
 The full run keeps each finished case in a JSON-lines cache keyed by the hash of the code
 it depends on (:func:`cache_path`), so an interrupted run resumes.
@@ -43,6 +44,11 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from common.event_kinds import ProcessEventKind
+from server.experiments.confidence import (
+    proportion_bounds,
+    quantile_upper,
+    rate_upper,
+)
 from server.experiments.reproduction import Check, Reproduction, Row
 
 if TYPE_CHECKING:
@@ -52,13 +58,14 @@ NAME = "process-monitoring"
 SOURCE = "issue 21 (process monitoring on seed 003's feed drives); targets from the issue"
 
 WORKERS = 2
-#: events per kind at the clear size: 0 misses in 367 gives a two-sided 95 % lower bound
-#: of 0.990 (0.025 ** (1 / 367))
+#: events per kind at the clear size: >= 299 with no miss give a one-sided 95 % lower
+#: bound of 0.99 (0.05 ** (1 / 299)); 370 leave room for one miss (0.9873 at 369/370)
 N_CLEAR = 370
 N_EDGE = 100
 #: breakages with the eccentricity canceller running
 N_CANCELLER = 60
-#: event-free simulated hours (0 alarms in 38 h: upper bound 3.69 / 38 = 0.097 per hour)
+#: event-free simulated hours (0 alarms in 38 h: one-sided upper bound 3.00 / 38 = 0.079
+#: per hour; 30 h would be the least that reaches 0.1)
 FREE_HOURS = 38
 LONG_RUNS = 2
 LONG_HOURS = 10.0
@@ -577,38 +584,6 @@ def run_cases(cases: list[Case], *, progress: bool, cache: Path | None) -> list[
     return results
 
 
-def clopper_pearson(k: int, n: int, conf: float = 0.95) -> tuple[float, float]:
-    """Two-sided Clopper-Pearson interval of a proportion ``k / n``."""
-    from scipy.stats import beta
-
-    a = 1.0 - conf
-    lo = 0.0 if k == 0 else float(beta.ppf(a / 2, k, n - k + 1))
-    hi = 1.0 if k == n else float(beta.ppf(1 - a / 2, k + 1, n - k))
-    return lo, hi
-
-
-def poisson_rate(k: int, exposure: float, conf: float = 0.95) -> tuple[float, float]:
-    """Exact (Garwood) two-sided interval of a rate: ``k`` counts in ``exposure``."""
-    from scipy.stats import chi2
-
-    a = 1.0 - conf
-    lo = 0.0 if k == 0 else float(chi2.ppf(a / 2, 2 * k) / 2 / exposure)
-    hi = float(chi2.ppf(1 - a / 2, 2 * k + 2) / 2 / exposure)
-    return lo, hi
-
-
-def quantile_upper(x: list[float], q: float, conf: float = 0.95) -> float:
-    """Distribution-free upper bound of the ``q`` quantile (one-sided at ``(1+conf)/2``):
-    the smallest order statistic ``x_(u)`` with ``P(Binom(n, q) < u) >= (1 + conf) / 2``."""
-    from scipy.stats import binom
-
-    v = sorted(x)
-    if not v:
-        return math.nan
-    u = int(binom.ppf((1 + conf) / 2, len(v), q))
-    return float(v[u]) if u < len(v) else math.inf
-
-
 #: the unit of each kind's size
 _SIZE_UNITS: dict[str, str] = {
     ProcessEventKind.BREAKAGE: "m radius",
@@ -630,6 +605,10 @@ _DELAY_TARGETS: dict[str, tuple[str, float, str, str]] = {
     ),
     ProcessEventKind.MISSING_TOOL: ("delay_blocks", 1.0, "block", "from the event's first sample"),
 }
+
+
+def _cp(lo: float, hi: float) -> str:
+    return f"one-sided 95 % CP bounds {lo:.4f} / {hi:.4f}"
 
 
 def build(results: list[dict[str, Any]]) -> Reproduction:
@@ -665,10 +644,10 @@ def _event_rows(rep: Reproduction, kind: str, size: str, rs: list[dict[str, Any]
     """Detection, misses, alarms before the event and delays of one kind and size of event."""
     n = len(rs)
     k = sum(1 for r in rs if r["detected"])
-    lo, hi = clopper_pearson(k, n)
+    lo, hi = proportion_bounds(k, n)
     sv = [r["size_value"] for r in rs]
     unit = _SIZE_UNITS[kind]
-    cond = f"{n} events, size {min(sv):.3g}-{max(sv):.3g} {unit}; 95 % CP [{lo:.4f}, {hi:.4f}]"
+    cond = f"{n} events, size {min(sv):.3g}-{max(sv):.3g} {unit}; {_cp(lo, hi)}"
     rep.rows.append(Row(f"{kind}.{size}.detection", k / n, None, "-", cond))
     misses = [r["seed"] for r in rs if not r["detected"]]
     if misses:
@@ -704,7 +683,7 @@ def _event_rows(rep: Reproduction, kind: str, size: str, rs: list[dict[str, Any]
                 p95,
                 None,
                 tunit,
-                f"95 % upper bound {p95_hi:.4g} {tunit}; target {target:g}",
+                f"one-sided 95 % upper bound {p95_hi:.4g} {tunit}; target {target:g}",
             )
         )
     if kind == ProcessEventKind.COLLISION:
@@ -751,7 +730,7 @@ def _canceller_rows(rep: Reproduction, esc: list[dict[str, Any]]) -> None:
     """Tooth breakages with the ESC adapting: detection, delay and the ESC held until the alarm."""
     n = len(esc)
     k = sum(1 for r in esc if r["detected"])
-    lo, hi = clopper_pearson(k, n)
+    lo, hi = proportion_bounds(k, n)
     fl = {f: [r for r in esc if r["flutes"] == f] for f in (2, 3, 4)}
     per = ", ".join(f"{f} flutes {sum(r['detected'] for r in v)}/{len(v)}" for f, v in fl.items())
     rep.rows.append(
@@ -760,7 +739,7 @@ def _canceller_rows(rep: Reproduction, esc: list[dict[str, Any]]) -> None:
             k / n,
             None,
             "-",
-            f"{n} tooth breakages with the ESC adapting; 95 % CP [{lo:.4f}, {hi:.4f}]; {per}",
+            f"{n} tooth breakages with the ESC adapting; {_cp(lo, hi)}; {per}",
         )
     )
     d = [float(r["delay_revs"]) for r in esc if r["detected"]]
@@ -808,14 +787,14 @@ def _false_alarm_rows(rep: Reproduction, free: list[dict[str, Any]]) -> None:
     hours = float(sum(r["watched_h"] for r in free))
     for det in ProcessEventKind:
         k = int(sum(r["alarms"][det] for r in free))
-        lo, hi = poisson_rate(k, hours)
+        hi = rate_upper(k, hours)
         rep.rows.append(
             Row(
                 f"false_alarms.{det}",
                 k / hours,
                 None,
                 "per hour",
-                f"{k} in {hours:.1f} h event-free; 95 % [{lo:.4f}, {hi:.4f}]",
+                f"{k} in {hours:.1f} h event-free; one-sided 95 % upper bound {hi:.4f}",
             )
         )
         rep.checks.append(

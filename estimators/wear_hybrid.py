@@ -1,0 +1,349 @@
+"""Flank wear of a turning tool never seen: a monotone wear state filtered through a map
+learnt across tools (issue 35; seed 004's state structure).
+
+State (per tool, per segment k; the data have no cutting time, so the wear rate is
+indexed by the segment number, um per segment)::
+
+    VB(k+1) = VB(k) + r(k),   r(k+1) = r(k) + w(k),   r >= 0 (projected)
+
+the wear grows and never shrinks (seed 004 eq. 3-8 keep the same monotone structure; the
+rate's law is a random walk here because the file cannot calibrate the diffusive part per
+tool). The measurement is a *map* from the segment's signals to VB, ``z = h(x)``, learnt
+across the training tools (linear, quadratic, isotonic in a linear index or gradient
+boosting: which one is chosen inside a nested evaluation, see
+``server/pipeline/wear_nested.py``); its residual variance on the training rows is the
+filter's measurement variance. ``smoothing = None`` is the map alone (no filter).
+
+A tool enters with what its record says (its VB when it came in, e.g. a tool put back
+from the crib); a tool with no record starts from what the training tools say of a fresh
+tool at these cutting conditions (their start VB, mean and spread, and the prior's rate)
+- never from its own first segments taken as new.
+
+The signals enter either as absolute levels with the feed rate as one more input
+(``reference = "none"``) or as the difference to the fresh-tool level that the training
+tools predict at the tool's feed rate (``reference = "conditions"``: a line in the feed
+rate through the training tools' first segments cut fresh).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from common.arrays import F64
+from estimators.errors import ParameterError
+
+REFERENCES = ("none", "conditions")
+MAPS = ("linear", "quadratic", "isotonic", "gbr")
+#: smoothing candidates: the rate's random-walk variance per segment, x the map's
+#: residual variance; None = the map alone
+SMOOTHINGS: tuple[float | None, ...] = (None, 1e-4, 1e-3, 1e-2, 1e-1)
+#: fresh-tool level of the signals: the first this many segments of a tool ...
+N_FRESH = 5
+#: ... while its VB is at most this [um]
+FRESH_VB = 30.0
+#: feed-rate unit (the CNC's, undocumented) scaled to order 1
+_FEED_UNIT = 1000.0
+#: S.D. [um] of a VB read from a tool's record (a microscope measurement)
+RECORD_SD = 5.0
+#: floor [um] of the S.D. of a fresh tool's start VB
+FRESH_SD_FLOOR = 10.0
+#: floor [um/segment] of the S.D. of the prior's rate
+RATE_SD_FLOOR = 0.1
+#: feed rates within this relative distance are the same cutting conditions
+SAME_CONDITIONS = 0.02
+
+
+@dataclass(frozen=True)
+class HybridConfig:
+    """One candidate configuration (the choices the nested evaluation makes)."""
+
+    reference: str = "conditions"
+    map: str = "linear"
+    smoothing: float | None = 1e-2
+
+    def __post_init__(self) -> None:
+        if self.reference not in REFERENCES:
+            raise ParameterError("reference", f"one of {REFERENCES}", self.reference)
+        if self.map not in MAPS:
+            raise ParameterError("map", f"one of {MAPS}", self.map)
+        if self.smoothing is not None and not (self.smoothing > 0):
+            raise ParameterError("smoothing", "None or > 0", self.smoothing)
+
+    @property
+    def label(self) -> str:
+        s = "map-alone" if self.smoothing is None else f"q={self.smoothing:g}"
+        return f"{self.reference}/{self.map}/{s}"
+
+
+def candidates() -> list[HybridConfig]:
+    """Every configuration of the protocol (2 x 4 x 5 = 40 per signal set)."""
+    return [HybridConfig(r, m, s) for r in REFERENCES for m in MAPS for s in SMOOTHINGS]
+
+
+@dataclass(frozen=True)
+class ToolData:
+    """One tool's segments in the order of its life.
+
+    Attributes
+    ----------
+    tool : int
+    x : ndarray, shape (n, m)
+        The signals' per-segment means (columns in the model's signal order).
+    feed : ndarray, shape (n,)
+        Programmed feed rate (cleaned, > 0; CNC units).
+    vb : ndarray or None
+        Measured (interpolated) flank wear [um], when known.
+    start_vb : float or None
+        VB [um] when the tool came in, from its record; None = no record (a fresh tool
+        is assumed, with the training tools' spread).
+    start_segment : int
+        Segments the tool had cut before the first row (from its record; 0 if new).
+    """
+
+    tool: int
+    x: F64
+    feed: F64
+    vb: F64 | None = None
+    start_vb: float | None = None
+    start_segment: int = 0
+
+    def __post_init__(self) -> None:
+        if self.x.ndim != 2 or len(self.x) != len(self.feed):
+            raise ParameterError("x", f"shape (n={len(self.feed)}, m)", self.x.shape)
+        if self.vb is not None and len(self.vb) != len(self.feed):
+            raise ParameterError("vb", f"{len(self.feed)} values", len(self.vb))
+
+    def tail(self, k: int, *, record: bool) -> ToolData:
+        """The tool entered part-way, at its segment ``k``: with its record (VB at ``k``
+        as measured at the change) or with none."""
+        vb = None if self.vb is None else self.vb[k:]
+        start = float(self.vb[k]) if (record and self.vb is not None) else None
+        return ToolData(self.tool, self.x[k:], self.feed[k:], vb, start, k if record else 0)
+
+
+@dataclass
+class HybridModel:
+    """A fitted map, the fresh-tool prior and the filter settings."""
+
+    config: HybridConfig
+    ref: F64 | None  # (2, m): fresh level = ref[0] + ref[1] * feed / unit
+    mu: F64  # feature centring
+    sd: F64  # feature scaling
+    coef: F64 | None  # linear / quadratic / isotonic index coefficients
+    iso_x: F64 | None
+    iso_y: F64 | None
+    gbr: Any
+    sigma2: float  # the map's residual variance on the training rows [um^2]
+    v0: float  # a fresh tool's start VB [um]
+    v0_sd: float
+    rates: list[tuple[float, float]] = field(default_factory=list)  # (feed, rate) per tool
+    rate_sd: float = 1.0
+
+    # ------------------------------------------------------------------ map
+    def features(self, x: F64, feed: F64) -> F64:
+        f = (np.asarray(feed, dtype=np.float64) / _FEED_UNIT)[:, None]
+        if self.ref is None:
+            z = np.column_stack([x, f])
+        else:
+            z = x - (self.ref[0] + self.ref[1] * f)
+        return (z - self.mu) / self.sd
+
+    def _design(self, z: F64) -> F64:
+        one = np.ones((len(z), 1))
+        if self.config.map == "quadratic":
+            return np.column_stack([one, z, z * z])
+        return np.column_stack([one, z])
+
+    def measure(self, x: F64, feed: F64) -> F64:
+        """The map's VB [um] for each segment."""
+        z = self.features(x, feed)
+        m = self.config.map
+        if m == "gbr":
+            return np.asarray(self.gbr.predict(z), dtype=np.float64)
+        assert self.coef is not None
+        idx = self._design(z) @ self.coef
+        if m == "isotonic":
+            assert self.iso_x is not None and self.iso_y is not None
+            return np.interp(idx, self.iso_x, self.iso_y)
+        return np.asarray(idx, dtype=np.float64)
+
+    # --------------------------------------------------------------- prior
+    def prior_rate(self, feed: float) -> tuple[float, float]:
+        """The training tools' median wear rate [um/segment] at these conditions (when
+        two or more share them, else over all) and its spread."""
+        rs = np.array([r for f, r in self.rates])
+        same = np.array([abs(f - feed) <= SAME_CONDITIONS * feed for f, _ in self.rates])
+        pick = rs[same] if same.sum() >= 2 else rs
+        return float(np.median(pick)), self.rate_sd
+
+    def start(self, tool: ToolData) -> tuple[float, float]:
+        """Start VB and its S.D.: the record's, or a fresh tool's."""
+        if tool.start_vb is not None:
+            return tool.start_vb, RECORD_SD
+        return self.v0, self.v0_sd
+
+    # --------------------------------------------------------------- filter
+    def run(self, tool: ToolData) -> tuple[F64, F64, F64]:
+        """Filter one tool: VB estimate, its S.D. and the rate, per segment."""
+        z = self.measure(tool.x, tool.feed)
+        n = len(z)
+        q = self.config.smoothing
+        if q is None:
+            s = math.sqrt(self.sigma2)
+            return z, np.full(n, s), np.full(n, np.nan)
+        r0, rsd = self.prior_rate(float(np.median(tool.feed[: min(n, 10)])))
+        v, vsd = self.start(tool)
+        r = r0
+        p11, p12, p22 = vsd * vsd, 0.0, rsd * rsd
+        R = self.sigma2
+        Q = q * self.sigma2
+        est = np.empty(n)
+        esd = np.empty(n)
+        rate = np.empty(n)
+        for k in range(n):
+            if k > 0:  # predict: VB += r; the rate is a random walk
+                v = v + r
+                p11, p12, p22 = p11 + 2 * p12 + p22, p12 + p22, p22 + Q
+            innov = z[k] - v
+            S = p11 + R
+            k1, k2 = p11 / S, p12 / S
+            v += k1 * innov
+            r += k2 * innov
+            p11, p12, p22 = (1 - k1) * p11, (1 - k1) * p12, p22 - k2 * p12
+            if r < 0.0:  # the wear never shrinks: project the rate
+                r = 0.0
+            est[k], esd[k], rate[k] = v, math.sqrt(max(p11, 1e-12)), r
+        return est, esd, rate
+
+
+def _standardise(z: F64) -> tuple[F64, F64]:
+    mu = z.mean(axis=0)
+    sd = z.std(axis=0)
+    sd[sd < 1e-12] = 1.0
+    return mu, sd
+
+
+def _pava(y: F64, w: F64) -> F64:
+    """Isotonic (non-decreasing) least squares of ``y`` in the given order."""
+    vals: list[float] = []
+    wts: list[float] = []
+    cnt: list[int] = []
+    for yi, wi in zip(y.tolist(), w.tolist(), strict=True):
+        vals.append(yi)
+        wts.append(wi)
+        cnt.append(1)
+        while len(vals) > 1 and vals[-2] > vals[-1]:
+            wsum = wts[-2] + wts[-1]
+            v = (vals[-2] * wts[-2] + vals[-1] * wts[-1]) / wsum
+            c = cnt[-2] + cnt[-1]
+            vals[-2:] = [v]
+            wts[-2:] = [wsum]
+            cnt[-2:] = [c]
+    return np.repeat(np.array(vals), np.array(cnt))
+
+
+def fresh_reference(tools: Sequence[ToolData]) -> F64:
+    """The signals' fresh-tool level as a line in the feed rate, over the tools that came
+    in fresh (their first ``N_FRESH`` segments at VB <= ``FRESH_VB``); one point per
+    tool. A flat level when all share one feed rate."""
+    pts_f: list[float] = []
+    pts_x: list[F64] = []
+    for t in tools:
+        if t.vb is None:
+            continue
+        k = np.flatnonzero(t.vb[:N_FRESH] <= FRESH_VB)
+        if len(k) == 0:
+            continue
+        pts_f.append(float(np.median(t.feed[k])) / _FEED_UNIT)
+        pts_x.append(np.median(t.x[k], axis=0))
+    if not pts_x:
+        raise ParameterError("tools", "one training tool that came in fresh", 0)
+    X = np.array(pts_x)
+    f = np.array(pts_f)
+    if np.ptp(f) <= SAME_CONDITIONS * f.mean():
+        return np.vstack([X.mean(axis=0), np.zeros(X.shape[1])])
+    A = np.column_stack([np.ones(len(f)), f])
+    c, *_ = np.linalg.lstsq(A, X, rcond=None)
+    return np.asarray(c, dtype=np.float64)
+
+
+def fit(tools: Sequence[ToolData], config: HybridConfig) -> HybridModel:
+    """Fit the map and the fresh-tool prior on training tools (each with ``vb``)."""
+    train = [t for t in tools if t.vb is not None]
+    if len(train) < 2:
+        raise ParameterError("tools", "two or more training tools with measured VB", len(train))
+    ref = fresh_reference(train) if config.reference == "conditions" else None
+    X = np.vstack([t.x for t in train])
+    feed = np.concatenate([t.feed for t in train])
+    y = np.concatenate([t.vb for t in train if t.vb is not None])
+    # per-row weights: each tool counts once, whatever its length
+    w = np.concatenate([np.full(len(t.feed), 1.0 / len(t.feed)) for t in train])
+    w = w / w.mean()
+    f = (feed / _FEED_UNIT)[:, None]
+    raw = np.column_stack([X, f]) if ref is None else X - (ref[0] + ref[1] * f)
+    mu, sd = _standardise(raw)
+    m = HybridModel(config, ref, mu, sd, None, None, None, None, 0.0, 0.0, 0.0)
+    z = (raw - mu) / sd
+    if config.map == "gbr":
+        from sklearn.ensemble import GradientBoostingRegressor
+
+        m.gbr = GradientBoostingRegressor(max_depth=2, n_estimators=100, random_state=0)
+        m.gbr.fit(z, y, sample_weight=w)
+    else:
+        A = m._design(z)
+        sw = np.sqrt(w)[:, None]
+        reg = 1e-6 * np.eye(A.shape[1])
+        reg[0, 0] = 0.0
+        Aw = A * sw
+        m.coef = np.linalg.solve(Aw.T @ Aw + reg * len(A), Aw.T @ (y * sw[:, 0]))
+        if config.map == "isotonic":
+            idx = A @ m.coef
+            o = np.argsort(idx, kind="stable")
+            m.iso_x = idx[o]
+            m.iso_y = _pava(y[o], w[o])
+    res = y - m.measure(X, feed)
+    m.sigma2 = float(max(np.average(res * res, weights=w), 1.0))
+    fresh = [float(t.vb[0]) for t in train if t.vb is not None and t.start_vb is None]
+    starts = [float(t.vb[0]) for t in train if t.vb is not None]
+    m.v0 = float(np.mean(fresh)) if fresh else 0.0
+    m.v0_sd = max(float(np.std(starts)), FRESH_SD_FLOOR)
+    m.rates = [
+        (float(np.median(t.feed)), float((t.vb[-1] - t.vb[0]) / max(len(t.vb) - 1, 1)))
+        for t in train
+        if t.vb is not None
+    ]
+    m.rate_sd = max(float(np.std([r for _, r in m.rates])), RATE_SD_FLOOR)
+    return m
+
+
+def life_end(est: F64, rate: F64, k: int, criterion: float) -> float:
+    """Predicted segment at which VB reaches ``criterion``, from the state at segment
+    ``k`` (linear in the filtered rate; inf when the rate is 0). For the map alone, the
+    rate is the slope of the estimate over the segments so far."""
+    v = float(est[k])
+    if v >= criterion:
+        return float(k)
+    r = float(rate[k])
+    if not math.isfinite(r):
+        lo = max(0, k - 20)
+        r = float((est[k] - est[lo]) / max(k - lo, 1))
+    return k + (criterion - v) / r if r > 1e-9 else math.inf
+
+
+__all__ = [
+    "MAPS",
+    "REFERENCES",
+    "SMOOTHINGS",
+    "HybridConfig",
+    "HybridModel",
+    "ToolData",
+    "candidates",
+    "fit",
+    "fresh_reference",
+    "life_end",
+]

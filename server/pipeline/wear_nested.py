@@ -1,0 +1,426 @@
+"""Wear on tools never seen: the nested evaluation of issue 35 (docs/turning-wear.md,
+"Tools never seen").
+
+Outer splits: leave one tool out, and repeated leave-k-tools-out (k = 2, 3, 4). Inside
+each outer fold every candidate configuration of :mod:`estimators.wear_hybrid` is scored
+by leave-one-tool-out over the fold's training tools; the best is refit on all of them
+and run on the test tools; its inner models give CV+ intervals over tools. The
+baselines are fitted on the same training rows: a line of VB on one ``_MEAN``, gradient
+boosting (scikit-learn defaults, ``random_state=0``) on one signal's five features and on
+the hybrid's features, and a no-signal prior (VB from the segments cut so far and the
+record). Everything is in segments: the table has no cutting time.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from common.arrays import F64
+from estimators.turning_wear import clean_condition
+from estimators.wear_hybrid import (
+    SAME_CONDITIONS,
+    HybridConfig,
+    HybridModel,
+    ToolData,
+    candidates,
+    fit,
+    life_end,
+)
+from server.records.wear_table import FEATURES, FEED, VB, WearTable, read_wear_table
+
+#: the signal sets (the first names the linear and five-feature baselines' signal)
+SETS: dict[str, tuple[str, ...]] = {
+    "F_f": ("F_f",),
+    "TV2.Z": ("TV2.Z",),
+    "CV3.Z": ("CV3.Z",),
+    "TV2.S": ("TV2.S",),
+    "drives": ("TV2.Z", "CV3.Z", "TV2.X", "CV3.X", "TV2.S", "CV3.S"),
+    "all": ("F_f", "TV2.Z", "CV3.Z", "TV2.X", "CV3.X", "TV2.S", "CV3.S", "F_c", "F_p"),
+}
+#: tools cut at other speeds and feeds (data README)
+OTHER_CONDITIONS = (3, 5, 16)
+#: repeated leave-k-tools-out: k and splits per k, and the seed of the draws
+K_OUT = (2, 3, 4)
+SPLITS_PER_K = 10
+SPLIT_SEED = 35
+ALPHA = 0.05
+#: a knot: the slope of VB changes by more than this (relative)
+KNOT_TOL = 0.01
+#: remaining-life criteria [um] (the second for tools that never reach the first)
+CRITERIA = (300.0, 150.0)
+BASELINES = ("linear", "gbr5", "gbr_same", "prior")
+
+
+def columns_needed(sets: Sequence[str]) -> list[str]:
+    """The ``_MEAN`` of every signal, the five features of each set's first signal
+    (``CV3.X_SK``/``_KURT`` have empty cells and are never asked for)."""
+    cols = {f"{s}_MEAN" for name in sets for s in SETS[name]}
+    cols |= {f"{SETS[name][0]}_{f}" for name in sets for f in FEATURES}
+    return [FEED, *sorted(cols)]
+
+
+def load(path: Any, sets: Sequence[str]) -> WearTable:
+    return read_wear_table(path, columns_needed(sets))
+
+
+def tool_data(
+    table: WearTable, signals: Sequence[str], tool: int, *, record: bool = True
+) -> ToolData:
+    """One tool for the hybrid; ``record``: it enters with its record (its VB when it
+    came in: 0 for a new tool, 39 / 41 um for tools 6 / 14 put back from the crib)."""
+    x = np.column_stack([table.column(f"{s}_MEAN", tool) for s in signals])
+    feed, _ = clean_condition(table.column(FEED, tool))
+    vb = table.column(VB, tool)
+    return ToolData(tool, x, feed, vb, float(vb[0]) if record else None)
+
+
+def knots(vb: F64) -> np.ndarray:
+    """Rows where VB was measured: the ends and every change of slope."""
+    d = np.diff(vb)
+    inner = np.flatnonzero(np.abs(np.diff(d)) > KNOT_TOL * np.maximum(np.abs(d[:-1]), 1e-9) + 1e-6)
+    return np.unique(np.concatenate([[0], inner + 1, [len(vb) - 1]]))
+
+
+def outer_splits(tools: Sequence[int], *, quick: bool = False) -> list[tuple[str, tuple[int, ...]]]:
+    """(protocol, test tools): LOTO over every tool, then SPLITS_PER_K random draws of k."""
+    out: list[tuple[str, tuple[int, ...]]] = [("loto", (t,)) for t in tools]
+    if quick:
+        return out
+    rng = np.random.default_rng(SPLIT_SEED)
+    for k in K_OUT:
+        seen: set[tuple[int, ...]] = set()
+        while sum(1 for p, _ in out if p == f"l{k}o") < SPLITS_PER_K:
+            pick = tuple(sorted(int(t) for t in rng.choice(list(tools), size=k, replace=False)))
+            if pick not in seen:
+                seen.add(pick)
+                out.append((f"l{k}o", pick))
+    return out
+
+
+def _wquantile(values: F64, weights: F64, q: float) -> F64:
+    """Weighted quantile along axis 1 (values (n, N), weights (N,))."""
+    o = np.argsort(values, axis=1)
+    v = np.take_along_axis(values, o, axis=1)
+    cw = np.cumsum(weights[o], axis=1)
+    cw /= cw[:, -1:]
+    j = np.argmax(cw >= q - 1e-12, axis=1)
+    return v[np.arange(len(v)), j]
+
+
+@dataclass
+class ToolResult:
+    tool: int
+    vb: F64
+    est: F64
+    lo: F64
+    hi: F64
+    base: dict[str, F64]
+    life: dict[str, float] = field(default_factory=dict)
+    entry: dict[str, float] = field(default_factory=dict)
+
+
+@dataclass
+class FoldResult:
+    protocol: str
+    test: tuple[int, ...]
+    chosen: str
+    tools: list[ToolResult]
+
+
+class _Cache:
+    """Fits keyed by (signal set, training tools, reference, map): smoothing does not
+    change the fit, and inner training sets repeat across outer folds."""
+
+    def __init__(self) -> None:
+        self.fits: dict[tuple[Any, ...], HybridModel] = {}
+
+    def get(
+        self, key: tuple[Any, ...], tools: Sequence[ToolData], cfg: HybridConfig
+    ) -> HybridModel:
+        k = (*key, cfg.reference, cfg.map)
+        m = self.fits.get(k)
+        if m is None:
+            m = fit(tools, HybridConfig(cfg.reference, cfg.map, None))
+            self.fits[k] = m
+        return m
+
+
+def _with(m: HybridModel, cfg: HybridConfig) -> HybridModel:
+    out = HybridModel(**{**m.__dict__, "config": cfg})
+    return out
+
+
+def _prior_fit(train: Sequence[ToolData]) -> list[tuple[float, float]]:
+    return [
+        (float(np.median(t.feed)), float((t.vb[-1] - t.vb[0]) / max(len(t.vb) - 1, 1)))
+        for t in train
+        if t.vb is not None
+    ]
+
+
+def prior_predict(rates: list[tuple[float, float]], v0: float, tool: ToolData) -> F64:
+    """No-signal prior: v0 + r k, r the training tools' median rate at these conditions
+    (two or more sharing them) or over all."""
+    feed = float(np.median(tool.feed[:10]))
+    rs = np.array([r for _, r in rates])
+    same = np.array([abs(f - feed) <= SAME_CONDITIONS * feed for f, _ in rates])
+    r = float(np.median(rs[same] if same.sum() >= 2 else rs))
+    start = tool.start_vb if tool.start_vb is not None else v0
+    return start + r * np.arange(len(tool.feed), dtype=np.float64)
+
+
+def _baselines(
+    table: WearTable,
+    signals: Sequence[str],
+    train: Sequence[int],
+    test: int,
+    dtrain: Sequence[ToolData],
+    dtest: ToolData,
+) -> dict[str, F64]:
+    from sklearn.ensemble import GradientBoostingRegressor
+
+    def rows(tools: Sequence[int]) -> np.ndarray:
+        return np.concatenate([table.rows_of(t) for t in tools])
+
+    tr, te = rows(train), table.rows_of(test)
+    y = table.columns[VB][tr]
+    s0 = signals[0]
+    A = np.column_stack([np.ones(len(tr)), table.columns[f"{s0}_MEAN"][tr]])
+    c, *_ = np.linalg.lstsq(A, y, rcond=None)
+    lin = c[0] + c[1] * table.columns[f"{s0}_MEAN"][te]
+    X5 = np.column_stack([table.columns[f"{s0}_{f}"][tr] for f in FEATURES])
+    X5t = np.column_stack([table.columns[f"{s0}_{f}"][te] for f in FEATURES])
+    g5 = GradientBoostingRegressor(random_state=0).fit(X5, y).predict(X5t)
+    Xs = np.vstack([np.column_stack([d.x, d.feed]) for d in dtrain])
+    Xst = np.column_stack([dtest.x, dtest.feed])
+    gs = (
+        GradientBoostingRegressor(random_state=0).fit(Xs, y).predict(Xst)
+        if len(signals) > 1
+        else g5
+    )
+    fresh = [float(d.vb[0]) for d in dtrain if d.vb is not None and d.vb[0] <= 0.0]
+    pr = prior_predict(_prior_fit(dtrain), float(np.mean(fresh)) if fresh else 0.0, dtest)
+    return {
+        "linear": np.asarray(lin, dtype=np.float64),
+        "gbr5": np.asarray(g5, dtype=np.float64),
+        "gbr_same": np.asarray(gs, dtype=np.float64),
+        "prior": pr,
+    }
+
+
+def run_fold(
+    table: WearTable,
+    set_name: str,
+    test: Sequence[int],
+    protocol: str,
+    cache: _Cache,
+    *,
+    configs: Sequence[HybridConfig] | None = None,
+) -> FoldResult:
+    """One outer fold: nested choice, refit, CV+ intervals, baselines, life, entry."""
+    signals = SETS[set_name]
+    tools = [t for t in table.tools if t not in test]
+    data = {t: tool_data(table, signals, t) for t in table.tools}
+    cfgs = list(configs) if configs is not None else candidates()
+    # inner leave-one-tool-out over the training tools
+    score: dict[HybridConfig, list[float]] = {c: [] for c in cfgs}
+    inner: dict[HybridConfig, dict[int, tuple[F64, F64, F64]]] = {c: {} for c in cfgs}
+    for i in tools:
+        rest = [data[t] for t in tools if t != i]
+        key = (set_name, tuple(sorted(t for t in tools if t != i)))
+        for c in cfgs:
+            m = _with(cache.get(key, rest, c), c)
+            est, sd, _ = m.run(data[i])
+            vb = data[i].vb
+            assert vb is not None
+            score[c].append(float(np.mean(np.abs(est - vb))))
+            inner[c][i] = (est, sd, vb)
+    best = min(cfgs, key=lambda c: (float(np.mean(score[c])), c.label))
+    model = _with(cache.get((set_name, tuple(sorted(tools))), [data[t] for t in tools], best), best)
+    out: list[ToolResult] = []
+    for t in test:
+        d = data[t]
+        assert d.vb is not None
+        est, _, rate = model.run(d)
+        # CV+ over the training tools
+        lows, highs, ws = [], [], []
+        for i in tools:
+            m_i = _with(
+                cache.get(
+                    (set_name, tuple(sorted(x for x in tools if x != i))),
+                    [data[x] for x in tools if x != i],
+                    best,
+                ),
+                best,
+            )
+            mu, sg, _ = m_i.run(d)
+            e_i, s_i, v_i = inner[best][i]
+            a = np.abs(v_i - e_i) / s_i
+            lows.append(mu[:, None] - a[None, :] * sg[:, None])
+            highs.append(mu[:, None] + a[None, :] * sg[:, None])
+            ws.append(np.full(len(a), 1.0 / len(a)))
+        w = np.concatenate(ws)
+        lo = _wquantile(np.hstack(lows), w, ALPHA / 2)
+        hi = _wquantile(np.hstack(highs), w, 1 - ALPHA / 2)
+        base = _baselines(table, signals, tools, t, [data[x] for x in tools], d)
+        r = ToolResult(t, d.vb, est, lo, hi, base)
+        for crit in CRITERIA:
+            hit = np.flatnonzero(d.vb >= crit)
+            if len(hit) and hit[0] >= 2:
+                h = int(hit[0])
+                k = h // 2
+                end = life_end(est, rate, k, crit)
+                r.life[f"{crit:g}"] = abs(end - h) / (h - k) if math.isfinite(end) else math.inf
+        # entered part-way (a third into its life): with its record, and with none
+        k = len(d.vb) // 3
+        for rec in (True, False):
+            e, _, _ = model.run(d.tail(k, record=rec))
+            r.entry["record" if rec else "no_record"] = float(np.mean(np.abs(e - d.vb[k:])))
+        out.append(r)
+    return FoldResult(protocol, tuple(test), best.label, out)
+
+
+def evaluate(
+    table: WearTable,
+    sets: Sequence[str],
+    splits: Sequence[tuple[str, tuple[int, ...]]],
+    *,
+    configs: Sequence[HybridConfig] | None = None,
+    progress: Callable[[int], Any] | None = None,
+) -> dict[str, list[FoldResult]]:
+    """Every outer split for every signal set."""
+    cache = _Cache()
+    res: dict[str, list[FoldResult]] = {}
+    for s in sets:
+        res[s] = []
+        for proto, test in splits:
+            res[s].append(run_fold(table, s, test, proto, cache, configs=configs))
+            if progress is not None:
+                progress(1)
+        cache.fits.clear()
+    return res
+
+
+# ------------------------------------------------------------------ summaries
+def _mae(a: F64, b: F64) -> float:
+    return float(np.mean(np.abs(a - b)))
+
+
+def fold_metrics(f: FoldResult) -> dict[str, float]:
+    """Pooled over the fold's test tools: MAE (all rows, knots), baselines', coverage,
+    median width."""
+    vb = np.concatenate([t.vb for t in f.tools])
+    est = np.concatenate([t.est for t in f.tools])
+    kn = [knots(t.vb) for t in f.tools]
+    vbk = np.concatenate([t.vb[k] for t, k in zip(f.tools, kn, strict=True)])
+    m: dict[str, float] = {
+        "mae": _mae(est, vb),
+        "mae_knots": _mae(
+            np.concatenate([t.est[k] for t, k in zip(f.tools, kn, strict=True)]), vbk
+        ),
+    }
+    for b in BASELINES:
+        pb = np.concatenate([t.base[b] for t in f.tools])
+        m[f"mae_{b}"] = _mae(pb, vb)
+        m[f"mae_knots_{b}"] = _mae(
+            np.concatenate([t.base[b][k] for t, k in zip(f.tools, kn, strict=True)]), vbk
+        )
+    lo = np.concatenate([t.lo for t in f.tools])
+    hi = np.concatenate([t.hi for t in f.tools])
+    m["coverage"] = float(np.mean((vb >= lo) & (vb <= hi)))
+    m["width"] = float(np.median(hi - lo))
+    return m
+
+
+def per_tool(f: FoldResult) -> list[dict[str, Any]]:
+    out = []
+    for t in f.tools:
+        row: dict[str, Any] = {
+            "tool": t.tool,
+            "mae": _mae(t.est, t.vb),
+            "coverage": float(np.mean((t.vb >= t.lo) & (t.vb <= t.hi))),
+            "width": float(np.median(t.hi - t.lo)),
+            "life": dict(t.life),
+            "entry": dict(t.entry),
+        }
+        for b in BASELINES:
+            row[f"mae_{b}"] = _mae(t.base[b], t.vb)
+        out.append(row)
+    return out
+
+
+def summarise(folds: Sequence[FoldResult]) -> dict[str, Any]:
+    """Per protocol: median and range over splits of each metric and of the ratios to
+    the baselines; per tool (LOTO); by condition group; life; entry; chosen configs."""
+    out: dict[str, Any] = {}
+    protos = list(dict.fromkeys(f.protocol for f in folds))
+    for p in protos:
+        fs = [f for f in folds if f.protocol == p]
+        ms = [fold_metrics(f) for f in fs]
+        keys = list(ms[0])
+        for b in BASELINES:
+            for m in ms:
+                m[f"ratio_{b}"] = m["mae"] / m[f"mae_{b}"] if m[f"mae_{b}"] > 0 else math.nan
+            keys.append(f"ratio_{b}")
+        tools = [r for f in fs for r in per_tool(f)]
+        beat = [r["mae"] < r["mae_linear"] for r in tools]
+        cov75 = [r["coverage"] >= 0.75 for r in tools]
+        out[p] = {
+            "splits": len(fs),
+            **{
+                k: {
+                    "median": float(np.median([m[k] for m in ms])),
+                    "min": float(np.min([m[k] for m in ms])),
+                    "max": float(np.max([m[k] for m in ms])),
+                }
+                for k in keys
+            },
+            "tools_beat_linear": float(np.mean(beat)),
+            "tools_cov75": float(np.mean(cov75)),
+            "chosen": dict(
+                sorted(
+                    {c: sum(f.chosen == c for f in fs) for c in {f.chosen for f in fs}}.items(),
+                    key=lambda kv: -kv[1],
+                )
+            ),
+        }
+        if p == "loto":
+            out[p]["per_tool"] = tools
+            for g, members in (
+                ("other", [t for t in tools if t["tool"] in OTHER_CONDITIONS]),
+                ("main", [t for t in tools if t["tool"] not in OTHER_CONDITIONS]),
+            ):
+                if members:
+                    out[p][f"group_{g}"] = {
+                        k: float(np.mean([t[k] for t in members]))
+                        for k in ("mae", *(f"mae_{b}" for b in BASELINES))
+                    }
+            lives = [t["life"].get("300", t["life"].get("150")) for t in tools if t["life"]]
+            out[p]["life_error"] = float(np.median(lives)) if lives else math.nan
+            out[p]["life_tools"] = len(lives)
+            out[p]["entry_record"] = float(np.mean([t["entry"]["record"] for t in tools]))
+            out[p]["entry_no_record"] = float(np.mean([t["entry"]["no_record"] for t in tools]))
+    return out
+
+
+__all__ = [
+    "BASELINES",
+    "OTHER_CONDITIONS",
+    "SETS",
+    "FoldResult",
+    "ToolResult",
+    "evaluate",
+    "fold_metrics",
+    "knots",
+    "load",
+    "outer_splits",
+    "per_tool",
+    "run_fold",
+    "summarise",
+    "tool_data",
+]
