@@ -22,10 +22,9 @@ It carries no :class:`machine.stage.Truth` (``has_truth`` False: the centre's tr
 not the stage's); the simulator's truth of the last block (process forces, cutting
 torque, flank wear, the injected events) is kept in :attr:`CentreSource.truth` for
 display and scoring, never handed to a part. The scenario's knobs do not drive it
-(``knobs_apply`` False); the loop paces it (``paced``). It has no nominal two-inertia
-parameters in the stage's units (``has_nominal`` False): the stage's observers, built
-for seed 000's rotary lab stage in rad and N m, say so and do not run
-(:attr:`server.pipeline.machine_view.MachineView.nominal`).
+(``knobs_apply`` False); the loop paces it (``paced``). Its description gives no
+nominal two-inertia parameters (a CNC does not hand them out): the stage's observers say
+so and do not run (:attr:`server.pipeline.machine_view.AxisView.prior`).
 """
 
 from __future__ import annotations
@@ -70,10 +69,7 @@ class CentreSource:
 
     name = "centre"
     kind = "two_inertia"
-    #: its blocks carry every signal by column name (``SourceBlock.columns``)
-    columns = True
     has_truth = False
-    has_nominal = False
     knobs_apply = False
     paced = True
     finished = False
@@ -105,8 +101,9 @@ class CentreSource:
 
     @property
     def nominal(self) -> StageParams:
-        """Seed 000's stage: the part that builds observers needs some; ``has_nominal``
-        False says they are not this machine's (its stage part does not run)."""
+        """Seed 000's stage: the part that builds observers needs some; the description's
+        axes without a nominal say they are not this machine's (the stage part does not
+        run)."""
         return preset("seed000")
 
     @property

@@ -9,7 +9,9 @@ code here:
                 observer's estimate over the period (a tooth-passing force oscillates;
                 its rms is the level a person compares);
 ``params``      the identified parameters (and their bounds and excited flags when the
-                pipeline streams them);
+                pipeline streams them): the stage's J_L, B_L, F_CL, and each axis' M, Fv,
+                Fc, offset of a described machine (``X.M``, ``X.M_lo``..., part axes) and
+                what they were learnt from (``X.reversals``, ``X.moving_s``);
 ``harmonics``   the harmonic observer's amplitudes;
 ``wear``        ``VB_mm``, ``VB_limit_mm``, ``remaining_life_min`` of one tool, and
                 ``tool``: which (the status strip's ``wear_tool``; 0: not known);
@@ -145,6 +147,10 @@ class EstimatesPublisher:
                 continue
             if group in GROUPS:
                 groups[GROUPS[group]][name] = latest[name]
+            elif group == "force_sd":  # a force estimate's uncertainty: beside it
+                groups["force"][name] = latest[name]
+            elif _axis_param(group):  # an axis' parameter (part axes): X.M, X.Fc...
+                groups["params"][name] = latest[name]
             elif group == "harmonics":
                 harmonics[name] = latest[name]
         vb, lim = latest.get("vb_est", math.nan), latest.get("vb_limit", math.nan)
@@ -219,6 +225,11 @@ class EstimatesPublisher:
             "published": self.published,
             "rate_hz": 1.0 / self.period,
         }
+
+
+def _axis_param(group: str) -> bool:
+    """A group ``<axis>.<parameter>`` of the axes' live identification (``X.M``)."""
+    return "." in group and group.rsplit(".", 1)[1] in ("M", "Fv", "Fc", "offset", "motion")
 
 
 def _monitor(latest: Mapping[str, float]) -> dict[str, Any] | None:

@@ -22,8 +22,8 @@ import math
 from dataclasses import dataclass, replace
 from typing import Any
 
-from common.machine_description import MachineDescription
-from server.pipeline.sources import MeasurementSource
+from common.machine_description import AxisDescription, MachineDescription
+from server.pipeline.sources import NOMINAL, MeasurementSource
 
 __all__ = ["SIGNALS", "AxisView", "MachineView", "description_of"]
 
@@ -33,11 +33,14 @@ SIGNALS = frozenset({"tau_m", "i_m", "q_m", "q_l", "f_ext"})
 
 @dataclass(frozen=True)
 class AxisView:
-    """One feed axis as the parts see it: its name, kind and the roles of its signals."""
+    """One feed axis as the parts see it: its name, kind, the roles of its signals, and
+    whether its nominal holds every two-inertia parameter (``prior``: the simulator's
+    and a replayed log's do; a feed's only when its description gives them)."""
 
     name: str
     kind: str
     roles: frozenset[str]
+    prior: bool = True
 
     def has(self, *roles: str) -> bool:
         return all(r in self.roles for r in roles)
@@ -66,11 +69,6 @@ class MachineView:
     simulated
         The machine is simulated: the scenario's knobs drive it (its parts may simulate
         beside it).
-    nominal
-        The source gives the nominal two-inertia parameters, in the stage's units (rad,
-        N m), the stage's observers are built from (the simulated stage, a log's
-        sidecar, a feed's meta); False for a described machine without them (the
-        machining centre: linear axes in m and N, no prior).
     """
 
     source: str
@@ -81,7 +79,6 @@ class MachineView:
     spindle_rpm: float = math.nan
     has_truth: bool = False
     simulated: bool = False
-    nominal: bool = True
 
     @property
     def sample_rate(self) -> float:
@@ -131,7 +128,9 @@ class MachineView:
             spindle: frozenset[str] = frozenset()
             idents: frozenset[str] = frozenset()
         else:
-            axes = tuple(AxisView(a.name, a.kind, frozenset(a.signals)) for a in desc.axes)
+            axes = tuple(
+                AxisView(a.name, a.kind, frozenset(a.signals), _has_prior(a)) for a in desc.axes
+            )
             spindle = frozenset(desc.spindle.signals) if desc.spindle is not None else frozenset()
             idents = frozenset(desc.identities)
         return cls(
@@ -143,8 +142,13 @@ class MachineView:
             spindle_rpm=float(spindle_rpm),
             has_truth=bool(source.has_truth),
             simulated=bool(source.knobs_apply),
-            nominal=bool(getattr(source, "has_nominal", True)),
         )
+
+
+def _has_prior(ax: AxisDescription) -> bool:
+    """The axis' nominal gives every two-inertia parameter (K_t its own key or the nominal's)."""
+    have = set(ax.nominal) | ({"K_t"} if ax.K_t is not None else set())
+    return all(k in have for k in NOMINAL)
 
 
 def description_of(source: Any) -> MachineDescription | None:

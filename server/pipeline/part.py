@@ -59,7 +59,6 @@ __all__ = [
     "Verdict",
     "needs_axis",
     "needs_band",
-    "needs_nominal",
     "needs_signals",
     "needs_simulator",
 ]
@@ -132,18 +131,6 @@ def needs_band(machine: MachineView, hz: float, what: str) -> Verdict:
     return refuse(
         f"{what} at {hz:.4g} Hz is above the Nyquist frequency {machine.nyquist:.4g} "
         f"Hz of a {machine.sample_rate:.4g} Hz source"
-    )
-
-
-def needs_nominal(machine: MachineView, what: str) -> Verdict:
-    """:data:`OK` when the source gives the nominal two-inertia parameters in the stage's
-    units (:attr:`MachineView.nominal`) that ``what`` is built from."""
-    if machine.nominal:
-        return OK
-    return refuse(
-        f"needs {what} built from the nominal two-inertia parameters in rad and N m; the "
-        f"{machine.source} source's machine gives none (its axes are in m and N, with no "
-        "prior)"
     )
 
 

@@ -44,7 +44,7 @@ def test_the_parts_that_can_run_run_and_the_others_say_why(run: tuple) -> None:
     assert parts["spindle"]["running"] and parts["axes"]["running"]
     for name in ("stage", "effects", "dfo"):
         assert not parts[name]["running"]
-        assert "nominal two-inertia parameters" in parts[name]["reason"]
+        assert "nominal two-inertia parameters" in parts[name]["reason"], parts[name]
     # the simulating parts of the stage's default scenario are not built here
     assert not {"wear", "process", "eccentricity", "workpiece"} & set(parts)
 
@@ -68,14 +68,14 @@ def test_the_spindle_cutting_power_is_the_power_less_the_taught_idle(run: tuple)
 def test_the_axes_process_force_and_parameters_with_intervals(run: tuple) -> None:
     _, out, truth = run
     for a in "XYZ":
-        f = out[f"{a}_F"]
+        f = out[f"{a}.F"]
         assert np.isfinite(f[-1000:]).all()
-        lo, m, hi = out[f"{a}_M_lo"][-1], out[f"{a}_M"][-1], out[f"{a}_M_hi"][-1]
+        lo, m, hi = out[f"{a}.M_lo"][-1], out[f"{a}.M"][-1], out[f"{a}.M_hi"][-1]
         assert lo <= m <= hi and m > 0
-        assert (out[f"{a}_F_sd"][-1000:] >= 0).all()  # (NaN would fail too)
+        assert (out[f"{a}.F_sd"][-1000:] >= 0).all()  # (NaN would fail too)
     # (its accuracy against the truth is measured, not asserted, in
     # docs/machining-centre.md: on this 500 Hz trace the error is about the force's size)
-    assert len(out["X_F"]) == len(truth["true_X_f_process"])
+    assert len(out["X.F"]) == len(truth["true_X_f_process"])
 
 
 def test_the_strip_reads_the_cnc(run: tuple) -> None:
@@ -111,7 +111,7 @@ def test_reset_and_state_restore_give_the_same_blocks() -> None:
     a = p.step(50)
     p.restore(st)
     b = p.step(50)
-    for k in ("spindle_power", "X_F", "Y_M"):
+    for k in ("spindle_power", "X.F", "Y.M"):
         np.testing.assert_array_equal(a[k], b[k])
     p.reset()
     assert p.t == 0.0

@@ -12,7 +12,7 @@ from _wait import poll
 
 
 def test_the_machine_of_the_stage_and_of_the_centre() -> None:
-    with serve() as hp, httpx.Client(base_url=f"http://{hp}", timeout=10) as api:
+    with serve() as hp, httpx.Client(base_url=f"http://{hp}", timeout=60) as api:
         m = api.get("/api/machine").json()
         assert m["scenario"] == "default" and m["source"] == "simulator"
         assert [(a["name"], a["kind"]) for a in m["axes"]] == [("X", "two_inertia")]
@@ -38,7 +38,7 @@ def test_the_machine_of_the_stage_and_of_the_centre() -> None:
 def test_started_on_the_centre_it_streams_and_keeps_its_checkpoint() -> None:
     with (
         serve(scenario="machining-centre", checkpoint_s=1.0) as hp,
-        httpx.Client(base_url=f"http://{hp}", timeout=10) as api,
+        httpx.Client(base_url=f"http://{hp}", timeout=60) as api,
     ):
         streams(api)
 
@@ -59,5 +59,5 @@ def streams(api: httpx.Client) -> None:
     poll(lambda: math.isfinite(latest().get("spindle_power") or math.nan), 30, 0.2)
     snap = api.get("/api/snapshot").json()
     assert snap["status"]["program"] == "O2001" and snap["status"]["tool"] > 0
-    assert "X_F" in snap["pipeline"]["latest"]
+    assert "X.F" in snap["pipeline"]["latest"]
     assert api.get("/api/health").json()["loop_error"] is None
