@@ -15,6 +15,8 @@ dfo            seed 002's harmonic observer                    server/pipeline/d
 wear           seed 004's wearing tool and its life monitor    server/pipeline/wear_part.py
 eccentricity   seed 003's milling tool and its tuner           server/pipeline/eccentricity_part.py
 process        the part program and the process monitor        server/pipeline/process_part.py
+cnc            a described machine's spindle and axes          server/pipeline/cnc_part.py
+               (a source with columns: OPC UA)
 =============  ==============================================  =========================
 
 More parts come after these, in the order they were added: :func:`register` (in
@@ -117,6 +119,10 @@ def _workpiece(c: BuildContext) -> Part | None:
 def _stage(c: BuildContext) -> Part:
     from server.pipeline.stage_part import StagePart
 
+    why = getattr(c.source, "stage_refusal", "")  # a described machine without its model
+    if why:
+        raise CutwatchError(why)
+
     return StagePart(c.source, c.plant.ident, dict(c.plant.design))
 
 
@@ -150,6 +156,14 @@ def _process(c: BuildContext) -> Part | None:
     return ProcessPart.from_knobs(c.seed, c.knobs) if c.scenario.process else None
 
 
+def _cnc(c: BuildContext) -> Part | None:
+    from common.machine_description import MachineDescription
+    from server.pipeline.cnc_part import CncPart
+
+    desc = getattr(c.source, "description", None)  # a source that hands out columns
+    return CncPart(desc) if isinstance(desc, MachineDescription) else None
+
+
 #: cutwatch's own parts, by name, in the order they run (module docstring)
 BUILTIN: tuple[tuple[str, PartFactory], ...] = (
     ("workpiece", _workpiece),
@@ -159,6 +173,7 @@ BUILTIN: tuple[tuple[str, PartFactory], ...] = (
     ("wear", _wear),
     ("eccentricity", _eccentricity),
     ("process", _process),
+    ("cnc", _cnc),
 )
 
 #: the parts added: what was registered (a class or a factory) -> its factory
