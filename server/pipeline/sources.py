@@ -119,9 +119,9 @@ class SourceBlock:
         Why this block does not continue the previous one (``"gap"``, ``"reset"``...);
         the pipeline resets its observers before running it. None: it continues.
     columns : mapping of str to array
-        Every signal of a described machine by its source name (an OPC UA node id), in
-        the description's units, one value per sample; empty for a source without a
-        machine description.
+        Every signal of a described machine's block by its source's name (a live feed's
+        column, an OPC UA node id: every axis, the spindle), one value per sample of
+        ``meas``; empty for a source of one two-inertia axis without a description.
     """
 
     meas: Measurements

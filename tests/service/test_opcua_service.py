@@ -139,7 +139,7 @@ def test_browse_then_serve_the_sim_spindle_and_axes_arrive_kill_and_recover(
         assert o["lost"] == 0 and o["late"] == 0 and o["merged"] == 0, o
         assert "X.q_m: mm converted to m" in o["units"]
         parts = {p["name"]: p for p in h["parts"]}
-        assert parts["cnc"]["running"]
+        assert parts["cnc"]["running"] and parts["axes"]["running"]
         assert "rotary two-inertia" in parts["stage"]["reason"]  # said, not run on X in m
         latest = _latest(hp)
         assert 100 < latest["spindle.speed"] < 12_000  # rpm
