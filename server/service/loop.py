@@ -47,6 +47,7 @@ from server.pipeline.events_out import EventsPublisher
 from server.pipeline.knobs import Knob
 from server.pipeline.live_pipeline import LivePipeline
 from server.pipeline.mqtt_source import MqttSource
+from server.pipeline.opcua_source import OpcuaSource
 from server.pipeline.runtime import CheckpointWriter, EventHistory, MachineRuntime
 from server.records.history import HistoryStore
 from server.service import protocol
@@ -128,9 +129,32 @@ def loop_parts(settings: Settings) -> LoopParts:
             )
     if feed is not None:
         pipe = LivePipeline(seed=settings.seed, source=MqttSource(feed))
+    elif settings.source == "opcua":
+        pipe = LivePipeline(seed=settings.seed, source=opcua_source(settings))
     else:
         pipe = LivePipeline(settings.scenario, seed=settings.seed)
     return LoopParts(pipe, feed, out, events_out, history_store(settings))
+
+
+def opcua_source(settings: Settings) -> OpcuaSource:
+    """The OPC UA source of the settings (``opcua_*``; docs/opcua.md): the node map read
+    and checked now, the connection made when the loop starts."""
+    from server.pipeline.opcua_link import OpcuaSecurity
+    from server.pipeline.opcua_source import OpcuaOptions
+    from server.records.opcua_map import load_node_map
+
+    assert settings.opcua_url is not None and settings.opcua_nodes is not None
+    trust = tuple(Path(p.strip()) for p in settings.opcua_trust.split(",") if p.strip())
+    sec = OpcuaSecurity(
+        policy=settings.opcua_security,
+        certificate=settings.opcua_cert,
+        private_key=settings.opcua_key,
+        trust=trust,
+        cert_dir=settings.data_dir / "opcua",
+    )
+    return OpcuaSource(
+        load_node_map(settings.opcua_nodes), OpcuaOptions(settings.opcua_url, security=sec)
+    )
 
 
 def history_store(settings: Settings) -> HistoryStore | None:
@@ -316,6 +340,8 @@ class LiveLoop:
     def start(self) -> None:
         if self.feed is not None:
             self.feed.start()
+        if isinstance(self.pipeline.source, OpcuaSource):
+            self.pipeline.source.start()
         if self.estimates_out is not None:
             self.estimates_out.start()
         if self.events_out is not None:
@@ -344,6 +370,8 @@ class LiveLoop:
         for part in (self.feed, self.estimates_out, self.events_out):
             if part is not None:
                 part.stop()
+        if isinstance(self.pipeline.source, OpcuaSource):
+            self.pipeline.source.stop()
         if self._block_log is not None:
             self._block_log.close()
 
@@ -503,6 +531,8 @@ class LiveLoop:
         out: dict[str, Any] = {"source": src.name}
         if self.feed is not None:
             out["feed"] = src.status()
+        if isinstance(src, OpcuaSource):
+            out["opcua"] = src.status()
         if self.estimates_out is not None:
             out["estimates_out"] = self.estimates_out.health()
         if self.events_out is not None:

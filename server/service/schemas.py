@@ -107,6 +107,15 @@ class Health(LoopHealth):
             "duplicates, late blocks, restarts, drops and malformed blocks by kind"
         ),
     )
+    opcua: dict[str, Any] | None = Field(
+        default=None,
+        description=(
+            "the OPC UA source (source opcua): state (connected, lost: why, no connection: "
+            "why, refused: why, e.g. an untrusted server's thumbprint), the security policy, "
+            "the sampling interval asked and revised, the queue size, and the grid's counts: "
+            "samples, cells, values held per node, merged, late and lost samples, gaps"
+        ),
+    )
     estimates_out: dict[str, Any] | None = Field(
         default=None, description="the estimates publisher (mqtt_publish_hz > 0)"
     )
