@@ -56,6 +56,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--opcua", metavar="URL", help="the CNC's OPC UA server, opc.tcp://host:port")
     p.add_argument(
+        "--opcua-publishing",
+        type=float,
+        metavar="S",
+        help="the OPC UA subscription's publishing interval [s] (default: the map's sample "
+        "time, at least 0.1 s)",
+    )
+    p.add_argument(
         "--nodes",
         metavar="MAP.json",
         help="the OPC UA node map (`cutwatch opcua browse URL` prints a starter one)",
@@ -125,6 +132,7 @@ def build_settings(args: argparse.Namespace) -> Settings:
             "parts": ",".join(args.part) if args.part else None,
             "opcua_url": args.opcua,
             "opcua_nodes": args.nodes,
+            "opcua_publishing_s": args.opcua_publishing,
             "opcua_security": None if args.opcua_security == "best" else args.opcua_security,
             "opcua_cert": args.opcua_cert,
             "opcua_key": args.opcua_key,
