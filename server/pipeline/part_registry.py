@@ -15,6 +15,7 @@ dfo            seed 002's harmonic observer                    server/pipeline/d
 wear           seed 004's wearing tool and its life monitor    server/pipeline/wear_part.py
 eccentricity   seed 003's milling tool and its tuner           server/pipeline/eccentricity_part.py
 process        the part program and the process monitor        server/pipeline/process_part.py
+axes           every axis of a described machine, rigid, live  server/pipeline/axis_part.py
 =============  ==============================================  =========================
 
 More parts come after these, in the order they were added: :func:`register` (in
@@ -72,6 +73,9 @@ class BuildContext:
         The scenario's factor on the spindle speed at a time.
     effects
         The observer effects to install at build.
+    axis_effects
+        Per axis of a described machine, the residual report's effects its live rigid
+        model holds (``cutwatch serve --model``).
     parts
         The parts built so far, by name.
     """
@@ -83,6 +87,7 @@ class BuildContext:
     plant: Plant
     spindle_factor: Callable[[float], float]
     effects: tuple[ObserverEffect, ...] = ()
+    axis_effects: Mapping[str, tuple[Any, ...]] = field(default_factory=dict)
     parts: dict[str, Part] = field(default_factory=dict)
     #: the parts that could not be built, with the reason
     failed: dict[str, str] = field(default_factory=dict)
@@ -150,6 +155,16 @@ def _process(c: BuildContext) -> Part | None:
     return ProcessPart.from_knobs(c.seed, c.knobs) if c.scenario.process else None
 
 
+def _axes(c: BuildContext) -> Part | None:
+    from server.pipeline.axis_part import AxisPart
+    from server.pipeline.machine_view import description_of
+
+    desc = description_of(c.source)
+    if desc is None or c.source.knobs_apply or c.source.name == "replay":
+        return None  # one two-inertia axis with its nominal: the stage part's observers
+    return AxisPart(desc, c.axis_effects)
+
+
 #: cutwatch's own parts, by name, in the order they run (module docstring)
 BUILTIN: tuple[tuple[str, PartFactory], ...] = (
     ("workpiece", _workpiece),
@@ -159,6 +174,7 @@ BUILTIN: tuple[tuple[str, PartFactory], ...] = (
     ("wear", _wear),
     ("eccentricity", _eccentricity),
     ("process", _process),
+    ("axes", _axes),
 )
 
 #: the parts added: what was registered (a class or a factory) -> its factory

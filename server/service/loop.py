@@ -376,7 +376,11 @@ class LiveLoop:
                 src = self.pipeline.source
                 renewed = getattr(src, "renewed", None)  # a live feed's source
                 if renewed is not None and getattr(src, "needs_rebuild", False):  # a new meta
-                    self.set_pipeline(LivePipeline(seed=self.settings.seed, source=renewed()))
+                    pipe = LivePipeline(seed=self.settings.seed, source=renewed())
+                    pipe.axis_effects = dict(self.pipeline.axis_effects)
+                    pipe.reset()  # built with the axes' effects
+                    pipe.carry(self.pipeline)  # the identified parameters go on
+                    self.set_pipeline(pipe)
                 with self.lock:
                     paused, speed = self.paused, self.speed
                     block_s = self.block_n * self.pipeline.sample_time
@@ -635,6 +639,11 @@ class LiveLoop:
         """The pipeline's parts: name, running, and why not."""
         with self.lock:
             return self.pipeline.parts()
+
+    def idle(self) -> str:
+        """Why nothing is estimated (:meth:`LivePipeline.idle`; empty: something is)."""
+        with self.lock:
+            return self.pipeline.idle()
 
     def knob_values(self) -> dict[str, Any]:
         with self.lock:

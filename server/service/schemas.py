@@ -85,10 +85,12 @@ def error_responses(*codes: int, json_route: bool = True) -> dict[int | str, dic
 class Health(LoopHealth):
     """``GET /api/health``."""
 
-    status: Literal["ok", "degraded", "error"] = Field(
-        description="'error' once the loop has stopped; 'degraded' while a part of the "
-        "pipeline does not run (parts says which and why); else 'ok'"
+    status: Literal["ok", "degraded", "idle", "error"] = Field(
+        description="'error' once the loop has stopped; 'idle' while nothing is estimated "
+        "(idle says why: no part runs, or a live feed has sent no sample yet); 'degraded' "
+        "while a part of the pipeline does not run (parts says which and why); else 'ok'"
     )
+    idle: str = Field(default="", description="why nothing is estimated (empty: something is)")
     parts: list[PartStatus] = Field(
         description="every part of the pipeline: name, running, and why not (reason)"
     )
@@ -153,6 +155,11 @@ class PipelineSnapshot(BaseModel):
     accuracy: Accuracy
     parts: list[PartStatus] = Field(
         default_factory=list, description="the pipeline's parts: name, running, and why not"
+    )
+    axes: dict[str, dict[str, str]] | None = Field(
+        None,
+        description="a described machine's axes identified live (part 'axes'): per axis, "
+        "what does not run and why (the mass without an acceleration at 10 Hz...)",
     )
     injected: list[dict[str, JsonValue]] = Field(
         default_factory=list,

@@ -21,10 +21,12 @@ router = APIRouter(responses=error_responses())
 def health(lp: Live, s: Config) -> Health:
     h = lp.health()
     parts = lp.parts()
-    status = "ok" if all(p["running"] for p in parts) else "degraded"
+    idle = lp.idle()
+    status = "idle" if idle else "ok" if all(p["running"] for p in parts) else "degraded"
     return Health.model_validate(
         {
             "status": status if lp.running else "error",
+            "idle": idle,
             "parts": parts,
             "loop_error": lp.error,
             "viser_port": s.viser_port,
@@ -165,7 +167,7 @@ def metrics(lp: Live) -> PlainTextResponse:
 def _accuracy_lines(acc: dict[str, Any]) -> list[str]:
     """``cutwatch_force_error_rms{estimate, window, against}``: the rolling rms of each
     force estimate (``against`` = ``truth``, ``q_truth`` (the Q(s)-filtered true force) or
-    ``mean_of_estimates`` without truth); the Q filter's own error as the estimate
+    ``measured_force``; nothing without a reference); the Q filter's own error as the estimate
     ``q_filtered_truth`` against ``truth``. Unknown values (no data yet) are left out."""
     name = "cutwatch_force_error_rms"
     lines = [
@@ -174,7 +176,9 @@ def _accuracy_lines(acc: dict[str, Any]) -> list[str]:
     ]
     wins = [f"{w:g}s" for w in acc["windows"]]
     truth = acc["mode"] == "truth"
-    series = [(acc["rms"], "truth" if truth else "mean_of_estimates")]
+    if acc["mode"] == "none":
+        return lines
+    series = [(acc["rms"], str(acc["mode"]))]
     if truth:
         series += [(acc["rms_q"], "q_truth"), ({"q_filtered_truth": acc["floor"]}, "truth")]
     for table, against in series:
