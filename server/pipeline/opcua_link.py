@@ -18,7 +18,7 @@ connection it
    publishing interval / sampling interval + 1 samples, and adopts the sampling interval
    the server revised;
 5. watches the session; a lost connection is the link's state (``lost: ...``), and it
-   connects again after a backoff of 0.5 s doubling to 10 s.
+   connects again after a backoff of 0.5 s doubling to 5 s.
 
 Samples go to a thread-safe queue as ``(source, server time [s], value, overflow,
 arrival wall time)``; a marker :data:`CONNECTED` is put before the first sample of each
@@ -50,6 +50,8 @@ __all__ = [
     "OpcuaLink",
     "OpcuaSecurity",
     "choose_endpoint",
+    "engineering_units",
+    "open_client",
     "thumbprint",
 ]
 
@@ -63,7 +65,7 @@ _URI = "http://opcfoundation.org/UA/SecurityPolicy#"
 #: the environment variables of the user and password
 USER_ENV, PASSWORD_ENV = "CUTWATCH_OPCUA_USER", "CUTWATCH_OPCUA_PASSWORD"
 #: the backoff between connection attempts [s]
-BACKOFF_S = (0.5, 10.0)
+BACKOFF_S = (0.5, 5.0)
 
 
 @dataclass(frozen=True)
@@ -281,63 +283,23 @@ class OpcuaLink:
         while not self._stop.is_set() and time.monotonic() < end:
             await asyncio.sleep(min(0.05, end - time.monotonic()))
 
-    async def _endpoint(self) -> Any:
-        from asyncua import Client
-
-        probe = Client(self.url, timeout=4)
-        endpoints = await probe.connect_and_get_server_endpoints()
-        return choose_endpoint(endpoints, self.security)
-
-    async def _client(self, ep: Any) -> Any:
-        from asyncua import Client
-        from asyncua.crypto import security_policies as sp
-
-        client = Client(self.url, timeout=4, watchdog_intervall=1.0)
-        client.application_uri = "urn:cutwatch:opcua-client"
-        pol = ep.SecurityPolicyUri.rsplit("#", 1)[-1]
-        self.info.policy = f"{pol}/{ep.SecurityMode.name}"
-        if pol != "None":
-            der = _first_cert(bytes(ep.ServerCertificate or b""))
-            tp = thumbprint(der)
-            self.info.server_thumbprint = tp
-            if tp not in _trusted(self.security.trust):
-                where = ", ".join(str(p) for p in self.security.trust) or "none given"
-                raise CutwatchError(
-                    f"untrusted server certificate, thumbprint {tp} (not in the trust list: "
-                    f"{where}; put the server's certificate there to trust it)"
-                )
-            cert, key = self.security.certificate, self.security.private_key
-            if cert is None or key is None:
-                d = self.security.cert_dir
-                cert, key = await client.setup_self_signed_certificate(
-                    d / "client-key.pem", d / "client-cert.der"
-                )
-            policy = getattr(sp, "SecurityPolicy" + pol.replace("_", ""))
-            await client.set_security(
-                policy, str(cert), str(key), server_certificate=der, mode=ep.SecurityMode
-            )
-        user = os.environ.get(USER_ENV)
-        if user:
-            client.set_user(user)
-            client.set_password(os.environ.get(PASSWORD_ENV, ""))
-        return client
+    async def _client(self) -> Any:
+        return await open_client(self.url, self.security, self.info)
 
     async def _units(self, client: Any) -> None:
         for src in self.sources:
-            node = client.get_node(src)
             try:
-                eu = await (await node.get_child("0:EngineeringUnits")).read_value()
-                self.info.units[src] = (
-                    int(eu.UnitId) if eu.UnitId not in (None, -1) else None,
-                    eu.DisplayName.Text if eu.DisplayName is not None else None,
-                )
+                eu = await engineering_units(client.get_node(src))
             except Exception:
-                self.info.units[src] = None
+                eu = None
+            self.info.units[src] = None if eu is None else (
+                int(eu.UnitId) if eu.UnitId not in (None, -1, 0) else None,
+                eu.DisplayName.Text if eu.DisplayName is not None else None,
+            )  # fmt: skip
         self.unit_ready.set()
 
     async def _session(self) -> None:
-        ep = await self._endpoint()
-        client = await self._client(ep)
+        client = await self._client()
         async with client:
             await self._units(client)
             handler = _Handler(self, {})
@@ -370,6 +332,66 @@ class OpcuaLink:
                 await asyncio.sleep(0.1)
                 await client.check_connection()  # raises when the session is lost
             self.info.state = "stopped"
+
+
+async def open_client(url: str, security: OpcuaSecurity, info: LinkInfo | None = None) -> Any:
+    """An asyncua client for ``url``, its endpoint chosen and its server checked (module
+    docstring, 1-3), not connected yet (``async with`` it).
+
+    Raises
+    ------
+    CutwatchError
+        No endpoint of the security asked for, or an untrusted server (its thumbprint).
+    """
+    from asyncua import Client
+    from asyncua.crypto import security_policies as sp
+
+    info = info if info is not None else LinkInfo()
+    probe = Client(url, timeout=4)
+    ep = choose_endpoint(await probe.connect_and_get_server_endpoints(), security)
+    client = Client(url, timeout=4, watchdog_intervall=1.0)
+    client.application_uri = "urn:cutwatch:opcua-client"
+    pol = ep.SecurityPolicyUri.rsplit("#", 1)[-1]
+    info.policy = f"{pol}/{ep.SecurityMode.name}"
+    if pol != "None":
+        der = _first_cert(bytes(ep.ServerCertificate or b""))
+        tp = thumbprint(der)
+        info.server_thumbprint = tp
+        if tp not in _trusted(security.trust):
+            where = ", ".join(str(p) for p in security.trust) or "none given"
+            raise CutwatchError(
+                f"untrusted server certificate, thumbprint {tp} (not in the trust list: "
+                f"{where}; put the server's certificate there to trust it)"
+            )
+        cert, key = security.certificate, security.private_key
+        if cert is None or key is None:
+            d = security.cert_dir
+            d.mkdir(parents=True, exist_ok=True)
+            cert, key = await client.setup_self_signed_certificate(
+                d / "client-key.pem", d / "client-cert.der"
+            )
+        policy = getattr(sp, "SecurityPolicy" + pol.replace("_", ""))
+        await client.set_security(
+            policy, str(cert), str(key), server_certificate=der, mode=ep.SecurityMode
+        )
+    user = os.environ.get(USER_ENV)
+    if user:
+        client.set_user(user)
+        client.set_password(os.environ.get(PASSWORD_ENV, ""))
+    return client
+
+
+async def engineering_units(node: Any) -> Any:
+    """The ``EngineeringUnits`` (an EUInformation) of an analog item, or of the variable
+    it belongs to (OPC 40502's positions carry theirs on ``PosDirect``/``PosIndirect``,
+    beside ``ActPos``); None when neither has one."""
+    for cand in (node, await node.get_parent()):
+        if cand is None:
+            continue
+        for child in await cand.get_children():
+            if (await child.read_browse_name()).Name == "EngineeringUnits":
+                return await child.read_value()
+    return None
 
 
 class _Capture:

@@ -23,6 +23,7 @@ for a new pipeline at that rate (:meth:`OpcuaSource.renewed`: the same link and 
 from __future__ import annotations
 
 import math
+import re
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -37,10 +38,21 @@ from machine.stage import SEED000_FORCE, Measurements, StageConfig
 from server.errors import CutwatchError
 from server.pipeline.opcua_grid import TimeGrid
 from server.pipeline.opcua_link import CONNECTED, OpcuaLink, OpcuaSecurity
-from server.pipeline.sources import RESUMED, ConfiguredSource, SourceBlock, empty_measurements
+from server.pipeline.sources import (
+    NOMINAL,
+    RESUMED,
+    ConfiguredSource,
+    SourceBlock,
+    empty_measurements,
+    nominal_config,
+)
 from server.records.opcua_map import NodeMap, eu_factor
 
-__all__ = ["OpcuaOptions", "OpcuaSource"]
+__all__ = ["QUIET_S", "OpcuaOptions", "OpcuaSource"]
+
+#: how much longer than a publishing and a sampling interval the grid waits before it
+#: holds the values of a feed that went quiet [s]
+QUIET_S = 1.0
 
 
 @dataclass(frozen=True)
@@ -52,7 +64,7 @@ class OpcuaOptions:
     url: str
     publishing_s: float | None = None
     security: OpcuaSecurity = field(default_factory=OpcuaSecurity)
-    backoff_max_s: float = 10.0
+    backoff_max_s: float = 5.0
 
 
 class OpcuaSource(ConfiguredSource):
@@ -84,6 +96,10 @@ class OpcuaSource(ConfiguredSource):
         self.description = self._described(desc)
         ts = self.description.sample_time
         self._cfg = StageConfig(params=preset("seed000"), force=SEED000_FORCE, sample_time=ts)
+        ax = self.description.axes[0]
+        if not self.stage_refusal:  # the stage's observers are built from the nominal
+            nom = {**ax.nominal, **({"K_t": ax.K_t} if ax.K_t else {})}
+            self._cfg = nominal_config(nom, ts, ax.encoder_resolution)
         numeric = [*self.sources, *self.identity_sources.values()]
         self.grid = TimeGrid(numeric, ts)
         self.text: dict[str, str] = {}  # a text node's (the program's) latest value
@@ -118,6 +134,21 @@ class OpcuaSource(ConfiguredSource):
         return self.description.axes[0].kind
 
     @property
+    def stage_refusal(self) -> str:
+        """Why seed 000's two-inertia observers cannot be built on this machine (empty:
+        they can): they need a rotary two-inertia first axis with its nominal
+        parameters (J_M, J_L, K, K_t, B_M, B_L, F_CM, F_CL)."""
+        ax = self.description.axes[0]
+        missing = [k for k in NOMINAL if k not in ax.nominal and not (k == "K_t" and ax.K_t)]
+        if ax.kind == "two_inertia" and ax.position_unit == "rad" and not missing:
+            return ""
+        return (
+            f"seed 000's observers need a rotary two-inertia first axis with its nominal "
+            f"{', '.join(NOMINAL)}; the opcua source's axis {ax.name} is {ax.kind} in "
+            f"{ax.position_unit}" + (f" without {', '.join(missing)}" if missing else "")
+        )
+
+    @property
     def needs_rebuild(self) -> bool:
         """True when the server revised the sampling interval after this source was built."""
         r = self.link.info.revised_sampling_s
@@ -148,19 +179,21 @@ class OpcuaSource(ConfiguredSource):
             unit = sig.unit
             if eu is None:
                 continue
-            if key in nm.stated_units:
-                self.unit_notes.append(
-                    f"{key}: the map's {unit} overrides the server's {eu[1] or eu[0]}"
-                )
-                continue
             target = unit
             try:
                 f = eu_factor(*eu, target, spindle=sig.owner == "spindle")
             except CutwatchError as exc:
-                self.unit_notes.append(f"{key}: {exc}; values taken as they are")
+                if key in nm.stated_units:  # the map's unit is the values' unit
+                    self.unit_notes.append(
+                        f"{key}: the map's {unit} overrides the server's {eu[1] or eu[0]}"
+                    )
+                else:
+                    self.unit_notes.append(f"{key}: {exc}; values taken as {unit}")
                 continue
             if f is None:
-                self.unit_notes.append(f"{key}: the server's unit {eu[1]!r} is not known")
+                self.unit_notes.append(
+                    f"{key}: the server's unit {eu[1]!r} is not known; values taken as {unit}"
+                )
             elif f != 1.0:
                 self.factors[sig.source] = f
                 self.unit_notes.append(f"{key}: {eu[1]} converted to {target}")
@@ -184,9 +217,10 @@ class OpcuaSource(ConfiguredSource):
             self._offset = max(self._offset, ts - wall)
             self._newest = max(self._newest, ts)
             self.latency.append(wall - ts)
-            if isinstance(val, str):
+            if isinstance(val, str):  # a program's name, a block "N120": its number
                 self.text[name] = val
-                val = math.nan
+                digits = re.findall(r"\d+", val)
+                val = float(digits[-1]) if digits else math.nan
             try:
                 v = float(val)
             except (TypeError, ValueError):
@@ -196,11 +230,15 @@ class OpcuaSource(ConfiguredSource):
             del self.latency[:-1000]
 
     def _watermark(self) -> float:
+        """The server time every sample up to which has arrived: the newest timestamp
+        less a publishing and a sampling interval; in a quiet spell (nothing changed) the
+        server's clock, estimated from the arrivals, less that and :data:`QUIET_S` more
+        (a busy machine's late deliveries must not pass for silence)."""
         margin = self.link.publishing_s + self.description.sample_time
         if not self.link.info.state.startswith("connected"):
             return self._newest - margin  # nothing more arrives: no quiet-spell clock
         clock = time.time() + self._offset if math.isfinite(self._offset) else -math.inf
-        return max(self._newest, clock) - margin
+        return max(self._newest, clock - QUIET_S) - margin
 
     def step(self, n: int) -> SourceBlock:
         if self.needs_rebuild:

@@ -16,6 +16,9 @@ wear           seed 004's wearing tool and its life monitor    server/pipeline/w
 eccentricity   seed 003's milling tool and its tuner           server/pipeline/eccentricity_part.py
 process        the part program and the process monitor        server/pipeline/process_part.py
 axes           every axis of a described machine, rigid, live  server/pipeline/axis_part.py
+spindle        a spindle's cutting power over its taught idle  server/pipeline/spindle_part.py
+cnc            the spindle as a CNC's OPC UA server reports    server/pipeline/cnc_part.py
+               it (the opcua source)
 =============  ==============================================  =========================
 
 More parts come after these, in the order they were added: :func:`register` (in
@@ -122,6 +125,10 @@ def _workpiece(c: BuildContext) -> Part | None:
 def _stage(c: BuildContext) -> Part:
     from server.pipeline.stage_part import StagePart
 
+    why = getattr(c.source, "stage_refusal", "")  # a described machine without its model
+    if why:
+        raise CutwatchError(why)
+
     return StagePart(c.source, c.plant.ident, dict(c.plant.design))
 
 
@@ -175,6 +182,16 @@ def _axes(c: BuildContext) -> Part | None:
     return AxisPart(desc, c.axis_effects)
 
 
+def _cnc(c: BuildContext) -> Part | None:
+    from server.pipeline.cnc_part import CncPart
+    from server.pipeline.machine_view import description_of
+
+    desc = description_of(c.source)
+    if desc is None or desc.spindle is None or c.source.name != "opcua":
+        return None
+    return CncPart(desc)
+
+
 #: cutwatch's own parts, by name, in the order they run (module docstring)
 BUILTIN: tuple[tuple[str, PartFactory], ...] = (
     ("workpiece", _workpiece),
@@ -186,6 +203,7 @@ BUILTIN: tuple[tuple[str, PartFactory], ...] = (
     ("process", _process),
     ("axes", _axes),
     ("spindle", _spindle),
+    ("cnc", _cnc),
 )
 
 #: the parts added: what was registered (a class or a factory) -> its factory

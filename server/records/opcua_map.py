@@ -16,10 +16,11 @@ OPC UA node ids (``ns=2;s=X.ActPos``, ``i=1234``, ``ns=3;g=...``). Two spellings
 
 Both are checked against the description's schema, errors naming the key in the spelling
 given (``axes.X.q_m``: expected ..., found ...), then each node id is parsed. The map's
-``units`` are optional: a signal's unit comes from its node's ``EngineeringUnits``
-(:func:`eu_factor`), and a unit the map does state overrides the server's (the source
-says so). An axis without ``units.position`` is linear (m) until the server's unit says
-it is rotary.
+``units`` say the units the pipeline works in (m or rad, N or N m, rpm, W...; optional:
+an axis without ``units.position`` is linear, in m). The values' unit comes from each
+node's ``EngineeringUnits`` and is converted (:func:`eu_factor`: mm to m, 1/min to rpm,
+kW to W); where a node has none, or one of another kind, the map's unit is taken as the
+values' own: it overrides the server's, and the source says so.
 
 :func:`eu_factor` converts a value in an OPC UA engineering unit (an
 ``EUInformation``: its UNECE ``UnitId`` or, when that is unknown, its display name) to

@@ -107,6 +107,15 @@ class Health(LoopHealth):
             "duplicates, late blocks, restarts, drops and malformed blocks by kind"
         ),
     )
+    opcua: dict[str, Any] | None = Field(
+        default=None,
+        description=(
+            "the OPC UA source (source opcua): state (connected, lost: why, no connection: "
+            "why, refused: why, e.g. an untrusted server's thumbprint), the security policy, "
+            "the sampling interval asked and revised, the queue size, and the grid's counts: "
+            "samples, cells, values held per node, merged, late and lost samples, gaps"
+        ),
+    )
     estimates_out: dict[str, Any] | None = Field(
         default=None, description="the estimates publisher (mqtt_publish_hz > 0)"
     )
@@ -471,6 +480,29 @@ class EffectsInstalled(Effects):
         description="the live time [s] from which the effects act (the stream's t: compare "
         "the error before and after it)"
     )
+
+
+class AxisModelBody(BaseModel):
+    """``POST /api/axis-model``: a rigid residual report (by name, or the report itself)
+    whose effects an axis' live rigid model holds (issue 30 item 4)."""
+
+    model_config = ConfigDict(extra="forbid")
+    axis: str | None = Field(
+        None, max_length=64, description="the feed's axis (default: every axis)"
+    )
+    name: str | None = Field(
+        None, max_length=128, description="the name of a residual report (GET /residual)"
+    )
+    report: dict[str, Any] | None = Field(
+        None, description="a residual report (report.json of cutwatch residual) as JSON"
+    )
+
+
+class AxisModels(BaseModel):
+    """The effects each axis' live rigid model holds (``GET``/``POST /api/axis-model``)."""
+
+    axes: dict[str, list[str]] = Field(description="axis -> the names of its effects")
+    t: float = Field(description="the live time [s] from which they act")
 
 
 class ResidualReport(BaseModel):
