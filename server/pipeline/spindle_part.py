@@ -4,10 +4,12 @@
 signals (its ``speed`` [rpm] and ``power`` [W], by the machine description's column
 names) and runs :class:`estimators.spindle_power.IdlePower`: the idle power taught per
 speed while the spindle turns in the air, and the cutting power, the power less that
-idle power (NaN until a speed has been taught: not known, never a guess). Its chart, on
-the operator's page, is the spindle's power, the taught idle power and the cutting
-power. It also says which tool, line and program the CNC is at (the identities), the
-status strip's ``tool``, ``program``, ``line``.
+idle power (NaN until a speed has been taught, and while the speed changes: not known,
+never a guess). Its charts, on the operator's page: the cutting power with the
+monitor's limits (``spindle``), and the spindle's power with the taught idle power
+(``spindle-power``: a tool change's run-up and braking, about 15 kW here, would dwarf a
+cut of a few hundred watts on one chart). It also says which tool, line and program
+the CNC is at (the identities), the status strip's ``tool``, ``program``, ``line``.
 
 The process monitor (:class:`estimators.process_monitor.ProcessMonitor`, seed 003's
 teach-in monitor of the issue-21 part) watches the cutting power, taught per (tool,
@@ -54,16 +56,25 @@ from server.pipeline.part import (
 )
 from server.records.monitor_events import DEFAULT_ACTIONS, MonitorEvent
 
-__all__ = ["SPINDLE", "SpindlePart", "SpindlePartState"]
+__all__ = ["POWER", "SPINDLE", "SpindlePart", "SpindlePartState"]
 
 SPINDLE = Chart(
     "spindle",
-    "Spindle power: measured, idle (taught in the air at each speed) and cutting power",
+    "Spindle: cutting power (the power less the idle taught in the air; not known while "
+    "the speed changes) and the monitor's taught limits",
     page="operator",
     order=5,
     window_s=30.0,
     wide=True,
     markers=True,
+)
+POWER = Chart(
+    "spindle-power",
+    "Spindle power: measured (the CNC's) and idle, taught in the air at each speed",
+    page="operator",
+    order=6,
+    window_s=30.0,
+    wide=True,
 )
 
 
@@ -101,9 +112,9 @@ class SpindlePart(LivePart):
     """
 
     name = "spindle"
-    charts = (SPINDLE,)
+    charts = (SPINDLE, POWER)
     channels = (
-        *SPINDLE.series(
+        *POWER.series(
             Channel(
                 "spindle_power",
                 "W",
@@ -122,6 +133,8 @@ class SpindlePart(LivePart):
                 width=1.4,
                 legend="idle, taught [W]",
             ),
+        ),
+        *SPINDLE.series(
             Channel(
                 "spindle_cut",
                 "W",
@@ -131,8 +144,6 @@ class SpindlePart(LivePart):
                 width=2.0,
                 legend="cutting power [W]",
             ),
-        ),
-        *SPINDLE.series(
             Channel(
                 "spindle_mean",
                 "W",
@@ -171,7 +182,6 @@ class SpindlePart(LivePart):
                 dash=(8.0, 5.0),
                 legend="extreme limit [W]",
             ),
-            start=3,
         ),
         Channel("spindle_speed", "rpm", "spindle speed (the CNC's actual value)", "spindle"),
     )
@@ -219,9 +229,8 @@ class SpindlePart(LivePart):
         return {
             "spindle_power": np.asarray(p, dtype=np.float64),
             "spindle_idle": rec.idle,
-            "spindle_cut": rec.cutting,
             "spindle_speed": np.asarray(rpm, dtype=np.float64),
-            **mon,
+            **mon,  # the cutting power (where the speed is steady) and the monitor's
         }, events
 
     def _watch(
@@ -233,11 +242,13 @@ class SpindlePart(LivePart):
         w = np.nan_to_num(np.asarray(rpm, dtype=np.float64)) * (math.pi / 30.0)
         psi = np.mod(self.st.psi + np.cumsum(w) * self.sample_time, 2.0 * math.pi)
         self.st.psi = float(psi[-1]) if n else self.st.psi
-        f = np.where(np.isfinite(cut) & self._steady(rpm), np.asarray(cut, dtype=np.float64), 0.0)
+        steady = self._steady(rpm)
+        f = np.where(np.isfinite(cut) & steady, np.asarray(cut, dtype=np.float64), 0.0)
         tool = np.asarray(cols.get(self._tool, np.zeros(n)), dtype=np.float64)
         line = np.asarray(cols.get(self._line, np.zeros(n)), dtype=np.float64)
         over = np.asarray(cols.get("override", np.ones(n)), dtype=np.float64)
-        out = {k: np.full(n, math.nan) for k in ("spindle_mean", "spindle_upper",
+        out = {"spindle_cut": np.where(steady, np.asarray(cut, dtype=np.float64), math.nan)}
+        out |= {k: np.full(n, math.nan) for k in ("spindle_mean", "spindle_upper",
                                                  "spindle_lower", "spindle_extreme")}  # fmt: skip
         events: list[MonitorEvent] = []
         cuts = np.flatnonzero(line[1:] != line[:-1]) + 1
