@@ -66,6 +66,7 @@ def test_the_one_machine_and_a_breakage_on_its_spindle(tmp_path: Path) -> None:
             assert page.locator(f"#chart-axis-{a}-force").count() == 1
         wait_for(lambda: page.inner_text("#strip-where").startswith("program O2001"), 60)
         assert page.inner_text("#strip-tool").startswith("T")
+        assert not page.is_visible("#strip-weargroup")  # no wear model on the centre yet
 
         # taught (watching, or in alarm already); what it raised so far acknowledged
         def state() -> str:
