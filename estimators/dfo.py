@@ -36,6 +36,7 @@ from __future__ import annotations
 import itertools
 import math
 from dataclasses import dataclass, field, replace
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -310,31 +311,45 @@ def _initial_state(params: DfoParams) -> DfoState:
     )
 
 
+class DfoModel(NamedTuple):
+    """The discrete observer of seed002 (8)-(9) as the kernel takes it (read only)."""
+
+    phi: F64  # (n, n) state transition Phi
+    ga: F64  # G_a: input u[k-D-1]
+    gb: F64  # G_b: input u[k-D]
+    h: F64  # output row H
+    gain: F64  # observer gain L
+    nc: int  # the channel's own states before the harmonics
+    omegas: F64  # each harmonic's angular frequency [rad/s]
+    lc: F64  # each harmonic's compensation lead, cosine part
+    ls: F64  # and sine part
+    ts: float  # sample time [s]
+    use_u: bool  # the model has the command as input
+    has_off: bool  # the last state is a constant offset
+
+
+class DfoOut(NamedTuple):
+    """The kernel's per-sample outputs (filled in place): :class:`DfoRecord`'s fields."""
+
+    d_hat: F64
+    compensation: F64
+    amplitude: F64
+    phase: F64
+    innovation: F64
+    offset: F64
+
+
 @njit(cache=True)
 def _dfo_block(
-    phi: F64,
-    ga: F64,
-    gb: F64,
-    h: F64,
-    gain: F64,
-    nc: int,
-    omegas: F64,
-    lc: F64,
-    ls: F64,
-    ts: float,
-    k0: int,
-    x: F64,
-    u_hist: F64,
-    use_u: bool,
-    y: F64,
-    dh: F64,
-    comp: F64,
-    amp: F64,
-    ph: F64,
-    innov: F64,
-    off: F64,
-    has_off: bool,
+    m: DfoModel, k0: int, x: F64, u_hist: F64, y: F64, out: DfoOut
 ) -> None:  # pragma: no cover
+    """The observer ``m`` over the block ``y`` from sample ``k0``: posterior ``x`` updated
+    in place, ``u_hist`` the delayed commands, ``out`` filled."""
+    phi, ga, gb, h, gain, nc = m.phi, m.ga, m.gb, m.h, m.gain, m.nc
+    omegas, lc, ls, ts, use_u, has_off = m.omegas, m.lc, m.ls, m.ts, m.use_u, m.has_off
+    dh, comp, amp, ph, innov, off = (
+        out.d_hat, out.compensation, out.amplitude, out.phase, out.innovation, out.offset
+    )  # fmt: skip
     n = len(x)
     xp = np.empty(n)
     nh = len(omegas)
@@ -396,43 +411,27 @@ def _step(params: DfoParams, state: DfoState, y: ArrayLike) -> tuple[DfoState, D
             )
     x = state.x.copy()
     nh = len(params.frequencies)
-    dh = np.empty(n)
-    comp = np.empty(n)
-    amp = np.empty((n, nh))
-    ph = np.empty((n, nh))
-    innov = np.empty(n)
-    off = np.empty(n)
-    omegas = 2 * np.pi * np.asarray(params.frequencies)
-    _dfo_block(
-        params.phi,
-        params.gamma_a,
-        params.gamma_b,
-        params.h,
-        params.gain,
-        params.channel_order,
-        omegas,
-        params.lead_cos,
-        params.lead_sin,
-        params.sample_time,
-        state.k,
-        x,
-        state.u_hist,
-        params.uses_input,
-        ya,
-        dh,
-        comp,
-        amp,
-        ph,
-        innov,
-        off,
-        params.include_offset,
+    out = DfoOut(np.empty(n), np.empty(n), np.empty((n, nh)), np.empty((n, nh)), np.empty(n),
+                 np.empty(n))  # fmt: skip
+    model = DfoModel(
+        phi=params.phi,
+        ga=params.gamma_a,
+        gb=params.gamma_b,
+        h=params.h,
+        gain=params.gain,
+        nc=params.channel_order,
+        omegas=2 * np.pi * np.asarray(params.frequencies),
+        lc=params.lead_cos,
+        ls=params.lead_sin,
+        ts=params.sample_time,
+        use_u=params.uses_input,
+        has_off=params.include_offset,
     )
+    _dfo_block(model, state.k, x, state.u_hist, ya, out)
     u_hist = state.u_hist[n:].copy() if params.uses_input else state.u_hist
     return (
         DfoState(x=x, u_hist=u_hist, k=state.k + n),
-        DfoRecord(
-            d_hat=dh, compensation=comp, amplitude=amp, phase=ph, innovation=innov, offset=off
-        ),
+        DfoRecord(**out._asdict()),
     )
 
 

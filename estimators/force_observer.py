@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -168,10 +169,26 @@ PV_QM1, PV_QM2, PV_QL1, PV_QL2, PV_TAU1, PV_TAU2, PV_SEEN = 0, 1, 2, 3, 4, 5, 6
 PV_SIZE = 7
 
 
+class TorsionOut(NamedTuple):
+    """The kernel's per-sample outputs (filled in place): :class:`TorsionRecord`'s fields."""
+
+    t_s: F64
+    t_sm: F64
+    t_sk: F64
+    alpha: F64
+    acc_l: F64
+    vel_l: F64
+    sgn_l: F64
+    omega_l: F64
+
+
 @njit(cache=True)
-def _torsion_kernel(
-    tau, qm, ql, prev, z, bq, aq, pr, o_ts, o_tsm, o_tsk, o_al, o_acc, o_vel, o_sgn, o_wl
-):  # pragma: no cover
+def _torsion_kernel(tau, qm, ql, prev, z, bq, aq, pr, out):  # pragma: no cover
+    """The front end over a block of motor torque ``tau`` and angles ``qm``, ``ql``:
+    the history ``prev`` (PV_*) and Q's states ``z`` (numerator ``bq``, denominator
+    ``aq``) updated in place; ``pr`` the design (PR_*); ``out`` filled."""
+    o_ts, o_tsm, o_tsk, o_al = out.t_s, out.t_sm, out.t_sk, out.alpha
+    o_acc, o_vel, o_sgn, o_wl = out.acc_l, out.vel_l, out.sgn_l, out.omega_l
     # prev = [q_m[k-1], q_m[k-2], q_l[k-1], q_l[k-2], tau[k-1], tau[k-2], samples seen]
     ts = pr[PR_TS]
     JM, BM, FCM, K = pr[PR_J_M], pr[PR_B_M], pr[PR_F_CM], pr[PR_K]
@@ -277,9 +294,9 @@ class TorsionEstimator:
                 "block", "tau_m, q_m, q_l of equal length", (len(tau), len(qm), len(ql))
             )
         new = TorsionState(prev=state.prev.copy(), z=state.z.copy())
-        outs = [np.empty(len(tau)) for _ in range(8)]
-        _torsion_kernel(tau, qm, ql, new.prev, new.z, self.q.b, self.q.a, self._pr, *outs)
-        return new, TorsionRecord(*outs)
+        out = TorsionOut(*(np.empty(len(tau)) for _ in TorsionOut._fields))
+        _torsion_kernel(tau, qm, ql, new.prev, new.z, self.q.b, self.q.a, self._pr, out)
+        return new, TorsionRecord(**out._asdict())
 
 
 @njit(cache=True)

@@ -38,6 +38,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -268,22 +269,32 @@ def _initial_state(params: ImbdoParams) -> ImbdoState:
     )
 
 
+class ImbdoModel(NamedTuple):
+    """The observer's filters and delay as the kernel takes them (read only)."""
+
+    bi: F64  # Q G_n^-1: numerator
+    ai: F64  # and denominator
+    bq: F64  # Q: numerator
+    aq: F64  # and denominator
+    d: int  # whole samples of the model delay T_d
+    frac: float  # and the fraction of a sample
+
+
+class ImbdoOut(NamedTuple):
+    """The kernel's per-sample outputs (filled in place): :class:`ImbdoRecord`'s fields."""
+
+    v: F64
+    d_hat: F64
+
+
 @njit(cache=True)
 def _imbdo_block(
-    bi: F64,
-    ai: F64,
-    zi: F64,
-    bq: F64,
-    aq: F64,
-    zq: F64,
-    vh: F64,
-    d: int,
-    frac: float,
-    z: F64,
-    uc: F64,
-    v: F64,
-    dh: F64,
+    model: ImbdoModel, zi: F64, zq: F64, vh: F64, z: F64, uc: F64, out: ImbdoOut
 ) -> None:  # pragma: no cover
+    """The observer over the block (``z`` position, ``uc`` controller output); the filter
+    states ``zi``, ``zq`` and the command history ``vh`` updated in place."""
+    bi, ai, bq, aq, d, frac = model.bi, model.ai, model.bq, model.aq, model.d, model.frac
+    v, dh = out.v, out.d_hat
     m = len(vh)  # D + 1: vh[m-1] = v[k-1], vh[m-1-i] = v[k-i]
     # d_hat = Q G_n^-1 z - Q e^{-s T_d} v, v = u_c - d_hat (seed002 section 4.2)
     for k in range(len(z)):
@@ -321,26 +332,11 @@ def _step(
     zi = state.z_inv.copy()
     zq = state.z_q.copy()
     vh = state.v_hist.copy()
-    v = np.empty_like(za)
-    dh = np.empty_like(za)
-    fi = params.inverse_filter
-    fq = params.q_filter
-    _imbdo_block(
-        fi.b,
-        fi.a,
-        zi,
-        fq.b,
-        fq.a,
-        zq,
-        vh,
-        params.delay_samples,
-        params.delay_fraction,
-        za,
-        ua,
-        v,
-        dh,
-    )
-    return ImbdoState(z_inv=zi, z_q=zq, v_hist=vh), ImbdoRecord(v=v, d_hat=dh)
+    out = ImbdoOut(np.empty_like(za), np.empty_like(za))
+    fi, fq = params.inverse_filter, params.q_filter
+    model = ImbdoModel(fi.b, fi.a, fq.b, fq.a, params.delay_samples, params.delay_fraction)
+    _imbdo_block(model, zi, zq, vh, za, ua, out)
+    return ImbdoState(z_inv=zi, z_q=zq, v_hist=vh), ImbdoRecord(v=out.v, d_hat=out.d_hat)
 
 
 class Imbdo:

@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -98,6 +99,46 @@ class RLSState:
     buf_y: F64
     meta: I64  # [head, count, resets]
 
+    @property
+    def arrays(self) -> RLSArrays:
+        """The same arrays as the kernels take them (updated in place by them)."""
+        return RLSArrays(self.P, self.r, self.theta, self.buf_phi, self.buf_y, self.meta)
+
+
+class RLSArrays(NamedTuple):
+    """One window RLS's arrays, named, as its kernels take them (an :class:`RLSState`'s)."""
+
+    P: F64  # covariance (scaled)
+    r: F64  # information vector: theta / p0 + sum over the window of phi y
+    theta: F64  # scaled estimate
+    buf_phi: F64  # (L, n) the window's accepted scaled regressors (a ring)
+    buf_y: F64  # the window's outputs
+    meta: I64  # [head, count, resets] (META_*)
+
+
+class Box(NamedTuple):
+    """A model's parameter scaling and its projection bounds (seed000 (13)), scaled."""
+
+    scale: F64  # magnitude of each parameter
+    lower: F64  # lower bound / scale
+    upper: F64  # upper bound / scale
+
+
+class Ridge(NamedTuple):
+    """How an RLS update treats its ridge: P_0 = p0 I, and whether it follows the
+    estimate (1) or stays on the initial one (0) (module docstring, "Conditioning")."""
+
+    p0: float
+    follow: int
+
+
+class IdentOut(NamedTuple):
+    """An identifier kernel's per-sample outputs (filled in place)."""
+
+    theta: F64  # (n, 4) J_L, B_L, F_CL, F_cut_DC after each sample
+    mode: NDArray[np.int8]  # 0: no update, 3 or 4: the model updated
+    excited: NDArray[np.bool_]  # the excitation condition held
+
 
 def rls_init(p: RLSParams, theta0: F64) -> RLSState:
     """Fresh state with estimate ``theta0`` (physical units), clamped into the bounds."""
@@ -112,6 +153,12 @@ def rls_init(p: RLSParams, theta0: F64) -> RLSState:
         buf_y=np.zeros(p.window),
         meta=np.zeros(3, dtype=np.int64),
     )
+
+
+def rls_box(p: RLSParams) -> Box:
+    """The kernels' scaling and scaled bounds of ``p``."""
+    sc = np.array(p.scale)
+    return Box(sc, np.array(p.lower) / sc, np.array(p.upper) / sc)
 
 
 # Index of each entry of a buffered RLS's ``meta`` (RLSState.meta): the ring buffer's
@@ -166,12 +213,17 @@ def rebuild_covariance(P, buf_phi, meta, p0):  # pragma: no cover
 
 
 @njit(cache=True)
-def rls_update(P, r, th, buf_phi, buf_y, meta, phi, y, lo, hi, p0, follow):  # pragma: no cover
-    """One accepted sample (scaled regressor ``phi``, output ``y``). Returns 1 on reset.
+def rls_update(w, box, ridge, phi, y):  # pragma: no cover
+    """One accepted sample (scaled regressor ``phi``, output ``y``) into the window RLS
+    ``w`` (:class:`RLSArrays`) with the bounds of ``box`` (:class:`Box`). Returns 1 on
+    reset.
 
-    ``follow`` = 1: the ridge follows the estimate (our default); 0: the ridge stays on
-    the initial estimate (the papers' recursion, whose P_0 is never downdated either).
+    ``ridge.follow`` = 1: the ridge follows the estimate (our default); 0: the ridge stays
+    on the initial estimate (the papers' recursion, whose P_0 is never downdated either).
     """
+    P, r, th, buf_phi, buf_y, meta = w.P, w.r, w.theta, w.buf_phi, w.buf_y, w.meta
+    lo, hi = box.lower, box.upper
+    p0 = ridge.p0
     n = len(th)
     L = buf_phi.shape[0]
     Pp = np.empty(n)
@@ -239,7 +291,7 @@ def rls_update(P, r, th, buf_phi, buf_y, meta, phi, y, lo, hi, p0, follow):  # p
             e = 0.0
         v = min(max(th[i] + e, lo[i]), hi[i])
         # the ridge follows the estimate: r = theta / p0 + sum phi y
-        if follow:
+        if ridge.follow:
             r[i] += (v - th[i]) / p0
         th[i] = v
     return was_reset
@@ -348,59 +400,39 @@ filter_regressors = _filter_regressors
 
 
 @njit(cache=True)
-def _ordinary_kernel(
-    y, phi, thr, sc, P, r, th, bp, by, meta, lo, hi, p0, follow, o_theta, o_mode, o_exc
-):  # pragma: no cover
-    n = len(th)
+def _ordinary_kernel(y, phi, thr, w, box, ridge, out):  # pragma: no cover
+    """The ordinary identifier over a block: the window RLS ``w`` on the filtered output
+    ``y`` and regressors ``phi`` of eq. (14), updated where ``|phi_acc| > thr``."""
+    sc = box.scale
+    n = len(w.theta)
     ph = np.empty(n)
     # theta[k] = window RLS update of theta[k-1] with (phi[k], y[k]) if |phi_acc[k]| > thr (seed000
     #  (15)), else theta[k-1]
     for k in range(len(y)):
         exc = abs(phi[k, 0]) > thr
-        o_exc[k] = exc
-        o_mode[k] = 0
+        out.excited[k] = exc
+        out.mode[k] = 0
         if exc:
             for i in range(n):
                 ph[i] = phi[k, i] * sc[i]
-            rls_update(P, r, th, bp, by, meta, ph, y[k], lo, hi, p0, follow)
-            o_mode[k] = 4
+            rls_update(w, box, ridge, ph, y[k])
+            out.mode[k] = 4
         for i in range(n):
-            o_theta[k, i] = th[i] * sc[i]
+            out.theta[k, i] = w.theta[i] * sc[i]
 
 
 @njit(cache=True)
-def _switching_kernel(
-    y,
-    phi,
-    rev,
-    thr,
-    L,
-    sc4,
-    sc3,
-    P4,
-    r4,
-    th4,
-    bp4,
-    by4,
-    m4,
-    lo4,
-    hi4,
-    P3,
-    r3,
-    th3,
-    bp3,
-    by3,
-    m3,
-    lo3,
-    hi3,
-    p0,
-    follow,
-    sw,
-    o_theta,
-    o_mode,
-    o_exc,
-):  # pragma: no cover
+def _switching_kernel(y, phi, rev, thr, L, w4, box4, w3, box3, ridge, sw, out):  # pragma: no cover
+    """The switching identifier over a block (seed 001 Fig. 6): the 4-parameter RLS ``w4``
+    while a velocity reversal (sign change of ``rev``) lies within the last ``L``
+    samples, else the 3-parameter RLS ``w3`` with F_CL held; ``sw`` its switch state
+    (SW_*)."""
     # sw = [samples since the last reversal, mode in charge, F_CL used (physical), sign]
+    sc4, sc3 = box4.scale, box3.scale
+    th4, th3 = w4.theta, w3.theta
+    bp4, by4, bp3, by3 = w4.buf_phi, w4.buf_y, w3.buf_phi, w3.buf_y
+    m4, m3 = w4.meta, w3.meta
+    p0 = ridge.p0
     idx3 = np.array([0, 1, 3])
     ph4 = np.empty(4)
     ph3 = np.empty(3)
@@ -415,7 +447,7 @@ def _switching_kernel(
         else:
             sw[SW_SINCE_REVERSAL] += 1.0
         exc = abs(phi[k, 0]) > thr
-        o_exc[k] = exc
+        out.excited[k] = exc
         # Fig. 6(a): the 4-parameter model while a reversal lies within the window
         # (its PE condition), the 3-parameter model on acceleration alone, else none
         mode = 0
@@ -437,41 +469,41 @@ def _switching_kernel(
             m3[1] = m4[1]
             for i in range(3):
                 th3[i] = th4[idx3[i]] * sc4[idx3[i]] / sc3[i]
-            rebuild_covariance(P3, bp3, m3, p0)
-            rebuild_information(r3, th3, bp3, by3, m3, p0)
+            rebuild_covariance(w3.P, bp3, m3, p0)
+            rebuild_information(w3.r, th3, bp3, by3, m3, p0)
         elif mode == 4 and prev == 3:
             # back to the 4-parameter RLS. It kept updating on the same samples
             # (seed 001 3.4), so its covariance already matches its window; it takes over
             # the 3-parameter estimate (J_L, B_L, F_DC) and keeps its own F_CL.
             for i in range(3):
                 th4[idx3[i]] = th3[i] * sc3[i] / sc4[idx3[i]]
-            rebuild_information(r4, th4, bp4, by4, m4, p0)
+            rebuild_information(w4.r, th4, bp4, by4, m4, p0)
         if mode == 4:
             for i in range(4):
                 ph4[i] = phi[k, i] * sc4[i]
-            rls_update(P4, r4, th4, bp4, by4, m4, ph4, y[k], lo4, hi4, p0, follow)
+            rls_update(w4, box4, ridge, ph4, y[k])
             sw[SW_F_CL] = th4[2] * sc4[2]
         elif mode == 3:
             # seed001 (12): y3 = Q_RLS(T_s - F_CL sgn(omega_L)) with the held F_CL
             y3 = y[k] - sw[SW_F_CL] * phi[k, 2]
             for i in range(3):
                 ph3[i] = phi[k, idx3[i]] * sc3[i]
-            rls_update(P3, r3, th3, bp3, by3, m3, ph3, y3, lo3, hi3, p0, follow)
+            rls_update(w3, box3, ridge, ph3, y3)
             # seed 001 3.4: the 4-parameter RLS keeps updating (not used by the observer)
             for i in range(4):
                 ph4[i] = phi[k, i] * sc4[i]
-            rls_update(P4, r4, th4, bp4, by4, m4, ph4, y[k], lo4, hi4, p0, follow)
+            rls_update(w4, box4, ridge, ph4, y[k])
         if mode != 0:
             sw[SW_MODE] = mode
-        o_mode[k] = mode
+        out.mode[k] = mode
         if int(sw[SW_MODE]) == 3:
-            o_theta[k, 0] = th3[0] * sc3[0]
-            o_theta[k, 1] = th3[1] * sc3[1]
-            o_theta[k, 2] = sw[SW_F_CL]
-            o_theta[k, 3] = th3[2] * sc3[2]
+            out.theta[k, 0] = th3[0] * sc3[0]
+            out.theta[k, 1] = th3[1] * sc3[1]
+            out.theta[k, 2] = sw[SW_F_CL]
+            out.theta[k, 3] = th3[2] * sc3[2]
         else:
             for i in range(4):
-                o_theta[k, i] = th4[i] * sc4[i]
+                out.theta[k, i] = th4[i] * sc4[i]
 
 
 def excitation_index(state: RLSState) -> float:
@@ -517,13 +549,8 @@ class LoadIdentifier:
         )
         # the kernels' read-only arrays, built once (params are frozen), not per block:
         # (scale, lower / scale, upper / scale) of the 4- and 3-parameter models
-        r4p, r3p = params.rls4, params.rls3
-        self._sc4 = np.array(r4p.scale)
-        self._lo4 = np.array(r4p.lower) / np.array(r4p.scale)
-        self._hi4 = np.array(r4p.upper) / np.array(r4p.scale)
-        self._sc3 = np.array(r3p.scale)
-        self._lo3 = np.array(r3p.lower) / np.array(r3p.scale)
-        self._hi3 = np.array(r3p.upper) / np.array(r3p.scale)
+        self._box4, self._box3 = rls_box(params.rls4), rls_box(params.rls3)
+        self._ridge = Ridge(params.p0, 1 if params.ridge == "previous" else 0)
 
     def initial_state(self, J_L: float, B_L: float, F_CL: float, F_dc: float = 0.0) -> IdentState:
         p = self.params
@@ -561,73 +588,33 @@ class LoadIdentifier:
         y = np.empty(n)
         phi = np.empty((n, 4))
         _filter_regressors(new.zf, self.q_rls.b, self.q_rls.a, t_s, acc_l, vel_l, sgn_l, y, phi)
-        theta = np.empty((n, 4))
-        mode = np.empty(n, dtype=np.int8)
-        exc = np.empty(n, dtype=np.bool_)
+        out = IdentOut(np.empty((n, 4)), np.empty(n, dtype=np.int8), np.empty(n, dtype=np.bool_))
         a = new.rls4
-        lo4, hi4 = self._lo4, self._hi4
-        follow = 1 if p.ridge == "previous" else 0
         if not self.switching:
-            _ordinary_kernel(
-                y,
-                phi,
-                p.acc_threshold,
-                self._sc4,
-                a.P,
-                a.r,
-                a.theta,
-                a.buf_phi,
-                a.buf_y,
-                a.meta,
-                lo4,
-                hi4,
-                p.p0,
-                follow,
-                theta,
-                mode,
-                exc,
-            )
+            _ordinary_kernel(y, phi, p.acc_threshold, a.arrays, self._box4, self._ridge, out)
             resets = int(a.meta[META_RESETS])
         else:
             assert new.rls3 is not None and new.sw is not None
             b = new.rls3
-            lo3, hi3 = self._lo3, self._hi3
             _switching_kernel(
                 y,
                 phi,
                 np.ascontiguousarray(omega_l),
                 p.acc_threshold,
                 float(p.window),
-                self._sc4,
-                self._sc3,
-                a.P,
-                a.r,
-                a.theta,
-                a.buf_phi,
-                a.buf_y,
-                a.meta,
-                lo4,
-                hi4,
-                b.P,
-                b.r,
-                b.theta,
-                b.buf_phi,
-                b.buf_y,
-                b.meta,
-                lo3,
-                hi3,
-                p.p0,
-                follow,
+                a.arrays,
+                self._box4,
+                b.arrays,
+                self._box3,
+                self._ridge,
                 new.sw,
-                theta,
-                mode,
-                exc,
+                out,
             )
             resets = int(a.meta[META_RESETS] + b.meta[META_RESETS])
         return new, IdentRecord(
-            theta=theta,
-            mode=mode,
-            excited=exc,
+            theta=out.theta,
+            mode=out.mode,
+            excited=out.excited,
             resets=resets,
             excitation_index=excitation_index(a) if excitation else math.nan,
             cov_trace=float(np.trace(a.P)),

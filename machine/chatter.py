@@ -152,17 +152,8 @@ def _cut_block(
     ecc: float,
     ecc_ph: float,
     st: F64,
-    cutp: F64,
-    lags: F64,
-    runout: F64,
-    modes: F64,
-    disc: F64,
-    eta: F64,
-    eta_f: F64,
-    hist: F64,
-    hmeta: np.ndarray,
-    truth: F64,
-    past: F64,
+    cut: rg.RegenCut,
+    mem: rg.RegenMemory,
     out: F64,
 ) -> None:  # pragma: no cover
     """``n`` steps of the cut; ``st = [psi, x_feed]`` (updated); ``out`` rows
@@ -177,14 +168,11 @@ def _cut_block(
         r0y = ecc * math.sin(psi0 + ecc_ph)
         r1x = x1 + ecc * math.cos(psi1 + ecc_ph)
         r1y = ecc * math.sin(psi1 + ecc_ph)
-        rg.regen_substep(
-            psi0, psi1, r0x, r0y, r1x, r1y, dt, cutp, lags, runout, modes, disc,
-            eta, eta_f, hist, hmeta, truth, past, sub,
-        )  # fmt: skip
+        rg.regen_substep(psi0, psi1, r0x, r0y, r1x, r1y, dt, cut, mem, sub)
         for i in range(sub.shape[0]):
             out[i, k] = sub[i]
-        out[sub.shape[0], k] = truth[rg.T_ANF]
-        out[sub.shape[0] + 1, k] = truth[rg.T_AF]
+        out[sub.shape[0], k] = mem.truth[rg.T_ANF]
+        out[sub.shape[0] + 1, k] = mem.truth[rg.T_AF]
         out[sub.shape[0] + 2, k] = psi1
         st[0] = psi1
         st[1] = x1
@@ -315,11 +303,13 @@ class ChatterCut:
         n = int(n)
         p = self.params
         out = np.empty((len(OUT_ROWS), n))
+        cut = rg.RegenCut(self._cutp, self._lags, self._runout, self._modes, self._disc)
+        mem = rg.RegenMemory(
+            self._eta, self._eta_f, self._hist, self._hmeta, self._truth, self._past
+        )
         _cut_block(
             n, self.dt, self.omega, self.feed_speed(), p.eccentricity,
-            math.radians(p.eccentricity_deg), self._st, self._cutp, self._lags,
-            self._runout, self._modes, self._disc, self._eta, self._eta_f, self._hist,
-            self._hmeta, self._truth, self._past, out,
+            math.radians(p.eccentricity_deg), self._st, cut, mem, out,
         )  # fmt: skip
         t = np.asarray((self._k + 1 + np.arange(n)) * self.dt, dtype=np.float64)
         self._k += n

@@ -35,7 +35,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 from numba import njit
@@ -280,38 +280,54 @@ def _flute_idle(
     return lo > phi_ex + _IDLE_MARGIN or b < phi_st - _IDLE_MARGIN
 
 
+class MillingCut(NamedTuple):
+    """The cut as the rigid kernel takes it (read only over a block)."""
+
+    ts: float  # sample time [s]
+    n_flutes: int
+    lags: F64  # each axial layer's lag [rad] (helix)
+    dz: float  # layer height [m]
+    phi_st: float  # immersion window: start [rad]
+    phi_ex: float  # and exit [rad]
+    kc: F64  # [K_tc, K_rc, K_te, K_re]
+    ecc: float  # eccentricity [m]
+    ecc_phase: float  # its angle [rad]
+    omega: float  # spindle speed [rad/s]
+    feed_speed: float  # [m/s]
+
+
+class Modulation(NamedTuple):
+    """The position command's circles held over a block (seed003 (7)) and the
+    identification circle: :func:`position_command`'s inputs after the angle and path."""
+
+    a_m: float  # co-rotating circle radius [m]
+    theta_m: float  # and its phase [rad]
+    b_m: float  # counter-rotating circle radius [m]
+    phi_m: float  # and its phase [rad]
+    ex_a: float  # identification circle radius [m]
+    ex_order: float  # and its spindle order
+
+
 @njit(cache=True)
-def _milling_block(
-    n: int,
-    ts: float,
-    n_flutes: int,
-    lags: F64,
-    dz: float,
-    phi_st: float,
-    phi_ex: float,
-    kc: F64,
-    ecc: float,
-    ecc_phase: float,
-    omega: float,
-    feed_speed: float,
-    a_m: float,
-    theta_m: float,
-    b_m: float,
-    phi_m: float,
-    ex_a: float,
-    ex_order: float,
-    drive: F64,
-    st: F64,
-    ax_state: F64,
-    hist: F64,
-    out: F64,
-) -> None:  # pragma: no cover
-    """Advance the machine ``n`` samples.
+def _milling_block(n, cut, cmd, drive, st, ax_state, hist, out):  # pragma: no cover
+    """Advance the machine ``n`` samples of the cut ``cut`` (:class:`MillingCut`) with the
+    command ``cmd`` (:class:`Modulation`) held.
 
     ``st = [psi, path_x, head]``; ``ax_state[i] = [x, v, integral, e_prev]`` per axis;
     ``hist[k] = [px, py]`` ring buffer of tool-centre positions; ``out`` rows are
     ``fx, fy, x, y, rx, ry, ux, uy, psi``.
     """
+    ts, n_flutes, lags, dz, phi_st, phi_ex = (
+        cut.ts, cut.n_flutes, cut.lags, cut.dz, cut.phi_st, cut.phi_ex
+    )  # fmt: skip
+    kc, ecc, ecc_phase, omega, feed_speed = (
+        cut.kc,
+        cut.ecc,
+        cut.ecc_phase,
+        cut.omega,
+        cut.feed_speed,
+    )
+    a_m, theta_m, b_m, phi_m, ex_a, ex_order = cmd
     hlen = hist.shape[0]
     pitch = 2.0 * math.pi / n_flutes
     lag_max = 0.0
@@ -614,31 +630,21 @@ class MillingMachine:
         out = np.empty((9, n))
         st0, ph_ex = self._window
         omega = 2.0 * math.pi * self._rpm / 60.0
-        _milling_block(
-            n,
-            self.sample_time,
-            int(p.n_flutes),
-            self._lags,
-            p.axial_depth / p.n_layers,
-            st0,
-            ph_ex,
-            self._kc,
-            p.eccentricity,
-            math.radians(p.eccentricity_deg),
-            omega,
-            self.feed_speed(),
-            a,
-            th,
-            b,
-            ph,
-            self.excitation[0],
-            self.excitation[1],
-            self._drive,
-            self._s.st,
-            self._s.ax,
-            self._s.hist,
-            out,
+        cut = MillingCut(
+            ts=self.sample_time,
+            n_flutes=int(p.n_flutes),
+            lags=self._lags,
+            dz=p.axial_depth / p.n_layers,
+            phi_st=st0,
+            phi_ex=ph_ex,
+            kc=self._kc,
+            ecc=p.eccentricity,
+            ecc_phase=math.radians(p.eccentricity_deg),
+            omega=omega,
+            feed_speed=self.feed_speed(),
         )
+        cmd = Modulation(a, th, b, ph, self.excitation[0], self.excitation[1])
+        _milling_block(n, cut, cmd, self._drive, self._s.st, self._s.ax, self._s.hist, out)
         t = np.asarray((self._s.k + np.arange(n)) * self.sample_time, dtype=np.float64)
         self._s.k += n
         kf = (self.drives.params.x.force_constant, self.drives.params.y.force_constant)

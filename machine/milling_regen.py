@@ -21,6 +21,7 @@ current through the speed loop (30 Hz by default): what a CNC's trace sees.
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -95,39 +96,53 @@ def _carriage_substep(
     ax[i, 1] = e1 * v + e2 * f
 
 
+class RegenRun(NamedTuple):
+    """A block's fixed scalars: the rate, the spindle's reference, the feed, the
+    eccentricity."""
+
+    ts: float  # drive sample time [s]
+    nsub: int  # cut sub-steps per drive sample
+    omega_ref: float  # spindle speed reference [rad/s]
+    feed: float  # feed speed [m/s]
+    ecc: float  # eccentricity [m]
+    ecc_ph: float  # and its angle [rad]
+
+
+class RegenDrives(NamedTuple):
+    """The drives' designs as the kernel takes them (read only)."""
+
+    drive: F64  # the X/Y feed drives (FeedDriveParams.packed())
+    csub: F64  # the carriages' exact-step terms over a sub-step (zoh_terms)
+    spd: F64  # the spindle drive (SpindleParams.packed())
+
+
+class RegenAxes(NamedTuple):
+    """The machine's motion state (updated in place)."""
+
+    st: F64  # [psi, path_x]
+    ax: F64  # per axis [x, v, integral, e_prev]
+    sp_state: F64  # the spindle's [omega, integral, torque]
+
+
 @njit(cache=True)
 def _regen_milling_block(
     n: int,
-    ts: float,
-    nsub: int,
-    omega_ref: float,
-    feed: float,
+    run: RegenRun,
     cmd: F64,
-    ecc: float,
-    ecc_ph: float,
-    drive: F64,
-    csub: F64,
-    spd: F64,
-    st: F64,
-    ax: F64,
-    sp_state: F64,
-    cutp: F64,
-    lags: F64,
-    runout: F64,
-    modes: F64,
-    disc: F64,
-    eta: F64,
-    eta_f: F64,
-    hist: F64,
-    hmeta: np.ndarray,
-    truth: F64,
-    past: F64,
+    drives: RegenDrives,
+    axes: RegenAxes,
+    cut: rg.RegenCut,
+    mem: rg.RegenMemory,
     out: F64,
 ) -> None:  # pragma: no cover
-    """``n`` drive samples; ``st = [psi, path_x]``, ``ax`` the axes' states, ``sp_state``
-    the spindle's; ``cmd = [a_m, theta_m, b_m, phi_m, ex_a, ex_order]``; ``csub`` the
-    carriages' exact-step terms over a sub-step; ``out`` rows: the rigid kernel's nine,
-    then :data:`EXTRA_ROWS`."""
+    """``n`` drive samples of ``run``; ``axes`` the axes' and the spindle's states;
+    ``cmd = [a_m, theta_m, b_m, phi_m, ex_a, ex_order]``; ``drives.csub`` the carriages'
+    exact-step terms over a sub-step; ``out`` rows: the rigid kernel's nine, then
+    :data:`EXTRA_ROWS`."""
+    ts, nsub, omega_ref, feed, ecc, ecc_ph = run
+    drive, csub, spd = drives.drive, drives.csub, drives.spd
+    st, ax, sp_state = axes.st, axes.ax, axes.sp_state
+    truth = mem.truth
     dt = ts / nsub
     sub = np.zeros(len(rg.SUB_ROWS))
     u = np.zeros(2)
@@ -152,7 +167,7 @@ def _regen_milling_block(
                 y0 + ecc * math.sin(p0 + ecc_ph),
                 x0 + ax[0, 1] * dt + ecc * math.cos(p1 + ecc_ph),
                 y0 + ax[1, 1] * dt + ecc * math.sin(p1 + ecc_ph),
-                dt, cutp, lags, runout, modes, disc, eta, eta_f, hist, hmeta, truth, past, sub,
+                dt, cut, mem, sub,
             )  # fmt: skip
             # the carriages carry the spindle housing: they feel, sub-step by sub-step,
             # what the tool modes pass on, under the motor force held over the sample
@@ -265,10 +280,15 @@ def run_block(
     cutp, lags, runout, ecc, ecc_ph = geometry
     out = np.empty((9 + len(EXTRA_ROWS), n))
     _regen_milling_block(
-        n, ts, rs.nsub, omega_ref, feed, cmd, ecc, ecc_ph, drive, rs.csub, rs.spd, st, ax,
-        rs.sp_state, cutp, lags, runout, rs.modes, rs.disc, rs.eta, rs.eta_f, rs.hist,
-        rs.hmeta, rs.truth, rs.past, out,
-    )  # fmt: skip
+        n,
+        RegenRun(ts, rs.nsub, omega_ref, feed, ecc, ecc_ph),
+        cmd,
+        RegenDrives(drive, rs.csub, rs.spd),
+        RegenAxes(st, ax, rs.sp_state),
+        rg.RegenCut(cutp, lags, runout, rs.modes, rs.disc),
+        rg.RegenMemory(rs.eta, rs.eta_f, rs.hist, rs.hmeta, rs.truth, rs.past),
+        out,
+    )
     return out
 
 

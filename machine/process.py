@@ -35,6 +35,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -264,43 +265,54 @@ class BlockRecord:
         return len(self.t)
 
 
+class ProcessCut(NamedTuple):
+    """A program block's cut as the kernel takes it (read only over a block)."""
+
+    ts: float  # sample time [s]
+    nf: int  # flutes
+    lags: F64  # each axial layer's lag [rad] (helix)
+    dz: float  # layer height [m]
+    phi_st: float  # immersion window: start [rad]
+    phi_ex: float  # and exit [rad]
+    kc: F64  # [K_tc, K_rc, K_te, K_re]
+    ecc: float  # eccentricity [m]
+    ecc_phase: float  # its angle [rad]
+    omega: float  # spindle speed [rad/s]
+    v_target: float  # path speed target [m/s]
+    acc: float  # path acceleration limit [m/s^2]
+    stock: F64  # [x_in, x_out, ramp, cut]: the stock's edges along the path, the ramp [m]
+    a_m: float  # the modulation circle (seed003 (7)): radius [m]
+    theta_m: float  # and phase [rad]
+
+
+class ProcessChange(NamedTuple):
+    """What an event changes from its sample on (none: ``k_ev`` past the block)."""
+
+    k_ev: int  # the event's first sample in the block
+    dr0: F64  # the flutes' radius offsets before it [m]
+    dr1: F64  # and from it on
+    feed_mul: float  # the path speed target's factor from it on
+    depth_after: float  # the engagement's factor from it on
+
+
 @njit(cache=True)
-def _process_kernel(
-    n: int,
-    ts: float,
-    nf: int,
-    lags: F64,
-    dz: float,
-    phi_st: float,
-    phi_ex: float,
-    kc: F64,
-    ecc: float,
-    ecc_phase: float,
-    omega: float,
-    v_target: float,
-    acc: float,
-    stock: F64,
-    a_m: float,
-    theta_m: float,
-    k_ev: int,
-    dr0: F64,
-    dr1: F64,
-    feed_mul: float,
-    depth_after: float,
-    drive: F64,
-    st: F64,
-    ax: F64,
-    hist: F64,
-    out: F64,
-) -> None:  # pragma: no cover
+def _process_kernel(n, cut, change, drive, st, ax, hist, out):  # pragma: no cover
     """Advance ``n`` samples of one block.
 
+    ``cut`` (:class:`ProcessCut`) the block's cut, ``drive`` the drives' packed design;
     ``st = [psi, path_x, head, path_v]``; ``ax[i] = [x, v, integral, e_prev]``; ``hist``
-    ring buffer of tool-centre positions; ``stock = [x_in, x_out, ramp, cut]`` the stock's
-    edges along the path and the engagement ramp length [m]. From sample ``k_ev`` on,
-    the flute radius offsets are ``dr1`` (before: ``dr0``), the path speed target is
-    multiplied by ``feed_mul`` and the engagement by ``depth_after``.
+    ring buffer of tool-centre positions; ``cut.stock = [x_in, x_out, ramp, cut]`` the
+    stock's edges along the path and the engagement ramp length [m]. From sample
+    ``change.k_ev`` on (:class:`ProcessChange`), the flute radius offsets are ``dr1``
+    (before: ``dr0``), the path speed target is multiplied by ``feed_mul`` and the
+    engagement by ``depth_after``.
     """
+    ts, nf, lags, dz, phi_st, phi_ex, kc = (
+        cut.ts, cut.nf, cut.lags, cut.dz, cut.phi_st, cut.phi_ex, cut.kc
+    )  # fmt: skip
+    ecc, ecc_phase, omega, v_target, acc = cut.ecc, cut.ecc_phase, cut.omega, cut.v_target, cut.acc
+    stock, a_m, theta_m = cut.stock, cut.a_m, cut.theta_m
+    k_ev, dr0, dr1, feed_mul, depth_after = change
     hlen = hist.shape[0]
     two_pi = 2.0 * math.pi
     pitch = two_pi / nf
@@ -689,12 +701,25 @@ class ProcessMachine:
         inst = self.instances[run.tool.number]
         blk, tool = run.blk, run.tool
         out = np.empty((len(_ROWS), n))
-        _process_kernel(
-            n, ts, tool.n_flutes, run.lags, run.dz, run.phi_st, run.phi_ex, run.kc, inst.ecc,
-            math.radians(inst.ecc_deg), run.omega, run.v_target, 2.0, run.stock,
-            self.modulation[0], self.modulation[1], run.k_ev - run.done, run.dr0, run.dr1,
-            run.feed_mul, run.depth_after, self._drive, self.st, self.ax, self.hist, out,
-        )  # fmt: skip
+        cut = ProcessCut(
+            ts=ts,
+            nf=tool.n_flutes,
+            lags=run.lags,
+            dz=run.dz,
+            phi_st=run.phi_st,
+            phi_ex=run.phi_ex,
+            kc=run.kc,
+            ecc=inst.ecc,
+            ecc_phase=math.radians(inst.ecc_deg),
+            omega=run.omega,
+            v_target=run.v_target,
+            acc=2.0,
+            stock=run.stock,
+            a_m=self.modulation[0],
+            theta_m=self.modulation[1],
+        )
+        change = ProcessChange(run.k_ev - run.done, run.dr0, run.dr1, run.feed_mul, run.depth_after)
+        _process_kernel(n, cut, change, self._drive, self.st, self.ax, self.hist, out)
         kf = (self.drives.x.force_constant, self.drives.y.force_constant)
         rec = BlockRecord(
             k0=self.k,

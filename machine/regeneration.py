@@ -44,6 +44,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -176,6 +177,27 @@ def _window_part(
     return inside / (b - a), mid
 
 
+class RegenCut(NamedTuple):
+    """The cut and the structure as the regeneration kernels take them (read only)."""
+
+    cutp: F64  # pack_cut: [N, phi_st, phi_ex, kt, kn, kte, kne, dz, R, M]
+    lags: F64  # each axial layer's lag [rad] (helix)
+    runout: F64  # each flute's radial runout [m]
+    modes: F64  # ModalModel.packed()
+    disc: F64  # discretise(): the modes' exact step over dt
+
+
+class RegenMemory(NamedTuple):
+    """What the cut carries from step to step (updated in place)."""
+
+    eta: F64  # modal coordinates and velocities (actual)
+    eta_f: F64  # the same of the forced twin
+    hist: F64  # the surface memory (a ring, H_* columns)
+    hmeta: np.ndarray  # [head, filled]
+    truth: F64  # the truth accumulators (T_*)
+    past: F64  # scratch: the centres 1..M pitches back, the comb filters' outputs
+
+
 @njit(cache=True, inline="always")
 def _chip_forces(
     psi0: float,
@@ -184,18 +206,16 @@ def _chip_forces(
     cmy: float,
     rmx: float,
     rmy: float,
-    cutp: F64,
-    lags: F64,
-    runout: F64,
-    hist: F64,
-    hmeta: np.ndarray,
-    past: F64,
+    cut: RegenCut,
+    mem: RegenMemory,
     sub: F64,
 ) -> None:  # pragma: no cover
     """Forces on the tool over the step from ``psi0`` to ``psi1`` with the tool centre
     ``(cmx, cmy)`` and the rigid centre ``(rmx, rmy)`` at its midpoint; fills the force
     rows of ``sub``. The centres one to ``M`` pitches back are read from the memory into
     ``past`` when the first flute is found in the cut (not at all when none is)."""
+    cutp, lags, runout = cut.cutp, cut.lags, cut.runout
+    hist, hmeta, past = mem.hist, mem.hmeta, mem.past
     nf = int(cutp[0])
     st = cutp[1]
     ex = cutp[2]
@@ -381,17 +401,8 @@ def regen_substep(
     r1x: float,
     r1y: float,
     dt: float,
-    cutp: F64,
-    lags: F64,
-    runout: F64,
-    modes: F64,
-    disc: F64,
-    eta: F64,
-    eta_f: F64,
-    hist: F64,
-    hmeta: np.ndarray,
-    truth: F64,
-    past: F64,
+    cut: RegenCut,
+    mem: RegenMemory,
     sub: F64,
 ) -> None:  # pragma: no cover
     """One step of the cut from ``psi0`` to ``psi1`` with the rigid centre moving from
@@ -400,14 +411,21 @@ def regen_substep(
     ``sub`` receives the step's outputs (:data:`SUB_ROWS`): the forces are the step's
     (held over it), ``q`` and the non-forced vibration those at its end.
     """
+    cutp, modes, disc = cut.cutp, cut.modes, cut.disc
+    eta, eta_f, hist, hmeta, truth, past = (
+        mem.eta,
+        mem.eta_f,
+        mem.hist,
+        mem.hmeta,
+        mem.truth,
+        mem.past,
+    )
     half = 0.5 * dt
     # midpoint: rigid centre interpolated, modes predicted from their velocity
     rmx = 0.5 * (r0x + r1x)
     rmy = 0.5 * (r0y + r1y)
     qx, qy = _modal_q(eta, modes, half)
-    _chip_forces(
-        psi0, psi1, rmx + qx, rmy + qy, rmx, rmy, cutp, lags, runout, hist, hmeta, past, sub
-    )
+    _chip_forces(psi0, psi1, rmx + qx, rmy + qy, rmx, rmy, cut, mem, sub)
     bx, by = _base_force(eta, modes, sub[0], sub[1])
     sub[4] = bx
     sub[5] = by
@@ -532,6 +550,8 @@ __all__ = [
     "SUB_ROWS",
     "TRUTH_LEN",
     "ChatterTruth",
+    "RegenCut",
+    "RegenMemory",
     "discretise",
     "dominant_frequency",
     "fill_history",

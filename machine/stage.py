@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -244,36 +245,51 @@ def _discrete_linear_part(p: StageParams, h: float) -> tuple[F64, F64]:
     return zoh(a, b, h)
 
 
+class StageModel(NamedTuple):
+    """The stage's design as the kernel takes it (read only; built when it changes)."""
+
+    ts: float  # sample time [s]
+    nsub: int  # plant sub-steps per sample
+    q: float  # encoder resolution [rad]
+    phi: F64  # (4, 4) the linear part over one sub-step, exp(A h)
+    gam: F64  # (4, 2) its inputs (motor torque, load torque)
+    plant: F64  # [K, C_s, F_CM, F_CL, K_t_true]
+    eff: F64  # PlantEffects.vector()
+    force: F64  # ForceProfile.vector(): [offset, gain, t0, amplitudes..., frequencies...]
+    gains: F64  # [Kp, Ki, K_t_nominal]
+
+
+class StageArrays(NamedTuple):
+    """The stage's state as the kernel updates it (in place)."""
+
+    x: F64  # [th_M, w_M, th_L, w_L]
+    ctrl: F64  # [integrator, previous quantised th_M]
+    phases: F64  # of the force sinusoids
+
+
+class StageOut(NamedTuple):
+    """The kernel's per-sample outputs (filled in place)."""
+
+    t: F64  # sample time [s]
+    i_m: F64  # measured motor current (with noise) [A]
+    q_m: F64  # quantised motor angle [rad]
+    q_l: F64  # quantised load angle [rad]
+    f_cut: F64  # cutting torque at t[k] [N m]
+    omega_m: F64  # [rad/s]
+    omega_l: F64  # [rad/s]
+    t_s: F64  # torsional torque [N m]
+
+
 @njit(cache=True)
-def _simulate_block(
-    x,
-    ctrl,
-    phases,
-    t0,
-    ts,
-    nsub,
-    phi,
-    gam,
-    plant,
-    eff,
-    force,
-    gains,
-    w_ref,
-    noise,
-    q,
-    out_t,
-    out_i,
-    out_qm,
-    out_ql,
-    out_f,
-    out_wm,
-    out_wl,
-    out_ts,
-):  # pragma: no cover
-    """Advance ``len(w_ref)`` samples. ``x`` = [th_M, w_M, th_L, w_L] (in place);
-    ``ctrl`` = [integrator, previous quantised th_M] (in place); ``phases`` of the force
-    sinusoids (in place). ``plant`` = [K, C_s, F_CM, F_CL, K_t_true]; ``gains`` = [Kp, Ki,
-    K_t_nominal]."""
+def _simulate_block(s, m, t0, w_ref, noise, out):  # pragma: no cover
+    """Advance ``len(w_ref)`` samples from time ``t0`` of the stage ``m``
+    (:class:`StageModel`) in state ``s`` (:class:`StageArrays`, in place); the current
+    noise per sample ``noise``; ``out`` (:class:`StageOut`) filled."""
+    x, ctrl, phases = s.x, s.ctrl, s.phases
+    ts, nsub, q, phi, gam = m.ts, m.nsub, m.q, m.phi, m.gam
+    plant, eff, force, gains = m.plant, m.eff, m.force, m.gains
+    out_t, out_i, out_qm, out_ql = out.t, out.i_m, out.q_m, out.q_l
+    out_f, out_wm, out_wl, out_ts = out.f_cut, out.omega_m, out.omega_l, out.t_s
     K, Cs, FCM, FCL, Kt = plant[0], plant[1], plant[2], plant[3], plant[4]
     off, asym, strb, vstr = eff[0], eff[1], eff[2], eff[3]
     pp_a, pp_per, rip_a, rip_n, gap = eff[4], eff[5], eff[6], eff[7], eff[8]
@@ -425,6 +441,17 @@ class StageSim:
         jt = nom.J_M + nom.J_L
         w0 = 2 * math.pi * c.pole_hz
         self._gains = np.array([2 * jt * w0, jt * w0 * w0, nom.K_t])
+        self._model = StageModel(
+            ts=c.sample_time,
+            nsub=c.substeps,
+            q=c.encoder_resolution,
+            phi=self._phi,
+            gam=self._gam,
+            plant=self._plant,
+            eff=self._eff,
+            force=self._force,
+            gains=self._gains,
+        )
 
     def step(self, n: int) -> tuple[Measurements, Truth]:
         if n < 1:
@@ -434,26 +461,10 @@ class StageSim:
         t = (self.k + np.arange(n)) * ts
         w_ref = c.trajectory(t)
         noise = self._rng.normal(0.0, c.current_noise, n) if c.current_noise > 0 else np.zeros(n)
-        outs = [np.empty(n) for _ in range(8)]
-        _simulate_block(
-            self.x,
-            self.ctrl,
-            self.phases,
-            self.k * ts,
-            ts,
-            c.substeps,
-            self._phi,
-            self._gam,
-            self._plant,
-            self._eff,
-            self._force,
-            self._gains,
-            w_ref,
-            noise,
-            c.encoder_resolution,
-            *outs,
-        )
-        o_t, o_i, o_qm, o_ql, o_f, o_wm, o_wl, o_ts = outs
+        out = StageOut(*(np.empty(n) for _ in StageOut._fields))
+        arrays = StageArrays(self.x, self.ctrl, self.phases)
+        _simulate_block(arrays, self._model, self.k * ts, w_ref, noise, out)
+        o_t, o_i, o_qm, o_ql, o_f, o_wm, o_wl, o_ts = out
         self.k += n
         nom = c.nominal or c.params
         j_l, b_l, f_cl = self._true_load  # c.true_params, kept by _prepare

@@ -121,6 +121,10 @@ export const SCHEMA = {
     "part",
     "wear_share",
     "life_left_min",
+    "wear_tool",
+    "wear_of",
+    "wear_limit_mm",
+    "wear_alarm_share",
     "unacked"
   ],
   "versions": {
@@ -134,7 +138,7 @@ export const SCHEMA = {
     "accuracy": 2,
     "event": 1,
     "event_record": 1,
-    "status": 1
+    "status": 2
   }
 };
 
@@ -285,8 +289,12 @@ export const SCHEMA = {
  * @property {string} program
  * @property {number} line
  * @property {number} part
- * @property {(number|null)} wear_share - estimated flank wear / its limit
- * @property {(number|null)} life_left_min - remaining tool life [min]
+ * @property {(number|null)} wear_share - estimated flank wear of tool `wear_tool` / `wear_limit_mm`
+ * @property {(number|null)} life_left_min - remaining life of tool `wear_tool` [min]
+ * @property {number} [wear_tool] - the tool the wear share and life are of (0: not known)
+ * @property {string} [wear_of] - whose tool `wear_tool` is: '' the spindle's (the strip's `tool`), else the wear model's own tool in words (a machine beside the spindle's)
+ * @property {(number|null)} [wear_limit_mm] - the flank-wear limit the share is of [mm] (tool change)
+ * @property {(number|null)} [wear_alarm_share] - the wear alarm is raised at this share of the limit
  * @property {number} unacked - events waiting for an acknowledgement
  */
 

@@ -84,7 +84,7 @@ from server.errors import CutwatchError
 from server.pipeline.accuracy import RollingAccuracy
 from server.pipeline.checkpoint import PipelineState, ScriptState
 from server.pipeline.knobs import BASE_RPM, Knob, KnobValue, KnobValues
-from server.pipeline.machine_view import MachineView
+from server.pipeline.machine_view import MachineView, description_of
 from server.pipeline.part import (
     Block,
     Channel,
@@ -156,6 +156,10 @@ _STATUS: dict[str, object] = {
     "part": -1,
     "wear_share": math.nan,
     "life_left_min": math.nan,
+    "wear_tool": 0,
+    "wear_of": "",
+    "wear_limit_mm": math.nan,
+    "wear_alarm_share": math.nan,
 }
 
 
@@ -186,6 +190,8 @@ class LivePipeline:
             raise ParameterError("scenario", f"one of {sorted(SCENARIOS)}", scenario)
         self.script: Scenario = sc
         self.seed = seed
+        if source is None and sc.source is not None:
+            source = sc.source(seed)  # the scenario's own machine (the machining centre)
         self._knobs = KnobValues(sc.knobs)
         self._effects0: tuple[ObserverEffect, ...] = ()
         #: per axis, the residual report's effects the axes' live models hold
@@ -799,17 +805,41 @@ class LivePipeline:
     def monitor_status(self) -> dict[str, object]:
         """What an operator reads from across the shop: the monitor's ``state`` (``off``
         without a process monitor, ``teaching``, ``watching``, ``alarm``: the block under
-        way raised an event), the tool in the spindle and its flank wear as a share of
-        the limit, the life left [min] (NaN: not known), and the CNC's program, line and
-        part (empty / 0 / -1: not known), each from the running part that says it (the
-        process monitor: state, tool, program, line, part; the wear: its share and life).
-        ``unacked`` is the runtime's (0 here)."""
+        way raised an event), the tool in the spindle and the CNC's program, line and
+        part (0 / empty / 0 / -1: not known); the wear of one tool, ``wear_tool``, from one
+        source: its flank wear as a share of its limit ``wear_limit_mm`` (the alarm at
+        ``wear_alarm_share`` of it) and its life left [min] (NaN: not known), with
+        ``wear_of`` saying whose tool that is when it is not the spindle's (issue 28: the
+        default scenario's wear model is seed 004's turning tool on the stage, not the
+        milling machine's T1/T2). Each field comes from the running part that says it
+        (the process monitor: state, tool, program, line, part; the wear part: the
+        ``wear_*`` fields and the life). ``unacked`` is the runtime's (0 here)."""
         status = dict(_STATUS)
         for part in self._parts:
             if self._running(part):
                 status.update(part.status())
         status["unacked"] = 0
         return status
+
+    def machine(self) -> dict[str, object]:
+        """The machine the source delivers and the parts that watch it (``GET
+        /api/machine``): ``source``, ``sample_time`` [s]; ``axes`` (``name``, ``kind``,
+        ``signals``: the roles it gives), ``spindle`` (its ``signals``; None without one),
+        ``identities``; ``description``: the machine description when the source has one
+        (``common/machine.schema.json``; None for the simulated stage, whose one axis
+        the rest says); ``parts`` (``name``, ``running``, ``reason``)."""
+        v = self._view
+        desc = description_of(self.source)
+        return {
+            "source": self.source.name,
+            "scenario": self.scenario,
+            "sample_time": v.sample_time,
+            "axes": [{"name": a.name, "kind": a.kind, "signals": sorted(a.roles)} for a in v.axes],
+            "spindle": {"signals": sorted(v.spindle)} if v.spindle else None,
+            "identities": sorted(v.identities),
+            "description": desc.to_dict() if desc is not None else None,
+            "parts": self.parts(),
+        }
 
     def inject(
         self,

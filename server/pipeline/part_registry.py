@@ -16,6 +16,9 @@ wear           seed 004's wearing tool and its life monitor    server/pipeline/w
 eccentricity   seed 003's milling tool and its tuner           server/pipeline/eccentricity_part.py
 process        the part program and the process monitor        server/pipeline/process_part.py
 axes           every axis of a described machine, rigid, live  server/pipeline/axis_part.py
+spindle        a spindle's cutting power over its taught idle  server/pipeline/spindle_part.py
+cnc            the spindle as a CNC's OPC UA server reports    server/pipeline/cnc_part.py
+               it (the opcua source)
 =============  ==============================================  =========================
 
 More parts come after these, in the order they were added: :func:`register` (in
@@ -122,6 +125,10 @@ def _workpiece(c: BuildContext) -> Part | None:
 def _stage(c: BuildContext) -> Part:
     from server.pipeline.stage_part import StagePart
 
+    why = getattr(c.source, "stage_refusal", "")  # a described machine without its model
+    if why:
+        raise CutwatchError(why)
+
     return StagePart(c.source, c.plant.ident, dict(c.plant.design))
 
 
@@ -155,14 +162,36 @@ def _process(c: BuildContext) -> Part | None:
     return ProcessPart.from_knobs(c.seed, c.knobs) if c.scenario.process else None
 
 
+def _spindle(c: BuildContext) -> Part | None:
+    from server.pipeline.machine_view import description_of
+    from server.pipeline.spindle_part import SpindlePart
+
+    desc = description_of(c.source)
+    if desc is None or desc.spindle is None or "power" not in desc.spindle.signals:
+        return None  # the stage, a log, a feed without a spindle's power: not built
+    return SpindlePart(desc, str(getattr(c.source, "program", "")))
+
+
 def _axes(c: BuildContext) -> Part | None:
     from server.pipeline.axis_part import AxisPart
+    from server.pipeline.machine_view import description_of, has_prior
+
+    desc = description_of(c.source)
+    if desc is None or c.source.knobs_apply:
+        return None  # the simulator's stage: its observers are the stage part's
+    if all(a.kind == "two_inertia" and has_prior(a) for a in desc.axes):
+        return None  # the stage part's machine, fed or replayed alike (the same streams)
+    return AxisPart(desc, c.axis_effects)
+
+
+def _cnc(c: BuildContext) -> Part | None:
+    from server.pipeline.cnc_part import CncPart
     from server.pipeline.machine_view import description_of
 
     desc = description_of(c.source)
-    if desc is None or c.source.knobs_apply or c.source.name == "replay":
-        return None  # one two-inertia axis with its nominal: the stage part's observers
-    return AxisPart(desc, c.axis_effects)
+    if desc is None or desc.spindle is None or c.source.name != "opcua":
+        return None
+    return CncPart(desc)
 
 
 #: cutwatch's own parts, by name, in the order they run (module docstring)
@@ -175,6 +204,8 @@ BUILTIN: tuple[tuple[str, PartFactory], ...] = (
     ("eccentricity", _eccentricity),
     ("process", _process),
     ("axes", _axes),
+    ("spindle", _spindle),
+    ("cnc", _cnc),
 )
 
 #: the parts added: what was registered (a class or a factory) -> its factory

@@ -118,10 +118,10 @@ class SourceBlock:
     discontinuity : str or None
         Why this block does not continue the previous one (``"gap"``, ``"reset"``...);
         the pipeline resets its observers before running it. None: it continues.
-    columns : dict
-        Every column of a described machine's block by its source's name (a live
-        feed's: every axis, the spindle), the same samples as ``meas``; empty for a
-        source of one two-inertia axis.
+    columns : mapping of str to array
+        Every signal of a described machine's block by its source's name (a live feed's
+        column, an OPC UA node id: every axis, the spindle), one value per sample of
+        ``meas``; empty for a source of one two-inertia axis without a description.
     """
 
     meas: Measurements

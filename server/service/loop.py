@@ -47,6 +47,7 @@ from server.pipeline.events_out import EventsPublisher
 from server.pipeline.knobs import Knob
 from server.pipeline.live_pipeline import LivePipeline
 from server.pipeline.mqtt_source import MqttSource
+from server.pipeline.opcua_source import OpcuaSource
 from server.pipeline.runtime import CheckpointWriter, EventHistory, MachineRuntime
 from server.records.history import HistoryStore
 from server.service import protocol
@@ -128,6 +129,8 @@ def loop_parts(settings: Settings) -> LoopParts:
             )
     if feed is not None:
         pipe = LivePipeline(seed=settings.seed, source=MqttSource(feed))
+    elif settings.source == "opcua":
+        pipe = LivePipeline(seed=settings.seed, source=opcua_source(settings))
     else:
         pipe = LivePipeline(settings.scenario, seed=settings.seed)
     if settings.model:  # the residual reports' effects for the axes' live models
@@ -135,6 +138,27 @@ def loop_parts(settings: Settings) -> LoopParts:
 
         pipe.set_axis_effects(axis_models(settings.model))
     return LoopParts(pipe, feed, out, events_out, history_store(settings))
+
+
+def opcua_source(settings: Settings) -> OpcuaSource:
+    """The OPC UA source of the settings (``opcua_*``; docs/opcua.md): the node map read
+    and checked now, the connection made when the loop starts."""
+    from server.pipeline.opcua_link import OpcuaSecurity
+    from server.pipeline.opcua_source import OpcuaOptions
+    from server.records.opcua_map import load_node_map
+
+    assert settings.opcua_url is not None and settings.opcua_nodes is not None
+    trust = tuple(Path(p.strip()) for p in settings.opcua_trust.split(",") if p.strip())
+    sec = OpcuaSecurity(
+        policy=settings.opcua_security,
+        certificate=settings.opcua_cert,
+        private_key=settings.opcua_key,
+        trust=trust,
+        cert_dir=settings.data_dir / "opcua",
+    )
+    return OpcuaSource(
+        load_node_map(settings.opcua_nodes), OpcuaOptions(settings.opcua_url, security=sec)
+    )
 
 
 def history_store(settings: Settings) -> HistoryStore | None:
@@ -320,6 +344,8 @@ class LiveLoop:
     def start(self) -> None:
         if self.feed is not None:
             self.feed.start()
+        if isinstance(self.pipeline.source, OpcuaSource):
+            self.pipeline.source.start()
         if self.estimates_out is not None:
             self.estimates_out.start()
         if self.events_out is not None:
@@ -348,6 +374,8 @@ class LiveLoop:
         for part in (self.feed, self.estimates_out, self.events_out):
             if part is not None:
                 part.stop()
+        if isinstance(self.pipeline.source, OpcuaSource):
+            self.pipeline.source.stop()
         if self._block_log is not None:
             self._block_log.close()
 
@@ -507,6 +535,8 @@ class LiveLoop:
         out: dict[str, Any] = {"source": src.name}
         if self.feed is not None:
             out["feed"] = src.status()
+        if isinstance(src, OpcuaSource):
+            out["opcua"] = src.status()
         if self.estimates_out is not None:
             out["estimates_out"] = self.estimates_out.health()
         if self.events_out is not None:
@@ -643,6 +673,11 @@ class LiveLoop:
         """The pipeline's parts: name, running, and why not."""
         with self.lock:
             return self.pipeline.parts()
+
+    def machine_info(self) -> dict[str, Any]:
+        """The machine and its parts (:meth:`LivePipeline.machine`)."""
+        with self.lock:
+            return self.pipeline.machine()
 
     def idle(self) -> str:
         """Why nothing is estimated (:meth:`LivePipeline.idle`; empty: something is)."""

@@ -171,12 +171,29 @@ class MonitorStatus(Versioned):
     state: Literal["off", "teaching", "watching", "alarm"] = Field(
         description="off: no process monitor; alarm: an unacknowledged alarm or feed hold"
     )
+    VERSION: ClassVar[int] = 2
     tool: int = Field(description="tool in the spindle (0: not known)")
     program: str
     line: int
     part: int
-    wear_share: float | None = Field(description="estimated flank wear / its limit")
-    life_left_min: float | None = Field(description="remaining tool life [min]")
+    wear_share: float | None = Field(
+        description="estimated flank wear of tool `wear_tool` / `wear_limit_mm`"
+    )
+    life_left_min: float | None = Field(description="remaining life of tool `wear_tool` [min]")
+    wear_tool: int = Field(
+        default=0, description="the tool the wear share and life are of (0: not known)"
+    )
+    wear_of: str = Field(
+        default="",
+        description="whose tool `wear_tool` is: '' the spindle's (the strip's `tool`), else "
+        "the wear model's own tool in words (a machine beside the spindle's)",
+    )
+    wear_limit_mm: float | None = Field(
+        default=None, description="the flank-wear limit the share is of [mm] (tool change)"
+    )
+    wear_alarm_share: float | None = Field(
+        default=None, description="the wear alarm is raised at this share of the limit"
+    )
     unacked: int = Field(description="events waiting for an acknowledgement")
 
 

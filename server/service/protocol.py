@@ -41,8 +41,9 @@ value to 4 significant digits, null where unknown (see
     "acked_by", "acked_wall"}}``; never dropped for a slow client (frames are). A new
     client gets the unacknowledged events the service keeps right after its ``hello``.
     Every frame's ``status`` is the status strip (``SCHEMA["status"]``: state off,
-    teaching, watching or alarm; tool, program, line, part, wear_share, life_left_min,
-    unacked).
+    teaching, watching or alarm; tool, program, line, part; wear_share, life_left_min of
+    one tool, wear_tool, whose it is, wear_of, its limit wear_limit_mm and the alarm's
+    share of it wear_alarm_share; unacked).
 
 JSON was measured against a binary (float32) encoding: see
 docs/live-service.md ("Stream protocol"). Encoding a frame through its model (validation

@@ -107,6 +107,15 @@ class Health(LoopHealth):
             "duplicates, late blocks, restarts, drops and malformed blocks by kind"
         ),
     )
+    opcua: dict[str, Any] | None = Field(
+        default=None,
+        description=(
+            "the OPC UA source (source opcua): state (connected, lost: why, no connection: "
+            "why, refused: why, e.g. an untrusted server's thumbprint), the security policy, "
+            "the sampling interval asked and revised, the queue size, and the grid's counts: "
+            "samples, cells, values held per node, merged, late and lost samples, gaps"
+        ),
+    )
     estimates_out: dict[str, Any] | None = Field(
         default=None, description="the estimates publisher (mqtt_publish_hz > 0)"
     )
@@ -115,6 +124,36 @@ class Health(LoopHealth):
         description="the events and feed-hold commands publisher (a broker set): topics, "
         "connected, counts of events and commands handed over and refused",
     )
+
+
+class MachineAxis(BaseModel):
+    """A feed axis as the source delivers it."""
+
+    name: str
+    kind: str = Field(description="two_inertia (motor and load positions) or rigid")
+    signals: list[str] = Field(description="the roles of its signals (q_m, q_l, i_m...)")
+
+
+class MachineSpindle(BaseModel):
+    """The spindle as the source delivers it."""
+
+    signals: list[str] = Field(description="the roles of its signals (speed, power...)")
+
+
+class Machine(BaseModel):
+    """``GET /api/machine``: the machine the source delivers and the parts watching it."""
+
+    source: str
+    scenario: str
+    sample_time: float = Field(description="[s]")
+    axes: list[MachineAxis]
+    spindle: MachineSpindle | None = Field(description="None: the source has no spindle")
+    identities: list[str] = Field(description="the program's identities (tool, line...)")
+    description: dict[str, Any] | None = Field(
+        description="the machine description (common/machine.schema.json) when the source "
+        "has one; None for the simulated stage"
+    )
+    parts: list[PartStatus] = Field(description="every part: name, running, and why not")
 
 
 class Scenarios(BaseModel):

@@ -9,8 +9,10 @@ from estimators.errors import ParameterError
 from estimators.rls import (
     IdentifierParams,
     LoadIdentifier,
+    Ridge,
     RLSParams,
     excitation_index,
+    rls_box,
     rls_init,
     rls_update,
 )
@@ -18,14 +20,11 @@ from estimators.rls import (
 
 def _feed(p: RLSParams, phi: np.ndarray, y: np.ndarray, theta0: np.ndarray):
     s = rls_init(p, theta0)
-    sc = np.array(p.scale)
-    lo, hi = np.array(p.lower) / sc, np.array(p.upper) / sc
+    box, ridge = rls_box(p), Ridge(p.p0, 1)
     out = []
     for k in range(len(y)):
-        rls_update(
-            s.P, s.r, s.theta, s.buf_phi, s.buf_y, s.meta, phi[k] * sc, y[k], lo, hi, p.p0, 1
-        )
-        out.append(s.theta * sc)
+        rls_update(s.arrays, box, ridge, phi[k] * box.scale, y[k])
+        out.append(s.theta * box.scale)
     return s, np.array(out)
 
 
@@ -91,15 +90,11 @@ def test_lost_positive_definiteness_is_detected_and_reported() -> None:
     p = RLSParams(window=5, scale=(1.0, 1.0), lower=(-10, -10), upper=(10, 10), p0=1.0)
     s = rls_init(p, np.zeros(2))
     # corrupt the covariance: the next downdate/update must detect it and reset
-    lo, hi = np.array(p.lower), np.array(p.upper)
+    box, ridge = rls_box(p), Ridge(p.p0, 1)
     for k in range(5):
-        rls_update(
-            s.P, s.r, s.theta, s.buf_phi, s.buf_y, s.meta, np.array([1.0, k]), 1.0, lo, hi, p.p0, 1
-        )
+        rls_update(s.arrays, box, ridge, np.array([1.0, k]), 1.0)
     s.P[:] = -np.eye(2)
-    rc = rls_update(
-        s.P, s.r, s.theta, s.buf_phi, s.buf_y, s.meta, np.array([1.0, 0.5]), 1.0, lo, hi, p.p0, 1
-    )
+    rc = rls_update(s.arrays, box, ridge, np.array([1.0, 0.5]), 1.0)
     assert rc == 1
     assert s.meta[2] == 1  # reset counted
     assert np.linalg.eigvalsh(s.P).min() > 0
@@ -123,16 +118,12 @@ def test_bad_identifier_parameters_are_named(kwargs: dict, match: str) -> None:
 def test_a_failed_downdate_resets_and_keeps_the_new_sample() -> None:
     p = RLSParams(window=3, scale=(1.0,), lower=(-10,), upper=(10,), p0=1.0)
     s = rls_init(p, np.zeros(1))
-    lo, hi = np.array(p.lower), np.array(p.upper)
+    box, ridge = rls_box(p), Ridge(p.p0, 1)
     for _ in range(3):
-        rls_update(
-            s.P, s.r, s.theta, s.buf_phi, s.buf_y, s.meta, np.array([1.0]), 2.0, lo, hi, p.p0, 1
-        )
+        rls_update(s.arrays, box, ridge, np.array([1.0]), 2.0)
     # make the oldest sample's downdate impossible (1 - phi P phi <= 0)
     s.P[0, 0] = 5.0
-    rc = rls_update(
-        s.P, s.r, s.theta, s.buf_phi, s.buf_y, s.meta, np.array([1.0]), 3.0, lo, hi, p.p0, 1
-    )
+    rc = rls_update(s.arrays, box, ridge, np.array([1.0]), 3.0)
     assert rc == 1
     assert s.meta[1] == 1  # the fresh window holds the new sample
     assert s.buf_y[s.meta[0]] == 3.0

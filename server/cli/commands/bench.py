@@ -25,9 +25,13 @@ costs divided by them). Ratios compare across machines; raw figures do not
 (docs/benchmarks.md, "Figures that compare across machines").
 
 ``pipeline`` reports what watching a machine costs (estimation) apart from simulating it,
-per part, in ms of wall time per machine-second (``cost.*``, ``part.<name>.*``), and with
-``--against REF`` the same pipeline on the code of git commit REF, run in turn with this
-tree's in child processes: ``before_after.*``.
+per part, in ms of wall time per machine-second (``cost.*``, ``part.<name>.*``).
+
+``--against REF`` (any group): the group on the code of git commit REF and on this tree's,
+each in child processes of its own, run in turn (before, after, before, ...), --repeats
+runs each after one warm-up each; every figure as the two medians side by side, their
+spreads and the ratio after / before (server/experiments/bench_against.py). The group's
+own figures are then this tree's medians; ``before_after`` holds the comparison.
 
 --json prints exactly one JSON document on stdout (progress, and any child process's
 output, on stderr): {"realtime_factor": x, "realtime_factor_of": "...", "realtime_factor_ratio":
@@ -44,6 +48,7 @@ Examples::
 
     cutwatch bench stage tool-wear --json        # two groups, five runs each
     cutwatch bench pipeline --quick --repeats 1  # a smoke check of one group
+    cutwatch bench stage chatter --against main  # these groups before/after, side by side
     cutwatch bench live --duration 10 --json     # a short soak of the live service
     cutwatch bench fleet --quick --machines 4 --workers 2 --seconds 15  # a plant of 4
 
@@ -57,6 +62,10 @@ from __future__ import annotations
 import argparse
 import json
 from types import ModuleType
+from typing import TYPE_CHECKING, cast
+
+if TYPE_CHECKING:
+    from server.experiments.bench_against import BeforeAfter, Options
 
 HELP = "measure speed (medians of several runs); a benchmark, not a test"
 
@@ -75,12 +84,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         metavar="S",
         help="soak: one run of S seconds of a group that has one (live): memory, CPU, drops",
     )
-    g = p.add_argument_group("pipeline", "options of the pipeline group")
-    g.add_argument(
+    p.add_argument(
         "--against",
         metavar="REF",
-        help="also measure the pipeline on the code of git commit REF (e.g. main), side by "
-        "side with this tree's in one run: before/after, medians of --repeats runs each",
+        help="measure each group also on the code of git commit REF (e.g. main), in turn "
+        "with this tree's in child processes: before/after medians and their ratio",
     )
     g = p.add_argument_group("fleet", "options of the fleet group")
     g.add_argument("--machines", type=int, help="machines (default 20; --quick 4)")
@@ -118,6 +126,20 @@ def _print_group(name: str, res: dict[str, object], ratios: dict[str, float]) ->
             print(f"  {k:40s} {v}")
 
 
+def _print_before_after(name: str, ba: BeforeAfter) -> None:
+    print(
+        f"[{name}] before = {ba['ref']} ({ba['commit'][:10]}), after = this tree; medians of "
+        f"{ba['runs']} runs each, in turn"
+    )
+    print(f"  {'figure':40s} {'before':>11s} {'after':>11s} {'after/before':>12s}  spreads")
+    for k, row in ba["figures"].items():
+        print(
+            f"  {k:40s} {row['before']:11.4g} {row['after']:11.4g} "
+            f"{row['after_over_before']:12.4f}  {row['before_spread']:.2f} / "
+            f"{row['after_spread']:.2f}"
+        )
+
+
 def _ratios(res: dict[str, object], ref_s: float) -> dict[str, float]:
     from server.experiments.bench_reference import normalise
 
@@ -153,6 +175,7 @@ def _soak(args: argparse.Namespace, mods: dict[str, ModuleType], wanted: list[st
 def run(args: argparse.Namespace) -> int:
     from server.errors import CutwatchError
     from server.experiments import bench_reference
+    from server.experiments.bench_against import commit_of, measure_against
 
     mods = groups()
     wanted = [g.replace("_", "-") for g in args.group] or list(mods)
@@ -167,7 +190,7 @@ def run(args: argparse.Namespace) -> int:
         raise CutwatchError(f"--workers: expected an integer >= 0, got {args.workers}")
     if args.seconds is not None and not args.seconds >= 5:
         raise CutwatchError(f"--seconds: expected a window of 5 s at least, got {args.seconds}")
-    fleet = {
+    fleet: Options = {
         "machines": args.machines,
         "workers": args.workers,
         "seconds": args.seconds,
@@ -177,17 +200,26 @@ def run(args: argparse.Namespace) -> int:
         return _soak(args, mods, wanted)
     runs = bench_reference.measure(1 if args.quick else 3)
     result: dict[str, dict[str, object]] = {}
+    if args.against:
+        commit_of(args.against)  # a bad commit refused before anything is measured
     for g in wanted:
-        kw = fleet if g == "fleet" else {}
-        if g == "pipeline" and args.against:
-            kw = {"against": args.against}
-        result[g] = mods[g].measure(repeats=args.repeats, quick=args.quick, **kw)
+        kw: Options = fleet if g == "fleet" else {}
+        if args.against:
+            cmp = measure_against(
+                g, args.against, repeats=args.repeats, quick=args.quick, options=kw
+            )
+            result[g] = {**cmp.labels, **cmp.figures, "before_after": cmp.before_after}
+        else:
+            result[g] = mods[g].measure(repeats=args.repeats, quick=args.quick, **kw)
     # again after the groups: a load that changed in between shows as a spread
     ref = bench_reference.Reference(runs + bench_reference.measure(1 if args.quick else 2))
     ratios = {g: _ratios(res, ref.seconds) for g, res in result.items()}
     if not args.json:
         for g, res in result.items():
             _print_group(g, res, ratios[g])
+            ba = res.get("before_after")
+            if isinstance(ba, dict):
+                _print_before_after(g, cast("BeforeAfter", ba))
     head = result.get(HEADLINE_GROUP)
     top: dict[str, object]
     if isinstance(head, dict) and "realtime_factor" in head:
