@@ -48,7 +48,11 @@ from server.pipeline.sources import (
 )
 from server.records.opcua_map import NodeMap, eu_factor
 
-__all__ = ["OpcuaOptions", "OpcuaSource"]
+__all__ = ["QUIET_S", "OpcuaOptions", "OpcuaSource"]
+
+#: how much longer than a publishing and a sampling interval the grid waits before it
+#: holds the values of a feed that went quiet [s]
+QUIET_S = 1.0
 
 
 @dataclass(frozen=True)
@@ -226,11 +230,15 @@ class OpcuaSource(ConfiguredSource):
             del self.latency[:-1000]
 
     def _watermark(self) -> float:
+        """The server time every sample up to which has arrived: the newest timestamp
+        less a publishing and a sampling interval; in a quiet spell (nothing changed) the
+        server's clock, estimated from the arrivals, less that and :data:`QUIET_S` more
+        (a busy machine's late deliveries must not pass for silence)."""
         margin = self.link.publishing_s + self.description.sample_time
         if not self.link.info.state.startswith("connected"):
             return self._newest - margin  # nothing more arrives: no quiet-spell clock
         clock = time.time() + self._offset if math.isfinite(self._offset) else -math.inf
-        return max(self._newest, clock) - margin
+        return max(self._newest, clock - QUIET_S) - margin
 
     def step(self, n: int) -> SourceBlock:
         if self.needs_rebuild:

@@ -156,9 +156,8 @@ def opcua_source(settings: Settings) -> OpcuaSource:
         trust=trust,
         cert_dir=settings.data_dir / "opcua",
     )
-    return OpcuaSource(
-        load_node_map(settings.opcua_nodes), OpcuaOptions(settings.opcua_url, security=sec)
-    )
+    opts = OpcuaOptions(settings.opcua_url, settings.opcua_publishing_s, security=sec)
+    return OpcuaSource(load_node_map(settings.opcua_nodes), opts)
 
 
 def history_store(settings: Settings) -> HistoryStore | None:

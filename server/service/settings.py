@@ -174,6 +174,13 @@ class Settings(BaseSettings):
     opcua_nodes: Path | None = Field(
         default=None, description="the node map (JSON; `cutwatch opcua browse` starts one)"
     )
+    opcua_publishing_s: float | None = Field(
+        default=None,
+        gt=0.0,
+        le=10.0,
+        description="the subscription's publishing interval [s] (default: the map's sample "
+        "time, at least 0.1 s, a CNC's fastest)",
+    )
     opcua_security: str = Field(
         default="best",
         description="best (the strongest of Aes256_Sha256_RsaPss, Aes128_Sha256_RsaOaep, "

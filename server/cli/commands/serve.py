@@ -7,10 +7,10 @@ Examples::
     CUTWATCH_TOKEN="$(openssl rand -hex 16)" cutwatch serve --host 0.0.0.0
     cutwatch serve --source mqtt --broker mqtt://127.0.0.1:1883 --machine mill-1 \
         --publish-hz 10                  # a real machine's drive data from a broker
-    cutwatch serve --source mqtt --broker mqtt://127.0.0.1:1883 --machine emps \
-        --model axis=report.json         # the residual loop's effects in the live model
     cutwatch serve --source opcua --opcua opc.tcp://cnc-7:4840 --nodes map.json \
         --opcua-trust cnc-7.der          # a CNC's OPC UA server (docs/opcua.md)
+    cutwatch serve --source mqtt --broker mqtt://127.0.0.1:1883 --machine emps \
+        --model axis=report.json         # the residual loop's effects in the live model
 
 Options override the ``CUTWATCH_*`` environment variables. Any address other than
 loopback requires ``CUTWATCH_TOKEN`` (16 characters at least; the service refuses to
@@ -55,6 +55,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "CNC's OPC UA server (--opcua, --nodes)",
     )
     p.add_argument("--opcua", metavar="URL", help="the CNC's OPC UA server, opc.tcp://host:port")
+    p.add_argument(
+        "--opcua-publishing",
+        type=float,
+        metavar="S",
+        help="the OPC UA subscription's publishing interval [s] (default: the map's sample "
+        "time, at least 0.1 s)",
+    )
     p.add_argument(
         "--nodes",
         metavar="MAP.json",
@@ -123,13 +130,14 @@ def build_settings(args: argparse.Namespace) -> Settings:
             "data_dir": args.data_dir,
             "history_url": args.history_url,
             "parts": ",".join(args.part) if args.part else None,
-            "model": ",".join(args.model) if args.model else None,
             "opcua_url": args.opcua,
             "opcua_nodes": args.nodes,
+            "opcua_publishing_s": args.opcua_publishing,
             "opcua_security": None if args.opcua_security == "best" else args.opcua_security,
             "opcua_cert": args.opcua_cert,
             "opcua_key": args.opcua_key,
             "opcua_trust": ",".join(str(t) for t in args.opcua_trust) or None,
+            "model": ",".join(args.model) if args.model else None,
         }.items()
         if v is not None
     }
