@@ -174,11 +174,13 @@ def _spindle(c: BuildContext) -> Part | None:
 
 def _axes(c: BuildContext) -> Part | None:
     from server.pipeline.axis_part import AxisPart
-    from server.pipeline.machine_view import description_of
+    from server.pipeline.machine_view import description_of, has_prior
 
     desc = description_of(c.source)
-    if desc is None or c.source.knobs_apply or c.source.name == "replay":
-        return None  # one two-inertia axis with its nominal: the stage part's observers
+    if desc is None or c.source.knobs_apply:
+        return None  # the simulator's stage: its observers are the stage part's
+    if all(a.kind == "two_inertia" and has_prior(a) for a in desc.axes):
+        return None  # the stage part's machine, fed or replayed alike (the same streams)
     return AxisPart(desc, c.axis_effects)
 
 
