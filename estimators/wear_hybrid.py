@@ -341,11 +341,13 @@ def fit(tools: Sequence[ToolData], config: HybridConfig) -> HybridModel:
         # histogram gradient boosting: the same depth and number of trees as the
         # protocol's, ~6x faster than GradientBoostingRegressor on these rows
         from sklearn.ensemble import HistGradientBoostingRegressor
+        from threadpoolctl import threadpool_limits
 
         m.gbr = HistGradientBoostingRegressor(
             max_depth=2, max_iter=100, early_stopping=False, random_state=0
         )
-        m.gbr.fit(z, y, sample_weight=w)
+        with threadpool_limits(1):  # ~1,400 rows: threads cost more than they give
+            m.gbr.fit(z, y, sample_weight=w)
     else:
         A = m._design(z)
         sw = np.sqrt(w)[:, None]

@@ -224,7 +224,7 @@ def section(path: Any, quick: bool, bar: Any) -> tuple[list[Row], list[Check]]:
         table,
         sets,
         splits,
-        configs=candidates(revision=1) if quick else None,
+        configs=[c for c in candidates(revision=1) if c.map != "gbr"] if quick else None,
         progress=bar.update,
     )
     rows: list[Row] = []
