@@ -84,7 +84,7 @@ from server.errors import CutwatchError
 from server.pipeline.accuracy import RollingAccuracy
 from server.pipeline.checkpoint import PipelineState, ScriptState
 from server.pipeline.knobs import BASE_RPM, Knob, KnobValue, KnobValues
-from server.pipeline.machine_view import MachineView
+from server.pipeline.machine_view import MachineView, description_of
 from server.pipeline.part import (
     Block,
     Channel,
@@ -190,6 +190,8 @@ class LivePipeline:
             raise ParameterError("scenario", f"one of {sorted(SCENARIOS)}", scenario)
         self.script: Scenario = sc
         self.seed = seed
+        if source is None and sc.source is not None:
+            source = sc.source(seed)  # the scenario's own machine (the machining centre)
         self._knobs = KnobValues(sc.knobs)
         self._effects0: tuple[ObserverEffect, ...] = ()
         #: per axis, the residual report's effects the axes' live models hold
@@ -795,6 +797,26 @@ class LivePipeline:
                 status.update(part.status())
         status["unacked"] = 0
         return status
+
+    def machine(self) -> dict[str, object]:
+        """The machine the source delivers and the parts that watch it (``GET
+        /api/machine``): ``source``, ``sample_time`` [s]; ``axes`` (``name``, ``kind``,
+        ``signals``: the roles it gives), ``spindle`` (its ``signals``; None without one),
+        ``identities``; ``description``: the machine description when the source has one
+        (``common/machine.schema.json``; None for the simulated stage, whose one axis
+        the rest says); ``parts`` (``name``, ``running``, ``reason``)."""
+        v = self._view
+        desc = description_of(self.source)
+        return {
+            "source": self.source.name,
+            "scenario": self.scenario,
+            "sample_time": v.sample_time,
+            "axes": [{"name": a.name, "kind": a.kind, "signals": sorted(a.roles)} for a in v.axes],
+            "spindle": {"signals": sorted(v.spindle)} if v.spindle else None,
+            "identities": sorted(v.identities),
+            "description": desc.to_dict() if desc is not None else None,
+            "parts": self.parts(),
+        }
 
     def inject(
         self,

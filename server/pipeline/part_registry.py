@@ -16,6 +16,7 @@ wear           seed 004's wearing tool and its life monitor    server/pipeline/w
 eccentricity   seed 003's milling tool and its tuner           server/pipeline/eccentricity_part.py
 process        the part program and the process monitor        server/pipeline/process_part.py
 axes           every axis of a described machine, rigid, live  server/pipeline/axis_part.py
+spindle        a spindle's cutting power over its taught idle  server/pipeline/spindle_part.py
 cnc            the spindle as a CNC's OPC UA server reports    server/pipeline/cnc_part.py
                it (the opcua source)
 =============  ==============================================  =========================
@@ -161,6 +162,16 @@ def _process(c: BuildContext) -> Part | None:
     return ProcessPart.from_knobs(c.seed, c.knobs) if c.scenario.process else None
 
 
+def _spindle(c: BuildContext) -> Part | None:
+    from server.pipeline.machine_view import description_of
+    from server.pipeline.spindle_part import SpindlePart
+
+    desc = description_of(c.source)
+    if desc is None or desc.spindle is None or "power" not in desc.spindle.signals:
+        return None  # the stage, a log, a feed without a spindle's power: not built
+    return SpindlePart(desc, str(getattr(c.source, "program", "")))
+
+
 def _axes(c: BuildContext) -> Part | None:
     from server.pipeline.axis_part import AxisPart
     from server.pipeline.machine_view import description_of
@@ -191,6 +202,7 @@ BUILTIN: tuple[tuple[str, PartFactory], ...] = (
     ("eccentricity", _eccentricity),
     ("process", _process),
     ("axes", _axes),
+    ("spindle", _spindle),
     ("cnc", _cnc),
 )
 

@@ -669,6 +669,11 @@ class LiveLoop:
         with self.lock:
             return self.pipeline.parts()
 
+    def machine_info(self) -> dict[str, Any]:
+        """The machine and its parts (:meth:`LivePipeline.machine`)."""
+        with self.lock:
+            return self.pipeline.machine()
+
     def idle(self) -> str:
         """Why nothing is estimated (:meth:`LivePipeline.idle`; empty: something is)."""
         with self.lock:

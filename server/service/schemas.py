@@ -126,6 +126,36 @@ class Health(LoopHealth):
     )
 
 
+class MachineAxis(BaseModel):
+    """A feed axis as the source delivers it."""
+
+    name: str
+    kind: str = Field(description="two_inertia (motor and load positions) or rigid")
+    signals: list[str] = Field(description="the roles of its signals (q_m, q_l, i_m...)")
+
+
+class MachineSpindle(BaseModel):
+    """The spindle as the source delivers it."""
+
+    signals: list[str] = Field(description="the roles of its signals (speed, power...)")
+
+
+class Machine(BaseModel):
+    """``GET /api/machine``: the machine the source delivers and the parts watching it."""
+
+    source: str
+    scenario: str
+    sample_time: float = Field(description="[s]")
+    axes: list[MachineAxis]
+    spindle: MachineSpindle | None = Field(description="None: the source has no spindle")
+    identities: list[str] = Field(description="the program's identities (tool, line...)")
+    description: dict[str, Any] | None = Field(
+        description="the machine description (common/machine.schema.json) when the source "
+        "has one; None for the simulated stage"
+    )
+    parts: list[PartStatus] = Field(description="every part: name, running, and why not")
+
+
 class Scenarios(BaseModel):
     """``GET /api/scenarios``."""
 

@@ -12,7 +12,7 @@ from common.jsonsafe import json_safe
 from server.pipeline.live_pipeline import SCENARIOS
 from server.service.deps import Config, Live
 from server.service.http_guard import DROPPED
-from server.service.schemas import Health, Scenarios, Snapshot, error_responses
+from server.service.schemas import Health, Machine, Scenarios, Snapshot, error_responses
 
 router = APIRouter(responses=error_responses())
 
@@ -41,6 +41,16 @@ def health(lp: Live, s: Config) -> Health:
 @router.get("/api/scenarios", summary="the scenarios the loop can run", response_model=Scenarios)
 def scenarios(lp: Live) -> Scenarios:
     return Scenarios(current=lp.scenario, scenarios=dict(SCENARIOS))
+
+
+@router.get(
+    "/api/machine",
+    summary="the machine the source delivers (axes, spindle, rate, description) and its parts",
+    response_model=Machine,
+    tags=["machine"],
+)
+def machine(lp: Live) -> Machine:
+    return Machine.model_validate(json_safe(lp.machine_info()))
 
 
 @router.get(
