@@ -13,7 +13,8 @@ torsion (its two-inertia observers are another part's).
 and returns, per sample, every axis' ``M``, ``Fv``, ``Fc``, ``offset`` with their 95 %
 interval (``_lo``, ``_hi``) and excitation (``_excited``), the friction of each
 direction (``Fc_pos``, ``Fc_neg``), and the process force ``F`` with its standard
-uncertainty ``F_sd``, the velocity reversals and the seconds of motion learnt from
+uncertainty ``F_sd`` (and the filtered effort it is taken from, ``effort``), the
+velocity reversals and the seconds of motion learnt from
 (``reversals``, ``moving_s``), as channels named ``<axis>.<name>``;
 :attr:`AxisIdentification.reasons` says, per axis, what does not run and why (the mass at
 10 Hz without an acceleration, an effect a live model cannot hold).
@@ -40,7 +41,7 @@ from estimators.rigid_id import (
 )
 
 #: the per-axis channels besides the parameters' (value, _lo, _hi, _excited)
-EXTRA = ("Fc_pos", "Fc_neg", "F", "F_sd", "reversals", "moving_s")
+EXTRA = ("Fc_pos", "Fc_neg", "F", "F_sd", "effort", "reversals", "moving_s")
 
 
 @dataclass(frozen=True)
@@ -126,6 +127,9 @@ class AxisIdentification:
                     f"{n}.F_sd", u["F"], f"{n} process force, standard uncertainty", "force_sd"
                 ),
                 AxisChannel(
+                    f"{n}.effort", u["F"], f"{n} drive effort, filtered as the model", "effort"
+                ),
+                AxisChannel(
                     f"{n}.reversals", "", f"{n} velocity reversals learnt from", f"{n}.motion"
                 ),
                 AxisChannel(
@@ -182,6 +186,7 @@ def _channels(axis: str, names: Sequence[str], rec: RigidIdRecord, n: int) -> di
         out[f"{axis}.{d}"] = np.full(n, rec.directions.get(d, (math.nan, 0.0))[0])
     out[f"{axis}.F"] = rec.force
     out[f"{axis}.F_sd"] = rec.force_sd
+    out[f"{axis}.effort"] = rec.effort
     out[f"{axis}.reversals"] = np.full(n, float(rec.reversals))
     out[f"{axis}.moving_s"] = np.full(n, float(rec.moving_time))
     return out

@@ -348,6 +348,29 @@ class LivePipeline:
         """
         self._part("effects", "effects").install(tuple(effects))
 
+    def set_axis_effects(self, effects: Mapping[str, tuple[Any, ...]]) -> None:
+        """The residual report's effects each axis' live rigid model holds (issue 30 item
+        4; by axis, ``"*"``: every axis; ``{}`` removes them): the axes part is built
+        again with them, its identified parameters kept (the effects' coefficients start
+        empty), and beside each axis with effects the same axis without them (its process
+        force ``<axis>.F_base``). Without an axes part (no machine described yet) they are
+        kept for it."""
+        from server.pipeline.axis_part import AxisPart
+
+        self.axis_effects = {k: tuple(v) for k, v in effects.items()}
+        old = self.part("axes")
+        if old is None:
+            return
+        new = AxisPart(old.machine, self.axis_effects)
+        new.carry(old, self.t)
+        self._parts[self._parts.index(old)] = new
+        loaded = {n: [e.name for e in new.effects[n]] for n in new.with_effects}
+        said = "; ".join(f"{n}: {', '.join(v)}" for n, v in loaded.items())
+        if self._status["axes"].running:
+            why = f"the report's effects in the live model ({said})" if said else ""
+            self._status["axes"] = PartStatus("axes", True, why)
+        self._accuracy = self._new_accuracy()
+
     @property
     def t(self) -> float:
         """Time elapsed: samples taken from the source times the sample time [s]."""

@@ -133,6 +133,10 @@ def loop_parts(settings: Settings) -> LoopParts:
         pipe = LivePipeline(seed=settings.seed, source=opcua_source(settings))
     else:
         pipe = LivePipeline(settings.scenario, seed=settings.seed)
+    if settings.model:  # the residual reports' effects for the axes' live models
+        from server.pipeline.axis_part import axis_models
+
+        pipe.set_axis_effects(axis_models(settings.model))
     return LoopParts(pipe, feed, out, events_out, history_store(settings))
 
 
@@ -751,6 +755,24 @@ class LiveLoop:
         with self.lock:
             self.pipeline.set_observer_effects(effects)
             return self.pipeline.effects, self.pipeline.t
+
+    def axis_effects(self) -> tuple[dict[str, list[str]], float]:
+        """Per axis, the names of the report's effects its live rigid model holds (before
+        the feed's machine is known: as given), and the live time."""
+        with self.lock:
+            p = self.pipeline
+            axes = p.part("axes")
+            if axes is None:
+                return {k: [e.name for e in v] for k, v in p.axis_effects.items()}, p.t
+            return {n: [e.name for e in axes.effects[n]] for n in axes.with_effects}, p.t
+
+    def set_axis_effects(self, effects: Mapping[str, tuple[Any, ...]]) -> float:
+        """Load a residual report's effects into the axes' live models (``{}``: none);
+        the time. The clients get a new hello (the channels changed)."""
+        with self.lock:
+            self.pipeline.set_axis_effects(effects)
+            self._hello_due = True
+            return self.pipeline.t
 
     def inject(
         self,

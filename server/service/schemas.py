@@ -482,6 +482,29 @@ class EffectsInstalled(Effects):
     )
 
 
+class AxisModelBody(BaseModel):
+    """``POST /api/axis-model``: a rigid residual report (by name, or the report itself)
+    whose effects an axis' live rigid model holds (issue 30 item 4)."""
+
+    model_config = ConfigDict(extra="forbid")
+    axis: str | None = Field(
+        None, max_length=64, description="the feed's axis (default: every axis)"
+    )
+    name: str | None = Field(
+        None, max_length=128, description="the name of a residual report (GET /residual)"
+    )
+    report: dict[str, Any] | None = Field(
+        None, description="a residual report (report.json of cutwatch residual) as JSON"
+    )
+
+
+class AxisModels(BaseModel):
+    """The effects each axis' live rigid model holds (``GET``/``POST /api/axis-model``)."""
+
+    axes: dict[str, list[str]] = Field(description="axis -> the names of its effects")
+    t: float = Field(description="the live time [s] from which they act")
+
+
 class ResidualReport(BaseModel):
     """``report.json`` of ``cutwatch residual`` (main keys; the file has more)."""
 

@@ -144,6 +144,14 @@ class Settings(BaseSettings):
         default=12.0, gt=0.0, le=24.0 * 30, description="lifetime of a browser session [h]"
     )
     seed: int = Field(default=0, ge=0, description="seed of the simulation's random generators")
+    model: str = Field(
+        default="",
+        description=(
+            "residual reports whose effects the live rigid model of an axis holds "
+            "(issue 30 item 4), comma-separated [AXIS=]REPORT.json (without AXIS=: every "
+            "axis); their coefficients are identified live with M, Fv, Fc"
+        ),
+    )
     parts: str = Field(
         default="",
         description=(

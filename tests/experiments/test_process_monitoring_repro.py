@@ -132,3 +132,13 @@ def test_centre_event_is_one_simulation_seen_at_every_rate() -> None:
             if r["detected"]:
                 assert r["delay_samples"] >= 0
                 assert r["delay_s"] == pytest.approx(r["delay_samples"] / float(hz), abs=2 / 500)
+
+
+def test_mcnemar_matches_its_binomial_tail() -> None:
+    from server.experiments.reproductions._centre_rows import mcnemar_p
+
+    assert mcnemar_p(0, 0) == 1.0
+    # all 5 discordant pairs one way: 2 * 0.5 ** 5
+    assert mcnemar_p(5, 0) == pytest.approx(2 * 0.5**5)
+    assert mcnemar_p(3, 3) == 1.0
+    assert mcnemar_p(2, 7) == mcnemar_p(7, 2) < 0.2

@@ -7,7 +7,10 @@ broker itself: tests/service/test_mqtt_source.py, tests/service/test_axis_emps.p
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
+import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -168,3 +171,36 @@ def test_a_rate_change_mid_stream_designs_again_and_keeps_the_parameters() -> No
     assert outs[0]["X.M"][-1] == pytest.approx(AXIS.M, rel=0.1)
     assert last["X.Fc"][-1] == pytest.approx(AXIS.Fc, rel=0.1)
     assert last["X.M"][-1] == pytest.approx(AXIS.M, rel=0.1)
+
+
+def test_serve_model_loads_a_reports_effects_by_axis(tmp_path: Path) -> None:
+    # cutwatch serve --model [AXIS=]REPORT.json: the settings -> the loop's pipeline; the
+    # axes part is built with them once the feed's machine is known
+    from server.cli.commands.serve import add_arguments, build_settings
+    from server.errors import CutwatchError
+    from server.service.loop import loop_parts
+
+    rep = {
+        "kind": "rigid",
+        "effects": [{"name": "coulomb_asymmetry", "params": {"abs_v": 0.0, "dir_pos": 0.0}}],
+    }
+    (tmp_path / "r.json").write_text(json.dumps(rep))
+    ap = argparse.ArgumentParser()
+    add_arguments(ap)
+    argv = ["--source", "mqtt", "--broker", "mqtt://127.0.0.1:1", "--machine", "m1"]
+    s = build_settings(ap.parse_args([*argv, "--model", f"X={tmp_path / 'r.json'}"]))
+    parts = loop_parts(s)
+    pipe = parts.pipeline
+    assert [e.name for e in pipe.axis_effects["X"]] == ["coulomb_asymmetry"]
+    assert parts.feed is not None
+    parts.feed.push_meta(encode_meta(rigid_machine(1e-3)))
+    new = LivePipeline(source=pipe.source.renewed())  # type: ignore[attr-defined]
+    new.set_axis_effects(pipe.axis_effects)
+    axes = new.part("axes")
+    assert axes.with_effects == ("X",) and "X.F_base" in {c.name for c in new.channels()}
+    push(parts.feed, rigid_record(1000.0, 2.0, seed=7), 1e-3)
+    out = new.step(50)
+    assert out["X.F_base"].size == 50 and statuses(new)["axes"]["running"]
+    (tmp_path / "bad.json").write_text("{}")
+    with pytest.raises(CutwatchError, match=r"bad\.json"):
+        loop_parts(build_settings(ap.parse_args([*argv, "--model", str(tmp_path / "bad.json")])))

@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 import httpx
+import numpy as np
 import paho.mqtt.client as mqtt
 import pytest
 from _broker import broker, need_mosquitto
@@ -35,7 +36,7 @@ EMPS = next(
      if (p / "shared" / "data" / "emps" / "DATA_EMPS.mat").exists()),
     None,
 )  # fmt: skip
-pytestmark = pytest.mark.skipif(EMPS is None, reason="EMPS data not present")
+pytestmark = [pytest.mark.skipif(EMPS is None, reason="EMPS data not present"), pytest.mark.slow]
 
 N_SAMPLES = 24841  # the record's samples at 1 kHz
 AXIS = "axis"  # the one axis of a meta without "axes" (common.machine_description)
@@ -140,3 +141,86 @@ def test_emps_through_mosquitto_into_the_service_meets_the_issue_targets() -> No
     print(f"\nEMPS live via Mosquitto: {res}; on target from t = {t_hit:.2f} s after {rev:g} "
           "reversals")  # fmt: skip
     assert 0 < t_hit < 24.84 and rev <= 7
+
+
+@pytest.fixture(scope="module")
+def head_report(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str, Any]]:
+    """``cutwatch residual`` on the record's first 60 % (as ``reproduce rigid-live`` runs
+    it), its report.json written."""
+    from server.experiments.reproductions.rigid_live import emps_log, report_on_head
+
+    rep, _ = report_on_head(emps_log())
+    path = tmp_path_factory.mktemp("model") / "report.json"
+    path.write_text(json.dumps(rep))
+    return path, rep
+
+
+def test_the_residual_reports_effects_lower_the_live_process_force_on_the_last_40_pct(
+    head_report: tuple[Path, dict[str, Any]],
+) -> None:
+    # the report fitted on the first 60 % uploaded (REST) before the feed starts; the
+    # process force with (axis.F) and without (axis.F_base) its effects, read on the
+    # stream's fast grid (every sample at 1 kHz), ||F|| / ||effort|| on the last 40 %
+    need_mosquitto()
+    _, rep = head_report
+    selected = [e["name"] for e in rep["effects"]]
+    assert selected, rep.get("selected")
+    rows: dict[str, list[float]] = {"t": [], "F": [], "F_base": [], "effort": []}
+    with broker() as bp:
+        url = f"mqtt://127.0.0.1:{bp}"
+        with serve(source="mqtt", mqtt_broker=url, mqtt_machine="emps", mqtt_buffer_s=30) as hp:
+            r = httpx.post(f"http://{hp}/api/axis-model", json={"axis": AXIS, "report": rep})
+            assert r.status_code == 200, r.text
+            assert r.json()["axes"] == {AXIS: selected}
+            bad = httpx.post(f"http://{hp}/api/axis-model", json={"report": {"kind": "x"}})
+            assert bad.status_code == 422 and "rigid residual report" in bad.text
+            feeder = threading.Thread(target=main, args=(feed_argv(url),))
+            with connect(f"ws://{hp}/ws") as ws:
+                feeder.start()
+                hello = collect_rows(ws, hp, rows)
+            feeder.join(30)
+            assert httpx.get(f"http://{hp}/api/axis-model").json()["axes"] == {AXIS: selected}
+    chans = {c["name"]: c for c in hello["channels"]}
+    assert f"{AXIS}.F_base" in chans, (sorted(chans), len(rows["t"]))
+    assert chans[f"{AXIS}.F_base"]["chart"] == chans[f"{AXIS}.F"]["chart"]  # drawn together
+    t = np.array(rows["t"])
+    tail = t >= 0.6 * t[-1]
+    err = {}
+    for k in ("F", "F_base"):
+        f, e = np.array(rows[k])[tail], np.array(rows["effort"])[tail]
+        ok = np.isfinite(f) & np.isfinite(e)
+        err[k] = 100 * float(np.linalg.norm(f[ok]) / np.linalg.norm(e[ok]))
+    print(f"\nEMPS last 40 %: ||F||/||effort|| without the report {err['F_base']:.2f} %, "
+          f"with {err['F']:.2f} % ({', '.join(selected)})")  # fmt: skip
+    assert err["F"] < err["F_base"]
+
+
+def collect_rows(ws: Any, hp: str, rows: dict[str, list[float]]) -> dict[str, Any]:
+    """Like :func:`collect`, keeping the axis' process forces and effort per sample."""
+    hello: dict[str, Any] = {}
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline:
+        msg = json.loads(ws.recv(timeout=10))
+        if msg["type"] == "hello":
+            hello = msg
+            continue
+        if msg["type"] == "data" and f"{AXIS}.F_base" in msg["ch"]:
+            assert msg["dropped"] == 0
+            rows["t"] += msg["t"]
+            for k in ("F", "F_base", "effort"):
+                rows[k] += [np.nan if v is None else v for v in msg["ch"][f"{AXIS}.{k}"]]
+        feed = get(hp, "/api/health")["feed"]
+        if feed["samples"] >= N_SAMPLES and feed["buffered_samples"] == 0:
+            # the frames still pending
+            end = time.monotonic() + 1.0
+            while time.monotonic() < end:
+                try:
+                    msg = json.loads(ws.recv(timeout=0.3))
+                except TimeoutError:
+                    break
+                if msg["type"] == "data" and f"{AXIS}.F_base" in msg["ch"]:
+                    rows["t"] += msg["t"]
+                    for k in ("F", "F_base", "effort"):
+                        rows[k] += [np.nan if v is None else v for v in msg["ch"][f"{AXIS}.{k}"]]
+            return hello
+    raise AssertionError("the record was not estimated within 60 s")

@@ -9,6 +9,8 @@ Examples::
         --publish-hz 10                  # a real machine's drive data from a broker
     cutwatch serve --source opcua --opcua opc.tcp://cnc-7:4840 --nodes map.json \
         --opcua-trust cnc-7.der          # a CNC's OPC UA server (docs/opcua.md)
+    cutwatch serve --source mqtt --broker mqtt://127.0.0.1:1883 --machine emps \
+        --model axis=report.json         # the residual loop's effects in the live model
 
 Options override the ``CUTWATCH_*`` environment variables. Any address other than
 loopback requires ``CUTWATCH_TOKEN`` (16 characters at least; the service refuses to
@@ -91,6 +93,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="add a live part (a class or factory on the Python path) to every pipeline; "
         "repeatable (CUTWATCH_PARTS; docs/adding-a-part.md)",
     )
+    p.add_argument(
+        "--model",
+        action="append",
+        metavar="[AXIS=]REPORT.json",
+        help="load the effects a residual report (cutwatch residual) selected into the live "
+        "rigid model of AXIS (default: every axis of the feed's machine); their coefficients "
+        "are identified live with M, Fv, Fc, and the dashboard shows the process force with "
+        "and without them; repeatable (CUTWATCH_MODEL; docs/live-axis.md)",
+    )
     p.add_argument("--log-level", default="warning", help="uvicorn log level")
     add_broker_options(p)
     add_opcua_options(p)
@@ -126,6 +137,7 @@ def build_settings(args: argparse.Namespace) -> Settings:
             "opcua_cert": args.opcua_cert,
             "opcua_key": args.opcua_key,
             "opcua_trust": ",".join(str(t) for t in args.opcua_trust) or None,
+            "model": ",".join(args.model) if args.model else None,
         }.items()
         if v is not None
     }
