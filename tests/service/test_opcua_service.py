@@ -139,6 +139,7 @@ def test_browse_then_serve_the_sim_spindle_and_axes_arrive_kill_and_recover(
         # no sample lost (the server's Overflow, a gap) nor two in one cell at the revised
         # sampling; "late" (delivered after its cell went out: a server or client stalled
         # for longer than QUIET_S under load) is the grid's timing, reported, not asserted
+        assert o["connects"] == 1 and o["gaps"] == 0, o  # the connection held
         assert o["lost"] == 0 and o["merged"] == 0, o
         assert "X.q_m: mm converted to m" in o["units"]
         parts = {p["name"]: p for p in h["parts"]}
