@@ -17,8 +17,8 @@ eccentricity   seed 003's milling tool and its tuner           server/pipeline/e
 process        the part program and the process monitor        server/pipeline/process_part.py
 axes           every axis of a described machine, rigid, live  server/pipeline/axis_part.py
 spindle        a spindle's cutting power over its taught idle  server/pipeline/spindle_part.py
-cnc            the spindle as a CNC's OPC UA server reports    server/pipeline/cnc_part.py
-               it (the opcua source)
+cnc            the spindle drive's raw signals the spindle     server/pipeline/cnc_part.py
+               part does not stream (the opcua source)
 =============  ==============================================  =========================
 
 More parts come after these, in the order they were added: :func:`register` (in
@@ -191,7 +191,8 @@ def _cnc(c: BuildContext) -> Part | None:
     desc = description_of(c.source)
     if desc is None or desc.spindle is None or c.source.name != "opcua":
         return None
-    return CncPart(desc)
+    part = CncPart(desc)
+    return part if part.sources else None  # nothing beside the spindle part's signals
 
 
 #: cutwatch's own parts, by name, in the order they run (module docstring)
