@@ -10,7 +10,7 @@
 # PIP_CERT: a CA bundle pip (and npm) trust, for a build behind a TLS-inspecting proxy;
 # empty by default (a Docker host needs nothing). `make image` mounts the host's bundle.
 
-# --- the dashboard's npm asset (uPlot), from the lockfile
+# --- the dashboard's npm asset (uPlot) and the CNC NodeSet, from the lockfile
 FROM debian:bookworm-slim AS web
 ARG PIP_CERT=""
 RUN apt-get update \
@@ -61,6 +61,9 @@ COPY --from=venv /opt/venv /opt/venv
 COPY --from=venv /app /app
 COPY web /app/web
 COPY --from=web /web/node_modules/uplot /app/web/node_modules/uplot
+# the CNC NodeSet (OPC 40502) `cutwatch opcua-sim` imports (docs/opcua.md)
+COPY --from=web /web/node_modules/node-opcua-nodesets/nodesets/Opc.Ua.CNC.NodeSet.xml \
+     /app/web/node_modules/node-opcua-nodesets/nodesets/Opc.Ua.CNC.NodeSet.xml
 WORKDIR /app
 # the numba kernels of the live scenarios compiled once here, not at every start (the
 # cache is keyed by CPU: another CPU recompiles into it, hence writable by any user)

@@ -34,7 +34,7 @@ if os.environ.get("CI", "").lower() in ("1", "true", "yes"):
     settings.load_profile("ci")
 
 #: helper module of tests/ -> the mark of every test in a module that imports from it
-HELPER_MARKS = {"_live": "server", "_broker": "broker", "_browser": "browser"}
+HELPER_MARKS = {"_live": "server", "_broker": "broker", "_browser": "browser", "_opcua": "server"}
 #: test folders whose every test is slow: each runs a reproduction, or a whole command
 #: (a residual analysis, a simulation, a benchmark) in a real sub-process or through main()
 SLOW_DIRS = ("experiments", "cli")

@@ -408,7 +408,12 @@ function showStatus(st) {
   const set = (id, text) => { const el = $(id); if (el.textContent !== text) el.textContent = text; };
   set("strip-state", v.label);
   set("strip-tool", v.tool);
+  set("strip-wearof", v.wearOf);
+  set("strip-weartool", v.wearTool);
   set("strip-wear", v.wear);
+  set("strip-wearlimit", v.wearLimit);
+  const group = $("strip-weargroup");
+  if (group.dataset.apart !== String(v.wearApart)) group.dataset.apart = String(v.wearApart);
   set("strip-life", v.life);
   set("strip-where", v.where);
   set("strip-unacked", v.unackedText);

@@ -24,9 +24,21 @@ function num(v, digits) {
     : Number(v).toFixed(digits);
 }
 
+// A tool's words: the CNC's T-number when it is the spindle's tool (a part program
+// names it), else the wear model's own count ("tool 3").
+export function toolText(n, cnc = true) {
+  if (!n) return dash;
+  return cnc ? `T${n}` : `tool ${n}`;
+}
+
 // The strip's fields for a MonitorStatus (SCHEMA.status); a frame without one (a stream
 // without the process monitor) shows the monitor off. `latest`: the newest event still
 // waiting for an acknowledgement (its message is shown while in alarm), or null.
+// Issue 28: the wear tiles speak of one tool (`wear_tool`) from one source: its share of
+// one stated limit and the alarm's threshold as a share of that limit. When that tool is
+// not the spindle's (`wear_of` names it: today's default scenario runs seed 004's
+// turning tool beside the milling machine), the wear tiles are their own labelled group
+// with their own tool number.
 export function statusView(status, latest = null) {
   const s = status || { state: "off", tool: 0, program: "", line: 0, part: -1,
     wear_share: null, life_left_min: null, unacked: 0 };
@@ -36,11 +48,20 @@ export function statusView(status, latest = null) {
   const where = [s.program ? `program ${s.program}` : null, s.line ? `line ${s.line}` : null,
     s.part >= 0 ? `part ${s.part}` : null].filter(Boolean);
   const alarm = state === "alarm";
+  const lim = num(s.wear_limit_mm, 3);
+  const at = num(s.wear_alarm_share === null || s.wear_alarm_share === undefined ? null
+    : 100 * s.wear_alarm_share, 0);
+  const apart = Boolean(s.wear_of);
   return {
     state,
     label: STATE_WORDS[state],
-    tool: s.tool ? `T${s.tool}` : dash,
+    tool: toolText(s.tool),
+    // the wear group: whose tool (a title when it is not the spindle's), its number
+    wearOf: apart ? `tool wear · ${s.wear_of}` : "tool wear",
+    wearApart: apart,
+    wearTool: apart ? toolText(s.wear_tool, false) : toolText(s.wear_tool || s.tool),
     wear: wear === null ? dash : `${wear} %`,
+    wearLimit: lim === null ? "" : `of ${lim} mm` + (at === null ? "" : ` · alarm at ${at} %`),
     // the bar: share of the limit, 0..1 (a worn-out tool fills it)
     wearBar: s.wear_share === null || s.wear_share === undefined ? 0
       : Math.max(0, Math.min(1, Number(s.wear_share))),
@@ -85,12 +106,16 @@ export function headline(events) {
   return w.find((e) => e.action === "feed_hold") || w[0] || null;
 }
 
+// the limit an event crossed, in words where a bare number would read as another limit
+// (the wear alarm's threshold is a share of the tool's flank-wear limit, not that limit)
+const THRESHOLD_WORDS = { wear_limit: "alarm at ", life_short: "alarm below " };
+
 function valueText(ev) {
   const v = num(ev.value, 3);
   const l = num(ev.limit, 3);
   if (v === null && l === null) return dash;
   const u = ev.unit && ev.unit !== "1" ? ` ${ev.unit}` : "";  // "1": a ratio
-  return `${v ?? dash} vs ${l ?? dash}${u}`;
+  return `${v ?? dash} vs ${THRESHOLD_WORDS[ev.kind] || ""}${l ?? dash}${u}`;
 }
 
 function wallText(w) {
@@ -109,7 +134,7 @@ export function eventRow(ev) {
     cells: [
       Number(ev.t).toFixed(3),
       KIND_WORDS[ev.kind] || ev.kind,
-      ev.tool ? `T${ev.tool}` : dash,
+      toolText(ev.tool, Boolean(ev.program)),
       ev.line ? String(ev.line) : dash,
       ev.part >= 0 ? String(ev.part) : dash,
       valueText(ev),

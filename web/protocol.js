@@ -56,7 +56,7 @@ export function checkMessage(text) {
       const st = missing(msg.status, SCHEMA.status);
       if (st.length) throw new Error(`status lacks ${st.join(", ")}`);
     }
-    if (msg.accuracy.mode !== "truth" && msg.accuracy.mode !== "agreement") {
+    if (!["truth", "measured_force", "none"].includes(msg.accuracy.mode)) {
       throw new Error(`accuracy mode ${msg.accuracy.mode}`);
     }
     // each channel lies on one of the two grids: t (fast) or ts (slow)

@@ -83,12 +83,13 @@ export const SCHEMA = {
   ],
   "accuracy": [
     "mode",
+    "against",
+    "reason",
     "windows",
     "span",
     "rms",
     "rms_q",
-    "floor",
-    "mean_of"
+    "floor"
   ],
   "event": [
     "type",
@@ -120,6 +121,10 @@ export const SCHEMA = {
     "part",
     "wear_share",
     "life_left_min",
+    "wear_tool",
+    "wear_of",
+    "wear_limit_mm",
+    "wear_alarm_share",
     "unacked"
   ],
   "versions": {
@@ -130,10 +135,10 @@ export const SCHEMA = {
     "part": 1,
     "data": 2,
     "health": 1,
-    "accuracy": 1,
+    "accuracy": 2,
     "event": 1,
     "event_record": 1,
-    "status": 1
+    "status": 2
   }
 };
 
@@ -141,13 +146,14 @@ export const SCHEMA = {
 /**
  * Rolling rms of each force estimate (the ``accuracy`` of every frame and snapshot).
  * @typedef {Object} Accuracy
- * @property {("truth"|"agreement")} mode - 'truth': against the true force (simulator); 'agreement': no truth (a replayed log, a live feed), each estimate against the mean of 'mean_of'
+ * @property {("truth"|"measured_force"|"none")} mode - 'truth': against the true force (simulator); 'measured_force': against the force the machine measures (f_ext on a feed or a log); 'none': no reference, nothing scored (the estimates are never ranked against each other)
+ * @property {(("truth"|"measured_force")|null)} against - what the rms is against (null: nothing)
+ * @property {string} reason - why nothing is scored (mode 'none'); else empty
  * @property {Array<number>} windows - window lengths [s]
  * @property {Array<number>} span - seconds each window really covers [s]
- * @property {Object<string, Array<(number|null)>>} rms - estimate -> rms error per window [N m] (against the truth or the mean)
+ * @property {Object<string, Array<(number|null)>>} rms - estimate -> rms error per window (against the truth or the measured force; null: no reference)
  * @property {Object<string, Array<(number|null)>>} rms_q - estimate -> rms against the Q(s)-filtered true force (empty: no truth)
  * @property {Array<(number|null)>} floor - rms of the Q(s)-filtered true force against the true force, per window
- * @property {Array<string>} mean_of - the estimates averaged (mode 'agreement')
  */
 
 /**
@@ -283,8 +289,12 @@ export const SCHEMA = {
  * @property {string} program
  * @property {number} line
  * @property {number} part
- * @property {(number|null)} wear_share - estimated flank wear / its limit
- * @property {(number|null)} life_left_min - remaining tool life [min]
+ * @property {(number|null)} wear_share - estimated flank wear of tool `wear_tool` / `wear_limit_mm`
+ * @property {(number|null)} life_left_min - remaining life of tool `wear_tool` [min]
+ * @property {number} [wear_tool] - the tool the wear share and life are of (0: not known)
+ * @property {string} [wear_of] - whose tool `wear_tool` is: '' the spindle's (the strip's `tool`), else the wear model's own tool in words (a machine beside the spindle's)
+ * @property {(number|null)} [wear_limit_mm] - the flank-wear limit the share is of [mm] (tool change)
+ * @property {(number|null)} [wear_alarm_share] - the wear alarm is raised at this share of the limit
  * @property {number} unacked - events waiting for an acknowledgement
  */
 

@@ -8,11 +8,12 @@ Over the last ``windows`` seconds (1 s and 10 s by default), per force estimate:
   :class:`~server.pipeline.stage_run.StageRun` builds it as ``f_ideal``). The second is
   what an observer with this Q can reach; the rms of Q(s) F - F itself is given as the
   ``floor`` (the Q filter's own error against the truth).
-- with a source without truth (a replayed log, a live feed): the estimates' agreement,
-  the rms of each estimate minus the per-sample mean of the estimates (``mean_of`` names
-  those averaged; the fixed observer with effects is left out of the mean while it equals
-  the fixed observer, i.e. no effect is installed, so that one observer does not count
-  twice).
+- with a source without truth that measures the force (a replayed log or a live feed
+  with an ``f_ext`` column, issue 30 item 6): the rms of each estimate minus the measured
+  force (mode ``measured_force``);
+- with neither: nothing is scored (mode ``none``, with the reason). Ranking the estimates
+  against their own mean (what this panel did before) ranks them backwards when most of
+  them share an error, so it is not done.
 
 Cost: per block, one vectorised pass over the block's samples gives each row's sum of
 squares and its count of finite values; those per-block sums go into a ring of blocks.
@@ -33,9 +34,18 @@ from common.arrays import F64
 #: seconds of the rolling windows
 WINDOWS = (1.0, 10.0)
 
+#: what the estimates are scored against: the simulator's truth, a measured force, nothing
+REFERENCES = ("truth", "measured_force", "none")
+
+#: the reason given when there is no reference
+NO_REFERENCE = (
+    "no reference force: the source has no truth and measures no force (f_ext); the "
+    "estimates are not scored against each other"
+)
+
 
 class RollingAccuracy:
-    """Rolling rms of each force estimate, against the truth or against their mean.
+    """Rolling rms of each force estimate, against the truth or a measured force.
 
     Parameters
     ----------
@@ -43,9 +53,10 @@ class RollingAccuracy:
         The force estimates' channel names, in display order.
     sample_time
         [s].
-    has_truth
-        The source knows the true force: rms against it and against its Q(s) filtering;
-        else the estimates' agreement with their mean.
+    reference
+        ``truth``: the source knows the true force: rms against it and against its Q(s)
+        filtering; ``measured_force``: rms against the measured force (``f_ext``);
+        ``none``: nothing to score against (every rms NaN).
     windows
         Window lengths [s], ascending.
     """
@@ -54,17 +65,20 @@ class RollingAccuracy:
         self,
         names: Sequence[str],
         sample_time: float,
-        has_truth: bool,
+        reference: str,
         windows: Sequence[float] = WINDOWS,
     ) -> None:
+        if reference not in REFERENCES:
+            raise ValueError(f"reference: expected one of {REFERENCES}, found {reference!r}")
         self.names = tuple(names)
-        self.has_truth = bool(has_truth)
+        self.reference = reference
+        self.has_truth = reference == "truth"
         self.windows = tuple(float(w) for w in windows)
         self.sample_time = float(sample_time)
         self._win_n = np.array([max(1, round(w / sample_time)) for w in self.windows])
         k = len(self.names)
         # rows: each estimate vs the truth, vs Q(s) truth, and Q(s) truth vs truth; or
-        # each estimate vs the mean of the estimates
+        # each estimate vs the measured force
         self._rows = 2 * k + 1 if self.has_truth else k
         nw = len(self.windows)
         self._cap = 64
@@ -78,18 +92,20 @@ class RollingAccuracy:
         self._tot_c = np.zeros((nw, self._rows))
         self._tot_n = np.zeros(nw, dtype=np.int64)
         self._first = np.zeros(nw, dtype=np.int64)
-        self.mean_of: tuple[str, ...] = self.names
 
     def update(
         self,
         estimates: Mapping[str, F64],
         f_true: F64 | None = None,
         f_ideal: F64 | None = None,
-        mean_of: Sequence[str] | None = None,
+        measured: F64 | None = None,
     ) -> None:
         """Add one block: ``estimates`` holds each name's samples; ``f_true`` and
         ``f_ideal`` (Q(s) applied to the true force) when the source has the truth;
-        ``mean_of``: the estimates averaged for the agreement (default all)."""
+        ``measured``: the measured force (mode ``measured_force``; NaN samples do not
+        count). Mode ``none``: nothing to add."""
+        if self.reference == "none" or not self.names:
+            return
         e = np.vstack([estimates[k] for k in self.names])
         n = e.shape[1]
         if n == 0:
@@ -103,11 +119,9 @@ class RollingAccuracy:
             np.subtract(e, f_ideal, out=d[k : 2 * k])
             np.subtract(f_ideal, f_true, out=d[-1])
         else:
-            if mean_of is not None:
-                self.mean_of = tuple(mean_of)
-            sel = [self.names.index(name) for name in self.mean_of]
-            with np.errstate(invalid="ignore"):
-                d = e - np.mean(e[sel], axis=0)
+            if measured is None:
+                raise ValueError("a measured-force reference needs the measured force")
+            d = e - measured
         s = np.einsum("ij,ij->i", d, d)
         if np.isfinite(s).all():  # the usual case: every sample counts
             c = np.full(self._rows, float(n))
@@ -176,27 +190,30 @@ class RollingAccuracy:
     def summary(self, digits: int | None = None) -> dict[str, object]:
         """The numbers the stream, ``/api/snapshot`` and ``/metrics`` show.
 
-        ``{"mode": "truth" | "agreement", "windows": [s, ...], "span": [s, ...],
-        "rms": {name: [per window]}, "rms_q": {name: [...]}, "floor": [...],
-        "mean_of": [names]}``: ``rms`` against the truth (mode ``truth``) or against the
-        mean of the ``mean_of`` estimates (mode ``agreement``); ``rms_q`` against the
-        Q(s)-filtered truth and ``floor`` (Q(s) F - F) only with the truth (else empty
-        and NaN). ``digits``: each value rounded to that many significant digits and
-        non-finite ones ``None`` (JSON-safe, for the stream).
+        ``{"mode": "truth" | "measured_force" | "none", "against": mode or None,
+        "reason": str, "windows": [s, ...], "span": [s, ...], "rms": {name: [per
+        window]}, "rms_q": {name: [...]}, "floor": [...]}``: ``rms`` against the truth
+        (mode ``truth``) or the measured force (``measured_force``); NaN with mode
+        ``none`` (``reason`` says why); ``rms_q`` against the Q(s)-filtered truth and
+        ``floor`` (Q(s) F - F) only with the truth (else empty and NaN). ``digits``: each
+        value rounded to that many significant digits and non-finite ones ``None``
+        (JSON-safe, for the stream).
         """
         r, span = self.rms()
         k = len(self.names)
         rows: list[list[float | None]] = _rounded(r, digits) if digits else r.tolist()
         truth = self.has_truth
         nothing: list[float | None] = [None if digits else math.nan] * len(self.windows)
+        ref = self.reference
         return {
-            "mode": "truth" if truth else "agreement",
+            "mode": ref,
+            "against": None if ref == "none" else ref,
+            "reason": NO_REFERENCE if ref == "none" else "",
             "windows": list(self.windows),
             "span": _rounded(span[None, :], digits)[0] if digits else span.tolist(),
             "rms": dict(zip(self.names, rows[:k], strict=True)),
             "rms_q": dict(zip(self.names, rows[k : 2 * k], strict=True)) if truth else {},
             "floor": rows[-1] if truth else nothing,
-            "mean_of": [] if truth else list(self.mean_of),
         }
 
 

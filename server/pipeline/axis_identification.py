@@ -13,9 +13,11 @@ torsion (its two-inertia observers are another part's).
 and returns, per sample, every axis' ``M``, ``Fv``, ``Fc``, ``offset`` with their 95 %
 interval (``_lo``, ``_hi``) and excitation (``_excited``), the friction of each
 direction (``Fc_pos``, ``Fc_neg``), and the process force ``F`` with its standard
-uncertainty ``F_sd``, as channels named ``<axis>.<name>``; :attr:`AxisIdentification.reasons`
-says, per axis, what does not run and why (the mass at 10 Hz without an acceleration, an
-effect a live model cannot hold).
+uncertainty ``F_sd`` (and the filtered effort it is taken from, ``effort``), the
+velocity reversals and the seconds of motion learnt from
+(``reversals``, ``moving_s``), as channels named ``<axis>.<name>``;
+:attr:`AxisIdentification.reasons` says, per axis, what does not run and why (the mass at
+10 Hz without an acceleration, an effect a live model cannot hold).
 """
 
 from __future__ import annotations
@@ -39,7 +41,7 @@ from estimators.rigid_id import (
 )
 
 #: the per-axis channels besides the parameters' (value, _lo, _hi, _excited)
-EXTRA = ("Fc_pos", "Fc_neg", "F", "F_sd")
+EXTRA = ("Fc_pos", "Fc_neg", "F", "F_sd", "effort", "reversals", "moving_s")
 
 
 @dataclass(frozen=True)
@@ -122,7 +124,16 @@ class AxisIdentification:
                 AxisChannel(f"{n}.Fc_neg", u["Fc"], f"{n} friction, v < 0", f"{n}.Fc"),
                 AxisChannel(f"{n}.F", u["F"], f"{n} process force", "force"),
                 AxisChannel(
-                    f"{n}.F_sd", u["F"], f"{n} process force, standard uncertainty", "force"
+                    f"{n}.F_sd", u["F"], f"{n} process force, standard uncertainty", "force_sd"
+                ),
+                AxisChannel(
+                    f"{n}.effort", u["F"], f"{n} drive effort, filtered as the model", "effort"
+                ),
+                AxisChannel(
+                    f"{n}.reversals", "", f"{n} velocity reversals learnt from", f"{n}.motion"
+                ),
+                AxisChannel(
+                    f"{n}.moving_s", "s", f"{n} seconds of motion learnt from", f"{n}.motion"
                 ),
             ]
         return out
@@ -175,4 +186,7 @@ def _channels(axis: str, names: Sequence[str], rec: RigidIdRecord, n: int) -> di
         out[f"{axis}.{d}"] = np.full(n, rec.directions.get(d, (math.nan, 0.0))[0])
     out[f"{axis}.F"] = rec.force
     out[f"{axis}.F_sd"] = rec.force_sd
+    out[f"{axis}.effort"] = rec.effort
+    out[f"{axis}.reversals"] = np.full(n, float(rec.reversals))
+    out[f"{axis}.moving_s"] = np.full(n, float(rec.moving_time))
     return out

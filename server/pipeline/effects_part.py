@@ -4,8 +4,7 @@
 (:mod:`estimators.observer_effects`: friction asymmetry, cogging, screw lead error...)
 from the stage's fixed-parameter observer force, as
 :mod:`estimators.residual_two_inertia` does: channel ``f_effects``. With no effect
-installed it repeats ``f_fixed`` (and is then left out of the estimates' agreement mean:
-one observer does not count twice). ``POST /api/observer-effects`` installs them
+installed it repeats ``f_fixed``. ``POST /api/observer-effects`` installs them
 (:meth:`EffectsPart.install`); they start from their initial state, and after a break in
 the measurements their filters start again.
 """
@@ -74,10 +73,6 @@ class EffectsPart(LivePart):
             fx = ObserverEffects(EffectsParams(effects, fp.sample_time, fp.q_hz, fp.q_order))
             self.fx_state = fx.initial_state()
         self.fx, self.effects = fx, effects
-
-    def repeats(self) -> str:
-        """The channel ``f_effects`` repeats now (``f_fixed`` while none is installed)."""
-        return "" if self.fx is not None else "f_fixed"
 
     def step(self, block: Block) -> Outputs:
         b = block.shared["stage"]

@@ -9,17 +9,22 @@ code here:
                 observer's estimate over the period (a tooth-passing force oscillates;
                 its rms is the level a person compares);
 ``params``      the identified parameters (and their bounds and excited flags when the
-                pipeline streams them);
+                pipeline streams them): the stage's J_L, B_L, F_CL, and each axis' M, Fv,
+                Fc, offset of a described machine (``X.M``, ``X.M_lo``..., part axes) and
+                what they were learnt from (``X.reversals``, ``X.moving_s``);
 ``harmonics``   the harmonic observer's amplitudes;
-``wear``        ``VB_mm``, ``VB_limit_mm``, ``remaining_life_min``;
-``alarms``      plain sentences: wear near its limit, a short remaining life, a gap in
-                the drive feed;
+``wear``        ``VB_mm``, ``VB_limit_mm``, ``remaining_life_min`` of one tool, and
+                ``tool``: which (the status strip's ``wear_tool``; 0: not known);
+``alarms``      plain sentences: wear near its limit (the tool, its share of the limit,
+                the alarm's share), a short remaining life, a gap in the drive feed;
 ``monitor``     the process monitor's ``state`` (off, teaching, watching, alarm), ``tool``,
-                ``line`` and ``unacked`` (events waiting for an acknowledgement): the
-                service's status strip when given (the loop's, which knows the
-                acknowledgements), else ``state``/``tool``/``line`` from the monitor's
-                channels ``mon_state``, ``mon_tool``, ``mon_line`` when the pipeline
-                streams them (the fleet page shows the state);
+                ``program``, ``line``, ``part``, ``unacked`` (events waiting for an
+                acknowledgement) and the wear of one tool (``wear_tool``, ``wear_of``,
+                ``wear_share``, ``wear_limit_mm``, ``wear_alarm_share``,
+                ``life_left_min``): the service's status strip when given (the loop's,
+                which knows the acknowledgements), else ``state``/``tool``/``line`` from
+                the monitor's channels ``mon_state``, ``mon_tool``, ``mon_line`` when the
+                pipeline streams them (the fleet page shows the state);
 ``health``      the loop's health, and the drive feed's counters for a broker source.
 
 Ground truth (``*_true`` channels, the simulator's) is not published: estimates only.
@@ -41,7 +46,7 @@ from server.pipeline.broker import (
     connect_in_background,
     topic,
 )
-from server.pipeline.wear_alarms import LIFE_ALARM_MIN, WEAR_ALARM_SHARE
+from server.pipeline.wear_alarms import LIFE_ALARM_MIN, WEAR_ALARM_SHARE, wear_alarm_message
 from server.records.drive_wire import encode_estimates
 
 __all__ = ["LIFE_ALARM_MIN", "WEAR_ALARM_SHARE", "EstimatesPublisher"]
@@ -142,15 +147,21 @@ class EstimatesPublisher:
                 continue
             if group in GROUPS:
                 groups[GROUPS[group]][name] = latest[name]
+            elif group == "force_sd":  # a force estimate's uncertainty: beside it
+                groups["force"][name] = latest[name]
+            elif _axis_param(group):  # an axis' parameter (part axes): X.M, X.Fc...
+                groups["params"][name] = latest[name]
             elif group == "harmonics":
                 harmonics[name] = latest[name]
         vb, lim = latest.get("vb_est", math.nan), latest.get("vb_limit", math.nan)
         life = latest.get("life_left", math.nan)
+        wear_tool = int((monitor or {}).get("wear_tool") or 0)
         alarms = []
         if math.isfinite(vb) and math.isfinite(lim) and vb >= WEAR_ALARM_SHARE * lim:
-            alarms.append(f"flank wear {vb:.3f} mm at {100 * vb / lim:.0f} % of its limit")
+            alarms.append(wear_alarm_message(wear_tool, vb, lim))
         if math.isfinite(life) and life < LIFE_ALARM_MIN:
-            alarms.append(f"remaining tool life {life:.1f} min")
+            who = f"tool {wear_tool}: " if wear_tool > 0 else ""
+            alarms.append(f"{who}remaining tool life {life:.1f} min")
         if feed_health:
             if not feed_health.get("connected", True):
                 alarms.append("drive feed: broker not connected")
@@ -161,7 +172,12 @@ class EstimatesPublisher:
             "force": groups["force"],
             "params": groups["params"],
             "harmonics": harmonics,
-            "wear": {"VB_mm": vb, "VB_limit_mm": lim, "remaining_life_min": life},
+            "wear": {
+                "tool": wear_tool,
+                "VB_mm": vb,
+                "VB_limit_mm": lim,
+                "remaining_life_min": life,
+            },
             "alarms": alarms,
             "health": dict(health or {}),
             "dashboard": self.dashboard,
@@ -211,6 +227,11 @@ class EstimatesPublisher:
         }
 
 
+def _axis_param(group: str) -> bool:
+    """A group ``<axis>.<parameter>`` of the axes' live identification (``X.M``)."""
+    return "." in group and group.rsplit(".", 1)[1] in ("M", "Fv", "Fc", "offset", "motion")
+
+
 def _monitor(latest: Mapping[str, float]) -> dict[str, Any] | None:
     """The process monitor's state, tool and line from its latest channel values."""
     st = latest.get("mon_state")
@@ -225,5 +246,23 @@ def _monitor(latest: Mapping[str, float]) -> dict[str, Any] | None:
 
 
 def _monitor_of_status(st: Mapping[str, Any]) -> dict[str, Any]:
-    """The ``monitor`` section from the service's status strip."""
-    return {k: st.get(k) for k in ("state", "tool", "line", "unacked")}
+    """The ``monitor`` section from the service's status strip (its fields of one tool's
+    wear with it: the strip, the snapshot and this section say the same)."""
+    return {k: st.get(k) for k in _MONITOR_KEYS}
+
+
+#: the status strip's fields the ``monitor`` section carries
+_MONITOR_KEYS = (
+    "state",
+    "tool",
+    "program",
+    "line",
+    "part",
+    "unacked",
+    "wear_tool",
+    "wear_of",
+    "wear_share",
+    "wear_limit_mm",
+    "wear_alarm_share",
+    "life_left_min",
+)

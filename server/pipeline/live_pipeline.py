@@ -84,7 +84,7 @@ from server.errors import CutwatchError
 from server.pipeline.accuracy import RollingAccuracy
 from server.pipeline.checkpoint import PipelineState, ScriptState
 from server.pipeline.knobs import BASE_RPM, Knob, KnobValue, KnobValues
-from server.pipeline.machine_view import MachineView
+from server.pipeline.machine_view import MachineView, description_of
 from server.pipeline.part import (
     Block,
     Channel,
@@ -156,6 +156,10 @@ _STATUS: dict[str, object] = {
     "part": -1,
     "wear_share": math.nan,
     "life_left_min": math.nan,
+    "wear_tool": 0,
+    "wear_of": "",
+    "wear_limit_mm": math.nan,
+    "wear_alarm_share": math.nan,
 }
 
 
@@ -186,8 +190,12 @@ class LivePipeline:
             raise ParameterError("scenario", f"one of {sorted(SCENARIOS)}", scenario)
         self.script: Scenario = sc
         self.seed = seed
+        if source is None and sc.source is not None:
+            source = sc.source(seed)  # the scenario's own machine (the machining centre)
         self._knobs = KnobValues(sc.knobs)
         self._effects0: tuple[ObserverEffect, ...] = ()
+        #: per axis, the residual report's effects the axes' live models hold
+        self.axis_effects: dict[str, tuple[Any, ...]] = {}
         plant = self._plant(source)
         self._plant_cfg = plant
         self._force0: CuttingForce = plant.config.force
@@ -243,9 +251,7 @@ class LivePipeline:
         self._view = MachineView.of(self.source, self._spindle_rpm(0.0))
         self.reset_costs()
         self._build(effects)
-        self._accuracy = RollingAccuracy(
-            self.force_estimates(), self.sample_time, has_truth=self.source.has_truth
-        )
+        self._accuracy = self._new_accuracy()
         self._apply(0.0)
 
     def _build(self, effects: tuple[ObserverEffect, ...]) -> None:
@@ -259,6 +265,7 @@ class LivePipeline:
             self._plant_cfg,
             self._spindle_factor,
             effects,
+            dict(self.axis_effects),
         )
         self._parts: list[Part] = []
         self._status: dict[str, PartStatus] = {}
@@ -341,6 +348,29 @@ class LivePipeline:
         """
         self._part("effects", "effects").install(tuple(effects))
 
+    def set_axis_effects(self, effects: Mapping[str, tuple[Any, ...]]) -> None:
+        """The residual report's effects each axis' live rigid model holds (issue 30 item
+        4; by axis, ``"*"``: every axis; ``{}`` removes them): the axes part is built
+        again with them, its identified parameters kept (the effects' coefficients start
+        empty), and beside each axis with effects the same axis without them (its process
+        force ``<axis>.F_base``). Without an axes part (no machine described yet) they are
+        kept for it."""
+        from server.pipeline.axis_part import AxisPart
+
+        self.axis_effects = {k: tuple(v) for k, v in effects.items()}
+        old = self.part("axes")
+        if old is None:
+            return
+        new = AxisPart(old.machine, self.axis_effects)
+        new.carry(old, self.t)
+        self._parts[self._parts.index(old)] = new
+        loaded = {n: [e.name for e in new.effects[n]] for n in new.with_effects}
+        said = "; ".join(f"{n}: {', '.join(v)}" for n, v in loaded.items())
+        if self._status["axes"].running:
+            why = f"the report's effects in the live model ({said})" if said else ""
+            self._status["axes"] = PartStatus("axes", True, why)
+        self._accuracy = self._new_accuracy()
+
     @property
     def t(self) -> float:
         """Time elapsed: samples taken from the source times the sample time [s]."""
@@ -358,6 +388,34 @@ class LivePipeline:
 
     def _running(self, part: Part) -> bool:
         return self._status[part.name].running
+
+    def idle(self) -> str:
+        """Why nothing is estimated (``""``: something is): no part runs on this machine,
+        or a live feed has handed out no sample yet (its state: waiting for meta, the
+        broker not connected...). Health is never ``ok`` while this says something."""
+        if not any(s.running for s in self._status.values()):
+            return "no part runs on this machine (parts says why)"
+        src = self.source
+        if not src.paced and not src.knobs_apply and float(src.t) == 0.0:
+            st = src.status()
+            said = str(st.get("state", "")) or "nothing received"
+            if st.get("problem"):
+                said += f": {st['problem']}"
+            return f"no sample from the {src.name} feed yet ({said})"
+        return ""
+
+    def carry(self, old: LivePipeline) -> None:
+        """Continue ``old``'s identification (the same machine's feed, described again:
+        a new meta, a new sample rate): every part that can (``carry``) takes the
+        identified parameters of ``old``'s part of its name, its filters restarted."""
+        for part in self._parts:
+            take = getattr(part, "carry", None)
+            prev = old.part(part.name)
+            if take is not None and prev is not None:
+                take(prev, old.t)
+                said = getattr(part, "said", "")
+                if said and self._status[part.name].running:
+                    self._status[part.name] = PartStatus(part.name, True, said)
 
     def _check(self, view: MachineView) -> None:
         """Ask every part whether it can run on ``view`` (in order: a part whose needed
@@ -426,6 +484,11 @@ class LivePipeline:
         return self.script.spindle_factor(t, self._knobs)
 
     def _spindle_rpm(self, t: float) -> float:
+        """The spindle speed in effect [rpm]: the machine's own when its source measures
+        it (a feed's spindle speed signal), else the knob's (times the scenario's step)."""
+        measured = float(getattr(self.source, "spindle_rpm", math.nan))
+        if not self.source.knobs_apply and math.isfinite(measured):
+            return measured
         return self._knobs.number("spindle_rpm") * self._spindle_factor(t)
 
     def _prepare(self, t0: float, n: int) -> None:
@@ -449,7 +512,7 @@ class LivePipeline:
         stage's configuration for the block starting at ``t``."""
         k = self._knobs
         sf = self._spindle_factor(t)
-        self._configure(self._view.with_spindle(k.number("spindle_rpm") * sf))
+        self._configure(self._view.with_spindle(self._spindle_rpm(t)))
         freq = k.number("spindle_rpm") / BASE_RPM * sf
         part_gain = 1.0
         for part in self._hooks["force_gain"]:
@@ -558,6 +621,8 @@ class LivePipeline:
         self.last_block = src  # the measurements as the source gave them (recording)
         if src.n == 0:
             return {"t": np.zeros(0)} | {c.name: np.zeros(0) for c in self.channels()}
+        if not self.source.knobs_apply:  # the block may carry a new spindle speed
+            self._configure(self._view.with_spindle(self._spindle_rpm(t0)))
         block = self._block(src, t0)
         out = block.outputs
         for part in self._parts:
@@ -636,20 +701,26 @@ class LivePipeline:
             outputs={"t": t},
         )
 
+    def _reference(self) -> str:
+        """What the force estimates are scored against: the simulator's ``truth``, the
+        ``measured_force`` when the machine measures one (``f_ext``), else ``none``."""
+        if self.source.has_truth:
+            return "truth"
+        return "measured_force" if "f_ext" in self._view.signals else "none"
+
+    def _new_accuracy(self) -> RollingAccuracy:
+        return RollingAccuracy(self.force_estimates(), self.sample_time, self._reference())
+
     def _score(self, out: dict[str, np.ndarray], block: Block) -> None:
         """The block into the rolling accuracy (:mod:`server.pipeline.accuracy`): against
-        the truth, or without one the estimates' agreement with their mean (a part that
-        repeats another's channel left out of it: the effects part with none installed)."""
-        stage = block.shared.get("stage")
-        if stage is None:
-            return
-        if self.source.has_truth:
-            self._accuracy.update(out, stage.f_true, stage.f_ideal)
-            return
-        skip = {
-            c.name for p in self._parts if getattr(p, "repeats", lambda: "")() for c in p.channels
-        }
-        self._accuracy.update(out, mean_of=[k for k in self._accuracy.names if k not in skip])
+        the truth, or the measured force; without either nothing is scored."""
+        ref = self._accuracy.reference
+        if ref == "truth":
+            stage = block.shared.get("stage")
+            if stage is not None:
+                self._accuracy.update(out, stage.f_true, stage.f_ideal)
+        elif ref == "measured_force":
+            self._accuracy.update(out, measured=block.source.meas.f_ext)
 
     def accuracy(self, digits: int | None = None) -> dict[str, object]:
         """Rolling rms of every force estimate over the last 1 s and 10 s
@@ -728,25 +799,47 @@ class LivePipeline:
         for part in self._parts:
             part.restore(st.parts[part.name])
         self._last = dict(st.latest)
-        self._accuracy = RollingAccuracy(
-            self.force_estimates(), self.sample_time, has_truth=self.source.has_truth
-        )
+        self._accuracy = self._new_accuracy()
 
     # ------------------------------------------------------------------ status
     def monitor_status(self) -> dict[str, object]:
         """What an operator reads from across the shop: the monitor's ``state`` (``off``
         without a process monitor, ``teaching``, ``watching``, ``alarm``: the block under
-        way raised an event), the tool in the spindle and its flank wear as a share of
-        the limit, the life left [min] (NaN: not known), and the CNC's program, line and
-        part (empty / 0 / -1: not known), each from the running part that says it (the
-        process monitor: state, tool, program, line, part; the wear: its share and life).
-        ``unacked`` is the runtime's (0 here)."""
+        way raised an event), the tool in the spindle and the CNC's program, line and
+        part (0 / empty / 0 / -1: not known); the wear of one tool, ``wear_tool``, from one
+        source: its flank wear as a share of its limit ``wear_limit_mm`` (the alarm at
+        ``wear_alarm_share`` of it) and its life left [min] (NaN: not known), with
+        ``wear_of`` saying whose tool that is when it is not the spindle's (issue 28: the
+        default scenario's wear model is seed 004's turning tool on the stage, not the
+        milling machine's T1/T2). Each field comes from the running part that says it
+        (the process monitor: state, tool, program, line, part; the wear part: the
+        ``wear_*`` fields and the life). ``unacked`` is the runtime's (0 here)."""
         status = dict(_STATUS)
         for part in self._parts:
             if self._running(part):
                 status.update(part.status())
         status["unacked"] = 0
         return status
+
+    def machine(self) -> dict[str, object]:
+        """The machine the source delivers and the parts that watch it (``GET
+        /api/machine``): ``source``, ``sample_time`` [s]; ``axes`` (``name``, ``kind``,
+        ``signals``: the roles it gives), ``spindle`` (its ``signals``; None without one),
+        ``identities``; ``description``: the machine description when the source has one
+        (``common/machine.schema.json``; None for the simulated stage, whose one axis
+        the rest says); ``parts`` (``name``, ``running``, ``reason``)."""
+        v = self._view
+        desc = description_of(self.source)
+        return {
+            "source": self.source.name,
+            "scenario": self.scenario,
+            "sample_time": v.sample_time,
+            "axes": [{"name": a.name, "kind": a.kind, "signals": sorted(a.roles)} for a in v.axes],
+            "spindle": {"signals": sorted(v.spindle)} if v.spindle else None,
+            "identities": sorted(v.identities),
+            "description": desc.to_dict() if desc is not None else None,
+            "parts": self.parts(),
+        }
 
     def inject(
         self,
@@ -832,6 +925,9 @@ class LivePipeline:
             "accuracy": self.accuracy(),
             "parts": self.parts(),
         }
+        axes = self.part("axes")
+        if axes is not None:  # per axis, what does not run and why
+            snap["axes"] = axes.notes()
         status = self.source.status()
         if status:
             snap[self.source.name] = status

@@ -22,10 +22,10 @@ import math
 from dataclasses import dataclass, replace
 from typing import Any
 
-from common.machine_description import MachineDescription
-from server.pipeline.sources import MeasurementSource
+from common.machine_description import AxisDescription, MachineDescription
+from server.pipeline.sources import NOMINAL, MeasurementSource
 
-__all__ = ["SIGNALS", "AxisView", "MachineView"]
+__all__ = ["SIGNALS", "AxisView", "MachineView", "description_of"]
 
 #: the signals of the simulated stage's one axis (two-inertia, with its reference force)
 SIGNALS = frozenset({"tau_m", "i_m", "q_m", "q_l", "f_ext"})
@@ -33,11 +33,14 @@ SIGNALS = frozenset({"tau_m", "i_m", "q_m", "q_l", "f_ext"})
 
 @dataclass(frozen=True)
 class AxisView:
-    """One feed axis as the parts see it: its name, kind and the roles of its signals."""
+    """One feed axis as the parts see it: its name, kind, the roles of its signals, and
+    whether its nominal holds every two-inertia parameter (``prior``: the simulator's
+    and a replayed log's do; a feed's only when its description gives them)."""
 
     name: str
     kind: str
     roles: frozenset[str]
+    prior: bool = True
 
     def has(self, *roles: str) -> bool:
         return all(r in self.roles for r in roles)
@@ -119,13 +122,15 @@ class MachineView:
     def of(cls, source: MeasurementSource, spindle_rpm: float = math.nan) -> MachineView:
         """The view of ``source``: from its machine description when it has one (a feed's
         meta, a log's sidecar), else the simulated stage's one axis."""
-        desc = _description(source)
+        desc = description_of(source)
         if desc is None:
             axes: tuple[AxisView, ...] = (AxisView("X", source.kind, SIGNALS),)
             spindle: frozenset[str] = frozenset()
             idents: frozenset[str] = frozenset()
         else:
-            axes = tuple(AxisView(a.name, a.kind, frozenset(a.signals)) for a in desc.axes)
+            axes = tuple(
+                AxisView(a.name, a.kind, frozenset(a.signals), _has_prior(a)) for a in desc.axes
+            )
             spindle = frozenset(desc.spindle.signals) if desc.spindle is not None else frozenset()
             idents = frozenset(desc.identities)
         return cls(
@@ -140,7 +145,13 @@ class MachineView:
         )
 
 
-def _description(source: Any) -> MachineDescription | None:
+def _has_prior(ax: AxisDescription) -> bool:
+    """The axis' nominal gives every two-inertia parameter (K_t its own key or the nominal's)."""
+    have = set(ax.nominal) | ({"K_t"} if ax.K_t is not None else set())
+    return all(k in have for k in NOMINAL)
+
+
+def description_of(source: Any) -> MachineDescription | None:
     """The machine description a source carries (a feed's, a log's), if any."""
     for obj in (source, getattr(source, "feed", None), getattr(source, "log", None)):
         for attr in ("description", "machine"):

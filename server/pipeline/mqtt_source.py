@@ -10,8 +10,16 @@ What the observers are built from (sample time, nominal parameters, encoder) com
 the retained ``meta`` message. Until it has arrived the source hands out nothing
 (``status()["state"] == "waiting for meta"``); when a new meta changes those, the source
 says ``needs_rebuild`` and the live loop builds a new pipeline on :meth:`renewed` (the
-clients get a new hello). The live observers are two-inertia: a ``rigid`` feed (no load
-encoder) is refused in ``status()`` with the reason and its blocks are not observed.
+clients get a new hello).
+
+Any machine the description allows is taken (issue 30): its first axis gives the
+measurements the two-inertia observers read (``q_m``, ``q_l``, the effort, ``f_ext``:
+NaN where the axis has none), every column travels beside them by its source's name
+(``SourceBlock.columns``: the axes' identification reads them), and the spindle's speed
+signal, when there is one, is the spindle speed in effect (:attr:`MqttSource.spindle_rpm`,
+in rpm; the DFO follows it). The two-inertia observers' nominal comes from the first
+axis' nominal when it is a two-inertia axis with all of it; else the parts that need it
+say why (:class:`~server.pipeline.machine_view.MachineView`), nothing is refused.
 """
 
 from __future__ import annotations
@@ -22,6 +30,7 @@ from typing import Any
 import numpy as np
 
 from common.errors import ParameterError
+from common.machine_description import AxisDescription, MachineDescription
 from machine.params import preset
 from machine.stage import SEED000_FORCE, Measurements, StageConfig
 from server.pipeline.drive_feed import DriveFeed
@@ -52,6 +61,12 @@ class MqttSource(ConfiguredSource):
         self.problem = ""
         self._cfg = StageConfig(params=preset("seed000"), force=SEED000_FORCE)
         self.ready = False
+        self.description: MachineDescription | None = None
+        #: the first axis' nominal parameters are complete (the two-inertia observers'
+        #: design); else they run from seed 000's preset, and say so
+        self.nominal_given = False
+        #: the spindle speed in effect [rpm] (NaN: the machine sends none yet)
+        self.spindle_rpm = math.nan
         if meta is not None:
             self._configure(meta)
         self._t = 0.0
@@ -61,34 +76,29 @@ class MqttSource(ConfiguredSource):
         self.last_wall: float | None = None
 
     def _configure(self, meta: dict[str, Any]) -> None:
-        if meta.get("kind") != "two_inertia":
-            self.problem = (
-                f"meta kind {meta.get('kind')!r}: the live observers need a 'two_inertia' "
-                "feed (motor and load positions)"
-            )
+        desc = self.feed.description
+        if desc is None or not desc.axes:
+            self.problem = "meta describes no axis"
             return
-        units = meta.get("units", {})
-        if units.get("position") != "rad" or units.get("effort") not in ("N m", "A"):
-            self.problem = (
-                f"meta units {units!r}: the live observers need position 'rad' and effort "
-                "'N m' (or 'A' with K_t)"
-            )
-            return
-        nom = meta.get("nominal") or {}
-        missing = [k for k in NOMINAL if k not in nom]
-        if missing:
-            self.problem = (
-                f"meta nominal lacks {', '.join(missing)} (expected {', '.join(NOMINAL)})"
-            )
+        self.description = desc
+        ax = desc.axes[0]
+        self.kind = ax.kind
+        self._cfg = StageConfig(
+            params=preset("seed000"), force=SEED000_FORCE, sample_time=desc.sample_time
+        )
+        self.ready = True
+        nom = dict(ax.nominal)
+        if ax.K_t is not None:
+            nom.setdefault("K_t", ax.K_t)
+        if ax.kind != "two_inertia" or any(k not in nom for k in NOMINAL):
             return
         try:
-            self._cfg = nominal_config(
-                nom, float(meta["sample_time"]), meta.get("encoder_resolution")
-            )
+            self._cfg = nominal_config(nom, desc.sample_time, ax.encoder_resolution)
         except (ParameterError, TypeError, ValueError) as exc:
             self.problem = f"meta nominal parameters: {exc}"
+            self.ready = False
             return
-        self.ready = True
+        self.nominal_given = True
 
     # -- MeasurementSource -------------------------------------------------------------
 
@@ -113,17 +123,9 @@ class MqttSource(ConfiguredSource):
             return SourceBlock(empty_measurements())
         c = take.columns
         ts = self.sample_time
-        k_t = self._cfg.params.K_t
-        if "tau_m" in c:
-            tau = c["tau_m"]
-            i_m = tau / k_t
-        else:
-            i_m = c["i_m"]
-            tau = i_m * k_t
-        q_l = c.get("q_l")
-        if q_l is None:
-            self.problem = "drive blocks without q_l: the live observers need the load position"
-            return SourceBlock(empty_measurements())
+        assert self.description is not None  # ready
+        meas_cols = _axis_measurements(self.description.axes[0], c, self._cfg.params.K_t, take.n)
+        self._spindle(c)
         disc = ("; ".join(take.reasons) or "gap") if take.discontinuity else None
         if self._resumed:  # the first block after a restart (sources.RESUMED)
             disc, self._resumed = RESUMED, False
@@ -138,17 +140,25 @@ class MqttSource(ConfiguredSource):
         t = (k0 + np.arange(take.n, dtype=np.float64)) * ts
         self._t = float(t[-1] + ts)
         self._taken += take.n
-        f = c.get("f_ext")
-        meas = Measurements(
-            t=t,
-            i_m=i_m,
-            tau_m=tau,
-            q_m=c["q_m"],
-            q_l=q_l,
-            f_ext=f if f is not None else np.full(take.n, math.nan),
-        )
+        meas = Measurements(t=t, **meas_cols)
         self.last_wall = self.feed.last_wall
-        return SourceBlock(meas, None, disc)
+        return SourceBlock(meas, None, disc, columns=dict(c))
+
+    def _spindle(self, columns: dict[str, Any]) -> None:
+        """The spindle speed in effect from the block's speed signal [rpm]: the block's
+        last finite value, kept until it moves by more than 0.5 % (a CNC's speed
+        fluctuates; the DFO is retuned only on a real change)."""
+        sp = self.description.spindle if self.description is not None else None
+        if sp is None or "speed" not in sp.signals or sp.signals["speed"] not in columns:
+            return
+        v = np.asarray(columns[sp.signals["speed"]], dtype=np.float64)
+        v = v[np.isfinite(v)]
+        if not len(v):
+            return
+        rpm = abs(float(v[-1])) * _RPM[sp.unit("speed")]
+        old = self.spindle_rpm
+        if not math.isfinite(old) or abs(rpm - old) > 0.005 * max(abs(old), 1.0):
+            self.spindle_rpm = rpm
 
     def reconfigure(self, **changes: object) -> None:
         """Knobs do not change a real machine."""
@@ -157,6 +167,7 @@ class MqttSource(ConfiguredSource):
         """A live feed cannot rewind: time restarts at 0 with the next samples."""
         self._t = 0.0
         self._t0 = None
+        self.spindle_rpm = math.nan
 
     def state(self) -> object:
         """The source's time [s]: a live feed is not ours to keep (the machine goes on
@@ -189,3 +200,27 @@ class MqttSource(ConfiguredSource):
         else:
             state = "receiving"
         return {"state": state, "problem": self.problem, **self.feed.health()}
+
+
+#: a spindle speed's unit -> rpm
+_RPM = {"rpm": 1.0, "rad/s": 60.0 / (2.0 * math.pi), "1/s": 60.0}
+
+
+def _axis_measurements(
+    ax: AxisDescription, c: dict[str, Any], k_t: float, n: int
+) -> dict[str, Any]:
+    """The first axis' measurements for the two-inertia observers, by role (NaN where
+    the axis has none): the motor and load positions, the torque and the current (one
+    from the other through K_t), the measured force."""
+    nan = np.full(n, math.nan)
+
+    def col(role: str) -> Any:
+        src = ax.signals.get(role)
+        return c[src] if src is not None and src in c else nan
+
+    tau, i_m = col("tau_m"), col("i_m")
+    if "tau_m" in ax.signals:
+        i_m = tau / k_t if "i_m" not in ax.signals else i_m
+    else:
+        tau = i_m * k_t
+    return {"i_m": i_m, "tau_m": tau, "q_m": col("q_m"), "q_l": col("q_l"), "f_ext": col("f_ext")}

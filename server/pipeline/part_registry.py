@@ -15,6 +15,10 @@ dfo            seed 002's harmonic observer                    server/pipeline/d
 wear           seed 004's wearing tool and its life monitor    server/pipeline/wear_part.py
 eccentricity   seed 003's milling tool and its tuner           server/pipeline/eccentricity_part.py
 process        the part program and the process monitor        server/pipeline/process_part.py
+axes           every axis of a described machine, rigid, live  server/pipeline/axis_part.py
+spindle        a spindle's cutting power over its taught idle  server/pipeline/spindle_part.py
+cnc            the spindle as a CNC's OPC UA server reports    server/pipeline/cnc_part.py
+               it (the opcua source)
 =============  ==============================================  =========================
 
 More parts come after these, in the order they were added: :func:`register` (in
@@ -72,6 +76,9 @@ class BuildContext:
         The scenario's factor on the spindle speed at a time.
     effects
         The observer effects to install at build.
+    axis_effects
+        Per axis of a described machine, the residual report's effects its live rigid
+        model holds (``cutwatch serve --model``).
     parts
         The parts built so far, by name.
     """
@@ -83,6 +90,7 @@ class BuildContext:
     plant: Plant
     spindle_factor: Callable[[float], float]
     effects: tuple[ObserverEffect, ...] = ()
+    axis_effects: Mapping[str, tuple[Any, ...]] = field(default_factory=dict)
     parts: dict[str, Part] = field(default_factory=dict)
     #: the parts that could not be built, with the reason
     failed: dict[str, str] = field(default_factory=dict)
@@ -117,6 +125,10 @@ def _workpiece(c: BuildContext) -> Part | None:
 def _stage(c: BuildContext) -> Part:
     from server.pipeline.stage_part import StagePart
 
+    why = getattr(c.source, "stage_refusal", "")  # a described machine without its model
+    if why:
+        raise CutwatchError(why)
+
     return StagePart(c.source, c.plant.ident, dict(c.plant.design))
 
 
@@ -150,6 +162,36 @@ def _process(c: BuildContext) -> Part | None:
     return ProcessPart.from_knobs(c.seed, c.knobs) if c.scenario.process else None
 
 
+def _spindle(c: BuildContext) -> Part | None:
+    from server.pipeline.machine_view import description_of
+    from server.pipeline.spindle_part import SpindlePart
+
+    desc = description_of(c.source)
+    if desc is None or desc.spindle is None or "power" not in desc.spindle.signals:
+        return None  # the stage, a log, a feed without a spindle's power: not built
+    return SpindlePart(desc, str(getattr(c.source, "program", "")))
+
+
+def _axes(c: BuildContext) -> Part | None:
+    from server.pipeline.axis_part import AxisPart
+    from server.pipeline.machine_view import description_of
+
+    desc = description_of(c.source)
+    if desc is None or c.source.knobs_apply or c.source.name == "replay":
+        return None  # one two-inertia axis with its nominal: the stage part's observers
+    return AxisPart(desc, c.axis_effects)
+
+
+def _cnc(c: BuildContext) -> Part | None:
+    from server.pipeline.cnc_part import CncPart
+    from server.pipeline.machine_view import description_of
+
+    desc = description_of(c.source)
+    if desc is None or desc.spindle is None or c.source.name != "opcua":
+        return None
+    return CncPart(desc)
+
+
 #: cutwatch's own parts, by name, in the order they run (module docstring)
 BUILTIN: tuple[tuple[str, PartFactory], ...] = (
     ("workpiece", _workpiece),
@@ -159,6 +201,9 @@ BUILTIN: tuple[tuple[str, PartFactory], ...] = (
     ("wear", _wear),
     ("eccentricity", _eccentricity),
     ("process", _process),
+    ("axes", _axes),
+    ("spindle", _spindle),
+    ("cnc", _cnc),
 )
 
 #: the parts added: what was registered (a class or a factory) -> its factory

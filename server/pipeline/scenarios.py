@@ -25,6 +25,7 @@ from typing import Protocol
 from estimators.rls import IdentifierParams
 from machine.params import ADDED_WEIGHT_INERTIA, preset
 from machine.stage import SEED000_FORCE, SEED001_FORCE, StageConfig
+from server.pipeline.sources import MeasurementSource
 
 KnobMap = Mapping[str, float | bool | str]
 
@@ -117,6 +118,9 @@ class Scenario:
         monitor (issue 21, :mod:`server.pipeline.process_part`).
     knobs
         Knob values that differ from the defaults in this scenario.
+    source
+        Builds the scenario's own measurement source from the seed (None: the simulated
+        stage of ``plant``): the machining centre's CNC trace (issue 31).
     """
 
     name: str
@@ -128,6 +132,7 @@ class Scenario:
     eccentricity: bool = False
     process: bool = False
     knobs: Mapping[str, float | bool | str] = field(default_factory=dict)
+    source: Callable[[int], MeasurementSource] | None = None
 
     def spindle_factor(self, t: float, knobs: KnobMap) -> float:
         """The script's factor on the spindle speed at ``t``."""
@@ -143,6 +148,12 @@ class Scenario:
             if j is not None:
                 return j
         return None
+
+
+def _centre(seed: int) -> MeasurementSource:
+    from server.pipeline.centre_source import CentreSource
+
+    return CentreSource(seed)
 
 
 def _seed000() -> Plant:
@@ -182,6 +193,12 @@ SCENARIO_OBJECTS: Mapping[str, Scenario] = {
             _seed001,
             script=(SpindleStepAt(11.0),),
             knobs={"spindle_changes": False},
+        ),
+        Scenario(
+            "machining-centre",
+            "a 3-axis machining centre with its spindle drive, as its CNC's 500 Hz trace "
+            "(issue 31): part program O2001, tools in a magazine",
+            source=_centre,
         ),
     )
 }

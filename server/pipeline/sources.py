@@ -84,7 +84,7 @@ import copy
 import math
 import os
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
@@ -118,11 +118,16 @@ class SourceBlock:
     discontinuity : str or None
         Why this block does not continue the previous one (``"gap"``, ``"reset"``...);
         the pipeline resets its observers before running it. None: it continues.
+    columns : mapping of str to array
+        Every signal of a described machine's block by its source's name (a live feed's
+        column, an OPC UA node id: every axis, the spindle), one value per sample of
+        ``meas``; empty for a source of one two-inertia axis without a description.
     """
 
     meas: Measurements
     truth: Truth | None = None
     discontinuity: str | None = None
+    columns: Mapping[str, F64] = field(default_factory=dict)
 
     @property
     def n(self) -> int:

@@ -27,6 +27,7 @@ from common.arrays import F64
 from estimators.rls import IdentifierParams
 from server.pipeline.machine_view import MachineView
 from server.pipeline.part import (
+    OK,
     Block,
     Channel,
     Chart,
@@ -36,6 +37,7 @@ from server.pipeline.part import (
     Verdict,
     needs_axis,
     needs_band,
+    refuse,
 )
 from server.pipeline.sources import RESUMED, MeasurementSource
 from server.pipeline.stage_run import StageBlock, StageRun, StageRunState
@@ -200,9 +202,13 @@ class StagePart(LivePart):
 
     def requires(self, machine: MachineView) -> Verdict:
         q_hz = self.run.front.params.q_hz
-        return needs_axis(
-            machine, "q_m", "q_l", kind="two_inertia", what="seed 000's shaft-twist branch"
-        ) and needs_band(machine, q_hz, "the force observer's Q(s) cut-off")
+        return (
+            needs_axis(
+                machine, "q_m", "q_l", kind="two_inertia", what="seed 000's shaft-twist branch"
+            )
+            and _needs_prior(machine)
+            and needs_band(machine, q_hz, "the force observer's Q(s) cut-off")
+        )
 
     def notice(self, change: Notice) -> None:
         if change.kind == "disturbance":
@@ -256,3 +262,15 @@ def _outputs(b: StageBlock, block: Block) -> dict[str, F64]:
     out["q_m"] = b.meas.q_m
     out["x_l"] = b.meas.q_l * (SCREW_LEAD / (2 * math.pi))
     return out
+
+
+def _needs_prior(machine: MachineView) -> Verdict:
+    """The first two-inertia axis gives the observers' nominal (J_M, K, ...): without it
+    the observers would run on another machine's parameters."""
+    ax = next((a for a in machine.axes if a.kind == "two_inertia"), None)
+    if ax is None or ax.prior:
+        return OK
+    return refuse(
+        f"needs the nominal two-inertia parameters of axis {ax.name} (J_M, J_L, K, K_t, B_M, "
+        "B_L, F_CM, F_CL) to design its observers; the feed's description gives none"
+    )

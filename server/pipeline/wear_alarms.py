@@ -25,6 +25,16 @@ WEAR_ALARM_SHARE = 0.9
 LIFE_ALARM_MIN = 2.0
 
 
+def wear_alarm_message(tool: object, vb_est: float, vb_limit: float) -> str:
+    """The wear alarm in an operator's words: the tool, its wear, its share of the one
+    limit, and the alarm's threshold as what it is (a share of that limit)."""
+    who = f"tool {tool}: " if isinstance(tool, int) and tool > 0 else ""
+    return (
+        f"{who}flank wear {vb_est:.3f} mm, {100 * vb_est / vb_limit:.0f} % of its limit "
+        f"{vb_limit:.3f} mm (alarm at {100 * WEAR_ALARM_SHARE:.0f} %): change the tool"
+    )
+
+
 class WearAlarms:
     """Raise ``wear_limit`` and ``life_short`` once per tool (see the module docstring)."""
 
@@ -47,10 +57,7 @@ class WearAlarms:
         out: list[MonitorEvent] = []
         if math.isfinite(vb_est) and math.isfinite(vb_limit) and vb_limit > 0:
             if vb_est >= WEAR_ALARM_SHARE * vb_limit:
-                msg = (
-                    f"flank wear {vb_est:.3f} mm at {100 * vb_est / vb_limit:.0f} % of its "
-                    f"limit {vb_limit:.3f} mm: change the tool"
-                )
+                msg = wear_alarm_message(ids.get("tool", 0), vb_est, vb_limit)
                 out += self._raise("wear_limit", t, tool_index, vb_est, WEAR_ALARM_SHARE * vb_limit,
                                    "mm", msg, ids)  # fmt: skip
         if math.isfinite(life_left) and life_left < LIFE_ALARM_MIN:

@@ -23,6 +23,7 @@ import numpy as np
 from common.arrays import F64
 from estimators.turning_wear import clean_condition
 from estimators.wear_hybrid import (
+    LIFE_METHODS,
     SAME_CONDITIONS,
     HybridConfig,
     HybridModel,
@@ -46,7 +47,7 @@ SETS: dict[str, tuple[str, ...]] = {
 OTHER_CONDITIONS = (3, 5, 16)
 #: repeated leave-k-tools-out: k and splits per k, and the seed of the draws
 K_OUT = (2, 3, 4)
-SPLITS_PER_K = 10
+SPLITS_PER_K = 5
 SPLIT_SEED = 35
 ALPHA = 0.05
 #: a knot: the slope of VB changes by more than this (relative)
@@ -59,9 +60,14 @@ BASELINES = ("linear", "gbr5", "gbr_same", "prior")
 def columns_needed(sets: Sequence[str]) -> list[str]:
     """The ``_MEAN`` of every signal, the five features of each set's first signal
     (``CV3.X_SK``/``_KURT`` have empty cells and are never asked for)."""
-    cols = {f"{s}_MEAN" for name in sets for s in SETS[name]}
+    cols = {f"{s}_{f}" for name in sets for s in SETS[name] for f in features_of(s)}
     cols |= {f"{SETS[name][0]}_{f}" for name in sets for f in FEATURES}
     return [FEED, *sorted(cols)]
+
+
+def features_of(signal: str) -> tuple[str, ...]:
+    """The complete features of a signal (``CV3.X_SK``/``_KURT`` have empty cells)."""
+    return ("MEAN", "RMS", "MAX") if signal == "CV3.X" else FEATURES
 
 
 def load(path: Any, sets: Sequence[str]) -> WearTable:
@@ -74,9 +80,10 @@ def tool_data(
     """One tool for the hybrid; ``record``: it enters with its record (its VB when it
     came in: 0 for a new tool, 39 / 41 um for tools 6 / 14 put back from the crib)."""
     x = np.column_stack([table.column(f"{s}_MEAN", tool) for s in signals])
+    xa = np.column_stack([table.column(f"{s}_{f}", tool) for s in signals for f in features_of(s)])
     feed, _ = clean_condition(table.column(FEED, tool))
     vb = table.column(VB, tool)
-    return ToolData(tool, x, feed, vb, float(vb[0]) if record else None)
+    return ToolData(tool, x, feed, vb, float(vb[0]) if record else None, x_all=xa)
 
 
 def knots(vb: F64) -> np.ndarray:
@@ -142,10 +149,10 @@ class _Cache:
     def get(
         self, key: tuple[Any, ...], tools: Sequence[ToolData], cfg: HybridConfig
     ) -> HybridModel:
-        k = (*key, cfg.reference, cfg.map)
+        k = (*key, cfg.features, cfg.reference, cfg.map)
         m = self.fits.get(k)
         if m is None:
-            m = fit(tools, HybridConfig(cfg.reference, cfg.map, None))
+            m = fit(tools, HybridConfig(cfg.reference, cfg.map, None, features=cfg.features))
             self.fits[k] = m
         return m
 
@@ -213,6 +220,45 @@ def _baselines(
     }
 
 
+def life_errors(vb: F64, est: F64, rate: F64, start: float, method: str) -> dict[str, float]:
+    """|predicted - true end| / true remaining life at half of the life, per criterion
+    the tool reaches (none if it reaches neither)."""
+    out: dict[str, float] = {}
+    for crit in CRITERIA:
+        hit = np.flatnonzero(vb >= crit)
+        if len(hit) and hit[0] >= 2:
+            h = int(hit[0])
+            k = h // 2
+            end = life_end(est, rate, k, crit, method=method, start=start)
+            out[f"{crit:g}"] = abs(end - h) / (h - k) if math.isfinite(end) else math.inf
+    return out
+
+
+def _life_score(errs: Sequence[dict[str, float]]) -> float:
+    """Median over tools of the life error at 300 um (150 um where 300 is not reached)."""
+    v = [e.get("300", e.get("150")) for e in errs if e]
+    return float(np.median([x for x in v if x is not None])) if v else math.inf
+
+
+def _cv_plus(
+    d: ToolData,
+    tools: Sequence[int],
+    models: dict[int, HybridModel],
+    inner: dict[int, tuple[F64, F64, F64, F64]],
+) -> tuple[F64, F64]:
+    """CV+ 95 % interval over the training tools (each tool weighted once)."""
+    lows, highs, ws = [], [], []
+    for i in tools:
+        mu, sg, _ = models[i].run(d)
+        e_i, s_i, v_i, _ = inner[i]
+        a = np.abs(v_i - e_i) / s_i
+        lows.append(mu[:, None] - a[None, :] * sg[:, None])
+        highs.append(mu[:, None] + a[None, :] * sg[:, None])
+        ws.append(np.full(len(a), 1.0 / len(a)))
+    w = np.concatenate(ws)
+    return _wquantile(np.hstack(lows), w, ALPHA / 2), _wquantile(np.hstack(highs), w, 1 - ALPHA / 2)
+
+
 def run_fold(
     table: WearTable,
     set_name: str,
@@ -227,62 +273,47 @@ def run_fold(
     tools = [t for t in table.tools if t not in test]
     data = {t: tool_data(table, signals, t) for t in table.tools}
     cfgs = list(configs) if configs is not None else candidates()
+
+    def model_of(train: Sequence[int], c: HybridConfig) -> HybridModel:
+        key = (set_name, tuple(sorted(train)))
+        return _with(cache.get(key, [data[t] for t in train], c), c)
+
     # inner leave-one-tool-out over the training tools
     score: dict[HybridConfig, list[float]] = {c: [] for c in cfgs}
-    inner: dict[HybridConfig, dict[int, tuple[F64, F64, F64]]] = {c: {} for c in cfgs}
+    inner: dict[HybridConfig, dict[int, tuple[F64, F64, F64, F64]]] = {c: {} for c in cfgs}
     for i in tools:
-        rest = [data[t] for t in tools if t != i]
-        key = (set_name, tuple(sorted(t for t in tools if t != i)))
+        vb = data[i].vb
+        assert vb is not None
         for c in cfgs:
-            m = _with(cache.get(key, rest, c), c)
-            est, sd, _ = m.run(data[i])
-            vb = data[i].vb
-            assert vb is not None
+            est, sd, rate = model_of([t for t in tools if t != i], c).run(data[i])
             score[c].append(float(np.mean(np.abs(est - vb))))
-            inner[c][i] = (est, sd, vb)
+            inner[c][i] = (est, sd, vb, rate)
     best = min(cfgs, key=lambda c: (float(np.mean(score[c])), c.label))
-    model = _with(cache.get((set_name, tuple(sorted(tools))), [data[t] for t in tools], best), best)
+    # the life's extrapolation: chosen on the same inner folds
+    life_method = min(
+        LIFE_METHODS,
+        key=lambda m: _life_score(
+            [life_errors(v, e, r, float(v[0]), m) for e, _, v, r in inner[best].values()]
+        ),
+    )
+    model = model_of(tools, best)
+    loo = {i: model_of([t for t in tools if t != i], best) for i in tools}
     out: list[ToolResult] = []
     for t in test:
         d = data[t]
         assert d.vb is not None
         est, _, rate = model.run(d)
-        # CV+ over the training tools
-        lows, highs, ws = [], [], []
-        for i in tools:
-            m_i = _with(
-                cache.get(
-                    (set_name, tuple(sorted(x for x in tools if x != i))),
-                    [data[x] for x in tools if x != i],
-                    best,
-                ),
-                best,
-            )
-            mu, sg, _ = m_i.run(d)
-            e_i, s_i, v_i = inner[best][i]
-            a = np.abs(v_i - e_i) / s_i
-            lows.append(mu[:, None] - a[None, :] * sg[:, None])
-            highs.append(mu[:, None] + a[None, :] * sg[:, None])
-            ws.append(np.full(len(a), 1.0 / len(a)))
-        w = np.concatenate(ws)
-        lo = _wquantile(np.hstack(lows), w, ALPHA / 2)
-        hi = _wquantile(np.hstack(highs), w, 1 - ALPHA / 2)
+        lo, hi = _cv_plus(d, tools, loo, inner[best])
         base = _baselines(table, signals, tools, t, [data[x] for x in tools], d)
         r = ToolResult(t, d.vb, est, lo, hi, base)
-        for crit in CRITERIA:
-            hit = np.flatnonzero(d.vb >= crit)
-            if len(hit) and hit[0] >= 2:
-                h = int(hit[0])
-                k = h // 2
-                end = life_end(est, rate, k, crit)
-                r.life[f"{crit:g}"] = abs(end - h) / (h - k) if math.isfinite(end) else math.inf
+        r.life = life_errors(d.vb, est, rate, float(d.start_vb or 0.0), life_method)
         # entered part-way (a third into its life): with its record, and with none
         k = len(d.vb) // 3
         for rec in (True, False):
             e, _, _ = model.run(d.tail(k, record=rec))
             r.entry["record" if rec else "no_record"] = float(np.mean(np.abs(e - d.vb[k:])))
         out.append(r)
-    return FoldResult(protocol, tuple(test), best.label, out)
+    return FoldResult(protocol, tuple(test), f"{best.label}/life={life_method}", out)
 
 
 def evaluate(
@@ -368,6 +399,7 @@ def summarise(folds: Sequence[FoldResult]) -> dict[str, Any]:
                 m[f"ratio_{b}"] = m["mae"] / m[f"mae_{b}"] if m[f"mae_{b}"] > 0 else math.nan
             keys.append(f"ratio_{b}")
         tools = [r for f in fs for r in per_tool(f)]
+        pooled = fold_metrics(FoldResult(p, (), "", [t for f in fs for t in f.tools]))
         beat = [r["mae"] < r["mae_linear"] for r in tools]
         cov75 = [r["coverage"] >= 0.75 for r in tools]
         out[p] = {
@@ -380,6 +412,7 @@ def summarise(folds: Sequence[FoldResult]) -> dict[str, Any]:
                 }
                 for k in keys
             },
+            "pooled": pooled,
             "tools_beat_linear": float(np.mean(beat)),
             "tools_cov75": float(np.mean(cov75)),
             "chosen": dict(

@@ -10,8 +10,12 @@ the tool at the flank-wear limit (the CNC knows a tool change: a disturbance of 
 the worn tool's life goes to the history).
 
 It simulates the tool's wear beside the machine, so it runs on the simulator only. Its
-share of the status strip: the estimated wear as a share of the limit and the remaining
-life.
+share of the status strip: its own tool (numbered 1, 2, ... as the run changes it), the
+estimated wear as a share of the one flank-wear limit :data:`VB_LIMIT` (the alarm at
+:data:`~server.pipeline.wear_alarms.WEAR_ALARM_SHARE` of it), the remaining life, and
+:data:`WEAR_OF`, the words that say the tool is not the part program's (issue 28: the
+default scenario's milling machine, with its tools T1/T2, is another machine). Its alarms
+and tool lives name this tool, never the milling machine's tool, program, line or part.
 """
 
 from __future__ import annotations
@@ -35,11 +39,14 @@ from server.pipeline.part import (
     needs_simulator,
 )
 from server.pipeline.stage_part import COLORS
-from server.pipeline.wear_alarms import WearAlarms
+from server.pipeline.wear_alarms import WEAR_ALARM_SHARE, WearAlarms
 from server.pipeline.wear_clock import AcceleratedToolWear
 from server.pipeline.wear_passes import VB_LIMIT, PassState, ToolWearPasses
 
-__all__ = ["WEAR", "WearPart", "WearPartState"]
+__all__ = ["WEAR", "WEAR_OF", "WearPart", "WearPartState"]
+
+#: whose tool the wear part's is, in the status strip's words (a tool beside the spindle's)
+WEAR_OF = "the stage's turning tool (seed 004's wear law)"
 
 WEAR = Chart(
     "wear",
@@ -137,7 +144,7 @@ class WearPart(LivePart):
             s.vb_est,
             VB_LIMIT,
             s.life_left,
-            block.status(),
+            {"tool": self.tool_number},
         )
         if worn:
             self._new_tool(block)
@@ -158,17 +165,16 @@ class WearPart(LivePart):
         block.notice(Notice("disturbance", block.t_end))
 
     def _life(self, block: Block, cause: str) -> dict[str, object]:
-        """The life of the tool in the spindle, ending now: its tool number (the CNC's,
-        when the status gives one; else the wearing tool's place in the sequence), its
-        index (1 for the first tool of the run), the source times it was mounted and
+        """The life of the wearing tool, ending now: its number (:attr:`tool_number`:
+        this part's own tool, never the part program's tool in the spindle), its index
+        (the same: 1 for the first tool of the run), the source times it was mounted and
         changed, the estimated flank wear at the change (None before the first
         estimate), the simulator's true wear (None without truth) and the cause."""
         st = self.tool.state
-        index = st.tools_changed + 1
-        number = block.status().get("tool")
+        index = self.tool_number
         truth = block.has_truth
         return {
-            "tool": number if isinstance(number, int) and number > 0 else index,
+            "tool": index,
             "index": index,
             "start_t": st.tool_start_t,
             "end_t": block.t_end,
@@ -182,10 +188,23 @@ class WearPart(LivePart):
     def tools_changed(self) -> int:
         return self.tool.state.tools_changed
 
+    @property
+    def tool_number(self) -> int:
+        """The wearing tool's number: 1 for the first tool of the run, +1 at each change."""
+        return self.tool.state.tools_changed + 1
+
     def status(self) -> dict[str, object]:
+        """The strip's wear fields, all of this part's one tool (module docstring)."""
         s = self.tool.state
         share = s.vb_est / VB_LIMIT if math.isfinite(s.vb_est) else math.nan
-        return {"wear_share": share, "life_left_min": s.life_left}
+        return {
+            "wear_share": share,
+            "life_left_min": s.life_left,
+            "wear_tool": self.tool_number,
+            "wear_of": WEAR_OF,
+            "wear_limit_mm": VB_LIMIT,
+            "wear_alarm_share": WEAR_ALARM_SHARE,
+        }
 
     def take_tool_changes(self) -> list[dict[str, object]]:
         out, self._changes = self._changes, []

@@ -344,8 +344,11 @@ class Worker:
         machine's checkpoint if there is one (a new meta: a new pipeline, the runtime
         and its counts go on)."""
         if run.runtime is not None:
-            src = run.runtime.pipeline.source.renewed()  # type: ignore[attr-defined]
-            run.runtime.set_pipeline(LivePipeline(seed=self.cfg.seed, source=src))
+            old = run.runtime.pipeline
+            src = old.source.renewed()  # type: ignore[attr-defined]
+            pipe = LivePipeline(seed=self.cfg.seed, source=src)
+            pipe.carry(old)  # the identified parameters go on (a new rate: designed again)
+            run.runtime.set_pipeline(pipe)
         else:
             run.runtime = MachineRuntime(
                 run.name,

@@ -47,6 +47,7 @@ from server.pipeline.events_out import EventsPublisher
 from server.pipeline.knobs import Knob
 from server.pipeline.live_pipeline import LivePipeline
 from server.pipeline.mqtt_source import MqttSource
+from server.pipeline.opcua_source import OpcuaSource
 from server.pipeline.runtime import CheckpointWriter, EventHistory, MachineRuntime
 from server.records.history import HistoryStore
 from server.service import protocol
@@ -128,9 +129,35 @@ def loop_parts(settings: Settings) -> LoopParts:
             )
     if feed is not None:
         pipe = LivePipeline(seed=settings.seed, source=MqttSource(feed))
+    elif settings.source == "opcua":
+        pipe = LivePipeline(seed=settings.seed, source=opcua_source(settings))
     else:
         pipe = LivePipeline(settings.scenario, seed=settings.seed)
+    if settings.model:  # the residual reports' effects for the axes' live models
+        from server.pipeline.axis_part import axis_models
+
+        pipe.set_axis_effects(axis_models(settings.model))
     return LoopParts(pipe, feed, out, events_out, history_store(settings))
+
+
+def opcua_source(settings: Settings) -> OpcuaSource:
+    """The OPC UA source of the settings (``opcua_*``; docs/opcua.md): the node map read
+    and checked now, the connection made when the loop starts."""
+    from server.pipeline.opcua_link import OpcuaSecurity
+    from server.pipeline.opcua_source import OpcuaOptions
+    from server.records.opcua_map import load_node_map
+
+    assert settings.opcua_url is not None and settings.opcua_nodes is not None
+    trust = tuple(Path(p.strip()) for p in settings.opcua_trust.split(",") if p.strip())
+    sec = OpcuaSecurity(
+        policy=settings.opcua_security,
+        certificate=settings.opcua_cert,
+        private_key=settings.opcua_key,
+        trust=trust,
+        cert_dir=settings.data_dir / "opcua",
+    )
+    opts = OpcuaOptions(settings.opcua_url, settings.opcua_publishing_s, security=sec)
+    return OpcuaSource(load_node_map(settings.opcua_nodes), opts)
 
 
 def history_store(settings: Settings) -> HistoryStore | None:
@@ -316,6 +343,8 @@ class LiveLoop:
     def start(self) -> None:
         if self.feed is not None:
             self.feed.start()
+        if isinstance(self.pipeline.source, OpcuaSource):
+            self.pipeline.source.start()
         if self.estimates_out is not None:
             self.estimates_out.start()
         if self.events_out is not None:
@@ -344,6 +373,8 @@ class LiveLoop:
         for part in (self.feed, self.estimates_out, self.events_out):
             if part is not None:
                 part.stop()
+        if isinstance(self.pipeline.source, OpcuaSource):
+            self.pipeline.source.stop()
         if self._block_log is not None:
             self._block_log.close()
 
@@ -376,7 +407,11 @@ class LiveLoop:
                 src = self.pipeline.source
                 renewed = getattr(src, "renewed", None)  # a live feed's source
                 if renewed is not None and getattr(src, "needs_rebuild", False):  # a new meta
-                    self.set_pipeline(LivePipeline(seed=self.settings.seed, source=renewed()))
+                    pipe = LivePipeline(seed=self.settings.seed, source=renewed())
+                    pipe.axis_effects = dict(self.pipeline.axis_effects)
+                    pipe.reset()  # built with the axes' effects
+                    pipe.carry(self.pipeline)  # the identified parameters go on
+                    self.set_pipeline(pipe)
                 with self.lock:
                     paused, speed = self.paused, self.speed
                     block_s = self.block_n * self.pipeline.sample_time
@@ -499,6 +534,8 @@ class LiveLoop:
         out: dict[str, Any] = {"source": src.name}
         if self.feed is not None:
             out["feed"] = src.status()
+        if isinstance(src, OpcuaSource):
+            out["opcua"] = src.status()
         if self.estimates_out is not None:
             out["estimates_out"] = self.estimates_out.health()
         if self.events_out is not None:
@@ -636,6 +673,16 @@ class LiveLoop:
         with self.lock:
             return self.pipeline.parts()
 
+    def machine_info(self) -> dict[str, Any]:
+        """The machine and its parts (:meth:`LivePipeline.machine`)."""
+        with self.lock:
+            return self.pipeline.machine()
+
+    def idle(self) -> str:
+        """Why nothing is estimated (:meth:`LivePipeline.idle`; empty: something is)."""
+        with self.lock:
+            return self.pipeline.idle()
+
     def knob_values(self) -> dict[str, Any]:
         with self.lock:
             return {k: v.value for k, v in self.pipeline.knobs().items()}
@@ -708,6 +755,24 @@ class LiveLoop:
         with self.lock:
             self.pipeline.set_observer_effects(effects)
             return self.pipeline.effects, self.pipeline.t
+
+    def axis_effects(self) -> tuple[dict[str, list[str]], float]:
+        """Per axis, the names of the report's effects its live rigid model holds (before
+        the feed's machine is known: as given), and the live time."""
+        with self.lock:
+            p = self.pipeline
+            axes = p.part("axes")
+            if axes is None:
+                return {k: [e.name for e in v] for k, v in p.axis_effects.items()}, p.t
+            return {n: [e.name for e in axes.effects[n]] for n in axes.with_effects}, p.t
+
+    def set_axis_effects(self, effects: Mapping[str, tuple[Any, ...]]) -> float:
+        """Load a residual report's effects into the axes' live models (``{}``: none);
+        the time. The clients get a new hello (the channels changed)."""
+        with self.lock:
+            self.pipeline.set_axis_effects(effects)
+            self._hello_due = True
+            return self.pipeline.t
 
     def inject(
         self,

@@ -141,14 +141,21 @@ class LoopHealth(Versioned):
 class Accuracy(Versioned):
     """Rolling rms of each force estimate (the ``accuracy`` of every frame and snapshot)."""
 
-    mode: Literal["truth", "agreement"] = Field(
-        description="'truth': against the true force (simulator); 'agreement': no truth "
-        "(a replayed log, a live feed), each estimate against the mean of 'mean_of'"
+    VERSION: ClassVar[int] = 2
+    mode: Literal["truth", "measured_force", "none"] = Field(
+        description="'truth': against the true force (simulator); 'measured_force': against "
+        "the force the machine measures (f_ext on a feed or a log); 'none': no reference, "
+        "nothing scored (the estimates are never ranked against each other)"
     )
+    against: Literal["truth", "measured_force"] | None = Field(
+        description="what the rms is against (null: nothing)"
+    )
+    reason: str = Field(description="why nothing is scored (mode 'none'); else empty")
     windows: list[float] = Field(description="window lengths [s]")
     span: list[float] = Field(description="seconds each window really covers [s]")
     rms: dict[str, list[float | None]] = Field(
-        description="estimate -> rms error per window [N m] (against the truth or the mean)"
+        description="estimate -> rms error per window (against the truth or the measured "
+        "force; null: no reference)"
     )
     rms_q: dict[str, list[float | None]] = Field(
         description="estimate -> rms against the Q(s)-filtered true force (empty: no truth)"
@@ -156,7 +163,6 @@ class Accuracy(Versioned):
     floor: list[float | None] = Field(
         description="rms of the Q(s)-filtered true force against the true force, per window"
     )
-    mean_of: list[str] = Field(description="the estimates averaged (mode 'agreement')")
 
 
 class MonitorStatus(Versioned):
@@ -165,12 +171,29 @@ class MonitorStatus(Versioned):
     state: Literal["off", "teaching", "watching", "alarm"] = Field(
         description="off: no process monitor; alarm: an unacknowledged alarm or feed hold"
     )
+    VERSION: ClassVar[int] = 2
     tool: int = Field(description="tool in the spindle (0: not known)")
     program: str
     line: int
     part: int
-    wear_share: float | None = Field(description="estimated flank wear / its limit")
-    life_left_min: float | None = Field(description="remaining tool life [min]")
+    wear_share: float | None = Field(
+        description="estimated flank wear of tool `wear_tool` / `wear_limit_mm`"
+    )
+    life_left_min: float | None = Field(description="remaining life of tool `wear_tool` [min]")
+    wear_tool: int = Field(
+        default=0, description="the tool the wear share and life are of (0: not known)"
+    )
+    wear_of: str = Field(
+        default="",
+        description="whose tool `wear_tool` is: '' the spindle's (the strip's `tool`), else "
+        "the wear model's own tool in words (a machine beside the spindle's)",
+    )
+    wear_limit_mm: float | None = Field(
+        default=None, description="the flank-wear limit the share is of [mm] (tool change)"
+    )
+    wear_alarm_share: float | None = Field(
+        default=None, description="the wear alarm is raised at this share of the limit"
+    )
     unacked: int = Field(description="events waiting for an acknowledgement")
 
 

@@ -26,8 +26,9 @@ model of :mod:`server.service.messages` (validated, then serialised by it):
 ``accuracy`` (issue 13): the rolling rms of every force estimate at the frame's last
 sample, one small object rather than more channels (its values change slowly; the page
 shows the latest numbers and keeps their history itself). Keys ``SCHEMA["accuracy"]``:
-``mode`` (``"truth"``: against the true force; ``"agreement"``: a source without truth,
-each estimate against the per-sample mean of the ``mean_of`` estimates), ``windows``
+``mode`` (``"truth"``: against the true force; ``"measured_force"``: against the force
+the machine measures, ``f_ext``; ``"none"``: no reference, nothing scored, ``reason``
+says so), ``against`` (the mode, null for none), ``reason``, ``windows``
 ([1, 10] s), ``span`` (seconds each window really covers), ``rms`` ({estimate: [one value
 per window]}), ``rms_q`` (against the Q(s)-filtered true force, the observers' reachable
 target; empty without truth), ``floor`` (rms of Q(s)F - F; nulls without truth), each
@@ -40,8 +41,9 @@ value to 4 significant digits, null where unknown (see
     "acked_by", "acked_wall"}}``; never dropped for a slow client (frames are). A new
     client gets the unacknowledged events the service keeps right after its ``hello``.
     Every frame's ``status`` is the status strip (``SCHEMA["status"]``: state off,
-    teaching, watching or alarm; tool, program, line, part, wear_share, life_left_min,
-    unacked).
+    teaching, watching or alarm; tool, program, line, part; wear_share, life_left_min of
+    one tool, wear_tool, whose it is, wear_of, its limit wear_limit_mm and the alarm's
+    share of it wear_alarm_share; unacked).
 
 JSON was measured against a binary (float32) encoding: see
 docs/live-service.md ("Stream protocol"). Encoding a frame through its model (validation

@@ -85,10 +85,12 @@ def error_responses(*codes: int, json_route: bool = True) -> dict[int | str, dic
 class Health(LoopHealth):
     """``GET /api/health``."""
 
-    status: Literal["ok", "degraded", "error"] = Field(
-        description="'error' once the loop has stopped; 'degraded' while a part of the "
-        "pipeline does not run (parts says which and why); else 'ok'"
+    status: Literal["ok", "degraded", "idle", "error"] = Field(
+        description="'error' once the loop has stopped; 'idle' while nothing is estimated "
+        "(idle says why: no part runs, or a live feed has sent no sample yet); 'degraded' "
+        "while a part of the pipeline does not run (parts says which and why); else 'ok'"
     )
+    idle: str = Field(default="", description="why nothing is estimated (empty: something is)")
     parts: list[PartStatus] = Field(
         description="every part of the pipeline: name, running, and why not (reason)"
     )
@@ -105,6 +107,15 @@ class Health(LoopHealth):
             "duplicates, late blocks, restarts, drops and malformed blocks by kind"
         ),
     )
+    opcua: dict[str, Any] | None = Field(
+        default=None,
+        description=(
+            "the OPC UA source (source opcua): state (connected, lost: why, no connection: "
+            "why, refused: why, e.g. an untrusted server's thumbprint), the security policy, "
+            "the sampling interval asked and revised, the queue size, and the grid's counts: "
+            "samples, cells, values held per node, merged, late and lost samples, gaps"
+        ),
+    )
     estimates_out: dict[str, Any] | None = Field(
         default=None, description="the estimates publisher (mqtt_publish_hz > 0)"
     )
@@ -113,6 +124,36 @@ class Health(LoopHealth):
         description="the events and feed-hold commands publisher (a broker set): topics, "
         "connected, counts of events and commands handed over and refused",
     )
+
+
+class MachineAxis(BaseModel):
+    """A feed axis as the source delivers it."""
+
+    name: str
+    kind: str = Field(description="two_inertia (motor and load positions) or rigid")
+    signals: list[str] = Field(description="the roles of its signals (q_m, q_l, i_m...)")
+
+
+class MachineSpindle(BaseModel):
+    """The spindle as the source delivers it."""
+
+    signals: list[str] = Field(description="the roles of its signals (speed, power...)")
+
+
+class Machine(BaseModel):
+    """``GET /api/machine``: the machine the source delivers and the parts watching it."""
+
+    source: str
+    scenario: str
+    sample_time: float = Field(description="[s]")
+    axes: list[MachineAxis]
+    spindle: MachineSpindle | None = Field(description="None: the source has no spindle")
+    identities: list[str] = Field(description="the program's identities (tool, line...)")
+    description: dict[str, Any] | None = Field(
+        description="the machine description (common/machine.schema.json) when the source "
+        "has one; None for the simulated stage"
+    )
+    parts: list[PartStatus] = Field(description="every part: name, running, and why not")
 
 
 class Scenarios(BaseModel):
@@ -153,6 +194,11 @@ class PipelineSnapshot(BaseModel):
     accuracy: Accuracy
     parts: list[PartStatus] = Field(
         default_factory=list, description="the pipeline's parts: name, running, and why not"
+    )
+    axes: dict[str, dict[str, str]] | None = Field(
+        None,
+        description="a described machine's axes identified live (part 'axes'): per axis, "
+        "what does not run and why (the mass without an acceleration at 10 Hz...)",
     )
     injected: list[dict[str, JsonValue]] = Field(
         default_factory=list,
@@ -434,6 +480,29 @@ class EffectsInstalled(Effects):
         description="the live time [s] from which the effects act (the stream's t: compare "
         "the error before and after it)"
     )
+
+
+class AxisModelBody(BaseModel):
+    """``POST /api/axis-model``: a rigid residual report (by name, or the report itself)
+    whose effects an axis' live rigid model holds (issue 30 item 4)."""
+
+    model_config = ConfigDict(extra="forbid")
+    axis: str | None = Field(
+        None, max_length=64, description="the feed's axis (default: every axis)"
+    )
+    name: str | None = Field(
+        None, max_length=128, description="the name of a residual report (GET /residual)"
+    )
+    report: dict[str, Any] | None = Field(
+        None, description="a residual report (report.json of cutwatch residual) as JSON"
+    )
+
+
+class AxisModels(BaseModel):
+    """The effects each axis' live rigid model holds (``GET``/``POST /api/axis-model``)."""
+
+    axes: dict[str, list[str]] = Field(description="axis -> the names of its effects")
+    t: float = Field(description="the live time [s] from which they act")
 
 
 class ResidualReport(BaseModel):

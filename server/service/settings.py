@@ -144,6 +144,14 @@ class Settings(BaseSettings):
         default=12.0, gt=0.0, le=24.0 * 30, description="lifetime of a browser session [h]"
     )
     seed: int = Field(default=0, ge=0, description="seed of the simulation's random generators")
+    model: str = Field(
+        default="",
+        description=(
+            "residual reports whose effects the live rigid model of an axis holds "
+            "(issue 30 item 4), comma-separated [AXIS=]REPORT.json (without AXIS=: every "
+            "axis); their coefficients are identified live with M, Fv, Fc"
+        ),
+    )
     parts: str = Field(
         default="",
         description=(
@@ -152,12 +160,37 @@ class Settings(BaseSettings):
         ),
     )
     viser: bool = Field(default=True, description="start the viser 3D view on viser_port")
-    source: Literal["simulator", "mqtt"] = Field(
+    source: Literal["simulator", "mqtt", "opcua"] = Field(
         default="simulator",
         description=(
-            "where the measurements come from: the simulated machine, or a real machine's "
-            "drive blocks on the broker (mqtt_broker, mqtt_machine)"
+            "where the measurements come from: the simulated machine, a real machine's "
+            "drive blocks on the broker (mqtt_broker, mqtt_machine), or a CNC's OPC UA "
+            "server (opcua_url, opcua_nodes; docs/opcua.md)"
         ),
+    )
+    opcua_url: str | None = Field(
+        default=None, description="the CNC's OPC UA server, opc.tcp://host:port[/path]"
+    )
+    opcua_nodes: Path | None = Field(
+        default=None, description="the node map (JSON; `cutwatch opcua browse` starts one)"
+    )
+    opcua_publishing_s: float | None = Field(
+        default=None,
+        gt=0.0,
+        le=10.0,
+        description="the subscription's publishing interval [s] (default: the map's sample "
+        "time, at least 0.1 s, a CNC's fastest)",
+    )
+    opcua_security: str = Field(
+        default="best",
+        description="best (the strongest of Aes256_Sha256_RsaPss, Aes128_Sha256_RsaOaep, "
+        "Basic256Sha256 the server offers), one of them, or None (only when named)",
+    )
+    opcua_cert: Path | None = Field(default=None, description="the client's certificate")
+    opcua_key: Path | None = Field(default=None, description="the client's private key")
+    opcua_trust: str = Field(
+        default="",
+        description="trusted server certificates or folders of them, comma-separated",
     )
     mqtt_broker: str | None = Field(
         default=None,
@@ -364,6 +397,11 @@ def check_security(settings: Settings) -> None:
         raise CutwatchError(
             f"binding to {settings.host!r} (not loopback) requires a bearer token: set "
             "CUTWATCH_TOKEN in the environment; refusing to start"
+        )
+    if settings.source == "opcua" and (not settings.opcua_url or settings.opcua_nodes is None):
+        raise CutwatchError(
+            "source opcua needs a server and a node map: --opcua opc.tcp://host:port and "
+            "--nodes MAP.json (CUTWATCH_OPCUA_URL, CUTWATCH_OPCUA_NODES)"
         )
     if (settings.source == "mqtt" or settings.mqtt_publish_hz > 0) and not settings.mqtt_broker:
         what = "source mqtt" if settings.source == "mqtt" else "mqtt_publish_hz > 0"

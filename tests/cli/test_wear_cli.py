@@ -167,3 +167,29 @@ def test_a_table_without_vb_is_estimated_with_a_model(
     rc = main([*base, str(blind), "--out", str(tmp_path / "d")])
     err = capsys.readouterr().err
     assert rc == 2 and "column 'Vb'" in err and str(blind) in err
+
+
+def test_hybrid_on_a_given_test_tool_and_its_refusals(
+    tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
+    """Issue 35's hybrid through the command: tool 16 estimated from 7, 10 and 11, the
+    configuration chosen by leave-one-tool-out over those three."""
+    t = subset(tmp_path, {"7", "10", "11", "16"})
+    out = tmp_path / "hy"
+    args = ["wear", str(t), "--method", "hybrid", "--test-tools", "16", "--first-list"]
+    assert main([*args, "--out", str(out), "--quiet"]) == 0
+    assert "hybrid" in capsys.readouterr().out
+    with (out / "estimates.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    assert len(rows) == 109 and {r["tool"] for r in rows} == {"16"}
+    lo, est, hi = (np.array([float(r[c]) for r in rows]) for c in ("vb_lo", "vb_est", "vb_hi"))
+    assert np.all(lo <= hi) and np.mean((est >= lo) & (est <= hi)) > 0.9
+    rep = json.loads((out / "report.json").read_text())
+    po = rep["given"]["pooled"]
+    vb = np.array([float(r["vb_true"]) for r in rows])
+    assert po["mae"] == pytest.approx(float(np.mean(np.abs(est - vb))), abs=1e-2)
+    assert {"mae_linear", "mae_gbr5", "mae_prior"} <= set(po)
+    for extra, what in ((["--train-tools", "7"], "--train-tools"), (["--set", "nope"], "--set")):
+        rc = main([*args, *extra, "--out", str(out), "--quiet"])
+        err = capsys.readouterr().err
+        assert rc == 2 and what in err, err

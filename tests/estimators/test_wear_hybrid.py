@@ -32,9 +32,10 @@ def tool(seed: int, n: int = 150, start: float = 0.0, feed: float = 2260.0) -> T
     return ToolData(seed, y[:, None], np.full(n, feed), vb, start)
 
 
-def test_candidates_are_the_protocols_forty() -> None:
+def test_candidates_are_the_protocols_list() -> None:
     c = candidates()
-    assert len(c) == 40 and len({x.label for x in c}) == 40
+    assert len(c) == 176 and len({x.label for x in c}) == 176
+    assert len(candidates(revision=1)) == 40
 
 
 def test_bad_config_names_the_field() -> None:
@@ -58,7 +59,9 @@ def test_fresh_reference_is_a_line_in_the_feed() -> None:
 
 
 @pytest.mark.parametrize(
-    "cfg", [HybridConfig("conditions", m, 1e-2) for m in ("linear", "quadratic", "isotonic", "gbr")]
+    "cfg",
+    [HybridConfig("conditions", m, 1e-2) for m in ("linear", "quadratic", "isotonic", "gbr")]
+    + [HybridConfig("conditions", "linear", 1e-3, offset=True)],
 )
 def test_filter_tracks_an_unseen_tool_and_its_rate_never_falls_below_zero(
     cfg: HybridConfig,

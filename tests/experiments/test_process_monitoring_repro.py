@@ -72,3 +72,73 @@ def test_cli_lists_the_experiment() -> None:
         check=True,
     )
     assert "process-monitoring" in out.stdout
+
+
+# ---------------------------------------------------------------- the machining centre
+# (issue 32): each seed simulated once, exported at three trace rates, watched on three
+# signal sets; the quick run has 2 events per kind and 72 s event-free after the teach-in
+
+
+def test_centre_rows_per_rate_and_signal_set(quick: tuple[Reproduction, Path]) -> None:
+    rep, plots = quick
+    names = {r.name for r in rep.rows}
+    for kind in ("breakage", "collision", "missing_tool"):
+        for sig in ("spindle", "axes", "both"):
+            for hz in ("5000hz", "1000hz", "500hz"):
+                row = rep.row(f"{kind}.clear.{sig}.detection_at_{hz}")
+                assert 0.0 <= row.ours <= 1.0
+                assert "one-sided 95 % CP bounds" in row.condition
+                assert f"{kind}.clear.{sig}.discordant_5000_vs_500hz" in names
+    # a broken tooth on the spindle alone is reported, not targeted; on the axes it is
+    checks = {c.name for c in rep.checks}
+    assert "breakage.clear.spindle.detection_lower_95_at_500hz >= 0.99" not in checks
+    assert "breakage.clear.axes.detection_lower_95_at_500hz >= 0.99" in checks
+    assert "collision.clear.spindle.detection_lower_95_at_500hz >= 0.99" in checks
+    assert rep.row("breakage.clear.spindle.detection_at_500hz").paper is None
+    # "both" finds whatever either signal set finds, at every rate
+    for kind in ("breakage", "collision", "missing_tool"):
+        for hz in ("5000hz", "1000hz", "500hz"):
+            both = rep.row(f"{kind}.clear.both.detection_at_{hz}").ours
+            assert both >= max(rep.row(f"{kind}.clear.{s}.detection_at_{hz}").ours
+                               for s in ("spindle", "axes"))  # fmt: skip
+    assert (plots / "process_monitoring_rates.png").stat().st_size > 10_000
+
+
+def test_centre_missing_tool_found_and_no_false_alarm(quick: tuple[Reproduction, Path]) -> None:
+    rep, _ = quick
+    for hz in ("5000hz", "1000hz", "500hz"):
+        assert rep.row(f"missing_tool.clear.both.detection_at_{hz}").ours == 1.0
+        for sig in ("spindle", "axes", "both"):
+            assert rep.row(f"false_alarms.{sig}.machine_at_{hz}").ours == 0.0
+            assert rep.row(f"{sig}.alarms_before_event_at_{hz}").ours == 0
+        for m in ("spindle", "axes"):
+            assert rep.row(f"free.{m}.closest_at_{hz}").ours < 1.0
+
+
+def test_centre_event_is_one_simulation_seen_at_every_rate() -> None:
+    from server.experiments.reproductions import _centre_monitoring as cm
+
+    res = cm.run_event(cm.CentreCase("missing_tool", 1))
+    spr = {hz: res[hz]["samples_per_rev"] for hz in ("5000", "1000", "500")}
+    # one spindle speed, seen at 10x and 2x fewer samples per revolution
+    assert spr["5000"] == pytest.approx(10 * spr["500"]) == pytest.approx(5 * spr["1000"])
+    assert spr["5000"] == pytest.approx(5000 * 60 / res["rpm"])
+    # the event's trace sample at each rate holds the same simulated time
+    t_ev = {hz: (res[hz]["k_event"] + 1) / float(hz) for hz in spr}
+    assert max(t_ev.values()) - min(t_ev.values()) < 2.0 / 500
+    for hz in spr:
+        for sig in ("spindle", "axes", "both"):
+            r = res[hz][sig]
+            if r["detected"]:
+                assert r["delay_samples"] >= 0
+                assert r["delay_s"] == pytest.approx(r["delay_samples"] / float(hz), abs=2 / 500)
+
+
+def test_mcnemar_matches_its_binomial_tail() -> None:
+    from server.experiments.reproductions._centre_rows import mcnemar_p
+
+    assert mcnemar_p(0, 0) == 1.0
+    # all 5 discordant pairs one way: 2 * 0.5 ** 5
+    assert mcnemar_p(5, 0) == pytest.approx(2 * 0.5**5)
+    assert mcnemar_p(3, 3) == 1.0
+    assert mcnemar_p(2, 7) == mcnemar_p(7, 2) < 0.2

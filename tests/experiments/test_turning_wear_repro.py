@@ -55,6 +55,18 @@ def test_quick_json_rows_and_checks(capsys: pytest.CaptureFixture) -> None:
             "width_over_mae",
             "life_at_half_300um",
         )
+    } | {
+        f"unseen.F_f.{n}"
+        for n in (
+            "mae_vs_linear",
+            "mae_vs_gbr",
+            "mae_vs_prior",
+            "tools_beat_linear",
+            "coverage",
+            "tools_cov75",
+            "width_over_mae",
+            "life_at_half",
+        )
     }
     c = checks["feed_force.mae_25pct_below_linear"]
     assert c["value"] == pytest.approx(
@@ -62,3 +74,23 @@ def test_quick_json_rows_and_checks(capsys: pytest.CaptureFixture) -> None:
     )
     assert c["holds"] == (c["value"] <= c["limit"])
     assert rc == (0 if all(c["holds"] for c in out["checks"]) else 1)
+    _unseen_rows(rows, checks)
+
+
+def _unseen_rows(rows: dict, checks: dict) -> None:
+    """Issue 35's rows: the hybrid beside every baseline, per tool left out, the checks
+    computed from the pooled rows."""
+    from server.experiments.reproductions import turning_wear_unseen as unseen
+
+    pre = "unseen.F_f.loto"
+    for t in unseen.QUICK_TOOLS:
+        r = rows[f"{pre}.tool.{t}.mae"]
+        assert r["ours"] > 0 and r["paper"] > 0
+    pooled = rows[f"{pre}.pooled.mae"]
+    per = [rows[f"{pre}.tool.{t}.mae"]["ours"] for t in unseen.QUICK_TOOLS]
+    assert min(per) <= pooled["ours"] <= max(per)
+    c = checks["unseen.F_f.mae_vs_linear"]
+    assert c["value"] == pytest.approx(pooled["ours"] / pooled["paper"])
+    assert c["holds"] == (c["value"] <= 0.75)
+    assert rows[f"{pre}.entry.record"]["ours"] > 0
+    assert sum(r["ours"] for n, r in rows.items() if n.startswith(f"{pre}.chosen.")) == 2

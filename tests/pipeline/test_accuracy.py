@@ -33,7 +33,7 @@ def test_running_sums_equal_the_direct_rms_over_varying_blocks(seed: int) -> Non
     # of 1..6 samples need more blocks than the ring's first 64 for 0.4 s: it grows
     rng = np.random.default_rng(seed)
     hi = 300 if seed % 2 else 6
-    acc = RollingAccuracy(["a", "b"], DT, has_truth=True, windows=(0.05, 0.4))
+    acc = RollingAccuracy(["a", "b"], DT, reference="truth", windows=(0.05, 0.4))
     ea: list[np.ndarray] = []
     eb: list[np.ndarray] = []
     eq: list[np.ndarray] = []
@@ -67,21 +67,30 @@ def test_running_sums_equal_the_direct_rms_over_varying_blocks(seed: int) -> Non
                 assert s["span"][j] == pytest.approx(span)  # type: ignore[index]
 
 
-def test_agreement_is_against_the_mean_of_the_named_estimates() -> None:
+def test_a_measured_force_is_the_reference_and_its_nan_samples_do_not_count() -> None:
     rng = np.random.default_rng(1)
-    acc = RollingAccuracy(["a", "b", "c"], DT, has_truth=False, windows=(0.1,))
-    a, b = rng.normal(size=100), rng.normal(size=100)
-    acc.update({"a": a, "b": b, "c": a.copy()}, mean_of=["a", "b"])
+    acc = RollingAccuracy(["a", "b"], DT, reference="measured_force", windows=(0.1,))
+    f, a, b = rng.normal(size=100), rng.normal(size=100), rng.normal(size=100)
+    f[:10] = math.nan  # the dynamometer not yet on
+    acc.update({"a": a, "b": b}, measured=f)
     s = acc.summary()
-    m = (a + b) / 2
-    assert s["mode"] == "agreement" and s["mean_of"] == ["a", "b"] and s["rms_q"] == {}
-    assert s["rms"]["a"][0] == pytest.approx(float(np.sqrt(np.mean((a - m) ** 2))))  # type: ignore[index]
-    assert s["rms"]["c"][0] == s["rms"]["a"][0]  # type: ignore[index]
+    assert s["mode"] == "measured_force" and s["against"] == "measured_force"
+    assert s["rms_q"] == {} and s["reason"] == ""
+    want = float(np.sqrt(np.mean((a[10:] - f[10:]) ** 2)))
+    assert s["rms"]["a"][0] == pytest.approx(want)  # type: ignore[index]
     assert all(math.isnan(v) for v in s["floor"])  # type: ignore[attr-defined]
 
 
+def test_without_a_reference_nothing_is_scored_and_the_reason_is_said() -> None:
+    acc = RollingAccuracy(["a", "b"], DT, reference="none", windows=(0.1,))
+    acc.update({"a": np.zeros(100), "b": np.ones(100)})
+    s = acc.summary()
+    assert s["mode"] == "none" and s["against"] is None and "no reference" in s["reason"]  # type: ignore[operator]
+    assert all(math.isnan(v) for r in s["rms"].values() for v in r)  # type: ignore[attr-defined]
+
+
 def test_nothing_yet_is_nan_not_zero() -> None:
-    s = RollingAccuracy(["a"], DT, has_truth=True).summary()
+    s = RollingAccuracy(["a"], DT, reference="truth").summary()
     assert math.isnan(s["rms"]["a"][0]) and s["span"] == [0.0, 0.0]  # type: ignore[index]
 
 
@@ -110,7 +119,7 @@ def test_live_pipeline_scores_every_force_estimate_against_the_truth() -> None:
 
 
 def test_rounded_summary_for_the_stream() -> None:
-    acc = RollingAccuracy(["a", "b"], DT, has_truth=True, windows=(0.01, 1.0))
+    acc = RollingAccuracy(["a", "b"], DT, reference="truth", windows=(0.01, 1.0))
     f = np.linspace(-3.0, 3.0, 20)
     acc.update({"a": f + 0.0123456, "b": np.full(20, math.nan)}, f, f * 0.5)
     full, short = acc.summary(), acc.summary(digits=4)

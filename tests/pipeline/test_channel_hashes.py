@@ -39,6 +39,13 @@ EXPECTED: dict[str, dict[str, str]] = {
     }
     for run in ("seed000-weight-0", "seed001-spindle-0", "replay-0")
 }
+# issue 28: the wear part's tool lives are numbered by its own tool (1, 2, ...), no longer
+# by the milling machine's tool in the spindle at the change; the channels are the same
+EXPECTED["default-0"] = {
+    "tool_changes: {'count': 11, 'hash': '3780e85cd13920da'} -> "
+    "{'count': 11, 'hash': '2b19aa2d44d4b8e8'}": "the wear part's tools numbered by its own "
+    "count, not by the milling machine's tool (issue 28)"
+}
 
 
 @pytest.mark.parametrize("name", list(RUNS))

@@ -28,7 +28,7 @@ def test_the_message_carries_estimates_not_truth() -> None:
     assert body["force"]["f_adaptive"] == f[-1]
     assert "J_L_adaptive" in body["params"] and "J_L_true" not in body["params"]
     assert not any(k.endswith("_true") for g in ("force", "params", "harmonics") for k in body[g])
-    assert set(body["wear"]) == {"VB_mm", "VB_limit_mm", "remaining_life_min"}
+    assert set(body["wear"]) == {"tool", "VB_mm", "VB_limit_mm", "remaining_life_min"}
     # the level is the period's rms; the next period starts afresh
     assert math.isnan(pub.build(time.time(), p.channels(), p.t, "simulator")["force"]["level"])
 
@@ -92,7 +92,17 @@ def test_the_monitor_state_travels_when_its_channels_are_streamed() -> None:
         body = pub.build(time.time(), p.channels(), p.t, "simulator")
         assert body["monitor"] == {"state": want, "tool": 3, "line": 120}
     # the service's status strip, when given, is what travels (it knows the acknowledgements)
+    # (issue 28: with its one tool's wear, the tool named in the wear section and alarms)
     status = {"state": "watching", "tool": 4, "program": "O1", "line": 30, "part": 2,
-              "wear_share": 0.5, "life_left_min": 9.0, "unacked": 0}  # fmt: skip
+              "wear_share": 0.5, "life_left_min": 9.0, "unacked": 0, "wear_tool": 2,
+              "wear_of": "the stage's turning tool", "wear_limit_mm": 0.3,
+              "wear_alarm_share": 0.9}  # fmt: skip
     body = pub.build(time.time(), p.channels(), p.t, "simulator", monitor=status)
-    assert body["monitor"] == {"state": "watching", "tool": 4, "line": 30, "unacked": 0}
+    assert body["monitor"] == status
+    assert body["wear"]["tool"] == 2
+    pub.observe({"t": [0.0], "vb_est": [0.28], "vb_limit": [0.3], "life_left": [1.0]})
+    body = pub.build(time.time(), p.channels(), p.t, "simulator", monitor=status)
+    assert body["alarms"] == [
+        "tool 2: flank wear 0.280 mm, 93 % of its limit 0.300 mm (alarm at 90 %): change the tool",
+        "tool 2: remaining tool life 1.0 min",
+    ]

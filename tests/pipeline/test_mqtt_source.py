@@ -106,7 +106,9 @@ def test_a_gap_resets_the_observers_like_a_fresh_start(logs: dict[str, Path]) ->
     assert np.isfinite(after["f_adaptive"]).all()
 
 
-def test_a_rigid_feed_is_refused_with_the_reason(tmp_path: Path) -> None:
+def test_a_rigid_feed_is_taken_and_the_stage_says_why_it_does_not_run(tmp_path: Path) -> None:
+    # issue 30: a rigid axis without a nominal is a machine like any other (it was refused:
+    # "the live observers need a 'two_inertia' feed", 0 samples estimated)
     side = {"sample_time": 1e-3, "units": {"effort": "N", "position": "m"}, "kind": "rigid"}
     t = np.arange(500) * 1e-3
     write_log(tmp_path / "r.csv", {"t": t, "tau_m": np.sin(t), "q_m": t}, side)
@@ -118,9 +120,15 @@ def test_a_rigid_feed_is_refused_with_the_reason(tmp_path: Path) -> None:
             assert main([*argv, "--machine", "m1", "--speed", "0", "--quiet"]) == 0
             assert feed.wait_meta(5)
             src = MqttSource(feed)
-            assert src.step(125).n == 0
+            p = LivePipeline(source=src)
+            out = p.step(125)
             st = src.status()
         finally:
             feed.stop()
-    assert st["state"] == "refused" and "two_inertia" in str(st["problem"])
+    assert st["state"] == "receiving" and st["problem"] == ""
+    assert out["t"].size == 125 and p.last_block is not None
+    np.testing.assert_allclose(p.last_block.columns["tau_m"], np.sin(t[:125]), rtol=1e-6)
+    assert np.isnan(p.last_block.meas.q_l).all()
+    parts = {s["name"]: s for s in p.parts()}
+    assert not parts["stage"]["running"] and "two_inertia" in str(parts["stage"]["reason"])
     json.dumps(st)  # health-ready

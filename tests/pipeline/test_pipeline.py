@@ -101,7 +101,11 @@ def test_unknown_scenario() -> None:
 def test_each_scenario_runs(scenario: str) -> None:
     p = LivePipeline(scenario)
     out = p.step(250)
-    assert np.isfinite(out["f_adaptive"]).all()
+    running = [x["name"] for x in p.parts() if x["running"]]
+    # the stage's observers where they run; on the machining centre (no nominal
+    # two-inertia parameters: they say why not) the spindle part
+    key = "f_adaptive" if "stage" in running else "spindle_speed"
+    assert np.isfinite(out[key][-50:]).all(), running
     assert p.snapshot()["scenario"] == scenario
 
 

@@ -23,7 +23,12 @@ def test_each_alarm_once_per_tool() -> None:
         "alarm", 2.0, worn, WEAR_ALARM_SHARE * VB_LIMIT, "mm",
     )  # fmt: skip
     assert (e.tool, e.program, e.line, e.part) == (4, "P7", 120, 9)
-    assert "%" in e.message and e.machine == ""
+    assert e.machine == ""
+    share = round(100 * worn / VB_LIMIT)
+    assert e.message == (
+        f"tool 4: flank wear {worn:.3f} mm, {share} % of its limit {VB_LIMIT:.3f} mm "
+        f"(alarm at {100 * WEAR_ALARM_SHARE:.0f} %): change the tool"
+    )
     # still worn on the next blocks: nothing more for this tool
     assert a.check(3.0, 0, worn + 0.01, VB_LIMIT, 10.0, IDS) == []
     short = a.check(4.0, 0, worn, VB_LIMIT, LIFE_ALARM_MIN - 0.5, IDS)
@@ -58,3 +63,12 @@ def test_the_live_pipeline_raises_wear_limit_once_from_its_estimate() -> None:
     assert e.value >= WEAR_ALARM_SHARE * VB_LIMIT and e.limit == WEAR_ALARM_SHARE * VB_LIMIT
     assert e.value == vb_at_event[0]  # the estimate, not the truth
     assert 0 < e.t <= p.t
+    # issue 28: the event names the wear model's own first tool, not the milling
+    # machine's tool, program, line or part; the strip's wear fields name the next tool
+    assert (e.tool, e.program, e.line, e.part) == (1, "", 0, -1)
+    assert f"{VB_LIMIT:.3f} mm" in e.message
+    st = p.monitor_status()
+    assert (st["wear_tool"], st["wear_limit_mm"], st["wear_alarm_share"]) == (
+        2, VB_LIMIT, WEAR_ALARM_SHARE,
+    )  # fmt: skip
+    assert st["wear_of"] and st["tool"] in (1, 2)

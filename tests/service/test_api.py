@@ -258,6 +258,7 @@ def test_openapi_lists_every_endpoint(api: httpx.Client) -> None:
         "/api/params",
         "/api/control",
         "/api/snapshot",
+        "/api/machine",
         "/metrics",
         "/api/events",
         "/api/events/{event_id}/ack",
@@ -404,7 +405,8 @@ def test_openapi_documents_every_response(api: httpx.Client) -> None:
     # 13 paths before the data routes; /api/params has GET and PATCH, effects GET/POST/DELETE;
     # + record, records (list, CSV, sidecar), uploads (POST, GET), analyses (POST, GET, GET id)
     # + login, logout, session; + the history: events (GET), ack (POST), tool-life (GET)
-    assert len(ops) == 29
+    # + the machine (GET /api/machine)
+    assert len(ops) == 30
     for p, m, op in ops:
         where = f"{m.upper()} {p}"
         ok = [c for c in op["responses"] if c.startswith("2")]

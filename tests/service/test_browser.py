@@ -202,7 +202,7 @@ def test_accuracy_panel_against_the_truth(hp: str) -> None:
         assert errors == []
 
 
-def test_accuracy_panel_shows_agreement_on_a_replayed_log(tmp_path: Path) -> None:
+def test_accuracy_panel_scores_a_replayed_log_against_its_measured_force(tmp_path: Path) -> None:
     import httpx
 
     from server.cli.main import main
@@ -217,17 +217,17 @@ def test_accuracy_panel_shows_agreement_on_a_replayed_log(tmp_path: Path) -> Non
         page.wait_for_selector("#accuracy-title[data-mode=truth]", timeout=20000)
         r = httpx.post(f"http://{hostport}/api/replay", json={"name": "run"}, timeout=20)
         assert r.status_code == 200, r.text
-        watch_accuracy(page, "agreement", FORCE_ESTIMATES)
+        watch_accuracy(page, "measured_force", FORCE_ESTIMATES)
         title = page.text_content("#accuracy-title") or ""
-        assert "agreement" in title and "no truth" in title and "truth," not in title
+        assert "against the measured force" in title and "truth," not in title
         nums = accuracy_numbers(page)
         assert "q_floor" not in nums  # no truth: no Q(s) truth either
         assert all(len(nums[k]) == 2 for k in FORCE_ESTIMATES)
         snap = httpx.get(f"http://{hostport}/api/snapshot").json()["pipeline"]["accuracy"]
-        assert snap["mode"] == "agreement" and "f_effects" not in snap["mean_of"]
+        assert snap["mode"] == "measured_force" and snap["against"] == "measured_force"
         out = Path("out")
         out.mkdir(exist_ok=True)
-        page.locator("#accuracy-panel").screenshot(path=str(out / "accuracy-agreement.png"))
+        page.locator("#accuracy-panel").screenshot(path=str(out / "accuracy-measured-force.png"))
         assert errors == []
 
 

@@ -71,6 +71,30 @@ def test_the_strip_reads_the_status() -> None:
     assert off["state"] == "off" and off["label"] == "OFF"
 
 
+def test_the_wear_tiles_speak_of_one_tool_and_one_limit() -> None:
+    # issue 28: the wear model's own tool beside the spindle's: its own labelled group,
+    # its own number, its share of one stated limit and the alarm as a share of it; the
+    # wear alarm's row names the same tool and the threshold as what it is
+    code = (
+        "import {statusView, eventRow} from './monitor.js';"
+        "import {readFileSync} from 'node:fs';"
+        "const [a, b, ev] = JSON.parse(readFileSync(0, 'utf8'));"
+        "console.log(JSON.stringify([statusView(a), statusView(b), eventRow(ev).cells]));"
+    )
+    apart = status(wear_tool=2, wear_of="the stage's turning tool", wear_share=0.913,
+                   wear_limit_mm=0.3, wear_alarm_share=0.9)  # fmt: skip
+    same = status(wear_tool=3, wear_of="", wear_limit_mm=0.3, wear_alarm_share=0.9)
+    wear_ev = event("wear_limit", 9.0, tool=2, program="", line=0, part=-1, value=0.274,
+                    limit=0.27, unit="mm")  # fmt: skip
+    a, s, cells = run_js(code, json.dumps([apart, same, wear_ev]))  # type: ignore[misc]
+    assert a["wearApart"] and a["wearOf"] == "tool wear · the stage's turning tool"
+    assert (a["tool"], a["wearTool"], a["wear"]) == ("T3", "tool 2", "91 %")
+    assert a["wearLimit"] == "of 0.300 mm · alarm at 90 %"
+    # the spindle's own tool: no second number
+    assert not s["wearApart"] and s["wearTool"] == "T3" and s["wearOf"] == "tool wear"
+    assert cells[2:6] == ["tool 2", "–", "–", "0.274 vs alarm at 0.270 mm"]
+
+
 def test_the_timeline_is_newest_first_and_an_acknowledgement_sticks() -> None:
     code = (
         "import {mergeEvent, ordered, eventRow, markersIn, headline} from './monitor.js';"

@@ -93,7 +93,9 @@ def test_the_service_starts_without_its_broker_and_says_so() -> None:
     with serve(source="mqtt", mqtt_broker=f"mqtt://127.0.0.1:{port}", mqtt_machine="m1") as hp:
         time.sleep(1.0)
         h = health(hp)
-        assert h["status"] == "ok" and h["feed"]["connected"] is False
+        # issue 30: never "ok" while nothing is estimated (it said "ok" here)
+        assert h["status"] == "idle" and h["feed"]["connected"] is False
+        assert h["idle"].startswith("no sample from the mqtt feed yet")
         assert h["feed"]["state"] in ("waiting for meta", "broker not connected")
         assert "cutwatch_feed_connected 0" in httpx.get(f"http://{hp}/metrics").text
 

@@ -94,11 +94,11 @@ def accuracy(has_truth: bool) -> dict[str, object]:
     """A real rolling-accuracy summary (a NaN sample in it, the 10 s window not full)."""
     import numpy as np
 
-    acc = RollingAccuracy(["f_fixed", "f_dfo"], 4e-4, has_truth=has_truth)
+    acc = RollingAccuracy(["f_fixed", "f_dfo"], 4e-4, "truth" if has_truth else "measured_force")
     f = np.sin(np.arange(125.0))
     est = {"f_fixed": f + 0.1, "f_dfo": f.copy()}
     est["f_dfo"][3] = float("nan")
-    acc.update(est, f, 0.9 * f) if has_truth else acc.update(est)
+    acc.update(est, f, 0.9 * f) if has_truth else acc.update(est, measured=f)
     return acc.summary(digits=protocol.ACCURACY_DIGITS)
 
 
@@ -192,8 +192,8 @@ def test_python_frames_follow_schema() -> None:
         (
             '{"type": "data", "dropped": 0, "seq": 1, "wall": 0, "t": [1, 2], "ts": [1],'
             ' "ch": {"x": [1, 2]}, "health": {}, "knobs": {}, "status": null,'
-            ' "accuracy": {"mode": "truth", "windows": [1, 10], "span": [0, 0], "rms": {},'
-            ' "rms_q": {}, "floor": [null, null], "mean_of": []}}',
+            ' "accuracy": {"mode": "truth", "against": "truth", "reason": "", "windows": [1, 10],'
+            ' "span": [0, 0], "rms": {}, "rms_q": {}, "floor": [null, null]}}',
             "health lacks sim_t",
         ),
         (
@@ -201,8 +201,8 @@ def test_python_frames_follow_schema() -> None:
             ' "ch": {"x": [1, 2, 3]}, "health": {"sim_t": 0, "speed": 1, "paused": false,'
             ' "lag_ms": 0, "lag_p99_ms": 0, "realtime_factor": 1, "clients": 1,'
             ' "dropped_total": 0, "stalls": 0}, "knobs": {}, "status": null,'
-            ' "accuracy": {"mode": "truth", "windows": [1, 10], "span": [0, 0], "rms": {},'
-            ' "rms_q": {}, "floor": [null, null], "mean_of": []}}',
+            ' "accuracy": {"mode": "truth", "against": "truth", "reason": "", "windows": [1, 10],'
+            ' "span": [0, 0], "rms": {}, "rms_q": {}, "floor": [null, null]}}',
             "channel x: 3 samples, t has 2, ts has 1",
         ),
         (
@@ -211,7 +211,7 @@ def test_python_frames_follow_schema() -> None:
             ' "lag_ms": 0, "lag_p99_ms": 0, "realtime_factor": 1, "clients": 1,'
             ' "dropped_total": 0, "stalls": 0}, "knobs": {}, "status": null,'
             ' "accuracy": {"mode": "truth"}}',
-            "accuracy lacks windows, span, rms, rms_q, floor, mean_of",
+            "accuracy lacks against, reason, windows, span, rms, rms_q, floor",
         ),
         (
             '{"type": "data", "dropped": 0, "seq": 1, "wall": 0, "t": [], "ts": [],'
@@ -219,7 +219,8 @@ def test_python_frames_follow_schema() -> None:
             ' "lag_ms": 0, "lag_p99_ms": 0, "realtime_factor": 1, "clients": 1,'
             ' "dropped_total": 0, "stalls": 0}, "knobs": {}, "status": null,'
             ' "accuracy": {"mode": "x",'
-            ' "windows": [], "span": [], "rms": {}, "rms_q": {}, "floor": [], "mean_of": []}}',
+            ' "windows": [], "span": [], "rms": {}, "rms_q": {}, "floor": [], "against": null,'
+            ' "reason": ""}}',
             "accuracy mode x",
         ),
     ],
@@ -351,6 +352,7 @@ def test_panels_accuracy_table(has_truth: bool) -> None:
         assert keys == ["f_fixed", "f_dfo", "q_floor"] and len(got["head"]) == 5
         assert got["rows"][0]["cells"][0] == "0.100"
     else:
-        assert "agreement" in got["title"] and "truth," not in got["title"]
+        assert "against the measured force" in got["title"] and "truth," not in got["title"]
         assert keys == ["f_fixed", "f_dfo"] and len(got["head"]) == 3
+        assert got["head"][1].startswith("vs measured force")
     assert "(0.1 s so far)" in got["head"][1]  # 125 samples of 0.4 ms: 0.05 s

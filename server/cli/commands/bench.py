@@ -10,6 +10,7 @@ Groups (modules server/experiments/benchmarks/bench_<group>.py; see docs/benchma
   history                the kept history's cost per committed event (SQLite, fsync)
   live                   the real service with 10 WebSocket clients
   monitoring             breakage to feed-hold command on the broker at 1x (mosquitto)
+  opcua                  one OPC UA source under load: values per second, node-to-dashboard latency
   pipeline               the live service's whole pipeline, offline
   residual               residual analysis of 1,000,000 samples (rigid)
   residual-two-inertia   the same for the two-inertia observer

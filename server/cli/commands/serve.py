@@ -7,6 +7,10 @@ Examples::
     CUTWATCH_TOKEN="$(openssl rand -hex 16)" cutwatch serve --host 0.0.0.0
     cutwatch serve --source mqtt --broker mqtt://127.0.0.1:1883 --machine mill-1 \
         --publish-hz 10                  # a real machine's drive data from a broker
+    cutwatch serve --source opcua --opcua opc.tcp://cnc-7:4840 --nodes map.json \
+        --opcua-trust cnc-7.der          # a CNC's OPC UA server (docs/opcua.md)
+    cutwatch serve --source mqtt --broker mqtt://127.0.0.1:1883 --machine emps \
+        --model axis=report.json         # the residual loop's effects in the live model
 
 Options override the ``CUTWATCH_*`` environment variables. Any address other than
 loopback requires ``CUTWATCH_TOKEN`` (16 characters at least; the service refuses to
@@ -21,6 +25,7 @@ import argparse
 from typing import TYPE_CHECKING
 
 from server.cli.broker_options import add_broker_options, broker_settings
+from server.cli.opcua_options import add_opcua_options
 
 if TYPE_CHECKING:
     from server.service.settings import Settings
@@ -45,8 +50,22 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-viser", action="store_true", help="do not start the viser 3D view")
     p.add_argument(
         "--source",
-        choices=("simulator", "mqtt"),
-        help="measurements from the simulated machine (default) or a broker (--broker)",
+        choices=("simulator", "mqtt", "opcua"),
+        help="measurements from the simulated machine (default), a broker (--broker) or a "
+        "CNC's OPC UA server (--opcua, --nodes)",
+    )
+    p.add_argument("--opcua", metavar="URL", help="the CNC's OPC UA server, opc.tcp://host:port")
+    p.add_argument(
+        "--opcua-publishing",
+        type=float,
+        metavar="S",
+        help="the OPC UA subscription's publishing interval [s] (default: the map's sample "
+        "time, at least 0.1 s)",
+    )
+    p.add_argument(
+        "--nodes",
+        metavar="MAP.json",
+        help="the OPC UA node map (`cutwatch opcua browse URL` prints a starter one)",
     )
     p.add_argument(
         "--broker",
@@ -74,8 +93,18 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="add a live part (a class or factory on the Python path) to every pipeline; "
         "repeatable (CUTWATCH_PARTS; docs/adding-a-part.md)",
     )
+    p.add_argument(
+        "--model",
+        action="append",
+        metavar="[AXIS=]REPORT.json",
+        help="load the effects a residual report (cutwatch residual) selected into the live "
+        "rigid model of AXIS (default: every axis of the feed's machine); their coefficients "
+        "are identified live with M, Fv, Fc, and the dashboard shows the process force with "
+        "and without them; repeatable (CUTWATCH_MODEL; docs/live-axis.md)",
+    )
     p.add_argument("--log-level", default="warning", help="uvicorn log level")
     add_broker_options(p)
+    add_opcua_options(p)
 
 
 def build_settings(args: argparse.Namespace) -> Settings:
@@ -101,6 +130,14 @@ def build_settings(args: argparse.Namespace) -> Settings:
             "data_dir": args.data_dir,
             "history_url": args.history_url,
             "parts": ",".join(args.part) if args.part else None,
+            "opcua_url": args.opcua,
+            "opcua_nodes": args.nodes,
+            "opcua_publishing_s": args.opcua_publishing,
+            "opcua_security": None if args.opcua_security == "best" else args.opcua_security,
+            "opcua_cert": args.opcua_cert,
+            "opcua_key": args.opcua_key,
+            "opcua_trust": ",".join(str(t) for t in args.opcua_trust) or None,
+            "model": ",".join(args.model) if args.model else None,
         }.items()
         if v is not None
     }

@@ -70,6 +70,27 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="column map as in cutwatch residual, e.g. --map F_f_MEAN=Ff_mean*1.0 "
         "(columns: tool, Vb, CON.G.FREAL and the signal's _MEAN/_RMS/_MAX/_SK/_KURT)",
     )
+    p.add_argument(
+        "--method",
+        choices=("observer", "hybrid"),
+        default="observer",
+        help="observer: issue 18's per-signal observer; hybrid: issue 35's monotone state "
+        "with a map learnt across tools, every choice made inside the fold, CV+ intervals",
+    )
+    p.add_argument(
+        "--set",
+        dest="signal_set",
+        metavar="SET",
+        default="F_f",
+        help="--method hybrid: the signals read together: F_f, TV2.Z, CV3.Z, TV2.S, "
+        "drives (Z/X drive torques and currents, spindle) or all",
+    )
+    p.add_argument(
+        "--first-list",
+        action="store_true",
+        help="--method hybrid: the protocol's first candidate list (40 configurations, "
+        "faster) instead of revision 2 (176)",
+    )
     p.add_argument("--no-baselines", action="store_true", help="skip the two baselines")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
@@ -88,6 +109,8 @@ def run(args: argparse.Namespace) -> int:
 
     if not (math.isfinite(args.criterion) and args.criterion > 0):
         raise CutwatchError(f"--criterion {args.criterion}: expected a VB limit > 0 um")
+    if args.method == "hybrid":
+        return _run_hybrid(args)
     table = read_wear_table(args.table, [FEED, *signal_columns(args.signal)], args.map)
     train = parse_tools(args.train_tools, table, "--train-tools")
     test = parse_tools(args.test_tools, table, "--test-tools")
@@ -120,6 +143,75 @@ def run(args: argparse.Namespace) -> int:
         args.model.write_text(json.dumps(fitted.to_dict(), indent=2) + "\n")
     print(f"{table.path} [{SIGNALS[args.signal]}_MEAN]: {verdict(rep)}")
     print(f"wrote {args.out}/estimates.csv, report.json, report.html")
+    return 0
+
+
+def _run_hybrid(args: argparse.Namespace) -> int:
+    """Issue 35's hybrid: each test tool (default: leave one tool out) estimated by the
+    configuration its fold chose, with CV+ intervals and the four baselines."""
+    import csv
+
+    import numpy as np
+    from tqdm import tqdm
+
+    from estimators.wear_hybrid import candidates
+    from server.errors import CutwatchError
+    from server.pipeline.wear_nested import SETS, _Cache, columns_needed, run_fold, summarise
+    from server.records.wear_table import parse_tools, read_wear_table
+
+    if args.signal_set not in SETS:
+        raise CutwatchError(f"--set {args.signal_set!r}: expected one of {', '.join(SETS)}")
+    table = read_wear_table(args.table, columns_needed([args.signal_set]), args.map)
+    if not table.has_vb:
+        raise CutwatchError(
+            f"{table.path}: column 'Vb': expected measured flank wear for --method hybrid "
+            "(the map is learnt across the other tools), found none"
+        )
+    if args.train_tools is not None or args.model is not None:
+        raise CutwatchError(
+            "--method hybrid: expected --test-tools only (the other tools are the training "
+            "tools; no model file), found --train-tools or --model"
+        )
+    test = parse_tools(args.test_tools, table, "--test-tools")
+    groups = [(t,) for t in table.tools] if test is None else [tuple(test)]
+    if len(table.tools) - len(groups[0]) < 3:
+        raise CutwatchError(
+            f"{table.path}: --method hybrid: expected 3 or more training tools (the choice "
+            f"is a leave-one-tool-out over them), found {len(table.tools) - len(groups[0])}"
+        )
+    cfgs = candidates(revision=1) if args.first_list else None
+    cache = _Cache()
+    folds = []
+    for g in tqdm(groups, desc="wear folds", file=sys.stderr, disable=args.quiet):
+        folds.append(run_fold(table, args.signal_set, g, "loto" if test is None else "given",
+                              cache, configs=cfgs))  # fmt: skip
+    args.out.mkdir(parents=True, exist_ok=True)
+    with (args.out / "estimates.csv").open("w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["tool", "segment", "vb_true", "vb_est", "vb_lo", "vb_hi", "chosen"])
+        for fo in folds:
+            for r in fo.tools:
+                for k in range(len(r.vb)):
+                    w.writerow([r.tool, k, f"{r.vb[k]:.3f}", f"{r.est[k]:.3f}",
+                                f"{r.lo[k]:.3f}", f"{r.hi[k]:.3f}", fo.chosen])  # fmt: skip
+    summ = summarise(folds)
+    rep = {
+        "table": str(table.path),
+        "method": "hybrid",
+        "set": args.signal_set,
+        "time_base": "segment index (the table has no cutting time)",
+        "interval": "95 % CV+ over the training tools",
+        **summ,
+    }
+    (args.out / "report.json").write_text(json.dumps(rep, indent=2, default=float) + "\n")
+    po = next(iter(summ.values()))["pooled"]
+    ratio = po["mae"] / po["mae_linear"] if po["mae_linear"] > 0 else np.nan
+    print(
+        f"{table.path} [{args.signal_set}, hybrid]: MAE {po['mae']:.1f} um (linear "
+        f"{po['mae_linear']:.1f}, ratio {ratio:.2f}; gradient boosting {po['mae_gbr5']:.1f}; "
+        f"prior {po['mae_prior']:.1f}); 95 % interval covers {100 * po['coverage']:.0f} %"
+    )
+    print(f"wrote {args.out}/estimates.csv, report.json")
     return 0
 
 

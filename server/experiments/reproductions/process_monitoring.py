@@ -24,8 +24,14 @@ rate per hour the exact Poisson (Garwood) upper bound, a delay quantile the
 distribution-free upper bound (order statistics). A check holds only when the bound on
 the target's side meets the target.
 
+The machining centre (issue 32, :mod:`._centre_monitoring`, rows by :mod:`._centre_rows`):
+each seed simulated once at 10 kHz and exported as the CNC's trace at 5 kHz, 1 kHz and
+500 Hz, each trace watched on the spindle alone, the axes alone and both, so every
+comparison is paired; rows ``<kind>.clear.<set>.<what>_at_<rate>hz``.
+
 The full run keeps each finished case in a JSON-lines cache keyed by the hash of the code
-it depends on (:func:`cache_path`), so an interrupted run resumes.
+it depends on (:func:`cache_path`, :func:`centre_cache_path`), so an interrupted run
+resumes.
 """
 
 from __future__ import annotations
@@ -498,6 +504,68 @@ def _cases(quick: bool) -> list[Case]:
     return out
 
 
+#: the machining centre (issue 32): clear events per kind (>= 299: a 99 % lower bound with
+#: no miss) and event-free hours (>= 30: 0.1 per hour with none), each hour one case
+N_CENTRE = 300
+CENTRE_HOURS = 30
+
+
+def centre_cases(quick: bool) -> list[Any]:
+    """The machining centre's cases: every kind's events seed by seed, an event-free hour
+    after every ten seeds."""
+    from server.experiments.reproductions._centre_monitoring import CentreCase
+
+    n, hours, per = (2, 0.02, 0.02) if quick else (N_CENTRE, CENTRE_HOURS, 1.0)
+    events = [CentreCase(str(kind), s) for s in range(n) for kind in ProcessEventKind]
+    free = [CentreCase("none", s, per) for s in range(max(1, round(hours / per)))]
+    # interleaved (an event-free hour after every ten seeds' events), so that a run cut
+    # short still has every kind of row
+    out: list[Any] = []
+    step = 30
+    for i in range(max(len(free), math.ceil(len(events) / step))):
+        out += events[i * step : (i + 1) * step]
+        out += free[i : i + 1]
+    return out
+
+
+def _centre_key(r: Any) -> tuple[str, int, float]:
+    if isinstance(r, dict):
+        return (str(r["kind"]), int(r["seed"]), float(r["hours"]))
+    return (r.kind, r.seed, r.hours)
+
+
+_CENTRE_CODE = (
+    "estimators/process_monitor.py",
+    "estimators/spindle_power.py",
+    "estimators/force_observer.py",
+    "estimators/filters.py",
+    "machine",
+    "common",
+    "server/experiments/reproductions/_centre_monitoring.py",
+)
+
+
+def centre_cache_path() -> Path:
+    """The machining centre's case cache, keyed by the hash of the code its cases run."""
+    base = os.environ.get("CUTWATCH_CACHE_DIR") or str(Path.home() / ".cache" / "cutwatch")
+    return Path(base) / NAME / f"centre-{code_version(_CENTRE_CODE)}.jsonl"
+
+
+def run_centre(*, quick: bool, progress: bool) -> list[dict[str, Any]]:
+    """The machining centre's cases (the full run cached in :func:`centre_cache_path`)."""
+    from server.experiments.reproductions._centre_monitoring import run_centre_case
+
+    return run_cases(
+        centre_cases(quick),
+        progress=progress,
+        cache=None if quick else centre_cache_path(),
+        fn=run_centre_case,
+        key=_centre_key,
+        desc=f"{NAME} (machining centre)",
+        longest_first=False,
+    )
+
+
 _CODE = (
     "estimators/process_monitor.py",
     "machine",
@@ -506,11 +574,13 @@ _CODE = (
 )
 
 
-def code_version() -> str:
-    """Hash of the sources a case's outcome depends on."""
+def code_version(code: tuple[str, ...] | None = None) -> str:
+    """Hash of the sources a case's outcome depends on (default: the issue-21 machine's)."""
     root = Path(__file__).resolve().parents[3]
     h = hashlib.sha256()
-    for rel in (*_CODE, "server/experiments/reproductions/process_monitoring.py"):
+    own = "server/experiments/reproductions/process_monitoring.py"
+    rels = (*_CODE, own) if code is None else code
+    for rel in rels:
         p = root / rel
         for f in sorted(p.rglob("*.py")) if p.is_dir() else [p]:
             h.update(str(f.relative_to(root)).encode())
@@ -537,42 +607,56 @@ def _init_worker() -> None:
     warnings.simplefilter("ignore")
 
 
-def run_cases(cases: list[Case], *, progress: bool, cache: Path | None) -> list[dict[str, Any]]:
-    """Run the cases on :data:`WORKERS` processes, resuming from ``cache``."""
+def run_cases(
+    cases: list[Any],
+    *,
+    progress: bool,
+    cache: Path | None,
+    fn: Any = None,
+    key: Any = None,
+    desc: str = NAME,
+    longest_first: bool = True,
+) -> list[dict[str, Any]]:
+    """Run the cases on :data:`WORKERS` processes, resuming from ``cache`` (``fn`` runs a
+    case, default :func:`run_case`; ``key`` names a case or a result, default the
+    issue-21 machine's)."""
     from tqdm import tqdm
 
-    done: dict[tuple[str, str, int, float], dict[str, Any]] = {}
+    fn = run_case if fn is None else fn
+    key = _ckey if key is None else key
+    done: dict[Any, dict[str, Any]] = {}
     if cache is not None and cache.is_file():
         for line in cache.read_text().splitlines():
             try:
                 r = json.loads(line)
-                done[_ckey(r)] = r
+                done[key(r)] = r
             except (ValueError, KeyError, TypeError):
                 continue  # a line cut short by an interrupted run
-    results = [done[_ckey(c)] for c in cases if _ckey(c) in done]
-    todo = [c for c in cases if _ckey(c) not in done]
-    # the long event-free cases first, so the two workers finish together
-    todo.sort(key=lambda c: -c.hours)
+    results = [done[key(c)] for c in cases if key(c) in done]
+    todo = [c for c in cases if key(c) not in done]
+    if longest_first:
+        # the long event-free cases first, so the two workers finish together
+        todo.sort(key=lambda c: -c.hours)
     sink = None
     if cache is not None:
         cache.parent.mkdir(parents=True, exist_ok=True)
         sink = cache.open("a")
         sink.write("\n")  # after an interrupted run's cut line
         if results and progress:
-            print(f"{NAME}: {len(results)} cases from {cache}", file=sys.stderr)
+            print(f"{desc}: {len(results)} cases from {cache}", file=sys.stderr)
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     try:
         with tqdm(
-            total=len(todo), desc=NAME, unit="case", disable=not progress or not todo, leave=False
+            total=len(todo), desc=desc, unit="case", disable=not progress or not todo, leave=False
         ) as bar:
             if len(todo) <= 1:
-                it = map(run_case, todo)
+                it = map(fn, todo)
                 for r in it:
                     results.append(r)
                     bar.update(1)
             else:
                 with mp.get_context("spawn").Pool(WORKERS, initializer=_init_worker) as pool:
-                    for r in pool.imap_unordered(run_case, todo, chunksize=1):
+                    for r in pool.imap_unordered(fn, todo, chunksize=1):
                         results.append(r)
                         if sink is not None:
                             sink.write(json.dumps(r) + "\n")
@@ -992,9 +1076,14 @@ def run(
 
     The full run keeps every finished case in :func:`cache_path` and resumes from it.
     """
+    from server.experiments.reproductions import _centre_rows
+
     results = run_cases(_cases(quick), progress=progress, cache=None if quick else cache_path())
     rep = build(results)
+    centre = run_centre(quick=quick, progress=progress)
+    _centre_rows.centre_rows(rep, centre)
     if plot_dir is not None:
         rep.figures.append(_plot(results, plot_dir))
         rep.figures.append(example_figure(plot_dir))
+        rep.figures.append(_centre_rows.plot(centre, plot_dir))
     return rep

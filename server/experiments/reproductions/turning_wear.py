@@ -34,7 +34,8 @@ from server.experiments.reproduction import Check, Reproduction, Row
 NAME = "turning-wear"
 SOURCE = (
     "issue 18 item 1: seed 004 (Danai & Ulsoy) on Vicomtech's turning tool-wear data "
-    "(CC BY-SA 4.0); baselines: linear on _MEAN, gradient boosting on 5 features"
+    "(CC BY-SA 4.0); baselines: linear on _MEAN, gradient boosting on 5 features; "
+    "issue 35 (rows unseen.*): the nested evaluation on tools never seen"
 )
 SIGNALS = ("feed_force", "drive_torque", "drive_current")
 SIZES = (1, 2, 4, 8)
@@ -299,15 +300,20 @@ def run(
     cols = [FEED, "TV2.X_MEAN"] + [c for s in SIGNALS for c in signal_columns(s)]
     table = read_wear_table(data_path(), cols)
     tools = [t for t in table.tools if t in QUICK_TOOLS] if quick else list(table.tools)
+    from server.experiments.reproductions import turning_wear_unseen as unseen
+
     rep = Reproduction(NAME, SOURCE)
     total = len(sigs) * (len(tools) + (2 * 2 if quick else len(SIZES) * DRAWS))
+    total += unseen.total(quick, len(table.tools))
     with tqdm(total=total, desc=NAME, disable=not progress, leave=False) as bar:
         for sig in sigs:
             rows, checks, s = _signal_section(table, sig, tools, quick, bar)
             rep.add((rows, checks))
             if plot_dir is not None:
                 rep.figures.append(_plot(plot_dir, table, sig, s))
-    rep.add((_physics(table, tools) + _life_limits(table, tools), []))
+        rep.add((_physics(table, tools) + _life_limits(table, tools), []))
+        # issue 35: tools never seen, every choice inside the fold
+        rep.add(unseen.section(data_path(), quick, bar))
     return rep
 
 

@@ -1,5 +1,7 @@
-"""``POST /api/replay`` (a measured log through the live observers) and the identified
-observer effects (``GET``/``POST``/``DELETE /api/observer-effects``)."""
+"""``POST /api/replay`` (a measured log through the live observers), the identified
+observer effects (``GET``/``POST``/``DELETE /api/observer-effects``) and the residual
+report's effects in the axes' live rigid models (``GET``/``POST``/``DELETE
+/api/axis-model``)."""
 
 from __future__ import annotations
 
@@ -15,6 +17,8 @@ from server.service.datafiles import find_log, find_report, refuse_path, scrub
 from server.service.deps import Authorised, Config, LiveEffects, Store
 from server.service.http_errors import FieldError
 from server.service.schemas import (
+    AxisModelBody,
+    AxisModels,
     Effects,
     EffectsBody,
     EffectsInstalled,
@@ -107,6 +111,58 @@ def post_effects(body: EffectsBody, lp: LiveEffects, st: Store) -> EffectsInstal
 def delete_effects(lp: LiveEffects) -> Effects:
     lp.set_observer_effects(())
     return Effects(observer_effects=[])
+
+
+@router.get("/axis-model", summary="the report's effects in the axes' live models",
+            response_model=AxisModels)  # fmt: skip
+def get_axis_model(lp: LiveEffects) -> AxisModels:
+    axes, t = lp.axis_effects()
+    return AxisModels(axes=axes, t=t)
+
+
+@router.post(
+    "/axis-model",
+    summary="load a rigid residual report's effects into an axis' live model (by name, or "
+    "the report): their coefficients identified live with M, Fv, Fc",
+    dependencies=[Authorised],
+    response_model=AxisModels,
+    responses=error_responses(413, 422),
+)
+def post_axis_model(body: AxisModelBody, lp: LiveEffects, st: Store) -> AxisModels:
+    from server.errors import LogFormatError
+    from server.pipeline.axis_part import ALL_AXES
+    from server.records.residual_report import live_effects
+
+    if (body.name is None) == (body.report is None):
+        raise FieldError(
+            "body",
+            "exactly one of 'name' or 'report'",
+            "both" if body.name is not None else "neither",
+            "expected one of 'name' (a residual report's name) or 'report' (its JSON)",
+        )
+    rep: Any = body.report
+    if body.name is not None:
+        rep = json.loads(find_report(st, body.name).read_text())
+    try:
+        effects = tuple(live_effects(rep, "report"))
+    except LogFormatError as exc:
+        raise FieldError("report", "a rigid residual report", body.name, str(exc)) from None
+    lp.set_axis_effects({body.axis or ALL_AXES: effects})
+    axes, t = lp.axis_effects()
+    return AxisModels(axes=axes, t=t)
+
+
+@router.delete(
+    "/axis-model",
+    summary="the axes' live models without any report's effects",
+    dependencies=[Authorised],
+    response_model=AxisModels,
+    responses=error_responses(),
+)
+def delete_axis_model(lp: LiveEffects) -> AxisModels:
+    lp.set_axis_effects({})
+    axes, t = lp.axis_effects()
+    return AxisModels(axes=axes, t=t)
 
 
 def _effects_json(effects: Any) -> list[dict[str, Any]]:

@@ -12,7 +12,7 @@ from common.jsonsafe import json_safe
 from server.pipeline.live_pipeline import SCENARIOS
 from server.service.deps import Config, Live
 from server.service.http_guard import DROPPED
-from server.service.schemas import Health, Scenarios, Snapshot, error_responses
+from server.service.schemas import Health, Machine, Scenarios, Snapshot, error_responses
 
 router = APIRouter(responses=error_responses())
 
@@ -21,10 +21,12 @@ router = APIRouter(responses=error_responses())
 def health(lp: Live, s: Config) -> Health:
     h = lp.health()
     parts = lp.parts()
-    status = "ok" if all(p["running"] for p in parts) else "degraded"
+    idle = lp.idle()
+    status = "idle" if idle else "ok" if all(p["running"] for p in parts) else "degraded"
     return Health.model_validate(
         {
             "status": status if lp.running else "error",
+            "idle": idle,
             "parts": parts,
             "loop_error": lp.error,
             "viser_port": s.viser_port,
@@ -39,6 +41,16 @@ def health(lp: Live, s: Config) -> Health:
 @router.get("/api/scenarios", summary="the scenarios the loop can run", response_model=Scenarios)
 def scenarios(lp: Live) -> Scenarios:
     return Scenarios(current=lp.scenario, scenarios=dict(SCENARIOS))
+
+
+@router.get(
+    "/api/machine",
+    summary="the machine the source delivers (axes, spindle, rate, description) and its parts",
+    response_model=Machine,
+    tags=["machine"],
+)
+def machine(lp: Live) -> Machine:
+    return Machine.model_validate(json_safe(lp.machine_info()))
 
 
 @router.get(
@@ -165,7 +177,7 @@ def metrics(lp: Live) -> PlainTextResponse:
 def _accuracy_lines(acc: dict[str, Any]) -> list[str]:
     """``cutwatch_force_error_rms{estimate, window, against}``: the rolling rms of each
     force estimate (``against`` = ``truth``, ``q_truth`` (the Q(s)-filtered true force) or
-    ``mean_of_estimates`` without truth); the Q filter's own error as the estimate
+    ``measured_force``; nothing without a reference); the Q filter's own error as the estimate
     ``q_filtered_truth`` against ``truth``. Unknown values (no data yet) are left out."""
     name = "cutwatch_force_error_rms"
     lines = [
@@ -174,7 +186,9 @@ def _accuracy_lines(acc: dict[str, Any]) -> list[str]:
     ]
     wins = [f"{w:g}s" for w in acc["windows"]]
     truth = acc["mode"] == "truth"
-    series = [(acc["rms"], "truth" if truth else "mean_of_estimates")]
+    if acc["mode"] == "none":
+        return lines
+    series = [(acc["rms"], str(acc["mode"]))]
     if truth:
         series += [(acc["rms_q"], "q_truth"), ({"q_filtered_truth": acc["floor"]}, "truth")]
     for table, against in series:

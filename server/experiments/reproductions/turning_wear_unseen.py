@@ -1,0 +1,249 @@
+"""Wear on tools never seen (issue 35): the nested evaluation's rows and checks for
+``cutwatch reproduce turning-wear``.
+
+Per signal set and outer protocol (leave one tool out; leave k = 2, 3, 4 tools out, 10
+splits each): the hybrid's MAE (median and range over the splits) beside each baseline's,
+the ratios to the baselines per split, coverage and width of the CV+ intervals; on
+leave-one-tool-out also MAE at the measured VB points, per cutting-condition group,
+the tools entered part-way, the remaining life at half-life and the configurations the
+folds chose. Checks (the issue's targets) on leave-one-tool-out pooled over the nine
+tools, for the feed force and the drive signals. ``quick``: the feed force, two tools
+left out one at a time, the protocol's first candidate list (40 configurations); its
+checks are computed the same way and not expected to hold.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from server.experiments.reproduction import Check, Row
+
+#: the signal sets the targets are checked on (the feed force, the drive signals)
+CHECKED = ("F_f", "TV2.Z", "CV3.Z", "drives")
+QUICK_SETS = ("F_f",)
+QUICK_TOOLS = (7, 16)
+TARGET_RATIO = 0.75
+TARGET_COVERAGE = 0.90
+TARGET_TOOL_COVERAGE = 0.75
+TARGET_TOOLS = 0.75
+TARGET_WIDTH = 6.0
+TARGET_LIFE = 0.25
+
+
+def _rng(d: dict[str, float]) -> str:
+    return f"{d['median']:.3g} ({d['min']:.3g}-{d['max']:.3g})"
+
+
+def protocol_rows(s: str, p: str, v: dict[str, Any]) -> list[Row]:
+    """The distribution over the splits of one protocol."""
+    n = v["splits"]
+    pre = f"unseen.{s}.{p}"
+    cond = (
+        f"{n} splits, median (range) over them; linear {_rng(v['mae_linear'])}, "
+        f"gbr5 {_rng(v['mae_gbr5'])}, gbr_same {_rng(v['mae_gbr_same'])}, "
+        f"prior {_rng(v['mae_prior'])}; ours {_rng(v['mae'])}"
+    )
+    rows = [
+        Row(f"{pre}.mae", v["mae"]["median"], v["mae_linear"]["median"], "um", cond),
+        Row(
+            f"{pre}.mae_knots",
+            v["mae_knots"]["median"],
+            v["mae_knots_linear"]["median"],
+            "um",
+            f"at the measured VB points; paper = linear; ours {_rng(v['mae_knots'])}",
+        ),
+    ]
+    for b, target in (("linear", TARGET_RATIO), ("gbr5", 1.0), ("gbr_same", 1.0), ("prior", 1.0)):
+        rows.append(
+            Row(
+                f"{pre}.ratio_{b}",
+                v[f"ratio_{b}"]["median"],
+                target,
+                "",
+                f"MAE / {b}'s per split, range {v[f'ratio_{b}']['min']:.2f}-"
+                f"{v[f'ratio_{b}']['max']:.2f}; paper = target",
+            )
+        )
+    rows += [
+        Row(
+            f"{pre}.coverage",
+            v["coverage"]["median"],
+            TARGET_COVERAGE,
+            "",
+            f"CV+ 95 % over tools, range {v['coverage']['min']:.2f}-{v['coverage']['max']:.2f}",
+        ),
+        Row(f"{pre}.width", v["width"]["median"], None, "um", f"median width {_rng(v['width'])}"),
+        Row(
+            f"{pre}.tools_beat_linear",
+            v["tools_beat_linear"],
+            TARGET_TOOLS,
+            "",
+            "fraction of test tools (over all splits) where ours < linear",
+        ),
+        Row(
+            f"{pre}.tools_cov75",
+            v["tools_cov75"],
+            TARGET_TOOLS,
+            "",
+            "fraction of test tools with coverage >= 0.75",
+        ),
+    ]
+    return rows
+
+
+def loto_rows(s: str, v: dict[str, Any]) -> list[Row]:
+    """Leave-one-tool-out extras: pooled, per tool, groups, entry, life, choices."""
+    pre = f"unseen.{s}.loto"
+    po = v["pooled"]
+    rows = [
+        Row(
+            f"{pre}.pooled.mae",
+            po["mae"],
+            po["mae_linear"],
+            "um",
+            f"all rows of the nine tools; paper = linear; gbr5 {po['mae_gbr5']:.1f}, "
+            f"gbr_same {po['mae_gbr_same']:.1f}, prior {po['mae_prior']:.1f}",
+        ),
+        Row(
+            f"{pre}.pooled.mae_knots",
+            po["mae_knots"],
+            po["mae_knots_linear"],
+            "um",
+            f"measured VB points only; gbr5 {po['mae_knots_gbr5']:.1f}, "
+            f"prior {po['mae_knots_prior']:.1f}",
+        ),
+        Row(f"{pre}.pooled.coverage", po["coverage"], 0.95, "", "paper = nominal"),
+        Row(f"{pre}.pooled.width_over_mae", po["width"] / po["mae"], TARGET_WIDTH, "", ""),
+    ]
+    for t in v["per_tool"]:
+        rows.append(
+            Row(
+                f"{pre}.tool.{t['tool']}.mae",
+                t["mae"],
+                t["mae_linear"],
+                "um",
+                f"paper = linear; gbr5 {t['mae_gbr5']:.1f}, prior {t['mae_prior']:.1f}; "
+                f"coverage {t['coverage']:.2f}, width {t['width']:.0f} um",
+            )
+        )
+    for g in ("other", "main"):
+        if f"group_{g}" in v:
+            gv = v[f"group_{g}"]
+            who = "tools 3, 5, 16" if g == "other" else "the other tools"
+            rows.append(
+                Row(
+                    f"{pre}.group_{g}.mae",
+                    gv["mae"],
+                    gv["mae_linear"],
+                    "um",
+                    f"{who}, mean of per-tool MAE; paper = linear; gbr5 {gv['mae_gbr5']:.1f}",
+                )
+            )
+    rows += [
+        Row(
+            f"{pre}.entry.record",
+            v["entry_record"],
+            None,
+            "um",
+            "tools entered a third into their life with their record (VB at entry)",
+        ),
+        Row(
+            f"{pre}.entry.no_record",
+            v["entry_no_record"],
+            None,
+            "um",
+            "the same with no record: starts from a fresh tool's prior",
+        ),
+        Row(
+            f"{pre}.life_error",
+            v["life_error"],
+            TARGET_LIFE,
+            "",
+            f"median |pred - true end| / remaining life at half-life, {v['life_tools']} "
+            "tools (300 um, 150 um if never 300); paper = target",
+        ),
+    ]
+    for i, (c, n) in enumerate(v["chosen"].items()):
+        rows.append(Row(f"{pre}.chosen.{i}", n, None, "folds", c))
+    return rows
+
+
+def checks(s: str, v: dict[str, Any]) -> list[Check]:
+    """The issue's targets on leave-one-tool-out, pooled over the tools."""
+    po = v["pooled"]
+    pre = f"unseen.{s}"
+    gb = min(po["mae_gbr5"], po["mae_gbr_same"])
+    return [
+        Check(
+            f"{pre}.mae_vs_linear",
+            po["mae"] / po["mae_linear"] <= TARGET_RATIO,
+            po["mae"] / po["mae_linear"],
+            TARGET_RATIO,
+        ),
+        Check(f"{pre}.mae_vs_gbr", po["mae"] / gb <= 1.0, po["mae"] / gb, 1.0),
+        Check(
+            f"{pre}.mae_vs_prior",
+            po["mae"] / po["mae_prior"] <= 1.0,
+            po["mae"] / po["mae_prior"],
+            1.0,
+        ),
+        Check(
+            f"{pre}.tools_beat_linear",
+            v["tools_beat_linear"] >= TARGET_TOOLS,
+            v["tools_beat_linear"],
+            TARGET_TOOLS,
+        ),
+        Check(
+            f"{pre}.coverage", po["coverage"] >= TARGET_COVERAGE, po["coverage"], TARGET_COVERAGE
+        ),
+        Check(
+            f"{pre}.tools_cov75",
+            v["tools_cov75"] >= TARGET_TOOL_COVERAGE,
+            v["tools_cov75"],
+            TARGET_TOOL_COVERAGE,
+        ),
+        Check(
+            f"{pre}.width_over_mae",
+            po["width"] / po["mae"] <= TARGET_WIDTH,
+            po["width"] / po["mae"],
+            TARGET_WIDTH,
+        ),
+        Check(f"{pre}.life_at_half", v["life_error"] <= TARGET_LIFE, v["life_error"], TARGET_LIFE),
+    ]
+
+
+def section(path: Any, quick: bool, bar: Any) -> tuple[list[Row], list[Check]]:
+    """Run the nested evaluation and turn it into rows and checks."""
+    from estimators.wear_hybrid import candidates
+    from server.pipeline.wear_nested import SETS, evaluate, load, outer_splits, summarise
+
+    sets = QUICK_SETS if quick else tuple(SETS)
+    table = load(path, sets)
+    splits = [("loto", (t,)) for t in QUICK_TOOLS] if quick else outer_splits(table.tools)
+    res = evaluate(
+        table,
+        sets,
+        splits,
+        configs=candidates(revision=1) if quick else None,
+        progress=bar.update,
+    )
+    rows: list[Row] = []
+    chk: list[Check] = []
+    for s in sets:
+        summ = summarise(res[s])
+        for p, v in summ.items():
+            rows += protocol_rows(s, p, v)
+            if p == "loto":
+                rows += loto_rows(s, v)
+                if s in CHECKED:
+                    chk += checks(s, v)
+    return rows, chk
+
+
+def total(quick: bool, n_tools: int) -> int:
+    """Progress-bar steps (one per outer split and set)."""
+    from server.pipeline.wear_nested import K_OUT, SETS, SPLITS_PER_K
+
+    if quick:
+        return len(QUICK_SETS) * len(QUICK_TOOLS)
+    return len(SETS) * (n_tools + len(K_OUT) * SPLITS_PER_K)
