@@ -414,6 +414,7 @@ function showStatus(st) {
   set("strip-wearlimit", v.wearLimit);
   const group = $("strip-weargroup");
   if (group.dataset.apart !== String(v.wearApart)) group.dataset.apart = String(v.wearApart);
+  if (group.hidden === v.wearKnown) group.hidden = !v.wearKnown;
   set("strip-life", v.life);
   set("strip-where", v.where);
   set("strip-unacked", v.unackedText);

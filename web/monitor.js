@@ -59,6 +59,9 @@ export function statusView(status, latest = null) {
     // the wear group: whose tool (a title when it is not the spindle's), its number
     wearOf: apart ? `tool wear · ${s.wear_of}` : "tool wear",
     wearApart: apart,
+    // a machine with no wear model (no tool, no share, no life): the wear tiles hidden
+    wearKnown: Boolean(s.wear_tool) || num(s.wear_share, 3) !== null
+      || num(s.life_left_min, 1) !== null,
     wearTool: apart ? toolText(s.wear_tool, false) : toolText(s.wear_tool || s.tool),
     wear: wear === null ? dash : `${wear} %`,
     wearLimit: lim === null ? "" : `of ${lim} mm` + (at === null ? "" : ` · alarm at ${at} %`),

@@ -195,8 +195,11 @@ def measure_against(
     quick: bool,
     options: Options | None = None,
     progress: Callable[[str], None] | None = None,
+    commit: str | None = None,
 ) -> Comparison:
-    """``group`` on this tree and on commit ``ref``'s code, in turn (module doc).
+    """``group`` on this tree and on commit ``ref``'s code, in turn (module doc);
+    ``commit``: the commit ``ref`` was resolved to once for every group of a run (a branch
+    that moves during a long run must not give the groups different "before" trees).
 
     Raises
     ------
@@ -205,7 +208,7 @@ def measure_against(
     """
     opts = options or {}
     say = progress or (lambda m: print(m, file=sys.stderr, flush=True))
-    sha = commit_of(ref)
+    sha = commit or commit_of(ref)
     with tempfile.TemporaryDirectory(prefix="cutwatch-bench-before-") as d:
         trees = {"before": unpack(sha, Path(d)), "after": ROOT}
         path = Path("server/experiments/benchmarks") / f"{module_name(group)}.py"

@@ -6,9 +6,9 @@ source without them: its measurements by role): per axis ``<axis>.M``, ``.Fv``,
 ``.Fc``, ``.offset`` with their 95 % Newey-West intervals (``_lo``, ``_hi``) and
 excitation (``_excited``), the friction of each direction, and the process force
 ``<axis>.F`` (the effort less the identified model) with its standard uncertainty
-``<axis>.F_sd``. It is built for a live feed (its meta describes the machine), not for
-the simulator's stage nor a replayed log (one two-inertia axis with its nominal, which
-the stage part's observers watch: their streams stay as they were).
+``<axis>.F_sd``. It is built for a described machine (a feed's meta), not for the
+simulator's stage nor for a machine whose every axis is two-inertia with its nominal
+(the stage part's observers watch it, and it streams the same fed or replayed).
 
 What it does not run, and why (the mass at 10 Hz without an exported acceleration, an
 effect a live model cannot hold), is :meth:`AxisPart.notes`, per axis; the pipeline's

@@ -145,6 +145,46 @@ class CentreSource:
         )
         return SourceBlock(meas, columns=meas_cols)
 
+    def inject(
+        self,
+        kind: str,
+        size: float | None = None,
+        at_t: float | None = None,
+        at_part: int | None = None,
+    ) -> dict[str, object]:
+        """Schedule an event in the centre's part program: ``kind`` one of breakage,
+        collision, missing_tool, of ``size`` (default
+        :data:`server.pipeline.centre_feed.EVENT_SIZES`: a broken tooth of 0.3 mm, a
+        collision at 3x the feed, the tool lost whole), in the middle of the first cut of
+        part ``at_part`` (default: the next part). A time (``at_t``) is not offered on
+        the centre. Returns what was scheduled.
+
+        Raises
+        ------
+        ParameterError
+            An unknown kind, a size not positive, a time, a part already begun.
+        """
+        from common.errors import ParameterError
+        from machine.process import EVENT_KINDS, ProcessEvent
+        from server.pipeline.centre_feed import EVENT_SIZES
+
+        if kind not in EVENT_KINDS:
+            raise ParameterError("kind", "one of " + ", ".join(EVENT_KINDS), kind)
+        if at_t is not None:
+            raise ParameterError("at_t", "none on the machining centre (give at_part)", at_t)
+        size = EVENT_SIZES[kind] if size is None else size
+        if isinstance(size, bool) or not isinstance(size, int | float) or not size > 0:
+            raise ParameterError("size", "a positive size", size)
+        first = int(self._state.part) + 1
+        part = first if at_part is None else at_part
+        if isinstance(part, bool) or not isinstance(part, int) or part < first:
+            raise ParameterError("at_part", f"a part number >= {first}", at_part)
+        line = next(b.line for b in self.machine.program.blocks if b.cut is not None)
+        ev = ProcessEvent(kind, part, line, 0.5, float(size), 0)
+        self._state = self.machine.schedule(self._state, ev)
+        return {"kind": kind, "size": float(size), "at_part": part, "line": line,
+                "where": "the middle of that part's first cut"}  # fmt: skip
+
     def reconfigure(self, **changes: object) -> None:
         """The knobs do not drive the centre (``knobs_apply`` False): nothing changes."""
 

@@ -1,16 +1,18 @@
-"""The spindle as a CNC's OPC UA server reports it, as a live part.
+"""The spindle drive's raw signals as a CNC's OPC UA server reports them, as a live part.
 
 For the OPC UA source (issue 33), whose blocks carry every signal of its machine
 description by node id (``SourceBlock.columns``), :class:`CncPart` streams the spindle's
-signals as the CNC gives them, in the description's units: ``spindle.speed`` [rpm],
-``spindle.speed_cmd``, ``spindle.power`` [W], ``spindle.torque`` [N m],
-``spindle.current`` [A], ``spindle.load`` [%], on the operator's page. The axes are the
-``axes`` part's (:mod:`server.pipeline.axis_part`).
+signals the ``spindle`` part (:mod:`server.pipeline.spindle_part`: speed, power and the
+cutting power over the taught idle power) does not, as the CNC gives them, in the
+description's units: ``spindle.speed_cmd`` [rpm], ``spindle.torque`` [N m],
+``spindle.current`` [A], ``spindle.load`` [%]; torque and current drawn on a research
+chart. The axes are the ``axes`` part's (:mod:`server.pipeline.axis_part`).
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 
@@ -20,12 +22,14 @@ from server.pipeline.part import Block, Channel, Chart, LivePart, Outputs
 
 __all__ = ["SPINDLE", "CncPart"]
 
-SPINDLE = Chart("cnc-spindle", "Spindle (as the CNC reports it)", page="operator", order=20)
+SPINDLE = Chart("cnc-spindle", "Spindle drive as the CNC reports it: torque, current", order=20)
 _LABELS = {"speed": "spindle speed", "speed_cmd": "commanded spindle speed",
            "power": "spindle power", "torque": "spindle torque", "current": "spindle current",
            "load": "spindle load"}  # fmt: skip
-#: the signals drawn on the chart (the others are streamed, not drawn: other units)
-_DRAWN = ("speed", "speed_cmd")
+#: the spindle part's signals (not streamed again here)
+_SPINDLE_PART = ("speed", "power")
+#: the signals drawn on the chart (the others are streamed, not drawn)
+_DRAWN = ("torque", "current")
 
 
 class CncPart(LivePart):
@@ -35,13 +39,17 @@ class CncPart(LivePart):
 
     def __init__(self, machine: MachineDescription) -> None:
         sp = machine.spindle
-        self.sources = {} if sp is None else dict(sp.signals)
+        self.sources = {} if sp is None else {
+            r: src for r, src in sp.signals.items() if r not in _SPINDLE_PART
+        }  # fmt: skip
         chans = {
             r: Channel(f"spindle.{r}", sp.unit(r), _LABELS[r], f"spindle.{r}", legend=_LABELS[r])
             for r in self.sources
             if sp is not None
         }
-        drawn = SPINDLE.series(*(chans[r] for r in _DRAWN if r in chans))
+        drawn = SPINDLE.series(
+            *(replace(chans[r], axis="A" if r == "current" else "") for r in _DRAWN if r in chans)
+        )
         self.charts = (SPINDLE,) if drawn else ()
         self.channels = (*drawn, *(c for r, c in chans.items() if r not in _DRAWN))
 

@@ -864,6 +864,9 @@ class LivePipeline:
             a part already under way, both a time and a part; or a scenario without a
             part program.
         """
+        centre = getattr(self.source, "inject", None)
+        if self.part("process") is None and callable(centre):
+            return dict(centre(kind, size, at_t, at_part))  # the machining centre's program
         proc = self._process("kind")
         return proc.live.inject(kind, size, at_t, at_part)
 

@@ -25,7 +25,7 @@ from typing import Any
 from common.machine_description import AxisDescription, MachineDescription
 from server.pipeline.sources import NOMINAL, MeasurementSource
 
-__all__ = ["SIGNALS", "AxisView", "MachineView", "description_of"]
+__all__ = ["SIGNALS", "AxisView", "MachineView", "description_of", "has_prior"]
 
 #: the signals of the simulated stage's one axis (two-inertia, with its reference force)
 SIGNALS = frozenset({"tau_m", "i_m", "q_m", "q_l", "f_ext"})
@@ -129,7 +129,7 @@ class MachineView:
             idents: frozenset[str] = frozenset()
         else:
             axes = tuple(
-                AxisView(a.name, a.kind, frozenset(a.signals), _has_prior(a)) for a in desc.axes
+                AxisView(a.name, a.kind, frozenset(a.signals), has_prior(a)) for a in desc.axes
             )
             spindle = frozenset(desc.spindle.signals) if desc.spindle is not None else frozenset()
             idents = frozenset(desc.identities)
@@ -145,7 +145,7 @@ class MachineView:
         )
 
 
-def _has_prior(ax: AxisDescription) -> bool:
+def has_prior(ax: AxisDescription) -> bool:
     """The axis' nominal gives every two-inertia parameter (K_t its own key or the nominal's)."""
     have = set(ax.nominal) | ({"K_t"} if ax.K_t is not None else set())
     return all(k in have for k in NOMINAL)

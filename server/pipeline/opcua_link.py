@@ -64,6 +64,11 @@ POLICIES = ("Aes256_Sha256_RsaPss", "Aes128_Sha256_RsaOaep", "Basic256Sha256")
 _URI = "http://opcfoundation.org/UA/SecurityPolicy#"
 #: the environment variables of the user and password
 USER_ENV, PASSWORD_ENV = "CUTWATCH_OPCUA_USER", "CUTWATCH_OPCUA_PASSWORD"
+#: a request's timeout, and the interval of the client's watchdog (it reads the server's
+#: state; no answer within the timeout: the connection is lost) [s]. Generous: a CNC's
+#: server busy with its machine (or a loaded host) answers late, and a connection
+#: dropped for that loses the samples until the next one
+TIMEOUT_S, WATCHDOG_S = 10.0, 5.0
 #: the backoff between connection attempts [s]
 BACKOFF_S = (0.5, 5.0)
 
@@ -347,9 +352,9 @@ async def open_client(url: str, security: OpcuaSecurity, info: LinkInfo | None =
     from asyncua.crypto import security_policies as sp
 
     info = info if info is not None else LinkInfo()
-    probe = Client(url, timeout=4)
+    probe = Client(url, timeout=TIMEOUT_S)
     ep = choose_endpoint(await probe.connect_and_get_server_endpoints(), security)
-    client = Client(url, timeout=4, watchdog_intervall=1.0)
+    client = Client(url, timeout=TIMEOUT_S, watchdog_intervall=WATCHDOG_S)
     client.application_uri = "urn:cutwatch:opcua-client"
     pol = ep.SecurityPolicyUri.rsplit("#", 1)[-1]
     info.policy = f"{pol}/{ep.SecurityMode.name}"

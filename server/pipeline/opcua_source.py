@@ -50,9 +50,8 @@ from server.records.opcua_map import NodeMap, eu_factor
 
 __all__ = ["QUIET_S", "OpcuaOptions", "OpcuaSource"]
 
-#: how much longer than a publishing and a sampling interval the grid waits before it
-#: holds the values of a feed that went quiet [s]
-QUIET_S = 1.0
+#: how long a feed must say nothing at all before the grid holds its values [s]
+QUIET_S = 2.0
 
 
 @dataclass(frozen=True)
@@ -112,6 +111,7 @@ class OpcuaSource(ConfiguredSource):
         self._taken = 0
         self._offset = -math.inf  # server clock - our clock, estimated from arrivals
         self._newest = -math.inf
+        self._last_arrival: float | None = None  # wall time the last sample arrived
         self._connects = 0
         self._resumed = False
         self.latency: list[float] = []  # arrival - server time of the newest sample [s]
@@ -216,6 +216,7 @@ class OpcuaSource(ConfiguredSource):
                 continue
             self._offset = max(self._offset, ts - wall)
             self._newest = max(self._newest, ts)
+            self._last_arrival = wall
             self.latency.append(wall - ts)
             if isinstance(val, str):  # a program's name, a block "N120": its number
                 self.text[name] = val
@@ -231,14 +232,18 @@ class OpcuaSource(ConfiguredSource):
 
     def _watermark(self) -> float:
         """The server time every sample up to which has arrived: the newest timestamp
-        less a publishing and a sampling interval; in a quiet spell (nothing changed) the
-        server's clock, estimated from the arrivals, less that and :data:`QUIET_S` more
-        (a busy machine's late deliveries must not pass for silence)."""
+        less a publishing and a sampling interval. When nothing at all has arrived for
+        :data:`QUIET_S` (the machine stands still: a subscription reports changes only),
+        the grid goes on from the newest timestamp at the pace of the wall clock, holding
+        the values; a server or a client stalled for less than that is waited for, so its
+        late deliveries are not taken for silence."""
         margin = self.link.publishing_s + self.description.sample_time
-        if not self.link.info.state.startswith("connected"):
-            return self._newest - margin  # nothing more arrives: no quiet-spell clock
-        clock = time.time() + self._offset if math.isfinite(self._offset) else -math.inf
-        return max(self._newest, clock - QUIET_S) - margin
+        wm = self._newest - margin
+        if self.link.info.state.startswith("connected") and self._last_arrival is not None:
+            quiet = time.time() - self._last_arrival
+            if quiet > QUIET_S:
+                wm = max(wm, self._newest + quiet - QUIET_S - margin)
+        return wm
 
     def step(self, n: int) -> SourceBlock:
         if self.needs_rebuild:

@@ -17,8 +17,8 @@ eccentricity   seed 003's milling tool and its tuner           server/pipeline/e
 process        the part program and the process monitor        server/pipeline/process_part.py
 axes           every axis of a described machine, rigid, live  server/pipeline/axis_part.py
 spindle        a spindle's cutting power over its taught idle  server/pipeline/spindle_part.py
-cnc            the spindle as a CNC's OPC UA server reports    server/pipeline/cnc_part.py
-               it (the opcua source)
+cnc            the spindle drive's raw signals the spindle     server/pipeline/cnc_part.py
+               part does not stream (the opcua source)
 =============  ==============================================  =========================
 
 More parts come after these, in the order they were added: :func:`register` (in
@@ -174,11 +174,13 @@ def _spindle(c: BuildContext) -> Part | None:
 
 def _axes(c: BuildContext) -> Part | None:
     from server.pipeline.axis_part import AxisPart
-    from server.pipeline.machine_view import description_of
+    from server.pipeline.machine_view import description_of, has_prior
 
     desc = description_of(c.source)
-    if desc is None or c.source.knobs_apply or c.source.name == "replay":
-        return None  # one two-inertia axis with its nominal: the stage part's observers
+    if desc is None or c.source.knobs_apply:
+        return None  # the simulator's stage: its observers are the stage part's
+    if all(a.kind == "two_inertia" and has_prior(a) for a in desc.axes):
+        return None  # the stage part's machine, fed or replayed alike (the same streams)
     return AxisPart(desc, c.axis_effects)
 
 
@@ -189,7 +191,8 @@ def _cnc(c: BuildContext) -> Part | None:
     desc = description_of(c.source)
     if desc is None or desc.spindle is None or c.source.name != "opcua":
         return None
-    return CncPart(desc)
+    part = CncPart(desc)
+    return part if part.sources else None  # nothing beside the spindle part's signals
 
 
 #: cutwatch's own parts, by name, in the order they run (module docstring)

@@ -2,20 +2,21 @@
 
 The server of the tests' own: its node names, its units (mm, 1/min, kW), Basic256Sha256
 SignAndEncrypt. The source must take the server's samples on the grid of the sampling
-interval it revised, convert the engineering units, lose none, refuse an untrusted server
-naming its thumbprint, and recover when the server is killed and started again.
+interval it revised, convert the engineering units, lose none, and refuse an untrusted
+server naming its thumbprint. A server killed and started again: the sim under
+`cutwatch serve` (tests/service/test_opcua_service.py) and the grid's gap
+(tests/pipeline/test_opcua_grid.py).
 """
 
 from __future__ import annotations
 
-import math
 import time
 from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 import pytest
-from _opcua import MAP, NODES, PlainServer, plain_server, values
+from _opcua import MAP, PlainServer, plain_server
 
 from server.pipeline.opcua_link import OpcuaSecurity, thumbprint
 from server.pipeline.opcua_source import OpcuaOptions, OpcuaSource
@@ -134,30 +135,27 @@ def test_security_none_only_when_named(certs: Path) -> None:
             named.stop()
 
 
-def test_the_source_recovers_when_the_server_is_killed_and_started_again(certs: Path) -> None:
-    with plain_server(certs) as srv:
-        src = _source(srv.url, certs, (srv.cert,))
-        src.start()
-        try:
-            _wait(lambda: src.link.info.connects >= 1)
-            before = _take(src, 1.0)
-            srv.stop()
-            _wait(lambda: not src.link.info.state.startswith("connected"))
-            assert src.status()["connected"] is False
-            down_s = 1.5
-            time.sleep(down_s)
-            _take(src, 0.2)
-            srv.start()
-            _wait(lambda: src.link.info.connects >= 2, 30)
-            after = _take(src, 1.5)
-        finally:
-            src.stop()
-    assert sum(b.n for b in before) > 0 and sum(b.n for b in after) > 0
-    assert [b.discontinuity for b in after if b.discontinuity] == ["reconnected"]
-    st = src.status()
-    assert st["gaps"] == 1 and st["attempts"] >= 2
-    # the cells the outage took are counted lost, and time went on across them
-    assert st["lost"] >= (down_s / 0.1 - 5) * len(NODES)
-    t = np.concatenate([b.meas.t for b in before + after])
-    assert np.all(np.diff(t) > 0) and np.max(np.diff(t)) > down_s
-    assert math.isfinite(values(0.0)["mill/X/position"])
+def test_the_sampling_interval_the_server_revised_is_adopted_and_said(
+    secure: PlainServer, certs: Path
+) -> None:
+    # asked for 50 ms, published every 100 ms: asyncua's server revises the sampling
+    # interval to the publishing interval (100 ms), as a CNC limited to 100 ms would
+    m = dict(MAP, sample_time=0.05)
+    sec = OpcuaSecurity(trust=(secure.cert,), cert_dir=certs / "client")
+    src = OpcuaSource(node_map_from_dict(m), OpcuaOptions(secure.url, 0.1, sec, 1.0))
+    assert src.sample_time == 0.05
+    src.start()
+    try:
+        _wait(lambda: src.needs_rebuild)
+        assert src.step(100).n == 0  # nothing on the wrong grid
+        new = src.renewed()  # what the live loop does: a pipeline at the revised rate
+        assert new.sample_time == pytest.approx(0.1) and not new.needs_rebuild
+        blocks = _take(new, 2.0)
+    finally:
+        src.stop()
+    st = new.status()
+    assert st["sampling_note"] == "the server revised the sampling interval from 0.05 s to 0.1 s"
+    assert st["queue_size"] == 3  # publishing 0.1 / sampling 0.05 + 1, as asked
+    t = np.concatenate([b.meas.t for b in blocks])
+    assert len(t) >= 10 and np.allclose(np.diff(t), 0.1)
+    assert st["lost"] == 0 and st["merged"] == 0

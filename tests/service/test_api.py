@@ -405,8 +405,8 @@ def test_openapi_documents_every_response(api: httpx.Client) -> None:
     # 13 paths before the data routes; /api/params has GET and PATCH, effects GET/POST/DELETE;
     # + record, records (list, CSV, sidecar), uploads (POST, GET), analyses (POST, GET, GET id)
     # + login, logout, session; + the history: events (GET), ack (POST), tool-life (GET)
-    # + the machine (GET /api/machine)
-    assert len(ops) == 30
+    # + the machine (GET /api/machine); + the axes' model (GET, POST, DELETE /api/axis-model)
+    assert len(ops) == 33
     for p, m, op in ops:
         where = f"{m.upper()} {p}"
         ok = [c for c in op["responses"] if c.startswith("2")]

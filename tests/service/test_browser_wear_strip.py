@@ -82,6 +82,7 @@ def test_the_strip_names_one_tool_one_share_one_limit(tmp_path: Path) -> None:
         share_text = page.inner_text("#strip-wear")
         limit_text = page.inner_text("#strip-wearlimit")
         assert page.get_attribute("#strip-weargroup", "data-apart") == "true"
+        assert page.is_visible("#strip-weargroup")
         assert st["wear_of"] and st["wear_of"] in page.inner_text("#strip-wearof")
         assert tool_text == f"tool {st['wear_tool']}" == f"tool {ev['tool']}"
         # one limit, stated; the alarm's threshold as a share of it

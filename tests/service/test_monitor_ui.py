@@ -93,6 +93,19 @@ def test_the_wear_tiles_speak_of_one_tool_and_one_limit() -> None:
     # the spindle's own tool: no second number
     assert not s["wearApart"] and s["wearTool"] == "T3" and s["wearOf"] == "tool wear"
     assert cells[2:6] == ["tool 2", "–", "–", "0.274 vs alarm at 0.270 mm"]
+    assert a["wearKnown"] and s["wearKnown"]
+
+
+def test_no_wear_model_hides_the_wear_tiles() -> None:
+    # the machining centre (no wear estimate yet): no tool, share or life for the tiles
+    code = (
+        "import {statusView} from './monitor.js';"
+        "import {readFileSync} from 'node:fs';"
+        "const [a] = JSON.parse(readFileSync(0, 'utf8'));"
+        "console.log(JSON.stringify(statusView(a)));"
+    )
+    v = run_js(code, json.dumps([status(wear_share=None, life_left_min=None, wear_tool=0)]))
+    assert isinstance(v, dict) and v["wearKnown"] is False and v["tool"] == "T3"
 
 
 def test_the_timeline_is_newest_first_and_an_acknowledgement_sticks() -> None:

@@ -201,13 +201,14 @@ def run(args: argparse.Namespace) -> int:
         return _soak(args, mods, wanted)
     runs = bench_reference.measure(1 if args.quick else 3)
     result: dict[str, dict[str, object]] = {}
-    if args.against:
-        commit_of(args.against)  # a bad commit refused before anything is measured
+    # resolved once: a bad commit refused before anything is measured, and every group
+    # measured against the same commit even if the branch moves during the run
+    sha = commit_of(args.against) if args.against else None
     for g in wanted:
         kw: Options = fleet if g == "fleet" else {}
         if args.against:
             cmp = measure_against(
-                g, args.against, repeats=args.repeats, quick=args.quick, options=kw
+                g, args.against, repeats=args.repeats, quick=args.quick, options=kw, commit=sha
             )
             result[g] = {**cmp.labels, **cmp.figures, "before_after": cmp.before_after}
         else:

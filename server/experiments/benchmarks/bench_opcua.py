@@ -11,13 +11,14 @@ the service runs ``seconds`` (``--opcua-publishing`` the sampling interval, so t
 asyncua server, which revises the sampling interval to the publishing interval, keeps
 it); read from ``/api/health`` at the start and the end of the window: the samples the
 source received per second, lost / late / merged samples in the window, the loop's p99
-lag and the samples still buffered. The run is *healthy* when nothing was lost, late or merged, the
-p99 lag is below :data:`HEALTHY_LAG_MS` and less than a second of samples waits.
+lag and the samples still buffered. The run is *healthy* when nothing was lost, late or
+merged, the p99 lag is below :data:`HEALTHY_LAG_MS` and less than a second of samples waits.
 
 The latency: the probe node ``S.speed`` holds its own source timestamp (mod 1000 s); each
-frame's newest ``spindle.speed`` at the frame's arrival (this process's clock, the same
-host) is one latency: the subscription's publishing interval, the grid's watermark (a
-publishing and a sampling interval), the loop's block and the frame period. Median and
+frame's newest ``spindle_speed`` (the spindle part's channel of that node) at the
+frame's arrival (this process's clock, the same host) is one latency: the
+subscription's publishing interval, the grid's watermark (a publishing and a sampling
+interval), the loop's block and the frame period. Median and
 p95 over the frames of the run.
 
 Both processes, the load server's writes and the service, share this machine's cores:
@@ -85,7 +86,7 @@ def _dashboard(url: str, stop: threading.Event, lat: list[float]) -> threading.T
                 except TimeoutError:
                     continue
                 w = time.time()
-                vals = [v for v in (msg.get("ch") or {}).get("spindle.speed", []) if v is not None]
+                vals = [v for v in (msg.get("ch") or {}).get("spindle_speed", []) if v is not None]
                 if msg.get("type") == "data" and vals:
                     lat.append((w - vals[-1]) % 1000.0)
 
