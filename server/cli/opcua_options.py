@@ -33,8 +33,8 @@ def add_opcua_options(p: argparse.ArgumentParser) -> None:
     g.add_argument(
         "--opcua-cert-dir",
         type=Path,
-        default=Path("data/opcua"),
-        help="where a self-signed client certificate is made when --opcua-cert is not given",
+        help="where a self-signed client certificate is made when --opcua-cert is not given "
+        "(default: data/opcua; serve: its data directory's opcua/)",
     )
 
 
@@ -46,5 +46,5 @@ def opcua_security(args: argparse.Namespace) -> OpcuaSecurity:
         certificate=args.opcua_cert,
         private_key=args.opcua_key,
         trust=tuple(args.opcua_trust),
-        cert_dir=args.opcua_cert_dir,
+        cert_dir=args.opcua_cert_dir or Path("data/opcua"),
     )

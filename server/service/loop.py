@@ -154,7 +154,7 @@ def opcua_source(settings: Settings) -> OpcuaSource:
         certificate=settings.opcua_cert,
         private_key=settings.opcua_key,
         trust=trust,
-        cert_dir=settings.data_dir / "opcua",
+        cert_dir=settings.opcua_cert_dir or settings.data_dir / "opcua",
     )
     opts = OpcuaOptions(settings.opcua_url, settings.opcua_publishing_s, security=sec)
     return OpcuaSource(load_node_map(settings.opcua_nodes), opts)

@@ -188,6 +188,11 @@ class Settings(BaseSettings):
     )
     opcua_cert: Path | None = Field(default=None, description="the client's certificate")
     opcua_key: Path | None = Field(default=None, description="the client's private key")
+    opcua_cert_dir: Path | None = Field(
+        default=None,
+        description="where a self-signed client certificate is made when opcua_cert is not "
+        "given (default: data_dir/opcua)",
+    )
     opcua_trust: str = Field(
         default="",
         description="trusted server certificates or folders of them, comma-separated",

@@ -137,6 +137,7 @@ def build_settings(args: argparse.Namespace) -> Settings:
             "opcua_cert": args.opcua_cert,
             "opcua_key": args.opcua_key,
             "opcua_trust": ",".join(str(t) for t in args.opcua_trust) or None,
+            "opcua_cert_dir": args.opcua_cert_dir,
             "model": ",".join(args.model) if args.model else None,
         }.items()
         if v is not None
