@@ -588,8 +588,11 @@ class LoadIdentifier:
         )
         # the kernels' read-only arrays, built once (params are frozen), not per block:
         # (scale, lower / scale, upper / scale) of the 4- and 3-parameter models
-        self._box4, self._box3 = rls_box(params.rls4), rls_box(params.rls3)
-        self._ridge = Ridge(params.p0, 1 if params.ridge == "previous" else 0)
+        # arrays, not the records: a checkpoint (common.state_io) gives a kept NamedTuple
+        # back as a plain tuple; the records are made per block in step()
+        b4, b3 = rls_box(params.rls4), rls_box(params.rls3)
+        self._sc4, self._lo4, self._hi4 = b4.scale, b4.lower, b4.upper
+        self._sc3, self._lo3, self._hi3 = b3.scale, b3.lower, b3.upper
 
     def initial_state(self, J_L: float, B_L: float, F_CL: float, F_dc: float = 0.0) -> IdentState:
         p = self.params
@@ -629,8 +632,10 @@ class LoadIdentifier:
         _filter_regressors(new.zf, self.q_rls.b, self.q_rls.a, t_s, acc_l, vel_l, sgn_l, y, phi)
         out = IdentOut(np.empty((n, 4)), np.empty(n, dtype=np.int8), np.empty(n, dtype=np.bool_))
         a = new.rls4
+        box4 = Box(self._sc4, self._lo4, self._hi4)
+        ridge = Ridge(p.p0, 1 if p.ridge == "previous" else 0)
         if not self.switching:
-            _ordinary_kernel(y, phi, p.acc_threshold, a.arrays, self._box4, self._ridge, out)
+            _ordinary_kernel(y, phi, p.acc_threshold, a.arrays, box4, ridge, out)
             resets = int(a.meta[META_RESETS])
         else:
             assert new.rls3 is not None and new.sw is not None
@@ -642,10 +647,10 @@ class LoadIdentifier:
                 p.acc_threshold,
                 float(p.window),
                 a.arrays,
-                self._box4,
+                box4,
                 b.arrays,
-                self._box3,
-                self._ridge,
+                Box(self._sc3, self._lo3, self._hi3),
+                ridge,
                 new.sw,
                 out,
             )

@@ -246,7 +246,7 @@ def _discrete_linear_part(p: StageParams, h: float) -> tuple[F64, F64]:
 
 
 class StageModel(NamedTuple):
-    """The stage's design as the kernel takes it (read only; built when it changes)."""
+    """The stage's design as the kernel takes it (read only; made per block)."""
 
     ts: float  # sample time [s]
     nsub: int  # plant sub-steps per sample
@@ -441,17 +441,6 @@ class StageSim:
         jt = nom.J_M + nom.J_L
         w0 = 2 * math.pi * c.pole_hz
         self._gains = np.array([2 * jt * w0, jt * w0 * w0, nom.K_t])
-        self._model = StageModel(
-            ts=c.sample_time,
-            nsub=c.substeps,
-            q=c.encoder_resolution,
-            phi=self._phi,
-            gam=self._gam,
-            plant=self._plant,
-            eff=self._eff,
-            force=self._force,
-            gains=self._gains,
-        )
 
     def step(self, n: int) -> tuple[Measurements, Truth]:
         if n < 1:
@@ -463,7 +452,20 @@ class StageSim:
         noise = self._rng.normal(0.0, c.current_noise, n) if c.current_noise > 0 else np.zeros(n)
         out = StageOut(*(np.empty(n) for _ in StageOut._fields))
         arrays = StageArrays(self.x, self.ctrl, self.phases)
-        _simulate_block(arrays, self._model, self.k * ts, w_ref, noise, out)
+        # the record is made here, not kept: a checkpoint (common.state_io) gives a kept
+        # NamedTuple back as a plain tuple
+        model = StageModel(
+            ts=ts,
+            nsub=c.substeps,
+            q=c.encoder_resolution,
+            phi=self._phi,
+            gam=self._gam,
+            plant=self._plant,
+            eff=self._eff,
+            force=self._force,
+            gains=self._gains,
+        )
+        _simulate_block(arrays, model, self.k * ts, w_ref, noise, out)
         o_t, o_i, o_qm, o_ql, o_f, o_wm, o_wl, o_ts = out
         self.k += n
         nom = c.nominal or c.params
