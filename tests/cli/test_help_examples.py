@@ -4,14 +4,17 @@ The examples are read from each sub-command's help text (its module docstring, t
 ``Examples::`` block), so an example added there is run here without anyone listing it.
 Each runs as a real ``cutwatch`` process in a scratch directory, with only what belongs to
 this machine put in: the broker address ``mqtt://127.0.0.1:1883`` of the examples points
-to a real Mosquitto started for the test (``tests/_broker.py``), a port given on the
+to a real Mosquitto started for the test (``tests/_broker.py``), the OPC UA server
+``opc.tcp://127.0.0.1:4840`` to a real ``cutwatch opcua-sim`` started for the test (offering
+the secure policies and None, its certificate where the examples trust it), a port given on the
 command line (``--port``) or taken by default (``CUTWATCH_PORT``, ``CUTWATCH_VISER_PORT``)
 is a free one, and the data sets are linked where the examples expect it
 (``DATA_EMPS.mat``, ``segments.csv``, ``../shared/data/...``; ``other.csv``, "another
 table", is the same table), and so are the repository's example files
 (``cnc-mill.json``). A finite command must exit 0
 (``reproduce`` may exit 1 after reporting a check that does not hold, as its help says);
-a server (``serve``, ``fleet``, ``worker``) must answer HTTP, then it is stopped.
+a server (``serve``, ``fleet``, ``worker``) must answer HTTP, ``opcua-sim`` accept a TCP
+connection, then it is stopped.
 """
 
 from __future__ import annotations
@@ -20,6 +23,7 @@ import os
 import re
 import shlex
 import signal
+import socket
 import subprocess
 import sys
 import time
@@ -37,7 +41,8 @@ pytestmark = pytest.mark.slow
 
 EXAMPLE_BROKER = "mqtt://127.0.0.1:1883"
 #: commands that serve until stopped, and the path that answers once they are up
-SERVERS = {"serve": "/api/health", "fleet": "/", "worker": "/api/health"}
+SERVERS = {"serve": "/api/health", "fleet": "/", "worker": "/api/health", "opcua-sim": None}
+EXAMPLE_OPCUA = "opc.tcp://127.0.0.1:4840"
 SHARED_DATA = next(
     (p / "shared" / "data" for p in Path(__file__).resolve().parents if (p / "shared").is_dir()),
     None,
@@ -112,8 +117,51 @@ def broker_url() -> Iterator[str]:
         yield f"mqtt://127.0.0.1:{port}"
 
 
-def command_line(example: str, broker_url: str) -> tuple[dict[str, str], list[str]]:
-    """The example as environment and argv, this machine's broker and ports put in."""
+@pytest.fixture(scope="module")
+def opcua_url(workdir: Path) -> Iterator[str]:
+    """A real ``cutwatch opcua-sim`` on a free port, run in the examples' directory (its
+    certificate in ``data/opcua-sim``, where the examples trust it), with a starter map
+    ``map.json`` browsed from it (what ``serve --nodes map.json`` reads)."""
+    port = free_port()
+    argv = [sys.executable, "-m", "server.cli.main", "opcua-sim", "--port", str(port)]
+    proc = subprocess.Popen([*argv, "--security", "both"], cwd=workdir, stdout=subprocess.PIPE)
+    try:
+        assert accepts(port, proc), "opcua-sim did not start"
+        url = f"opc.tcp://127.0.0.1:{port}"
+        browse = ["opcua", "browse", f"{url}/cutwatch", "--out", "map.json"]
+        trust = ["--opcua-trust", "data/opcua-sim/server-cert.der"]
+        r = subprocess.run(
+            [sys.executable, "-m", "server.cli.main", *browse, *trust],
+            cwd=workdir, capture_output=True, timeout=120,
+        )  # fmt: skip
+        assert r.returncode == 0, r.stderr.decode()[-3000:]
+        yield url
+    finally:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.communicate(timeout=30)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.communicate()
+
+
+def accepts(port: int, proc: subprocess.Popen[bytes], timeout: float = 90.0) -> bool:
+    """Whether a TCP connection to ``port`` is accepted before ``timeout``."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline and proc.poll() is None:
+        with socket.socket() as s:
+            s.settimeout(2)
+            if s.connect_ex(("127.0.0.1", port)) == 0:
+                return True
+        time.sleep(0.3)
+    return False
+
+
+def command_line(
+    example: str, broker_url: str, opcua_url: str = EXAMPLE_OPCUA
+) -> tuple[dict[str, str], list[str]]:
+    """The example as environment and argv, this machine's broker, OPC UA server and
+    ports put in."""
     env = dict(os.environ)
     env.update({"CUTWATCH_PORT": str(free_port()), "CUTWATCH_VISER_PORT": str(free_port())})
     # a `$(command)` is run as the user's shell would (the token examples: openssl rand)
@@ -124,7 +172,9 @@ def command_line(example: str, broker_url: str) -> tuple[dict[str, str], list[st
         ).stdout.strip(),
         example,
     )
-    words = shlex.split(example.replace(EXAMPLE_BROKER, broker_url))
+    words = shlex.split(
+        example.replace(EXAMPLE_BROKER, broker_url).replace(EXAMPLE_OPCUA, opcua_url)
+    )
     while "=" in words[0]:  # VAR=value before the command
         key, _, value = words.pop(0).partition("=")
         env[key] = value
@@ -151,7 +201,9 @@ def answers(port: int, path: str, proc: subprocess.Popen[bytes], timeout: float 
 
 
 @pytest.mark.parametrize(("command", "example"), EXAMPLES, ids=[e for _, e in EXAMPLES])
-def test_the_example_runs(command: str, example: str, workdir: Path, broker_url: str) -> None:
+def test_the_example_runs(
+    command: str, example: str, workdir: Path, broker_url: str, request: pytest.FixtureRequest
+) -> None:
     missing = [
         target
         for name, target in DATA_LINKS.items()
@@ -159,7 +211,9 @@ def test_the_example_runs(command: str, example: str, workdir: Path, broker_url:
     ]
     if missing:
         pytest.skip(f"data set not present: {', '.join(missing)}")
-    env, argv = command_line(example, broker_url)
+    opcua = request.getfixturevalue("opcua_url") if EXAMPLE_OPCUA in example else EXAMPLE_OPCUA
+    env, argv = command_line(example, broker_url, opcua)
+    command = argv[3]  # what the example runs (a help text may show other commands too)
     if command not in SERVERS:
         r = subprocess.run(argv, cwd=workdir, env=env, capture_output=True, timeout=1800)
         err = r.stderr.decode()[-3000:]
@@ -172,8 +226,9 @@ def test_the_example_runs(command: str, example: str, workdir: Path, broker_url:
         assert r.returncode == 0, f"{example}\n{err}"
         return
     proc = subprocess.Popen(argv, cwd=workdir, env=env, stderr=subprocess.PIPE)
+    port, path = int(env["CUTWATCH_PORT"]), SERVERS[command]
     try:
-        up = answers(int(env["CUTWATCH_PORT"]), SERVERS[command], proc)
+        up = answers(port, path, proc) if path is not None else accepts(port, proc)
     finally:
         proc.send_signal(signal.SIGINT)
         try:

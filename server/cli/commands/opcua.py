@@ -11,8 +11,9 @@ Check it, add what the server names otherwise, and give it to ``serve --nodes``
 Examples::
 
     cutwatch opcua browse opc.tcp://127.0.0.1:4840/cutwatch \\
-        --opcua-trust data/opcua-sim/server-cert.der > map.json
-    cutwatch opcua browse opc.tcp://cnc-7:4840 --opcua-security None --out map.json
+        --opcua-trust data/opcua-sim/server-cert.der --out map.json
+    cutwatch opcua browse opc.tcp://127.0.0.1:4840/cutwatch --opcua-security None \\
+        --out open.json          # only when asked by name: a server offering None
 """
 
 from __future__ import annotations

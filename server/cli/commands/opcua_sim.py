@@ -10,7 +10,7 @@ Examples::
 
     cutwatch opcua-sim --port 4840                     # Basic256Sha256 and Aes, signed+encrypted
     cutwatch opcua browse opc.tcp://127.0.0.1:4840/cutwatch \\
-        --opcua-trust data/opcua-sim/server-cert.der > map.json
+        --opcua-trust data/opcua-sim/server-cert.der --out map.json
     cutwatch serve --source opcua --opcua opc.tcp://127.0.0.1:4840/cutwatch --nodes map.json \\
         --opcua-trust data/opcua-sim/server-cert.der
 """

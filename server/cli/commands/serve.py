@@ -10,7 +10,7 @@ Examples::
     cutwatch serve --source opcua --opcua opc.tcp://cnc-7:4840 --nodes map.json \
         --opcua-trust cnc-7.der          # a CNC's OPC UA server (docs/opcua.md)
     cutwatch serve --source mqtt --broker mqtt://127.0.0.1:1883 --machine emps \
-        --model axis=report.json         # the residual loop's effects in the live model
+        --model axis=out/emps/report.json  # the residual loop's effects in the live model
 
 Options override the ``CUTWATCH_*`` environment variables. Any address other than
 loopback requires ``CUTWATCH_TOKEN`` (16 characters at least; the service refuses to
