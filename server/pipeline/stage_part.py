@@ -15,6 +15,10 @@ Nyquist frequency lies above the force observer's Q(s) cut-off.
 What the CNC knows (:class:`~server.pipeline.part.Notice`): a spindle step or a tool
 change marks a disturbance (the segment identifier discards the reversal segment around
 it); a fresh workpiece restarts J_L.
+
+A change of the sample rate (a new meta) builds the part again for the new rate and
+carries the identified J_L, B_L, F_CL over, the filters restarted
+(:meth:`StagePart.carry`); its status says so.
 """
 
 from __future__ import annotations

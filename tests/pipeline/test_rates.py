@@ -137,6 +137,18 @@ def test_a_two_inertia_axis_at_every_rate(rate: float) -> None:
     assert np.isfinite(tail).all()
     assert p.accuracy()["mode"] == "measured_force"
     assert "axes" not in st  # the stage part's machine: as a replayed log streams it
+    # the DFO's harmonics (100 and 200 Hz at 3000 rpm) against the rate's Nyquist: the
+    # reason a user reads, not a parameter error
+    dfo = st["dfo"]
+    if rate < 400.0:
+        assert not dfo["running"] and "parameter" not in str(dfo["reason"]), dfo
+        assert (
+            f"a {1 / ts:g} Hz source carries up to its Nyquist frequency, {0.5 / ts:g} Hz"
+            in str(dfo["reason"])
+        )
+        assert "a band up to 200 Hz" in str(dfo["reason"]) and "above 400 Hz" in str(dfo["reason"])
+    else:
+        assert dfo["running"], dfo
 
 
 def test_a_rate_change_mid_stream_designs_again_and_keeps_the_parameters() -> None:
