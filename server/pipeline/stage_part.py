@@ -221,7 +221,11 @@ class StagePart(LivePart):
     def carry(self, old: StagePart, t: float) -> None:
         """Take ``old``'s identified load parameters (a pipeline built again for a new
         meta): :meth:`~server.pipeline.stage_run.StageRun.carry`; a new rate is said in
-        the status."""
+        the status. Nothing is carried from a run that saw no sample (the pipeline built
+        before the feed's first meta, on a placeholder) nor across a change of the
+        nominal load parameters (another machine described: it starts on its nominal)."""
+        if t <= 0.0 or old.run.nominal_load != self.run.nominal_load:
+            return
         self.run.carry(old.run, t)
         self._carried = True  # the first block's break (the meta changed): restarted here
         ts0, ts1 = old.run.source.sample_time, self.run.source.sample_time

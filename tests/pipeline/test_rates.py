@@ -273,3 +273,20 @@ def test_a_rate_change_on_a_two_inertia_feed_keeps_the_load_parameters() -> None
     assert outs[0]["J_L_adaptive"][0] == pytest.approx(th_a0[0], rel=1e-12)
     assert np.isfinite(np.concatenate([o["f_adaptive"] for o in outs])).all()
     assert statuses(new)["stage"]["running"]
+
+
+def test_the_first_meta_starts_the_stage_on_its_nominal_not_the_placeholders() -> None:
+    # the pipeline the service runs before any meta (a placeholder stage) has identified
+    # nothing: the meta's pipeline starts on the meta's nominal, nothing carried
+    feed = DriveFeed(parse_broker_url("mqtt://127.0.0.1:1"), "m1", max_samples=10**6)
+    before = LivePipeline(source=MqttSource(feed))
+    nominal = {n: v for n, v in CONFIG.params.as_dict().items() if n not in ("K_t", "C_s")}
+    nominal["J_L"] *= 1.5
+    feed.push_meta(encode_meta({"sample_time": 1e-3, "axes": {"X": {"kind": "two_inertia",
+        "signals": {"q_m": "q_m", "q_l": "q_l", "tau_m": "tau_m"}, "K_t": CONFIG.params.K_t,
+        "units": {"position": "rad", "effort": "N m"}, "nominal": nominal}}}))  # fmt: skip
+    new = LivePipeline(source=before.source.renewed())  # type: ignore[attr-defined]
+    new.carry(before)
+    run_ = new.part("stage").run
+    assert run_._theta_a[0] == pytest.approx(nominal["J_L"], rel=1e-12)
+    assert "designed again" not in str(statuses(new)["stage"]["reason"])
