@@ -93,7 +93,7 @@ def test_a_worker_publishes_an_opcua_machines_estimates(sim: dict[str, Any]) -> 
                 e = est.of(MACHINE)
                 return bool(e) and _finite(e[-1]["params"].get("X.Fv"))
 
-            _wait(identified, 35, f"{MACHINE}'s estimates with X's identification")
+            _wait(identified, 60, f"{MACHINE}'s estimates with X's identification")
             msgs = est.of(MACHINE)
             last = msgs[-1]
             assert last["machine"] == MACHINE and last["source"] == "opcua"
