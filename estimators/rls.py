@@ -140,6 +140,36 @@ class IdentOut(NamedTuple):
     excited: NDArray[np.bool_]  # the excitation condition held
 
 
+def rls_adopt(p: RLSParams, state: RLSState) -> RLSState:
+    """``state``, of a window RLS of another length (a rate change mid-stream: the
+    window is a time, its length in samples follows the rate), in one of ``p``'s: the
+    estimate, covariance and information kept, the window's newest rows kept in order;
+    rows the shorter window no longer holds leave it as the kernel's downdate takes them
+    (a downdate that would lose positive definiteness: the window starts empty on the
+    kept estimate, as the kernel's reset)."""
+    fresh = rls_init(p, np.zeros(p.n))
+    L_old = state.buf_phi.shape[0]
+    head, count = int(state.meta[META_HEAD]), int(state.meta[META_COUNT])
+    order = [(head + j) % L_old for j in range(count)]
+    P, r, th = state.P.copy(), state.r.copy(), state.theta.copy()
+    drop = max(0, count - p.window)
+    for i in order[:drop]:
+        phi, y = state.buf_phi[i], float(state.buf_y[i])
+        Pp = P @ phi
+        d = 1.0 - float(phi @ Pp)
+        if d <= 1e-9:  # the kernel's reset: an empty window on the estimate
+            P, r, order, drop = np.eye(p.n) * p.p0, th / p.p0, [], 0
+            break
+        P = P + np.outer(Pp, Pp) / d
+        r = r - phi * y
+    kept = order[drop:]
+    fresh.buf_phi[: len(kept)] = state.buf_phi[kept]
+    fresh.buf_y[: len(kept)] = state.buf_y[kept]
+    fresh.meta[:] = (0, len(kept), state.meta[META_RESETS])
+    return RLSState(P=P, r=r, theta=th, buf_phi=fresh.buf_phi, buf_y=fresh.buf_y,
+                    meta=fresh.meta)  # fmt: skip
+
+
 def rls_init(p: RLSParams, theta0: F64) -> RLSState:
     """Fresh state with estimate ``theta0`` (physical units), clamped into the bounds."""
     sc = np.asarray(p.scale, dtype=np.float64)
@@ -602,6 +632,21 @@ class LoadIdentifier:
             return IdentState(zf=z, rls4=s4)
         s3 = rls_init(p.rls3, np.array([J_L, B_L, F_dc]))
         return IdentState(zf=z, rls4=s4, rls3=s3, sw=np.array([1e9, 4.0, F_CL, 0.0]))
+
+    def adopt(self, state: IdentState, sample_time: float) -> IdentState:
+        """The state of an identifier at another ``sample_time`` carried into this one
+        (a rate change mid-stream): the estimates, covariances and window rows kept (in
+        physical units whatever the rate; :func:`rls_adopt`), the Q_RLS filters
+        restarted; the switching identifier's mode, F_CL and sign kept, its samples since
+        the last reversal converted to this rate's."""
+        p = self.params
+        z = np.zeros((4, max(self.q_rls.order, 1)))
+        s4 = rls_adopt(p.rls4, state.rls4)
+        if not self.switching or state.rls3 is None or state.sw is None:
+            return IdentState(zf=z, rls4=s4)
+        sw = state.sw.copy()
+        sw[SW_SINCE_REVERSAL] *= sample_time / p.sample_time
+        return IdentState(zf=z, rls4=s4, rls3=rls_adopt(p.rls3, state.rls3), sw=sw)
 
     def step(
         self,

@@ -254,7 +254,7 @@ export const SCHEMA = {
  * @property {Array<Channel>} channels
  * @property {Array<Chart>} charts
  * @property {Array<PartStatus>} parts
- * @property {number} sample_time - the pipeline's sample time [s]
+ * @property {(number|null)} sample_time - the pipeline's sample time [s]; null while a live feed has not described its machine (no meta yet: a new hello follows the meta)
  * @property {string} scenario
  * @property {Object<string, (boolean|number|string)>} knobs - knob -> value
  */

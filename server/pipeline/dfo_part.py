@@ -24,6 +24,7 @@ import numpy as np
 
 from common.errors import ParameterError
 from estimators.dfo import Dfo, DfoState
+from server.errors import CutwatchError
 from server.pipeline.knobs import BASE_RPM
 from server.pipeline.machine_view import MachineView
 from server.pipeline.part import (
@@ -120,6 +121,7 @@ class DfoPart(LivePart):
 
     def __init__(self, stage: StagePart, frequencies: tuple[float, ...]) -> None:
         self.base = tuple(float(f) for f in frequencies)
+        _check_band(self.base, stage.run.front.params.sample_time)
         self.dfo = Dfo(make_dfo(stage.run.front.params, self.base))
         self.dfo_state = self.dfo.initial_state()
 
@@ -165,3 +167,24 @@ class DfoPart(LivePart):
             raise ParameterError("state.parts.dfo", "a DfoPartState", type(state).__name__)
         self.retune(tuple(state.frequencies))
         self.dfo_state = state.dfo
+
+
+def _check_band(base: tuple[float, ...], sample_time: float) -> None:
+    """The DFO is designed at the base spindle speed: each harmonic below the Nyquist
+    frequency of ``sample_time``, else the reason a user reads (the band it needs, the
+    rate's Nyquist frequency, the rate it would take).
+
+    Raises
+    ------
+    CutwatchError
+        A harmonic at or above the Nyquist frequency.
+    """
+    nyq = 0.5 / sample_time
+    if not base or max(base) < nyq:
+        return
+    hz = " and ".join(f"{f:g}" for f in base)
+    raise CutwatchError(
+        f"the DFO tracks the tooth-passing harmonics at {hz} Hz ({BASE_RPM:g} rpm), a band "
+        f"up to {max(base):g} Hz; a {1 / sample_time:g} Hz source carries up to its Nyquist "
+        f"frequency, {nyq:g} Hz: it needs a rate above {2 * max(base):g} Hz"
+    )

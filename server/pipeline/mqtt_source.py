@@ -107,6 +107,12 @@ class MqttSource(ConfiguredSource):
         return self._t
 
     @property
+    def rate_known(self) -> bool:
+        """True once a meta described the machine: before it, :attr:`sample_time` is the
+        simulator's default, a placeholder no one is told (the hello says null)."""
+        return self.description is not None
+
+    @property
     def needs_rebuild(self) -> bool:
         """True when a (new) meta arrived after this source was built."""
         return self.feed.meta_generation != self._gen

@@ -15,10 +15,15 @@ Nyquist frequency lies above the force observer's Q(s) cut-off.
 What the CNC knows (:class:`~server.pipeline.part.Notice`): a spindle step or a tool
 change marks a disturbance (the segment identifier discards the reversal segment around
 it); a fresh workpiece restarts J_L.
+
+A change of the sample rate (a new meta) builds the part again for the new rate and
+carries the identified J_L, B_L, F_CL over, the filters restarted
+(:meth:`StagePart.carry`); its status says so.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -199,6 +204,9 @@ class StagePart(LivePart):
         self, source: MeasurementSource, ident: IdentifierParams, design: dict[str, float]
     ) -> None:
         self.run = StageRun(source=source, ident=ident, observer_design=dict(design))
+        #: what the part says beside running (a rate change it followed)
+        self.said = ""
+        self._carried = False
 
     def requires(self, machine: MachineView) -> Verdict:
         q_hz = self.run.front.params.q_hz
@@ -210,6 +218,23 @@ class StagePart(LivePart):
             and needs_band(machine, q_hz, "the force observer's Q(s) cut-off")
         )
 
+    def carry(self, old: StagePart, t: float) -> None:
+        """Take ``old``'s identified load parameters (a pipeline built again for a new
+        meta): :meth:`~server.pipeline.stage_run.StageRun.carry`; a new rate is said in
+        the status. Nothing is carried from a run that saw no sample (the pipeline built
+        before the feed's first meta, on a placeholder) nor across a change of the
+        nominal load parameters (another machine described: it starts on its nominal)."""
+        if t <= 0.0 or old.run.nominal_load != self.run.nominal_load:
+            return
+        self.run.carry(old.run, t)
+        self._carried = True  # the first block's break (the meta changed): restarted here
+        ts0, ts1 = old.run.source.sample_time, self.run.source.sample_time
+        if ts0 != ts1:
+            self.said = (
+                f"designed again at t = {t:.3f} s for {1 / ts1:g} Hz (was {1 / ts0:g} Hz): "
+                "identified J_L, B_L, F_CL kept, filter states restarted"
+            )
+
     def notice(self, change: Notice) -> None:
         if change.kind == "disturbance":
             self.run.note_disturbance(change.t)
@@ -218,6 +243,9 @@ class StagePart(LivePart):
 
     def step(self, block: Block) -> Outputs:
         src = block.source
+        if self._carried:  # carried over (carry restarted the filters): the estimates go on
+            self._carried = False
+            src = dataclasses.replace(src, discontinuity=None)
         if src.discontinuity == RESUMED:  # the estimates go on, the filters restart
             self.run.restart_filters(float(src.meas.t[0]))
         elif src.discontinuity is not None:

@@ -340,6 +340,27 @@ class StageRun:
         # passed (only their regressor filters run).
         self._held = (t + RESUME_HOLD_S, self.s_ident, self.s_sw)
 
+    def carry(self, old: StageRun, t: float) -> None:
+        """Continue ``old``'s identification on this run, designed for another sample
+        rate (a rate change mid-stream, the same machine): the identified J_L, B_L, F_CL
+        of every identifier kept (the RLS estimates, covariances and window rows:
+        :meth:`estimators.rls.LoadIdentifier.adopt`; the segment identifier's estimate,
+        covariance and counts), every filter restarted (the front end, Q_RLS, Q) and the
+        segment around ``t`` discarded; the RLS estimates held while the restarted
+        filters settle, as after a resume (:meth:`restart_filters`)."""
+        ts_old = old.source.sample_time
+        self.s_front = self.front.initial_state()
+        self.s_ident = self.ident.adopt(old.s_ident, ts_old)
+        self.s_sw = self.ident_sw.adopt(old.s_sw, ts_old)
+        seg = self.ident_seg.initial_state()
+        self.s_seg = mark_disturbance(replace(old.s_seg, zf=seg.zf, hist=seg.hist, seg=seg.seg), t)
+        self._zq = self._q.initial_state()
+        self._theta_a = old._theta_a.copy()
+        self._theta_s = old._theta_s.copy()
+        self._theta_g = old._theta_g.copy()
+        self._prev_f, self._prev_qf, self._prev_t = old._prev_f, 0.0, old._prev_t
+        self._held = (t + RESUME_HOLD_S, self.s_ident, self.s_sw)
+
     def _hold(self, t0: float, ra: IdentRecord, rs: IdentRecord) -> tuple[IdentRecord, IdentRecord]:
         """Within :data:`RESUME_HOLD_S` of a resume: the identifiers' estimates and
         covariances as they were (the regressor filters' states go on); after: released."""

@@ -599,7 +599,7 @@ class LiveLoop:
                 [c.describe() for c in p.channels()],
                 [c.describe() for c in p.charts()],
                 p.parts(),
-                p.sample_time,
+                p.sample_time if getattr(p.source, "rate_known", True) else None,
                 p.scenario,
                 self.knob_values(),
             )

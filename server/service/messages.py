@@ -119,7 +119,10 @@ class Hello(Versioned):
     channels: list[Channel]
     charts: list[Chart]
     parts: list[PartStatus]
-    sample_time: float = Field(description="the pipeline's sample time [s]")
+    sample_time: float | None = Field(
+        description="the pipeline's sample time [s]; null while a live feed has not "
+        "described its machine (no meta yet: a new hello follows the meta)"
+    )
     scenario: str
     knobs: dict[str, KnobValue] = Field(description="knob -> value")
 

@@ -5,7 +5,8 @@ model of :mod:`server.service.messages` (validated, then serialised by it):
 
 ``hello`` (first message after connecting, and again whenever the pipeline changes)
     ``{"type": "hello", "version": VERSION, "channels": [...], "charts": [...],
-    "parts": [...], "sample_time": s, "scenario": name, "knobs": {...}}``. The stream
+    "parts": [...], "sample_time": s, "scenario": name, "knobs": {...}}`` (``sample_time``
+    null while a live feed has not sent its meta; the meta brings a new hello). The stream
     describes itself: each channel says the chart it is drawn on (``chart``, ``page``,
     ``order``), whether it is the simulator's truth, how it is drawn (``color``,
     ``dash``, ``width``, ``axis``), its 95 % interval's channels (``interval``), a
@@ -93,7 +94,7 @@ def hello(
     channels: list[dict[str, Any]],
     charts: list[dict[str, Any]],
     parts: list[dict[str, Any]],
-    sample_time: float,
+    sample_time: float | None,
     scenario: str,
     knobs: Mapping[str, Any],
 ) -> str:

@@ -137,6 +137,18 @@ def test_a_two_inertia_axis_at_every_rate(rate: float) -> None:
     assert np.isfinite(tail).all()
     assert p.accuracy()["mode"] == "measured_force"
     assert "axes" not in st  # the stage part's machine: as a replayed log streams it
+    # the DFO's harmonics (100 and 200 Hz at 3000 rpm) against the rate's Nyquist: the
+    # reason a user reads, not a parameter error
+    dfo = st["dfo"]
+    if rate < 400.0:
+        assert not dfo["running"] and "parameter" not in str(dfo["reason"]), dfo
+        assert (
+            f"a {1 / ts:g} Hz source carries up to its Nyquist frequency, {0.5 / ts:g} Hz"
+            in str(dfo["reason"])
+        )
+        assert "a band up to 200 Hz" in str(dfo["reason"]) and "above 400 Hz" in str(dfo["reason"])
+    else:
+        assert dfo["running"], dfo
 
 
 def test_a_rate_change_mid_stream_designs_again_and_keeps_the_parameters() -> None:
@@ -204,3 +216,77 @@ def test_serve_model_loads_a_reports_effects_by_axis(tmp_path: Path) -> None:
     (tmp_path / "bad.json").write_text("{}")
     with pytest.raises(CutwatchError, match=r"bad\.json"):
         loop_parts(build_settings(ap.parse_args([*argv, "--model", str(tmp_path / "bad.json")])))
+
+
+def test_a_rate_change_on_a_two_inertia_feed_keeps_the_load_parameters() -> None:
+    # the stage part's machine: its observers' identified J_L, B_L, F_CL carried over a
+    # rate change (2.5 kHz -> 1.25 kHz), their filters restarted, the status says so
+    sim = StageSim(CONFIG, seed=2)
+    ts0 = CONFIG.sample_time
+    nominal = {n: v for n, v in CONFIG.params.as_dict().items() if n not in ("K_t", "C_s")}
+    nominal["J_L"] *= 1.5  # a wrong prior: what is identified is not the nominal
+
+    def desc(ts: float) -> dict[str, object]:
+        return {"sample_time": ts, "axes": {"X": {"kind": "two_inertia", "signals": {
+            "q_m": "q_m", "q_l": "q_l", "tau_m": "tau_m", "f_ext": "f_ext"},
+            "units": {"position": "rad", "effort": "N m"}, "K_t": CONFIG.params.K_t,
+            "nominal": nominal, "encoder_resolution": CONFIG.encoder_resolution}}}  # fmt: skip
+
+    def cols(seconds: float, k: int) -> dict[str, np.ndarray]:
+        m, _ = sim.step(round(seconds / ts0))
+        return {c: np.asarray(getattr(m, c))[::k] for c in ("q_m", "q_l", "tau_m", "f_ext")}
+
+    UNITS.update({"q_m": "rad", "q_l": "rad", "tau_m": "N m", "f_ext": "N m"})
+    feed = DriveFeed(parse_broker_url("mqtt://127.0.0.1:1"), "m1", max_samples=10**6)
+    feed.push_meta(encode_meta(desc(ts0)))
+    seq = push(feed, cols(4.0, 1), ts0)
+    old = LivePipeline(source=MqttSource(feed))
+    run(old, ts0)
+    before = old.part("stage").run
+    seg0, th_a0 = before.s_seg.x.copy(), before._theta_a.copy()
+    assert abs(th_a0[0] / nominal["J_L"] - 1) > 0.05  # J_L identified, not the prior
+    ts1 = 2 * ts0
+    feed.push_meta(encode_meta(desc(ts1)))
+    assert old.source.needs_rebuild  # type: ignore[attr-defined]
+    new = LivePipeline(source=old.source.renewed())  # type: ignore[attr-defined]
+    new.carry(old)
+    run_ = new.part("stage").run
+    assert run_.ident.params.sample_time == ts1 and new.sample_time == ts1  # designed again
+    np.testing.assert_array_equal(run_._theta_a, th_a0)  # identified parameters kept
+    np.testing.assert_array_equal(run_.s_ident.rls4.theta, before.s_ident.rls4.theta)
+    # the window is 40 ms: half the rows at half the rate, the newest, the rest downdated
+    w0, w1 = before.s_ident.rls4, run_.s_ident.rls4
+    n1 = int(w1.meta[1])
+    assert n1 == min(int(w0.meta[1]), 50) == 50
+    newest = [(int(w0.meta[0]) + int(w0.meta[1]) - n1 + j) % 100 for j in range(n1)]
+    np.testing.assert_array_equal(w1.buf_phi[:n1], w0.buf_phi[newest])
+    np.testing.assert_array_equal(run_.s_seg.x, seg0)
+    assert not run_.s_ident.zf.any() and not run_.s_seg.zf.any()  # filters restarted
+    assert run_.s_seg.hist.size == 0
+    said = statuses(new)["stage"]
+    assert said["running"] and "designed again" in str(said["reason"]), said
+    assert "1250 Hz (was 2500 Hz)" in str(said["reason"]) and "kept" in str(said["reason"])
+    push(feed, cols(2.0, 2), ts1, seq)
+    outs = run(new, ts1)
+    assert sum(len(o["t"]) for o in outs) == round(2.0 / ts1)
+    # no restart from the prior: the first block's J_L is the one carried
+    assert outs[0]["J_L_adaptive"][0] == pytest.approx(th_a0[0], rel=1e-12)
+    assert np.isfinite(np.concatenate([o["f_adaptive"] for o in outs])).all()
+    assert statuses(new)["stage"]["running"]
+
+
+def test_the_first_meta_starts_the_stage_on_its_nominal_not_the_placeholders() -> None:
+    # the pipeline the service runs before any meta (a placeholder stage) has identified
+    # nothing: the meta's pipeline starts on the meta's nominal, nothing carried
+    feed = DriveFeed(parse_broker_url("mqtt://127.0.0.1:1"), "m1", max_samples=10**6)
+    before = LivePipeline(source=MqttSource(feed))
+    nominal = {n: v for n, v in CONFIG.params.as_dict().items() if n not in ("K_t", "C_s")}
+    nominal["J_L"] *= 1.5
+    feed.push_meta(encode_meta({"sample_time": 1e-3, "axes": {"X": {"kind": "two_inertia",
+        "signals": {"q_m": "q_m", "q_l": "q_l", "tau_m": "tau_m"}, "K_t": CONFIG.params.K_t,
+        "units": {"position": "rad", "effort": "N m"}, "nominal": nominal}}}))  # fmt: skip
+    new = LivePipeline(source=before.source.renewed())  # type: ignore[attr-defined]
+    new.carry(before)
+    run_ = new.part("stage").run
+    assert run_._theta_a[0] == pytest.approx(nominal["J_L"], rel=1e-12)
+    assert "designed again" not in str(statuses(new)["stage"]["reason"])
