@@ -3,7 +3,8 @@
 certificate trusted, the map ``cutwatch opcua browse`` wrote) and publishes its estimates
 on a real Mosquitto as it publishes a broker machine's: the machine's name, the source
 ``opcua``, the axes' identified parameters, the OPC UA connection's health in ``feed``.
-Bad entries are refused naming the key.
+The sim is killed and started again: the machine's source reconnects by itself and its
+estimates go on, the worker never stopping. Bad entries are refused naming the key.
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ from __future__ import annotations
 import itertools
 import json
 import math
+import signal
 import subprocess
 import sys
 import time
@@ -46,29 +48,46 @@ def _wait(cond: Any, timeout: float, what: str) -> None:
     raise AssertionError(f"not within {timeout:g} s: {what}")
 
 
+class Sim:
+    """``cutwatch opcua-sim`` on a fixed free port (``start`` again after ``kill``)."""
+
+    def __init__(self, d: Path) -> None:
+        self.dir, self.port = d, free_port()
+        self.url = f"opc.tcp://127.0.0.1:{self.port}/cutwatch"
+        self.cert = d / "sim" / "server-cert.der"
+        self.proc: subprocess.Popen[bytes] | None = None
+
+    def start(self) -> None:
+        log = self.dir / "sim.log"
+        with log.open("w") as f:
+            self.proc = subprocess.Popen(
+                _cutwatch("opcua-sim", "--port", str(self.port), "--cert-dir",
+                          str(self.dir / "sim")),
+                stdout=f, stderr=subprocess.STDOUT,
+            )  # fmt: skip
+        _wait(lambda: "server certificate:" in log.read_text(), 60, "the sim")
+
+    def kill(self) -> None:
+        if self.proc is not None and self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGKILL)
+            self.proc.wait(10)
+
+
 @pytest.fixture
 def sim(tmp_path: Path) -> Iterator[dict[str, Any]]:
     """A real opcua-sim on a free port, and the map browsed from it."""
-    port = free_port()
-    log = (tmp_path / "sim.log").open("w+")
-    proc = subprocess.Popen(
-        _cutwatch("opcua-sim", "--port", str(port), "--cert-dir", str(tmp_path / "sim")),
-        stdout=log, stderr=subprocess.STDOUT,
-    )  # fmt: skip
-    url = f"opc.tcp://127.0.0.1:{port}/cutwatch"
-    cert = tmp_path / "sim" / "server-cert.der"
+    s = Sim(tmp_path)
     try:
-        _wait(lambda: "server certificate:" in (tmp_path / "sim.log").read_text(), 60, "the sim")
+        s.start()
         nodes = tmp_path / "map.json"
         subprocess.run(
-            _cutwatch("opcua", "browse", url, "--opcua-trust", str(cert),
+            _cutwatch("opcua", "browse", s.url, "--opcua-trust", str(s.cert),
                       "--opcua-cert-dir", str(tmp_path / "client"), "--out", str(nodes)),
             check=True, capture_output=True, timeout=60,
         )  # fmt: skip
-        yield {"url": url, "cert": cert, "nodes": nodes, "dir": tmp_path}
+        yield {"url": s.url, "cert": s.cert, "nodes": nodes, "dir": tmp_path, "sim": s}
     finally:
-        stop(proc)  # type: ignore[arg-type]
-        log.close()
+        s.kill()
 
 
 def _finite(v: object) -> bool:
@@ -109,6 +128,25 @@ def test_a_worker_publishes_an_opcua_machines_estimates(sim: dict[str, Any]) -> 
             assert h["status"] == "ok" and h["machines"] == 1 and h["opcua_connected"] == 1, h
             m = httpx.get(f"http://127.0.0.1:{http}/api/machines", timeout=5).json()
             assert [r["machine"] for r in m] == [MACHINE]
+            # the server dies: the machine's source says so, the worker goes on; it comes
+            # back: the source reconnects by itself and the estimates go on
+            one = f"http://127.0.0.1:{http}/api/machines/{MACHINE}"
+
+            def feed() -> dict[str, Any]:
+                r: dict[str, Any] = httpx.get(one, timeout=5).json()["feed"]
+                return r
+
+            sim["sim"].kill()
+            _wait(lambda: not feed()["connected"], 20, "the lost connection")
+            h = httpx.get(f"http://127.0.0.1:{http}/api/health", timeout=5).json()
+            assert h["status"] == "ok" and h["opcua_connected"] == 0, h
+            sim["sim"].start()
+            back = time.time()
+            _wait(lambda: feed()["connects"] >= 2, 60, "the reconnect")
+            _wait(lambda: len(est.of(MACHINE, back)) >= 10, 30, "estimates again")
+            again = est.of(MACHINE, back)[-1]
+            assert again["t"] > last["t"] and again["feed"]["connected"] is True, again["feed"]
+            assert again["feed"]["gaps"] == 1, again["feed"]  # the outage, counted once
             print(json.dumps({"messages": len(msgs), "t": last["t"], "params": last["params"]}))
         finally:
             est.close()
