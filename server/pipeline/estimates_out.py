@@ -164,7 +164,9 @@ class EstimatesPublisher:
             alarms.append(f"{who}remaining tool life {life:.1f} min")
         if feed_health:
             if not feed_health.get("connected", True):
-                alarms.append("drive feed: broker not connected")
+                # an OPC UA source's status names its server; a drive feed is the broker's
+                who = "OPC UA server" if "server" in feed_health else "broker"
+                alarms.append(f"drive feed: {who} not connected")
         body: dict[str, Any] = {
             "wall": now,
             "t": t,

@@ -23,6 +23,13 @@ All machines share **one** broker connection:
   the identifiers' estimates and covariances carry on (docs/checkpoints.md); the first
   block after the restart is marked ``resumed``.
 
+A worker also runs machines read from their CNCs' OPC UA servers
+(:attr:`WorkerConfig.opcua`, ``cutwatch worker --opcua-machine``): each on its own
+:class:`~server.pipeline.opcua_source.OpcuaSource` (its own client thread, security,
+reconnects and health), stepped by the same loop as what has arrived, its estimates and
+events published on the same broker as a broker machine's. The broker's metas of a
+machine of that name are ignored.
+
 A machine that sends a new meta (other sample time or nominal parameters) gets a new
 pipeline, as in ``cutwatch serve``.
 """
@@ -49,6 +56,8 @@ from server.pipeline.estimates_out import EstimatesPublisher
 from server.pipeline.events_out import EventsPublisher
 from server.pipeline.live_pipeline import LivePipeline
 from server.pipeline.mqtt_source import MqttSource
+from server.pipeline.opcua_machines import OpcuaMachine
+from server.pipeline.opcua_source import OpcuaSource
 from server.pipeline.runtime import CheckpointWriter, MachineRuntime
 from server.pipeline.shards import owns
 
@@ -84,6 +93,9 @@ class WorkerConfig:
     dashboard
         The URL prefix of the machines' pages (``<prefix>/m/<machine>/``) for the fleet
         page's link; None: no link.
+    opcua
+        Machines read from their OPC UA servers (with these, shard and machines may both
+        be None: no machine is taken from the broker).
     """
 
     shard: tuple[int, int] | None = None
@@ -94,8 +106,11 @@ class WorkerConfig:
     checkpoint_s: float = 5.0
     dashboard: str | None = None
     seed: int = 0
+    opcua: tuple[OpcuaMachine, ...] = ()
 
     def __post_init__(self) -> None:
+        if self.shard is None and self.machines is None and self.opcua:
+            self.machines = frozenset()  # none from the broker
         if (self.shard is None) == (self.machines is None):
             raise ParameterError(
                 "shard/machines", "exactly one of them", (self.shard, self.machines)
@@ -108,17 +123,20 @@ class WorkerConfig:
             raise ParameterError("checkpoint_s", "a number of seconds >= 0", self.checkpoint_s)
 
     def describe(self) -> str:
+        ua = f"opcua {','.join(m.name for m in self.opcua)}" if self.opcua else ""
         if self.shard is not None:
-            return f"shard {self.shard[0]}/{self.shard[1]}"
-        return f"machines {','.join(sorted(self.machines or ()))}"
+            return " + ".join(filter(None, [f"shard {self.shard[0]}/{self.shard[1]}", ua]))
+        names = f"machines {','.join(sorted(self.machines))}" if self.machines else ""
+        return " + ".join(filter(None, [names, ua]))
 
 
 @dataclass
 class MachineRun:
-    """One machine of a worker: its feed, publishers and runtime (built at its first meta)."""
+    """One machine of a worker: its feed (None: an OPC UA machine), publishers and runtime
+    (built at its first meta; an OPC UA machine's at the worker's start)."""
 
     name: str
-    feed: DriveFeed
+    feed: DriveFeed | None
     out: EstimatesPublisher
     events_out: EventsPublisher
     runtime: MachineRuntime | None = None
@@ -127,6 +145,15 @@ class MachineRun:
     saved_at: float = 0.0
     #: recent force levels (rms of a block's adaptive estimate) for the machine's page
     levels: deque[tuple[float, float]] = field(default_factory=lambda: deque(maxlen=300))
+    #: the OPC UA machine's connection (None: a broker machine)
+    opcua: OpcuaMachine | None = None
+
+    def feed_health(self) -> dict[str, Any]:
+        """The feed's health: the broker feed's, or the OPC UA source's status."""
+        if self.feed is not None:
+            return self.feed.health()
+        src = self.pipe.source if self.pipe is not None else None
+        return src.status() if isinstance(src, OpcuaSource) else {"connected": False}
 
     @property
     def pipe(self) -> LivePipeline | None:
@@ -176,6 +203,8 @@ class Worker:
         c.on_disconnect = self._on_disconnect
         c.on_message = self._on_message
         self._client = c
+        for m in self.cfg.opcua:
+            self.adopt_opcua(m)
         for run in list(self.runs.values()):
             run.out.share(c)
             run.events_out.share(c)
@@ -193,6 +222,8 @@ class Worker:
             runs = list(self.runs.values())
         for run in runs:  # the newest state of each, written here
             self._save(run)
+            if run.opcua is not None and run.pipe is not None:
+                run.pipe.source.stop()  # type: ignore[attr-defined]
         c, self._client = self._client, None
         if c is not None:
             c.disconnect()
@@ -214,9 +245,10 @@ class Worker:
         with self._lock:
             runs = list(self.runs.values())
         for run in runs:
-            run.feed.connected = True
             run.out.connected = run.events_out.connected = True
-            subs.append((run.feed.drive_topic, 0))
+            if run.feed is not None:
+                run.feed.connected = True
+                subs.append((run.feed.drive_topic, 0))
         client.subscribe(subs)
 
     def _on_disconnect(
@@ -226,9 +258,10 @@ class Worker:
         with self._lock:
             runs = list(self.runs.values())
         for run in runs:
-            run.feed.connected = False
             run.out.connected = run.events_out.connected = False
-            run.feed.counts["disconnects"] += 1
+            if run.feed is not None:
+                run.feed.connected = False
+                run.feed.counts["disconnects"] += 1
         if getattr(rc, "is_failure", False):
             self.last_error = f"broker {self.broker.describe()}: disconnected ({reason_text(rc)})"
 
@@ -244,8 +277,9 @@ class Worker:
                     if not owns(machine, self.cfg.shard, self.cfg.machines):
                         return
                     run = self.adopt(machine)
-                run.feed.push_meta(bytes(msg.payload))
-            elif leaf == "drive" and run is not None:
+                if run.feed is not None:  # an OPC UA machine of that name: not the broker's
+                    run.feed.push_meta(bytes(msg.payload))
+            elif leaf == "drive" and run is not None and run.feed is not None:
                 run.feed.push(bytes(msg.payload))
         except Exception as exc:  # never let a message kill paho's thread
             log.warning("cutwatch worker: message on %s skipped: %r", msg.topic, exc)
@@ -272,6 +306,21 @@ class Worker:
             out.share(c)
             run.events_out.share(c)
         log.info("cutwatch worker %s: owns %s", self.name, machine)
+        return run
+
+    def adopt_opcua(self, m: OpcuaMachine) -> MachineRun:
+        """Own the OPC UA machine ``m``: its runtime on its own source (its client thread
+        started here, reconnecting by itself), its publishers on the worker's broker."""
+        dash = f"{self.cfg.dashboard.rstrip('/')}/m/{m.name}/" if self.cfg.dashboard else None
+        out = EstimatesPublisher(self.broker, m.name, self.cfg.publish_hz, dash)
+        run = MachineRun(m.name, None, out, EventsPublisher(self.broker, m.name), opcua=m)
+        src = m.source()
+        self._new_runtime(run, LivePipeline(seed=self.cfg.seed, source=src))
+        self._set_grid(run)
+        with self._lock:
+            self.runs[m.name] = run
+        src.start()
+        log.info("cutwatch worker %s: owns %s (OPC UA %s)", self.name, m.name, m.options.url)
         return run
 
     # ------------------------------------------------------------------ the loop
@@ -308,12 +357,17 @@ class Worker:
         publish its estimates and events. True when it stepped."""
         feed = run.feed
         if run.pipe is None or run.pipe.source.needs_rebuild:  # type: ignore[attr-defined]
-            if feed.meta is None:
+            if feed is not None and feed.meta is None:
                 return False
             self._build(run)
         pipe = run.pipe
         assert pipe is not None
         now = time.monotonic()
+        if feed is None:  # an OPC UA source: what its grid has ready, a block at most
+            # per block's time (it sets its own pace, as in ``cutwatch serve``)
+            if now - run.last_step < 1e-3 * self.cfg.block_ms:
+                return False
+            return self._step(run, run.block_n, now)
         have = feed.buffered
         stalled = have > 0 and now - run.last_step > 2e-3 * self.cfg.block_ms
         if have < run.block_n and not stalled:
@@ -323,9 +377,13 @@ class Worker:
         # estimates do not depend on the block length (bit-identical, docs/plant.md) and
         # a longer block costs less per sample, so a worker that fell behind catches up
         k = min(max(have // run.block_n, 1), CATCH_UP)
+        return self._step(run, k * run.block_n, now)
+
+    def _step(self, run: MachineRun, n: int, now: float) -> bool:
+        """Step ``n`` samples (fewer: what has arrived), publish; True when it stepped."""
         rt = run.runtime
         assert rt is not None
-        out, events = rt.step(k * run.block_n)
+        out, events = rt.step(n)
         stepped = len(out["t"]) > 0
         if stepped:
             rt.emit(events)
@@ -335,7 +393,7 @@ class Worker:
                 a = f[np.isfinite(f)]
                 if a.size:
                     run.levels.append((float(out["t"][-1]), float(np.sqrt(a @ a / a.size))))
-            rt.estimates(out, time.time(), feed_health=run.feed.health())
+            rt.estimates(out, time.time(), feed_health=run.feed_health())
         run.last_step = now
         return stepped
 
@@ -350,16 +408,24 @@ class Worker:
             pipe.carry(old)  # the identified parameters go on (a new rate: designed again)
             run.runtime.set_pipeline(pipe)
         else:
-            run.runtime = MachineRuntime(
-                run.name,
-                LivePipeline(seed=self.cfg.seed, source=MqttSource(run.feed)),
-                events_out=run.events_out,
-                estimates_out=run.out,
-                checkpoint=self._path(run.name),
-                writer=self.writer,
-                host=f"worker {self.name}",
-            )
-            run.runtime.resume()
+            assert run.feed is not None
+            self._new_runtime(run, LivePipeline(seed=self.cfg.seed, source=MqttSource(run.feed)))
+        self._set_grid(run)
+
+    def _new_runtime(self, run: MachineRun, pipe: LivePipeline) -> None:
+        run.runtime = MachineRuntime(
+            run.name,
+            pipe,
+            events_out=run.events_out,
+            estimates_out=run.out,
+            checkpoint=self._path(run.name),
+            writer=self.writer,
+            host=f"worker {self.name}",
+        )
+        run.runtime.resume()
+
+    def _set_grid(self, run: MachineRun) -> None:
+        assert run.runtime is not None
         run.block_n = max(1, round(self.cfg.block_ms * 1e-3 / run.runtime.pipeline.sample_time))
         # the first step waits for a whole block too (a stall: for 2 blocks' time), so the
         # blocks, and the estimates with them, fall on the machine's block grid
@@ -396,7 +462,8 @@ class Worker:
             return []
         assert self.cfg.data_dir is not None
         names = sorted(p.stem for p in (self.cfg.data_dir / "state").glob("*.npz"))
-        mine = [n for n in names if owns(n, self.cfg.shard, self.cfg.machines)]
+        ua = {m.name for m in self.cfg.opcua}
+        mine = [n for n in names if owns(n, self.cfg.shard, self.cfg.machines) and n not in ua]
         for n in mine:
             self.adopt(n)
         return mine
@@ -419,7 +486,7 @@ class Worker:
                 "latest": {k: latest.get(k, math.nan) for k in PAGE_CHANNELS},
                 "status": rt.monitor_status() if rt is not None else None,
                 "parts": pipe.parts() if pipe is not None else [],
-                "feed": pipe.source.status() if pipe is not None else run.feed.health(),
+                "feed": pipe.source.status() if pipe is not None else run.feed_health(),
                 "checkpoint": dict(run.checkpoint),
                 "estimates_out": run.out.health(),
                 "levels": list(run.levels),
@@ -440,7 +507,12 @@ class Worker:
                 "machines": len(runs),
                 "receiving": sum(r.pipe is not None and r.blocks > 0 for r in runs),
                 "resumed": sum(bool(r.checkpoint.get("resumed")) for r in runs),
-                "dropped_samples": sum(r.feed.counts["dropped_samples"] for r in runs),
+                "dropped_samples": sum(
+                    r.feed.counts["dropped_samples"] for r in runs if r.feed is not None
+                ),
+                "opcua_connected": sum(
+                    bool(r.feed_health().get("connected")) for r in runs if r.opcua is not None
+                ),
                 "loop_ms_p50": 1e3 * float(np.median(loop)),
                 "loop_ms_max": 1e3 * float(loop.max()),
                 "warm_s": self.warm_s,

@@ -16,11 +16,22 @@ Each machine's state is written to ``DATA_DIR/state/<machine>.npz`` every
 its file (wear, identified parameters and covariances carry on). docs/plant.md has the
 systemd unit and the Kubernetes StatefulSet that restart a worker.
 
+It also reads machines from their CNCs' OPC UA servers (``--opcua-machine
+NAME=URL,nodes=MAP[,security=POLICY][,trust=CERT]...[,cert=PEM,key=PEM][,publishing=S]``,
+repeatable, or ``--opcua-machines FILE``: ``{"machines": {NAME: {"url": ..., "nodes": ...,
+"trust": [...]}}}``, paths relative to the file): each on its own client (security,
+reconnects, health as in ``serve --source opcua``, docs/opcua.md), its estimates and
+events published on the broker as a broker machine's. What an entry leaves out comes from
+the ``--opcua-*`` options. With OPC UA machines, ``--shard``/``--machines`` may be left out
+(then no machine is taken from the broker).
+
 Examples::
 
     cutwatch worker --broker mqtt://127.0.0.1:1883 --shard 0/2 --data-dir plant --port 8201
     cutwatch worker --broker mqtt://127.0.0.1:1883 --machines mill-1,mill-2 \\
         --data-dir plant --port 8202 --public-url http://127.0.0.1:8202
+    cutwatch worker --broker mqtt://127.0.0.1:1883 --port 8203 --opcua-machine \
+        cnc-7=opc.tcp://127.0.0.1:4840/cutwatch,nodes=map.json,trust=data/opcua-sim/server-cert.der
 """
 
 from __future__ import annotations
@@ -29,19 +40,35 @@ import argparse
 from pathlib import Path
 
 from server.cli.broker_options import add_broker_options, broker_config
+from server.cli.opcua_options import add_opcua_options, opcua_security
 
 HELP = "run many machines' pipelines in one process (a shard of a plant), no dashboards"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--broker", required=True, help="mqtt://host[:port] or mqtts://host[:port]")
-    who = p.add_mutually_exclusive_group(required=True)
+    who = p.add_mutually_exclusive_group()
     who.add_argument(
         "--shard",
         help="I/N: the machines whose name hashes to shard I of N; host/N: I from the host "
         "name's trailing -<ordinal> (a StatefulSet pod)",
     )
     who.add_argument("--machines", help="an explicit comma-separated list of machine names")
+    p.add_argument(
+        "--opcua-machine",
+        action="append",
+        default=[],
+        metavar="NAME=URL,nodes=MAP[,KEY=VALUE...]",
+        help="a machine read from its OPC UA server; keys: nodes (the node map), security, "
+        "trust (repeatable), cert, key, publishing [s]; repeatable",
+    )
+    p.add_argument(
+        "--opcua-machines",
+        type=Path,
+        metavar="FILE",
+        help='OPC UA machines in a JSON file: {"machines": {NAME: {"url": ..., "nodes": ..., '
+        '"security": ..., "trust": [...]}}} (paths relative to the file)',
+    )
     p.add_argument(
         "--data-dir",
         type=Path,
@@ -69,6 +96,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "pipeline; repeatable (CUTWATCH_PARTS; docs/adding-a-part.md)",
     )
     add_broker_options(p)
+    add_opcua_options(p)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -85,6 +113,24 @@ def run(args: argparse.Namespace) -> int:
 
     if not (1 <= args.port <= 65535):
         raise CutwatchError(f"--port: expected 1-65535, got {args.port}")
+    from server.pipeline.opcua_machines import load_opcua_machines, parse_opcua_machine
+    from server.records.opcua_map import load_node_map
+
+    sec = opcua_security(args)
+    ua = [parse_opcua_machine(s, sec) for s in args.opcua_machine]
+    if args.opcua_machines is not None:
+        ua += load_opcua_machines(args.opcua_machines, sec)
+    seen: set[str] = set()
+    for m in ua:
+        if m.name in seen:
+            raise CutwatchError(f"OPC UA machine {m.name}: expected once, got it twice")
+        seen.add(m.name)
+        load_node_map(m.nodes)  # a bad map refused now, its key named
+    if not (args.shard or args.machines is not None or ua):
+        raise CutwatchError(
+            "expected --shard, --machines or OPC UA machines (--opcua-machine, "
+            "--opcua-machines), got none"
+        )
     shard = parse_shard(args.shard) if args.shard else None
     machines = None
     if args.machines is not None:
@@ -102,6 +148,7 @@ def run(args: argparse.Namespace) -> int:
             checkpoint_s=args.checkpoint_s,
             dashboard=args.public_url,
             seed=args.seed,
+            opcua=tuple(ua),
         )
     except ParameterError as exc:
         raise CutwatchError(f"--{exc.name.replace('_', '-')}: expected {exc.expected}, "
