@@ -394,15 +394,15 @@ def _axis(
 
 @njit(cache=True)
 def step_block(
-    n: int, k0: int, m: CentreDesign, b: CentreBlock, s: CentreArrays, noise: F64, out: F64
+    n: int, k0: int, m: CentreDesign, blk: CentreBlock, s: CentreArrays, noise: F64, out: F64
 ) -> int:  # pragma: no cover
     """Advance the machine ``m`` (:class:`CentreDesign`) in state ``s``
-    (:class:`CentreArrays`, in place) up to ``n`` samples within the program block ``b``
+    (:class:`CentreArrays`, in place) up to ``n`` samples within the program block ``blk``
     (:class:`CentreBlock`), writing columns ``k0, k0 + 1, ...`` of ``out``; stops early
     when the block is done. Returns the samples run. ``noise`` holds standard normals:
     rows X, Y, Z, spindle current."""
     ts, axp, phi, gam, spp, sp_struct = m.ts, m.axp, m.phi, m.gam, m.spp, m.sp_struct
-    pp, cp, lags, dr0, dr1 = b.pp, b.cp, b.lags, b.dr0, b.dr1
+    pp, cp, lags, dr0, dr1 = blk.pp, blk.cp, blk.lags, blk.dr0, blk.dr1
     ax, ss, ps, hist, st_struct = s.ax, s.ss, s.ps, s.hist, s.st_struct
     ra = np.zeros(3)
     va = np.zeros(3)
