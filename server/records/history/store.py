@@ -35,6 +35,7 @@ from sqlalchemy.engine import Connection
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.sql import Select
 
+from common.event_kinds import EventKind
 from server.records.history.tables import acknowledgements, events, tool_life
 from server.records.monitor_events import KINDS, MonitorEvent
 
@@ -43,7 +44,14 @@ RELATIVE_PATH = Path("history") / "cutwatch.sqlite"
 #: the migration scripts (Alembic's script location)
 MIGRATIONS = Path(__file__).resolve().parent / "migrations"
 #: why a tool left the spindle
-CAUSES = ("wear_limit", "breakage", "missing_tool", "collision", "manual", "unknown")
+CAUSES: tuple[str, ...] = (
+    EventKind.WEAR_LIMIT,
+    EventKind.BREAKAGE,
+    EventKind.MISSING_TOOL,
+    EventKind.COLLISION,
+    "manual",
+    "unknown",
+)
 #: the most rows one query gives
 MAX_LIMIT = 1000
 

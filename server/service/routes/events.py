@@ -12,10 +12,11 @@ from __future__ import annotations
 
 import asyncio
 import math
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any
 
 from fastapi import APIRouter, Depends, HTTPException, Path, Query
 
+from common.event_kinds import EventKind
 from server.records.history import HistoryStore
 from server.records.history.store import MAX_LIMIT
 from server.service.auth import operator
@@ -33,7 +34,6 @@ from server.service.schemas import (
 
 router = APIRouter(responses=error_responses())
 
-Kind = Literal["breakage", "collision", "missing_tool", "wear_limit", "life_short"]
 Limit = Annotated[int, Query(ge=1, le=MAX_LIMIT, description="items per page")]
 Offset = Annotated[int, Query(ge=0, le=10**9, description="items to skip (newest first)")]
 Tool = Annotated[int | None, Query(ge=0, le=10**6, description="only this tool number")]
@@ -72,7 +72,7 @@ def _wall(name: str, v: float | None) -> float | None:
 )
 async def list_events(
     lp: Live,
-    kind: Annotated[Kind | None, Query(description="only events of this kind")] = None,
+    kind: Annotated[EventKind | None, Query(description="only events of this kind")] = None,
     tool: Tool = None,
     acked: Annotated[bool | None, Query(description="only acknowledged (true) or not")] = None,
     since: Annotated[float | None, Query(description="received at or after [unix s]")] = None,
