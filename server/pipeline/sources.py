@@ -370,6 +370,49 @@ class ConfiguredSource:
         return self._cfg.encoder_resolution
 
 
+class LiveSource(ConfiguredSource):
+    """What every live feed from a real machine (:class:`~server.pipeline.mqtt_source.
+    MqttSource`, :class:`~server.pipeline.opcua_source.OpcuaSource`) does alike with its
+    time: the machine is not ours to keep (it goes on without us) and cannot be rewound,
+    but the source's time goes on from where it was.
+
+    A subclass keeps its time in ``_t`` [s] and ``_resumed`` (the next block is marked
+    :data:`RESUMED`), and forgets the feed's time origin in :meth:`_forget_origin`.
+    """
+
+    _t: float
+    _resumed: bool
+
+    def _forget_origin(self) -> None:
+        """The next sample starts the source's time afresh from ``_t``."""
+        raise NotImplementedError
+
+    def reconfigure(self, **changes: object) -> None:
+        """Knobs do not change a real machine."""
+
+    def reset(self) -> None:
+        """A live feed cannot rewind: time restarts at 0 with the next samples."""
+        self._t = 0.0
+        self._forget_origin()
+
+    def state(self) -> object:
+        """The source's time [s]."""
+        return float(self._t)
+
+    def restore(self, state: object) -> None:
+        """Continue the time at ``state`` [s]; the next block is marked :data:`RESUMED`.
+
+        Raises
+        ------
+        ParameterError
+            Not a time.
+        """
+        if not isinstance(state, float) or not math.isfinite(state) or state < 0:
+            raise ParameterError("source", "a time >= 0 s", state)
+        self._t, self._resumed = state, True
+        self._forget_origin()
+
+
 class ReplaySource(ConfiguredSource):
     """A measured two-inertia log as a source: its samples in order, then finished.
 
@@ -470,6 +513,7 @@ __all__ = [
     "NOMINAL",
     "RESUMED",
     "ConfiguredSource",
+    "LiveSource",
     "MeasurementSource",
     "ReplaySource",
     "SimulatorSource",
