@@ -51,9 +51,9 @@ reset()
     a log from its first sample.
 state() -> object
     Where the source is, as a value of the state codec (:mod:`common.state_io`): the
-    simulated stage (state, configuration, random generator), a log's position; None
-    for a live feed (the machine goes on without us). ``restore(state)`` continues
-    from it.
+    simulated stage (state, configuration, random generator), a log's position; a live
+    feed's time only (the machine goes on without us: :class:`LiveSource`).
+    ``restore(state)`` continues from it.
 truth_summary() -> dict
     What the source knows beside the measurements, for the snapshot's ``truth``.
 status() -> dict
@@ -70,7 +70,11 @@ on the measurements restart, the estimates (parameters, covariances, segment tra
 wear) go on.
 
 Implementations: :class:`SimulatorSource` (the stage of :mod:`machine.stage`) and
-:class:`ReplaySource` (a measured log, checked by :func:`open_replay`).
+:class:`ReplaySource` (a measured log, checked by :func:`open_replay`) here; the live
+feeds :class:`server.pipeline.mqtt_source.MqttSource` (a broker) and
+:class:`server.pipeline.opcua_source.OpcuaSource` (an OPC UA server), whose time
+:class:`LiveSource` keeps; the machining centre's simulated CNC trace,
+:class:`server.pipeline.centre_source.CentreSource`.
 
 Replay validation (:func:`open_replay`): the file exists, passes
 :func:`server.records.measured_log.load_log`, is of kind ``two_inertia`` with a ``q_l``
