@@ -3,7 +3,7 @@
 // charts are built from the stream's own description (the hello: charts, channels, parts;
 // charts.js): no channel's name is written in web/.
 import { checkMessage } from "./protocol.js";
-import { accuracyTable, accuracyTitle } from "./panels.js";
+import { accuracyTable, accuracyTitle, parameterChannels, parameterRows } from "./panels.js";
 import { PAGES, PALETTE, chartSpecs, forceLooks } from "./charts.js";
 import { TIMELINE_HEAD, ackRefusal, eventRow, headline, markersIn, mergeEvent, ordered,
   statusView } from "./monitor.js";
@@ -20,6 +20,7 @@ const state = {
   dropped: 0, dirty: false, grid: {}, health: { x: [], lag: [], rtf: [] }, healthChart: null,
   labels: {}, acc: { chart: null, key: "", data: [[]] },
   events: new Map(), role: null, status: null, layout: "",
+  params: { names: [], latest: {}, key: "", t: -Infinity },
 };
 
 // ---------------------------------------------------------------- charts
@@ -102,6 +103,8 @@ function buildCharts(msg) {
     $(`charts-${page}`).replaceChildren(...mine.map(panel));
     $(`page-${page}`).hidden = mine.length === 0;
   }
+  const nr = specs.filter((s) => s.page === "research").length;
+  $("tab-research-count").textContent = nr ? `(${nr} charts)` : "";
   for (const spec of specs) { state.specs[spec.id] = spec; makeChart(spec); }
 }
 
@@ -218,6 +221,60 @@ function showParts(parts) {
   }));
   const down = (parts || []).filter((p) => !p.running).length;
   $("parts-summary").textContent = down ? `${down} not running` : "all running";
+}
+
+// ---------------------------------------------------------------- pages
+// The page the address names: #research, else the machine's (#operator). The charts drawn
+// while their page was hidden take their width when it shows.
+function showPage() {
+  const page = location.hash === "#research" ? "research" : "operator";
+  document.body.dataset.page = page;
+  for (const p of PAGES) {
+    const tab = $(`tab-${p}`);
+    if (p === page) tab.setAttribute("aria-current", "page");
+    else tab.removeAttribute("aria-current");
+  }
+  resize();
+}
+
+// ---------------------------------------------------------------- identified parameters
+// The latest finite value of each channel the parameters' table reads (a reset, time
+// going back, forgets them), and the table redrawn when its text changes.
+function showParams(frame) {
+  const p = state.params;
+  if (frame) {
+    if (frame.health && frame.health.sim_t < p.t) p.latest = {};
+    if (frame.health) p.t = frame.health.sim_t;
+    for (const name of p.names) {
+      const v = frame.ch[name];
+      if (!v) continue;
+      for (let i = v.length - 1; i >= 0; i--) {
+        if (v[i] != null) { p.latest[name] = v[i]; break; }
+      }
+    }
+  }
+  const rows = parameterRows(state.channels, p.latest);
+  const key = JSON.stringify(rows);
+  if (key === p.key) return;
+  p.key = key;
+  const cells = (r) => [r.label, r.value, r.interval, r.unit];
+  $("params").innerHTML = rows.length ? "<thead><tr><th>parameter</th><th>estimate</th>" +
+    "<th>95 % interval</th><th>unit</th></tr></thead>" : "";
+  const body = document.createElement("tbody");
+  body.append(...rows.map((r) => {
+    const tr = document.createElement("tr");
+    tr.dataset.key = r.key;
+    tr.dataset.excited = String(r.excited);
+    for (const text of cells(r)) {
+      const td = document.createElement("td");
+      td.textContent = text;
+      td.dataset.excited = r.excited === false ? "0" : "1";
+      tr.append(td);
+    }
+    return tr;
+  }));
+  if (rows.length) $("params").append(body);
+  $("params-empty").hidden = rows.length > 0;
 }
 
 // ---------------------------------------------------------------- accuracy panel
@@ -518,6 +575,8 @@ function connect() {
       state.labels = Object.fromEntries(msg.channels.map((c) => [c.name, c.label]));
       buildCharts(msg);
       clearData();
+      state.params = { names: parameterChannels(msg.channels), latest: {}, key: "", t: -Infinity };
+      showParams(null);
       showParts(msg.parts);
       window.dispatchEvent(new CustomEvent("cutwatch:hello", { detail: msg })); // loop.js
       conn.textContent = `live · ${msg.scenario}`;
@@ -538,6 +597,7 @@ function connect() {
     showExcited(msg);
     showAccuracy(msg.accuracy, msg.health.sim_t);
     showParts(msg.parts);
+    showParams(msg);
     syncKnobs(msg.knobs);
     document.body.dataset.frames = String(state.frames);
   };
@@ -566,6 +626,8 @@ function init() {
   $("ack-all").onclick = () => acknowledgeAll();
   renderTimeline();
   makeHealthChart();
+  window.addEventListener("hashchange", showPage);
+  showPage();
   $("pause").onclick = () => control("pause");
   $("resume").onclick = () => control("resume");
   $("reset").onclick = () => control("reset");
