@@ -20,7 +20,7 @@ const state = {
   dropped: 0, dirty: false, grid: {}, health: { x: [], lag: [], rtf: [] }, healthChart: null,
   labels: {}, acc: { chart: null, key: "", data: [[]] },
   events: new Map(), role: null, status: null, layout: "",
-  params: { names: [], latest: {}, key: "", t: -Infinity },
+  params: { names: [], latest: {}, key: "", t: -Infinity }, hello: null,
 };
 
 // ---------------------------------------------------------------- charts
@@ -89,23 +89,46 @@ function panel(spec) {
   return sec;
 }
 
-// On hello: the charts the stream describes, on their pages; built again only when they
-// change (a new part, another pipeline).
-function buildCharts(msg) {
+// A chart whose part does not run: its title and the part's reason, no chart.
+function downPanel(spec, reason) {
+  const sec = document.createElement("section");
+  sec.className = "panel down";
+  sec.id = `panel-${spec.id}`;
+  sec.dataset.part = spec.part;
+  const h = document.createElement("h2");
+  h.textContent = spec.title;
+  const p = document.createElement("p");
+  p.className = "token";
+  p.textContent = `not running: the ${spec.part} part ${reason}`;
+  sec.append(h, p);
+  return sec;
+}
+
+// On hello (and when a part stops or starts): the charts the stream describes, on their
+// pages, those of a part that does not run as its reason; built again only when they
+// change (a new part, another pipeline, a part's state).
+function buildCharts(msg, parts) {
+  const down = new Map((parts || []).filter((p) => !p.running).map((p) => [p.name, p.reason]));
   const specs = chartSpecs(msg);
-  const layout = JSON.stringify(specs);
-  if (layout === state.layout) return;
+  const layout = JSON.stringify([specs, [...down.keys()]]);
+  if (layout === state.layout) return false;
   state.layout = layout;
   for (const c of Object.values(state.charts)) c.destroy();
   state.charts = {}; state.specs = {}; state.data = {}; state.zoomed = {};
+  const isDown = (spec) => spec.part && down.has(spec.part);
   for (const page of PAGES) {
     const mine = specs.filter((s) => s.page === page);
-    $(`charts-${page}`).replaceChildren(...mine.map(panel));
+    $(`charts-${page}`).replaceChildren(...mine.filter((s) => !isDown(s)).map(panel),
+      ...mine.filter(isDown).map((s) => downPanel(s, down.get(s.part))));
     $(`page-${page}`).hidden = mine.length === 0;
   }
-  const nr = specs.filter((s) => s.page === "research").length;
+  const nr = specs.filter((s) => s.page === "research" && !isDown(s)).length;
   $("tab-research-count").textContent = nr ? `(${nr} charts)` : "";
-  for (const spec of specs) { state.specs[spec.id] = spec; makeChart(spec); }
+  for (const spec of specs.filter((s) => !isDown(s))) {
+    state.specs[spec.id] = spec;
+    makeChart(spec);
+  }
+  return true;
 }
 
 // A vertical line at each event in the chart's x range, on top of the series: red while
@@ -202,12 +225,14 @@ function showExcited(frame) {
   }
 }
 
-// The parts of the pipeline: running, or why not (hello and every frame).
+// The parts of the pipeline: running, or why not (hello and every frame); the charts of
+// a part that stopped or started again are rebuilt.
 function showParts(parts) {
   const key = JSON.stringify(parts || []);
   const el = $("parts");
   if (el.dataset.key === key) return;
   el.dataset.key = key;
+  if (state.hello && buildCharts(state.hello, parts)) clearData();
   el.replaceChildren(...(parts || []).map((p) => {
     const tr = document.createElement("tr");
     tr.dataset.part = p.name;
@@ -573,7 +598,8 @@ function connect() {
       state.channels = msg.channels;
       state.grid = Object.fromEntries(msg.channels.map((c) => [c.name, c.grid]));
       state.labels = Object.fromEntries(msg.channels.map((c) => [c.name, c.label]));
-      buildCharts(msg);
+      state.hello = msg;
+      buildCharts(msg, msg.parts);
       clearData();
       state.params = { names: parameterChannels(msg.channels), latest: {}, key: "", t: -Infinity };
       showParams(null);

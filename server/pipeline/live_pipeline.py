@@ -470,11 +470,12 @@ class LivePipeline:
         return [c for p in self._parts for c in p.channels]
 
     def charts(self) -> list[Chart]:
-        """The charts the parts' channels are drawn on (each once, in part order)."""
+        """The charts the parts' channels are drawn on (each once, in part order), each
+        with the name of the part that declares it."""
         seen: dict[str, Chart] = {}
         for p in self._parts:
             for c in p.charts:
-                seen.setdefault(c.id, c)
+                seen.setdefault(c.id, replace(c, part=c.part or p.name))
         return list(seen.values())
 
     def force_estimates(self) -> tuple[str, ...]:

@@ -133,6 +133,10 @@ def test_the_machine_as_the_api_answers_it(run: tuple) -> None:
     desc = m["description"]
     assert desc["sample_time"] == pytest.approx(0.002) and set(desc["axes"]) == {"X", "Y", "Z"}
     assert {x["name"] for x in m["parts"]} >= {"stage", "spindle", "axes"}
+    # each chart names the part that declares it (the page draws a stopped part's reason)
+    charts = {c.id: c.describe()["part"] for c in p.charts()}
+    assert charts["force"] == "stage" and charts["spindle"] == "spindle"
+    assert charts["axis-X-force"] == "axes"
     # the stage: one axis, no spindle, no description
     d = LivePipeline("seed000-weight").machine()
     assert d["description"] is None and d["spindle"] is None

@@ -97,6 +97,10 @@ def test_the_one_machine_and_a_breakage_on_its_spindle(tmp_path: Path) -> None:
         page.click("#tab-research")
         page.wait_for_selector("#chart-axis-X-mass canvas", timeout=10000)
         assert page.is_visible("#accuracy-panel") and page.is_hidden("#chart-spindle")
+        # the stage's charts: its reason in their place, no empty chart
+        down = page.locator("#panel-force[data-part=stage]")
+        assert down.is_visible() and page.locator("#chart-force").count() == 0
+        assert parts["stage"]["reason"] in down.inner_text()
         assert page.is_hidden("#params-panel") and page.is_visible("#strip")
         page.click("#tab-operator")
         page.wait_for_selector("#chart-spindle canvas", timeout=10000)
