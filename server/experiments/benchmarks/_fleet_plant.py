@@ -178,7 +178,7 @@ def run_plant(
     machines: int, workers: int, seconds: float, progress: bool, soak: bool = False
 ) -> dict[str, object]:
     """One plant run (module docstring); ``soak``: no kill, memory sampled over time."""
-    from server.pipeline.shards import shard_of
+    from harness.shards import shard_of
 
     work = Path(tempfile.mkdtemp(prefix="cutwatch-bench-plant-"))
     log = work / "drive.csv"
