@@ -137,6 +137,8 @@ class TwoInertiaAxisPart(LivePart):
         self.axes = two_inertia_axes(description)
         self.sample_time = float(description.sample_time)
         self.charts, self.channels = _declare(self.axes)
+        #: what the part says beside running (a rate change it followed)
+        self.said = ""
         self._why = ""
         if 1.0 / self.sample_time < LOW_RATE_HZ:
             self._why = (
@@ -199,6 +201,27 @@ class TwoInertiaAxisPart(LivePart):
                          ("F_CL", f_cl), ("mode_hz", mode_hz(th[1], th[0], m_l))):  # fmt: skip
                 out[f"{a}.{k}"] = np.full(n, float(v))
         return out, []
+
+    def carry(self, old: TwoInertiaAxisPart, t: float) -> None:
+        """Take ``old``'s identified parameters (a pipeline built again for a new meta, a
+        new rate): per axis of the same name, the motor side's estimate and information
+        (its columns are in physical units whatever the rate) and the load side's
+        (:meth:`estimators.rigid_id.RigidIdentifier.adopt`), the filters restarted."""
+        if self._why or old._why:
+            return
+        kept = []
+        for a in self.axes:
+            if a not in old.st.motor:
+                continue
+            self.st.motor[a] = self.motor.restart_filters(old.st.motor[a])
+            self.st.load[a] = self.load.adopt(old.st.load[a], old.load.names)
+            kept.append(a)
+        if kept and old.sample_time != self.sample_time:
+            self.said = (
+                f"designed again at t = {t:.3f} s for {1 / self.sample_time:g} Hz (was "
+                f"{1 / old.sample_time:g} Hz): K, M_M, M_L, B_L, F_CL of {', '.join(kept)} "
+                "kept, filter states restarted"
+            )
 
     def status(self) -> dict[str, Any]:
         return {}

@@ -182,3 +182,24 @@ def test_a_collision_is_seen_on_the_axes_force_and_names_the_axis() -> None:
     ]
     assert seen, ([(e.t, e.kind, e.message[:60]) for e in events], truth.t)
     assert seen[0].line == 60 and seen[0].tool == 1 and seen[0].unit == "N"
+
+
+def test_a_rate_change_keeps_the_two_inertia_parameters() -> None:
+    """A new meta at another rate builds the part again: the motor side's and the load
+    side's identified parameters are carried (in physical units), the filters restart,
+    and the part says so."""
+    from machine.centre import signals
+    from server.pipeline.two_inertia_part import TwoInertiaAxisPart
+
+    p = LivePipeline("machining-centre", seed=2)
+    for _ in range(int(25.0 * RATE / 25)):
+        p.step(25)
+    old = p.part("two_inertia")
+    assert isinstance(old, TwoInertiaAxisPart)
+    k_old = float(old.st.motor["X"].theta[1])
+    assert k_old == pytest.approx(170e6, rel=0.05)
+    new = TwoInertiaAxisPart(signals.description(None, 1000.0))
+    new.carry(old, p.t)
+    assert float(new.st.motor["X"].theta[1]) == k_old and new.st.motor["X"].seen == 0
+    np.testing.assert_array_equal(new.st.load["X"].theta, old.st.load["X"].theta)
+    assert "for 1000 Hz (was 500 Hz)" in new.said and "X kept" in new.said
