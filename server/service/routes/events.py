@@ -12,13 +12,14 @@ from __future__ import annotations
 
 import asyncio
 import math
-from typing import Annotated, Any
+from typing import Annotated
 
 from fastapi import APIRouter, Depends, HTTPException, Path, Query
 
 from common.event_kinds import EventKind
 from server.records.history import HistoryStore
-from server.records.history.store import MAX_LIMIT
+from server.records.history.store import MAX_LIMIT, EventRow
+from server.records.monitor_events import EventRecord
 from server.service.auth import operator
 from server.service.deps import Live, conflict
 from server.service.http_errors import error
@@ -108,7 +109,7 @@ async def acknowledge(
 ) -> HistoryEvent:
     h = history_of(lp)
     by = body.by if body is not None and body.by is not None else role
-    ev = await asyncio.to_thread(h.acknowledge, event_id, by)
+    ev = await asyncio.to_thread(h.acknowledged, event_id, by)
     if ev is None:
         allowed = "the id of an event in the history (GET /api/events)"
         msg = f"no event with id {event_id!r} in the history"
@@ -119,9 +120,10 @@ async def acknowledge(
     return HistoryEvent.model_validate(ev)
 
 
-def _stream_event(ev: dict[str, Any]) -> dict[str, Any]:
+def _stream_event(ev: EventRow) -> EventRecord:
     """The event as the stream carries it (without the history's received time)."""
-    return {k: v for k, v in ev.items() if k != "received_wall"}
+    rec: EventRecord = {k: v for k, v in ev.items() if k != "received_wall"}  # type: ignore[assignment]
+    return rec
 
 
 @router.get(
