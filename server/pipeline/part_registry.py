@@ -19,6 +19,7 @@ axes           every axis of a described machine, rigid, live  server/pipeline/a
 spindle        a spindle's cutting power over its taught idle  server/pipeline/spindle_part.py
 cnc            the spindle drive's raw signals the spindle     server/pipeline/cnc_part.py
                part does not stream (the opcua source)
+centre_wear    wear per tool from the spindle's cutting power  server/pipeline/centre_wear_part.py
 =============  ==============================================  =========================
 
 More parts come after these, in the order they were added: :func:`register` (in
@@ -195,6 +196,14 @@ def _cnc(c: BuildContext) -> Part | None:
     return part if part.sources else None  # nothing beside the spindle part's signals
 
 
+def _centre_wear(c: BuildContext) -> Part | None:
+    from server.pipeline.centre_wear_part import CentreWearPart
+
+    if "spindle" not in c.parts:
+        return None  # no spindle's cutting power: not built
+    return CentreWearPart(str(getattr(c.source, "program", "")))
+
+
 #: cutwatch's own parts, by name, in the order they run (module docstring)
 BUILTIN: tuple[tuple[str, PartFactory], ...] = (
     ("workpiece", _workpiece),
@@ -207,6 +216,7 @@ BUILTIN: tuple[tuple[str, PartFactory], ...] = (
     ("axes", _axes),
     ("spindle", _spindle),
     ("cnc", _cnc),
+    ("centre_wear", _centre_wear),
 )
 
 #: the parts added: what was registered (a class or a factory) -> its factory
