@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -121,14 +122,28 @@ class IdlePowerRecord:
     c2: float
 
 
+class TeachDesign(NamedTuple):
+    """The quantile recursion's design as :func:`_teach` takes it (scalars; made per
+    block from :class:`IdlePowerParams`)."""
+
+    ts: float  # sample time [s]
+    bin_rpm: float  # width of a speed bin [rpm]
+    min_rpm: float  # below it the spindle is stopped [rpm]
+    q: float  # the share of a bin's samples below its idle power
+    gain: float  # step of the recursion per sample, a share of the estimate
+    floor_w: float  # the smallest step scale [W]
+    steady: float  # steady: the speed changes slower than this [rpm/s]
+    hold: float  # steady this long before a sample teaches [s]
+
+
 @njit(cache=True)
 def _teach(
-    ts: float, bin_rpm: float, min_rpm: float, q: float, gain: float, floor_w: float,
-    steady: float, hold: float, rpm: F64, power: F64, idle: F64, seen: F64, st: F64,
-    taught: F64,
-) -> None:  # pragma: no cover  # fmt: skip
+    d: TeachDesign, rpm: F64, power: F64, idle: F64, seen: F64, st: F64, taught: F64
+) -> None:  # pragma: no cover
     """The quantile recursion over a block (``idle``, ``seen``, ``st = [last_rpm,
     steady_s]`` in place)."""
+    ts, bin_rpm, min_rpm, q, gain = d.ts, d.bin_rpm, d.min_rpm, d.q, d.gain
+    floor_w, steady, hold = d.floor_w, d.steady, d.hold
     nb = idle.shape[0]
     for k in range(rpm.shape[0]):
         n = rpm[k]
@@ -188,8 +203,9 @@ class IdlePower:
         idle, seen = state.idle.copy(), state.seen.copy()
         st = np.array([state.last_rpm, state.steady_s])
         taught = np.zeros(len(rpm))
-        _teach(pr.sample_time, pr.bin_rpm, pr.min_rpm, pr.quantile, pr.gain, pr.floor_w,
-               pr.steady_rpm_per_s, pr.hold_s, rpm, p, idle, seen, st, taught)  # fmt: skip
+        design = TeachDesign(pr.sample_time, pr.bin_rpm, pr.min_rpm, pr.quantile, pr.gain,
+                             pr.floor_w, pr.steady_rpm_per_s, pr.hold_s)  # fmt: skip
+        _teach(design, rpm, p, idle, seen, st, taught)
         new = IdlePowerState(idle, seen, float(st[0]), float(st[1]))
         c1, c2 = self.model(new)
         at = self.idle_at(new, rpm, (c1, c2))

@@ -115,6 +115,7 @@ def test_mkdocs_builds_strict(tmp_path: Path) -> None:
     assert result.returncode == 0, result.stderr
     assert (tmp_path / "index.html").is_file()
     assert (tmp_path / "img" / "dashboard.png").is_file()
+    assert (tmp_path / "img" / "centre-dashboard.png").is_file()
 
 
 _DOC_CITATION = re.compile(r"\bdocs/[\w./-]+\.md\b")

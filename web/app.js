@@ -3,7 +3,7 @@
 // charts are built from the stream's own description (the hello: charts, channels, parts;
 // charts.js): no channel's name is written in web/.
 import { checkMessage } from "./protocol.js";
-import { accuracyTable, accuracyTitle } from "./panels.js";
+import { accuracyTable, accuracyTitle, parameterChannels, parameterRows } from "./panels.js";
 import { PAGES, PALETTE, chartSpecs, forceLooks } from "./charts.js";
 import { TIMELINE_HEAD, ackRefusal, eventRow, headline, markersIn, mergeEvent, ordered,
   statusView } from "./monitor.js";
@@ -20,6 +20,7 @@ const state = {
   dropped: 0, dirty: false, grid: {}, health: { x: [], lag: [], rtf: [] }, healthChart: null,
   labels: {}, acc: { chart: null, key: "", data: [[]] },
   events: new Map(), role: null, status: null, layout: "",
+  params: { names: [], latest: {}, key: "", t: -Infinity }, hello: null,
 };
 
 // ---------------------------------------------------------------- charts
@@ -88,21 +89,46 @@ function panel(spec) {
   return sec;
 }
 
-// On hello: the charts the stream describes, on their pages; built again only when they
-// change (a new part, another pipeline).
-function buildCharts(msg) {
+// A chart whose part does not run: its title and the part's reason, no chart.
+function downPanel(spec, reason) {
+  const sec = document.createElement("section");
+  sec.className = "panel down";
+  sec.id = `panel-${spec.id}`;
+  sec.dataset.part = spec.part;
+  const h = document.createElement("h2");
+  h.textContent = spec.title;
+  const p = document.createElement("p");
+  p.className = "token";
+  p.textContent = `not running: the ${spec.part} part ${reason}`;
+  sec.append(h, p);
+  return sec;
+}
+
+// On hello (and when a part stops or starts): the charts the stream describes, on their
+// pages, those of a part that does not run as its reason; built again only when they
+// change (a new part, another pipeline, a part's state).
+function buildCharts(msg, parts) {
+  const down = new Map((parts || []).filter((p) => !p.running).map((p) => [p.name, p.reason]));
   const specs = chartSpecs(msg);
-  const layout = JSON.stringify(specs);
-  if (layout === state.layout) return;
+  const layout = JSON.stringify([specs, [...down.keys()]]);
+  if (layout === state.layout) return false;
   state.layout = layout;
   for (const c of Object.values(state.charts)) c.destroy();
   state.charts = {}; state.specs = {}; state.data = {}; state.zoomed = {};
+  const isDown = (spec) => spec.part && down.has(spec.part);
   for (const page of PAGES) {
     const mine = specs.filter((s) => s.page === page);
-    $(`charts-${page}`).replaceChildren(...mine.map(panel));
+    $(`charts-${page}`).replaceChildren(...mine.filter((s) => !isDown(s)).map(panel),
+      ...mine.filter(isDown).map((s) => downPanel(s, down.get(s.part))));
     $(`page-${page}`).hidden = mine.length === 0;
   }
-  for (const spec of specs) { state.specs[spec.id] = spec; makeChart(spec); }
+  const nr = specs.filter((s) => s.page === "research" && !isDown(s)).length;
+  $("tab-research-count").textContent = nr ? `(${nr} charts)` : "";
+  for (const spec of specs.filter((s) => !isDown(s))) {
+    state.specs[spec.id] = spec;
+    makeChart(spec);
+  }
+  return true;
 }
 
 // A vertical line at each event in the chart's x range, on top of the series: red while
@@ -199,12 +225,14 @@ function showExcited(frame) {
   }
 }
 
-// The parts of the pipeline: running, or why not (hello and every frame).
+// The parts of the pipeline: running, or why not (hello and every frame); the charts of
+// a part that stopped or started again are rebuilt.
 function showParts(parts) {
   const key = JSON.stringify(parts || []);
   const el = $("parts");
   if (el.dataset.key === key) return;
   el.dataset.key = key;
+  if (state.hello && buildCharts(state.hello, parts)) clearData();
   el.replaceChildren(...(parts || []).map((p) => {
     const tr = document.createElement("tr");
     tr.dataset.part = p.name;
@@ -218,6 +246,60 @@ function showParts(parts) {
   }));
   const down = (parts || []).filter((p) => !p.running).length;
   $("parts-summary").textContent = down ? `${down} not running` : "all running";
+}
+
+// ---------------------------------------------------------------- pages
+// The page the address names: #research, else the machine's (#operator). The charts drawn
+// while their page was hidden take their width when it shows.
+function showPage() {
+  const page = location.hash === "#research" ? "research" : "operator";
+  document.body.dataset.page = page;
+  for (const p of PAGES) {
+    const tab = $(`tab-${p}`);
+    if (p === page) tab.setAttribute("aria-current", "page");
+    else tab.removeAttribute("aria-current");
+  }
+  resize();
+}
+
+// ---------------------------------------------------------------- identified parameters
+// The latest finite value of each channel the parameters' table reads (a reset, time
+// going back, forgets them), and the table redrawn when its text changes.
+function showParams(frame) {
+  const p = state.params;
+  if (frame) {
+    if (frame.health && frame.health.sim_t < p.t) p.latest = {};
+    if (frame.health) p.t = frame.health.sim_t;
+    for (const name of p.names) {
+      const v = frame.ch[name];
+      if (!v) continue;
+      for (let i = v.length - 1; i >= 0; i--) {
+        if (v[i] != null) { p.latest[name] = v[i]; break; }
+      }
+    }
+  }
+  const rows = parameterRows(state.channels, p.latest);
+  const key = JSON.stringify(rows);
+  if (key === p.key) return;
+  p.key = key;
+  const cells = (r) => [r.label, r.value, r.interval, r.unit];
+  $("params").innerHTML = rows.length ? "<thead><tr><th>parameter</th><th>estimate</th>" +
+    "<th>95 % interval</th><th>unit</th></tr></thead>" : "";
+  const body = document.createElement("tbody");
+  body.append(...rows.map((r) => {
+    const tr = document.createElement("tr");
+    tr.dataset.key = r.key;
+    tr.dataset.excited = String(r.excited);
+    for (const text of cells(r)) {
+      const td = document.createElement("td");
+      td.textContent = text;
+      td.dataset.excited = r.excited === false ? "0" : "1";
+      tr.append(td);
+    }
+    return tr;
+  }));
+  if (rows.length) $("params").append(body);
+  $("params-empty").hidden = rows.length > 0;
 }
 
 // ---------------------------------------------------------------- accuracy panel
@@ -516,8 +598,11 @@ function connect() {
       state.channels = msg.channels;
       state.grid = Object.fromEntries(msg.channels.map((c) => [c.name, c.grid]));
       state.labels = Object.fromEntries(msg.channels.map((c) => [c.name, c.label]));
-      buildCharts(msg);
+      state.hello = msg;
+      buildCharts(msg, msg.parts);
       clearData();
+      state.params = { names: parameterChannels(msg.channels), latest: {}, key: "", t: -Infinity };
+      showParams(null);
       showParts(msg.parts);
       window.dispatchEvent(new CustomEvent("cutwatch:hello", { detail: msg })); // loop.js
       conn.textContent = `live · ${msg.scenario}`;
@@ -538,6 +623,7 @@ function connect() {
     showExcited(msg);
     showAccuracy(msg.accuracy, msg.health.sim_t);
     showParts(msg.parts);
+    showParams(msg);
     syncKnobs(msg.knobs);
     document.body.dataset.frames = String(state.frames);
   };
@@ -566,6 +652,8 @@ function init() {
   $("ack-all").onclick = () => acknowledgeAll();
   renderTimeline();
   makeHealthChart();
+  window.addEventListener("hashchange", showPage);
+  showPage();
   $("pause").onclick = () => control("pause");
   $("resume").onclick = () => control("resume");
   $("reset").onclick = () => control("reset");

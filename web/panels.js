@@ -45,3 +45,43 @@ export function accuracyTable(acc, labels = {}) {
   }
   return { head, rows };
 }
+
+// 4 significant digits; tiny or huge numbers (an inertia ~ 1e-4 kg m^2) in exponent form
+function sig(v) {
+  const a = Math.abs(v);
+  return a !== 0 && (a < 1e-2 || a >= 1e5) ? v.toExponential(3) : String(Number(v.toPrecision(4)));
+}
+
+// The identified parameters with their 95 % intervals (issue 31: the machine's page), from
+// the hello's channels that carry an interval and the latest finite value of each channel
+// seen so far (latest: name -> number). Rows [{key, label, unit, value, interval, excited}]
+// in the channels' order, only for parameters estimated at least once (a part that does
+// not run streams none). Where the data do not determine it (excited 0) the estimate is
+// not given as a number, as on its chart.
+export function parameterRows(channels, latest) {
+  const rows = [];
+  for (const c of channels) {
+    const iv = c.interval;
+    if (!iv || latest[c.name] == null) continue;
+    const ex = latest[iv.excited];
+    const excited = ex == null ? null : ex !== 0;
+    const lo = latest[iv.lower];
+    const hi = latest[iv.upper];
+    const shown = excited !== false;
+    rows.push({
+      key: c.name,
+      label: c.label,
+      unit: c.unit,
+      value: shown ? sig(latest[c.name]) : "not excited",
+      interval: shown && lo != null && hi != null ? `[${sig(lo)}, ${sig(hi)}]` : "–",
+      excited,
+    });
+  }
+  return rows;
+}
+
+// The names parameterRows reads: every channel with an interval and its interval's.
+export function parameterChannels(channels) {
+  return channels.filter((c) => c.interval)
+    .flatMap((c) => [c.name, c.interval.lower, c.interval.upper, c.interval.excited]);
+}

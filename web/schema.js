@@ -44,7 +44,8 @@ export const SCHEMA = {
     "window_s",
     "fast",
     "wide",
-    "markers"
+    "markers",
+    "part"
   ],
   "interval": [
     "lower",
@@ -192,6 +193,7 @@ export const SCHEMA = {
  * @property {boolean} fast - its channels are on the fast grid t
  * @property {boolean} wide - drawn across the page
  * @property {boolean} markers - the events are drawn on it
+ * @property {string} [part] - the part that declares it (the page draws the reason instead of the chart while that part does not run; '': none named)
  */
 
 /**

@@ -39,6 +39,7 @@ The packed parameter and state arrays are read through the index constants below
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -99,6 +100,49 @@ ROWS = (
     "engaged",
 )
 N_ROWS = len(ROWS)
+
+
+class AxisCommand(NamedTuple):
+    """The interpolator's command to one feed axis for one sample. Scalars only: the
+    record of arrays (:class:`CentreDesign`) handed to :func:`_axis` three times a sample
+    made the machine's step 1.3x slower (its arrays' reference counts); it is unpacked
+    once per call of :func:`step_block` instead."""
+
+    r: float  # position [m]
+    vff: float  # velocity feed-forward [m/s]
+    aff: float  # acceleration feed-forward [m/s^2]
+
+
+class CentreDesign(NamedTuple):
+    """The machine as :func:`step_block` takes it (read only; made per call)."""
+
+    ts: float  # sample time [s]
+    axp: F64  # (3, N_AP) per-axis parameters, AP_*
+    phi: F64  # (3, 4, 4) each axis's mechanics over one sample, exp(A ts)
+    gam: F64  # (3, 4, 2) its inputs (motor force, load force) held over the sample
+    spp: F64  # (N_SP,) spindle parameters, SP_*
+    sp_struct: F64  # the tool/workpiece structure's parameters (empty: rigid)
+
+
+class CentreBlock(NamedTuple):
+    """The running program block as :func:`step_block` takes it (``cp[CP_HEAD]`` is
+    written back: the chip history's head)."""
+
+    pp: F64  # (N_PP,) the path, PP_*
+    cp: F64  # (N_CP,) the cut, CP_*
+    lags: F64  # the helix lag of each axial layer [rad]
+    dr0: F64  # (MAX_FLUTES,) the radius each flute has lost [m], before the block's event
+    dr1: F64  # and after it (a breakage)
+
+
+class CentreArrays(NamedTuple):
+    """The machine's state as :func:`step_block` updates it (in place)."""
+
+    ax: F64  # (3, N_AX) per-axis state, AX_*
+    ss: F64  # (N_SS,) spindle state, SS_*
+    ps: F64  # (N_PS,) interpolator state, PS_*
+    hist: F64  # (n, 2) the surfaces the previous flutes left (the chip history)
+    st_struct: F64  # the tool/workpiece structure's state (empty: rigid)
 
 
 @njit(cache=True)
@@ -303,10 +347,12 @@ def _spindle(
 
 @njit(cache=True)
 def _axis(
-    i: int, axp: F64, phi: F64, gam: F64, ax: F64, r: float, vff: float, aff: float,
-    f_work: float, ts: float, noise: float, out: F64, k: int,
+    i: int, axp: F64, phi: F64, gam: F64, ax: F64, cmd: AxisCommand, f_work: float,
+    ts: float, noise: float, out: F64, k: int,
 ) -> None:  # pragma: no cover  # fmt: skip
-    """One sample of feed axis ``i`` (``ax[i]`` in place); writes its rows of ``out``."""
+    """One sample of feed axis ``i`` (``ax[i]`` in place) under the interpolator's
+    command ``cmd``; writes its rows of ``out``."""
+    r, vff, aff = cmd.r, cmd.vff, cmd.aff
     p = axp[i]
     st = ax[i]
     qm = math.floor(st[AX_XM] / p[AP_QM]) * p[AP_QM]
@@ -348,13 +394,16 @@ def _axis(
 
 @njit(cache=True)
 def step_block(
-    n: int, k0: int, ts: float, axp: F64, phi: F64, gam: F64, ax: F64, spp: F64, ss: F64,
-    pp: F64, ps: F64, cp: F64, lags: F64, dr0: F64, dr1: F64, hist: F64, sp_struct: F64,
-    st_struct: F64, noise: F64, out: F64,
-) -> int:  # pragma: no cover  # fmt: skip
-    """Advance the machine up to ``n`` samples within one program block, writing columns
-    ``k0, k0 + 1, ...`` of ``out``; stops early when the block is done. Returns the
-    samples run. ``noise`` holds standard normals: rows X, Y, Z, spindle current."""
+    n: int, k0: int, m: CentreDesign, blk: CentreBlock, s: CentreArrays, noise: F64, out: F64
+) -> int:  # pragma: no cover
+    """Advance the machine ``m`` (:class:`CentreDesign`) in state ``s``
+    (:class:`CentreArrays`, in place) up to ``n`` samples within the program block ``blk``
+    (:class:`CentreBlock`), writing columns ``k0, k0 + 1, ...`` of ``out``; stops early
+    when the block is done. Returns the samples run. ``noise`` holds standard normals:
+    rows X, Y, Z, spindle current."""
+    ts, axp, phi, gam, spp, sp_struct = m.ts, m.axp, m.phi, m.gam, m.spp, m.sp_struct
+    pp, cp, lags, dr0, dr1 = blk.pp, blk.cp, blk.lags, blk.dr0, blk.dr1
+    ax, ss, ps, hist, st_struct = s.ax, s.ss, s.ps, s.hist, s.st_struct
     ra = np.zeros(3)
     va = np.zeros(3)
     aa = np.zeros(3)
@@ -380,7 +429,8 @@ def step_block(
         w_before = ss[SS_W]
         i_sp = _spindle(spp, ss, pp[PP_RPM] * ps[PS_SOVR], f[3], ts, noise[3, k])
         for i in range(3):
-            _axis(i, axp, phi, gam, ax, ra[i], va[i], aa[i], f[i], ts, noise[i, k], out, k)
+            cmd = AxisCommand(ra[i], va[i], aa[i])
+            _axis(i, axp, phi, gam, ax, cmd, f[i], ts, noise[i, k], out, k)
         b = R_SPINDLE
         out[b + 0, k] = ss[SS_WF] * 30.0 / math.pi
         out[b + 1, k] = i_sp
@@ -415,5 +465,8 @@ __all__ = [
     "N_ROWS",
     "ROWS",
     "SPINDLE_ROWS",
+    "CentreArrays",
+    "CentreBlock",
+    "CentreDesign",
     "step_block",
 ]

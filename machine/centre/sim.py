@@ -373,9 +373,14 @@ class MachiningCentre:
             assert run is not None
             run.cp[kn.CP_HEAD] = st.head
             used = kn.step_block(
-                n - k, k, self.sample_time, self._axp, st.phi, st.gam, st.ax, self._spp, st.ss,
-                run.pp, st.ps, run.cp, run.lags, run.dr0, run.dr1, st.hist, self._struct,
-                st.structure, noise, out,
+                n - k,
+                k,
+                kn.CentreDesign(self.sample_time, self._axp, st.phi, st.gam, self._spp,
+                                self._struct),
+                kn.CentreBlock(run.pp, run.cp, run.lags, run.dr0, run.dr1),
+                kn.CentreArrays(st.ax, st.ss, st.ps, st.hist, st.structure),
+                noise,
+                out,
             )  # fmt: skip
             st.head = int(run.cp[kn.CP_HEAD])
             blk = self.program.blocks[run.index]

@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from common.event_kinds import ProcessEventKind
 from common.machine_description import from_dict
 from machine.centre import signals
 from machine.centre.program import program_variant
@@ -34,7 +35,13 @@ from server.records.drive_wire import encode_drive, encode_meta, identity_segmen
 
 #: the size of each event a feed draws: a broken tooth (0.3 mm, more than any feed per
 #: tooth of the default part), a collision at 3x the feed, a tool lost whole
-EVENT_SIZES = {"breakage": 0.3e-3, "collision": 3.0, "missing_tool": 1.0}
+EVENT_SIZES: dict[str, float] = {
+    ProcessEventKind.BREAKAGE: 0.3e-3,
+    ProcessEventKind.COLLISION: 3.0,
+    ProcessEventKind.MISSING_TOOL: 1.0,
+}
+#: the events after which the tool is replaced at the next part
+_LOSES_TOOL = frozenset({ProcessEventKind.BREAKAGE, ProcessEventKind.MISSING_TOOL})
 #: the columns of a trace record that travel as identities, not as signals
 _IDENTITY_COLUMNS = ("t", "tool", "line", "override")
 
@@ -96,7 +103,7 @@ class CentreFeed:
         self.tstate, tr = self.trace.export(self.tstate, rec)
         for e in tr.events:
             self.events.append(e)
-            if e.kind in ("breakage", "missing_tool"):
+            if e.kind in _LOSES_TOOL:
                 self._broken.add(e.tool)
         cols = {c: v for c, v in signals.columns(tr, self.machine.params).items()
                 if c not in _IDENTITY_COLUMNS}  # fmt: skip

@@ -37,7 +37,7 @@ from __future__ import annotations
 import math
 import threading
 from collections.abc import Mapping, Sequence
-from typing import Any
+from typing import Any, TypedDict
 
 import numpy as np
 
@@ -218,7 +218,7 @@ class EstimatesPublisher:
         self.published += int(ok)
         return ok
 
-    def health(self) -> dict[str, Any]:
+    def health(self) -> EstimatesOutHealth:
         return {
             "topic": self.topic,
             "broker": self.cfg.describe(),
@@ -229,12 +229,31 @@ class EstimatesPublisher:
         }
 
 
+class EstimatesOutHealth(TypedDict):
+    """:meth:`EstimatesPublisher.health`: ``/api/health``'s ``estimates_out``."""
+
+    topic: str
+    broker: str
+    connected: bool
+    error: str
+    published: int
+    rate_hz: float
+
+
+class MonitorSection(TypedDict):
+    """The process monitor's state, tool and line from its latest channel values."""
+
+    state: str
+    tool: int
+    line: int
+
+
 def _axis_param(group: str) -> bool:
     """A group ``<axis>.<parameter>`` of the axes' live identification (``X.M``)."""
     return "." in group and group.rsplit(".", 1)[1] in ("M", "Fv", "Fc", "offset", "motion")
 
 
-def _monitor(latest: Mapping[str, float]) -> dict[str, Any] | None:
+def _monitor(latest: Mapping[str, float]) -> MonitorSection | None:
     """The process monitor's state, tool and line from its latest channel values."""
     st = latest.get("mon_state")
     if st is None or not math.isfinite(st):

@@ -31,14 +31,14 @@ import logging
 import threading
 import time
 from collections.abc import Iterable
-from typing import Any
+from typing import Any, TypedDict
 
 from server.pipeline.broker import (
     BrokerConfig,
     connect_in_background,
     topic,
 )
-from server.records.monitor_events import MonitorEvent
+from server.records.monitor_events import EventWire, MonitorEvent
 
 #: the command's wire schema and version (``cutwatch/<machine>/command``)
 COMMAND_SCHEMA = "cutwatch.command"
@@ -54,7 +54,31 @@ _HANDED_OVER = (0, 4)
 log = logging.getLogger("uvicorn.error")
 
 
-def command_body(ev: MonitorEvent, machine: str, wall: float) -> dict[str, Any]:
+class FeedHoldCommand(TypedDict):
+    """The command's message on ``cutwatch/<machine>/command``."""
+
+    schema: str
+    version: int
+    command: str
+    event_id: str
+    machine: str
+    t: float
+    wall: float
+
+
+class PublisherHealth(TypedDict):
+    """:meth:`EventsPublisher.health`: topics, broker, connection and counters."""
+
+    topics: list[str]
+    broker: str
+    connected: bool
+    error: str
+    events: int
+    commands: int
+    refused: int
+
+
+def command_body(ev: MonitorEvent, machine: str, wall: float) -> FeedHoldCommand:
     """The feed-hold command for the event ``ev`` (see the module docstring)."""
     return {
         "schema": COMMAND_SCHEMA,
@@ -133,7 +157,7 @@ class EventsPublisher:
                     self.last_error = f"{type(exc).__name__}: {exc}"
                 log.warning("cutwatch: event %s not published: %s", ev.id, exc)
 
-    def _send(self, c: Any, leaf: str, body: dict[str, Any], counter: str) -> None:
+    def _send(self, c: Any, leaf: str, body: FeedHoldCommand | EventWire, counter: str) -> None:
         payload = json.dumps(body, allow_nan=False, separators=(",", ":"))
         info = c.publish(leaf, payload, qos=QOS, retain=False)
         ok = int(info.rc) in _HANDED_OVER  # else MQTT_ERR_QUEUE_SIZE: refused
@@ -143,7 +167,7 @@ class EventsPublisher:
             else:
                 self.refused += 1
 
-    def health(self) -> dict[str, Any]:
+    def health(self) -> PublisherHealth:
         """Topics, broker, connection and counters (``/api/health``'s ``events_out``)."""
         return {
             "topics": [self.events_topic, self.command_topic],

@@ -3,7 +3,8 @@
 The public surface is the contract the live runtime builds on
 (:mod:`server.pipeline.runtime`):
 
-- ``LivePipeline(scenario: str = "default", seed: int = 0, source=None)``; a log replay
+- ``LivePipeline(scenario: str = DEFAULT_SCENARIO, seed: int = 0, source=None)`` (the
+  default: the machining centre, ``machining-centre``); a log replay
   is ``LivePipeline.from_log(path)``
 - ``.sample_time`` (s), ``.t`` (time of the source, s), ``.finished`` (a log has ended)
 - ``.channels() -> list[Channel]``, ``.charts() -> list[Chart]``: what the parts stream
@@ -51,7 +52,8 @@ What the CNC knows (a spindle step, a tool change, a fresh workpiece, a weight p
 goes to every part at once as a :class:`~server.pipeline.part.Notice`.
 
 Scenario events are scheduled on simulated time, so a run is the same whatever the
-wall-clock speed. The default scenario: the stage reciprocates while milling; the
+wall-clock speed. The seeds' scenario (``default``, the default before issue 31): the
+stage reciprocates while milling; the
 workpiece (an inertia of the size of seed 000's added weight) loses mass at
 ``removal_rate`` % per second until a fresh blank is clamped; every 15 s the spindle
 speed steps between the knob's value and 80 % of it (force gain and frequencies, as in
@@ -103,6 +105,7 @@ from server.pipeline.part import (
 )
 from server.pipeline.part_registry import BUILTIN, BuildContext, extra_factories
 from server.pipeline.scenarios import (
+    DEFAULT_SCENARIO,
     SCENARIO_OBJECTS,
     SCENARIOS,
     Plant,
@@ -121,6 +124,7 @@ from server.records.monitor_events import EventOutbox, MonitorEvent
 
 __all__ = [
     "BASE_RPM",
+    "DEFAULT_SCENARIO",
     "FORCE_ESTIMATES",
     "SCENARIOS",
     "Channel",
@@ -172,7 +176,8 @@ class LivePipeline:
     Parameters
     ----------
     scenario
-        One of :data:`SCENARIOS`, when the source is a simulation.
+        One of :data:`SCENARIOS`, when the source is a simulation (default:
+        :data:`~server.pipeline.scenarios.DEFAULT_SCENARIO`, the machining centre).
     seed
         Seed of the simulation's random generator.
     source
@@ -183,7 +188,10 @@ class LivePipeline:
     """
 
     def __init__(
-        self, scenario: str = "default", seed: int = 0, source: MeasurementSource | None = None
+        self,
+        scenario: str = DEFAULT_SCENARIO,
+        seed: int = 0,
+        source: MeasurementSource | None = None,
     ) -> None:
         if source is not None and not source.knobs_apply:
             sc = source_scenario(source.name)
@@ -465,11 +473,12 @@ class LivePipeline:
         return [c for p in self._parts for c in p.channels]
 
     def charts(self) -> list[Chart]:
-        """The charts the parts' channels are drawn on (each once, in part order)."""
+        """The charts the parts' channels are drawn on (each once, in part order), each
+        with the name of the part that declares it."""
         seen: dict[str, Chart] = {}
         for p in self._parts:
             for c in p.charts:
-                seen.setdefault(c.id, c)
+                seen.setdefault(c.id, replace(c, part=c.part or p.name))
         return list(seen.values())
 
     def force_estimates(self) -> tuple[str, ...]:

@@ -37,14 +37,14 @@ from server.pipeline.drive_feed import DriveFeed
 from server.pipeline.sources import (
     NOMINAL,
     RESUMED,
-    ConfiguredSource,
+    LiveSource,
     SourceBlock,
     empty_measurements,
     nominal_config,
 )
 
 
-class MqttSource(ConfiguredSource):
+class MqttSource(LiveSource):
     """The live feed of one machine (see the module docstring)."""
 
     name = "mqtt"
@@ -166,32 +166,13 @@ class MqttSource(ConfiguredSource):
         if not math.isfinite(old) or abs(rpm - old) > 0.005 * max(abs(old), 1.0):
             self.spindle_rpm = rpm
 
-    def reconfigure(self, **changes: object) -> None:
-        """Knobs do not change a real machine."""
-
     def reset(self) -> None:
-        """A live feed cannot rewind: time restarts at 0 with the next samples."""
-        self._t = 0.0
-        self._t0 = None
+        """:meth:`LiveSource.reset`; the spindle speed is unknown again."""
+        super().reset()
         self.spindle_rpm = math.nan
 
-    def state(self) -> object:
-        """The source's time [s]: a live feed is not ours to keep (the machine goes on
-        without us), but its time goes on from where it was."""
-        return float(self._t)
-
-    def restore(self, state: object) -> None:
-        """Continue the time at ``state`` [s]; the next block is marked
-        :data:`~server.pipeline.sources.RESUMED`.
-
-        Raises
-        ------
-        ParameterError
-            Not a time.
-        """
-        if not isinstance(state, float) or not math.isfinite(state) or state < 0:
-            raise ParameterError("source", "a time >= 0 s", state)
-        self._t, self._t0, self._resumed = state, None, True
+    def _forget_origin(self) -> None:
+        self._t0 = None
 
     def truth_summary(self) -> dict[str, object]:
         return {"machine": self.feed.machine}

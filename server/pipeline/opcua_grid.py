@@ -29,6 +29,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import TypedDict
 
 import numpy as np
 
@@ -36,6 +37,19 @@ from common.arrays import F64
 from common.errors import ParameterError
 
 __all__ = ["GridBlock", "GridCounts", "TimeGrid"]
+
+
+class GridCountsDict(TypedDict):
+    """:meth:`GridCounts.as_dict` (a source's status carries these)."""
+
+    samples: int
+    cells: int
+    held: dict[str, int]
+    held_total: int
+    merged: int
+    late: int
+    lost: int
+    gaps: int
 
 
 @dataclass
@@ -50,7 +64,7 @@ class GridCounts:
     lost: int = 0  #: samples the server dropped (Overflow) or a gap skipped
     gaps: int = 0  #: restarts after a gap
 
-    def as_dict(self) -> dict[str, object]:
+    def as_dict(self) -> GridCountsDict:
         return {
             "samples": self.samples,
             "cells": self.cells,

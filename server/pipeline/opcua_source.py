@@ -31,7 +31,6 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from common.arrays import F64
-from common.errors import ParameterError
 from common.machine_description import MAX_SAMPLE_TIME, MIN_SAMPLE_TIME, MachineDescription
 from machine.params import preset
 from machine.stage import SEED000_FORCE, Measurements, StageConfig
@@ -41,7 +40,7 @@ from server.pipeline.opcua_link import CONNECTED, OpcuaLink, OpcuaSecurity
 from server.pipeline.sources import (
     NOMINAL,
     RESUMED,
-    ConfiguredSource,
+    LiveSource,
     SourceBlock,
     empty_measurements,
     nominal_config,
@@ -66,7 +65,7 @@ class OpcuaOptions:
     backoff_max_s: float = 5.0
 
 
-class OpcuaSource(ConfiguredSource):
+class OpcuaSource(LiveSource):
     """A CNC's OPC UA server as a source (see the module docstring)."""
 
     name = "opcua"
@@ -301,29 +300,8 @@ class OpcuaSource(ConfiguredSource):
             f_ext=c[s["f_ext"]] if "f_ext" in s else nan,
         )
 
-    def reconfigure(self, **changes: object) -> None:
-        """Knobs do not change a real machine."""
-
-    def reset(self) -> None:
-        """A live server cannot rewind: time restarts at 0 with the next samples."""
-        self._t = 0.0
+    def _forget_origin(self) -> None:
         self._origin = None
-
-    def state(self) -> object:
-        """The source's time [s] (the machine goes on without us)."""
-        return float(self._t)
-
-    def restore(self, state: object) -> None:
-        """Continue the time at ``state`` [s]; the next block says it resumed.
-
-        Raises
-        ------
-        ParameterError
-            Not a time.
-        """
-        if not isinstance(state, float) or not math.isfinite(state) or state < 0:
-            raise ParameterError("source", "a time >= 0 s", state)
-        self._t, self._origin, self._resumed = state, None, True
 
     def truth_summary(self) -> dict[str, object]:
         return {"server": self.options.url}

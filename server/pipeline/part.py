@@ -167,6 +167,8 @@ class Chart:
         Drawn across the page's width.
     markers
         The events are drawn on it (a vertical line each).
+    part
+        The part that declares it (set by the pipeline: ``LivePipeline.charts``).
     """
 
     id: str
@@ -177,13 +179,12 @@ class Chart:
     fast: bool = False
     wide: bool = False
     markers: bool = False
+    part: str = ""
 
     def describe(self) -> dict[str, Any]:
         """The chart as ``hello`` carries it (``server.service.messages.Chart``)."""
-        return {
-            f: getattr(self, f)
-            for f in ("id", "title", "page", "order", "window_s", "fast", "wide", "markers")
-        }
+        fields = ("id", "title", "page", "order", "window_s", "fast", "wide", "markers", "part")
+        return {f: getattr(self, f) for f in fields}
 
     def series(self, *channels: Channel, start: int = 0) -> tuple[Channel, ...]:
         """``channels`` drawn on this chart, in this order from ``start`` (their chart,

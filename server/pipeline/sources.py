@@ -51,9 +51,9 @@ reset()
     a log from its first sample.
 state() -> object
     Where the source is, as a value of the state codec (:mod:`common.state_io`): the
-    simulated stage (state, configuration, random generator), a log's position; None
-    for a live feed (the machine goes on without us). ``restore(state)`` continues
-    from it.
+    simulated stage (state, configuration, random generator), a log's position; a live
+    feed's time only (the machine goes on without us: :class:`LiveSource`).
+    ``restore(state)`` continues from it.
 truth_summary() -> dict
     What the source knows beside the measurements, for the snapshot's ``truth``.
 status() -> dict
@@ -70,7 +70,11 @@ on the measurements restart, the estimates (parameters, covariances, segment tra
 wear) go on.
 
 Implementations: :class:`SimulatorSource` (the stage of :mod:`machine.stage`) and
-:class:`ReplaySource` (a measured log, checked by :func:`open_replay`).
+:class:`ReplaySource` (a measured log, checked by :func:`open_replay`) here; the live
+feeds :class:`server.pipeline.mqtt_source.MqttSource` (a broker) and
+:class:`server.pipeline.opcua_source.OpcuaSource` (an OPC UA server), whose time
+:class:`LiveSource` keeps; the machining centre's simulated CNC trace,
+:class:`server.pipeline.centre_source.CentreSource`.
 
 Replay validation (:func:`open_replay`): the file exists, passes
 :func:`server.records.measured_log.load_log`, is of kind ``two_inertia`` with a ``q_l``
@@ -370,6 +374,49 @@ class ConfiguredSource:
         return self._cfg.encoder_resolution
 
 
+class LiveSource(ConfiguredSource):
+    """What every live feed from a real machine (:class:`~server.pipeline.mqtt_source.
+    MqttSource`, :class:`~server.pipeline.opcua_source.OpcuaSource`) does alike with its
+    time: the machine is not ours to keep (it goes on without us) and cannot be rewound,
+    but the source's time goes on from where it was.
+
+    A subclass keeps its time in ``_t`` [s] and ``_resumed`` (the next block is marked
+    :data:`RESUMED`), and forgets the feed's time origin in :meth:`_forget_origin`.
+    """
+
+    _t: float
+    _resumed: bool
+
+    def _forget_origin(self) -> None:
+        """The next sample starts the source's time afresh from ``_t``."""
+        raise NotImplementedError
+
+    def reconfigure(self, **changes: object) -> None:
+        """Knobs do not change a real machine."""
+
+    def reset(self) -> None:
+        """A live feed cannot rewind: time restarts at 0 with the next samples."""
+        self._t = 0.0
+        self._forget_origin()
+
+    def state(self) -> object:
+        """The source's time [s]."""
+        return float(self._t)
+
+    def restore(self, state: object) -> None:
+        """Continue the time at ``state`` [s]; the next block is marked :data:`RESUMED`.
+
+        Raises
+        ------
+        ParameterError
+            Not a time.
+        """
+        if not isinstance(state, float) or not math.isfinite(state) or state < 0:
+            raise ParameterError("source", "a time >= 0 s", state)
+        self._t, self._resumed = state, True
+        self._forget_origin()
+
+
 class ReplaySource(ConfiguredSource):
     """A measured two-inertia log as a source: its samples in order, then finished.
 
@@ -470,6 +517,7 @@ __all__ = [
     "NOMINAL",
     "RESUMED",
     "ConfiguredSource",
+    "LiveSource",
     "MeasurementSource",
     "ReplaySource",
     "SimulatorSource",

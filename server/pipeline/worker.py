@@ -59,6 +59,7 @@ from server.pipeline.mqtt_source import MqttSource
 from server.pipeline.opcua_machines import OpcuaMachine
 from server.pipeline.opcua_source import OpcuaSource
 from server.pipeline.runtime import CheckpointWriter, MachineRuntime
+from server.pipeline.scenarios import STAGE_SCENARIO
 from server.pipeline.shards import owns
 
 log = logging.getLogger("cutwatch.worker")
@@ -327,7 +328,9 @@ class Worker:
     def _run(self) -> None:
         try:
             w0 = time.monotonic()
-            LivePipeline(seed=self.cfg.seed).step(250)  # compile the kernels once, up front
+            # compile the kernels once, up front: the seeds' stage scenario's, whose
+            # observers a feed's two-inertia machine runs
+            LivePipeline(STAGE_SCENARIO, seed=self.cfg.seed).step(250)
             self.warm_s = time.monotonic() - w0
             self._ready.set()
             c, b = self._client, self.broker

@@ -21,9 +21,9 @@ import hashlib
 import math
 import uuid
 from collections import deque
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from enum import StrEnum
-from typing import Any
+from typing import Any, TypedDict
 
 from common.event_kinds import EventKind
 
@@ -62,6 +62,58 @@ RECORD_FIELDS = (
     "id", "kind", "action", "t", "tool", "program", "line", "part", "value", "limit",
     "unit", "message", "machine", "acked", "acked_by", "acked_wall",
 )  # fmt: skip
+
+
+class EventFields(TypedDict):
+    """An event as :meth:`MonitorEvent.as_dict` gives it: JSON-safe (NaN -> None), in the
+    dataclass's order."""
+
+    kind: str
+    action: str
+    t: float
+    tool: int
+    program: str
+    line: int
+    part: int
+    value: float | None
+    limit: float | None
+    unit: str
+    message: str
+    machine: str
+    id: str
+
+
+class EventRecord(TypedDict):
+    """An event as the stream, the snapshot and the history's REST carry it
+    (:meth:`MonitorEvent.record`: :data:`RECORD_FIELDS`, in order)."""
+
+    id: str
+    kind: str
+    action: str
+    t: float
+    tool: int
+    program: str
+    line: int
+    part: int
+    value: float | None
+    limit: float | None
+    unit: str
+    message: str
+    machine: str
+    acked: bool
+    acked_by: str | None
+    acked_wall: float | None
+
+
+class EventWire(EventFields):
+    """The broker's message (:meth:`MonitorEvent.to_wire`): the fields with the schema."""
+
+    schema: str
+    version: int
+
+
+def _json_number(x: float) -> float | None:
+    return x if math.isfinite(x) else None
 
 
 def event_id(ev: MonitorEvent, machine: str) -> str:
@@ -133,26 +185,28 @@ class MonitorEvent:
         object.__setattr__(self, "kind", EventKind(self.kind))
         object.__setattr__(self, "action", EventAction(self.action))
 
-    def as_dict(self) -> dict[str, Any]:
+    def as_dict(self) -> EventFields:
         """A JSON-safe dict (NaN -> None)."""
-        d = asdict(self)
-        for k in ("value", "limit"):
-            if not math.isfinite(d[k]):
-                d[k] = None
-        return d
+        return EventFields(
+            kind=self.kind, action=self.action, t=self.t, tool=self.tool,
+            program=self.program, line=self.line, part=self.part,
+            value=_json_number(self.value), limit=_json_number(self.limit), unit=self.unit,
+            message=self.message, machine=self.machine, id=self.id,
+        )  # fmt: skip
 
     def record(self) -> dict[str, Any]:
         """The event as the stream, the snapshot and the history's REST carry it (the
-        fields of ``server.service.messages.Event``, in its order): :meth:`as_dict` with
-        its acknowledgement (none yet)."""
+        fields of ``server.service.messages.Event``, in its order; :class:`EventRecord`):
+        :meth:`as_dict` with its acknowledgement (none yet). A plain dict: the runtime
+        keeps and updates these as such (``server/pipeline/runtime.py``)."""
         d = self.as_dict()
-        return {k: d[k] for k in RECORD_FIELDS if k in d} | {
+        return {k: d[k] for k in RECORD_FIELDS if k in d} | {  # type: ignore[literal-required]
             "acked": False,
             "acked_by": None,
             "acked_wall": None,
         }
 
-    def to_wire(self) -> dict[str, Any]:
+    def to_wire(self) -> EventWire:
         """The broker's message: :meth:`as_dict` with ``schema`` and ``version``."""
         return {"schema": SCHEMA, "version": VERSION, **self.as_dict()}
 

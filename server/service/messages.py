@@ -98,6 +98,11 @@ class Chart(Versioned):
     fast: bool = Field(description="its channels are on the fast grid t")
     wide: bool = Field(description="drawn across the page")
     markers: bool = Field(description="the events are drawn on it")
+    part: str = Field(
+        default="",
+        description="the part that declares it (the page draws the reason instead of the "
+        "chart while that part does not run; '': none named)",
+    )
 
 
 class PartStatus(Versioned):

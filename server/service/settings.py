@@ -19,7 +19,7 @@ from pydantic_settings import BaseSettings, SettingsConfigDict
 
 from common.errors import ParameterError
 from server.errors import CutwatchError
-from server.pipeline.live_pipeline import SCENARIOS
+from server.pipeline.live_pipeline import DEFAULT_SCENARIO, SCENARIOS
 
 MAX_SPEED = 1000.0
 #: the shortest token accepted (CUTWATCH_TOKEN, CUTWATCH_VIEW_TOKEN)
@@ -63,7 +63,8 @@ class Settings(BaseSettings):
         description="port of the viser 3D view, on 127.0.0.1 only (browsers use /viser/)",
     )
     scenario: ScenarioName = Field(
-        default="default", description="scenario at start (see /api/scenarios)"
+        default=DEFAULT_SCENARIO,
+        description="scenario at start (see /api/scenarios; default: the machining centre)",
     )
     speed: Speed = 1.0
     block_ms: float = Field(default=50.0, ge=1.0, le=1000.0, description="loop block length [ms]")

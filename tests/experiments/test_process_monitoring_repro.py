@@ -142,3 +142,21 @@ def test_mcnemar_matches_its_binomial_tail() -> None:
     assert mcnemar_p(5, 0) == pytest.approx(2 * 0.5**5)
     assert mcnemar_p(3, 3) == 1.0
     assert mcnemar_p(2, 7) == mcnemar_p(7, 2) < 0.2
+
+
+def test_centre_monitors_watch_only_the_blocks_the_program_lets_cut() -> None:
+    # read from the program's text (G1 in the XY plane), and it agrees with the cuts
+    # (the truth) of the reproduction's programs; rapids, plunges, tool changes, spindle
+    # blocks and the end are left to the collision limit
+    import numpy as np
+
+    from server.experiments.reproductions import _centre_monitoring as cm
+
+    for seed in range(20):
+        rng = np.random.default_rng(seed)
+        prog = cm.free_program(rng) if seed % 2 else cm.event_program(rng)[0]
+        can = cm.cutting_lines(prog)
+        assert set(can) == {b.line for b in prog.blocks}
+        for b in prog.blocks:
+            assert can[b.line] == (b.cut is not None), (seed, b.line, b.kind)
+        assert any(b.kind == "feed" and not can[b.line] for b in prog.blocks)  # plunges

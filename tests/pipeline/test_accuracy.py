@@ -95,7 +95,7 @@ def test_nothing_yet_is_nan_not_zero() -> None:
 
 
 def test_live_pipeline_scores_every_force_estimate_against_the_truth() -> None:
-    p = LivePipeline()
+    p = LivePipeline("default")
     outs = [p.step(125) for _ in range(60)]  # 3 s
     acc = p.accuracy()
     assert acc["mode"] == "truth"

@@ -133,6 +133,10 @@ def test_the_machine_as_the_api_answers_it(run: tuple) -> None:
     desc = m["description"]
     assert desc["sample_time"] == pytest.approx(0.002) and set(desc["axes"]) == {"X", "Y", "Z"}
     assert {x["name"] for x in m["parts"]} >= {"stage", "spindle", "axes"}
+    # each chart names the part that declares it (the page draws a stopped part's reason)
+    charts = {c.id: c.describe()["part"] for c in p.charts()}
+    assert charts["force"] == "stage" and charts["spindle"] == "spindle"
+    assert charts["axis-X-force"] == "axes"
     # the stage: one axis, no spindle, no description
     d = LivePipeline("seed000-weight").machine()
     assert d["description"] is None and d["spindle"] is None
@@ -151,3 +155,22 @@ def test_reset_and_state_restore_give_the_same_blocks() -> None:
         np.testing.assert_array_equal(a[k], b[k])
     p.reset()
     assert p.t == 0.0
+
+
+def test_the_centre_is_the_default_everywhere() -> None:
+    """Issue 31: `cutwatch serve` with no --scenario, the service's settings and the
+    pipeline all start on the machining centre; the seeds' machines side by side stay
+    selectable by their old name."""
+    from server.cli.commands.serve import build_settings
+    from server.cli.main import build_parser
+    from server.pipeline.scenarios import DEFAULT_SCENARIO, SCENARIOS, STAGE_SCENARIO
+    from server.service.settings import Settings
+
+    assert DEFAULT_SCENARIO == "machining-centre"
+    assert build_settings(build_parser().parse_args(["serve"])).scenario == DEFAULT_SCENARIO
+    assert Settings().scenario == DEFAULT_SCENARIO
+    assert LivePipeline().scenario == DEFAULT_SCENARIO
+    assert LivePipeline().source.name == "centre"
+    assert STAGE_SCENARIO == "default" and STAGE_SCENARIO in SCENARIOS
+    stage = LivePipeline(STAGE_SCENARIO)
+    assert stage.scenario == "default" and stage.source.name == "simulator"

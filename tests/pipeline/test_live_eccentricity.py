@@ -36,7 +36,7 @@ def test_ecc_advances_by_the_stage_time() -> None:
 
 
 def test_esc_in_the_default_scenario_reaches_the_cancelling_modulation() -> None:
-    p = LivePipeline()
+    p = LivePipeline("default")
     p.set_knob("spindle_changes", False)
     first = run(p, 0.5)  # the cost before the tuner starts (the live log keeps a tail)
     cost_initial = float(np.nanmax(first["ecc_cost"]))
@@ -50,7 +50,7 @@ def test_esc_in_the_default_scenario_reaches_the_cancelling_modulation() -> None
 
 
 def test_fast_tuner_and_off_through_knobs() -> None:
-    p = LivePipeline()
+    p = LivePipeline("default")
     p.set_knob("spindle_changes", False)
     p.set_knob("tuner", "fast")
     p.set_knob("eccentricity_um", 15.0)
@@ -73,7 +73,7 @@ def test_other_scenarios_have_no_eccentricity() -> None:
 
 
 def test_bad_tuner_is_refused() -> None:
-    p = LivePipeline()
+    p = LivePipeline("default")
     with pytest.raises(ParameterError, match=r"tuner.*one of esc, fast.*'slow'"):
         p.set_knob("tuner", "slow")
     with pytest.raises(ParameterError, match=r"eccentricity_um.*\[0, 50\] um.*60"):
@@ -82,7 +82,7 @@ def test_bad_tuner_is_refused() -> None:
 
 
 def test_tuner_knob_through_the_app() -> None:
-    with serve() as hp, httpx.Client(base_url=f"http://{hp}", timeout=10) as c:
+    with serve(scenario="default") as hp, httpx.Client(base_url=f"http://{hp}", timeout=10) as c:
         k = c.get("/api/params").json()
         assert k["tuner"] == {
             "value": "esc",
@@ -119,7 +119,7 @@ def test_the_live_tuner_log_stays_bounded() -> None:
     from server.pipeline.eccentricity_part import LOG_KEEP
     from server.pipeline.live_pipeline import LivePipeline
 
-    p = LivePipeline()
+    p = LivePipeline("default")
     for _ in range(int(12 / 0.05)):  # 12 s: 240 revolutions at 1200 rpm
         p.step(125)
     part = p.part("eccentricity")
@@ -156,7 +156,7 @@ def test_live_esc_on_the_adaptive_observer_converges_under_a_mass_error(
 
 
 def test_force_source_knobs() -> None:
-    p = LivePipeline()
+    p = LivePipeline("default")
     p.set_knob("spindle_changes", False)
     first = run(p, 0.1)
     assert np.isnan(first["ecc_mass_err"]).all()  # the dynamometer has no mass

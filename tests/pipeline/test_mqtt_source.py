@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 import time
 from pathlib import Path
 
@@ -10,12 +11,13 @@ import numpy as np
 import pytest
 from _broker import broker
 
+from common.errors import ParameterError
 from server.cli.main import main
 from server.pipeline.broker import parse_broker_url
 from server.pipeline.drive_feed import DriveFeed
 from server.pipeline.live_pipeline import LivePipeline
 from server.pipeline.mqtt_source import MqttSource
-from server.pipeline.sources import MeasurementSource
+from server.pipeline.sources import RESUMED, MeasurementSource
 from server.records.measured_log import load_log, write_log
 
 
@@ -132,3 +134,30 @@ def test_a_rigid_feed_is_taken_and_the_stage_says_why_it_does_not_run(tmp_path: 
     parts = {s["name"]: s for s in p.parts()}
     assert not parts["stage"]["running"] and "two_inertia" in str(parts["stage"]["reason"])
     json.dumps(st)  # health-ready
+
+
+def test_a_restored_feed_goes_on_from_the_kept_time_and_says_it_resumed(
+    logs: dict[str, Path],
+) -> None:
+    # the live sources' time (sources.LiveSource): kept in a checkpoint as a float,
+    # continued after a restore with the next block marked resumed; reset starts at 0
+    with broker() as port:
+        feed = fed(port, logs["f64"], "--float64")
+        feed.stop()
+    src = MqttSource(feed)
+    first = src.step(125)
+    assert first.discontinuity is None and first.meas.t[0] == 0.0
+    kept = src.state()
+    assert kept == pytest.approx(125 * src.sample_time)
+    again = MqttSource(feed)
+    again.restore(kept)
+    b = again.step(125)
+    assert b.discontinuity == RESUMED
+    assert b.meas.t[0] == pytest.approx(kept)
+    assert again.step(125).discontinuity is None
+    for bad in ("1.0", -1.0, math.nan):
+        with pytest.raises(ParameterError) as err:
+            again.restore(bad)
+        assert err.value.name == "source"
+    again.reset()
+    assert again.state() == 0.0 and math.isnan(again.spindle_rpm)

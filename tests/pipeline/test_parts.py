@@ -152,7 +152,7 @@ def test_a_slow_source_gets_a_q_designed_from_its_rate(tmp_path: Path) -> None:
 
 
 def test_the_state_holds_each_parts_state_never_a_part(tmp_path: Path) -> None:
-    p = LivePipeline()
+    p = LivePipeline("default")
     for _ in range(20):
         p.step(BLOCK)
     path = tmp_path / "state.npz"
@@ -190,7 +190,7 @@ def test_a_checkpoint_of_version_2_is_refused_by_its_version_and_the_runtime_sta
     with gzip.open(V2) as src, path.open("wb") as dst:
         shutil.copyfileobj(src, dst)
     assert read_header(path)["version"] == 2
-    rt = MachineRuntime("m", LivePipeline(), checkpoint=path)
+    rt = MachineRuntime("m", LivePipeline("default"), checkpoint=path)
     assert rt.resume() is False
     refused = rt.checkpoint_status["refused"]
     assert refused == f"{path}: expected cutwatch.pipeline version 3, found 2"

@@ -10,7 +10,7 @@ from server.pipeline.live_pipeline import SCENARIOS, LivePipeline
 
 
 def test_step_returns_every_channel_with_n_samples() -> None:
-    p = LivePipeline()
+    p = LivePipeline("default")
     out = p.step(125)
     names = {c.name for c in p.channels()}
     assert set(out) == names | {"t"}
@@ -20,7 +20,7 @@ def test_step_returns_every_channel_with_n_samples() -> None:
 
 
 def test_same_seed_same_run_and_reset_repeats_it() -> None:
-    a, b = LivePipeline(seed=3), LivePipeline(seed=3)
+    a, b = LivePipeline("default", seed=3), LivePipeline("default", seed=3)
     xa = [a.step(100) for _ in range(5)]
     xb = [b.step(100) for _ in range(5)]
     for u, v in zip(xa, xb):
@@ -32,7 +32,7 @@ def test_same_seed_same_run_and_reset_repeats_it() -> None:
 
 
 def test_default_scenario_workpiece_loses_mass_and_observers_track() -> None:
-    p = LivePipeline()
+    p = LivePipeline("default")
     p.set_knob("removal_rate", 10.0)
     first = p.step(125)["J_L_true"][0]
     for _ in range(100):  # 5 s: half of the blank removed
@@ -67,7 +67,7 @@ def test_adaptive_j_l_follows_the_weight() -> None:
 
 
 def test_spindle_knob_and_steps() -> None:
-    p = LivePipeline()
+    p = LivePipeline("default")
     p.set_knob("spindle_rpm", 4000)
     assert p.step(10)["spindle_rpm"][0] == 4000.0
     p.set_knob("spindle_changes", False)
@@ -85,7 +85,7 @@ def test_spindle_knob_and_steps() -> None:
     ],
 )
 def test_set_knob_rejects_and_changes_nothing(name: str, value: object, message: str) -> None:
-    p = LivePipeline()
+    p = LivePipeline("default")
     before = {k: v.value for k, v in p.knobs().items()}
     with pytest.raises(ParameterError, match=message):
         p.set_knob(name, value)  # type: ignore[arg-type]
@@ -110,7 +110,7 @@ def test_each_scenario_runs(scenario: str) -> None:
 
 
 def test_plant_effect_knob_reaches_the_plant() -> None:
-    p = LivePipeline()
+    p = LivePipeline("default")
     p.step(125)
     p.set_knob("effect_offset", True)
     p.step(125)
@@ -121,7 +121,7 @@ def test_plant_effect_knob_reaches_the_plant() -> None:
 
 
 def test_tool_wears_is_estimated_and_changed_at_the_limit() -> None:
-    p = LivePipeline()
+    p = LivePipeline("default")
     p.set_knob("wear_rate", 5.0)  # 5 min of wear per second: a tool lasts a few seconds
     vb_true, vb_est = [], []
     for _ in range(300):  # 15 s: the wear clock starts at WEAR_WARMUP_S (5 s)
@@ -135,7 +135,7 @@ def test_tool_wears_is_estimated_and_changed_at_the_limit() -> None:
 
 def test_live_wear_estimate_tracks_the_true_wear() -> None:
     # default wear clock (0.5 min/s): 40 s of machining = 17.5 min of wear after warm-up
-    p = LivePipeline()
+    p = LivePipeline("default")
     err = []
     for _ in range(800):
         out = p.step(125)

@@ -41,8 +41,9 @@ def _copy(taught):  # type: ignore[no-untyped-def]
     return copy.deepcopy(taught)
 
 
-def _part(m, obs, mon, st, chunk: int = 0):  # type: ignore[no-untyped-def]
-    """Run one part; returns (alarms, per-block records, block records)."""
+def _part(m, obs, mon, st, chunk: int = 0, air: frozenset[int] = frozenset()):  # type: ignore[no-untyped-def]
+    """Run one part (the lines in ``air`` said not to cut); returns (alarms, per-block
+    records, block records)."""
     alarms, recs, blocks = [], [], []
     for b in m.program.blocks:
         first = [True]
@@ -50,7 +51,8 @@ def _part(m, obs, mon, st, chunk: int = 0):  # type: ignore[no-untyped-def]
         def on_chunk(r, first=first):  # type: ignore[no-untyped-def]
             fx, fy = obs(r)
             rec = mon.step(st, fx, fy, r.psi, tool=r.tool, program=r.program, line=r.line,
-                           new_block=first[0], override=r.override)  # fmt: skip
+                           new_block=first[0], override=r.override,
+                           cutting=r.line not in air)  # fmt: skip
             first[0] = False
             alarms.extend(rec.alarms)
             recs.append(rec)
@@ -105,6 +107,28 @@ def test_each_event_is_found_by_its_detector_in_time(taught, kind: str, size: fl
         # suspected is raised no later than the alarm: the canceller is held in time
         assert rec.suspected[: k_al + 1].any()
         assert not rec.suspected[: truth.sample - b.k0].any()
+
+
+@pytest.mark.parametrize(("kind", "size"), [("missing_tool", 1.0), ("collision", 5.0)])
+def test_a_block_said_not_to_cut_is_watched_by_the_extreme_limit_only(  # type: ignore[no-untyped-def]
+    taught, kind: str, size: float
+) -> None:
+    # line 40 is a cut; said not to cut (a G0, a plunge), it has no band and no pattern
+    # limit: losing its force raises nothing, a collision in it still does
+    m, obs, mon, st = _copy(taught)
+    m.events = [ProcessEvent(kind, m.part, 40, 0.3, size)]
+    alarms, recs, blocks = _part(m, obs, mon, st, air=frozenset({40}))
+    rec = next(r for r, b in zip(recs, blocks, strict=True) if b.line == 40)
+    assert np.isnan(rec.lower).all() and np.isnan(rec.upper).all()
+    assert np.isnan(rec.pattern_limit).all() and not rec.suspected.any()
+    assert np.isfinite(rec.extreme).all()
+    found = [a.detector for a in alarms if a.line == 40]
+    assert found == (["collision"] if kind == "collision" else [])
+    # the same event in the same block judged as a cut is found
+    m, obs, mon, st = _copy(taught)
+    m.events = [ProcessEvent(kind, m.part, 40, 0.3, size)]
+    alarms, _, _ = _part(m, obs, mon, st)
+    assert kind in [a.detector for a in alarms if a.line == 40]
 
 
 def test_delays_do_not_depend_on_the_chunk_size(taught) -> None:  # type: ignore[no-untyped-def]

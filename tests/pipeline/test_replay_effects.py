@@ -47,7 +47,7 @@ def files(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
 @pytest.fixture(scope="module")
 def api(files: dict[str, Path]) -> Iterator[httpx.Client]:
     with (
-        serve(data_dir=files["d"] / "data", reports_dir=files["reports"]) as hp,
+        serve(scenario="default", data_dir=files["d"] / "data", reports_dir=files["reports"]) as hp,
         httpx.Client(base_url=f"http://{hp}", timeout=20) as c,
     ):
         yield c

@@ -251,7 +251,7 @@ def test_empty_blocks_change_nothing(logs: dict[str, Path]) -> None:
 @pytest.mark.slow
 def test_the_live_loop_waits_on_a_source_with_nothing(logs: dict[str, Path]) -> None:
     src = GappySource(logs["full"], N_LOG, N_LOG, stutter=True)
-    loop = LiveLoop(Settings(viser=False), Hub(4))
+    loop = LiveLoop(Settings(scenario="default", viser=False), Hub(4))
     loop.start()
     try:
         deadline = time.monotonic() + 30

@@ -9,7 +9,7 @@ from server.pipeline.wear_passes import VB_LIMIT
 
 
 def test_each_tool_change_gives_the_worn_tools_life() -> None:
-    p = LivePipeline()
+    p = LivePipeline("default")
     p.set_knob("wear_rate", 5.0)  # 5 min of wear per second: a tool lasts a few seconds
     changes: list[dict[str, object]] = []
     while len(changes) < 2 and p.t < 40.0:
@@ -37,7 +37,7 @@ def test_each_tool_change_gives_the_worn_tools_life() -> None:
 
 
 def test_a_part_programs_tool_broken_and_changed_is_a_tool_life() -> None:
-    p = LivePipeline()
+    p = LivePipeline("default")
     p.set_knob("teach_parts", 1.0)  # watch from the second part on
     p.set_knob("wear_rate", 0.05)  # the stage's wearing tool lasts: only the part's change
     while p.monitor_status()["state"] == "teaching":

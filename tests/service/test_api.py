@@ -21,7 +21,7 @@ from server.service.settings import Settings
 @pytest.fixture(scope="module")
 def api() -> Iterator[httpx.Client]:
     with (
-        serve(upload_max_mb=1) as hp,
+        serve(scenario="default", upload_max_mb=1) as hp,
         httpx.Client(base_url=f"http://{hp}", timeout=10) as client,
     ):
         yield client
@@ -30,7 +30,10 @@ def api() -> Iterator[httpx.Client]:
 @pytest.fixture(scope="module")
 def locked() -> Iterator[httpx.Client]:
     """A second server, with CUTWATCH_TOKEN set."""
-    with serve(token=OPERATOR) as hp, httpx.Client(base_url=f"http://{hp}", timeout=10) as c:
+    with (
+        serve(scenario="default", token=OPERATOR) as hp,
+        httpx.Client(base_url=f"http://{hp}", timeout=10) as c,
+    ):
         yield c
 
 
@@ -275,7 +278,7 @@ def test_unknown_route_404(api: httpx.Client) -> None:
 
 def test_token_required_for_reads_and_changes_when_set() -> None:
     with (
-        serve(token=OPERATOR, view_token=VIEWER) as hp,
+        serve(scenario="default", token=OPERATOR, view_token=VIEWER) as hp,
         httpx.Client(base_url=f"http://{hp}") as c,
     ):
         assert c.get("/api/health").status_code == 200  # the one open read

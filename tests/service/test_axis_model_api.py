@@ -17,7 +17,7 @@ def test_a_report_by_name_is_kept_for_the_axes_and_removed_again(tmp_path: Path)
     rep = tmp_path / "reports" / "emps-head" / "report.json"
     rep.parent.mkdir(parents=True)
     rep.write_text(json.dumps(REPORT))
-    with serve(data_dir=tmp_path) as hp:
+    with serve(scenario="default", data_dir=tmp_path) as hp:
         base = f"http://{hp}/api/axis-model"
         assert httpx.get(base).json()["axes"] == {}
         r = httpx.post(base, json={"name": "emps-head"})

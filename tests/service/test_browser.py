@@ -17,13 +17,13 @@ pytestmark = MARKS
 
 @pytest.fixture(scope="module")
 def hp() -> Iterator[str]:
-    with serve() as hostport:
+    with serve(scenario="default") as hostport:
         yield hostport
 
 
 def test_dashboard_moves_and_pauses(hp: str, tmp_path: Path) -> None:
     with chromium_page(1280, 720) as (page, errors):
-        page.goto(f"http://{hp}/")
+        page.goto(f"http://{hp}/#research")
         page.wait_for_selector("#conn[data-state=up]", timeout=15000)
 
         def sim_t() -> float:
@@ -79,7 +79,7 @@ def test_knob_change_through_the_page(hp: str) -> None:
     import httpx
 
     with chromium_page(1280, 720) as (page, _errors):
-        page.goto(f"http://{hp}/")
+        page.goto(f"http://{hp}/#research")
         page.wait_for_selector("#knob-weight_on", timeout=15000)
         page.check("#knob-weight_on")
         wait_for(lambda: httpx.get(f"http://{hp}/api/params").json()["weight_on"]["value"])
@@ -103,7 +103,7 @@ def test_viser_scene_renders_and_moves(tmp_path: Path) -> None:
         vp = int(s.getsockname()[1])
     gl = [*ARGS, "--use-angle=swiftshader", "--enable-unsafe-swiftshader"]
     with (
-        serve(viser=True, viser_port=vp) as hostport,
+        serve(scenario="default", viser=True, viser_port=vp) as hostport,
         chromium_page(1280, 720, args=gl) as (page, _errors),
     ):
         page.goto(f"http://{hostport}/viser/")
@@ -134,7 +134,7 @@ def test_refused_request_shows_the_servers_message() -> None:
     # the page reads the one error body ({"detail": [{field, allowed, got, msg}]}); a
     # viewer's session reads and streams, an operator's changes
     with (
-        serve(token=OPERATOR, view_token=VIEWER) as hostport,
+        serve(scenario="default", token=OPERATOR, view_token=VIEWER) as hostport,
         chromium_page(1280, 720) as (page, errors),
     ):
         base = f"http://{hostport}"
@@ -185,7 +185,7 @@ def test_accuracy_panel_against_the_truth(hp: str) -> None:
     from server.pipeline.live_pipeline import FORCE_ESTIMATES
 
     with chromium_page(1280, 900) as (page, errors):
-        page.goto(f"http://{hp}/")
+        page.goto(f"http://{hp}/#research")
         watch_accuracy(page, "truth", FORCE_ESTIMATES)
         title = page.text_content("#accuracy-title") or ""
         assert "against the truth" in title and "Q(s)" in title
@@ -212,8 +212,11 @@ def test_accuracy_panel_scores_a_replayed_log_against_its_measured_force(tmp_pat
     log = data / "recordings" / "run.csv"  # the service reads logs by name, from its areas
     log.parent.mkdir(parents=True)
     assert main(["simulate", "--out", str(log), "--seconds", "12"]) == 0
-    with serve(data_dir=data) as hostport, chromium_page(1280, 900) as (page, errors):
-        page.goto(f"http://{hostport}/")
+    with (
+        serve(scenario="default", data_dir=data) as hostport,
+        chromium_page(1280, 900) as (page, errors),
+    ):
+        page.goto(f"http://{hostport}/#research")
         page.wait_for_selector("#accuracy-title[data-mode=truth]", timeout=20000)
         r = httpx.post(f"http://{hostport}/api/replay", json={"name": "run"}, timeout=20)
         assert r.status_code == 200, r.text
@@ -261,11 +264,11 @@ def test_interval_bands_and_the_not_excited_state(tmp_path: Path) -> None:
     # the identified parameters with an interval: their charts (declared by the stage part)
     from server.pipeline.live_pipeline import LivePipeline
 
-    intervals = [c.chart for c in LivePipeline().channels() if c.interval is not None]
+    intervals = [c.chart for c in LivePipeline("default").channels() if c.interval is not None]
     assert intervals == ["J_L", "B_L", "F_CL"]
 
-    with serve() as hostport, chromium_page(1280, 900) as (page, errors):
-        page.goto(f"http://{hostport}/")
+    with serve(scenario="default") as hostport, chromium_page(1280, 900) as (page, errors):
+        page.goto(f"http://{hostport}/#research")
         page.wait_for_selector("#conn[data-state=up]", timeout=20000)
         for q in intervals:  # every parameter's chart has its band series
             legend = page.text_content(f"#chart-{q} .u-legend") or ""

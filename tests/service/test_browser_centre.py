@@ -1,15 +1,19 @@
-"""Issue 31 phase 2: the machining centre on the dashboard, in headless Chromium.
+"""Issue 31: the machining centre on the DEFAULT dashboard, in headless Chromium.
 
-A real ``cutwatch serve --scenario machining-centre`` (a child process, its data area in
-a temporary directory): the page shows the one machine: the strip with the CNC's tool
-(a T-number) and program O2001, the spindle's power chart and the axes' process-force
-charts (X, Y, Z); the stage's observers are listed as not running, with the reason. The
+A real ``cutwatch serve`` with no ``--scenario`` (a child process, its data area in a
+temporary directory) runs the machining centre, and the page it opens on is the machine's:
+the strip with the CNC's tool (a T-number) and program O2001, the spindle's power charts
+and the axes' process-force charts (X, Y, Z), the identified parameters with their 95 %
+intervals, the stage's observers listed as not running, with the reason; the research
+views (the axes' identification charts, the accuracy panel) are on the second page, one
+tab away, and not on the machine's. The
 monitor on the spindle's cutting power teaches one part per block (``teach_parts`` 1),
 then watches; the events it has raised by then are acknowledged (one part's teach-in
 leaves a false alarm, docs/machining-centre.md), a breakage is injected into the next
 part's first cut (``POST /api/control``), and the page shows it: the strip in alarm with
 the event's words, a red marker on the spindle's chart at the event's time. Screenshot:
-``out/centre-dashboard.png`` (docs/img keeps a copy).
+``out/centre-dashboard.png``, the whole machine page (docs/img keeps a copy: the README's
+picture).
 """
 
 from __future__ import annotations
@@ -46,10 +50,11 @@ def test_the_one_machine_and_a_breakage_on_its_spindle(tmp_path: Path) -> None:
     out = Path("out")
     out.mkdir(exist_ok=True)
     with (
-        serve_process("--scenario", "machining-centre", "--data-dir", str(tmp_path / "d")) as sp,
+        serve_process("--data-dir", str(tmp_path / "d")) as sp,
         chromium_page(1280, 1100) as (page, errors),
     ):
         base = sp.base
+        assert get(base, "/api/scenarios")["current"] == "machining-centre"  # the default
         r = httpx.patch(f"{base}/api/params", json={"teach_parts": 1}, timeout=30)
         assert r.status_code == 200, r.text
         page.goto(f"{base}/")
@@ -62,8 +67,43 @@ def test_the_one_machine_and_a_breakage_on_its_spindle(tmp_path: Path) -> None:
         parts = {p["name"]: p for p in m["parts"]}
         assert not parts["stage"]["running"] and parts["stage"]["reason"]
         page.wait_for_selector("#chart-spindle", timeout=30000)
+        assert page.get_attribute("body", "data-page") == "operator"
         for a in "XYZ":
-            assert page.locator(f"#chart-axis-{a}-force").count() == 1
+            assert page.is_visible(f"#chart-axis-{a}-force")
+            assert page.locator(f"#chart-axis-{a}-mass").count() == 1  # built, elsewhere
+            assert page.is_hidden(f"#chart-axis-{a}-mass")
+        assert page.is_visible("#chart-spindle-power") and page.is_hidden("#accuracy-panel")
+        # the parts that cannot run, and why, as /api/machine says
+        row = page.locator("#parts tr[data-part=stage]")
+        assert row.is_visible() and row.get_attribute("data-running") == "false"
+        assert parts["stage"]["reason"] in row.inner_text()
+
+        # the identified parameters: each axis' mass, its estimate inside its interval
+        def masses() -> dict[str, tuple[float, float, float]]:
+            got = {}
+            for a in "XYZ":
+                tr = page.locator(f"#params tr[data-key='{a}.M'][data-excited=true]")
+                if tr.count() != 1:
+                    return {}
+                cells = tr.locator("td").all_inner_texts()
+                lo, hi = (float(x) for x in cells[2].strip("[]").split(", "))
+                got[a] = (lo, float(cells[1]), hi)
+            return got
+
+        m3 = wait_for(masses, 60)
+        assert all(lo <= v <= hi and lo < hi for lo, v, hi in m3.values()), m3
+        assert page.locator("#params tr[data-key='J_L_seg']").count() == 0  # stage: not run
+        # the research page, one tab away: the identification charts, not the machine's
+        page.click("#tab-research")
+        page.wait_for_selector("#chart-axis-X-mass canvas", timeout=10000)
+        assert page.is_visible("#accuracy-panel") and page.is_hidden("#chart-spindle")
+        # the stage's charts: its reason in their place, no empty chart
+        down = page.locator("#panel-force[data-part=stage]")
+        assert down.is_visible() and page.locator("#chart-force").count() == 0
+        assert parts["stage"]["reason"] in down.inner_text()
+        assert page.is_hidden("#params-panel") and page.is_visible("#strip")
+        page.click("#tab-operator")
+        page.wait_for_selector("#chart-spindle canvas", timeout=10000)
         wait_for(lambda: page.inner_text("#strip-where").startswith("program O2001"), 60)
         # the tool: none in the spindle (a dash) until the program's first tool change
         # (and again, for a block, while one is made), then a T-number
@@ -103,5 +143,5 @@ def test_the_one_machine_and_a_breakage_on_its_spindle(tmp_path: Path) -> None:
             return set((page.get_attribute("#chart-spindle", "data-marker-ids") or "").split(","))
 
         wait_for(lambda: ev_ids & marked())
-        page.screenshot(path=str(out / "centre-dashboard.png"))
+        page.screenshot(path=str(out / "centre-dashboard.png"), full_page=True)
         assert errors == []

@@ -31,7 +31,7 @@ def test_record_analyse_install_from_the_dashboard(hp: str) -> None:
         assert api.patch("/api/params", json={"effect_coulomb_asymmetry": True}).is_success
         assert api.post("/api/control", json={"action": "reset"}).is_success
     with chromium_page(1280, 1400) as (page, errors):
-        page.goto(f"http://{hp}/")
+        page.goto(f"http://{hp}/#research")
         page.wait_for_selector("#conn[data-state=up]", timeout=30000)
 
         def text(sel: str) -> str:

@@ -89,6 +89,8 @@ def test_a_breakage_on_the_dashboard_and_the_fleet_page(tmp_path: Path) -> None:
         with (
             serve_fleet(parse_broker_url(url), stale_after=10.0, links=links) as fleet_hp,
             serve_process(
+                "--scenario",
+                "default",
                 "--broker",
                 url,
                 "--machine",

@@ -77,7 +77,7 @@ def web_digest() -> str:
 
 @pytest.fixture(scope="module")
 def hp() -> Iterator[str]:
-    with registered(ToyPart, PickyPart), serve() as hostport:
+    with registered(ToyPart, PickyPart), serve(scenario="default") as hostport:
         yield hostport
 
 

@@ -53,7 +53,7 @@ def test_the_strip_names_one_tool_one_share_one_limit(tmp_path: Path) -> None:
     out = Path("out")
     out.mkdir(exist_ok=True)
     with (
-        serve_process("--data-dir", str(tmp_path / "data")) as sp,
+        serve_process("--scenario", "default", "--data-dir", str(tmp_path / "data")) as sp,
         chromium_page(1280, 900) as (page, errors),
     ):
         base = sp.base

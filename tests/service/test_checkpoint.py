@@ -96,7 +96,9 @@ def _estimates(snap: dict[str, Any]) -> dict[str, float]:
 def _restart_continues(data: Path, sig: int) -> None:
     """Run, stop with ``sig``, start again paused: the estimates are those of the state
     saved (the last periodic one after SIGKILL), then continue from there."""
-    with serve_process("--speed", SPEED, "--data-dir", str(data), **ENV) as sp:
+    with serve_process(
+        "--scenario", "default", "--speed", SPEED, "--data-dir", str(data), **ENV
+    ) as sp:
         before = poll(lambda: (s := _pipe(sp))["t"] > 22.0 and s, 120.0, 0.5)
         before = poll(lambda: (s := _pipe(sp))["checkpoint"].get("saved_t", 0) > 22.0 and s, 30)
         sp.stop(sig)
@@ -105,7 +107,9 @@ def _restart_continues(data: Path, sig: int) -> None:
         assert saved.t >= before["t"]
     else:  # the last periodic checkpoint: within 1 s of wall time (5 s simulated)
         assert before["t"] - 2 * 5.0 <= saved.t
-    with serve_process("--speed", "0", "--data-dir", str(data), **ENV) as sp:
+    with serve_process(
+        "--scenario", "default", "--speed", "0", "--data-dir", str(data), **ENV
+    ) as sp:
         snap = poll(lambda: (s := _pipe(sp))["checkpoint"]["resumed"] and s, 60.0)
         assert snap["t"] == pytest.approx(saved.t, abs=1e-9)  # not 0: a continuation
         assert snap["checkpoint"]["resumed_t"] == pytest.approx(saved.t)
@@ -157,7 +161,9 @@ def test_an_incompatible_checkpoint_is_refused_and_the_service_starts_fresh(
     p.step(BLOCK)
     (tmp_path / "state").mkdir()
     save_state(tmp_path / "state" / "pipeline.npz", p.state(), kind=KIND, version=VERSION + 1)
-    with serve_process("--speed", "0", "--data-dir", str(tmp_path), **ENV) as sp:
+    with serve_process(
+        "--scenario", "default", "--speed", "0", "--data-dir", str(tmp_path), **ENV
+    ) as sp:
         snap = _pipe(sp)
         assert snap["t"] == 0.0 and snap["checkpoint"]["resumed"] is False
         assert (

@@ -54,7 +54,7 @@ def env(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
 @pytest.fixture(scope="module")
 def api(env: dict[str, Path]) -> Iterator[httpx.Client]:
     with (
-        serve(data_dir=env["data"], upload_max_mb=LIMIT_MB) as hp,
+        serve(scenario="default", data_dir=env["data"], upload_max_mb=LIMIT_MB) as hp,
         httpx.Client(base_url=f"http://{hp}", timeout=60) as c,
     ):
         yield c

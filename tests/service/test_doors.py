@@ -100,8 +100,9 @@ def plant(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Plant]:
         )
         settings = Settings(**tokens)  # type: ignore[arg-type]
         with (
-            serve(token=OPERATOR, view_token=VIEWER, data_dir=tmp_path_factory.mktemp("svc"),
-                  viser=True, viser_port=free_port()) as svc,
+            serve(scenario="default", token=OPERATOR, view_token=VIEWER,
+                  data_dir=tmp_path_factory.mktemp("svc"), viser=True,
+                  viser_port=free_port()) as svc,
             serve_asgi(create_worker_app(w, settings), settings) as wk,
             fleet_process("--broker", url, "--stale-after", "30",
                           CUTWATCH_TOKEN=OPERATOR, CUTWATCH_VIEW_TOKEN=VIEWER) as fl,

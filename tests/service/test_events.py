@@ -36,7 +36,9 @@ class Routed:
 @pytest.fixture(scope="module")
 def routed() -> Iterator[Routed]:
     with tempfile.TemporaryDirectory(prefix="cutwatch-data-") as tmp:
-        s = Settings(viser=False, data_dir=tmp, token=OPERATOR, view_token=VIEWER)
+        s = Settings(
+            scenario="default", viser=False, data_dir=tmp, token=OPERATOR, view_token=VIEWER
+        )
         app = create_app(s)
         parts = loop_parts(s)  # the history as the service builds it
         assert parts.history is not None
@@ -182,7 +184,7 @@ def test_tool_lives_are_listed_newest_first(routed: Routed) -> None:
 
 def test_a_service_without_a_history_says_so() -> None:
     with tempfile.TemporaryDirectory(prefix="cutwatch-data-") as tmp:
-        s = Settings(viser=False, data_dir=tmp, history_url="none")
+        s = Settings(scenario="default", viser=False, data_dir=tmp, history_url="none")
         assert loop_parts(s).history is None
         app = create_app(s)
         loop = LiveLoop(s, Hub(4))

@@ -30,7 +30,7 @@ def _routes() -> list[tuple[str, str]]:
     """(method, path template) of every HTTP route of the app (its OpenAPI document),
     plus its static files and the routes kept out of the document."""
     with tempfile.TemporaryDirectory() as d:
-        app = create_app(Settings(viser=False, data_dir=d))
+        app = create_app(Settings(scenario="default", viser=False, data_dir=d))
     out = [(m.upper(), p) for p, ms in app.openapi()["paths"].items() for m in ms]
     out += [("GET", "/"), ("GET", "/app.js"), ("GET", "/login"), ("GET", "/vendor/uplot/x.js"),
             ("GET", "/docs"), ("GET", "/openapi.json")]  # fmt: skip
@@ -131,7 +131,7 @@ def assert_shaped(r: httpx.Response, method: str) -> None:
 @pytest.fixture(scope="module")
 def client() -> Iterator[httpx.Client]:
     with (
-        serve(token=OPERATOR, view_token=VIEWER, speed=5.0) as hp,
+        serve(scenario="default", token=OPERATOR, view_token=VIEWER, speed=5.0) as hp,
         httpx.Client(base_url=f"http://{hp}", timeout=60) as c,
     ):
         yield c

@@ -126,7 +126,7 @@ def test_events_acks_and_tool_lives_survive_a_killed_service(
     tmp_path: Path, sig: signal.Signals
 ) -> None:
     data = str(tmp_path / "data")
-    args = ("--data-dir", data, "--speed", SPEED)
+    args = ("--scenario", "default", "--data-dir", data, "--speed", SPEED)
     with serve_process(*args) as sp:
         broken = _breakage(sp)
         acked = _ack(sp, broken["id"])

@@ -23,7 +23,7 @@ def wait_for(pred: Callable[[], bool], timeout: float = 20.0) -> Any:
 
 @pytest.fixture
 def recorded() -> Iterator[tuple[LiveLoop, list[np.ndarray]]]:
-    loop = LiveLoop(Settings(viser=False), Hub(4))
+    loop = LiveLoop(Settings(scenario="default", viser=False), Hub(4))
     times: list[np.ndarray] = []
     step = loop.pipeline.step
 
@@ -59,7 +59,7 @@ def test_stall_is_caught_up_without_skipping_samples(
 
 
 def test_long_stall_reanchors_and_counts() -> None:
-    loop = LiveLoop(Settings(viser=False, max_lag_s=0.2), Hub(4))
+    loop = LiveLoop(Settings(scenario="default", viser=False, max_lag_s=0.2), Hub(4))
     loop.start()
     try:
         wait_for(lambda: loop.blocks > 3)
@@ -75,7 +75,7 @@ def test_long_stall_reanchors_and_counts() -> None:
 
 
 def test_speed_out_of_range() -> None:
-    loop = LiveLoop(Settings(viser=False), Hub(4))
+    loop = LiveLoop(Settings(scenario="default", viser=False), Hub(4))
     with pytest.raises(CutwatchError, match=r"speed: expected a value in \[0, 1000\], got -1"):
         loop.set_speed(-1)
     with pytest.raises(CutwatchError, match=r"speed: expected a value in \[0, 1000\], got nan"):

@@ -12,7 +12,7 @@ from _wait import poll
 
 
 def test_the_machine_of_the_stage_and_of_the_centre() -> None:
-    with serve() as hp, httpx.Client(base_url=f"http://{hp}", timeout=60) as api:
+    with serve(scenario="default") as hp, httpx.Client(base_url=f"http://{hp}", timeout=60) as api:
         m = api.get("/api/machine").json()
         assert m["scenario"] == "default" and m["source"] == "simulator"
         assert [(a["name"], a["kind"]) for a in m["axes"]] == [("X", "two_inertia")]

@@ -113,7 +113,10 @@ def run() -> Iterator[Run]:
         try:
             # paused until the stream and the subscriber listen
             url = f"mqtt://127.0.0.1:{port}"
-            with serve_app(speed=0, mqtt_broker=url, mqtt_machine="m1") as (hp, loop):
+            with serve_app(scenario="default", speed=0, mqtt_broker=url, mqtt_machine="m1") as (
+                hp,
+                loop,
+            ):
                 r = Run(hp, loop)
                 health = f"http://{hp}/api/health"
                 poll(lambda: httpx.get(health).json()["events_out"]["connected"], 10)
@@ -251,7 +254,7 @@ def test_an_acknowledgement_is_announced_and_clears_the_alarm(run: Run) -> None:
 
 @pytest.fixture(scope="module")
 def hp() -> Iterator[str]:
-    with serve(speed=0) as hostport:
+    with serve(scenario="default", speed=0) as hostport:
         yield hostport
 
 

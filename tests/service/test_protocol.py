@@ -70,7 +70,7 @@ def test_schema_check_names_a_stale_file(
 
 
 def test_the_loop_builds_its_messages_from_the_models() -> None:
-    loop = LiveLoop(Settings(viser=False), Hub(4))
+    loop = LiveLoop(Settings(scenario="default", viser=False), Hub(4))
     loop.pipeline.step(2 * loop.block_n)
     health = loop.health()
     assert list(health) == fields(LoopHealth)
@@ -247,7 +247,7 @@ def test_samples_rounds_to_significant_digits_relative_to_the_largest() -> None:
 def test_interval_channels_are_streamed_by_the_live_pipeline() -> None:
     from server.pipeline.live_pipeline import LivePipeline
 
-    chans = {c.name: c for c in LivePipeline().channels()}
+    chans = {c.name: c for c in LivePipeline("default").channels()}
     with_band = [c for c in chans.values() if c.interval is not None]
     assert {c.name for c in with_band} == {"J_L_seg", "B_L_seg", "F_CL_seg"}
     for c in with_band:
@@ -259,7 +259,7 @@ def test_interval_channels_are_streamed_by_the_live_pipeline() -> None:
 def hello_of_the_default_pipeline() -> str:
     from server.pipeline.live_pipeline import LivePipeline
 
-    p = LivePipeline()
+    p = LivePipeline("default")
     return protocol.hello(
         [c.describe() for c in p.channels()],
         [c.describe() for c in p.charts()],
@@ -316,7 +316,7 @@ def test_no_channel_name_is_written_in_web() -> None:
 
     from server.pipeline.live_pipeline import LivePipeline
 
-    names = {c.name for c in LivePipeline().channels()}
+    names = {c.name for c in LivePipeline("default").channels()}
     found = {}
     for f in [*WEB.glob("*.js"), *WEB.glob("*.html")]:
         text = f.read_text(encoding="utf-8")
@@ -356,3 +356,49 @@ def test_panels_accuracy_table(has_truth: bool) -> None:
         assert keys == ["f_fixed", "f_dfo"] and len(got["head"]) == 3
         assert got["head"][1].startswith("vs measured force")
     assert "(0.1 s so far)" in got["head"][1]  # 125 samples of 0.4 ms: 0.05 s
+
+
+def hello_of(scenario: str) -> dict[str, object]:
+    from server.pipeline.live_pipeline import LivePipeline
+
+    p = LivePipeline(scenario)
+    return json.loads(
+        protocol.hello(
+            [c.describe() for c in p.channels()],
+            [c.describe() for c in p.charts()],
+            p.parts(),
+            p.sample_time,
+            p.scenario,
+            p.knob_values(),
+        )
+    )
+
+
+@needs_node
+def test_panels_parameter_rows_from_the_centres_hello() -> None:
+    # web/panels.js (issue 31: the machine's page): the identified parameters are the
+    # channels with an interval, in their order; a parameter never estimated (the stage's
+    # J_L on the centre, whose part does not run) has no row; where the data do not
+    # determine it, no number; the interval from its bounds' channels
+    hello = hello_of("machining-centre")
+    latest = {
+        "X.M": 1356.2, "X.M_lo": 1352.0, "X.M_hi": 1360.4, "X.M_excited": 1.0,
+        "Y.Fv": 3.25e-3, "Y.Fv_lo": 1.0e-3, "Y.Fv_hi": 5.5e-3, "Y.Fv_excited": 0.0,
+        "Z.Fc": 401.4, "Z.Fc_lo": 390.2, "Z.Fc_hi": 412.6,  # no excited flag seen yet
+    }  # fmt: skip
+    code = (
+        "import {parameterRows, parameterChannels} from './panels.js';"
+        "import {readFileSync} from 'node:fs';"
+        "const [hello, latest] = JSON.parse(readFileSync(0, 'utf8'));"
+        "console.log(JSON.stringify({rows: parameterRows(hello.channels, latest),"
+        " names: parameterChannels(hello.channels)}));"
+    )
+    got = json.loads(run_js(code, json.dumps([hello, latest])))
+    assert [r["key"] for r in got["rows"]] == ["X.M", "Y.Fv", "Z.Fc"]
+    x, y, z = got["rows"]
+    assert x == {"key": "X.M", "label": "X mass (inertia)", "unit": "N s^2/m",
+                 "value": "1356", "interval": "[1352, 1360]", "excited": True}  # fmt: skip
+    assert y["value"] == "not excited" and y["interval"] == "–" and y["excited"] is False
+    assert z["value"] == "401.4" and z["interval"] == "[390.2, 412.6]" and z["excited"] is None
+    chans = {c["name"] for c in hello["channels"]}  # type: ignore[index]
+    assert set(got["names"]) <= chans and {"J_L_seg", "X.M_lo", "Z.Fc_excited"} <= set(got["names"])

@@ -38,7 +38,10 @@ def data(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 @pytest.fixture(scope="module")
 def api(data: Path) -> Iterator[httpx.Client]:
-    with serve(data_dir=data) as hp, httpx.Client(base_url=f"http://{hp}", timeout=30) as c:
+    with (
+        serve(scenario="default", data_dir=data) as hp,
+        httpx.Client(base_url=f"http://{hp}", timeout=30) as c,
+    ):
         yield c
 
 
@@ -152,7 +155,10 @@ def test_download_by_plain_name_only(api: httpx.Client, name: str) -> None:
 
 
 def test_shutdown_closes_the_recording(tmp_path: Path) -> None:
-    with serve(data_dir=tmp_path, speed=5) as hp, httpx.Client(base_url=f"http://{hp}") as c:
+    with (
+        serve(scenario="default", data_dir=tmp_path, speed=5) as hp,
+        httpx.Client(base_url=f"http://{hp}") as c,
+    ):
         assert c.post("/api/record", json={"action": "start", "name": "last"}).is_success
         wait_for(lambda: c.get("/api/records").json()["records"][0]["seconds"] > 1.0)
     side = json.loads((tmp_path / "recordings" / "last.json").read_text())
@@ -227,7 +233,7 @@ def test_a_gap_in_a_broker_feed_ends_the_recording_in_the_loop(tmp_path: Path) -
                   "position": "rad"}, {k: "<f8" for k in b.columns}))  # fmt: skip
     before_gap = sum(len(b.columns["q_m"]) for b, _, _ in blocks[:8])
 
-    lp = LiveLoop(Settings(viser=False, speed=10, data_dir=tmp_path), Hub(4))
+    lp = LiveLoop(Settings(scenario="default", viser=False, speed=10, data_dir=tmp_path), Hub(4))
     lp.start()
     try:
         with lp.lock:  # the recording from the pipeline's first block on

@@ -83,7 +83,7 @@ class InProcess:
 def routed() -> Iterator[tuple[InProcess, LiveLoop]]:
     """The app and the loop its routes see (one per module: the tests leave it running)."""
     with tempfile.TemporaryDirectory(prefix="cutwatch-data-") as tmp:
-        s = Settings(viser=False, data_dir=tmp)
+        s = Settings(scenario="default", viser=False, data_dir=tmp)
         app = create_app(s)
         loop = LiveLoop(s, Hub(4))
         app.dependency_overrides[live_loop] = lambda: loop

@@ -54,7 +54,7 @@ def locked(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[httpx.Cli
     """A server with both tokens; its data directory."""
     data = tmp_path_factory.mktemp("data")
     with (
-        serve(token=OPERATOR, view_token=VIEWER, data_dir=data) as hp,
+        serve(scenario="default", token=OPERATOR, view_token=VIEWER, data_dir=data) as hp,
         httpx.Client(base_url=f"http://{hp}", timeout=60) as c,
     ):
         yield c, data
@@ -299,7 +299,10 @@ def test_audit_line_for_every_state_change(
 
 
 def test_host_origin_and_headers_on_the_open_loopback_service(tmp_path: Path) -> None:
-    with serve(data_dir=tmp_path) as hp, httpx.Client(base_url=f"http://{hp}") as c:
+    with (
+        serve(scenario="default", data_dir=tmp_path) as hp,
+        httpx.Client(base_url=f"http://{hp}") as c,
+    ):
         # DNS rebinding: another name for this address
         r = c.post("/api/control", json={"action": "pause"}, headers={"Host": "attacker.example"})
         assert r.status_code == 400 and shaped(r)[0]["field"] == "host"
@@ -355,7 +358,9 @@ def test_mat_bomb_does_not_reach_the_service(tmp_path: Path) -> None:
     bomb = tmp_path / "bomb.mat"
     _bomb(bomb)
     size_kb = bomb.stat().st_size / 1e3
-    with serve_process("--data-dir", str(tmp_path / "data"), CUTWATCH_TOKEN=OPERATOR) as svc:
+    with serve_process(
+        "--scenario", "default", "--data-dir", str(tmp_path / "data"), CUTWATCH_TOKEN=OPERATOR
+    ) as svc:
         time.sleep(2.0)  # past start-up
         before = svc.rss_kb()
         svc.reset_peak()
@@ -396,7 +401,9 @@ def test_large_upload_keeps_the_loop_on_time_and_is_unusable_until_checked(
     n = _big_csv(big, 80.0)
     mb = big.stat().st_size / 1e6
     with (
-        serve_process("--data-dir", str(tmp_path / "data"), CUTWATCH_TOKEN=OPERATOR) as svc,
+        serve_process(
+            "--scenario", "default", "--data-dir", str(tmp_path / "data"), CUTWATCH_TOKEN=OPERATOR
+        ) as svc,
         httpx.Client(base_url=svc.base, headers=OP, timeout=120) as c,
     ):
         r = c.post(
@@ -455,7 +462,7 @@ def test_the_check_runs_under_its_memory_limit(tmp_path: Path) -> None:
     big = tmp_path / "mid.csv"
     _big_csv(big, 20.0)
     with (
-        serve(data_dir=tmp_path / "data", upload_check_mb=256) as hp,
+        serve(scenario="default", data_dir=tmp_path / "data", upload_check_mb=256) as hp,
         httpx.Client(base_url=f"http://{hp}", timeout=120) as c,
     ):
         assert c.post("/api/uploads", params={"name": "mid.json"},
@@ -469,7 +476,9 @@ def test_the_check_runs_under_its_memory_limit(tmp_path: Path) -> None:
 
 def test_a_killed_recording_is_cleaned_at_the_next_start(tmp_path: Path) -> None:
     data = tmp_path / "data"
-    with serve_process("--data-dir", str(data), CUTWATCH_TOKEN=OPERATOR) as svc:
+    with serve_process(
+        "--scenario", "default", "--data-dir", str(data), CUTWATCH_TOKEN=OPERATOR
+    ) as svc:
         r = httpx.post(f"{svc.base}/api/record", json={"action": "start", "name": "k.csv"},
                        headers=OP)  # fmt: skip
         assert r.status_code == 200, r.text
@@ -477,7 +486,9 @@ def test_a_killed_recording_is_cleaned_at_the_next_start(tmp_path: Path) -> None
         time.sleep(0.5)
         svc.stop(signal.SIGKILL)
     assert all(p.exists() for p in tmp)  # the kill left it
-    with serve_process("--data-dir", str(data), CUTWATCH_TOKEN=OPERATOR) as svc:
+    with serve_process(
+        "--scenario", "default", "--data-dir", str(data), CUTWATCH_TOKEN=OPERATOR
+    ) as svc:
         assert not list((data / "recordings").glob(".*.tmp"))
         listed = httpx.get(f"{svc.base}/api/records", headers=OP).json()["records"]
         assert listed == []

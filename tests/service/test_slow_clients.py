@@ -39,7 +39,7 @@ def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
         "CUTWATCH_MAX_HEADER_BYTES": str(MAX_HEADER),
         "CUTWATCH_MAX_CONNECTIONS_PER_CLIENT": str(PER_CLIENT),
     }
-    with serve_process("--data-dir", str(d / "data"), **limits) as p:
+    with serve_process("--scenario", "default", "--data-dir", str(d / "data"), **limits) as p:
         yield p.base.removeprefix("http://")
 
 

@@ -21,7 +21,7 @@ def free_port() -> int:
 
 def test_viser_port_answers_and_is_reported() -> None:
     vp = free_port()
-    with serve(viser=True, viser_port=vp) as hp:
+    with serve(scenario="default", viser=True, viser_port=vp) as hp:
         h = httpx.get(f"http://{hp}/api/health").json()
         assert h["viser_port"] == vp and h["viser_running"] is True
         r = httpx.get(f"http://127.0.0.1:{vp}/", timeout=10)

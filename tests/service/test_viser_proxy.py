@@ -44,7 +44,7 @@ def own_address() -> str | None:
 
 def test_viser_listens_on_loopback_only() -> None:
     vp = free_port()
-    with serve(viser=True, viser_port=vp):
+    with serve(scenario="default", viser=True, viser_port=vp):
         assert httpx.get(f"http://127.0.0.1:{vp}/", timeout=10).status_code == 200
         ip = own_address()
         if ip is None:
@@ -55,7 +55,9 @@ def test_viser_listens_on_loopback_only() -> None:
 
 def test_without_a_session_the_proxy_refuses() -> None:
     vp = free_port()
-    with serve(token=OPERATOR, view_token=VIEWER, viser=True, viser_port=vp) as hp:
+    with serve(
+        scenario="default", token=OPERATOR, view_token=VIEWER, viser=True, viser_port=vp
+    ) as hp:
         base = f"http://{hp}"
         r = httpx.get(f"{base}/viser/", timeout=10)
         assert r.status_code == 401 and r.json()["detail"][0]["field"] == "authorization"
@@ -99,7 +101,10 @@ def test_share_requests_never_reach_the_network(caplog: pytest.LogCaptureFixture
         scene.stop()
     # through the app: the relay drops it before viser sees it
     vp = free_port()
-    with serve(viser=True, viser_port=vp) as hp, caplog.at_level(logging.WARNING, "cutwatch.viser"):
+    with (
+        serve(scenario="default", viser=True, viser_port=vp) as hp,
+        caplog.at_level(logging.WARNING, "cutwatch.viser"),
+    ):
         with connect(f"ws://{hp}/viser/", subprotocols=[SUBPROTOCOL]) as ws:  # type: ignore[list-item]
             ws.recv(timeout=10)
             ws.send(SHARE_REQUEST)
@@ -114,7 +119,9 @@ def test_a_browser_sees_the_3d_view_through_the_dashboard() -> None:
     vp = free_port()
     sockets: list[dict[str, Any]] = []
     with (
-        serve(token=OPERATOR, view_token=VIEWER, viser=True, viser_port=vp) as hp,
+        serve(
+            scenario="default", token=OPERATOR, view_token=VIEWER, viser=True, viser_port=vp
+        ) as hp,
         chromium_page(1280, 900) as (page, errors),
     ):
         base = f"http://{hp}"
@@ -126,6 +133,7 @@ def test_a_browser_sees_the_3d_view_through_the_dashboard() -> None:
 
         page.on("websocket", opened)
         log_in(page, base, VIEWER)
+        page.click("#tab-research")  # the 3D view is on the research page (issue 31)
         page.wait_for_selector("#viser-panel:not([hidden])", timeout=15000)
         assert page.get_attribute("#viser", "src") == f"{base}/viser/"
         frame = page.frame_locator("#viser")

@@ -24,7 +24,7 @@ from server.service.hub import ClientQueue, Hub
 
 @pytest.fixture(scope="module")
 def hp() -> Iterator[str]:
-    with serve() as hostport:
+    with serve(scenario="default") as hostport:
         yield hostport
 
 
@@ -38,7 +38,7 @@ def test_hello_then_frames(hp: str) -> None:
         hello = recv(ws)
         assert hello["type"] == "hello" and hello["version"] == protocol.VERSION
         names = [c["name"] for c in hello["channels"]]
-        assert names == [c.name for c in LivePipeline().channels()]
+        assert names == [c.name for c in LivePipeline("default").channels()]
         grid = {c["name"]: c["grid"] for c in hello["channels"]}
         assert grid["f_true"] == "t" and grid["J_L_true"] == "ts"
         frames = [recv(ws) for _ in range(10)]
@@ -58,7 +58,7 @@ def test_no_per_message_deflate_unless_asked(hp: str) -> None:
         assert ws.request is not None and ws.response is not None
         assert "permessage-deflate" in ws.request.headers.get("Sec-WebSocket-Extensions", "")
         assert "Sec-WebSocket-Extensions" not in ws.response.headers
-    with serve(ws_deflate=True) as hp2, connect(f"ws://{hp2}/ws") as ws:
+    with serve(scenario="default", ws_deflate=True) as hp2, connect(f"ws://{hp2}/ws") as ws:
         assert ws.response is not None
         assert "permessage-deflate" in ws.response.headers.get("Sec-WebSocket-Extensions", "")
 
@@ -136,7 +136,7 @@ def test_scenario_change_sends_a_new_hello_first(hp: str) -> None:
     # part, and streams none of their channels
     want = [c.name for c in LivePipeline("seed000-weight").channels()]
     assert [c["name"] for c in msgs[i]["channels"]] == want
-    assert len(want) < len(LivePipeline().channels())
+    assert len(want) < len(LivePipeline("default").channels())
     after = [m for m in msgs[i + 1 :] if m["t"]]
     assert after, "no data frame after the new hello"
     # every frame after the hello comes from the new pipeline (its clock restarted at 0)
@@ -162,7 +162,9 @@ def test_pause_seen_in_stream(hp: str) -> None:
 
 def test_slow_client_loses_frames_others_do_not() -> None:
     # tiny socket buffers so a client that never reads fills the pipe within seconds
-    with serve(sndbuf=4096, frame_hz=50, display_points=2000, client_buffer=4) as hp:
+    with serve(
+        scenario="default", sndbuf=4096, frame_hz=50, display_points=2000, client_buffer=4
+    ) as hp:
         raw = socket.create_connection(("127.0.0.1", int(hp.split(":")[1])))
         raw.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
         slow = connect(f"ws://{hp}/ws", sock=raw, max_queue=2, ping_interval=None, close_timeout=1)
@@ -248,7 +250,7 @@ def test_hub_publish_never_blocks_and_counts() -> None:
 
 
 def test_server_shutdown_closes_streams() -> None:
-    with serve() as hp:
+    with serve(scenario="default") as hp:
         ws = connect(f"ws://{hp}/ws")
         recv(ws)
     with pytest.raises(ConnectionClosed):

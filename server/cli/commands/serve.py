@@ -2,7 +2,8 @@
 
 Examples::
 
-    cutwatch serve                       # http://127.0.0.1:8000/
+    cutwatch serve                       # http://127.0.0.1:8000/ (the machining centre)
+    cutwatch serve --scenario default    # the seeds' machines side by side
     cutwatch serve --speed 0             # start paused
     CUTWATCH_TOKEN="$(openssl rand -hex 16)" cutwatch serve --host 0.0.0.0
     cutwatch serve --source mqtt --broker mqtt://127.0.0.1:1883 --machine mill-1 \
@@ -41,7 +42,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         type=int,
         help="loopback port of the viser 3D view, reached at /viser/ (default 8080)",
     )
-    p.add_argument("--scenario", help="scenario at start (see GET /api/scenarios)")
+    p.add_argument(
+        "--scenario",
+        help="scenario at start (see GET /api/scenarios; default: machining-centre, the "
+        "3-axis machining centre; 'default': the seeds' machines side by side, the default "
+        "before issue 31)",
+    )
     p.add_argument(
         "--speed",
         type=float,

@@ -90,8 +90,10 @@ def _service(broker_port: int, d: Path) -> Iterator[tuple[str, Path]]:
         CUTWATCH_BLOCK_LOG=str(log),
         CUTWATCH_CHECKPOINT_S="0",
     )
+    # the seeds' scenario (its process monitor), as before the centre became the default
     cmd = [sys.executable, "-m", "server.cli.main", "serve", "--port", str(port), "--no-viser",
-           "--broker", f"mqtt://127.0.0.1:{broker_port}", "--machine", MACHINE]  # fmt: skip
+           "--scenario", "default", "--broker", f"mqtt://127.0.0.1:{broker_port}",
+           "--machine", MACHINE]  # fmt: skip
     out = (d / "serve.out").open("w")
     proc = subprocess.Popen(cmd, env=env, stdout=out, stderr=subprocess.STDOUT)
     base = f"http://127.0.0.1:{port}"

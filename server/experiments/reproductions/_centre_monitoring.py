@@ -161,6 +161,25 @@ def free_program(rng: np.random.Generator) -> Any:
     return Program(f"O{int(rng.integers(3000, 9999))}", tuple(blocks), tools, start=(0, 0, 0.1))
 
 
+def cutting_lines(program: Any) -> dict[int, bool]:
+    """Per G-code line, whether the CNC's program lets the block cut: a G1 feed in the
+    XY plane (Z held; the machining centre's programs cut only so,
+    :class:`machine.centre.program.Program`). A G0 rapid, a tool change, a spindle start,
+    a dwell, the end and a feed along Z alone (a plunge into the clearance) cannot: the
+    monitors judge them by the collision's extreme limit only (as an industrial monitor
+    is switched on only around the program's cuts). Read from the program's text, not
+    from its cuts (the truth)."""
+    out: dict[int, bool] = {}
+    for b, _tool, _rpm, pos in program.walk():
+        out[b.line] = bool(
+            b.kind == "feed"
+            and b.target is not None
+            and abs(b.target[2] - pos[2]) <= 1e-12
+            and math.hypot(b.target[0] - pos[0], b.target[1] - pos[1]) > 0.0
+        )
+    return out
+
+
 # ---------------------------------------------------------------- the signals
 class _AxisForce:
     r"""One feed axis' process force from its trace.
@@ -238,6 +257,7 @@ class Watch:
         self.radius = np.zeros(max(t.number for t in tools) + 1)
         for t in tools:
             self.radius[t.number] = t.radius
+        self.cutting = cutting_lines(machine.program)
         mp = MonitorParams(sample_time=ts, teach_parts=TEACH_PARTS)
         self.mon = {s: ProcessMonitor(mp) for s in MONITORS}
         self.mstate = {s: self.mon[s].initial_state() for s in MONITORS}
@@ -300,7 +320,7 @@ class Watch:
                 m = self.mon[s].step(
                     self.mstate[s], fx[a:b], fy[a:b], psi[a:b], tool=int(tr.tool[a]),
                     program=tr.program, line=key[1], new_block=new,
-                    override=ovr if ovr > 0.0 else 1.0,
+                    override=ovr if ovr > 0.0 else 1.0, cutting=self.cutting.get(key[1], True),
                 )  # fmt: skip
                 self._note(s, m, self.n + a, key)
         self.n += tr.n
@@ -454,5 +474,5 @@ def run_centre_case(case: CentreCase) -> dict[str, Any]:
     return run_free(case) if case.kind == "none" else run_event(case)
 
 
-__all__ = ["RATES", "SETS", "CentreCase", "Watch", "event_program", "free_program",
-           "run_centre_case", "run_event", "run_free"]  # fmt: skip
+__all__ = ["RATES", "SETS", "CentreCase", "Watch", "cutting_lines", "event_program",
+           "free_program", "run_centre_case", "run_event", "run_free"]  # fmt: skip

@@ -24,7 +24,7 @@ import threading
 import time
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, TypedDict
 
 from alembic import command
 from alembic.config import Config
@@ -35,15 +35,23 @@ from sqlalchemy.engine import Connection
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.sql import Select
 
+from common.event_kinds import EventKind
 from server.records.history.tables import acknowledgements, events, tool_life
-from server.records.monitor_events import KINDS, MonitorEvent
+from server.records.monitor_events import KINDS, EventFields, EventRecord, MonitorEvent
 
 #: where the history lies in the service's data directory
 RELATIVE_PATH = Path("history") / "cutwatch.sqlite"
 #: the migration scripts (Alembic's script location)
 MIGRATIONS = Path(__file__).resolve().parent / "migrations"
 #: why a tool left the spindle
-CAUSES = ("wear_limit", "breakage", "missing_tool", "collision", "manual", "unknown")
+CAUSES: tuple[str, ...] = (
+    EventKind.WEAR_LIMIT,
+    EventKind.BREAKAGE,
+    EventKind.MISSING_TOOL,
+    EventKind.COLLISION,
+    "manual",
+    "unknown",
+)
 #: the most rows one query gives
 MAX_LIMIT = 1000
 
@@ -115,7 +123,51 @@ def _num(x: object) -> float | None:
     return v if math.isfinite(v) else None
 
 
-def _event_row(r: Mapping[Any, Any]) -> dict[str, Any]:
+class EventRow(EventRecord):
+    """An event as the history gives it: its record with the time it was received."""
+
+    received_wall: float
+
+
+class _EventInsert(EventFields):
+    """An event's row as written (its acknowledgement is a row of its own)."""
+
+    received_wall: float
+
+
+class ToolLifeRow(TypedDict):
+    """A tool life as the history keeps and gives it (``GET /api/tool-life``'s item)."""
+
+    machine: str
+    tool: int
+    start_t: float | None
+    end_t: float
+    start_wall: float | None
+    end_wall: float
+    wear_at_change_mm: float | None
+    wear_true_mm: float | None
+    wear_true_share: float | None
+    cause: str
+    index: int | None
+
+
+class _ToolLifeInsert(TypedDict):
+    """A tool life's row as written (the table's columns but ``seq``)."""
+
+    machine: str
+    tool: int
+    tool_index: int | None
+    start_t: float | None
+    end_t: float
+    start_wall: float | None
+    end_wall: float
+    wear_at_change_mm: float | None
+    wear_true_mm: float | None
+    wear_true_share: float | None
+    cause: str
+
+
+def _event_row(r: Mapping[Any, Any]) -> EventRow:
     """An event as the stream and REST carry it (``Event``) with its received time."""
     return {
         "id": r["id"],
@@ -138,11 +190,21 @@ def _event_row(r: Mapping[Any, Any]) -> dict[str, Any]:
     }
 
 
-def _life_row(r: Mapping[Any, Any]) -> dict[str, Any]:
-    out = {k: r[k] for k in tool_life.c.keys()}
-    out["index"] = out.pop("tool_index")
-    out.pop("seq")
-    return out
+def _life_row(r: Mapping[Any, Any]) -> ToolLifeRow:
+    """A row of ``tool_life`` (its ``tool_index`` named ``index``, last; no ``seq``)."""
+    return {
+        "machine": r["machine"],
+        "tool": r["tool"],
+        "start_t": r["start_t"],
+        "end_t": r["end_t"],
+        "start_wall": r["start_wall"],
+        "end_wall": r["end_wall"],
+        "wear_at_change_mm": r["wear_at_change_mm"],
+        "wear_true_mm": r["wear_true_mm"],
+        "wear_true_share": r["wear_true_share"],
+        "cause": r["cause"],
+        "index": r["tool_index"],
+    }
 
 
 class HistoryStore:
@@ -189,14 +251,14 @@ class HistoryStore:
     def add_events(self, evs: Iterable[MonitorEvent], wall: float | None = None) -> None:
         """Store ``evs`` (received at ``wall``, default now) in one transaction, committed
         before the call returns; an event whose id is stored already is skipped."""
-        rows = []
+        rows: list[_EventInsert] = []
         now = time.time() if wall is None else wall
         for ev in evs:
             d = ev.as_dict()
-            d["machine"] = d["machine"] or self.machine
-            d["value"], d["limit"] = _num(d["value"]), _num(d["limit"])
-            d["received_wall"] = now
-            rows.append(d)
+            row: _EventInsert = {**d, "received_wall": now}
+            row["machine"] = d["machine"] or self.machine
+            row["value"], row["limit"] = _num(d["value"]), _num(d["limit"])
+            rows.append(row)
         if not rows:
             return
         t0 = time.perf_counter()
@@ -214,15 +276,13 @@ class HistoryStore:
             a, a.c.event_id == events.c.id
         )
 
-    def event(self, event_id: str) -> dict[str, Any] | None:
+    def event(self, event_id: str) -> EventRow | None:
         """One event with its acknowledgement (None: no such event)."""
         with self.engine.connect() as conn:
             r = conn.execute(self._query().where(events.c.id == event_id)).mappings().first()
         return None if r is None else _event_row(r)
 
-    def acknowledge(
-        self, event_id: str, by: str, wall: float | None = None
-    ) -> dict[str, Any] | None:
+    def acknowledged(self, event_id: str, by: str, wall: float | None = None) -> EventRow | None:
         """Acknowledge an event (committed before the call returns); acknowledging it
         again changes nothing and gives the first acknowledgement. The event with its
         acknowledgement; None when there is no such event."""
@@ -243,6 +303,14 @@ class HistoryStore:
                 self._timed(t0)
         return self.event(event_id)
 
+    def acknowledge(
+        self, event_id: str, by: str, wall: float | None = None
+    ) -> dict[str, Any] | None:
+        """:meth:`acknowledged` as a plain dict (what the runtime's ``EventHistory``
+        protocol asks, ``server/pipeline/runtime.py``)."""
+        ev = self.acknowledged(event_id, by, wall)
+        return None if ev is None else dict(ev)
+
     def events(
         self,
         *,
@@ -253,7 +321,7 @@ class HistoryStore:
         until: float | None = None,
         limit: int = 100,
         offset: int = 0,
-    ) -> tuple[int, list[dict[str, Any]]]:
+    ) -> tuple[int, list[EventRow]]:
         """Events newest first (by received time), filtered: ``kind`` (one of
         :data:`~server.records.monitor_events.KINDS`), ``tool``, ``acked``, received at
         or after ``since`` and before ``until`` (Unix s); a page of ``limit`` from
@@ -284,14 +352,15 @@ class HistoryStore:
 
     def recent(self, n: int, *, unacked: bool = False) -> list[dict[str, Any]]:
         """The latest ``n`` events (only those not acknowledged: ``unacked``), oldest first:
-        what a restarted service shows again."""
+        what a restarted service shows again (:class:`EventRow` as plain dicts: what the
+        runtime's ``EventHistory`` asks)."""
         _, items = self.events(acked=False if unacked else None, limit=n)
-        return items[::-1]
+        return [dict(r) for r in items[::-1]]
 
     # ------------------------------------------------------------------ tool lives
     def add_tool_changes(
         self, changes: Sequence[Mapping[str, Any]], wall: float | None = None
-    ) -> list[dict[str, Any]]:
+    ) -> list[ToolLifeRow]:
         """Record tools taken out of the spindle (:meth:`LivePipeline.take_tool_changes`:
         ``tool``, ``index``, ``start_t``, ``end_t``, ``wear_at_change_mm``, ``cause``,
         optionally ``wear_true_mm``, ``wear_true_share``, ``start_wall``, ``end_wall``,
@@ -311,7 +380,7 @@ class HistoryStore:
                     raise ValueError(f"cause: expected one of {', '.join(CAUSES)}, got {cause!r}")
                 machine = str(c.get("machine") or self.machine)
                 start_t = _num(c.get("start_t"))
-                row: dict[str, Any] = {
+                row: _ToolLifeInsert = {
                     "machine": machine,
                     "tool": int(c["tool"]),
                     "tool_index": None if c.get("index") is None else int(c["index"]),
@@ -345,7 +414,7 @@ class HistoryStore:
 
     def tool_life(
         self, *, tool: int | None = None, limit: int = 100, offset: int = 0
-    ) -> tuple[int, list[dict[str, Any]]]:
+    ) -> tuple[int, list[ToolLifeRow]]:
         """Tool lives newest first (``tool``: of that tool number only); a page of
         ``limit`` from ``offset``. The number matching and the page."""
         q = select(tool_life)

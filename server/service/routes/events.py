@@ -13,12 +13,14 @@ from __future__ import annotations
 
 import asyncio
 import math
-from typing import Annotated, Any, Literal
+from typing import Annotated
 
 from fastapi import APIRouter, Depends, HTTPException, Path, Query
 
+from common.event_kinds import EventKind
 from server.records.history import HistoryStore
-from server.records.history.store import MAX_LIMIT
+from server.records.history.store import MAX_LIMIT, EventRow
+from server.records.monitor_events import EventRecord
 from server.service.auth import operator
 from server.service.deps import Live, conflict
 from server.service.http_errors import error
@@ -36,7 +38,6 @@ from server.service.schemas import (
 
 router = APIRouter(responses=error_responses())
 
-Kind = Literal["breakage", "collision", "missing_tool", "wear_limit", "life_short"]
 Limit = Annotated[int, Query(ge=1, le=MAX_LIMIT, description="items per page")]
 Offset = Annotated[int, Query(ge=0, le=10**9, description="items to skip (newest first)")]
 Tool = Annotated[int | None, Query(ge=0, le=10**6, description="only this tool number")]
@@ -75,7 +76,7 @@ def _wall(name: str, v: float | None) -> float | None:
 )
 async def list_events(
     lp: Live,
-    kind: Annotated[Kind | None, Query(description="only events of this kind")] = None,
+    kind: Annotated[EventKind | None, Query(description="only events of this kind")] = None,
     tool: Tool = None,
     acked: Annotated[bool | None, Query(description="only acknowledged (true) or not")] = None,
     since: Annotated[float | None, Query(description="received at or after [unix s]")] = None,
@@ -111,7 +112,7 @@ async def acknowledge(
 ) -> HistoryEvent:
     h = history_of(lp)
     by = body.by if body is not None and body.by is not None else role
-    ev = await asyncio.to_thread(h.acknowledge, event_id, by)
+    ev = await asyncio.to_thread(h.acknowledged, event_id, by)
     if ev is None:
         allowed = "the id of an event in the history (GET /api/events)"
         msg = f"no event with id {event_id!r} in the history"
@@ -122,9 +123,10 @@ async def acknowledge(
     return HistoryEvent.model_validate(ev)
 
 
-def _stream_event(ev: dict[str, Any]) -> dict[str, Any]:
+def _stream_event(ev: EventRow) -> EventRecord:
     """The event as the stream carries it (without the history's received time)."""
-    return {k: v for k, v in ev.items() if k != "received_wall"}
+    rec: EventRecord = {k: v for k, v in ev.items() if k != "received_wall"}  # type: ignore[assignment]
+    return rec
 
 
 @router.get(
