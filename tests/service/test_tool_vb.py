@@ -126,7 +126,7 @@ def test_a_vb_entered_at_a_change_calibrates_the_tools_map(centre: tuple) -> Non
 
 def test_a_machine_without_the_wear_part_names_it() -> None:
     with (
-        serve_app() as (hp, _),
+        serve_app(scenario="default") as (hp, _),  # the seeds' stage: no spindle
         httpx.Client(base_url=f"http://{hp}", timeout=60) as api,
     ):
         r = api.post("/api/tool-life/vb", json={"tool": 1, "vb_mm": 0.3})

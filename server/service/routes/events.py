@@ -149,6 +149,7 @@ async def tool_life(
     "latest ended life and refits that tool's wear map (the machine's own labelled lives)",
     response_model=ToolVbLabel,
     responses=error_responses(413, 422),
+    tags=["tool-life"],
 )
 async def tool_vb(lp: Live, role: Annotated[str, Depends(operator)], body: ToolVb) -> ToolVbLabel:
     # a pipeline without the wear part, a tool with no ended life, a VB out of range: a
