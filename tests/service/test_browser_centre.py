@@ -13,7 +13,7 @@ leaves a false alarm, docs/machining-centre.md), a breakage is injected into the
 part's first cut (``POST /api/control``), and the page shows it: the strip in alarm with
 the event's words, a red marker on the spindle's chart at the event's time. Screenshot:
 ``out/centre-dashboard.png``, the whole machine page (docs/img keeps a copy: the README's
-picture).
+picture), and ``out/centre-research.png``, the research page early in the run.
 """
 
 from __future__ import annotations
@@ -101,6 +101,7 @@ def test_the_one_machine_and_a_breakage_on_its_spindle(tmp_path: Path) -> None:
         down = page.locator("#panel-force[data-part=stage]")
         assert down.is_visible() and page.locator("#chart-force").count() == 0
         assert parts["stage"]["reason"] in down.inner_text()
+        page.screenshot(path=str(out / "centre-research.png"), full_page=True)
         assert page.is_hidden("#params-panel") and page.is_visible("#strip")
         page.click("#tab-operator")
         page.wait_for_selector("#chart-spindle canvas", timeout=10000)
