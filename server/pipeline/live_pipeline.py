@@ -164,6 +164,9 @@ _STATUS: dict[str, object] = {
     "wear_of": "",
     "wear_limit_mm": math.nan,
     "wear_alarm_share": math.nan,
+    "wear_lo_share": math.nan,
+    "wear_hi_share": math.nan,
+    "wear_calibrated": None,
 }
 
 

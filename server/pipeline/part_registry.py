@@ -22,6 +22,7 @@ cnc            the spindle drive's raw signals the spindle     server/pipeline/c
 axis_monitor   the process monitor on the axes' process force  server/pipeline/axis_monitor_part.py
 two_inertia    seed 000's observer on a scale axis, from the   server/pipeline/two_inertia_part.py
                parameters identified on the trace
+centre_wear    wear per tool from the spindle's cutting power  server/pipeline/centre_wear_part.py
 =============  ==============================================  ====================================
 
 More parts come after these, in the order they were added: :func:`register` (in
@@ -223,6 +224,14 @@ def _two_inertia(c: BuildContext) -> Part | None:
     return TwoInertiaAxisPart(desc)
 
 
+def _centre_wear(c: BuildContext) -> Part | None:
+    from server.pipeline.centre_wear_part import CentreWearPart
+
+    if "spindle" not in c.parts:
+        return None  # no spindle's cutting power: not built
+    return CentreWearPart(str(getattr(c.source, "program", "")))
+
+
 #: cutwatch's own parts, by name, in the order they run (module docstring)
 BUILTIN: tuple[tuple[str, PartFactory], ...] = (
     ("workpiece", _workpiece),
@@ -237,6 +246,7 @@ BUILTIN: tuple[tuple[str, PartFactory], ...] = (
     ("cnc", _cnc),
     ("axis_monitor", _axis_monitor),
     ("two_inertia", _two_inertia),
+    ("centre_wear", _centre_wear),
 )
 
 #: the parts added: what was registered (a class or a factory) -> its factory
