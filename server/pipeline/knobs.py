@@ -12,11 +12,12 @@ cannot change a knob behind the pipeline's back.
 Each knob names the parts that read it (:attr:`Knob.parts`; :data:`SIMULATOR`: the
 simulated stage and its scenario's script, read when the source is the simulator). A
 pipeline offers the knobs of its own parts only
-(:meth:`server.pipeline.live_pipeline.LivePipeline.knobs`): on the machining centre the
-spindle monitor's two, not the stage's; a knob no part of the pipeline reads is refused,
-naming the parts that would (:func:`not_read`). A part of the pipeline that is paused (a
-band over the Nyquist frequency, a part it needs not running) keeps its knobs: a value
-set then is stored and applies when it runs again (:attr:`Knob.waiting` says so).
+(:meth:`server.pipeline.live_pipeline.LivePipeline.knobs`): on the machining centre its
+monitors' two (the spindle's and the axes'), not the stage's; a knob no part of the
+pipeline reads is refused, naming the parts that would (:func:`not_read`). A part of the
+pipeline that is paused (a band over the Nyquist frequency, a part it needs not running)
+keeps its knobs: a value set then is stored and applies when it runs again
+(:attr:`Knob.waiting` says so).
 """
 
 from __future__ import annotations
@@ -125,8 +126,9 @@ def _choice(
 
 _SIM = (SIMULATOR,)
 _ECC = ("eccentricity",)
-#: the process monitor on the stage's program and the spindle's on the centre's power
-_MONITORS = ("process", "spindle")
+#: the process monitor on the stage's program, the spindle's on the centre's power and the axes'
+#: monitor on their process forces
+_MONITORS = ("process", "spindle", "axis_monitor")
 
 
 #: every knob with its default, bounds and doc (the single source of the bounds)
@@ -294,12 +296,11 @@ def not_read(name: str, offered: Collection[str]) -> tuple[str, str]:
         else "no knob: no part this pipeline runs reads one (a feed's parts are built "
         "once its machine is described)"
     )
-    readers = [p for p in KNOBS[name].parts]
-    who = (
-        "the simulated stage"
-        if readers == [SIMULATOR]
-        else "the "
-        + " and ".join(r if r != SIMULATOR else "simulated stage" for r in readers)
-        + (" parts" if len(readers) > 1 else " part")
-    )
+    readers = list(KNOBS[name].parts)
+    if readers == [SIMULATOR]:
+        who = "the simulated stage"
+    elif len(readers) == 1:
+        who = f"the {readers[0]} part"
+    else:
+        who = f"the {', '.join(readers[:-1])} and {readers[-1]} parts"
     return expected, f"{name} is read by {who}, which this pipeline does not run"

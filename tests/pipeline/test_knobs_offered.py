@@ -1,10 +1,11 @@
 """The knobs a pipeline offers are its parts' (issue 31, the one machine live).
 
-On the machining centre the knobs are the spindle monitor's two (``teach_parts``,
-``band_factor``), not the simulated stage's; the stage's scenario offers every knob; a
-log or a feed offers none of the simulator's. A knob no part of the pipeline reads is
-refused naming the parts that would read it, and nothing changes; a part that is built
-but paused keeps its knobs, says why they wait, and takes the value when it runs again.
+On the machining centre the knobs are its monitors' two (the spindle's and the axes':
+``teach_parts``, ``band_factor``), not the simulated stage's; the stage's scenario
+offers every knob; a log or a feed offers none of the simulator's. A knob no part of
+the pipeline reads is refused naming the parts that would read it, and nothing changes;
+a part that is built but paused keeps its knobs, says why they wait, and takes the value
+when it runs again.
 """
 
 from __future__ import annotations
@@ -31,7 +32,7 @@ def test_the_centre_offers_its_spindle_monitors_knobs_only() -> None:
     p = LivePipeline("machining-centre", seed=0)
     knobs = p.knobs()
     assert sorted(knobs) == ["band_factor", "teach_parts"]
-    assert all(k.parts == ("spindle",) and k.waiting == "" for k in knobs.values())
+    assert all(k.parts == ("spindle", "axis_monitor") and not k.waiting for k in knobs.values())
     assert sorted(p.knob_values()) == ["band_factor", "teach_parts"]
     assert sorted(p.snapshot()["knobs"]) == ["band_factor", "teach_parts"]  # type: ignore[call-overload]
     p.set_knob("teach_parts", 2)
@@ -63,7 +64,7 @@ def test_the_stage_scenario_offers_every_knob_and_seed000_the_stages() -> None:
     weight = LivePipeline("seed000-weight").knobs()
     assert set(weight) == {k.name for k in KNOB_TABLE if k.parts == (SIMULATOR,)}
     assert all(k.parts == (SIMULATOR,) and not k.waiting for k in weight.values())
-    with pytest.raises(ParameterError, match="the process and spindle parts"):
+    with pytest.raises(ParameterError, match="the process, spindle and axis_monitor parts"):
         LivePipeline("seed000-weight").set_knob("teach_parts", 2)
 
 

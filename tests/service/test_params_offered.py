@@ -1,7 +1,7 @@
 """Issue 31: the knobs are the running parts', over real HTTP and in the page.
 
 A real server started with no scenario runs the machining centre: ``GET /api/params``
-offers the spindle monitor's two knobs (read by the spindle part), and the frames carry
+offers its monitors' two knobs (read by the spindle and axis_monitor parts), and the frames carry
 those two; ``PATCH /api/params`` refuses a knob no part of the centre reads with a 422
 naming the field, the knobs expected and the value found, and the parts that would read
 it, changing nothing (all or nothing); switched to the stage's scenario every knob is
@@ -43,7 +43,11 @@ def test_the_centre_offers_its_parts_knobs(hp: str, api: httpx.Client) -> None:
     params = api.get("/api/params").json()
     assert set(params) == CENTRE_KNOBS
     for k in params.values():
-        assert k["parts"] == ["spindle"] and k["waiting"] == "" and k["type"] == "number"
+        assert (
+            k["parts"] == ["spindle", "axis_monitor"]
+            and k["waiting"] == ""
+            and k["type"] == "number"
+        )
     with connect(f"ws://{hp}/ws") as ws:
         msgs: list[dict[str, Any]] = [json.loads(ws.recv(timeout=10))]
         while msgs[-1]["type"] != "data":
