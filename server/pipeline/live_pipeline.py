@@ -780,11 +780,24 @@ class LivePipeline:
         elif ref == "measured_force":
             self._accuracy.update(out, measured=block.source.meas.f_ext)
 
+    def running_force_estimates(self) -> tuple[str, ...]:
+        """The force estimates of the parts that run now, in stream order (a part that
+        does not run, such as the stage's observers on the machining centre, streams NaN:
+        nothing to list)."""
+        return _force_estimates(c for p in self._parts if self._running(p) for c in p.channels)
+
     def accuracy(self, digits: int | None = None) -> dict[str, object]:
-        """Rolling rms of every force estimate over the last 1 s and 10 s
-        (:meth:`harness.accuracy.RollingAccuracy.summary`; ``digits``: rounded,
-        JSON-safe)."""
-        return self._accuracy.summary(digits)
+        """Rolling rms of the force estimates of the parts that run now, over the last 1 s
+        and 10 s (:meth:`harness.accuracy.RollingAccuracy.summary`, every estimate
+        scored, those of parts that do not run left out: a part that runs again has its
+        row back, its windows kept; ``digits``: rounded, JSON-safe)."""
+        summary = self._accuracy.summary(digits)
+        live = set(self.running_force_estimates())
+        for key in ("rms", "rms_q"):
+            rows = summary[key]
+            if isinstance(rows, dict):
+                summary[key] = {k: v for k, v in rows.items() if k in live}
+        return summary
 
     # ------------------------------------------------------------------ what the parts end
     def take_tool_changes(self) -> list[dict[str, object]]:

@@ -6,7 +6,8 @@ those two; ``PATCH /api/params`` refuses a knob no part of the centre reads with
 naming the field, the knobs expected and the value found, and the parts that would read
 it, changing nothing (all or nothing); switched to the stage's scenario every knob is
 offered again. In headless Chromium the knobs panel builds exactly those controls, a
-change through one reaches the pipeline, and the panel follows a scenario switch.
+change through one reaches the pipeline, and the panel follows a scenario switch; the
+accuracy panel lists the axes' estimates and none of the stage's observers (not run).
 """
 
 from __future__ import annotations
@@ -102,6 +103,9 @@ def test_the_knobs_panel_follows_the_running_parts(hp: str) -> None:
         page.goto(f"{base}/#research")
         page.wait_for_selector("#knob-teach_parts", timeout=30000)
         assert knob_ids(page) == CENTRE_KNOBS
+        # the accuracy panel: the running parts' estimates (the axes'), not the stage's
+        page.wait_for_selector("#accuracy tr[data-key='X.F']", timeout=30000)
+        assert page.locator("#accuracy tr[data-key=f_fixed]").count() == 0
         title = page.get_attribute("label[for=knob-band_factor]", "title") or ""
         assert "read by the spindle part" in title
         # a change through the page's control reaches the pipeline
