@@ -461,16 +461,22 @@ class LivePipeline:
             self._status[part.name] = new
 
     def _verdict(self, part: Part, view: MachineView) -> Verdict:
+        """Whether ``part`` can run on ``view``: the parts it needs first; a part lacking
+        one says, too, why it could not run on this machine anyway (its own refusal)."""
+        try:
+            own = part.requires(view)
+        except Exception as exc:
+            own = Verdict(False, f"requires: {_why(exc)}")
+        also = "" if own.ok else f"; and {own.reason}"
         for need in part.needs:
             st = self._status.get(need)
             if st is None:
-                return Verdict(False, f"needs the {need} part, which this pipeline does not run")
+                why = f"needs the {need} part, which this pipeline does not run"
+                return Verdict(False, why + also)
             if not st.running:
-                return Verdict(False, f"needs the {need} part, which does not run ({st.reason})")
-        try:
-            return part.requires(view)
-        except Exception as exc:
-            return Verdict(False, f"requires: {_why(exc)}")
+                why = f"needs the {need} part, which does not run ({st.reason})"
+                return Verdict(False, why + also)
+        return own
 
     def _stop(self, part: Part, exc: BaseException, where: str) -> None:
         """Stop ``part`` (it raised in ``where``) and every part that needs it."""
