@@ -39,7 +39,12 @@ FORMAT = "cutwatch-state"
 #: version of the codec (the tree's encoding); a file of another version is refused
 FORMAT_VERSION = 1
 #: packages whose classes a state may name
-PACKAGES = ("common.", "machine.", "estimators.", "server.pipeline.")
+PACKAGES = ("common.", "machine.", "estimators.", "harness.", "server.pipeline.")
+#: modules moved since a state could name them: a state written before reads as now
+MOVED = {
+    f"server.pipeline.{m}": f"harness.{m}"
+    for m in ("accuracy", "eccentricity_loop", "shards", "wear_clock")
+}
 
 
 class StateFormatError(ValueError):
@@ -125,6 +130,7 @@ class _Encoder:
 
 def _class(name: str, where: str) -> type:
     module, _, qual = name.partition(":")
+    module = MOVED.get(module, module)
     if not module.startswith(PACKAGES):
         raise StateFormatError(f"state: {where}: class {name} is outside {PACKAGES}")
     try:

@@ -55,7 +55,10 @@ Examples::
 
 ``fleet`` takes ``--machines N`` (default 20) and ``--workers W``: 0 (default) runs one
 ``cutwatch serve`` per machine, W > 0 spreads the machines over W ``cutwatch worker``
-shards fed by one feeder process (docs/plant.md); ``--seconds`` is its window.
+shards fed by one feeder process (docs/plant.md); ``--seconds`` is its window. With
+``--centres`` the machines are machining centres at 500 Hz replaying one recorded trace,
+their monitors' events scored against its truth (``cutwatch bench fleet --machines 300
+--workers 2 --centres --seconds 300``: the plant of docs/plant.md).
 """
 
 from __future__ import annotations
@@ -97,6 +100,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--seconds", type=float, help="measuring window [s] (default 60)")
     g.add_argument(
         "--soak", action="store_true", help="with --workers: no kill; memory over the window"
+    )
+    g.add_argument(
+        "--centres",
+        action="store_true",
+        help="with --workers: machining centres at 500 Hz replaying a recorded trace, their "
+        "monitors' events scored against its truth (a soak: no kill)",
     )
 
 
@@ -197,6 +206,11 @@ def run(args: argparse.Namespace) -> int:
         "seconds": args.seconds,
         "soak": args.soak,
     }
+    if args.centres:
+        if args.workers < 1:
+            raise CutwatchError(f"--centres: expected --workers 1 or more, got {args.workers}")
+        # only when asked: a tree measured by --against that has no centres mode still runs
+        fleet["centres"] = True
     if args.duration is not None:
         return _soak(args, mods, wanted)
     runs = bench_reference.measure(1 if args.quick else 3)

@@ -174,27 +174,79 @@ def _soak_figures(
     out["soak.memory_mb_series"] = [[round(x, 1) for x in row] for row in series]
 
 
+class _Events:
+    """A subscriber to every machine's events (QoS 1) during the run: per machine, the
+    monitor's events as ``{"kind", "t"}`` (t on the feed's clock)."""
+
+    def __init__(self, port: int) -> None:
+        import paho.mqtt.client as mqtt
+
+        from common.event_kinds import ProcessEventKind
+
+        kinds = {str(k) for k in ProcessEventKind}
+        self.raised: dict[str, list[dict[str, Any]]] = {}
+
+        def on_message(_c: object, _u: object, m: Any) -> None:
+            try:
+                d = json.loads(m.payload)
+            except ValueError:
+                return
+            if d.get("kind") in kinds:
+                name = m.topic.split("/")[1]
+                self.raised.setdefault(name, []).append({"kind": d["kind"], "t": d["t"]})
+
+        self.client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2)
+        self.client.on_message = on_message
+        self.client.connect("127.0.0.1", port)
+        self.client.subscribe("cutwatch/+/events", qos=1)
+        self.client.loop_start()
+
+    def stop(self) -> None:
+        self.client.loop_stop()
+        self.client.disconnect()
+
+
 def run_plant(
-    machines: int, workers: int, seconds: float, progress: bool, soak: bool = False
+    machines: int,
+    workers: int,
+    seconds: float,
+    progress: bool,
+    soak: bool = False,
+    centres: bool = False,
 ) -> dict[str, object]:
-    """One plant run (module docstring); ``soak``: no kill, memory sampled over time."""
-    from server.pipeline.shards import shard_of
+    """One plant run (module docstring); ``soak``: no kill, memory sampled over time.
+    ``centres``: the machines are machining centres at 500 Hz, every one replaying one
+    recorded trace (:mod:`._plant_centres`), run as a soak (no kill: the monitors' events
+    are scored against the trace's truth)."""
+    from harness.shards import shard_of
 
     work = Path(tempfile.mkdtemp(prefix="cutwatch-bench-plant-"))
     log = work / "drive.csv"
-    subprocess.run(
-        _cutwatch("simulate", "--out", str(log), "--seconds", str(seconds + 120)),
-        check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-    )  # fmt: skip
+    truth: dict[str, Any] = {}
+    if centres:
+        from server.experiments.benchmarks._plant_centres import record
+
+        soak = True
+        if progress:
+            print(f"  plant: recording {seconds + 60:g} s of a machining centre's trace",
+                  file=sys.stderr, flush=True)  # fmt: skip
+        truth = record(log, seconds=seconds + 60.0)
+    else:
+        subprocess.run(
+            _cutwatch("simulate", "--out", str(log), "--seconds", str(seconds + 120)),
+            check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+        )  # fmt: skip
     plant = _Plant(machines, workers, work)
+    what = "machining centres at 500 Hz, one recorded trace replayed" if centres else "machines"
     out: dict[str, object] = {
         "configuration": (
-            f"1 cutwatch feed ({machines} machines) -> mosquitto -> {workers} x cutwatch "
+            f"1 cutwatch feed ({machines} {what}) -> mosquitto -> {workers} x cutwatch "
             "worker (100 ms blocks, estimates at 10 Hz) -> cutwatch fleet; 2-core machine"
         ),
         "machines": machines,
         "workers": workers,
     }
+    events: _Events | None = None
     try:
         with mosquitto(plant.bport) as broker:
             plant.others.append(broker)
@@ -213,6 +265,9 @@ def run_plant(
                 time.sleep(0.5)
             idle = [_rss_mb(w.pid) for w in plant.workers]
             _wait_http(f"http://127.0.0.1:{plant.fport}/api/health", 60)
+            if centres:
+                events = _Events(plant.bport)
+            feed_start = time.monotonic()
             plant.feeder = subprocess.Popen(
                 _cutwatch("feed", str(log), "--broker", plant.url,
                           "--machine", ",".join(plant.names), "--quiet"),
@@ -258,7 +313,21 @@ def run_plant(
             hs = [plant.health(i) for i in range(workers)]
             out["workers.dropped_samples"] = sum(int(h.get("dropped_samples", 0)) for h in hs)
             out["workers.loop_ms_p50"] = max(float(h.get("loop_ms_p50") or 0) for h in hs)
+            if events is not None:
+                from server.experiments.benchmarks._plant_centres import score
+
+                # the log's time the feed had reached (it plays at 1x from its start)
+                t_feed = time.monotonic() - feed_start
+                raised = {m: events.raised.get(m, []) for m in plant.names}
+                sc = score(truth["events"], raised, min(t_feed, float(truth["seconds"])))
+                for k, v in sc.items():
+                    out[f"monitor.{k}"] = v
+                out["monitor.events_in_trace"] = len(truth["events"])
+                out["monitor.teach_parts"] = truth["teach_parts"]
+                out["monitor.feed_s"] = t_feed
     finally:
+        if events is not None:
+            events.stop()
         plant.stop()
         shutil.rmtree(work, ignore_errors=True)
     return out

@@ -273,13 +273,15 @@ def measure(
     workers: int = 0,
     seconds: float | None = None,
     soak: bool = False,
+    centres: bool = False,
 ) -> dict[str, object]:
     """One run (the fleet is the repetition: every machine's latency counts). ``workers``
-    0: one ``cutwatch serve`` per machine (today's mode); > 0: the plant mode."""
+    0: one ``cutwatch serve`` per machine (today's mode); > 0: the plant mode
+    (``centres``: of machining centres at 500 Hz replaying a recorded trace)."""
     n = machines if machines is not None else (4 if quick else MACHINES)
     secs = seconds if seconds is not None else (20.0 if quick else SECONDS)
     if workers > 0:
         from server.experiments.benchmarks._fleet_plant import run_plant
 
-        return run_plant(n, workers, secs, progress=not quick, soak=soak)
+        return run_plant(n, workers, secs, progress=not quick, soak=soak, centres=centres)
     return _run(n, secs, progress=not quick)

@@ -1,0 +1,115 @@
+"""Recorded machining-centre traces for the plant bench (issue 32 item 3).
+
+A plant's feeders replay what was recorded, they do not simulate: :func:`record` runs a
+machining centre (:mod:`machine.centre`, the program of plant machine ``index``,
+:func:`machine.centre.program.program_variant`) once, exports its CNC's trace at
+``rate_hz`` and writes it as a measured log (CSV and sidecar: the machine description of
+:func:`machine.centre.signals.description_dict`, the program, the identity columns tool,
+line and override), which ``cutwatch feed LOG --machine a,b,...`` then publishes for many
+machines from one process. Events (breakage, collision, missing tool, one in a cut
+block of each part with probability ``event_rate``) are injected only after the
+monitors' teach-in (the first ``teach_parts`` parts are good); their truth goes to
+``<stem>.events.json`` beside the log (never published), so that the bench can score the
+events the workers raise (:func:`score`).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+#: what a raised event may lag the truth's time and still count as found [s]: the
+#: longest a detector waits (one block of the program) is far shorter; more means
+#: another part's event
+MATCH_S = 10.0
+
+
+def record(
+    path: Path,
+    *,
+    index: int = 0,
+    seed: int = 0,
+    seconds: float = 240.0,
+    rate_hz: float = 500.0,
+    event_rate: float = 0.5,
+    teach_parts: int = 5,
+) -> dict[str, Any]:
+    """Write ``seconds`` of machine ``index``'s trace at ``rate_hz`` to ``path`` (CSV +
+    sidecar) and its events' truth to ``<stem>.events.json``; returns that truth."""
+    from common.event_kinds import ProcessEventKind
+    from machine.centre import signals
+    from machine.centre.program import program_variant
+    from machine.centre.sim import MachiningCentre
+    from machine.centre.trace import CncTrace, TraceParams
+    from machine.process import EVENT_KINDS, ProcessEvent
+    from server.pipeline.centre_feed import EVENT_SIZES
+    from server.records.measured_log import write_log
+
+    machine = MachiningCentre(program=program_variant(index))
+    state = machine.initial_state(seed=seed)
+    trace = CncTrace(TraceParams(rate_hz, "sample"), machine.sample_time)
+    tstate = trace.initial_state()
+    rng = np.random.default_rng([seed, 32])
+    cuts = [b.line for b in machine.program.blocks if b.cut is not None]
+    chunk = trace.factor * max(1, round(0.1 * rate_hz))  # 100 ms of trace
+    parts: list[dict[str, Any]] = []
+    events: list[dict[str, Any]] = []
+    part = -1
+    broken: set[int] = set()
+    while state.k * machine.sample_time < seconds:
+        if state.part != part:
+            part = state.part
+            for tool in sorted(broken):  # a tool lost in the last part is replaced
+                state = machine.replace_tool(state, tool)
+            broken.clear()
+            if part >= teach_parts and rng.random() < event_rate:
+                kind = str(rng.choice(EVENT_KINDS))
+                ev = ProcessEvent(kind, part, int(rng.choice(cuts)), float(rng.uniform(0.2, 0.8)),
+                                  EVENT_SIZES[kind], int(rng.integers(0, 8)))  # fmt: skip
+                state = machine.schedule(state, ev)
+        state, rec = machine.step(state, chunk)
+        tstate, tr = trace.export(tstate, rec)
+        if tr.n:
+            parts.append(signals.columns(tr, machine.params))
+        for e in tr.events:
+            if e.kind in (ProcessEventKind.BREAKAGE, ProcessEventKind.MISSING_TOOL):
+                broken.add(int(e.tool))
+            events.append({"kind": str(e.kind), "t": float(e.t), "line": int(e.line),
+                           "tool": int(e.tool), "size": float(e.size)})  # fmt: skip
+    cols = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+    side = {**signals.description_dict(machine.params, rate_hz), "program": machine.program.name}
+    write_log(path, cols, side)
+    truth = {"events": events, "teach_parts": teach_parts, "seconds": float(cols["t"][-1]),
+             "program": machine.program.name, "rate_hz": rate_hz}  # fmt: skip
+    Path(path).with_suffix(".events.json").write_text(json.dumps(truth, indent=1))
+    return truth
+
+
+def score(
+    truth: list[dict[str, Any]], raised: dict[str, list[dict[str, Any]]], t_end: float
+) -> dict[str, Any]:
+    """Per machine, each true event that the feed reached (``t < t_end``, the log's time
+    the window covered) is found when the machine raised an event of its kind at or after
+    it, within :data:`MATCH_S`; every other raised event is false. ``raised``: per
+    machine, its events as ``{"kind", "t"}`` (the event's time on the log's clock)."""
+    due = [e for e in truth if e["t"] < t_end - MATCH_S]
+    found = 0
+    false = 0
+    for evs in raised.values():
+        used: set[int] = set()
+        for e in due:
+            hit = next((i for i, r in enumerate(evs) if i not in used and r["kind"] == e["kind"]
+                        and e["t"] <= r["t"] <= e["t"] + MATCH_S), None)  # fmt: skip
+            if hit is not None:
+                used.add(hit)
+                found += 1
+        false += len(evs) - len(used)
+    n = len(due) * len(raised)
+    return {"events_due": n, "found": found, "false": false,
+            "detection": found / n if n else float("nan")}  # fmt: skip
+
+
+__all__ = ["MATCH_S", "record", "score"]
