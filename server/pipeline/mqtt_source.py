@@ -148,7 +148,20 @@ class MqttSource(LiveSource):
         self._taken += take.n
         meas = Measurements(t=t, **meas_cols)
         self.last_wall = self.feed.last_wall
-        return SourceBlock(meas, None, disc, columns=dict(c))
+        return SourceBlock(meas, None, disc, columns=self._with_identities(dict(c), take))
+
+    def _with_identities(self, cols: dict[str, Any], take: Any) -> dict[str, Any]:
+        """The block's columns with the CNC's identities (the drive header's segments) under
+        the description's identity columns, as a log or the simulated centre gives them
+        (the spindle and axis parts key their monitors' blocks on them); a tool or line
+        not known is 0, as on the wire."""
+        assert self.description is not None  # ready
+        for role, v in (take.identities or {}).items():
+            name = self.description.identities.get(role)
+            if name and name not in cols:
+                a = np.asarray(v, dtype=np.float64)
+                cols[name] = a if role == "override" else np.nan_to_num(a, nan=0.0)
+        return cols
 
     def _spindle(self, columns: dict[str, Any]) -> None:
         """The spindle speed in effect from the block's speed signal [rpm]: the block's
