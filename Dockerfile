@@ -40,6 +40,7 @@ RUN python3 -m venv /opt/venv \
 COPY common ./common
 COPY machine ./machine
 COPY estimators ./estimators
+COPY harness ./harness
 COPY server ./server
 # then without what only installs or tests need: pip, setuptools, the packages' own test
 # suites (71 MB: scipy, numpy, numba, matplotlib)

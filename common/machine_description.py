@@ -26,7 +26,7 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from functools import cache
 from pathlib import Path
-from typing import Any
+from typing import Any, NotRequired, TypedDict
 
 from common.errors import ParameterError
 
@@ -79,6 +79,41 @@ class DescriptionError(ParameterError):
 def _short(v: Any) -> str:
     text = repr(v)
     return text if len(text) <= 80 else text[:77] + "..."
+
+
+class AxisUnitsDict(TypedDict):
+    """An axis' units as the description writes them."""
+
+    position: str
+    effort: str
+
+
+class AxisDict(TypedDict):
+    """An axis as the description (JSON) writes it (:meth:`AxisDescription.to_dict`)."""
+
+    kind: str
+    signals: dict[str, str]
+    units: AxisUnitsDict
+    K_t: NotRequired[float]
+    nominal: NotRequired[dict[str, float]]
+    encoder_resolution: NotRequired[float]
+
+
+class SpindleDict(TypedDict):
+    """The spindle as the description writes it (:meth:`SpindleDescription.to_dict`)."""
+
+    signals: dict[str, str]
+    units: dict[str, str]
+
+
+class MachineDict(TypedDict):
+    """A machine as the description writes it (:meth:`MachineDescription.to_dict`; its
+    schema: ``common/machine.schema.json``)."""
+
+    sample_time: float
+    axes: dict[str, AxisDict]
+    spindle: NotRequired[SpindleDict]
+    identities: NotRequired[dict[str, str]]
 
 
 @dataclass(frozen=True)
@@ -136,8 +171,8 @@ class AxisDescription:
             return "A"
         return self.effort_unit
 
-    def to_dict(self) -> dict[str, Any]:
-        d: dict[str, Any] = {
+    def to_dict(self) -> AxisDict:
+        d: AxisDict = {
             "kind": self.kind,
             "signals": dict(self.signals),
             "units": {"position": self.position_unit, "effort": self.effort_unit},
@@ -161,7 +196,7 @@ class SpindleDescription:
     def unit(self, role: str) -> str:
         return self.units.get(role, SPINDLE_DEFAULT_UNITS[role])
 
-    def to_dict(self) -> dict[str, Any]:
+    def to_dict(self) -> SpindleDict:
         units = {r: self.unit(r) for r in self.signals if not r.endswith("_cmd")}
         return {"signals": dict(self.signals), "units": units}
 
@@ -217,9 +252,9 @@ class MachineDescription:
         d["sample_time"] = float(sample_time)
         return from_dict(d)
 
-    def to_dict(self) -> dict[str, Any]:
+    def to_dict(self) -> MachineDict:
         """The description as JSON (every unit written out)."""
-        d: dict[str, Any] = {
+        d: MachineDict = {
             "sample_time": self.sample_time,
             "axes": {a.name: a.to_dict() for a in self.axes},
         }

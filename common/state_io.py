@@ -30,7 +30,7 @@ import io
 import json
 import os
 from collections.abc import Mapping
-from typing import Any
+from typing import Any, NotRequired, TypeAlias, TypedDict
 
 import numpy as np
 
@@ -39,7 +39,12 @@ FORMAT = "cutwatch-state"
 #: version of the codec (the tree's encoding); a file of another version is refused
 FORMAT_VERSION = 1
 #: packages whose classes a state may name
-PACKAGES = ("common.", "machine.", "estimators.", "server.pipeline.")
+PACKAGES = ("common.", "machine.", "estimators.", "harness.", "server.pipeline.")
+#: modules moved since a state could name them: a state written before reads as now
+MOVED = {
+    f"server.pipeline.{m}": f"harness.{m}"
+    for m in ("accuracy", "eccentricity_loop", "shards", "wear_clock")
+}
 
 
 class StateFormatError(ValueError):
@@ -48,11 +53,29 @@ class StateFormatError(ValueError):
     file, what was expected and what was found."""
 
 
+#: a node of the header's tree as JSON holds it
+JsonNode: TypeAlias = "bool | int | float | str | list[JsonNode] | dict[str, JsonNode] | None"
+
+
+class ArrayNode(TypedDict):
+    """An array (``s``: a NumPy scalar) kept in the file's member ``a``."""
+
+    a: str
+    s: NotRequired[bool]
+
+
+class ObjNode(TypedDict):
+    """An object of a cutwatch class (``module:qualname``) and its fields' nodes."""
+
+    obj: str
+    fields: dict[str, JsonNode]
+
+
 class _Encoder:
     def __init__(self) -> None:
         self.arrays: dict[str, np.ndarray] = {}
 
-    def array(self, a: np.ndarray, scalar: bool = False) -> dict[str, Any]:
+    def array(self, a: np.ndarray, scalar: bool = False) -> ArrayNode:
         key = f"a{len(self.arrays)}"
         if a.dtype == object:
             raise StateFormatError(f"state: expected numeric arrays, found dtype object at {key}")
@@ -90,7 +113,7 @@ class _Encoder:
             }
         return self.obj(x, where)
 
-    def obj(self, x: Any, where: str) -> dict[str, Any]:
+    def obj(self, x: Any, where: str) -> ObjNode:
         cls = type(x)
         name = f"{cls.__module__}:{cls.__qualname__}"
         if not cls.__module__.startswith(PACKAGES):
@@ -107,6 +130,7 @@ class _Encoder:
 
 def _class(name: str, where: str) -> type:
     module, _, qual = name.partition(":")
+    module = MOVED.get(module, module)
     if not module.startswith(PACKAGES):
         raise StateFormatError(f"state: {where}: class {name} is outside {PACKAGES}")
     try:

@@ -36,6 +36,7 @@ import numpy as np
 from common.arrays import F64
 from estimators.errors import ParameterError, require_in
 from estimators.residual_selection import (
+    Ambiguity,
     Fold,
     OutOfFold,
     SelectionParams,
@@ -84,7 +85,19 @@ class ResidualParams:
             raise ParameterError("max_effects", "an integer >= 0", self.max_effects)
 
 
-def offered_families(params: ResidualParams, registry: Mapping[str, Any]) -> tuple[str, ...]:
+class FamilyEntry(Protocol):
+    """What the engine asks of an effect family of any model's registry (the rigid
+    model's :class:`estimators.residual_families.Family`, the two-inertia model's
+    :class:`estimators.residual_two_inertia.Family`): whether it has a shape to search
+    again inside each training fold."""
+
+    @property
+    def shaped(self) -> bool: ...
+
+
+def offered_families(
+    params: ResidualParams, registry: Mapping[str, FamilyEntry]
+) -> tuple[str, ...]:
     """The families of ``params`` (default: the whole registry), checked against it."""
     fams = tuple(registry) if params.families is None else params.families
     unknown = [f for f in fams if f not in registry]
@@ -93,7 +106,7 @@ def offered_families(params: ResidualParams, registry: Mapping[str, Any]) -> tup
     return fams
 
 
-def effect_cap(params: ResidualParams, default: int, registry: Mapping[str, Any]) -> int:
+def effect_cap(params: ResidualParams, default: int, registry: Mapping[str, FamilyEntry]) -> int:
     """The most effects of ``params`` (default: the model's cap), at most the registry's size."""
     cap = default if params.max_effects is None else params.max_effects
     if not 0 <= cap <= len(registry):
@@ -168,7 +181,7 @@ class ResidualResult:
     not_offered: Mapping[str, str] = field(default_factory=dict)
     reference: str = ""
     details: Mapping[str, Any] = field(default_factory=dict)
-    indistinguishable: tuple[dict[str, object], ...] = ()
+    indistinguishable: tuple[Ambiguity, ...] = ()
     selection: SelectionParams = field(default_factory=SelectionParams)
     hold_sq_before: F64 = field(default_factory=lambda: np.zeros(0))
     hold_sq_after: F64 = field(default_factory=lambda: np.zeros(0))
@@ -210,8 +223,12 @@ class ResidualModel(Protocol[S, C, B]):
     """A nominal model and its effect families, as :func:`analyse` uses them."""
 
     kind: str
-    #: the family registry of this model (name -> family; its ``shaped`` flag)
-    families: Mapping[str, Any]
+
+    @property
+    def families(self) -> Mapping[str, FamilyEntry]:
+        """The family registry of this model (name -> family; its ``shaped`` flag)."""
+        ...
+
     #: canonical families this model does not offer, and why
     not_offered: Mapping[str, str]
     #: the default cap on the number of effects
@@ -272,7 +289,7 @@ class Selection:
 
     names: tuple[str, ...]
     candidates: tuple[CandidateScore, ...]
-    indistinguishable: tuple[dict[str, object], ...]
+    indistinguishable: tuple[Ambiguity, ...]
     selection: SelectionParams
     rows: Rows
 
@@ -402,7 +419,7 @@ def analyse(
     nominal = state = model.nominal()
     selected: list[str] = []
     scores: dict[str, CandidateScore] = {}
-    ambiguous: list[dict[str, object]] = []
+    ambiguous: list[Ambiguity] = []
     while len(selected) < cap:
         say(f"cross-validation round {len(selected) + 1}")
         before = model.fold_fits(state, folds)

@@ -63,6 +63,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TypedDict
 
 import numpy as np
 from numpy.typing import NDArray
@@ -323,7 +324,16 @@ def separating_excitation(a: str, b: str) -> str:
     )
 
 
-def ambiguity(names: list[str], installed: str, same_signal: float) -> dict[str, object]:
+class Ambiguity(TypedDict):
+    """An ``indistinguishable`` entry of a report (:func:`ambiguity`)."""
+
+    families: list[str]
+    installed: str
+    why: str
+    excitation: str
+
+
+def ambiguity(names: list[str], installed: str, same_signal: float) -> Ambiguity:
     """The ``indistinguishable`` entry of a report: the families, the one installed (it
     carries the signal as well as the others here), why, and what would separate them."""
     others = [n for n in names if n != installed]

@@ -3,7 +3,7 @@
 Run ``python tests/_house_counts.py`` (a table), ``--json`` (one object), ``--list NAME``
 (every place a count is made of, ``path:line what``); ``tests/house_counts.json`` keeps
 the counts before the issue's work (and after it). What is counted, in ``common/``,
-``machine/``, ``estimators/`` and ``server/`` (tests and docs aside):
+``machine/``, ``estimators/``, ``harness/`` and ``server/`` (tests and docs aside):
 
 ``event_kind_vocabularies``
     Modules that spell the vocabulary of event kinds: a tuple, list or set display, the
@@ -43,7 +43,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-PACKAGES = ("common", "machine", "estimators", "server")
+PACKAGES = ("common", "machine", "estimators", "harness", "server")
 #: the event kinds' strings: the vocabulary whose spellings are counted
 EVENT_KINDS = frozenset({"breakage", "collision", "missing_tool", "wear_limit", "life_short"})
 MAX_POSITIONAL = 12

@@ -124,7 +124,7 @@ _DOC_CITATION = re.compile(r"\bdocs/[\w./-]+\.md\b")
 def test_code_cites_existing_doc_pages() -> None:
     """A ``docs/<page>.md`` named in a comment or docstring of our code exists."""
     missing = []
-    for layer in ("common", "machine", "estimators", "server", "tests"):
+    for layer in ("common", "machine", "estimators", "harness", "server", "tests"):
         for path in sorted((ROOT / layer).rglob("*.py")):
             text = path.read_text(encoding="utf-8")
             for cited in sorted(set(_DOC_CITATION.findall(text))):
@@ -134,7 +134,7 @@ def test_code_cites_existing_doc_pages() -> None:
 
 
 # ------------------------------------------------------------------ the architecture page
-PACKAGES = ("common", "machine", "estimators", "server")
+PACKAGES = ("common", "machine", "estimators", "harness", "server")
 _MODULE_ROW = re.compile(r"^\|\s*`([\w/]+\.py)`\s*\|", re.M)
 
 

@@ -64,7 +64,8 @@ export function statusView(status, latest = null) {
       || num(s.life_left_min, 1) !== null,
     wearTool: apart ? toolText(s.wear_tool, false) : toolText(s.wear_tool || s.tool),
     wear: wear === null ? dash : `${wear} %`,
-    wearLimit: lim === null ? "" : `of ${lim} mm` + (at === null ? "" : ` · alarm at ${at} %`),
+    wearLimit: (lim === null ? "" : `of ${lim} mm` + (at === null ? "" : ` · alarm at ${at} %`))
+      + wearInterval(s),
     // the bar: share of the limit, 0..1 (a worn-out tool fills it)
     wearBar: s.wear_share === null || s.wear_share === undefined ? 0
       : Math.max(0, Math.min(1, Number(s.wear_share))),
@@ -75,6 +76,20 @@ export function statusView(status, latest = null) {
     // the detector's own sentence names the kind, tool and block; else the kind in words
     message: alarm && latest ? latest.message || KIND_WORDS[latest.kind] || latest.kind : "",
   };
+}
+
+// The wear share's 95 % interval and whether its map is this machine's own (issue 35
+// item 7: "uncalibrated" until a VB measured at a tool change is entered), or "".
+function wearInterval(s) {
+  const lo = num(s.wear_lo_share === null || s.wear_lo_share === undefined ? null
+    : 100 * s.wear_lo_share, 0);
+  const hi = num(s.wear_hi_share === null || s.wear_hi_share === undefined ? null
+    : 100 * s.wear_hi_share, 0);
+  const cal = s.wear_calibrated === false ? "uncalibrated" : s.wear_calibrated ? "calibrated"
+    : "";
+  const band = lo === null || hi === null ? "" : `95 %: ${lo}–${hi} %`;
+  const words = [cal, band].filter(Boolean).join(", ");
+  return words ? ` · ${words}` : "";
 }
 
 // Take one event (an EventMessage's event, a REST item) into `events` (a Map id -> event):

@@ -126,6 +126,9 @@ export const SCHEMA = {
     "wear_of",
     "wear_limit_mm",
     "wear_alarm_share",
+    "wear_lo_share",
+    "wear_hi_share",
+    "wear_calibrated",
     "unacked"
   ],
   "versions": {
@@ -297,6 +300,9 @@ export const SCHEMA = {
  * @property {string} [wear_of] - whose tool `wear_tool` is: '' the spindle's (the strip's `tool`), else the wear model's own tool in words (a machine beside the spindle's)
  * @property {(number|null)} [wear_limit_mm] - the flank-wear limit the share is of [mm] (tool change)
  * @property {(number|null)} [wear_alarm_share] - the wear alarm is raised at this share of the limit
+ * @property {(number|null)} [wear_lo_share] - lower end of the wear share's 95 % interval (None: none)
+ * @property {(number|null)} [wear_hi_share] - upper end of the wear share's 95 % interval (None: none)
+ * @property {(boolean|null)} [wear_calibrated] - whether the wear map is fitted from this machine's labelled tool lives (False: 'uncalibrated', the prior's interval; None: not said)
  * @property {number} unacked - events waiting for an acknowledgement
  */
 

@@ -12,9 +12,39 @@ import json
 import math
 from dataclasses import dataclass, field
 from types import ModuleType
+from typing import TypedDict
 
 from common.jsonsafe import json_safe
 from server.plugins import plugin_modules
+
+
+class RowJson(TypedDict):
+    """A row of ``cutwatch reproduce --json``: ours beside the paper's, with the condition."""
+
+    name: str
+    ours: float | None
+    paper: float | None
+    unit: str
+    condition: str
+
+
+class CheckJson(TypedDict):
+    """A check of ``cutwatch reproduce --json``: whether it holds, its value and limit."""
+
+    name: str
+    holds: bool
+    value: float | None
+    limit: float | None
+
+
+class ReproductionJson(TypedDict):
+    """``cutwatch reproduce NAME --json`` (:meth:`Reproduction.to_json`)."""
+
+    experiment: str
+    source: str
+    rows: list[RowJson]
+    checks: list[CheckJson]
+    figures: list[str]
 
 
 @dataclass(frozen=True)
@@ -64,7 +94,7 @@ class Reproduction:
                 return r
         raise KeyError(name)
 
-    def to_json(self) -> dict[str, object]:
+    def to_json(self) -> ReproductionJson:
         def clean(x: float | None) -> float | None:
             return None if x is None else json_safe(float(x))
 

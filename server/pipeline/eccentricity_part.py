@@ -3,7 +3,7 @@
 :class:`EccentricityPart` is the live part (:mod:`server.pipeline.part`): its channels and
 charts are declared here; it simulates seed 003's milling machine beside the stage, so it
 runs with the simulator only. :class:`LiveEccentricity` wraps
-:class:`server.pipeline.eccentricity_loop.EccentricityLoop` (milling machine on its X/Y
+:class:`harness.eccentricity_loop.EccentricityLoop` (milling machine on its X/Y
 feed drives at 5 kHz, extremum seeking controller or fast tuner) for the live pipeline:
 each block of the stage (2.5 kHz) advances it by the same simulated time (the fractional
 remainder carried over), and its per-revolution values are picked on the stage's sample
@@ -18,7 +18,7 @@ Choices
   observer force source costs about 1.7x the CPU (``docs/live-service.md``,
   eccentricity). The ``ecc_force`` knob gives it the seed-000 observers' force instead
   (``observer``: fixed mass; ``adaptive``: mass identified at spindle order N_f + 1/8,
-  :class:`server.pipeline.eccentricity_loop.AdaptiveObserverForceSource`), with the
+  :class:`harness.eccentricity_loop.AdaptiveObserverForceSource`), with the
   observer's nominal mass off by ``ecc_mass_error`` percent; ``f1x`` (true 1x amplitude)
   then differs from ``cost`` (the estimate's). With the fast tuner the adaptive
   observer identifies for two windows and then switches its circle off (the circle
@@ -39,14 +39,14 @@ import numpy as np
 from common.arrays import F64
 from common.errors import ParameterError
 from estimators.esc import EscParams
-from machine.milling import MillingParams
-from server.pipeline.eccentricity_loop import (
+from harness.eccentricity_loop import (
     AdaptiveObserverForceSource,
     EccentricityLoop,
     ForceSource,
     LoopState,
     ObserverForceSource,
 )
+from machine.milling import MillingParams
 from server.pipeline.machine_view import MachineView
 from server.pipeline.part import (
     Block,

@@ -22,7 +22,7 @@ The public surface is the contract the live runtime builds on
 - ``.state() -> PipelineState``, ``.restore(state)``: everything carried from block to
   block as one value (:mod:`server.pipeline.checkpoint`, docs/checkpoints.md)
 - ``.accuracy() -> dict``: rolling rms of each force estimate over 1 s and 10 s
-  (:mod:`server.pipeline.accuracy`)
+  (:mod:`harness.accuracy`)
 - ``SCENARIOS``: name -> one-line description
 
 The pipeline is a coordinator. Its parts (:mod:`server.pipeline.part`; which ones:
@@ -40,7 +40,7 @@ again whenever the view changes: a spindle step, a new sample rate), what they s
 3. every running part's ``step``: its channels (later parts read earlier ones' from the
    block), its events; a part that raises is stopped with its reason (and the parts
    that need it), the others go on; a part that does not run streams NaN;
-4. the force estimates scored (:mod:`server.pipeline.accuracy`).
+4. the force estimates scored (:mod:`harness.accuracy`).
 
 What each costs is measured as it runs (:meth:`LivePipeline.costs`): per part, the wall
 time of its estimation apart from its simulation (the simulated machine's script, and
@@ -79,11 +79,11 @@ import numpy as np
 from common.errors import ParameterError
 from estimators.observer_effects import ObserverEffect
 from estimators.rls import IdentifierParams
+from harness.accuracy import RollingAccuracy
 from machine.effects import EFFECT_NAMES, PlantEffects
 from machine.params import ADDED_WEIGHT_INERTIA
 from machine.stage import SEED000_FORCE, CuttingForce, StageConfig
 from server.errors import CutwatchError
-from server.pipeline.accuracy import RollingAccuracy
 from server.pipeline.checkpoint import PipelineState, ScriptState
 from server.pipeline.knobs import BASE_RPM, Knob, KnobValue, KnobValues
 from server.pipeline.machine_view import MachineView, description_of
@@ -164,6 +164,9 @@ _STATUS: dict[str, object] = {
     "wear_of": "",
     "wear_limit_mm": math.nan,
     "wear_alarm_share": math.nan,
+    "wear_lo_share": math.nan,
+    "wear_hi_share": math.nan,
+    "wear_calibrated": None,
 }
 
 
@@ -721,7 +724,7 @@ class LivePipeline:
         return RollingAccuracy(self.force_estimates(), self.sample_time, self._reference())
 
     def _score(self, out: dict[str, np.ndarray], block: Block) -> None:
-        """The block into the rolling accuracy (:mod:`server.pipeline.accuracy`): against
+        """The block into the rolling accuracy (:mod:`harness.accuracy`): against
         the truth, or the measured force; without either nothing is scored."""
         ref = self._accuracy.reference
         if ref == "truth":
@@ -733,7 +736,7 @@ class LivePipeline:
 
     def accuracy(self, digits: int | None = None) -> dict[str, object]:
         """Rolling rms of every force estimate over the last 1 s and 10 s
-        (:meth:`server.pipeline.accuracy.RollingAccuracy.summary`; ``digits``: rounded,
+        (:meth:`harness.accuracy.RollingAccuracy.summary`; ``digits``: rounded,
         JSON-safe)."""
         return self._accuracy.summary(digits)
 

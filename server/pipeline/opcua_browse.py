@@ -33,9 +33,12 @@ variables (``"variables"``: node id, browse path, unit) to fill it from.
 from __future__ import annotations
 
 from collections.abc import Iterable
-from typing import Any
+from typing import TYPE_CHECKING, Any, NotRequired, TypedDict
 
 from server.pipeline.opcua_link import OpcuaSecurity, engineering_units, open_client
+
+if TYPE_CHECKING:
+    from asyncua import Node
 
 __all__ = ["browse_map"]
 
@@ -43,8 +46,40 @@ CNC_URI = "http://opcfoundation.org/UA/CNC"
 _TYPES = {1004: "axis", 1005: "spindle", 1002: "channel"}
 
 
-async def _children(node: Any) -> dict[str, Any]:
-    out: dict[str, Any] = {}
+class MapAxis(TypedDict):
+    """An axis of the starter map: its kind, its signals' node ids, its position unit."""
+
+    kind: str
+    signals: dict[str, str]
+    units: dict[str, str]
+
+
+class MapSpindle(TypedDict):
+    """The spindle of the starter map: its signals' node ids."""
+
+    signals: dict[str, str]
+
+
+class MapVariable(TypedDict):
+    """A variable with engineering units (a server without the CNC model's types)."""
+
+    node: str
+    path: str
+    unit: str
+
+
+class StarterMap(TypedDict):
+    """What :func:`browse_map` gives: a node map to edit (``cutwatch opcua-map``)."""
+
+    sample_time: float
+    axes: dict[str, MapAxis]
+    spindle: NotRequired[MapSpindle]
+    identities: NotRequired[dict[str, str]]
+    variables: NotRequired[list[MapVariable]]
+
+
+async def _children(node: Node) -> dict[str, Node]:
+    out: dict[str, Node] = {}
     for c in await node.get_children():
         out[(await c.read_browse_name()).Name] = c
     return out
@@ -77,7 +112,7 @@ def _id(node: Any) -> str:
     return str(node.nodeid.to_string())
 
 
-async def _axis(node: Any) -> dict[str, Any]:
+async def _axis(node: Node) -> MapAxis:
     kids = await _children(node)
     signals: dict[str, str] = {}
     for role, path in (("q_m", ("PosIndirect", "ActPos")), ("q_cmd", ("PosIndirect", "CmdPos"))):
@@ -107,7 +142,7 @@ async def _axis(node: Any) -> dict[str, Any]:
     }
 
 
-async def _spindle(node: Any) -> dict[str, Any]:
+async def _spindle(node: Node) -> MapSpindle:
     kids = await _children(node)
     names = {"speed": "ActSpeed", "speed_cmd": "CmdSpeed", "power": "ActPower",
              "torque": "ActTorque", "load": "ActLoad"}  # fmt: skip
@@ -143,7 +178,7 @@ async def _walk(root: Any, depth: int) -> Iterable[tuple[Any, list[str]]]:
 
 async def browse_map(
     url: str, security: OpcuaSecurity, sample_time: float = 0.1, depth: int = 5
-) -> dict[str, Any]:
+) -> StarterMap:
     """The starter map of the server at ``url`` (module docstring)."""
     from asyncua import ua
 
@@ -151,10 +186,10 @@ async def browse_map(
     async with client:
         ns = await client.get_namespace_array()
         cnc = ns.index(CNC_URI) if CNC_URI in ns else -1
-        axes: dict[str, Any] = {}
-        spindle: dict[str, Any] | None = None
+        axes: dict[str, MapAxis] = {}
+        spindle: MapSpindle | None = None
         identities: dict[str, str] = {}
-        variables: list[dict[str, str]] = []
+        variables: list[MapVariable] = []
         for node, path in await _walk(client.nodes.objects, depth):
             cls = await node.read_node_class()
             if cls == ua.NodeClass.Object and cnc >= 0:
@@ -171,7 +206,7 @@ async def browse_map(
                 if eu is not None:
                     variables.append({"node": _id(node), "path": "/".join(path),
                                       "unit": eu.DisplayName.Text or ""})  # fmt: skip
-    out: dict[str, Any] = {"sample_time": sample_time, "axes": axes}
+    out: StarterMap = {"sample_time": sample_time, "axes": axes}
     if spindle is not None and spindle["signals"].get("speed"):
         out["spindle"] = spindle
     if identities:

@@ -164,15 +164,15 @@ class _Item:
 
     node: Any
     vtype: Any
-    value: Callable[[dict[str, Any]], Any]
+    value: Callable[[dict[str, float]], Any]
 
 
-def _scaled(col: str, f: float) -> Callable[[dict[str, Any]], Any]:
+def _scaled(col: str, f: float) -> Callable[[dict[str, float]], float]:
     """A trace column times ``f`` (mm from m...)."""
     return lambda c: c[col] * f
 
 
-def _spindle_torque(c: dict[str, Any]) -> float:
+def _spindle_torque(c: dict[str, float]) -> float:
     """The spindle's torque from its power and speed [N m] (0 at rest)."""
     omega = c["S_speed"] * 2.0 * math.pi / 60.0
     return float(c["S_power"] / omega) if abs(omega) > 1.0 else 0.0
@@ -213,7 +213,7 @@ class _Machine:
         self.program = self.machine.program.name
         self.params = self.machine.params
 
-    def step(self) -> dict[str, Any]:
+    def step(self) -> dict[str, float]:
         """The trace over the next sample time: its last values by column."""
         self.state, rec = self.machine.step(self.state, self.per * self.trace.factor)
         self.tstate, tr = self.trace.export(self.tstate, rec)

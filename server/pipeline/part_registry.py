@@ -5,9 +5,9 @@ simulated plant, the parts built before it) and returns a part, or None when the
 not one of this pipeline's (the eccentricity loop belongs to the default scenario, not to
 a replayed log). :data:`BUILTIN` lists cutwatch's own, in the order they run:
 
-=============  ==============================================  =========================
+=============  ==============================================  ====================================
 name           what                                            where
-=============  ==============================================  =========================
+=============  ==============================================  ====================================
 workpiece      a blank losing mass on the simulated stage      server/pipeline/workpiece.py
 stage          seed 000/001's observers and the identifiers    server/pipeline/stage_part.py
 effects        the residual loop's identified effects          server/pipeline/effects_part.py
@@ -19,7 +19,11 @@ axes           every axis of a described machine, rigid, live  server/pipeline/a
 spindle        a spindle's cutting power over its taught idle  server/pipeline/spindle_part.py
 cnc            the spindle drive's raw signals the spindle     server/pipeline/cnc_part.py
                part does not stream (the opcua source)
-=============  ==============================================  =========================
+axis_monitor   the process monitor on the axes' process force  server/pipeline/axis_monitor_part.py
+two_inertia    seed 000's observer on a scale axis, from the   server/pipeline/two_inertia_part.py
+               parameters identified on the trace
+centre_wear    wear per tool from the spindle's cutting power  server/pipeline/centre_wear_part.py
+=============  ==============================================  ====================================
 
 More parts come after these, in the order they were added: :func:`register` (in
 process, e.g. a test: :func:`registered` is its context manager) or by name,
@@ -195,6 +199,39 @@ def _cnc(c: BuildContext) -> Part | None:
     return part if part.sources else None  # nothing beside the spindle part's signals
 
 
+def _axis_monitor(c: BuildContext) -> Part | None:
+    from server.pipeline.axis_monitor_part import AxisMonitorPart, monitored_axes
+    from server.pipeline.machine_view import description_of
+
+    desc = description_of(c.source)
+    if desc is None or "axes" not in c.parts or "spindle" not in c.parts:
+        return None  # no axes' force, or no spindle's cutting power to say where it cuts
+    if desc.spindle is None or "line" not in desc.identities or not monitored_axes(desc):
+        return None  # no revolution, no block to teach per, or no force in N (an export's A)
+    return AxisMonitorPart(desc, str(getattr(c.source, "program", "")))
+
+
+def _two_inertia(c: BuildContext) -> Part | None:
+    from server.pipeline.machine_view import description_of, has_prior
+    from server.pipeline.two_inertia_part import TwoInertiaAxisPart, two_inertia_axes
+
+    desc = description_of(c.source)
+    if desc is None or c.source.knobs_apply or "spindle" not in c.parts:
+        return None  # the simulator's stage; no spindle to say where the tool is in the air
+    axes = [a for a in desc.axes if a.name in two_inertia_axes(desc)]
+    if not axes or all(has_prior(a) for a in axes):
+        return None  # no scale axis, or the stage part's observers watch it (its nominal)
+    return TwoInertiaAxisPart(desc)
+
+
+def _centre_wear(c: BuildContext) -> Part | None:
+    from server.pipeline.centre_wear_part import CentreWearPart
+
+    if "spindle" not in c.parts:
+        return None  # no spindle's cutting power: not built
+    return CentreWearPart(str(getattr(c.source, "program", "")))
+
+
 #: cutwatch's own parts, by name, in the order they run (module docstring)
 BUILTIN: tuple[tuple[str, PartFactory], ...] = (
     ("workpiece", _workpiece),
@@ -207,6 +244,9 @@ BUILTIN: tuple[tuple[str, PartFactory], ...] = (
     ("axes", _axes),
     ("spindle", _spindle),
     ("cnc", _cnc),
+    ("axis_monitor", _axis_monitor),
+    ("two_inertia", _two_inertia),
+    ("centre_wear", _centre_wear),
 )
 
 #: the parts added: what was registered (a class or a factory) -> its factory

@@ -6,7 +6,7 @@ the CNC's tool, program, line and part; it simulates the part program beside the
 it runs with the simulator only. :class:`LiveProcess` runs a part program on seed 003's
 milling machine and X/Y feed drives (:class:`machine.process.ProcessMachine`, 5 kHz),
 estimates the cutting force from the drives
-(:class:`server.pipeline.eccentricity_loop.ObserverForceSource`: the seed-000 observers on
+(:class:`harness.eccentricity_loop.ObserverForceSource`: the seed-000 observers on
 each feed axis, scale quantised, current noise, a 2 % mass error; never the simulator's
 force) and watches it with the teach-in monitor
 (:class:`estimators.process_monitor.ProcessMonitor`). Each block of the stage (2.5 kHz)
@@ -60,6 +60,7 @@ from common.arrays import F64
 from common.errors import ParameterError
 from common.event_kinds import EventKind, ProcessEventKind
 from estimators.process_monitor import Alarm, MonitorParams, ProcessMonitor
+from harness.eccentricity_loop import ObserverForceSource
 from machine.milling import MillingRecord
 from machine.process import (
     EVENT_KINDS,
@@ -69,7 +70,6 @@ from machine.process import (
     ProcessMachine,
     default_program,
 )
-from server.pipeline.eccentricity_loop import ObserverForceSource
 from server.pipeline.machine_view import MachineView
 from server.pipeline.part import (
     Block,

@@ -394,6 +394,7 @@ class MachineRuntime:
         path = self.checkpoint
         if path is None or not path.exists():
             return False
+        state = None
         try:
             state = load_checkpoint(path)
             with self.lock:
@@ -401,10 +402,35 @@ class MachineRuntime:
         except (StateFormatError, ParameterError, OSError) as exc:
             self.checkpoint_status.update(resumed=False, refused=str(exc))
             log.warning("cutwatch: %s: checkpoint refused, starting fresh: %s", self.machine, exc)
+            if state is not None and isinstance(exc, ParameterError):
+                self._keep_aside(path, state)
             return False
         self.checkpoint_status.update(resumed=True, resumed_t=state.t)
         log.warning("cutwatch: %s resumed from %s at t = %.3f s", self.machine, path, state.t)
         return True
+
+    def _keep_aside(self, path: Path, state: PipelineState) -> None:
+        """A readable state of another pipeline (another scenario or source: the stage's
+        ``default`` after the machining centre became the default, issue 31) is moved
+        beside the checkpoint, ``<stem>.<scenario>-<source>.t<seconds>.npz``, not
+        overwritten by this pipeline's first save; renamed back to the checkpoint's name
+        it resumes under its own scenario."""
+        aside = path.with_name(
+            f"{path.stem}.{state.scenario}-{state.source}.t{int(state.t)}{path.suffix}"
+        )
+        try:
+            path.replace(aside)
+        except OSError as exc:
+            log.warning("cutwatch: %s: could not keep %s aside: %s", self.machine, path, exc)
+            return
+        self.checkpoint_status.update(kept_aside=str(aside))
+        log.warning(
+            "cutwatch: %s: the state of scenario %r (%s source) kept as %s",
+            self.machine,
+            state.scenario,
+            state.source,
+            aside,
+        )
 
     def save(self, *, wait: bool = True) -> bool:
         """Take the pipeline's state (when it is the one the runtime started with: not a

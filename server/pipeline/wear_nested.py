@@ -43,8 +43,8 @@ SETS: dict[str, tuple[str, ...]] = {
     "drives": ("TV2.Z", "CV3.Z", "TV2.X", "CV3.X", "TV2.S", "CV3.S"),
     "all": ("F_f", "TV2.Z", "CV3.Z", "TV2.X", "CV3.X", "TV2.S", "CV3.S", "F_c", "F_p"),
 }
-#: tools cut at other speeds and feeds (data README)
-OTHER_CONDITIONS = (3, 5, 16)
+#: programmed spindle speed (CNC units): read when the table has it, for the groups
+SPEED = "CON.A.SREAL.S"
 #: repeated leave-k-tools-out: k and splits per k, and the seed of the draws
 K_OUT = (2, 3, 4)
 SPLITS_PER_K = 5
@@ -71,7 +71,39 @@ def features_of(signal: str) -> tuple[str, ...]:
 
 
 def load(path: Any, sets: Sequence[str]) -> WearTable:
-    return read_wear_table(path, columns_needed(sets))
+    return read_wear_table(path, columns_needed(sets), optional=(VB, SPEED))
+
+
+def condition_groups(table: WearTable) -> dict[int, str]:
+    """Each tool's cutting-condition group, from the data: tools whose median
+    (cleaned) programmed spindle speed and feed rate both agree within
+    ``SAME_CONDITIONS`` (relative) share a group; a table without the speed column is
+    grouped on the feed rate alone. Groups are named by their median condition
+    (``S<speed>k_F<feed>``, CNC units, the speed in thousands), members in table order.
+
+    On the published table the feed per revolution (feed / speed) is the same on every
+    tool, so the groups are the three speeds: tools 6 and 7 (S7514k), tool 3 (S11977k),
+    the other six (S8154k), not the tools 3, 5, 16 the data's notes name."""
+    cols = [FEED, SPEED] if SPEED in table.columns else [FEED]
+    cond = {
+        t: np.array([float(np.median(clean_condition(table.column(c, t))[0])) for c in cols])
+        for t in table.tools
+    }
+    members: list[list[int]] = []
+    for t in table.tools:
+        for g in members:
+            ref = np.median([cond[m] for m in g], axis=0)
+            if np.all(np.abs(cond[t] - ref) <= SAME_CONDITIONS * ref):
+                g.append(t)
+                break
+        else:
+            members.append([t])
+    out: dict[int, str] = {}
+    for g in members:
+        med = np.median([cond[m] for m in g], axis=0)
+        name = f"F{med[0]:.0f}" if len(med) == 1 else f"S{med[1] / 1e3:.0f}k_F{med[0]:.0f}"
+        out.update({m: name for m in g})
+    return out
 
 
 def tool_data(
@@ -385,9 +417,10 @@ def per_tool(f: FoldResult) -> list[dict[str, Any]]:
     return out
 
 
-def summarise(folds: Sequence[FoldResult]) -> dict[str, Any]:
+def summarise(folds: Sequence[FoldResult], groups: dict[int, str] | None = None) -> dict[str, Any]:
     """Per protocol: median and range over splits of each metric and of the ratios to
-    the baselines; per tool (LOTO); by condition group; life; entry; chosen configs."""
+    the baselines; per tool (LOTO); by condition group (``groups``: tool -> group, from
+    :func:`condition_groups`); life; entry; chosen configs."""
     out: dict[str, Any] = {}
     protos = list(dict.fromkeys(f.protocol for f in folds))
     for p in protos:
@@ -424,15 +457,20 @@ def summarise(folds: Sequence[FoldResult]) -> dict[str, Any]:
         }
         if p == "loto":
             out[p]["per_tool"] = tools
-            for g, members in (
-                ("other", [t for t in tools if t["tool"] in OTHER_CONDITIONS]),
-                ("main", [t for t in tools if t["tool"] not in OTHER_CONDITIONS]),
-            ):
-                if members:
-                    out[p][f"group_{g}"] = {
+            gs: dict[str, list[dict[str, Any]]] = {}
+            for t in tools:
+                if groups is not None and t["tool"] in groups:
+                    gs.setdefault(groups[t["tool"]], []).append(t)
+            out[p]["groups"] = {
+                g: {
+                    "tools": [t["tool"] for t in members],
+                    **{
                         k: float(np.mean([t[k] for t in members]))
                         for k in ("mae", *(f"mae_{b}" for b in BASELINES))
-                    }
+                    },
+                }
+                for g, members in gs.items()
+            }
             lives = [t["life"].get("300", t["life"].get("150")) for t in tools if t["life"]]
             out[p]["life_error"] = float(np.median(lives)) if lives else math.nan
             out[p]["life_tools"] = len(lives)
@@ -443,10 +481,11 @@ def summarise(folds: Sequence[FoldResult]) -> dict[str, Any]:
 
 __all__ = [
     "BASELINES",
-    "OTHER_CONDITIONS",
     "SETS",
+    "SPEED",
     "FoldResult",
     "ToolResult",
+    "condition_groups",
     "evaluate",
     "fold_metrics",
     "knots",

@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from common.errors import ParameterError
+from harness.wear_clock import AcceleratedToolWear
 from server.pipeline.machine_view import MachineView
 from server.pipeline.part import (
     Block,
@@ -40,7 +41,6 @@ from server.pipeline.part import (
 )
 from server.pipeline.stage_part import COLORS
 from server.pipeline.wear_alarms import WEAR_ALARM_SHARE, WearAlarms
-from server.pipeline.wear_clock import AcceleratedToolWear
 from server.pipeline.wear_passes import VB_LIMIT, PassState, ToolWearPasses
 
 __all__ = ["WEAR", "WEAR_OF", "WearPart", "WearPartState"]

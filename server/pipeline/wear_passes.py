@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from common.arrays import F64
-from server.pipeline.wear_clock import AcceleratedToolWear
+from harness.wear_clock import AcceleratedToolWear
 
 PASS_S = 1.0  # one tool-wear pass per second of simulated time
 #: the wear clock of the first tool starts once the observers have settled (their first
@@ -29,7 +29,7 @@ VB_LIMIT = 0.3  # flank wear at which the tool is changed [mm] (seed 004's limit
 @dataclass
 class PassState:
     """The tool and its pass under way (checkpointed; the wear model's own state is in
-    :class:`~server.pipeline.wear_clock.AcceleratedToolWear`)."""
+    :class:`~harness.wear_clock.AcceleratedToolWear`)."""
 
     #: the force gain ramp over the pass: (gain at the pass start, slope per second, start)
     gain_ramp: tuple[float, float, float] = (1.0, 0.0, 0.0)

@@ -7,7 +7,7 @@ checkpoints), each on an :class:`~server.pipeline.mqtt_source.MqttSource` over i
 All machines share **one** broker connection:
 
 - it subscribes to ``cutwatch/+/meta`` (retained, small, one message per machine) to
-  learn the plant's machines, and adopts those it owns (:func:`server.pipeline.shards.owns`:
+  learn the plant's machines, and adopts those it owns (:func:`harness.shards.owns`:
   its shard of a stable hash, or an explicit list); for each it subscribes to
   ``cutwatch/<machine>/drive`` only, so a worker receives only its own machines' blocks;
 - paho's network thread dispatches each message by its topic to the machine's feed
@@ -50,6 +50,7 @@ import numpy as np
 
 from common.errors import ParameterError
 from common.jsonsafe import json_safe
+from harness.shards import owns
 from server.pipeline.broker import TOPIC_ROOT, BrokerConfig, make_client, reason_text
 from server.pipeline.drive_feed import DriveFeed
 from server.pipeline.estimates_out import EstimatesPublisher
@@ -60,7 +61,6 @@ from server.pipeline.opcua_machines import OpcuaMachine
 from server.pipeline.opcua_source import OpcuaSource
 from server.pipeline.runtime import CheckpointWriter, MachineRuntime
 from server.pipeline.scenarios import STAGE_SCENARIO
-from server.pipeline.shards import owns
 
 log = logging.getLogger("cutwatch.worker")
 

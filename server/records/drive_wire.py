@@ -63,7 +63,7 @@ import json
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NotRequired, TypedDict
 
 import numpy as np
 
@@ -314,8 +314,28 @@ def encode_drive(
     return json.dumps(header, separators=(",", ":")).encode() + b"\n" + b"".join(parts)
 
 
-def _segment_dict(sg: Segment) -> dict[str, Any]:
-    d: dict[str, Any] = {"i": int(sg.i), "tool": int(sg.tool), "line": int(sg.line)}
+class SegmentWire(TypedDict):
+    """A segment as the drive header carries it (:class:`Segment`)."""
+
+    i: int
+    tool: int
+    line: int
+    override: NotRequired[float | None]
+
+
+class Identities(TypedDict, total=False):
+    """The minor-1 keys of a drive header: the program's name and the segments."""
+
+    program: str
+    segments: list[SegmentWire]
+
+
+def _override(v: float | None) -> float | None:
+    return None if v is None else float(v)
+
+
+def _segment_dict(sg: Segment) -> SegmentWire:
+    d: SegmentWire = {"i": int(sg.i), "tool": int(sg.tool), "line": int(sg.line)}
     if sg.override is not None:
         d["override"] = float(sg.override)
     return d
@@ -325,9 +345,9 @@ def _is_int(v: Any) -> bool:
     return isinstance(v, int) and not isinstance(v, bool)
 
 
-def _check_identities(program: Any, segments: Any, n: int) -> dict[str, Any]:
+def _check_identities(program: Any, segments: Any, n: int) -> Identities:
     """Check the minor-1 keys; returns them as they travel."""
-    out: dict[str, Any] = {}
+    out: Identities = {}
     if program is not None:
         if not isinstance(program, str) or not 1 <= len(program) <= MAX_PROGRAM:
             raise WireError(
@@ -343,7 +363,7 @@ def _check_identities(program: Any, segments: Any, n: int) -> dict[str, Any]:
             "schema", f"drive header: segments expected a list, got {type(segments).__name__}"
         )
     prev = -1
-    clean = []
+    clean: list[SegmentWire] = []
     for j, sg in enumerate(segments):
         if not isinstance(sg, dict):
             raise WireError("schema", f"drive header: segments[{j}] expected an object")
@@ -369,7 +389,10 @@ def _check_identities(program: Any, segments: Any, n: int) -> dict[str, Any]:
             raise WireError(
                 "value", f"drive header: segments[{j}].override expected in (0, 3], got {ov!r}"
             )
-        clean.append({k: sg[k] for k in ("i", "tool", "line", "override") if k in sg})
+        seg: SegmentWire = {"i": i, "tool": sg["tool"], "line": sg["line"]}
+        if "override" in sg:
+            seg["override"] = ov
+        clean.append(seg)
     out["segments"] = clean
     return out
 
@@ -472,16 +495,11 @@ def decode_drive(payload: bytes) -> DriveBlock:
         raise WireError(
             "schema", f"drive block: columns {sorted(out)}: expected q_m and tau_m or i_m"
         )
-    ident = (
+    ident: Identities = (
         _check_identities(header.get("program"), header.get("segments"), n) if minor >= 1 else {}
     )
     segs = tuple(
-        Segment(
-            sg["i"],
-            sg["tool"],
-            sg["line"],
-            None if sg.get("override") is None else float(sg["override"]),
-        )
+        Segment(sg["i"], sg["tool"], sg["line"], _override(sg.get("override")))
         for sg in ident.get("segments", [])
     )
     return DriveBlock(

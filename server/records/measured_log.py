@@ -43,7 +43,7 @@ from common.machine_description import (
     is_legacy,
 )
 from server.errors import LogFormatError
-from server.records.row_select import Column, RowSelection, select_rows
+from server.records.row_select import Column, LeftOut, RowSelection, select_rows
 
 REQUIRED_COLUMNS: tuple[str, ...] = ("t", "tau_m", "q_m")
 OPTIONAL_COLUMNS: tuple[str, ...] = ("q_l", "f_ext", "i_m", "qd_m", "qdd_m")
@@ -148,7 +148,7 @@ class MeasuredLog:
     sidecar: dict[str, Any] = field(default_factory=dict)
     rows: NDArray[np.int64] | None = None
     n_read: int = 0
-    left_out: list[dict[str, Any]] = field(default_factory=list)
+    left_out: list[LeftOut] = field(default_factory=list)
     phases: dict[str, NDArray[np.bool_]] = field(default_factory=dict)
     #: the machine the sidecar describes (its ``axes``); None for a one-axis log of the
     #: older sidecar (see :attr:`machine`)
@@ -775,14 +775,14 @@ def _selected(
     cols: Mapping[str, F64],
     keep: Sequence[str],
     n: int,
-) -> tuple[NDArray[np.bool_], list[dict[str, Any]], dict[str, NDArray[np.bool_]]]:
+) -> tuple[NDArray[np.bool_], list[LeftOut], dict[str, NDArray[np.bool_]]]:
     """Rows used, each rule's count left out and the phase masks: every row unless a
     selection leaves some out (its conditions may name any column of the file)."""
     used = np.ones(n, dtype=bool)
-    left_out: list[dict[str, Any]] = []
+    left_out: list[LeftOut] = []
     phases: dict[str, NDArray[np.bool_]] = {}
     if selection is not None and not selection.empty:
-        where: dict[str, Any] = {}
+        where: dict[str, NDArray[Any]] = {}
         for name, value in source.items():
             a = np.asarray(value)
             a = a.ravel() if a.ndim == 2 and 1 in a.shape else a

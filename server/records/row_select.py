@@ -21,6 +21,7 @@ import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TypedDict
 
 import numpy as np
 from numpy.typing import NDArray
@@ -226,19 +227,26 @@ class RowSelection:
         )
 
 
+class LeftOut(TypedDict):
+    """How many rows one selection rule newly left out."""
+
+    rule: str
+    left_out: int
+
+
 @dataclass(frozen=True)
 class Selected:
     """The outcome of a selection: rows used, and how many each rule left out."""
 
     used: NDArray[np.bool_]
-    left_out: list[dict[str, object]]
+    left_out: list[LeftOut]
     phases: dict[str, NDArray[np.bool_]]
 
 
 def select_rows(path: Path, sel: RowSelection, columns: Mapping[str, Column], n: int) -> Selected:
     """Apply ``sel`` to ``n`` rows; count the rows each rule newly leaves out."""
     used = np.ones(n, dtype=bool)
-    left: list[dict[str, object]] = []
+    left: list[LeftOut] = []
 
     def apply(rule: str, out: NDArray[np.bool_]) -> None:
         newly = out & used

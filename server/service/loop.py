@@ -39,6 +39,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from common.errors import ParameterError
 from server.errors import CutwatchError
 from server.pipeline.broker import BrokerConfig, parse_broker_url
 from server.pipeline.drive_feed import DriveFeed
@@ -792,6 +793,27 @@ class LiveLoop:
         """
         with self.lock:
             return self.pipeline.inject(kind, size=size, at_t=at_t, at_part=at_part)
+
+    def label_tool_wear(self, tool: int, vb_mm: float) -> dict[str, Any]:
+        """The VB measured [mm] at ``tool``'s latest ended life (the centre's wear part,
+        :meth:`server.pipeline.centre_wear_part.CentreWearPart.label`).
+
+        Raises
+        ------
+        ParameterError
+            No wear part that takes labels (field ``tool``), no ended life of ``tool``, a
+            VB out of range.
+        """
+        with self.lock:
+            part = self.pipeline.part("centre_wear")
+            if part is None:
+                raise ParameterError(
+                    "tool",
+                    "a machine whose wear is read from its spindle's power (the centre_wear part)",
+                    f"the {self.pipeline.scenario} pipeline",
+                )
+            out: dict[str, Any] = part.label(tool, vb_mm)
+            return out
 
     def relearn(self, tool: int | None = None, program: str | None = None) -> dict[str, Any]:
         """Teach the monitor's limits again (:meth:`LivePipeline.relearn`): of one tool,

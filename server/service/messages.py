@@ -202,6 +202,17 @@ class MonitorStatus(Versioned):
     wear_alarm_share: float | None = Field(
         default=None, description="the wear alarm is raised at this share of the limit"
     )
+    wear_lo_share: float | None = Field(
+        default=None, description="lower end of the wear share's 95 % interval (None: none)"
+    )
+    wear_hi_share: float | None = Field(
+        default=None, description="upper end of the wear share's 95 % interval (None: none)"
+    )
+    wear_calibrated: bool | None = Field(
+        default=None,
+        description="whether the wear map is fitted from this machine's labelled tool lives "
+        "(False: 'uncalibrated', the prior's interval; None: not said)",
+    )
     unacked: int = Field(description="events waiting for an acknowledgement")
 
 

@@ -34,7 +34,7 @@ says so), ``against`` (the mode, null for none), ``reason``, ``windows``
 per window]}), ``rms_q`` (against the Q(s)-filtered true force, the observers' reachable
 target; empty without truth), ``floor`` (rms of Q(s)F - F; nulls without truth), each
 value to 4 significant digits, null where unknown (see
-:mod:`server.pipeline.accuracy`).
+:mod:`harness.accuracy`).
 
 ``event`` (issue 21: when the monitor raises an event, and again when it is acknowledged)
     ``{"type": "event", "event": {"id", "kind", "action", "t", "tool", "program",

@@ -681,6 +681,29 @@ class ToolLife(BaseModel):
     cause: str = Field(description="why: " + ", ".join(CAUSES))
 
 
+class ToolVb(BaseModel):
+    """``POST /api/tool-life/vb``: the flank wear measured on a tool taken out at a tool
+    change (issue 35 item 7): it labels that tool's latest ended life on this machine."""
+
+    model_config = ConfigDict(extra="forbid")
+    tool: int = Field(ge=1, le=10**6, description="the tool number (the CNC's T)")
+    vb_mm: float = Field(
+        gt=0.0, le=0.9, allow_inf_nan=False, description="the measured flank wear VB [mm]"
+    )
+
+
+class ToolVbLabel(BaseModel):
+    """The life a measured VB labelled, and whether the tool's wear map is now this
+    machine's own (calibrated)."""
+
+    tool: int
+    index: int = Field(description="the tool's instance whose life ended (1: the first)")
+    end_t: float = Field(description="source time the change was seen [s]")
+    vb_mm: float = Field(description="the VB entered [mm]")
+    vb_est_mm: float = Field(description="the estimate at the change [mm]")
+    calibrated: bool
+
+
 class ToolLives(BaseModel):
     """A page of tool lives, newest first."""
 

@@ -26,7 +26,7 @@ import pytest
 from _broker import broker, free_port
 from _proc import stop
 
-from server.pipeline.shards import shard_of
+from harness.shards import shard_of
 from server.records.drive_wire import decode_estimates
 
 pytestmark = pytest.mark.slow

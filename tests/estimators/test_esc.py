@@ -6,7 +6,7 @@ The plant here is the static map the ESC assumes (seed003 (6)-(8)): the spindle-
 force is proportional to the phasor left between the eccentricity ``E`` and the
 modulation ``M = a_m e^{j theta_m}``, ``F_1 = g (E - M)``, on top of a mean force, a
 tooth-passing harmonic and noise. No drives and no chip memory: those are the harness's
-(``server/pipeline/eccentricity_loop.py``) and the reproduction's.
+(``harness/eccentricity_loop.py``) and the reproduction's.
 """
 
 from __future__ import annotations

@@ -94,3 +94,7 @@ def _unseen_rows(rows: dict, checks: dict) -> None:
     assert c["holds"] == (c["value"] <= 0.75)
     assert rows[f"{pre}.entry.record"]["ours"] > 0
     assert sum(r["ours"] for n, r in rows.items() if n.startswith(f"{pre}.chosen.")) == 2
+    # the condition groups come from the data: tools 7 and 16 run at different speeds
+    groups = {n: r for n, r in rows.items() if n.startswith(f"{pre}.group.")}
+    assert len(groups) == 2 and all(r["ours"] > 0 for r in groups.values())
+    assert {n.split(".")[4][:2] for n in groups} == {"S7", "S8"}, groups

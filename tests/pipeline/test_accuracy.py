@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from server.pipeline.accuracy import RollingAccuracy
+from harness.accuracy import RollingAccuracy
 from server.pipeline.live_pipeline import FORCE_ESTIMATES, LivePipeline
 
 DT = 1e-3
@@ -130,3 +130,18 @@ def test_rounded_summary_for_the_stream() -> None:
         float(f"{v:.4g}")
         for v in full["floor"]  # type: ignore[attr-defined]
     ]
+
+
+def test_a_state_written_before_the_harness_moved_reads_as_now() -> None:
+    # the harness's modules lived in server/pipeline/ (issue 34 moved them): a checkpoint
+    # written then names server.pipeline.accuracy:RollingAccuracy (common.state_io.MOVED)
+    from common.state_io import decode, encode
+
+    acc = RollingAccuracy(["a"], DT, reference="truth", windows=(0.1,))
+    acc.update({"a": np.array([1.0, 2.0])}, np.array([0.5, 1.5]), np.array([0.5, 1.5]))
+    tree, arrays = encode(acc)
+    assert tree["obj"] == "harness.accuracy:RollingAccuracy"
+    old = {**tree, "obj": "server.pipeline.accuracy:RollingAccuracy"}
+    back = decode(old, arrays)
+    assert type(back) is RollingAccuracy
+    assert back.summary() == acc.summary()

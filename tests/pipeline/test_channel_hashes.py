@@ -1,7 +1,9 @@
 """The live pipeline streams what it streamed before the refactor into parts (issue 26).
 
-Fixed-seed runs (``tests/_hashes.py``: the default scenario with knob changes, injections
-and a checkpoint round trip; the two seed scenarios; a replayed log) hashed channel by
+Fixed-seed runs (``tests/_hashes.py``, each naming its scenario: the seeds' scenario
+``default`` (the live default before issue 31, now the machining centre) with knob
+changes, injections and a checkpoint round trip; the two seed scenarios; a replayed log)
+hashed channel by
 channel, with their events and tool changes, against the hashes the code before the
 refactor wrote (``tests/pipeline/channel_hashes.json``). A difference fails with every
 channel named, unless it is one of :data:`EXPECTED`, each with its reason.
@@ -56,3 +58,17 @@ def test_channels_identical_to_before_the_parts(name: str, tmp_path: Path) -> No
     expected = EXPECTED.get(name, {})
     assert [d for d in diff if d not in expected] == []
     assert sorted(diff) == sorted(expected)  # each expected difference is really there
+
+
+def test_every_run_names_a_seeds_scenario() -> None:
+    # issue 31: the live default became the machining centre; the hashes are the seeds'
+    # scenarios', each run by its name, never by the default
+    from server.pipeline.scenarios import DEFAULT_SCENARIO, SCENARIOS
+
+    for name, run in RUNS.items():
+        assert run.replay or (run.scenario in SCENARIOS and run.scenario != DEFAULT_SCENARIO), name
+    assert {r.scenario for r in RUNS.values() if not r.replay} == {
+        "default",
+        "seed000-weight",
+        "seed001-spindle",
+    }

@@ -19,9 +19,8 @@ from estimators.esc import (
     spindle_harmonic,
 )
 from estimators.fast_tuner import FastTuner, FastTunerParams
+from harness.eccentricity_loop import EccentricityLoop
 from server.cli.main import main
-from server.errors import CutwatchError
-from server.pipeline.eccentricity_loop import EccentricityLoop
 
 
 @settings(max_examples=40, deadline=None)
@@ -272,19 +271,19 @@ def test_loop_block_steps_any_chunking() -> None:
 
 
 def test_observer_source_needs_a_seeded_rng_for_noise() -> None:
+    from harness.eccentricity_loop import ObserverForceSource
     from machine.milling import MillingMachine
-    from server.pipeline.eccentricity_loop import ObserverForceSource
 
-    with pytest.raises(CutwatchError, match="rng"):
+    with pytest.raises(ParameterError, match="rng"):
         ObserverForceSource(MillingMachine().drives.params, current_noise=0.1)
-    with pytest.raises(CutwatchError, match="current_noise"):
+    with pytest.raises(ParameterError, match="current_noise"):
         ObserverForceSource(MillingMachine().drives.params, current_noise=-1.0)
 
 
 def test_loop_rejects_unknown_tuner() -> None:
-    with pytest.raises(CutwatchError, match="tuner"):
+    with pytest.raises(ParameterError, match="tuner"):
         EccentricityLoop(tuner="magic")
-    with pytest.raises(CutwatchError, match="cost_axis"):
+    with pytest.raises(ParameterError, match="cost_axis"):
         EccentricityLoop(cost_axis="z")
 
 

@@ -15,8 +15,8 @@ import pytest
 
 from estimators.errors import ParameterError
 from estimators.process_monitor import MonitorParams, ProcessMonitor
+from harness.eccentricity_loop import ObserverForceSource
 from machine.process import ProcessEvent, ProcessMachine, default_program
-from server.pipeline.eccentricity_loop import ObserverForceSource
 
 
 @pytest.fixture(scope="module")

@@ -10,15 +10,13 @@ import sys
 import pytest
 
 from common.errors import ParameterError
-from server.pipeline.shards import host_ordinal, owns, parse_shard, shard_of
+from harness.shards import host_ordinal, owns, parse_shard, shard_of
 
 
 def test_the_shard_does_not_depend_on_the_process() -> None:
     names = [f"m{k:03d}" for k in range(50)]
     here = [shard_of(m, 7) for m in names]
-    code = (
-        f"from server.pipeline.shards import shard_of; print([shard_of(m, 7) for m in {names!r}])"
-    )
+    code = f"from harness.shards import shard_of; print([shard_of(m, 7) for m in {names!r}])"
     for seed in ("1", "2"):  # Python's own hash() differs between these two processes
         out = subprocess.run(
             [sys.executable, "-c", code], capture_output=True, text=True, check=True,

@@ -1,6 +1,6 @@
 """The wear clock's bridge from the machine's wear model to the estimators (issue 7).
 
-``server.pipeline.wear_clock``: the accelerated wear clock, and ``wear_law_params``, the
+``harness.wear_clock``: the accelerated wear clock, and ``wear_law_params``, the
 off-line constants of the reduced wear law read from the machine's model, with the
 tool-life monitor that uses them (seed 004 (3)-(8)).
 """
@@ -18,9 +18,9 @@ from hypothesis import strategies as st
 from estimators.errors import ParameterError as EstParameterError
 from estimators.wear_law import WearLawParams
 from estimators.wear_monitor import ToolLifeMonitor, ToolLifeParams
+from harness.wear_clock import AcceleratedToolWear, wear_law_params
 from machine.errors import ParameterError as MachParameterError
 from machine.tool_wear import DEFAULT_WEAR_PARAMS, ToolWearModel
-from server.pipeline.wear_clock import AcceleratedToolWear, wear_law_params
 
 
 def test_accelerated_clock_advances_wear_by_rate() -> None:

@@ -69,3 +69,42 @@ def test_a_test_tools_vb_reaches_nothing_but_the_score(table: W.WearTable) -> No
     m = W.fold_metrics(a)
     assert 0 < m["mae"] < 200 and 0 <= m["coverage"] <= 1 and m["width"] > 0
     assert np.all(ta.lo <= ta.hi)
+
+
+def test_condition_groups_come_from_the_speed_and_feed_in_the_data(table: W.WearTable) -> None:
+    """The published table: one feed per revolution, three spindle speeds; tools 5 and
+    16 (named 'other conditions' in the data's notes) share the speed of the majority."""
+    g = W.condition_groups(table)
+    assert set(g) == set(table.tools)
+    assert g[6] == g[7] != g[3]
+    assert len({g[t] for t in (5, 10, 11, 14, 15, 16)}) == 1
+    assert len(set(g.values())) == 3
+    # the name is the group's median condition: tool 3 runs ~1.47x the majority's speed
+    s = {t: float(g[t].split("k_")[0][1:]) for t in (3, 5)}
+    assert 1.4 < s[3] / s[5] < 1.55
+
+
+def test_condition_groups_split_on_a_speed_change_and_fall_back_to_the_feed(
+    table: W.WearTable,
+) -> None:
+    cols = dict(table.columns)
+    sp = cols[W.SPEED].copy()
+    sp[table.rows_of(10)] *= 1.05  # 5 % faster, same feed rate column
+    g = W.condition_groups(dataclasses.replace(table, columns={**cols, W.SPEED: sp}))
+    assert g[10] != g[11] and g[11] == g[15]
+    no_speed = {k: v for k, v in cols.items() if k != W.SPEED}
+    g2 = W.condition_groups(dataclasses.replace(table, columns=no_speed))
+    assert all(v.startswith("F") for v in g2.values())
+    assert g2[6] == g2[7] != g2[3]
+
+
+def test_summary_groups_are_the_mean_of_their_tools(table: W.WearTable) -> None:
+    cfgs = [c for c in W.candidates() if c.map == "linear"][:2]
+    folds = [W.run_fold(table, "F_f", (t,), "loto", W._Cache(), configs=cfgs) for t in (3, 6, 7)]
+    s = W.summarise(folds, W.condition_groups(table))["loto"]
+    per = {r["tool"]: r["mae"] for r in s["per_tool"]}
+    gs = s["groups"]
+    assert sorted(len(v["tools"]) for v in gs.values()) == [1, 2]
+    two = next(v for v in gs.values() if len(v["tools"]) == 2)
+    assert sorted(two["tools"]) == [6, 7]
+    assert two["mae"] == pytest.approx((per[6] + per[7]) / 2)

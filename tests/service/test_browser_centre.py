@@ -13,7 +13,7 @@ leaves a false alarm, docs/machining-centre.md), a breakage is injected into the
 part's first cut (``POST /api/control``), and the page shows it: the strip in alarm with
 the event's words, a red marker on the spindle's chart at the event's time. Screenshot:
 ``out/centre-dashboard.png``, the whole machine page (docs/img keeps a copy: the README's
-picture).
+picture), and ``out/centre-research.png``, the research page early in the run.
 """
 
 from __future__ import annotations
@@ -101,6 +101,7 @@ def test_the_one_machine_and_a_breakage_on_its_spindle(tmp_path: Path) -> None:
         down = page.locator("#panel-force[data-part=stage]")
         assert down.is_visible() and page.locator("#chart-force").count() == 0
         assert parts["stage"]["reason"] in down.inner_text()
+        page.screenshot(path=str(out / "centre-research.png"), full_page=True)
         assert page.is_hidden("#params-panel") and page.is_visible("#strip")
         page.click("#tab-operator")
         page.wait_for_selector("#chart-spindle canvas", timeout=10000)
@@ -108,13 +109,19 @@ def test_the_one_machine_and_a_breakage_on_its_spindle(tmp_path: Path) -> None:
         # the tool: none in the spindle (a dash) until the program's first tool change
         # (and again, for a block, while one is made), then a T-number
         wait_for(lambda: page.inner_text("#strip-tool").startswith("T"), 60)
-        assert not page.is_visible("#strip-weargroup")  # no wear model on the centre yet
 
         # taught (watching, or in alarm already); what it raised so far acknowledged
         def state() -> str:
             return str(page.get_attribute("#strip", "data-state"))
 
         wait_for(lambda: state() in ("watching", "alarm"), timeout=WATCH_TIMEOUT_S)
+        # the wear of the spindle's tool (its cut blocks taught by now): the share of its
+        # limit and, until a VB measured at a tool change is entered, "uncalibrated" with
+        # the prior's interval
+        wait_for(lambda: page.is_visible("#strip-weargroup")
+                 and "uncalibrated, 95 %" in page.inner_text("#strip-wearlimit"), 60)  # fmt: skip
+        assert page.inner_text("#strip-weartool").startswith("T")
+        assert page.inner_text("#strip-wear").endswith("%")
 
         def acknowledged() -> bool:
             for ev in get(base, "/api/events", acked="false")["items"]:

@@ -178,3 +178,22 @@ def test_protocol_accepts_event_messages_and_names_what_is_missing() -> None:
     assert got[0] == "missing_tool"
     assert got[1].startswith("event lacks action, t, tool")
     assert got[2] == "event message lacks event"
+
+
+def test_the_wear_tile_says_uncalibrated_with_the_priors_interval() -> None:
+    # issue 35 item 7 on the centre: the wear share's 95 % interval and whether the map
+    # is this machine's own; a status without them reads as before
+    code = (
+        "import {statusView} from './monitor.js';"
+        "import {readFileSync} from 'node:fs';"
+        "const [a, b] = JSON.parse(readFileSync(0, 'utf8'));"
+        "console.log(JSON.stringify([statusView(a), statusView(b)]));"
+    )
+    unc = status(wear_tool=2, wear_of="", wear_share=0.31, wear_limit_mm=0.3,
+                 wear_lo_share=0.12, wear_hi_share=0.78, wear_calibrated=False)  # fmt: skip
+    cal = status(wear_tool=2, wear_of="", wear_share=0.5, wear_limit_mm=0.3,
+                 wear_lo_share=0.4, wear_hi_share=0.6, wear_calibrated=True)  # fmt: skip
+    u, c = run_js(code, json.dumps([unc, cal]))  # type: ignore[misc]
+    assert u["wearLimit"] == "of 0.300 mm · uncalibrated, 95 %: 12–78 %"
+    assert c["wearLimit"] == "of 0.300 mm · calibrated, 95 %: 40–60 %"
+    assert u["wear"] == "31 %" and u["wearTool"] == "T2" and u["wearKnown"]

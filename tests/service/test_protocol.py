@@ -15,8 +15,8 @@ from pathlib import Path
 
 import pytest
 
+from harness.accuracy import RollingAccuracy
 from server.cli.commands import schema
-from server.pipeline.accuracy import RollingAccuracy
 from server.pipeline.part import Channel, Chart
 from server.service import protocol
 from server.service.hub import Hub

@@ -156,12 +156,22 @@ def _run_hybrid(args: argparse.Namespace) -> int:
 
     from estimators.wear_hybrid import candidates
     from server.errors import CutwatchError
-    from server.pipeline.wear_nested import SETS, _Cache, columns_needed, run_fold, summarise
-    from server.records.wear_table import parse_tools, read_wear_table
+    from server.pipeline.wear_nested import (
+        SETS,
+        SPEED,
+        _Cache,
+        columns_needed,
+        condition_groups,
+        run_fold,
+        summarise,
+    )
+    from server.records.wear_table import VB, parse_tools, read_wear_table
 
     if args.signal_set not in SETS:
         raise CutwatchError(f"--set {args.signal_set!r}: expected one of {', '.join(SETS)}")
-    table = read_wear_table(args.table, columns_needed([args.signal_set]), args.map)
+    table = read_wear_table(
+        args.table, columns_needed([args.signal_set]), args.map, optional=(VB, SPEED)
+    )
     if not table.has_vb:
         raise CutwatchError(
             f"{table.path}: column 'Vb': expected measured flank wear for --method hybrid "
@@ -194,7 +204,7 @@ def _run_hybrid(args: argparse.Namespace) -> int:
                 for k in range(len(r.vb)):
                     w.writerow([r.tool, k, f"{r.vb[k]:.3f}", f"{r.est[k]:.3f}",
                                 f"{r.lo[k]:.3f}", f"{r.hi[k]:.3f}", fo.chosen])  # fmt: skip
-    summ = summarise(folds)
+    summ = summarise(folds, condition_groups(table))
     rep = {
         "table": str(table.path),
         "method": "hybrid",

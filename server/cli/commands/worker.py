@@ -103,9 +103,9 @@ def run(args: argparse.Namespace) -> int:
     import uvicorn
 
     from common.errors import ParameterError
+    from harness.shards import parse_shard
     from server.errors import CutwatchError
     from server.pipeline.broker import check_machine
-    from server.pipeline.shards import parse_shard
     from server.pipeline.worker import Worker, WorkerConfig
     from server.service.front import uvicorn_options
     from server.service.settings import Settings, check_security

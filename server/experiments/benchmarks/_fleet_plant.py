@@ -218,7 +218,7 @@ def run_plant(
     ``centres``: the machines are machining centres at 500 Hz, every one replaying one
     recorded trace (:mod:`._plant_centres`), run as a soak (no kill: the monitors' events
     are scored against the trace's truth)."""
-    from server.pipeline.shards import shard_of
+    from harness.shards import shard_of
 
     work = Path(tempfile.mkdtemp(prefix="cutwatch-bench-plant-"))
     log = work / "drive.csv"

@@ -10,8 +10,8 @@ from __future__ import annotations
 import statistics
 import time
 
+from harness.eccentricity_loop import EccentricityLoop, ObserverForceSource
 from server.experiments.reproductions._seed003_cut import ESC_TABLE1, case_params
-from server.pipeline.eccentricity_loop import EccentricityLoop, ObserverForceSource
 
 
 def _rate(make: object, seconds: float, repeats: int) -> float:

@@ -15,13 +15,13 @@ import numpy as np
 
 from estimators.wear_monitor import ToolLifeMonitor, ToolLifeParams
 from estimators.wear_observer import AdaptiveWearObserver
-from machine.tool_wear import ToolWearModel
-from server.pipeline.wear_clock import (
+from harness.wear_clock import (
     SAMPLE_TIME_MIN,
     AcceleratedToolWear,
     design_linear_model,
     observer_params,
 )
+from machine.tool_wear import ToolWearModel
 
 
 def _median_time(fn: Callable[[], object], repeats: int) -> float:

@@ -19,13 +19,13 @@ import numpy as np
 from common.arrays import F64
 from estimators.esc import EscParams, spindle_harmonic
 from estimators.fast_tuner import FastTunerParams
-from machine.feed_drives import FeedDriveParams
-from machine.milling import MillingMachine, MillingParams
-from server.pipeline.eccentricity_loop import (
+from harness.eccentricity_loop import (
     AdaptiveObserverForceSource,
     EccentricityLoop,
     ForceSource,
 )
+from machine.feed_drives import FeedDriveParams
+from machine.milling import MillingMachine, MillingParams
 
 ADAPT_START = 1.0  # [s] "Adaptation start" of Fig. 3
 PAPER_CONVERGE_S = 10.0  # seed 003 section 3: "converges ... in ~10 seconds"

@@ -15,6 +15,11 @@ from dataclasses import replace
 import numpy as np
 
 from estimators.esc import spindle_harmonic
+from harness.eccentricity_loop import (
+    AdaptiveObserverForceSource,
+    EccentricityLoop,
+    ObserverForceSource,
+)
 from machine.milling import MillingMachine, MillingParams
 from server.experiments.reproduction import Check, Row, Section
 from server.experiments.reproductions._seed003_cut import (
@@ -26,11 +31,6 @@ from server.experiments.reproductions._seed003_cut import (
     param_converge_time,
     run_case,
     summarize,
-)
-from server.pipeline.eccentricity_loop import (
-    AdaptiveObserverForceSource,
-    EccentricityLoop,
-    ObserverForceSource,
 )
 
 

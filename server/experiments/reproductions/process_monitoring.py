@@ -8,7 +8,7 @@ current noise, observer mass error; event time and size). Per event kind
 1. teach :class:`estimators.process_monitor.ProcessMonitor` on the first good parts of a
    random two-cut program (tool 1; air, cut, air, cut, air);
 2. cut one more part with the event injected in a cut block, the force estimated from
-   the X/Y drives by the observers (:class:`server.pipeline.eccentricity_loop.
+   the X/Y drives by the observers (:class:`harness.eccentricity_loop.
    ObserverForceSource`), never the true force;
 3. score: the right detector's first alarm at or after the event's first sample, within
    the event's block; its delay, sample-exact.
@@ -200,8 +200,8 @@ def _noise(rng: np.random.Generator) -> dict[str, float]:
 
 def _setup(program: Any, rng: np.random.Generator, noise: dict[str, float], **kw: Any) -> Any:
     from estimators.process_monitor import MonitorParams, ProcessMonitor
+    from harness.eccentricity_loop import ObserverForceSource
     from machine.process import ProcessMachine
-    from server.pipeline.eccentricity_loop import ObserverForceSource
 
     machine = ProcessMachine(program, rng=rng, **kw)
     obs = ObserverForceSource(
@@ -570,7 +570,7 @@ _CODE = (
     "estimators/process_monitor.py",
     "machine",
     "common",
-    "server/pipeline/eccentricity_loop.py",
+    "harness/eccentricity_loop.py",
 )
 
 

@@ -27,6 +27,13 @@ import numpy as np
 
 from estimators.wear_monitor import ToolLifeMonitor, ToolLifeParams
 from estimators.wear_observer import AdaptiveWearObserver, WearObserverRecord
+from harness.wear_clock import (
+    SAMPLE_TIME_MIN,
+    AcceleratedToolWear,
+    DesignModel,
+    design_linear_model,
+    observer_params,
+)
 from machine.tool_wear import (
     DEFAULT_WEAR_PARAMS,
     VB_LIMIT_MM,
@@ -36,13 +43,6 @@ from machine.tool_wear import (
     crater_limit_mm,
 )
 from server.experiments.reproduction import Check, Reproduction, Row, Section
-from server.pipeline.wear_clock import (
-    SAMPLE_TIME_MIN,
-    AcceleratedToolWear,
-    DesignModel,
-    design_linear_model,
-    observer_params,
-)
 
 NAME = "tool-wear"
 SOURCE = "seed 004 (Danai & Ulsoy, Part I) Tables 1, 3, 4; sensorless tool life (issue 7)"

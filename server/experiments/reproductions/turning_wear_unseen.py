@@ -2,14 +2,16 @@
 ``cutwatch reproduce turning-wear``.
 
 Per signal set and outer protocol (leave one tool out; leave k = 2, 3, 4 tools out, 10
-splits each): the hybrid's MAE (median and range over the splits) beside each baseline's,
-the ratios to the baselines per split, coverage and width of the CV+ intervals; on
-leave-one-tool-out also MAE at the measured VB points, per cutting-condition group,
-the tools entered part-way, the remaining life at half-life and the configurations the
-folds chose. Checks (the issue's targets) on leave-one-tool-out pooled over the nine
-tools, for the feed force and the drive signals. ``quick``: the feed force, two tools
-left out one at a time, the protocol's first candidate list (40 configurations); its
-checks are computed the same way and not expected to hold.
+splits each): the hybrid's MAE (median and range over the splits) beside each
+baseline's, the ratios to the baselines per split, coverage and width of the CV+
+intervals; on leave-one-tool-out also MAE at the measured VB points, per cutting-
+condition group, the tools entered part-way, the remaining life at half-life and the
+configurations the folds chose. The condition groups come from the data (median spindle
+speed and feed per tool, :func:`server.pipeline.wear_nested.condition_groups`). Checks
+(the issue's targets) on leave-one-tool-out pooled over the nine tools, for the feed
+force and the drive signals. ``quick``: the feed force, two tools left out one at a
+time, the protocol's first candidate list (40 configurations); its checks are computed
+the same way and not expected to hold.
 """
 
 from __future__ import annotations
@@ -126,19 +128,19 @@ def loto_rows(s: str, v: dict[str, Any]) -> list[Row]:
                 f"coverage {t['coverage']:.2f}, width {t['width']:.0f} um",
             )
         )
-    for g in ("other", "main"):
-        if f"group_{g}" in v:
-            gv = v[f"group_{g}"]
-            who = "tools 3, 5, 16" if g == "other" else "the other tools"
-            rows.append(
-                Row(
-                    f"{pre}.group_{g}.mae",
-                    gv["mae"],
-                    gv["mae_linear"],
-                    "um",
-                    f"{who}, mean of per-tool MAE; paper = linear; gbr5 {gv['mae_gbr5']:.1f}",
-                )
+    for g, gv in v.get("groups", {}).items():
+        who = ", ".join(str(t) for t in gv["tools"])
+        rows.append(
+            Row(
+                f"{pre}.group.{g}.mae",
+                gv["mae"],
+                gv["mae_linear"],
+                "um",
+                f"tools {who} (spindle speed and feed {g}, CNC units, grouped from the "
+                f"data), mean of per-tool MAE; paper = linear; gbr5 {gv['mae_gbr5']:.1f}, "
+                f"prior {gv['mae_prior']:.1f}",
             )
+        )
     rows += [
         Row(
             f"{pre}.entry.record",
@@ -215,10 +217,18 @@ def checks(s: str, v: dict[str, Any]) -> list[Check]:
 def section(path: Any, quick: bool, bar: Any) -> tuple[list[Row], list[Check]]:
     """Run the nested evaluation and turn it into rows and checks."""
     from estimators.wear_hybrid import candidates
-    from server.pipeline.wear_nested import SETS, evaluate, load, outer_splits, summarise
+    from server.pipeline.wear_nested import (
+        SETS,
+        condition_groups,
+        evaluate,
+        load,
+        outer_splits,
+        summarise,
+    )
 
     sets = QUICK_SETS if quick else tuple(SETS)
     table = load(path, sets)
+    groups = condition_groups(table)
     splits = [("loto", (t,)) for t in QUICK_TOOLS] if quick else outer_splits(table.tools)
     res = evaluate(
         table,
@@ -230,7 +240,7 @@ def section(path: Any, quick: bool, bar: Any) -> tuple[list[Row], list[Check]]:
     rows: list[Row] = []
     chk: list[Check] = []
     for s in sets:
-        summ = summarise(res[s])
+        summ = summarise(res[s], groups)
         for p, v in summ.items():
             rows += protocol_rows(s, p, v)
             if p == "loto":

@@ -1,5 +1,6 @@
 """The kept history over REST: ``GET /api/events``, ``POST /api/events/{id}/ack``,
-``GET /api/tool-life``.
+``GET /api/tool-life``; ``POST /api/tool-life/vb``: the VB measured at a tool change,
+which calibrates the live wear map of a machine with a spindle's power (issue 35 item 7).
 
 Reads are the viewer's, the acknowledgement the operator's. The store
 (:mod:`server.records.history`) is the loop's (``LiveLoop.history``); its calls run in a
@@ -30,6 +31,8 @@ from server.service.schemas import (
     HistoryEvents,
     ToolLife,
     ToolLives,
+    ToolVb,
+    ToolVbLabel,
     error_responses,
 )
 
@@ -138,3 +141,18 @@ async def tool_life(
     h = history_of(lp)
     total, items = await asyncio.to_thread(h.tool_life, tool=tool, limit=limit, offset=offset)
     return ToolLives(total=total, items=[ToolLife.model_validate(r) for r in items])
+
+
+@router.post(
+    "/api/tool-life/vb",
+    summary="enter the flank wear measured on a tool at its change: it labels the tool's "
+    "latest ended life and refits that tool's wear map (the machine's own labelled lives)",
+    response_model=ToolVbLabel,
+    responses=error_responses(413, 422),
+    tags=["tool-life"],
+)
+async def tool_vb(lp: Live, role: Annotated[str, Depends(operator)], body: ToolVb) -> ToolVbLabel:
+    # a pipeline without the wear part, a tool with no ended life, a VB out of range: a
+    # ParameterError, answered 422 naming the field
+    out = await asyncio.to_thread(lp.label_tool_wear, body.tool, body.vb_mm)
+    return ToolVbLabel.model_validate(out)

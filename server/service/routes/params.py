@@ -10,26 +10,31 @@ from common.errors import ParameterError
 from server.pipeline.knobs import Knob
 from server.service.deps import Authorised, Knobs
 from server.service.http_errors import echo, error
-from server.service.schemas import Params, ParamsPatch, error_responses
+from server.service.schemas import (
+    BoolKnob,
+    ChoiceKnob,
+    NumberKnob,
+    Params,
+    ParamsPatch,
+    error_responses,
+)
 
 router = APIRouter(prefix="/api/params", tags=["params"], responses=error_responses())
 
 
-def _knob_dict(k: Knob) -> dict[str, Any]:
-    d: dict[str, Any] = {"value": k.value, "unit": k.unit, "doc": k.doc}
-    if isinstance(k.value, bool):
-        d["type"] = "bool"
-    elif k.choices is not None:
-        d["type"] = "choice"
-        d["choices"] = list(k.choices)
-    else:
-        d["type"] = "number"
-        d["min"], d["max"] = k.min, k.max
-    return d
+def _knob_out(k: Knob) -> NumberKnob | BoolKnob | ChoiceKnob:
+    """A knob as ``/api/params`` lists it: its kind, value, unit, doc and what it allows."""
+    v = k.value
+    if isinstance(v, bool):
+        return BoolKnob(type="bool", value=v, unit=k.unit, doc=k.doc)
+    if isinstance(v, str):  # a choice (Knob.kind): the only knobs holding a string
+        choices = list(k.choices or ())
+        return ChoiceKnob(type="choice", value=v, choices=choices, unit=k.unit, doc=k.doc)
+    return NumberKnob(type="number", value=v, min=k.min, max=k.max, unit=k.unit, doc=k.doc)
 
 
 def _params(knobs: dict[str, Knob]) -> Params:
-    return Params.model_validate({name: _knob_dict(k) for name, k in knobs.items()})
+    return Params({name: _knob_out(k) for name, k in knobs.items()})
 
 
 def _check_knob(name: str, k: Knob, value: Any) -> tuple[Any, dict[str, Any] | None]:

@@ -11,7 +11,6 @@ import asyncio
 import json
 import time
 from pathlib import Path
-from typing import Any
 
 from fastapi import APIRouter, HTTPException
 from fastapi.responses import FileResponse
@@ -106,32 +105,35 @@ async def record(body: RecordBody, lp: Recordings, s: Config, st: Store) -> Reco
     return RecordState(recording=RecordInfo.model_validate(started.summary()))
 
 
-def recordings(st: DataStore, lp: RecordingControl) -> list[dict[str, Any]]:
+def recordings(st: DataStore, lp: RecordingControl) -> list[RecordInfo]:
     """The recording in progress (if any) and those on disk, newest first."""
-    out: list[dict[str, Any]] = []
+    out: list[RecordInfo] = []
     rec = lp.recording
     if rec is not None and rec.active:
-        out.append(rec.summary())
+        out.append(RecordInfo.model_validate(rec.summary()))
     files = sorted(st.list("recordings", "*.csv"), key=lambda p: p.stat().st_mtime, reverse=True)
-    out.extend(_on_disk(p) for p in files if p.name not in {o["name"] for o in out})
+    out.extend(_on_disk(p) for p in files if p.name not in {o.name for o in out})
     return out
 
 
-def _on_disk(p: Path) -> dict[str, Any]:
-    info: dict[str, Any] = {"name": p.name, "samples": None, "seconds": None, "active": False}
-    info["bytes"] = p.stat().st_size
+def _on_disk(p: Path) -> RecordInfo:
+    """A recording on disk: its size, and its samples, duration and end from its sidecar
+    (``end`` says so when the sidecar cannot be read)."""
+    size = p.stat().st_size
     try:
         side = json.loads(p.with_suffix(".json").read_text())
         n = int(side["recording"]["samples"])
-        info.update(samples=n, seconds=n * float(side["sample_time"]), end=side["recording"]["end"])
+        seconds = n * float(side["sample_time"])
+        end = side["recording"]["end"]
     except (OSError, ValueError, KeyError, TypeError):
-        info["end"] = "no readable sidecar"
-    return info
+        return RecordInfo(name=p.name, samples=None, seconds=None, bytes=size, active=False,
+                          end="no readable sidecar")  # fmt: skip
+    return RecordInfo(name=p.name, samples=n, seconds=seconds, bytes=size, active=False, end=end)
 
 
 @router.get("/records", summary="recordings (in progress and on disk)", response_model=Records)
 def list_records(lp: Recordings, st: Store) -> Records:
-    return Records.model_validate({"records": recordings(st, lp)})
+    return Records(records=recordings(st, lp))
 
 
 def _recording_csv(st: DataStore, name: str) -> Path:

@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from common.arrays import F64
+from common.errors import ParameterError
 from estimators.esc import EscParams, EscState, ExtremumSeekingController, positive_polar
 from estimators.fast_tuner import FastTuner, FastTunerParams, FastTunerState
 from estimators.force_observer import LoadParams, TorsionEstimator, TorsionState
@@ -92,12 +93,11 @@ class ObserverForceSource:
         rng: np.random.Generator | None = None,
     ) -> None:
         from estimators.force_observer import ObserverParams
-        from server.errors import CutwatchError
 
         if not (math.isfinite(current_noise) and current_noise >= 0.0):
-            raise CutwatchError(f"current_noise: expected a value >= 0 A, got {current_noise!r}")
+            raise ParameterError("current_noise", "a value >= 0 A", current_noise)
         if current_noise > 0.0 and rng is None:
-            raise CutwatchError("current_noise > 0 needs a seeded rng (numpy Generator)")
+            raise ParameterError("rng", "a seeded numpy Generator when current_noise > 0", rng)
         self.current_noise = float(current_noise)
         self.rng = rng
         dp = drives
@@ -359,12 +359,10 @@ class EccentricityLoop:
         force_source: ForceSource | None = None,
         machine: MillingMachine | None = None,
     ) -> None:
-        from server.errors import CutwatchError
-
         if tuner not in ("esc", "fast", "off"):
-            raise CutwatchError(f"tuner: expected 'esc', 'fast' or 'off', got {tuner!r}")
+            raise ParameterError("tuner", "'esc', 'fast' or 'off'", tuner)
         if cost_axis not in ("x", "y"):
-            raise CutwatchError(f"cost_axis: expected 'x' or 'y', got {cost_axis!r}")
+            raise ParameterError("cost_axis", "'x' or 'y'", cost_axis)
         self.machine = machine if machine is not None else MillingMachine(milling)
         self.tuner = tuner
         self.esc = ExtremumSeekingController(esc)
