@@ -226,6 +226,16 @@ class Snapshot(BaseModel):
 class _KnobBase(BaseModel):
     unit: str
     doc: str
+    parts: list[str] = Field(
+        default_factory=list,
+        description="the parts of the running pipeline that read it ('simulator': the "
+        "simulated stage)",
+    )
+    waiting: str = Field(
+        "",
+        description="why none of those parts runs now (the value is kept for when one "
+        "does); empty: one runs",
+    )
 
 
 class NumberKnob(_KnobBase):
