@@ -228,9 +228,10 @@ def run_plant(
 
         soak = True
         if progress:
-            print(f"  plant: recording {seconds + 60:g} s of a machining centre's trace",
+            print(f"  plant: recording {seconds + 120:g} s of a machining centre's trace",
                   file=sys.stderr, flush=True)  # fmt: skip
-        truth = record(log, seconds=seconds + 60.0)
+        # longer than the window, the start and the rows' last check: the feed must not end
+        truth = record(log, seconds=seconds + 120.0)
     else:
         subprocess.run(
             _cutwatch("simulate", "--out", str(log), "--seconds", str(seconds + 120)),
@@ -325,6 +326,10 @@ def run_plant(
                 out["monitor.events_in_trace"] = len(truth["events"])
                 out["monitor.teach_parts"] = truth["teach_parts"]
                 out["monitor.feed_s"] = t_feed
+                # one machine's events beside the truth (kind, time), to see what was raised
+                out["monitor.truth"] = [[e["kind"], round(e["t"], 2)] for e in truth["events"]]
+                first = raised.get(plant.names[0], [])
+                out["monitor.raised_m000"] = [[e["kind"], round(float(e["t"]), 2)] for e in first]
     finally:
         if events is not None:
             events.stop()
