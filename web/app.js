@@ -413,7 +413,8 @@ const control = (action, extra = {}) => call("POST", "/api/control", { action, .
 function knobControl(name, k) {
   const label = document.createElement("label");
   label.textContent = name.replaceAll("_", " ");
-  const parts = (k.parts || []).map((p) => (p === "simulator" ? "the simulated stage" : `the ${p} part`));
+  const named = { simulator: "the simulated stage", spindle_steps: "the scenario's spindle steps" };
+  const parts = (k.parts || []).map((p) => named[p] || `the ${p} part`);
   label.title = [k.doc, parts.length ? `read by ${parts.join(" and ")}` : "", k.waiting || ""]
     .filter(Boolean).join("\n");
   label.htmlFor = `knob-${name}`;

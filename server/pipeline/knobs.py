@@ -38,6 +38,11 @@ KnobValue = float | bool | str
 #: the reader of the simulated stage's knobs (the pipeline itself, when its source is the
 #: simulator: ``MeasurementSource.knobs_apply``), beside the parts' names
 SIMULATOR = "simulator"
+#: the readers that are not parts, in words
+READERS = {
+    SIMULATOR: "the simulated stage",
+    "spindle_steps": "the periodic spindle steps of the stage's scenario script",
+}
 
 
 @dataclass(frozen=True)
@@ -153,7 +158,12 @@ KNOB_TABLE: tuple[Knob, ...] = (
         "workpiece mass removed per second (default scenario)",
         ("workpiece",),
     ),
-    _flag("spindle_changes", True, "spindle steps to 80 % every 15 s (default scenario)", _SIM),
+    _flag(
+        "spindle_changes",
+        True,
+        "spindle steps to 80 % every 15 s (default scenario)",
+        ("spindle_steps",),  # the script's periodic steps (server/pipeline/scenarios.py)
+    ),
     _number("current_noise", 0.0, 0.0, 0.05, "A", "rms noise of the current measurement", _SIM),
     _number(
         "wear_rate",
@@ -297,8 +307,8 @@ def not_read(name: str, offered: Collection[str]) -> tuple[str, str]:
         "once its machine is described)"
     )
     readers = list(KNOBS[name].parts)
-    if readers == [SIMULATOR]:
-        who = "the simulated stage"
+    if readers[0] in READERS and len(readers) == 1:
+        who = READERS[readers[0]]
     elif len(readers) == 1:
         who = f"the {readers[0]} part"
     else:

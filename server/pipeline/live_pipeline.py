@@ -612,6 +612,7 @@ class LivePipeline:
         readers = {p.name for p in self._parts}
         if self.source.knobs_apply:
             readers.add(SIMULATOR)
+            readers.update(self.script.knob_readers)
         out: dict[str, Knob] = {}
         for name, k in self._knobs.knobs().items():
             mine = tuple(p for p in k.parts if p in readers)
@@ -621,7 +622,7 @@ class LivePipeline:
 
     def _knob_waiting(self, parts: tuple[str, ...]) -> str:
         """Why none of ``parts`` runs now (``""``: one does)."""
-        if SIMULATOR in parts or any(self._status[p].running for p in parts):
+        if any(p not in self._status or self._status[p].running for p in parts):
             return ""
         why = "; ".join(f"the {p} part does not run ({self._status[p].reason})" for p in parts)
         return f"{why}: the value is kept for when it runs"

@@ -23,7 +23,7 @@ BLOCK = 125
 
 
 def test_every_knob_names_parts_that_exist() -> None:
-    builtin = {name for name, _ in BUILTIN} | {SIMULATOR}
+    builtin = {name for name, _ in BUILTIN} | {SIMULATOR, "spindle_steps"}
     for k in KNOB_TABLE:
         assert k.parts and set(k.parts) <= builtin, (k.name, k.parts)
 
@@ -63,6 +63,8 @@ def test_the_stage_scenario_offers_every_knob_and_seed000_the_stages() -> None:
     assert set(LivePipeline("default").knobs()) == set(KNOBS)
     weight = LivePipeline("seed000-weight").knobs()
     assert set(weight) == {k.name for k in KNOB_TABLE if k.parts == (SIMULATOR,)}
+    assert "spindle_changes" not in weight  # no periodic steps in its script
+    assert LivePipeline("default").knobs()["spindle_changes"].parts == ("spindle_steps",)
     assert all(k.parts == (SIMULATOR,) and not k.waiting for k in weight.values())
     with pytest.raises(ParameterError, match="the process, spindle and axis_monitor parts"):
         LivePipeline("seed000-weight").set_knob("teach_parts", 2)
