@@ -10,23 +10,28 @@ from pathlib import Path
 
 import pytest
 
-from server.experiments.benchmarks._plant_centres import MATCH_S, record, score
+from server.experiments.benchmarks._plant_centres import EARLY_S, MATCH_S, record, score
 
 
 def test_score_counts_each_true_event_once_per_machine() -> None:
-    truth = [{"kind": "breakage", "t": 100.0}, {"kind": "collision", "t": 200.0},
-             {"kind": "missing_tool", "t": 295.0}]  # fmt: skip
+    truth = [{"kind": "breakage", "t": 100.0, "line": 60},
+             {"kind": "collision", "t": 200.0, "line": 150},
+             {"kind": "missing_tool", "t": 295.0, "line": 60}]  # fmt: skip
     raised = {
-        "a": [{"kind": "breakage", "t": 100.4}, {"kind": "breakage", "t": 100.5},
-              {"kind": "collision", "t": 200.1}],
-        "b": [{"kind": "collision", "t": 199.0}, {"kind": "missing_tool", "t": 250.0}],
+        "a": [{"kind": "breakage", "t": 100.4, "line": 60},
+              {"kind": "breakage", "t": 100.5, "line": 60},
+              {"kind": "collision", "t": 200.1, "line": 150}],
+        # a worker that joined 12 s late: its clock 12 s behind the log's
+        "b": [{"kind": "collision", "t": 188.0, "line": 150},
+              {"kind": "breakage", "t": 99.0, "line": 70},
+              {"kind": "missing_tool", "t": 250.0, "line": 60}],
     }  # fmt: skip
     # the missing tool at 295 s is not due: the feed reached 300 s, less MATCH_S
     sc = score(truth, raised, t_end=300.0)
-    assert MATCH_S == 10.0
-    assert sc["events_due"] == 4 and sc["found"] == 2
-    # a: the second breakage is false; b: a collision before its truth, a missing tool
-    assert sc["false"] == 3 and sc["detection"] == 0.5
+    assert MATCH_S == 10.0 and EARLY_S == 25.0
+    assert sc["events_due"] == 4 and sc["found"] == 3
+    # a: the second breakage; b: a breakage on another line, a missing tool
+    assert sc["false"] == 3 and sc["detection"] == 0.75
 
 
 def test_a_recorded_trace_is_a_described_centre_log_with_its_truth(tmp_path: Path) -> None:

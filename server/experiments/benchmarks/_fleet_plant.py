@@ -193,7 +193,9 @@ class _Events:
                 return
             if d.get("kind") in kinds:
                 name = m.topic.split("/")[1]
-                self.raised.setdefault(name, []).append({"kind": d["kind"], "t": d["t"]})
+                self.raised.setdefault(name, []).append(
+                    {"kind": d["kind"], "t": d["t"], "line": d.get("line")}
+                )
 
         self.client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2)
         self.client.on_message = on_message
@@ -327,9 +329,13 @@ def run_plant(
                 out["monitor.teach_parts"] = truth["teach_parts"]
                 out["monitor.feed_s"] = t_feed
                 # one machine's events beside the truth (kind, time), to see what was raised
-                out["monitor.truth"] = [[e["kind"], round(e["t"], 2)] for e in truth["events"]]
+                out["monitor.truth"] = [
+                    [e["kind"], round(e["t"], 2), e["line"]] for e in truth["events"]
+                ]
                 first = raised.get(plant.names[0], [])
-                out["monitor.raised_m000"] = [[e["kind"], round(float(e["t"]), 2)] for e in first]
+                out["monitor.raised_m000"] = [
+                    [e["kind"], round(float(e["t"]), 2), e["line"]] for e in first
+                ]
     finally:
         if events is not None:
             events.stop()

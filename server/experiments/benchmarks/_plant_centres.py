@@ -25,6 +25,11 @@ import numpy as np
 #: longest a detector waits (one block of the program) is far shorter; more means
 #: another part's event
 MATCH_S = 10.0
+#: what a raised event may lead the truth's time [s]: a broker source's clock starts at
+#: the first block its worker receives, so a worker that joined the feed late stamps its
+#: events early by that delay; less than a part of the program (about 32 s), and the
+#: event must be on the true event's G-code line
+EARLY_S = 25.0
 
 
 def record(
@@ -92,9 +97,10 @@ def score(
     truth: list[dict[str, Any]], raised: dict[str, list[dict[str, Any]]], t_end: float
 ) -> dict[str, Any]:
     """Per machine, each true event that the feed reached (``t < t_end``, the log's time
-    the window covered) is found when the machine raised an event of its kind at or after
-    it, within :data:`MATCH_S`; every other raised event is false. ``raised``: per
-    machine, its events as ``{"kind", "t"}`` (the event's time on the log's clock)."""
+    the window covered) is found when the machine raised an event of its kind on its
+    G-code line from :data:`EARLY_S` before it to :data:`MATCH_S` after it (the worker's
+    clock may lag the log's by the delay it joined the feed with); every other raised
+    event is false. ``raised``: per machine, its events as ``{"kind", "t", "line"}``."""
     due = [e for e in truth if e["t"] < t_end - MATCH_S]
     found = 0
     false = 0
@@ -102,7 +108,8 @@ def score(
         used: set[int] = set()
         for e in due:
             hit = next((i for i, r in enumerate(evs) if i not in used and r["kind"] == e["kind"]
-                        and e["t"] <= r["t"] <= e["t"] + MATCH_S), None)  # fmt: skip
+                        and r.get("line") == e["line"]
+                        and e["t"] - EARLY_S <= r["t"] <= e["t"] + MATCH_S), None)  # fmt: skip
             if hit is not None:
                 used.add(hit)
                 found += 1
@@ -112,4 +119,4 @@ def score(
             "detection": found / n if n else float("nan")}  # fmt: skip
 
 
-__all__ = ["MATCH_S", "record", "score"]
+__all__ = ["EARLY_S", "MATCH_S", "record", "score"]
