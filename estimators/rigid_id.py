@@ -73,7 +73,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from numba import njit
@@ -314,11 +314,38 @@ class RigidIdRecord:
     direction_differs: bool = False
 
 
+class KinematicsIn(NamedTuple):
+    """One block's samples as :func:`_kinematics_kernel` reads them (read only)."""
+
+    q: F64  # position
+    tau: F64  # effort
+    vg: F64  # the given velocity (read with ``given_v``)
+    ag: F64  # the given acceleration (read with ``given_a``)
+    given_v: bool  # velocity from the feed, else central differences of q
+    given_a: bool  # acceleration from the feed, else central differences of q
+    ts: float  # sample time [s]
+
+
+class KinematicsOut(NamedTuple):
+    """The kernel's per-sample outputs (filled in place), one sample back."""
+
+    q: F64  # position
+    v: F64  # velocity
+    a: F64  # acceleration
+    j: F64  # jerk
+    tau: F64  # effort
+
+
 @njit(cache=True)
-def _kinematics_kernel(q, tau, vg, ag, prev, given_v, given_a, ts,
-                       o_q, o_v, o_a, o_j, o_tau):  # fmt: skip  # pragma: no cover
+def _kinematics_kernel(
+    inp: KinematicsIn, prev: F64, out: KinematicsOut
+) -> None:  # pragma: no cover
     """Per sample: the raw position, velocity, acceleration, jerk and effort, all
-    referred to the previous sample (central differences)."""
+    referred to the previous sample (central differences); ``prev`` (PV_*) is updated
+    in place."""
+    q, tau, vg, ag = inp.q, inp.tau, inp.vg, inp.ag
+    given_v, given_a, ts = inp.given_v, inp.given_a, inp.ts
+    o_q, o_v, o_a, o_j, o_tau = out.q, out.v, out.a, out.j, out.tau
     for k in range(len(q)):
         if prev[PV_SEEN] == 0.0:
             prev[PV_Q1] = prev[PV_Q2] = q[k]
@@ -566,11 +593,18 @@ class RigidIdentifier:
         self, st: RigidIdState, a: dict[str, Any], n: int, t_out: F64
     ) -> tuple[_Rows, F64]:
         pr = self.params
-        outs = [np.empty(n) for _ in range(5)]
-        _kinematics_kernel(a["q"], a["tau"], a["qd"], a["qdd"], st.prev,
-                           pr.velocity == "given", pr.acceleration == "given",
-                           pr.sample_time, *outs)  # fmt: skip
-        q, v, acc, jerk, tau = outs
+        out = KinematicsOut(np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty(n))
+        inp = KinematicsIn(
+            q=a["q"],
+            tau=a["tau"],
+            vg=a["qd"],
+            ag=a["qdd"],
+            given_v=pr.velocity == "given",
+            given_a=pr.acceleration == "given",
+            ts=float(pr.sample_time),
+        )
+        _kinematics_kernel(inp, st.prev, out)
+        q, v, acc, jerk, tau = out
         if math.isnan(st.stats[ST_START_T]) and n:
             st.stats[ST_START_T] = float(a["t"][0])
         return _Rows(t_out, q, v, acc, jerk), tau
