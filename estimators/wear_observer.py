@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -241,33 +242,56 @@ def _covariance_trace(P: F64, U: F64, Dd: F64, use_ud: bool) -> float:  # pragma
     return tr
 
 
+class ObserverSettings(NamedTuple):
+    """The observer's settings as :func:`_observer_block` reads them (read only)."""
+
+    beta: float  # forgetting factor
+    s1: float  # output scale of the regressor (seed004 (28))
+    s2: float  # input scale of the regressor
+    use_ud: bool  # U-D factorised update, else the plain covariance update
+    constrained: bool  # project the estimate on ``bounds`` (seed004 (29))
+    p_max: float  # ceiling of the covariance
+    bounds: F64  # (5, 2) Table 2's bounds (unused unless ``constrained``)
+    ftol: float  # relative feed change taken as a feed change
+
+
+class ObserverArrays(NamedTuple):
+    """The observer's state arrays, updated in place by :func:`_observer_block`."""
+
+    theta: F64  # (6,) scaled estimate
+    P: F64  # (6, 6) covariance (plain update)
+    U: F64  # (6, 6) its U factor (U-D update)
+    Dd: F64  # (6,) its D factor (U-D update)
+    dy_hist: F64  # (3,) past dy, newest first
+    u_hist: F64  # (3,) past feeds, newest first
+    xh: F64  # (3,) x0_hat
+    misc: F64  # D, offset, last u, last y, started, samples
+
+
+class ObserverOut(NamedTuple):
+    """The kernel's per-sample outputs (filled in place)."""
+
+    x: F64  # (n, 3) x0_hat(k) as estimated at k-1
+    theta: F64  # (n, 6) unscaled a1..a3, b1..b3
+    dy: F64  # (n,) y - D u
+    D: F64  # (n,) the static gain D
+    res: F64  # (n,) the a-priori residual (0 where no update was made)
+    tr: F64  # (n,) trace of the covariance
+
+
 @njit(cache=True)
 def _observer_block(
-    y: F64,
-    u: F64,
-    theta: F64,
-    P: F64,
-    U: F64,
-    Dd: F64,
-    dy_hist: F64,
-    u_hist: F64,
-    xh: F64,
-    misc: F64,
-    beta: float,
-    s1: float,
-    s2: float,
-    use_ud: bool,
-    constrained: bool,
-    p_max: float,
-    bounds: F64,
-    ftol: float,
-    out_x: F64,
-    out_th: F64,
-    out_dy: F64,
-    out_D: F64,
-    out_res: F64,
-    out_tr: F64,
+    y: F64, u: F64, st: ObserverArrays, m: ObserverSettings, out: ObserverOut
 ) -> None:  # pragma: no cover
+    """The observer over the block (``y`` force, ``u`` feed): ``st`` updated in place,
+    ``out`` filled."""
+    theta, P, U, Dd = st.theta, st.P, st.U, st.Dd
+    dy_hist, u_hist, xh, misc = st.dy_hist, st.u_hist, st.xh, st.misc
+    beta, s1, s2, use_ud, constrained = m.beta, m.s1, m.s2, m.use_ud, m.constrained
+    p_max, bounds, ftol = m.p_max, m.bounds, m.ftol
+    out_x, out_th, out_dy, out_D, out_res, out_tr = (
+        out.x, out.theta, out.dy, out.D, out.res, out.tr
+    )  # fmt: skip
     phi = np.empty(6)
     th_u = np.empty(6)
     # dy = y - D u (seed004 (24)); RLS (seed004 (20)-(21)) on phi(k-1) (seed004 (28)); deadbeat
@@ -411,39 +435,28 @@ class AdaptiveWearObserver:
             state.misc.copy(),
         )
         n = len(y)
-        out_x = np.empty((n, 3))
-        out_th = np.empty((n, 6))
-        out_dy = np.empty(n)
-        out_D = np.empty(n)
-        out_res = np.empty(n)
-        out_tr = np.empty(n)
-        bounds = p.constraints.as_array() if p.constraints is not None else np.zeros((5, 2))
-        _observer_block(
-            y,
-            u,
-            th,
-            P,
-            U,
-            Dd,
-            dyh,
-            uh,
-            xh,
-            misc,
-            float(p.forgetting),
-            float(p.scale_output),
-            float(p.scale_input),
-            bool(p.use_ud),
-            p.constraints is not None,
-            float(p.p_max),
-            bounds,
-            float(p.feed_tolerance),
-            out_x,
-            out_th,
-            out_dy,
-            out_D,
-            out_res,
-            out_tr,
+        out = ObserverOut(
+            x=np.empty((n, 3)),
+            theta=np.empty((n, 6)),
+            dy=np.empty(n),
+            D=np.empty(n),
+            res=np.empty(n),
+            tr=np.empty(n),
         )
+        bounds = p.constraints.as_array() if p.constraints is not None else np.zeros((5, 2))
+        settings = ObserverSettings(
+            beta=float(p.forgetting),
+            s1=float(p.scale_output),
+            s2=float(p.scale_input),
+            use_ud=bool(p.use_ud),
+            constrained=p.constraints is not None,
+            p_max=float(p.p_max),
+            bounds=bounds,
+            ftol=float(p.feed_tolerance),
+        )
+        arrays = ObserverArrays(th, P, U, Dd, dyh, uh, xh, misc)
+        _observer_block(y, u, arrays, settings, out)
+        out_x, out_th, out_dy, out_D, out_res, out_tr = out
         wear = None if p.transform is None else out_x @ np.asarray(p.transform).T
         new = WearObserverState(
             theta=th, P=P, U=U, Dd=Dd, dy_hist=dyh, u_hist=uh, x0_hat=xh, misc=misc
