@@ -386,6 +386,26 @@ class AdaptiveWearObserver:
 
     def __init__(self, params: WearObserverParams) -> None:
         self.params = params
+        self._settings_of: tuple[WearObserverParams, ObserverSettings] | None = None
+
+    def _settings(self) -> ObserverSettings:
+        """The kernel's settings of :attr:`params` (built once per params object: the
+        params are frozen, and a block is only ~60 us)."""
+        p = self.params
+        if self._settings_of is None or self._settings_of[0] is not p:
+            bounds = p.constraints.as_array() if p.constraints is not None else np.zeros((5, 2))
+            settings = ObserverSettings(
+                beta=float(p.forgetting),
+                s1=float(p.scale_output),
+                s2=float(p.scale_input),
+                use_ud=bool(p.use_ud),
+                constrained=p.constraints is not None,
+                p_max=float(p.p_max),
+                bounds=bounds,
+                ftol=float(p.feed_tolerance),
+            )
+            self._settings_of = (p, settings)
+        return self._settings_of[1]
 
     def initial_state(self) -> WearObserverState:
         p = self.params
@@ -443,19 +463,8 @@ class AdaptiveWearObserver:
             res=np.empty(n),
             tr=np.empty(n),
         )
-        bounds = p.constraints.as_array() if p.constraints is not None else np.zeros((5, 2))
-        settings = ObserverSettings(
-            beta=float(p.forgetting),
-            s1=float(p.scale_output),
-            s2=float(p.scale_input),
-            use_ud=bool(p.use_ud),
-            constrained=p.constraints is not None,
-            p_max=float(p.p_max),
-            bounds=bounds,
-            ftol=float(p.feed_tolerance),
-        )
         arrays = ObserverArrays(th, P, U, Dd, dyh, uh, xh, misc)
-        _observer_block(y, u, arrays, settings, out)
+        _observer_block(y, u, arrays, self._settings(), out)
         out_x, out_th, out_dy, out_D, out_res, out_tr = out
         wear = None if p.transform is None else out_x @ np.asarray(p.transform).T
         new = WearObserverState(
