@@ -26,7 +26,9 @@ a spread of ``between_log_sd`` (the empirical spread once three lives are in) - 
 the rate a random walk, advanced by the **seconds of cutting** of each execution (the
 rate is indexed by cutting time, VB per second in the cut). A Kalman filter over the
 readings at the gain's median, a 5-S.D. innovation gate; the 95 % interval widens the
-filter's by the gain's spread (``VB - VB_t`` scales as ``1 / a``).
+filter's by the gain's spread (``VB - VB_t`` scales as ``1 / a``) and by ``VB_t``'s
+(it shifts every reading alike): both are common to all readings of a tool, so the
+filter cannot average them away.
 
 **A new instance** (the CNC's trace does not say when a worn tool was replaced): two
 consecutive readings of a tool that fall below the filter's prediction by more than the
@@ -229,7 +231,7 @@ class CentreWear:
         a, _, _ = self.gain(st, key)
         h = np.array([a, 0.0])
         pred = a * (tf.x[0] - p.vb_taught)
-        r = p.reading_sd**2 + (a * p.vb_taught_sd) ** 2
+        r = p.reading_sd**2  # VB_t's uncertainty is common to all readings: in the interval
         s = float(h @ tf.P @ h) + r
         nu = z - pred
         if nu < -p.gate * math.sqrt(s) and -0.5 <= z <= p.fresh_band:
@@ -314,9 +316,11 @@ class CentreWear:
         e = math.exp(Z95 * max(sds))
         vb, sd = float(tf.x[0]), math.sqrt(max(float(tf.P[0, 0]), 0.0))
         lo_f, hi_f = vb - Z95 * sd, vb + Z95 * sd
-        t0 = p.vb_taught
-        hi = t0 + (hi_f - t0) * e if hi_f > t0 else hi_f
-        lo = t0 + (lo_f - t0) / e if lo_f > t0 else lo_f
+        # the gain's spread and VB_t's are common to every reading of the tool (systematic,
+        # not averaged away by the filter): VB - VB_t scales as 1 / a, VB_t shifts all
+        t0, dt0 = p.vb_taught, Z95 * p.vb_taught_sd
+        hi = (t0 + (hi_f - t0) * e if hi_f > t0 else hi_f) + dt0
+        lo = (t0 + (lo_f - t0) / e if lo_f > t0 else lo_f) - dt0
         rate = float(tf.x[1])
         life = (p.vb_limit - vb) / rate if rate > 0 else math.inf
         return {"vb": vb, "lo": max(lo, 0.0), "hi": hi, "rate": rate,

@@ -407,11 +407,18 @@ async function call(method, path, body) {
 
 const control = (action, extra = {}) => call("POST", "/api/control", { action, ...extra });
 
+// A knob of the running pipeline's parts (GET /api/params): its doc and the parts that
+// read it in the label's title; one whose parts are paused is greyed (data-waiting),
+// its reason in the title: a value set then is kept for when they run.
 function knobControl(name, k) {
   const label = document.createElement("label");
   label.textContent = name.replaceAll("_", " ");
-  label.title = k.doc;
+  const named = { simulator: "the simulated stage", spindle_steps: "the scenario's spindle steps" };
+  const parts = (k.parts || []).map((p) => named[p] || `the ${p} part`);
+  label.title = [k.doc, parts.length ? `read by ${parts.join(" and ")}` : "", k.waiting || ""]
+    .filter(Boolean).join("\n");
   label.htmlFor = `knob-${name}`;
+  label.dataset.waiting = k.waiting ? "true" : "false";
   const out = document.createElement("output");
   let input;
   if (k.type === "choice") {
@@ -461,7 +468,14 @@ async function loadControls() {
   const [params, sc] = await Promise.all([
     fetch("/api/params").then((r) => r.json()), fetch("/api/scenarios").then((r) => r.json())]);
   const form = $("knobs");
-  form.replaceChildren(...Object.entries(params).flatMap(([n, k]) => knobControl(n, k)));
+  const rows = Object.entries(params).flatMap(([n, k]) => knobControl(n, k));
+  if (!rows.length) {
+    const none = document.createElement("p");
+    none.className = "stat";
+    none.textContent = "No part of this machine reads a knob.";
+    rows.push(none);
+  }
+  form.replaceChildren(...rows);
   const sel = $("scenario");
   sel.replaceChildren(...Object.entries(sc.scenarios).map(([name, doc]) => {
     const o = document.createElement("option");

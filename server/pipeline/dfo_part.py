@@ -36,6 +36,7 @@ from server.pipeline.part import (
     Setup,
     Verdict,
     needs_band,
+    refuse,
 )
 from server.pipeline.stage_harmonics import make_dfo
 from server.pipeline.stage_part import COLORS, FORCE, StagePart
@@ -119,6 +120,10 @@ class DfoPart(LivePart):
         ),
     )
 
+    #: why the machine's trace does not carry what the DFO follows, in numbers (set by
+    #: the registry on the machining centre: :func:`server.pipeline.centre_rates.dfo_reason`)
+    rate_note: str = ""
+
     def __init__(self, stage: StagePart, frequencies: tuple[float, ...]) -> None:
         self.base = tuple(float(f) for f in frequencies)
         _check_band(self.base, stage.run.front.params.sample_time)
@@ -130,6 +135,8 @@ class DfoPart(LivePart):
         return tuple(f * ratio for f in self.base)
 
     def requires(self, machine: MachineView) -> Verdict:
+        if self.rate_note:
+            return refuse(self.rate_note)
         top = max(self._frequencies(machine.spindle_rpm), default=math.nan)
         return needs_band(machine, top, "the DFO's highest tooth-passing harmonic")
 

@@ -8,12 +8,22 @@ anything else that must refuse a knob value the same way.
 
 A :class:`Knob` is frozen: :meth:`KnobValues.knobs` hands out snapshots, so a caller
 cannot change a knob behind the pipeline's back.
+
+Each knob names the parts that read it (:attr:`Knob.parts`; :data:`SIMULATOR`: the
+simulated stage and its scenario's script, read when the source is the simulator). A
+pipeline offers the knobs of its own parts only
+(:meth:`server.pipeline.live_pipeline.LivePipeline.knobs`): on the machining centre its
+monitors' two (the spindle's and the axes'), not the stage's; a knob no part of the
+pipeline reads is refused, naming the parts that would (:func:`not_read`). A part of the
+pipeline that is paused (a band over the Nyquist frequency, a part it needs not running)
+keeps its knobs: a value set then is stored and applies when it runs again
+(:attr:`Knob.waiting` says so).
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator, Mapping
+from collections.abc import Collection, Iterator, Mapping
 from dataclasses import dataclass, replace
 
 from common.errors import ParameterError
@@ -24,6 +34,15 @@ from server.pipeline.eccentricity_part import FORCE_SOURCES, TUNERS
 BASE_RPM = 3000.0
 
 KnobValue = float | bool | str
+
+#: the reader of the simulated stage's knobs (the pipeline itself, when its source is the
+#: simulator: ``MeasurementSource.knobs_apply``), beside the parts' names
+SIMULATOR = "simulator"
+#: the readers that are not parts, in words
+READERS = {
+    SIMULATOR: "the simulated stage",
+    "spindle_steps": "the periodic spindle steps of the stage's scenario script",
+}
 
 
 @dataclass(frozen=True)
@@ -38,6 +57,12 @@ class Knob:
         Closed bounds of a number (None: a flag or a choice).
     choices
         The allowed strings of a choice (None otherwise).
+    parts
+        The parts that read it (:data:`SIMULATOR`: the simulated stage); a pipeline's
+        copy names only its own parts among them.
+    waiting
+        In a pipeline's copy: why none of its parts that read it runs now (the value is
+        kept for when one does); ``""``: one runs.
     """
 
     name: str
@@ -47,6 +72,8 @@ class Knob:
     unit: str
     doc: str
     choices: tuple[str, ...] | None = None
+    parts: tuple[str, ...] = ()
+    waiting: str = ""
 
     @property
     def kind(self) -> str:
@@ -86,16 +113,27 @@ class Knob:
         raise ParameterError(self.name, self.allowed, value)
 
 
-def _number(name: str, value: float, lo: float, hi: float, unit: str, doc: str) -> Knob:
-    return Knob(name, value, lo, hi, unit, doc)
+def _number(
+    name: str, value: float, lo: float, hi: float, unit: str, doc: str, parts: tuple[str, ...]
+) -> Knob:
+    return Knob(name, value, lo, hi, unit, doc, parts=parts)
 
 
-def _flag(name: str, value: bool, doc: str) -> Knob:
-    return Knob(name, value, None, None, "", doc)
+def _flag(name: str, value: bool, doc: str, parts: tuple[str, ...]) -> Knob:
+    return Knob(name, value, None, None, "", doc, parts=parts)
 
 
-def _choice(name: str, value: str, choices: tuple[str, ...], doc: str) -> Knob:
-    return Knob(name, value, None, None, "", doc, choices=choices)
+def _choice(
+    name: str, value: str, choices: tuple[str, ...], doc: str, parts: tuple[str, ...]
+) -> Knob:
+    return Knob(name, value, None, None, "", doc, choices=choices, parts=parts)
+
+
+_SIM = (SIMULATOR,)
+_ECC = ("eccentricity",)
+#: the process monitor on the stage's program, the spindle's on the centre's power and the axes'
+#: monitor on their process forces
+_MONITORS = ("process", "spindle", "axis_monitor")
 
 
 #: every knob with its default, bounds and doc (the single source of the bounds)
@@ -107,9 +145,10 @@ KNOB_TABLE: tuple[Knob, ...] = (
         6000.0,
         "rpm",
         "spindle speed (3000 rpm = the papers' 100/200 Hz force)",
+        _SIM,
     ),
-    _number("feed_scale", 1.0, 0.0, 3.0, "", "feed: scales the cutting force"),
-    _flag("weight_on", False, "seed 000's weight on the load"),
+    _number("feed_scale", 1.0, 0.0, 3.0, "", "feed: scales the cutting force", _SIM),
+    _flag("weight_on", False, "seed 000's weight on the load", _SIM),
     _number(
         "removal_rate",
         2.0,
@@ -117,9 +156,15 @@ KNOB_TABLE: tuple[Knob, ...] = (
         20.0,
         "%/s",
         "workpiece mass removed per second (default scenario)",
+        ("workpiece",),
     ),
-    _flag("spindle_changes", True, "spindle steps to 80 % every 15 s (default scenario)"),
-    _number("current_noise", 0.0, 0.0, 0.05, "A", "rms noise of the current measurement"),
+    _flag(
+        "spindle_changes",
+        True,
+        "spindle steps to 80 % every 15 s (default scenario)",
+        ("spindle_steps",),  # the script's periodic steps (server/pipeline/scenarios.py)
+    ),
+    _number("current_noise", 0.0, 0.0, 0.05, "A", "rms noise of the current measurement", _SIM),
     _number(
         "wear_rate",
         0.5,
@@ -127,6 +172,7 @@ KNOB_TABLE: tuple[Knob, ...] = (
         5.0,
         "min/s",
         "minutes of tool wear per second of machining (default scenario)",
+        ("wear",),
     ),
     _number(
         "eccentricity_um",
@@ -135,9 +181,10 @@ KNOB_TABLE: tuple[Knob, ...] = (
         50.0,
         "um",
         "tool eccentricity radius (default scenario; seed 003 case 1: 20 um)",
+        _ECC,
     ),
-    _number("eccentricity_deg", 40.0, 0.0, 360.0, "deg", "tool eccentricity angle"),
-    _flag("esc_on", True, "eccentricity cancellation (tuner) running"),
+    _number("eccentricity_deg", 40.0, 0.0, 360.0, "deg", "tool eccentricity angle", _ECC),
+    _flag("esc_on", True, "eccentricity cancellation (tuner) running", _ECC),
     _choice(
         "tuner",
         "esc",
@@ -145,6 +192,7 @@ KNOB_TABLE: tuple[Knob, ...] = (
         "tuner: extremum seeking (seed 003, Table 1 gains: converges from the default "
         "40 deg; stalls for phases far from its start, e.g. 90-270 deg) or fast "
         "(converges from any phase in ~5 revolutions)",
+        _ECC,
     ),
     _choice(
         "ecc_force",
@@ -152,9 +200,11 @@ KNOB_TABLE: tuple[Knob, ...] = (
         FORCE_SOURCES,
         "tuner's force: dynamometer, seed-000 observers (fixed mass) or adaptive "
         "observers (mass identified at spindle order 4.125)",
+        _ECC,
     ),
-    _number("ecc_mass_error", 0.0, -10.0, 10.0, "%", "observers' nominal mass error"),
-    # the process monitor (issue 21, server/pipeline/process_part.py)
+    _number("ecc_mass_error", 0.0, -10.0, 10.0, "%", "observers' nominal mass error", _ECC),
+    # the process monitor (issue 21, server/pipeline/process_part.py) and the spindle's
+    # monitor on the centre's cutting power (server/pipeline/spindle_part.py)
     _number(
         "teach_parts",
         5.0,
@@ -163,6 +213,7 @@ KNOB_TABLE: tuple[Knob, ...] = (
         "parts",
         "process monitor: good parts taught per (tool, program, block) before it watches; "
         "a new value restarts the teach-in of every block",
+        _MONITORS,
     ),
     _number(
         "band_factor",
@@ -172,9 +223,10 @@ KNOB_TABLE: tuple[Knob, ...] = (
         "",
         "process monitor: half-width of the bands on the mean force in taught spreads "
         "(at least band_rel 15 % of the mean); applies from the next sample, no relearn",
+        _MONITORS,
     ),
     # each plant effect the observers do not model (machine.effects), on/off
-    *(_flag(f"effect_{e}", False, f"plant effect {e!r} (unmodelled)") for e in EFFECT_NAMES),
+    *(_flag(f"effect_{e}", False, f"plant effect {e!r} (unmodelled)", _SIM) for e in EFFECT_NAMES),
 )
 
 #: name -> knob with its default value
@@ -243,3 +295,22 @@ class KnobValues(Mapping[str, KnobValue]):
     def as_dict(self) -> dict[str, KnobValue]:
         """Name -> current value (a copy)."""
         return dict(self._values)
+
+
+def not_read(name: str, offered: Collection[str]) -> tuple[str, str]:
+    """Why a knob of the table is refused by a pipeline whose parts read only ``offered``:
+    (what is expected, the sentence naming the parts that would read ``name``)."""
+    expected = (
+        "one of the knobs this pipeline's parts read: " + ", ".join(offered)
+        if offered
+        else "no knob: no part this pipeline runs reads one (a feed's parts are built "
+        "once its machine is described)"
+    )
+    readers = list(KNOBS[name].parts)
+    if readers[0] in READERS and len(readers) == 1:
+        who = READERS[readers[0]]
+    elif len(readers) == 1:
+        who = f"the {readers[0]} part"
+    else:
+        who = f"the {', '.join(readers[:-1])} and {readers[-1]} parts"
+    return expected, f"{name} is read by {who}, which this pipeline does not run"

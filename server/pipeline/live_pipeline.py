@@ -12,11 +12,12 @@ The public surface is the contract the live runtime builds on
 - ``.parts() -> list[dict]``: every part with ``name``, ``running`` and ``reason``
 - ``.step(n) -> dict[str, np.ndarray]``: advance ``n`` samples; one float64 array of
   length ``n`` per channel name (plus ``"t"``)
-- ``.knobs() -> dict[str, Knob]``: live-tweakable parameters with their ranges (frozen
-  copies; :mod:`server.pipeline.knobs` holds the table)
+- ``.knobs() -> dict[str, Knob]``: the live-tweakable parameters its parts read, with
+  their ranges (frozen copies; :mod:`server.pipeline.knobs` holds the table and says
+  which parts read each knob)
 - ``.set_knob(name, value)``, ``.set_knobs(changes)``: validated (``Knob.check``); raise
-  ``ParameterError`` naming the field, the allowed range and the value; nothing changes
-  on error
+  ``ParameterError`` naming the field, the allowed range and the value (a knob no part
+  of the pipeline reads: the parts that would); nothing changes on error
 - ``.reset()``; ``.snapshot() -> dict`` (latest values, truths, knob values, accuracy,
   parts)
 - ``.state() -> PipelineState``, ``.restore(state)``: everything carried from block to
@@ -85,7 +86,15 @@ from machine.params import ADDED_WEIGHT_INERTIA
 from machine.stage import SEED000_FORCE, CuttingForce, StageConfig
 from server.errors import CutwatchError
 from server.pipeline.checkpoint import PipelineState, ScriptState
-from server.pipeline.knobs import BASE_RPM, Knob, KnobValue, KnobValues
+from server.pipeline.knobs import (
+    BASE_RPM,
+    KNOBS,
+    SIMULATOR,
+    Knob,
+    KnobValue,
+    KnobValues,
+    not_read,
+)
 from server.pipeline.machine_view import MachineView, description_of
 from server.pipeline.part import (
     Block,
@@ -418,7 +427,13 @@ class LivePipeline:
     def carry(self, old: LivePipeline) -> None:
         """Continue ``old``'s identification (the same machine's feed, described again:
         a new meta, a new sample rate): every part that can (``carry``) takes the
-        identified parameters of ``old``'s part of its name, its filters restarted."""
+        identified parameters of ``old``'s part of its name, its filters restarted; the
+        knob values set on ``old`` that this pipeline's parts read go on too."""
+        offered = self.knobs()
+        kept = {n: v for n, v in old.knob_values().items() if n in offered}
+        if kept:
+            self._knobs.update(kept)
+            self._knob_version += 1
         for part in self._parts:
             take = getattr(part, "carry", None)
             prev = old.part(part.name)
@@ -446,16 +461,22 @@ class LivePipeline:
             self._status[part.name] = new
 
     def _verdict(self, part: Part, view: MachineView) -> Verdict:
+        """Whether ``part`` can run on ``view``: the parts it needs first; a part lacking
+        one says, too, why it could not run on this machine anyway (its own refusal)."""
+        try:
+            own = part.requires(view)
+        except Exception as exc:
+            own = Verdict(False, f"requires: {_why(exc)}")
+        also = "" if own.ok else f"; and {own.reason}"
         for need in part.needs:
             st = self._status.get(need)
             if st is None:
-                return Verdict(False, f"needs the {need} part, which this pipeline does not run")
+                why = f"needs the {need} part, which this pipeline does not run"
+                return Verdict(False, why + also)
             if not st.running:
-                return Verdict(False, f"needs the {need} part, which does not run ({st.reason})")
-        try:
-            return part.requires(view)
-        except Exception as exc:
-            return Verdict(False, f"requires: {_why(exc)}")
+                why = f"needs the {need} part, which does not run ({st.reason})"
+                return Verdict(False, why + also)
+        return own
 
     def _stop(self, part: Part, exc: BaseException, where: str) -> None:
         """Stop ``part`` (it raised in ``where``) and every part that needs it."""
@@ -583,13 +604,41 @@ class LivePipeline:
 
     # ------------------------------------------------------------------ knobs
     def knobs(self) -> dict[str, Knob]:
-        """Live-tweakable parameters with their ranges and current values (frozen copies:
-        change them with :meth:`set_knob`)."""
-        return self._knobs.knobs()
+        """The knobs this pipeline's parts read (:attr:`Knob.parts`: the simulated stage's
+        when the source is the simulator), with their ranges and current values (frozen
+        copies: change them with :meth:`set_knob`). Each names its readers here, and
+        ``waiting`` says why none of them runs now (a paused part: the value is kept for
+        when it runs again)."""
+        readers = {p.name for p in self._parts}
+        if self.source.knobs_apply:
+            readers.add(SIMULATOR)
+            readers.update(self.script.knob_readers)
+        out: dict[str, Knob] = {}
+        for name, k in self._knobs.knobs().items():
+            mine = tuple(p for p in k.parts if p in readers)
+            if mine:
+                out[name] = replace(k, parts=mine, waiting=self._knob_waiting(mine))
+        return out
+
+    def _knob_waiting(self, parts: tuple[str, ...]) -> str:
+        """Why none of ``parts`` runs now (``""``: one does)."""
+        if any(p not in self._status or self._status[p].running for p in parts):
+            return ""
+        why = "; ".join(f"the {p} part does not run ({self._status[p].reason})" for p in parts)
+        return f"{why}: the value is kept for when it runs"
 
     def knob_values(self) -> dict[str, KnobValue]:
-        """Name -> current value of every knob."""
-        return self._knobs.as_dict()
+        """Name -> current value of every knob this pipeline's parts read."""
+        return {name: k.value for name, k in self.knobs().items()}
+
+    def _offered(self, changes: Mapping[str, object]) -> None:
+        """Refuse a knob of the table that no part of this pipeline reads (the unknown
+        names are :class:`KnobValues`' to refuse)."""
+        offered = self.knobs()
+        for name, value in changes.items():
+            if name in KNOBS and name not in offered:
+                expected, why = not_read(name, tuple(offered))
+                raise ParameterError(name, f"{expected} ({why})", value)
 
     def set_knob(self, name: str, value: object) -> None:
         """Set one knob; validated (:meth:`server.pipeline.knobs.Knob.check`), nothing
@@ -598,8 +647,11 @@ class LivePipeline:
         Raises
         ------
         ParameterError
-            Unknown name, wrong type, or a value outside the knob's range.
+            Unknown name, a knob no part of this pipeline reads (field: its name; the
+            parts that would read it said), wrong type, or a value outside the knob's
+            range.
         """
+        self._offered({name: value})
         self._knobs.set(name, value)
         self._knob_version += 1
 
@@ -609,8 +661,9 @@ class LivePipeline:
         Raises
         ------
         ParameterError
-            The first refused change (nothing is changed then).
+            The first refused change (nothing is changed then), as :meth:`set_knob`.
         """
+        self._offered(changes)
         self._knobs.update(changes)
         self._knob_version += 1
 
@@ -734,11 +787,24 @@ class LivePipeline:
         elif ref == "measured_force":
             self._accuracy.update(out, measured=block.source.meas.f_ext)
 
+    def running_force_estimates(self) -> tuple[str, ...]:
+        """The force estimates of the parts that run now, in stream order (a part that
+        does not run, such as the stage's observers on the machining centre, streams NaN:
+        nothing to list)."""
+        return _force_estimates(c for p in self._parts if self._running(p) for c in p.channels)
+
     def accuracy(self, digits: int | None = None) -> dict[str, object]:
-        """Rolling rms of every force estimate over the last 1 s and 10 s
-        (:meth:`harness.accuracy.RollingAccuracy.summary`; ``digits``: rounded,
-        JSON-safe)."""
-        return self._accuracy.summary(digits)
+        """Rolling rms of the force estimates of the parts that run now, over the last 1 s
+        and 10 s (:meth:`harness.accuracy.RollingAccuracy.summary`, every estimate
+        scored, those of parts that do not run left out: a part that runs again has its
+        row back, its windows kept; ``digits``: rounded, JSON-safe)."""
+        summary = self._accuracy.summary(digits)
+        live = set(self.running_force_estimates())
+        for key in ("rms", "rms_q"):
+            rows = summary[key]
+            if isinstance(rows, dict):
+                summary[key] = {k: v for k, v in rows.items() if k in live}
+        return summary
 
     # ------------------------------------------------------------------ what the parts end
     def take_tool_changes(self) -> list[dict[str, object]]:
@@ -933,7 +999,7 @@ class LivePipeline:
             "scenario": self.scenario,
             "latest": dict(self._last),
             "truth": truth,
-            "knobs": self._knobs.as_dict(),
+            "knobs": self.knob_values(),
             "observer_effects": [
                 {"name": e.name, "shape": dict(e.shape), "coef": list(e.coef)} for e in self.effects
             ],

@@ -145,7 +145,20 @@ def _effects(c: BuildContext) -> Part:
 def _dfo(c: BuildContext) -> Part:
     from server.pipeline.dfo_part import DfoPart
 
-    return DfoPart(c.part("stage"), tuple(c.plant.config.force.frequencies))
+    part = DfoPart(c.part("stage"), tuple(c.plant.config.force.frequencies))
+    centre = _centre(c)
+    if centre is not None:  # the centre's tools at its trace rate: where the DFO could see
+        from server.pipeline.centre_rates import dfo_reason
+
+        part.rate_note = dfo_reason(centre.machine.program, centre.rate_hz)
+    return part
+
+
+def _centre(c: BuildContext) -> Any:
+    """The machining centre's source (None: another source)."""
+    from server.pipeline.centre_source import CentreSource
+
+    return c.source if isinstance(c.source, CentreSource) else None
 
 
 def _wear(c: BuildContext) -> Part | None:
@@ -157,7 +170,14 @@ def _wear(c: BuildContext) -> Part | None:
 def _eccentricity(c: BuildContext) -> Part | None:
     from server.pipeline.eccentricity_part import EccentricityPart
 
-    return EccentricityPart.from_knobs(c.knobs) if c.scenario.eccentricity else None
+    if c.scenario.eccentricity:
+        return EccentricityPart.from_knobs(c.knobs)
+    centre = _centre(c)
+    if centre is not None:  # listed with the reason, in numbers (issue 31 item 2)
+        from server.pipeline.centre_rates import eccentricity_reason
+
+        raise CutwatchError(eccentricity_reason(centre.machine.program, centre.rate_hz))
+    return None
 
 
 def _process(c: BuildContext) -> Part | None:

@@ -59,6 +59,8 @@ class PeriodicSpindleSteps:
     period: float = 15.0
     low: float = 0.8
     enabled_by: str = "spindle_changes"
+    #: its name among the knobs' readers (``server.pipeline.knobs``: ``spindle_changes``)
+    reader: str = "spindle_steps"
 
     def spindle_factor(self, t: float, knobs: KnobMap) -> float:
         if knobs[self.enabled_by] and math.floor(t / self.period) % 2 == 1:
@@ -140,6 +142,12 @@ class Scenario:
         for part in self.script:
             f *= part.spindle_factor(t, knobs)
         return f
+
+    @property
+    def knob_readers(self) -> tuple[str, ...]:
+        """The script's parts that read a knob, by their ``reader`` name (the knobs'
+        :attr:`~server.pipeline.knobs.Knob.parts`)."""
+        return tuple(r for p in self.script if (r := str(getattr(p, "reader", ""))))
 
     def extra_inertia(self, t: float, knobs: KnobMap) -> float | None:
         """The inertia the script mounts at ``t`` (None: none)."""

@@ -813,7 +813,12 @@ class LiveLoop:
                     f"the {self.pipeline.scenario} pipeline",
                 )
             out: dict[str, Any] = part.label(tool, vb_mm)
-            return out
+            self.runtime.keep_tool_lives()  # the change itself, if not kept yet
+        h = self.history
+        row = None
+        if isinstance(h, HistoryStore):
+            row = h.measure_tool_life(int(out["tool"]), int(out["index"]), float(vb_mm))
+        return {**out, "recorded": row is not None}
 
     def relearn(self, tool: int | None = None, program: str | None = None) -> dict[str, Any]:
         """Teach the monitor's limits again (:meth:`LivePipeline.relearn`): of one tool,

@@ -226,6 +226,16 @@ class Snapshot(BaseModel):
 class _KnobBase(BaseModel):
     unit: str
     doc: str
+    parts: list[str] = Field(
+        default_factory=list,
+        description="the parts of the running pipeline that read it ('simulator': the "
+        "simulated stage)",
+    )
+    waiting: str = Field(
+        "",
+        description="why none of those parts runs now (the value is kept for when one "
+        "does); empty: one runs",
+    )
 
 
 class NumberKnob(_KnobBase):
@@ -679,6 +689,11 @@ class ToolLife(BaseModel):
         "(null: no truth)"
     )
     cause: str = Field(description="why: " + ", ".join(CAUSES))
+    wear_measured_mm: float | None = Field(
+        default=None,
+        description="flank wear measured at the change [mm], entered over REST "
+        "(POST /api/tool-life/vb; null: none entered)",
+    )
 
 
 class ToolVb(BaseModel):
@@ -702,6 +717,10 @@ class ToolVbLabel(BaseModel):
     vb_mm: float = Field(description="the VB entered [mm]")
     vb_est_mm: float = Field(description="the estimate at the change [mm]")
     calibrated: bool
+    recorded: bool = Field(
+        description="whether the tool-life record of that change (GET /api/tool-life) now "
+        "holds the VB (false: a service keeping no history, or the change not yet kept)"
+    )
 
 
 class ToolLives(BaseModel):

@@ -46,8 +46,14 @@ def test_the_parts_that_can_run_run_and_the_others_say_why(run: tuple) -> None:
     for name in ("stage", "effects", "dfo"):
         assert not parts[name]["running"]
         assert "nominal two-inertia parameters" in parts[name]["reason"], parts[name]
-    # the simulating parts of the stage's default scenario are not built here
-    assert not {"wear", "process", "eccentricity", "workpiece"} & set(parts)
+    # the DFO says, too, where the trace carries the tools' tooth passing (issue 31 item 2)
+    assert "T2's (3 x 133 Hz = 400 Hz at 8000 rpm) folds to 100 Hz" in parts["dfo"]["reason"]
+    # the eccentricity loop is listed with its reason in numbers; the other simulating
+    # parts of the stage's scenario are not built here
+    ecc = parts["eccentricity"]
+    assert not ecc["running"] and ecc["reason"].startswith("not built: seed 003's tuner")
+    assert "a trace is read-only" in ecc["reason"] and "T2 3.75 at 8000 rpm" in ecc["reason"]
+    assert not {"wear", "process", "workpiece"} & set(parts)
 
 
 def test_the_spindle_cutting_power_is_the_power_less_the_taught_idle(run: tuple) -> None:

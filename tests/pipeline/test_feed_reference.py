@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 from test_sources import CONFIG
 
+from common.errors import ParameterError
 from machine.stage import StageSim
 from server.pipeline.broker import parse_broker_url
 from server.pipeline.drive_feed import DriveFeed
@@ -117,7 +118,10 @@ def test_the_dfo_follows_the_spindle_speed_the_feed_sends() -> None:
     rpm = [2400.0] * 10 + [3600.0] * 10
     feed, _ = feed_of(20, rpm=rpm)
     p = LivePipeline(source=MqttSource(feed))
-    p.set_knob("spindle_rpm", 3000.0)  # the knob does not drive a real machine's spindle
+    # the knob does not drive a real machine's spindle: a feed's pipeline does not offer it
+    assert "spindle_rpm" not in p.knobs()
+    with pytest.raises(ParameterError, match=r"spindle_rpm.*simulated stage"):
+        p.set_knob("spindle_rpm", 3000.0)
     dfo = p.part("dfo")
     base = np.array(dfo.base)
     seen = []

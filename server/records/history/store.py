@@ -149,6 +149,7 @@ class ToolLifeRow(TypedDict):
     wear_true_share: float | None
     cause: str
     index: int | None
+    wear_measured_mm: float | None
 
 
 class _ToolLifeInsert(TypedDict):
@@ -204,6 +205,7 @@ def _life_row(r: Mapping[Any, Any]) -> ToolLifeRow:
         "wear_true_share": r["wear_true_share"],
         "cause": r["cause"],
         "index": r["tool_index"],
+        "wear_measured_mm": r.get("wear_measured_mm"),
     }
 
 
@@ -411,6 +413,33 @@ class HistoryStore:
         if prev is not None and abs(prev.end_t - start_t) < 1e-6:
             return float(prev.end_wall)
         return None
+
+    def measure_tool_life(
+        self, tool: int, index: int, vb_mm: float, machine: str | None = None
+    ) -> ToolLifeRow | None:
+        """Enter the flank wear measured [mm] at the change of ``tool``'s life ``index``
+        on ``machine`` (default this store's): its latest such record, committed before
+        the call returns. The record as stored, None when there is none."""
+        m = machine or self.machine
+        t0 = time.perf_counter()
+        with self._write, self.engine.begin() as conn:
+            seq = conn.scalar(
+                select(tool_life.c.seq)
+                .where(tool_life.c.machine == m, tool_life.c.tool == int(tool),
+                       tool_life.c.tool_index == int(index))
+                .order_by(tool_life.c.seq.desc())
+                .limit(1)
+            )  # fmt: skip
+            if seq is None:
+                return None
+            conn.execute(
+                tool_life.update()
+                .where(tool_life.c.seq == seq)
+                .values(wear_measured_mm=float(vb_mm))
+            )
+            row = conn.execute(select(tool_life).where(tool_life.c.seq == seq)).mappings().one()
+        self._timed(t0)
+        return _life_row(row)
 
     def tool_life(
         self, *, tool: int | None = None, limit: int = 100, offset: int = 0

@@ -80,4 +80,6 @@ tool_life = Table(
     Column("wear_true_mm", Float, nullable=True),
     Column("wear_true_share", Float, nullable=True),
     Column("cause", String(32), nullable=False),
+    # the flank wear measured at the change, entered over REST (migration 0002)
+    Column("wear_measured_mm", Float, nullable=True),
 )

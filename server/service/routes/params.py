@@ -1,4 +1,12 @@
-"""``GET``/``PATCH /api/params``: the live knobs, checked field by field, all or nothing."""
+"""``GET``/``PATCH /api/params``: the live knobs, checked field by field, all or nothing.
+
+The knobs are the running pipeline's: those its parts read (``LivePipeline.knobs``). A
+knob of the table that none of them reads is refused with a 422 naming it, what is
+expected (the knobs offered) and the parts that would read it: a scenario switch starts
+from that scenario's defaults, so a value stored for a part this pipeline never builds
+would be lost without a word. A part that is built but paused keeps its knobs (their
+``waiting`` says why): the value applies when it runs again.
+"""
 
 from __future__ import annotations
 
@@ -7,7 +15,7 @@ from typing import Any
 from fastapi import APIRouter, HTTPException
 
 from common.errors import ParameterError
-from server.pipeline.knobs import Knob
+from server.pipeline.knobs import KNOBS, Knob, not_read
 from server.service.deps import Authorised, Knobs
 from server.service.http_errors import echo, error
 from server.service.schemas import (
@@ -25,12 +33,19 @@ router = APIRouter(prefix="/api/params", tags=["params"], responses=error_respon
 def _knob_out(k: Knob) -> NumberKnob | BoolKnob | ChoiceKnob:
     """A knob as ``/api/params`` lists it: its kind, value, unit, doc and what it allows."""
     v = k.value
+    parts, waiting = list(k.parts), k.waiting
     if isinstance(v, bool):
-        return BoolKnob(type="bool", value=v, unit=k.unit, doc=k.doc)
+        return BoolKnob(type="bool", value=v, unit=k.unit, doc=k.doc, parts=parts, waiting=waiting)
     if isinstance(v, str):  # a choice (Knob.kind): the only knobs holding a string
         choices = list(k.choices or ())
-        return ChoiceKnob(type="choice", value=v, choices=choices, unit=k.unit, doc=k.doc)
-    return NumberKnob(type="number", value=v, min=k.min, max=k.max, unit=k.unit, doc=k.doc)
+        return ChoiceKnob(
+            type="choice", value=v, choices=choices, unit=k.unit, doc=k.doc, parts=parts,
+            waiting=waiting,
+        )  # fmt: skip
+    return NumberKnob(
+        type="number", value=v, min=k.min, max=k.max, unit=k.unit, doc=k.doc, parts=parts,
+        waiting=waiting,
+    )  # fmt: skip
 
 
 def _params(knobs: dict[str, Knob]) -> Params:
@@ -76,6 +91,10 @@ def patch_params(body: ParamsPatch, live: Knobs) -> Params:
             )
         )
     for name, value in changes.items():
+        if name in KNOBS and name not in knobs:  # a knob, not of this pipeline's parts
+            allowed, why = not_read(name, tuple(knobs))
+            errors.append(error(name, allowed, value, f"{why}; expected {allowed}"))
+            continue
         if name not in knobs:
             allowed = "one of " + ", ".join(knobs)
             errors.append(
