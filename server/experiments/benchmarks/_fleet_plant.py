@@ -208,6 +208,44 @@ class _Events:
         self.client.disconnect()
 
 
+def _drive_log(log: Path, seconds: float, centres: bool, progress: bool) -> dict[str, Any]:
+    """The log the feeder replays: a machining centre's recorded trace (its events' truth
+    returned) or the simulated stage (no truth)."""
+    if centres:
+        from server.experiments.benchmarks._plant_centres import record
+
+        if progress:
+            print(f"  plant: recording {seconds + 120:g} s of a machining centre's trace",
+                  file=sys.stderr, flush=True)  # fmt: skip
+        # longer than the window, the start and the rows' last check: the feed must not end
+        return record(log, seconds=seconds + 120.0)
+    subprocess.run(
+        _cutwatch("simulate", "--out", str(log), "--seconds", str(seconds + 120)),
+        check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+    )  # fmt: skip
+    return {}
+
+
+def _scored(
+    events: _Events, truth: dict[str, Any], names: list[str], t_feed: float
+) -> dict[str, object]:
+    """The monitors' events against the trace's truth (``t_feed``: the log's time the
+    feed reached, playing at 1x from its start), and one machine's beside the truth."""
+    from server.experiments.benchmarks._plant_centres import score
+
+    raised = {m: events.raised.get(m, []) for m in names}
+    sc = score(truth["events"], raised, min(t_feed, float(truth["seconds"])))
+    out: dict[str, object] = {f"monitor.{k}": v for k, v in sc.items()}
+    out["monitor.events_in_trace"] = len(truth["events"])
+    out["monitor.teach_parts"] = truth["teach_parts"]
+    out["monitor.feed_s"] = t_feed
+    out["monitor.truth"] = [[e["kind"], round(e["t"], 2), e["line"]] for e in truth["events"]]
+    out["monitor.raised_m000"] = [
+        [e["kind"], round(float(e["t"]), 2), e["line"]] for e in raised.get(names[0], [])
+    ]
+    return out
+
+
 def run_plant(
     machines: int,
     workers: int,
@@ -224,21 +262,8 @@ def run_plant(
 
     work = Path(tempfile.mkdtemp(prefix="cutwatch-bench-plant-"))
     log = work / "drive.csv"
-    truth: dict[str, Any] = {}
-    if centres:
-        from server.experiments.benchmarks._plant_centres import record
-
-        soak = True
-        if progress:
-            print(f"  plant: recording {seconds + 120:g} s of a machining centre's trace",
-                  file=sys.stderr, flush=True)  # fmt: skip
-        # longer than the window, the start and the rows' last check: the feed must not end
-        truth = record(log, seconds=seconds + 120.0)
-    else:
-        subprocess.run(
-            _cutwatch("simulate", "--out", str(log), "--seconds", str(seconds + 120)),
-            check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-        )  # fmt: skip
+    truth = _drive_log(log, seconds, centres, progress)
+    soak = soak or centres
     plant = _Plant(machines, workers, work)
     what = "machining centres at 500 Hz, one recorded trace replayed" if centres else "machines"
     out: dict[str, object] = {
@@ -317,25 +342,7 @@ def run_plant(
             out["workers.dropped_samples"] = sum(int(h.get("dropped_samples", 0)) for h in hs)
             out["workers.loop_ms_p50"] = max(float(h.get("loop_ms_p50") or 0) for h in hs)
             if events is not None:
-                from server.experiments.benchmarks._plant_centres import score
-
-                # the log's time the feed had reached (it plays at 1x from its start)
-                t_feed = time.monotonic() - feed_start
-                raised = {m: events.raised.get(m, []) for m in plant.names}
-                sc = score(truth["events"], raised, min(t_feed, float(truth["seconds"])))
-                for k, v in sc.items():
-                    out[f"monitor.{k}"] = v
-                out["monitor.events_in_trace"] = len(truth["events"])
-                out["monitor.teach_parts"] = truth["teach_parts"]
-                out["monitor.feed_s"] = t_feed
-                # one machine's events beside the truth (kind, time), to see what was raised
-                out["monitor.truth"] = [
-                    [e["kind"], round(e["t"], 2), e["line"]] for e in truth["events"]
-                ]
-                first = raised.get(plant.names[0], [])
-                out["monitor.raised_m000"] = [
-                    [e["kind"], round(float(e["t"]), 2), e["line"]] for e in first
-                ]
+                out.update(_scored(events, truth, plant.names, time.monotonic() - feed_start))
     finally:
         if events is not None:
             events.stop()
