@@ -595,6 +595,15 @@ class ProcessMonitor:
         kt[i], kl[i], kp[i] = t, ln, prog
         return i
 
+    def has_room(self, state: dict[str, np.ndarray], tool: int, program: str, line: int) -> bool:
+        """True when the (tool, program, line) segment is known or a free one is left
+        (:meth:`step` raises :class:`ParameterError` otherwise): a live program with more
+        blocks than ``max_segments`` leaves the ones beyond it unwatched, not the monitor
+        stopped."""
+        t, prog, ln = _key(tool, program, line)
+        kt, kl, kp = state["key_tool"], state["key_line"], state["key_program"]
+        return bool(((kt == t) & (kl == ln) & (kp == prog)).any() or (kt < 0).any())
+
     def teaching(self, state: dict[str, np.ndarray], seg: int) -> bool:
         return bool(state["parts"][seg] < self.params.teach_parts)
 

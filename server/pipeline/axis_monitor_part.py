@@ -252,6 +252,10 @@ class AxisMonitorPart(LivePart):
             ovr = float(over[a0]) if math.isfinite(over[a0]) and 0.0 < over[a0] <= 3.0 else 1.0
             for ax in self.axes:
                 st = self.st.monitors[ax]
+                if not self.monitor.has_room(st, tl, self.program, ln):
+                    # more blocks than the monitor's segments: this one is not watched (NaN)
+                    self.monitor.end_block(st)
+                    continue
                 # read but where the tool is known to be in the air (not known yet: 0)
                 f = np.where(air[a0:b0], 0.0, np.nan_to_num(force[ax][a0:b0]))
                 m = self.monitor.step(st, f, zeros[a0:b0], psi[a0:b0], tool=tl,

@@ -257,6 +257,10 @@ class SpindlePart(LivePart):
             new = ln != self.st.line
             self.st.line, self.st.tool = ln, tl
             ovr = float(over[a]) if math.isfinite(over[a]) and 0.0 < over[a] <= 3.0 else 1.0
+            if not self.monitor.has_room(self.st.monitor, tl, self.program, ln):
+                # more blocks than the monitor's segments: this one is not watched (NaN)
+                self.monitor.end_block(self.st.monitor)
+                continue
             m = self.monitor.step(self.st.monitor, f[a:b], np.zeros(b - a), psi[a:b], tool=tl,
                                   program=self.program, line=ln, new_block=new,
                                   override=ovr)  # fmt: skip

@@ -90,6 +90,8 @@ def test_tuner_knob_through_the_app() -> None:
             "doc": k["tuner"]["doc"],
             "type": "choice",
             "choices": ["esc", "fast"],
+            "parts": ["eccentricity"],  # the part that reads it (issue 31: knobs are parts')
+            "waiting": "",
         }
         r = c.patch("/api/params", json={"tuner": "slow"})
         assert r.status_code == 422

@@ -172,3 +172,18 @@ def test_bad_input_is_named(taught) -> None:  # type: ignore[no-untyped-def]
         mon.step(st, z, z[:5], z, tool=1, program="O1", line=1, new_block=True)
     with pytest.raises(ParameterError, match="teach_parts"):
         MonitorParams(teach_parts=0)
+
+
+def test_a_program_with_more_blocks_than_segments_says_so_before_step_refuses() -> None:
+    # a real CNC program (cnc-mill: 81 sequence numbers) may outgrow max_segments: the live
+    # parts ask has_room and leave those blocks unwatched instead of stopping on the error
+    mon = ProcessMonitor(MonitorParams(max_segments=2))
+    st = mon.initial_state()
+    z = np.zeros(8)
+    for line in (10, 20):
+        assert mon.has_room(st, 1, "O1", line)
+        mon.step(st, z, z, z, tool=1, program="O1", line=line, new_block=True)
+    assert mon.has_room(st, 1, "O1", 10)  # a known block keeps its segment
+    assert not mon.has_room(st, 1, "O1", 30)
+    with pytest.raises(ParameterError, match="segments"):
+        mon.step(st, z, z, z, tool=1, program="O1", line=30, new_block=True)
