@@ -230,7 +230,11 @@ def test_serves_as_a_non_root_user(service: Service, ctr: str) -> None:
 
 def test_health_and_dashboard_over_http(service: Service) -> None:
     health = httpx.get(f"{service.url}/api/health", timeout=5).json()
-    assert health["status"] == "ok" and health["loop_error"] is None
+    # the default machine (the centre) runs degraded by design: the stage's observers cannot
+    # run on it and say why; the container is healthy while the loop runs and estimates
+    assert health["status"] in ("ok", "degraded") and health["loop_error"] is None
+    assert health["idle"] == "" and any(p["running"] for p in health["parts"])
+    assert all(p["reason"] for p in health["parts"] if not p["running"])
     assert health["viser_running"] is True and health["viser_port"] == service.viser_port
     auth = {"Authorization": f"Bearer {service.token}"}  # every read but health needs it
     assert httpx.get(f"{service.url}/", timeout=5).status_code == 401
