@@ -236,11 +236,13 @@ def _run_hybrid(args: argparse.Namespace) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     with (args.out / "estimates.csv").open("w", newline="") as f:
         w = csv.writer(f)
-        w.writerow(["tool", "segment", "vb_true", "vb_est", "vb_lo", "vb_hi", "chosen"])
+        w.writerow(["protocol", "split", "tool", "segment", "vb_true", "vb_est", "vb_lo",
+                    "vb_hi", "chosen"])  # fmt: skip
         for fo in folds:
+            sp = "+".join(str(t) for t in fo.test)
             for r in fo.tools:
                 for k in range(len(r.vb)):
-                    w.writerow([r.tool, k, f"{r.vb[k]:.3f}", f"{r.est[k]:.3f}",
+                    w.writerow([fo.protocol, sp, r.tool, k, f"{r.vb[k]:.3f}", f"{r.est[k]:.3f}",
                                 f"{r.lo[k]:.3f}", f"{r.hi[k]:.3f}", fo.chosen])  # fmt: skip
     summ = summarise(folds, condition_groups(table))
     rep = {
