@@ -27,13 +27,11 @@ from typing import Any, ClassVar, Literal
 from pydantic import BaseModel, ConfigDict, Field
 
 from common.event_kinds import EventKind
+from server.pipeline.knobs import KnobValue
 from server.records.monitor_events import EventAction
 
 #: the stream's version, sent in ``hello`` (the page refuses a stream of another version)
 VERSION = 2
-
-#: a knob's value as the stream carries it
-KnobValue = bool | float | str
 
 
 def _versioned(schema: dict[str, Any], cls: type[Any]) -> None:
