@@ -31,11 +31,14 @@ def subscriber(port: int, topics: list[str], auth: tuple[str, str] | None = None
     if auth:
         c.username_pw_set(*auth)
     c.on_message = lambda _c, _u, m: got.put((m.topic, m.payload, bool(m.retain)))
+    acked: queue.Queue[int] = queue.Queue()
+    c.on_subscribe = lambda _c, _u, mid, _rc, _p: acked.put(mid)
     c.connect("127.0.0.1", port)
-    for t in topics:
-        c.subscribe(t, qos=1)
+    mids = {c.subscribe(t, qos=1)[1] for t in topics}
     c.loop_start()
-    time.sleep(0.3)
+    # every subscription acknowledged before anything is published (was a fixed 0.3 s)
+    while mids:
+        mids.discard(acked.get(timeout=30))
     return c, got
 
 
