@@ -72,22 +72,27 @@ def test_samples_neither_skipped_nor_repeated(hp: str) -> None:
 
 
 def test_frames_arrive_at_the_stated_rate(hp: str) -> None:
-    # the README/docs state 20 Hz frames at 1x: measured at a real client over 5 s,
-    # the frames' samples contiguous. Before the frame slots were anchored (a frame was
-    # sent only when a full period had passed since the previous one finished) this
-    # measured ~13 Hz. A generous floor: a functional check, not a benchmark.
-    with connect(f"ws://{hp}/ws") as ws:
+    # the README/docs state 20 Hz frames at 1x, one per 50 ms block. Before the frame
+    # slots were anchored (a frame was sent only when a full period had passed since the
+    # previous one finished) every third block or so went without its frame: ~13 Hz.
+    # Judged by the loop's own count: the frames it published (seq) per block it ran over
+    # the same 5 s, not frames per wall second, which a loaded box lowers with the loop
+    # itself (the rate is cutwatch bench live's frames_received); the frames' samples
+    # contiguous.
+    with connect(f"ws://{hp}/ws") as ws, httpx.Client(base_url=f"http://{hp}") as api:
         hello = recv(ws)
         dt = hello["sample_time"]
-        recv(ws)  # the first frame starts the clock
+        first = recv(ws)
+        blocks0 = metric(api, "cutwatch_blocks_total")
         t0 = time.monotonic()
         frames = []
         while time.monotonic() - t0 < 5.0:
             frames.append(recv(ws))
-        wall = time.monotonic() - t0
+        blocks = metric(api, "cutwatch_blocks_total") - blocks0
+    frames = [f for f in frames if f["type"] == "data"]
     assert all(f["health"]["speed"] == 1.0 for f in frames)
-    rate = len(frames) / wall
-    assert rate >= 18.0, f"{rate:.1f} Hz over {wall:.1f} s"
+    published = frames[-1]["seq"] - first["seq"]
+    assert published >= 0.9 * blocks, (published, blocks)
     t = [x for f in frames for x in f["t"]]
     steps = {round((b - a) / dt) for a, b in itertools.pairwise(t)}
     assert len(steps) == 1  # complete frames: no samples skipped or repeated between them
