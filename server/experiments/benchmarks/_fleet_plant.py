@@ -338,6 +338,8 @@ def run_plant(
             time.sleep(2 * STALE_AFTER)
             rows = httpx.get(f"http://127.0.0.1:{plant.fport}/api/fleet", timeout=5).json()
             out["fleet.ok_at_end"] = sum(r["status"] == "ok" for r in rows)
+            # a machine whose monitor raised an event is live, its row says "alarm"
+            out["fleet.alarm_at_end"] = sum(r["status"] == "alarm" for r in rows)
             hs = [plant.health(i) for i in range(workers)]
             out["workers.dropped_samples"] = sum(int(h.get("dropped_samples", 0)) for h in hs)
             out["workers.loop_ms_p50"] = max(float(h.get("loop_ms_p50") or 0) for h in hs)
