@@ -69,10 +69,10 @@ def test_the_program_text_is_read_where_the_source_holds_it() -> None:
     assert st["axes_cutting_from"] == FROM_PROGRAM
     spindle = p.part("spindle")
     want = cutting_lines(program_variant(0))
-    assert spindle.can_cut.lines == want  # type: ignore[attr-defined]
+    assert spindle.can_cut.lines == want
     # and the program's verdict is what the part passes, whatever the samples say
-    assert spindle.can_cut({}, 60, 0, 0, True) is True  # type: ignore[attr-defined]
-    assert spindle.can_cut({}, 30, 0, 0, True) is False  # type: ignore[attr-defined]
+    assert spindle.can_cut({}, 60, 0, 0, True) is True
+    assert spindle.can_cut({}, 30, 0, 0, True) is False
 
 
 def test_a_feed_without_commanded_positions_says_nothing() -> None:
