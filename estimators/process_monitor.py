@@ -79,6 +79,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -441,47 +442,74 @@ def _missing_tool(
     return na
 
 
+class MonitorChunk(NamedTuple):
+    """One chunk of one block execution as :func:`_monitor_kernel` reads it (read only)."""
+
+    fx: F64  # (n,) estimated cutting force of the X drive [N]
+    fy: F64  # (n,) of the Y drive [N]
+    psi: F64  # (n,) spindle angle [rad]
+    seg: int  # the (tool, program, line) segment's row in the tables
+    new_block: bool  # the chunk starts a new execution of the block
+    override: float  # feed override of the execution (1 = 100 %)
+    gain: float  # expected force ratio (wear estimate or the tracked one)
+    teach: bool  # teaching this execution (not yet taught, 100 % override)
+    taught: bool  # the segment is taught: limits and detectors apply
+    cutting: bool  # the CNC says the block can cut (else the collision limit only)
+
+
+class MonitorArrays(NamedTuple):
+    """The monitor's state arrays, updated in place by :func:`_monitor_kernel`."""
+
+    teach: F64  # (len(_TEACH), segments, bins) the teach tables
+    current: F64  # (len(_CUR), bins) this execution's per-bin accumulators
+    peak: F64  # (segments,) the block's taught peak of f
+    mean_peak: F64  # (segments,) the block's largest taught mean of f_mean
+    run: F64  # (len(_RUN),) the scalar running state
+    fbuf: F64  # (3, max rev samples) ring of f, f cos psi, -f sin psi
+    rbuf: F64  # (2, max rev samples) ring of the pattern rho (re, im)
+
+
+class MonitorOut(NamedTuple):
+    """The kernel's per-sample outputs (filled in place; see :class:`MonitorRecord`)."""
+
+    f: F64  # (n,) force magnitude [N]
+    f_mean: F64  # (n,) its mean over the last revolution [N]
+    lower: F64  # (n,) lower band on f_mean [N]
+    upper: F64  # (n,) upper band on f_mean [N]
+    extreme: F64  # (n,) extreme limit on f [N]
+    pattern: F64  # (n,) change d of the once-per-revolution pattern [-]
+    pattern_limit: F64  # (n,) its breakage threshold [-]
+    suspected: np.ndarray  # (n,) uint8, breakage suspected
+    alarms: F64  # (3 n, 4) rows [k, detector, value, limit]
+
+
 @njit(cache=True)
 def _monitor_kernel(
-    fx: F64,
-    fy: F64,
-    psi: F64,
-    seg: int,
-    new_block: bool,
-    override: float,
-    gain_in: float,
-    teach: bool,
-    taught: bool,
-    cutting: bool,
-    pr: F64,
-    tt: F64,
-    cur: F64,
-    seg_pk: F64,
-    seg_mpk: F64,
-    run: F64,
-    fbuf: F64,
-    rbuf: F64,
-    o: F64,
-    o_sus: np.ndarray,
-    alarms: F64,
+    inp: MonitorChunk, pr: F64, st: MonitorArrays, out: MonitorOut
 ) -> int:  # pragma: no cover
     """One chunk of one block execution; returns the number of alarm rows written.
 
-    ``alarms[i] = [k, detector, value, limit]``. ``tt`` the teach tables (``_TEACH`` by
-    segment by bin), ``cur`` this execution's per-bin accumulators (``_CUR``), ``run`` the
-    scalar state (``_RUN``), ``fbuf`` the ring of ``f, f cos psi, f sin psi``, ``rbuf``
-    the ring of the pattern ``rho``, ``o`` the per-sample outputs (``f, f_mean, lower,
-    upper, extreme, pattern, pattern_limit``).
+    ``out.alarms[i] = [k, detector, value, limit]``. ``pr`` the packed settings
+    (:meth:`MonitorParams.packed`); ``st.teach`` the teach tables (``_TEACH`` by segment by
+    bin), ``st.current`` this execution's per-bin accumulators (``_CUR``), ``st.run`` the
+    scalar state (``_RUN``), ``st.fbuf`` the ring of ``f, f cos psi, -f sin psi``,
+    ``st.rbuf`` the ring of the pattern ``rho``.
     """
+    fx, fy, psi, seg = inp.fx, inp.fy, inp.psi, inp.seg
+    new_block, override, gain_in = inp.new_block, inp.override, inp.gain
+    teach, taught, cutting = inp.teach, inp.taught, inp.cutting
+    tt, cur, seg_pk, seg_mpk = st.teach, st.current, st.peak, st.mean_peak
+    run, fbuf, rbuf = st.run, st.fbuf, st.rbuf
+    o_sus, alarms = out.suspected, out.alarms
     t_cnt = tt[0]
     t_msum = tt[1]
-    o_f = o[0]
-    o_fm = o[1]
-    o_lo = o[2]
-    o_hi = o[3]
-    o_ex = o[4]
-    o_d = o[5]
-    o_dl = o[6]
+    o_f = out.f
+    o_fm = out.f_mean
+    o_lo = out.lower
+    o_hi = out.upper
+    o_ex = out.extreme
+    o_d = out.pattern
+    o_dl = out.pattern_limit
     ts = pr[0]
     bin_s = pr[2]
     mincut = pr[8]
@@ -689,23 +717,31 @@ class ProcessMonitor:
         g = float(state["gain"][seg]) if gain is None else float(gain)
         n = fx.size
         o = np.empty((7, n))
-        sus = np.zeros(n, dtype=np.uint8)
-        alarms = np.zeros((3 * max(n, 1), 4))
-        t = state
-        na = _monitor_kernel(
-            fx, fy, psi, seg, new_block, ov, g, teach, watch, bool(cutting), self._pr, t["teach"],
-            t["current"], t["peak"], t["mean_peak"], run, t["fbuf"], t["rbuf"], o, sus, alarms,
+        out = MonitorOut(
+            f=o[0], f_mean=o[1], lower=o[2], upper=o[3], extreme=o[4], pattern=o[5],
+            pattern_limit=o[6], suspected=np.zeros(n, dtype=np.uint8),
+            alarms=np.zeros((3 * max(n, 1), 4)),
         )  # fmt: skip
+        inp = MonitorChunk(
+            fx=fx, fy=fy, psi=psi, seg=seg, new_block=bool(new_block), override=ov, gain=g,
+            teach=teach, taught=watch, cutting=bool(cutting),
+        )  # fmt: skip
+        arrays = MonitorArrays(
+            teach=state["teach"], current=state["current"], peak=state["peak"],
+            mean_peak=state["mean_peak"], run=run, fbuf=state["fbuf"], rbuf=state["rbuf"],
+        )  # fmt: skip
+        na = _monitor_kernel(inp, self._pr, arrays, out)
         k0 = int(state["samples"][0])
         state["samples"][0] += n
-        out = [
+        alarms = [
             Alarm(DETECTORS[int(a[1])], k0 + int(a[0]), int(tool), str(program), int(line),
                   float(a[2]), float(a[3]))
-            for a in alarms[:na]
+            for a in out.alarms[:na]
         ]  # fmt: skip
         return MonitorRecord(
-            f=o[0], f_mean=o[1], lower=o[2], upper=o[3], extreme=o[4], pattern=o[5],
-            pattern_limit=o[6], suspected=sus, teaching=teach, alarms=out,
+            f=out.f, f_mean=out.f_mean, lower=out.lower, upper=out.upper, extreme=out.extreme,
+            pattern=out.pattern, pattern_limit=out.pattern_limit, suspected=out.suspected,
+            teaching=teach, alarms=alarms,
         )  # fmt: skip
 
     def end_block(self, state: dict[str, np.ndarray]) -> None:

@@ -88,7 +88,7 @@ class ResidualParams:
 class FamilyEntry(Protocol):
     """What the engine asks of an effect family of any model's registry (the rigid
     model's :class:`estimators.residual_families.Family`, the two-inertia model's
-    :class:`estimators.residual_two_inertia.Family`): whether it has a shape to search
+    :class:`estimators.residual_two_inertia.TwoInertiaFamily`): whether it has a shape to search
     again inside each training fold."""
 
     @property

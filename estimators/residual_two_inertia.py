@@ -232,7 +232,7 @@ def _no_search(s: _Search) -> dict[str, float]:
 
 
 @dataclass(frozen=True)
-class Family:
+class TwoInertiaFamily:
     """One effect family of the two-inertia model: its shape search and whether it has a
     shape to search again inside each training fold. Its basis, side and coefficient
     names are the observer's terms (:mod:`estimators.observer_effects`)."""
@@ -247,19 +247,19 @@ class Family:
 
 
 #: THE REGISTRY of the two-inertia model, in the order a round scores them
-FAMILIES: dict[str, Family] = {
+FAMILIES: dict[str, TwoInertiaFamily] = {
     f.name: f
     for f in (
-        Family("offset", _no_search),
-        Family("coulomb_asymmetry", _no_search),
-        Family("stribeck", _stribeck_search, shaped=True),
-        Family("position_periodic", _load_period_search, shaped=True),
-        Family("torque_ripple", _motor_period_search, shaped=True),
-        Family("backlash", _backlash_search, shaped=True),
-        Family("inertia", _no_search),
-        Family("viscous", _no_search),
-        Family("harmonic", _harmonic_search, shaped=True),
-        Family("drift", _drift_search),
+        TwoInertiaFamily("offset", _no_search),
+        TwoInertiaFamily("coulomb_asymmetry", _no_search),
+        TwoInertiaFamily("stribeck", _stribeck_search, shaped=True),
+        TwoInertiaFamily("position_periodic", _load_period_search, shaped=True),
+        TwoInertiaFamily("torque_ripple", _motor_period_search, shaped=True),
+        TwoInertiaFamily("backlash", _backlash_search, shaped=True),
+        TwoInertiaFamily("inertia", _no_search),
+        TwoInertiaFamily("viscous", _no_search),
+        TwoInertiaFamily("harmonic", _harmonic_search, shaped=True),
+        TwoInertiaFamily("drift", _drift_search),
     )
 }
 
@@ -507,7 +507,7 @@ class TwoInertiaModel:
         *,
         warmup_s: float = 0.02,
         angular: bool = True,
-        families: Mapping[str, Family] | None = None,
+        families: Mapping[str, TwoInertiaFamily] | None = None,
         rows_per_block: int = ROWS_PER_BLOCK,
     ) -> None:
         require_in("warmup_s", warmup_s, 0.0, 10.0)
@@ -525,7 +525,7 @@ class TwoInertiaModel:
         self.mask = None if self.fe is not None else np.asarray(air_cut, dtype=bool)
         self.observer, self.load = observer, load
         self.warmup_s, self.angular = warmup_s, angular
-        self.families: Mapping[str, Family] = FAMILIES if families is None else families
+        self.families: Mapping[str, TwoInertiaFamily] = FAMILIES if families is None else families
         self.reference = "f_ext" if self.fe is not None else "air cut"
         self.description = (
             "two_inertia: cutting force observer (seed 000 eq. 2-8) with the log's nominal "

@@ -89,11 +89,29 @@ class HybridConfig:
         return f"{self.features}/{self.reference}/{self.map}/{s}{off}"
 
 
-def candidates(*, revision: int = 2) -> list[HybridConfig]:
-    """Every configuration of the protocol. Revision 2: 2 feature sets x 2 references x
-    4 maps x (the map alone + 5 smoothings x with and without the tool-offset state) =
-    176 per signal set. Revision 1 (the first list, run first): ``_MEAN`` only, no
-    offset state, smoothings 1e-4 ... 1e-1: 40."""
+#: revision 3's smoothings: the rate's random walk that a wear rate can have (docs)
+SMOOTHINGS_REV3 = (1e-6, 1e-5, 1e-4)
+#: revision 3's (map, features): monotone maps on the ``_MEAN`` s, boosting on every
+#: feature
+MAPS_REV3 = (("linear", "mean"), ("isotonic", "mean"), ("gbr", "five"))
+
+
+def candidates(*, revision: int = 3) -> list[HybridConfig]:
+    """Every configuration of the protocol. Revision 3 (the list shrunk by physics,
+    docs/turning-wear.md): (linear or isotonic on the ``_MEAN`` s, gradient boosting on
+    every feature) x 2 references x 3 smoothings (1e-6, 1e-5, 1e-4) x with and without
+    the tool-offset state = 36 per signal set; every one filtered (no map alone).
+    Revision 2: 2 feature sets x 2 references x 4 maps x (the map alone + 5 smoothings
+    x with and without the tool-offset state) = 176. Revision 1 (the first list, run
+    first): ``_MEAN`` only, no offset state, smoothings 1e-4 ... 1e-1: 40."""
+    if revision >= 3:
+        return [
+            HybridConfig(r, m, q, off, fs)
+            for m, fs in MAPS_REV3
+            for r in REFERENCES
+            for q in SMOOTHINGS_REV3
+            for off in (False, True)
+        ]
     out = []
     feats = FEATURE_SETS if revision >= 2 else ("mean",)
     for fs in feats:
@@ -410,6 +428,7 @@ __all__ = [
     "MAPS",
     "REFERENCES",
     "SMOOTHINGS",
+    "SMOOTHINGS_REV3",
     "HybridConfig",
     "HybridModel",
     "ToolData",

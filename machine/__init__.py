@@ -25,7 +25,6 @@ from machine import (
 )
 from machine.effects import EFFECT_NAMES, PlantEffects
 from machine.errors import MachineError, ParameterError
-from machine.params import ADDED_WEIGHT_INERTIA, PRESETS, SAMPLE_TIME, StageParams, preset
 from machine.stage import (
     SEED000_FORCE,
     SEED001_FORCE,
@@ -36,6 +35,7 @@ from machine.stage import (
     Trajectory,
     Truth,
 )
+from machine.stage_params import ADDED_WEIGHT_INERTIA, PRESETS, SAMPLE_TIME, StageParams, preset
 
 __all__ = [
     "ADDED_WEIGHT_INERTIA",

@@ -35,7 +35,13 @@ from common.arrays import F64
 from common.linalg import zoh
 from machine.effects import PlantEffects
 from machine.errors import ParameterError, require_positive
-from machine.params import ADDED_WEIGHT_INERTIA, ENCODER_BITS, SAMPLE_TIME, StageParams, preset
+from machine.stage_params import (
+    ADDED_WEIGHT_INERTIA,
+    ENCODER_BITS,
+    SAMPLE_TIME,
+    StageParams,
+    preset,
+)
 
 OMEGA_S = 0.05  # velocity scale of the regularised Coulomb friction [rad/s]
 

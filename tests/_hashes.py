@@ -27,8 +27,8 @@ from typing import Any
 
 import numpy as np
 
-from machine.params import preset
 from machine.stage import SEED000_FORCE, StageConfig
+from machine.stage_params import preset
 from server.pipeline.checkpoint import load_checkpoint, save_checkpoint
 from server.pipeline.live_pipeline import LivePipeline
 from server.pipeline.sources import SimulatorSource

@@ -161,42 +161,6 @@ export const SCHEMA = {
  */
 
 /**
- * One channel announced by ``hello``, as the part that streams it declared it.
- * @typedef {Object} Channel
- * @property {string} name - the key of its samples in a frame's ch
- * @property {string} unit
- * @property {string} group - the quantity it belongs to (force, J_L, wear...)
- * @property {string} label
- * @property {("t"|"ts")} grid - its display grid: t (fast) or ts (slow)
- * @property {string} chart - the id of the chart it is drawn on ('': not drawn)
- * @property {("operator"|"research")} page - the page of its chart: operator or research
- * @property {number} order - its place among its chart's series
- * @property {boolean} truth - the simulator's truth (the reference), not an estimate
- * @property {string} color - a CSS colour ('': the page's palette)
- * @property {Array<number>} dash - dash pattern (empty: a solid line)
- * @property {number} width - line width [px]
- * @property {string} axis - a second y axis' name ('': the chart's first axis)
- * @property {(Interval|null)} interval - drawn with its 95 % band (None: no band)
- * @property {string} fill_to - the area between it and this channel is shaded ('': none)
- * @property {string} role - what the residual loop's panel compares: reference, without_effects, with_effects ('': nothing)
- * @property {string} legend - its short name in the chart's legend ('': its label)
- */
-
-/**
- * A chart of the dashboard, declared by a part.
- * @typedef {Object} Chart
- * @property {string} id - its name (the page's element chart-<id>)
- * @property {string} title
- * @property {("operator"|"research")} page
- * @property {number} order - its place on its page
- * @property {number} window_s - seconds of the machine's time it shows
- * @property {boolean} fast - its channels are on the fast grid t
- * @property {boolean} wide - drawn across the page
- * @property {boolean} markers - the events are drawn on it
- * @property {string} [part] - the part that declares it (the page draws the reason instead of the chart while that part does not run; '': none named)
- */
-
-/**
  * A frame at the display rate (~20 Hz): the samples since the previous one. A channel on grid ``t`` has one value per entry of ``t``, one on ``ts`` one per entry of ``ts`` (a coarser subset of the same samples); non-finite values are ``null``.
  * @typedef {Object} Data
  * @property {"data"} [type]
@@ -256,12 +220,48 @@ export const SCHEMA = {
  * @typedef {Object} Hello
  * @property {"hello"} [type]
  * @property {number} [version] - the stream's version
- * @property {Array<Channel>} channels
- * @property {Array<Chart>} charts
+ * @property {Array<HelloChannel>} channels
+ * @property {Array<HelloChart>} charts
  * @property {Array<PartStatus>} parts
  * @property {(number|null)} sample_time - the pipeline's sample time [s]; null while a live feed has not described its machine (no meta yet: a new hello follows the meta)
  * @property {string} scenario
  * @property {Object<string, (boolean|number|string)>} knobs - knob -> value
+ */
+
+/**
+ * One channel announced by ``hello``: the wire shape of the :class:`server.pipeline.part.Channel` a part declares (its ``describe()``).
+ * @typedef {Object} HelloChannel
+ * @property {string} name - the key of its samples in a frame's ch
+ * @property {string} unit
+ * @property {string} group - the quantity it belongs to (force, J_L, wear...)
+ * @property {string} label
+ * @property {("t"|"ts")} grid - its display grid: t (fast) or ts (slow)
+ * @property {string} chart - the id of the chart it is drawn on ('': not drawn)
+ * @property {("operator"|"research")} page - the page of its chart: operator or research
+ * @property {number} order - its place among its chart's series
+ * @property {boolean} truth - the simulator's truth (the reference), not an estimate
+ * @property {string} color - a CSS colour ('': the page's palette)
+ * @property {Array<number>} dash - dash pattern (empty: a solid line)
+ * @property {number} width - line width [px]
+ * @property {string} axis - a second y axis' name ('': the chart's first axis)
+ * @property {(Interval|null)} interval - drawn with its 95 % band (None: no band)
+ * @property {string} fill_to - the area between it and this channel is shaded ('': none)
+ * @property {string} role - what the residual loop's panel compares: reference, without_effects, with_effects ('': nothing)
+ * @property {string} legend - its short name in the chart's legend ('': its label)
+ */
+
+/**
+ * A chart of the dashboard announced by ``hello``: the wire shape of the :class:`server.pipeline.part.Chart` a part declares.
+ * @typedef {Object} HelloChart
+ * @property {string} id - its name (the page's element chart-<id>)
+ * @property {string} title
+ * @property {("operator"|"research")} page
+ * @property {number} order - its place on its page
+ * @property {number} window_s - seconds of the machine's time it shows
+ * @property {boolean} fast - its channels are on the fast grid t
+ * @property {boolean} wide - drawn across the page
+ * @property {boolean} markers - the events are drawn on it
+ * @property {string} [part] - the part that declares it (the page draws the reason instead of the chart while that part does not run; '': none named)
  */
 
 /**

@@ -187,7 +187,6 @@ def simulate_stage(
     on_block: Callable[[int], None] | None = None,
 ) -> tuple[dict[str, np.ndarray], dict[str, Any], dict[str, Any]]:
     """Run the simulator: the log's columns, its sidecar and the truth (for scoring)."""
-    from machine.params import preset
     from machine.stage import (
         SEED000_FORCE,
         SEED001_FORCE,
@@ -196,6 +195,7 @@ def simulate_stage(
         StageSim,
         Trajectory,
     )
+    from machine.stage_params import preset
 
     force = SEED000_FORCE if preset_name == "seed000" else SEED001_FORCE
     if no_force:

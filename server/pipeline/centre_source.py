@@ -42,9 +42,9 @@ from machine.centre import signals
 from machine.centre.program import program_variant
 from machine.centre.sim import CentreState, MachiningCentre
 from machine.centre.trace import CncTrace, TraceParams, TraceState
-from machine.params import StageParams, preset
 from machine.process import EventTruth
 from machine.stage import Measurements
+from machine.stage_params import StageParams, preset
 from server.pipeline.sources import SourceBlock, empty_measurements
 
 __all__ = ["CENTRE_RATE_HZ", "CentreSource"]

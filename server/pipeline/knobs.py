@@ -33,7 +33,9 @@ from server.pipeline.eccentricity_part import FORCE_SOURCES, TUNERS
 #: spindle speed at which the force's frequencies are the papers' 100 / 200 Hz
 BASE_RPM = 3000.0
 
-KnobValue = float | bool | str
+#: a knob's value (one definition: the pipeline's knobs, the stream's messages and the
+#: PATCH request all import it)
+KnobValue = bool | float | str
 
 #: the reader of the simulated stage's knobs (the pipeline itself, when its source is the
 #: simulator: ``MeasurementSource.knobs_apply``), beside the parts' names

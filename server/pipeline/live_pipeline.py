@@ -82,8 +82,8 @@ from estimators.observer_effects import ObserverEffect
 from estimators.rls import IdentifierParams
 from harness.accuracy import RollingAccuracy
 from machine.effects import EFFECT_NAMES, PlantEffects
-from machine.params import ADDED_WEIGHT_INERTIA
 from machine.stage import SEED000_FORCE, CuttingForce, StageConfig
+from machine.stage_params import ADDED_WEIGHT_INERTIA
 from server.errors import CutwatchError
 from server.pipeline.checkpoint import PipelineState, ScriptState
 from server.pipeline.knobs import (

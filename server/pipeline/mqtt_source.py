@@ -31,8 +31,8 @@ import numpy as np
 
 from common.errors import ParameterError
 from common.machine_description import AxisDescription, MachineDescription
-from machine.params import preset
 from machine.stage import SEED000_FORCE, Measurements, StageConfig
+from machine.stage_params import preset
 from server.pipeline.drive_feed import DriveFeed
 from server.pipeline.sources import (
     NOMINAL,

@@ -32,8 +32,8 @@ import numpy as np
 
 from common.arrays import F64
 from common.machine_description import MAX_SAMPLE_TIME, MIN_SAMPLE_TIME, MachineDescription
-from machine.params import preset
 from machine.stage import SEED000_FORCE, Measurements, StageConfig
+from machine.stage_params import preset
 from server.errors import CutwatchError
 from server.pipeline.opcua_grid import TimeGrid
 from server.pipeline.opcua_link import CONNECTED, OpcuaLink, OpcuaSecurity

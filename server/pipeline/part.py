@@ -182,7 +182,7 @@ class Chart:
     part: str = ""
 
     def describe(self) -> dict[str, Any]:
-        """The chart as ``hello`` carries it (``server.service.messages.Chart``)."""
+        """The chart as ``hello`` carries it (``server.service.messages.HelloChart``)."""
         fields = ("id", "title", "page", "order", "window_s", "fast", "wide", "markers", "part")
         return {f: getattr(self, f) for f in fields}
 
@@ -255,7 +255,7 @@ class Channel:
         return "t" if self.fast else "ts"
 
     def describe(self) -> dict[str, Any]:
-        """The channel as ``hello`` carries it (``server.service.messages.Channel``)."""
+        """The channel as ``hello`` carries it (``server.service.messages.HelloChannel``)."""
         return {
             "name": self.name,
             "unit": self.unit,

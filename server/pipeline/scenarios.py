@@ -23,8 +23,8 @@ from dataclasses import dataclass, field
 from typing import Protocol
 
 from estimators.rls import IdentifierParams
-from machine.params import ADDED_WEIGHT_INERTIA, preset
 from machine.stage import SEED000_FORCE, SEED001_FORCE, StageConfig
+from machine.stage_params import ADDED_WEIGHT_INERTIA, preset
 from server.pipeline.sources import MeasurementSource
 
 KnobMap = Mapping[str, float | bool | str]

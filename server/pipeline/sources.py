@@ -18,7 +18,7 @@ kind : str
     The model the observers use; ``"two_inertia"`` (motor and load positions).
 sample_time : float
     Sample time [s] of every block.
-nominal : machine.params.StageParams
+nominal : machine.stage_params.StageParams
     The known (nominal) parameters the observers are built from (J_M, B_M, F_CM, K,
     and the load's J_L, B_L, F_CL the identifiers start from).
 encoder_resolution : float
@@ -95,8 +95,8 @@ import numpy as np
 
 from common.arrays import F64
 from common.errors import ParameterError
-from machine.params import StageParams
 from machine.stage import SEED000_FORCE, Measurements, StageConfig, StageSim, Truth
+from machine.stage_params import StageParams
 from server.errors import CutwatchError, LogFormatError
 from server.records.measured_log import MeasuredLog, load_log
 

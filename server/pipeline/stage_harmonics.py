@@ -22,8 +22,8 @@ import numpy as np
 from common.arrays import F64
 from estimators import dfo as dfo_mod
 from estimators.force_observer import ObserverParams
-from machine.params import preset
 from machine.stage import SEED001_FORCE, CuttingForce, StageConfig
+from machine.stage_params import preset
 from server.pipeline.stage_run import StageRun
 
 BLOCK = 125  # 50 ms at 2.5 kHz

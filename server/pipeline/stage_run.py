@@ -38,8 +38,8 @@ from estimators.segment_id import (
     mark_disturbance,
     restart,
 )
-from machine.params import StageParams
 from machine.stage import Measurements, StageConfig, StageSim, Truth
+from machine.stage_params import StageParams
 from server.errors import CutwatchError
 from server.pipeline.sources import (
     RESUMED,

@@ -125,15 +125,18 @@ def knots(vb: F64) -> np.ndarray:
     return np.unique(np.concatenate([[0], inner + 1, [len(vb) - 1]]))
 
 
-def outer_splits(tools: Sequence[int], *, quick: bool = False) -> list[tuple[str, tuple[int, ...]]]:
-    """(protocol, test tools): LOTO over every tool, then SPLITS_PER_K random draws of k."""
+def outer_splits(
+    tools: Sequence[int], *, quick: bool = False, splits_per_k: int = SPLITS_PER_K
+) -> list[tuple[str, tuple[int, ...]]]:
+    """(protocol, test tools): LOTO over every tool, then ``splits_per_k`` distinct
+    random draws of k tools for each k in ``K_OUT`` (seeded)."""
     out: list[tuple[str, tuple[int, ...]]] = [("loto", (t,)) for t in tools]
     if quick:
         return out
     rng = np.random.default_rng(SPLIT_SEED)
     for k in K_OUT:
         seen: set[tuple[int, ...]] = set()
-        while sum(1 for p, _ in out if p == f"l{k}o") < SPLITS_PER_K:
+        while sum(1 for p, _ in out if p == f"l{k}o") < splits_per_k:
             pick = tuple(sorted(int(t) for t in rng.choice(list(tools), size=k, replace=False)))
             if pick not in seen:
                 seen.add(pick)
@@ -161,6 +164,8 @@ class ToolResult:
     base: dict[str, F64]
     life: dict[str, float] = field(default_factory=dict)
     entry: dict[str, float] = field(default_factory=dict)
+    #: the life error at half-life taken apart (:func:`life_parts`)
+    life_parts: dict[str, float] = field(default_factory=dict)
 
 
 @dataclass
@@ -169,6 +174,13 @@ class FoldResult:
     test: tuple[int, ...]
     chosen: str
     tools: list[ToolResult]
+    #: the chosen configuration's inner score (mean over the inner left-out tools of
+    #: their MAE) - what the selection believed of it
+    inner_score: float = math.nan
+    #: configurations whose inner score is within one paired standard error of the best
+    #: (over the inner left-out tools): how many the inner folds cannot tell apart
+    inner_close: int = 0
+    n_configs: int = 0
 
 
 class _Cache:
@@ -266,6 +278,44 @@ def life_errors(vb: F64, est: F64, rate: F64, start: float, method: str) -> dict
     return out
 
 
+def life_parts(
+    vb: F64, est: F64, rate: F64, start: float, method: str, prior: float
+) -> dict[str, float]:
+    """The life error at half-life (300 um, 150 um if never 300) taken apart: the
+    extrapolation is ``k + (criterion - level) / rate``; each of level and rate is taken
+    from the estimate or from the measured VB (``true``: the mean rate since the tool
+    came in, as the file's VB gives it; ``future``: the rate the tool really had to its
+    end, which makes the error 0) or from the training tools' median rate at these
+    conditions (``prior``). Keys ``LEVEL/RATE``; empty when neither criterion is
+    reached."""
+    for crit in CRITERIA:
+        hit = np.flatnonzero(vb >= crit)
+        if len(hit) and hit[0] >= 2:
+            break
+    else:
+        return {}
+    h = int(hit[0])
+    k = h // 2
+    lv = {"est": float(est[k]), "true": float(vb[k])}
+    if method == "mean":
+        r_est = (lv["est"] - start) / max(k, 1)
+    else:
+        r_est = float(rate[k])
+        if not math.isfinite(r_est):
+            lo = max(0, k - 20)
+            r_est = float((est[k] - est[lo]) / max(k - lo, 1))
+    rt = {"est": r_est, "true": (lv["true"] - float(vb[0])) / max(k, 1), "prior": prior}
+    out: dict[str, float] = {"criterion": crit, "rate_future": (crit - lv["true"]) / (h - k)}
+    for ln, v in lv.items():
+        for rn, r in rt.items():
+            end = k + (crit - v) / r if r > 1e-9 else math.inf
+            end = float(k) if v >= crit else end
+            out[f"{ln}/{rn}"] = abs(end - h) / (h - k) if math.isfinite(end) else math.inf
+    out["rate_est"], out["rate_true"], out["rate_prior"] = r_est, rt["true"], prior
+    out["level_err"] = lv["est"] - lv["true"]
+    return out
+
+
 def _life_score(errs: Sequence[dict[str, float]]) -> float:
     """Median over tools of the life error at 300 um (150 um where 300 is not reached)."""
     v = [e.get("300", e.get("150")) for e in errs if e]
@@ -321,6 +371,12 @@ def run_fold(
             score[c].append(float(np.mean(np.abs(est - vb))))
             inner[c][i] = (est, sd, vb, rate)
     best = min(cfgs, key=lambda c: (float(np.mean(score[c])), c.label))
+    sb = np.asarray(score[best])
+    close = 0
+    for c in cfgs:
+        diff = np.asarray(score[c]) - sb
+        se = float(np.std(diff, ddof=1) / math.sqrt(len(diff))) if len(diff) > 1 else 0.0
+        close += int(float(np.mean(diff)) <= se)
     # the life's extrapolation: chosen on the same inner folds
     life_method = min(
         LIFE_METHODS,
@@ -339,13 +395,23 @@ def run_fold(
         base = _baselines(table, signals, tools, t, [data[x] for x in tools], d)
         r = ToolResult(t, d.vb, est, lo, hi, base)
         r.life = life_errors(d.vb, est, rate, float(d.start_vb or 0.0), life_method)
+        prior = model.prior_rate(float(np.median(d.feed[: min(len(d.feed), 10)])))[0]
+        r.life_parts = life_parts(d.vb, est, rate, float(d.start_vb or 0.0), life_method, prior)
         # entered part-way (a third into its life): with its record, and with none
         k = len(d.vb) // 3
         for rec in (True, False):
             e, _, _ = model.run(d.tail(k, record=rec))
             r.entry["record" if rec else "no_record"] = float(np.mean(np.abs(e - d.vb[k:])))
         out.append(r)
-    return FoldResult(protocol, tuple(test), f"{best.label}/life={life_method}", out)
+    return FoldResult(
+        protocol,
+        tuple(test),
+        f"{best.label}/life={life_method}",
+        out,
+        inner_score=float(np.mean(sb)),
+        inner_close=close,
+        n_configs=len(cfgs),
+    )
 
 
 def evaluate(
@@ -409,6 +475,7 @@ def per_tool(f: FoldResult) -> list[dict[str, Any]]:
             "coverage": float(np.mean((t.vb >= t.lo) & (t.vb <= t.hi))),
             "width": float(np.median(t.hi - t.lo)),
             "life": dict(t.life),
+            "life_parts": dict(t.life_parts),
             "entry": dict(t.entry),
         }
         for b in BASELINES:
@@ -431,6 +498,16 @@ def summarise(folds: Sequence[FoldResult], groups: dict[int, str] | None = None)
             for m in ms:
                 m[f"ratio_{b}"] = m["mae"] / m[f"mae_{b}"] if m[f"mae_{b}"] > 0 else math.nan
             keys.append(f"ratio_{b}")
+        for f, m in zip(fs, ms, strict=True):
+            # what the selection believed (inner score) against what the chosen
+            # configuration made on the outer tools, each tool counted once as inside
+            outer = float(np.mean([_mae(t.est, t.vb) for t in f.tools]))
+            m["inner_score"] = f.inner_score
+            m["outer_score"] = outer
+            m["optimism"] = outer - f.inner_score
+            m["optimism_ratio"] = outer / f.inner_score if f.inner_score > 0 else math.nan
+            m["inner_close"] = float(f.inner_close)
+        keys += ["inner_score", "outer_score", "optimism", "optimism_ratio", "inner_close"]
         tools = [r for f in fs for r in per_tool(f)]
         pooled = fold_metrics(FoldResult(p, (), "", [t for f in fs for t in f.tools]))
         beat = [r["mae"] < r["mae_linear"] for r in tools]
@@ -448,6 +525,7 @@ def summarise(folds: Sequence[FoldResult], groups: dict[int, str] | None = None)
             "pooled": pooled,
             "tools_beat_linear": float(np.mean(beat)),
             "tools_cov75": float(np.mean(cov75)),
+            "n_configs": fs[0].n_configs,
             "chosen": dict(
                 sorted(
                     {c: sum(f.chosen == c for f in fs) for c in {f.chosen for f in fs}}.items(),
@@ -474,6 +552,10 @@ def summarise(folds: Sequence[FoldResult], groups: dict[int, str] | None = None)
             lives = [t["life"].get("300", t["life"].get("150")) for t in tools if t["life"]]
             out[p]["life_error"] = float(np.median(lives)) if lives else math.nan
             out[p]["life_tools"] = len(lives)
+            parts = [t["life_parts"] for t in tools if t["life_parts"]]
+            out[p]["life_parts"] = {
+                k: float(np.median([x[k] for x in parts])) for k in (parts[0] if parts else {})
+            }
             out[p]["entry_record"] = float(np.mean([t["entry"]["record"] for t in tools]))
             out[p]["entry_no_record"] = float(np.mean([t["entry"]["no_record"] for t in tools]))
     return out
@@ -489,6 +571,7 @@ __all__ = [
     "evaluate",
     "fold_metrics",
     "knots",
+    "life_parts",
     "load",
     "outer_splits",
     "per_tool",

@@ -19,7 +19,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from common.errors import ParameterError
-from machine.params import ADDED_WEIGHT_INERTIA
+from machine.stage_params import ADDED_WEIGHT_INERTIA
 from server.pipeline.machine_view import MachineView
 from server.pipeline.part import (
     Block,

@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from server.records.store import DataStore
+from server.records.data_areas import DataStore
 
 #: the project root (the child process loads the service's own code)
 ROOT = Path(__file__).resolve().parents[2]

@@ -19,7 +19,7 @@ from collections.abc import AsyncIterator
 from fastapi import FastAPI
 
 from server.pipeline import part_registry
-from server.records.store import DataStore
+from server.records.data_areas import DataStore
 from server.service import web_files
 from server.service.analysis import Analyses
 from server.service.front import protect

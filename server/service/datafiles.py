@@ -1,9 +1,9 @@
 """Files of the service's data areas named in requests: logs (recordings, uploads) and
-residual reports, found by plain name only (:class:`server.records.store.DataStore`).
+residual reports, found by plain name only (:class:`server.records.data_areas.DataStore`).
 
 A request that names a path instead is refused with one answer whatever the path is
 (:func:`refuse_path`), and a name that does not resolve gets the store's one answer
-(:class:`~server.records.store.NotFound`): the service is no oracle over the host's file
+(:class:`~server.records.data_areas.NotFound`): the service is no oracle over the host's file
 system. Messages of the log checks name the file by its name in its area, not by its
 place on the server's disk.
 """
@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from server.records.store import DataStore, NotFound
+from server.records.data_areas import DataStore, NotFound
 from server.service.http_errors import FieldError
 
 LOG_AREAS = ("recordings", "uploads")

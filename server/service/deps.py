@@ -18,7 +18,7 @@ from fastapi import Depends, HTTPException, Request
 from estimators.observer_effects import ObserverEffect
 from server.pipeline.knobs import Knob
 from server.pipeline.live_pipeline import LivePipeline
-from server.records.store import DataStore
+from server.records.data_areas import DataStore
 from server.service.auth import operator
 from server.service.http_errors import error
 from server.service.loop import LiveLoop

@@ -27,13 +27,11 @@ from typing import Any, ClassVar, Literal
 from pydantic import BaseModel, ConfigDict, Field
 
 from common.event_kinds import EventKind
+from server.pipeline.knobs import KnobValue
 from server.records.monitor_events import EventAction
 
 #: the stream's version, sent in ``hello`` (the page refuses a stream of another version)
 VERSION = 2
-
-#: a knob's value as the stream carries it
-KnobValue = bool | float | str
 
 
 def _versioned(schema: dict[str, Any], cls: type[Any]) -> None:
@@ -59,8 +57,9 @@ class Interval(Versioned):
     excited: str = Field(description="1: the data determine it; 0: show it greyed, 'not excited'")
 
 
-class Channel(Versioned):
-    """One channel announced by ``hello``, as the part that streams it declared it."""
+class HelloChannel(Versioned):
+    """One channel announced by ``hello``: the wire shape of the
+    :class:`server.pipeline.part.Channel` a part declares (its ``describe()``)."""
 
     VERSION: ClassVar[int] = 2
     model_config = ConfigDict(extra="forbid")
@@ -86,8 +85,9 @@ class Channel(Versioned):
     legend: str = Field(description="its short name in the chart's legend ('': its label)")
 
 
-class Chart(Versioned):
-    """A chart of the dashboard, declared by a part."""
+class HelloChart(Versioned):
+    """A chart of the dashboard announced by ``hello``: the wire shape of the
+    :class:`server.pipeline.part.Chart` a part declares."""
 
     model_config = ConfigDict(extra="forbid")
     id: str = Field(description="its name (the page's element chart-<id>)")
@@ -121,8 +121,8 @@ class Hello(Versioned):
     model_config = ConfigDict(extra="forbid")
     type: Literal["hello"] = "hello"
     version: int = Field(default=VERSION, description="the stream's version")
-    channels: list[Channel]
-    charts: list[Chart]
+    channels: list[HelloChannel]
+    charts: list[HelloChart]
     parts: list[PartStatus]
     sample_time: float | None = Field(
         description="the pipeline's sample time [s]; null while a live feed has not "
@@ -277,8 +277,8 @@ class EventMessage(Versioned):
 #: every message shape of the stream, by the name ``SCHEMA`` lists its fields under
 MESSAGES: dict[str, type[Versioned]] = {
     "hello": Hello,
-    "channel": Channel,
-    "chart": Chart,
+    "channel": HelloChannel,
+    "chart": HelloChart,
     "interval": Interval,
     "part": PartStatus,
     "data": Data,

@@ -25,6 +25,7 @@ from pydantic import (
 from pydantic_core import PydanticCustomError
 
 from common.event_kinds import ProcessEventKind
+from server.pipeline.knobs import KnobValue
 from server.pipeline.process_part import CLEAR_SIZES, SIZE_RANGES
 from server.records.history import CAUSES
 from server.service.messages import Accuracy, Event, LoopHealth, MonitorStatus, PartStatus
@@ -263,7 +264,7 @@ class Params(RootModel[dict[str, KnobOut]]):
     """``GET``/``PATCH /api/params``: every live parameter with its allowed values."""
 
 
-def _knob_value(v: Any) -> bool | float | str:
+def _knob_value(v: Any) -> KnobValue:
     # the type of a knob's value; its range or choices are the pipeline's to check
     # (``LivePipeline.set_knob``, one message per knob)
     if isinstance(v, bool):
@@ -283,10 +284,10 @@ def _knob_value(v: Any) -> bool | float | str:
 
 
 #: the value of one knob in a PATCH: a finite number, a boolean or a short string
-KnobValue = Annotated[bool | float | str, PlainValidator(_knob_value)]
+_PatchedValue = Annotated[KnobValue, PlainValidator(_knob_value)]
 
 
-class ParamsPatch(RootModel[dict[str, KnobValue]]):
+class ParamsPatch(RootModel[dict[str, _PatchedValue]]):
     """``PATCH /api/params``: ``{name: value}`` for one or more knobs (all or nothing).
 
     Each value is checked against its knob (a number in range, true or false, one of the

@@ -193,3 +193,35 @@ def test_hybrid_on_a_given_test_tool_and_its_refusals(
         rc = main([*args, *extra, "--out", str(out), "--quiet"])
         err = capsys.readouterr().err
         assert rc == 2 and what in err, err
+
+
+def test_hybrid_leave_k_tools_out_quick(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    """Repeated leave-k-tools-out through the command (``--quick``: the first draw of
+    each k, the first list without boosting) on the spindle torque: every split's test
+    tools are k distinct tools, the pooled MAE is the estimates', and each split says
+    what its selection believed (inner score) beside what it made (optimism)."""
+    out = tmp_path / "lk"
+    args = ["wear", str(TABLE), "--method", "hybrid", "--set", "TV2.S", "--protocol", "leave-k"]
+    assert main([*args, "--quick", "--out", str(out), "--quiet"]) == 0
+    printed = capsys.readouterr().out
+    rep = json.loads((out / "report.json").read_text())
+    assert [p for p in ("l2o", "l3o", "l4o") if p in rep] == ["l2o", "l3o", "l4o"]
+    assert "loto" not in rep
+    with (out / "estimates.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    for k in (2, 3, 4):
+        v = rep[f"l{k}o"]
+        assert v["splits"] == 1 and f"l{k}o, 1 splits" in printed
+        mine = [r for r in rows if r["protocol"] == f"l{k}o"]
+        split = {r["split"] for r in mine}
+        assert len(split) == 1 and len(set(split.pop().split("+"))) == k
+        assert {r["tool"] for r in mine} and len({r["tool"] for r in mine}) == k
+        err = np.array([abs(float(r["vb_est"]) - float(r["vb_true"])) for r in mine])
+        assert v["pooled"]["mae"] == pytest.approx(float(np.mean(err)), abs=1e-2)
+        o = {key: v[key]["median"] for key in ("inner_score", "outer_score", "optimism")}
+        assert o["optimism"] == pytest.approx(o["outer_score"] - o["inner_score"])
+        assert 0 < o["inner_score"] < 300 and 0 < o["outer_score"] < 300
+        assert 1 <= v["inner_close"]["median"] <= v["n_configs"] == 30
+    rc = main([*args, "--test-tools", "3", "--out", str(out), "--quiet"])
+    err = capsys.readouterr().err
+    assert rc == 2 and "--protocol leave-k" in err and "--test-tools" in err

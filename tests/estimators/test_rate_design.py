@@ -16,7 +16,7 @@ from estimators.force_observer import (
 )
 from estimators.rls import IdentifierParams, LoadIdentifier
 from estimators.segment_id import SegmentIdentifier, SegmentIdentifierParams
-from machine.params import preset
+from machine.stage_params import preset
 
 P = preset("seed000")
 

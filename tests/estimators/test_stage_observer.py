@@ -17,8 +17,8 @@ from estimators.force_observer import (
 )
 from machine.effects import EFFECT_NAMES, PlantEffects
 from machine.errors import ParameterError
-from machine.params import ADDED_WEIGHT_INERTIA, StageParams, preset
 from machine.stage import StageConfig, StageSim, Trajectory
+from machine.stage_params import ADDED_WEIGHT_INERTIA, StageParams, preset
 
 
 def test_presets_have_their_first_resonance_at_a_few_hundred_hz() -> None:

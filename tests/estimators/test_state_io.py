@@ -20,8 +20,8 @@ from estimators.rls import IdentifierParams, LoadIdentifier
 from estimators.segment_id import SegmentIdentifier, SegmentIdentifierParams
 from estimators.ud_rls import ForgettingRLS, ForgettingRLSParams
 from estimators.wear_monitor import ToolLifeMonitor, ToolLifeParams
-from machine.params import preset
 from machine.stage import StageConfig, StageSim
+from machine.stage_params import preset
 
 N = 2500  # 1 s at 2.5 kHz
 

@@ -33,9 +33,19 @@ def tool(seed: int, n: int = 150, start: float = 0.0, feed: float = 2260.0) -> T
 
 
 def test_candidates_are_the_protocols_list() -> None:
-    c = candidates()
+    c = candidates(revision=2)
     assert len(c) == 176 and len({x.label for x in c}) == 176
     assert len(candidates(revision=1)) == 40
+    # revision 3 (shrunk by physics): every one filtered, monotone maps on the _MEANs,
+    # boosting on every feature, the rate's random walk at most 1e-4
+    c3 = candidates()
+    assert len(c3) == 36 == len({x.label for x in c3})
+    assert all(x.smoothing is not None and x.smoothing <= 1e-4 for x in c3)
+    assert {(x.map, x.features) for x in c3} == {
+        ("linear", "mean"),
+        ("isotonic", "mean"),
+        ("gbr", "five"),
+    }
 
 
 def test_bad_config_names_the_field() -> None:

@@ -4,11 +4,13 @@ from __future__ import annotations
 
 import math
 import queue
+import threading
 import time
 
 import numpy as np
 import paho.mqtt.client as mqtt
 from _broker import broker
+from _wait import poll
 
 from server.pipeline.broker import parse_broker_url
 from server.pipeline.estimates_out import EstimatesPublisher
@@ -39,24 +41,28 @@ def test_published_at_the_set_rate_through_a_broker() -> None:
         got: queue.Queue[bytes] = queue.Queue()
         sub = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2)
         sub.on_message = lambda _c, _u, m: got.put(bytes(m.payload))
+        subscribed = threading.Event()
+        sub.on_subscribe = lambda *_a: subscribed.set()
         sub.connect("127.0.0.1", port)
         sub.subscribe("cutwatch/m1/estimates")
         sub.loop_start()
         pub = EstimatesPublisher(parse_broker_url(f"mqtt://127.0.0.1:{port}"), "m1", rate_hz=10)
         pub.start()
         try:
-            deadline = time.monotonic() + 5
-            while not pub.connected and time.monotonic() < deadline:
-                time.sleep(0.05)
-            t0 = time.monotonic()
+            # the subscription is in place before the first message (qos 0: not kept)
+            assert subscribed.wait(30), "the subscription was not acknowledged"
+            poll(lambda: pub.connected, 30, 0.05)
+            # the rate is the publisher's schedule on the clock it is handed, so the test
+            # hands it 1 s of 10 ms ticks: a loaded box that takes longer to step the
+            # pipeline does not change the count (it did when the ticks were the wall's)
+            now0 = time.time()
             sent = 0
-            while time.monotonic() - t0 < 1.0:
+            for k in range(100):
                 pub.observe(p.step(125))
-                now = time.time()
+                now = now0 + 0.01 * k
                 if pub.due(now):
                     sent += pub.publish(pub.build(now, p.channels(), p.t, "simulator"), now)
-                time.sleep(0.01)
-            time.sleep(0.3)
+            poll(lambda: got.qsize() >= sent, 30, 0.05)  # each one through the broker
         finally:
             pub.stop()
             sub.loop_stop()

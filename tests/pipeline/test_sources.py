@@ -13,8 +13,8 @@ import pytest
 
 from estimators.observer_effects import ObserverEffect
 from estimators.segment_id import SEG_DISTURBANCE
-from machine.params import preset
 from machine.stage import SEED000_FORCE, StageConfig
+from machine.stage_params import preset
 from server.pipeline.live_pipeline import LivePipeline
 from server.pipeline.sources import (
     RESUMED,

@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-from machine.params import preset
 from machine.stage import SEED000_FORCE, StageConfig
+from machine.stage_params import preset
 from server.pipeline.stage_run import observer_params_for
 
 

@@ -108,3 +108,38 @@ def test_summary_groups_are_the_mean_of_their_tools(table: W.WearTable) -> None:
     two = next(v for v in gs.values() if len(v["tools"]) == 2)
     assert sorted(two["tools"]) == [6, 7]
     assert two["mae"] == pytest.approx((per[6] + per[7]) / 2)
+
+
+def test_life_parts_take_the_half_life_error_apart() -> None:
+    """A tool wearing 1 um/segment to 100 segments, then 3 um/segment: at half of its
+    life to 300 um the mean rate since it came in under-reads the rate to come; the
+    true level with the future rate would be exact, an estimate 20 um high with the
+    true mean rate ends early by 20 segments."""
+    k = np.arange(168, dtype=np.float64)
+    vb = np.where(k <= 100, k, 100 + 3 * (k - 100))  # reaches 300 at segment 167
+    h = int(np.flatnonzero(vb >= 300)[0])
+    half = h // 2
+    est = vb + 20.0
+    rate = np.full(len(vb), 2.0)
+    p = W.life_parts(vb, est, rate, 0.0, "rate", prior=1.5)
+    assert p["criterion"] == 300.0 and p["level_err"] == pytest.approx(20.0)
+    rt = (vb[half] - vb[0]) / half
+    assert p["rate_true"] == pytest.approx(rt)
+    assert p["true/true"] == pytest.approx(abs(half + (300 - vb[half]) / rt - h) / (h - half))
+    assert p["true/est"] == pytest.approx(abs(half + (300 - vb[half]) / 2.0 - h) / (h - half))
+    assert p["est/true"] == pytest.approx(abs(half + (280 - vb[half]) / rt - h) / (h - half))
+    assert p["true/prior"] == pytest.approx(abs(half + (300 - vb[half]) / 1.5 - h) / (h - half))
+    assert p["rate_future"] == pytest.approx((300 - vb[half]) / (h - half))
+    # a tool that reaches neither criterion has no life score
+    assert W.life_parts(vb[:50], est[:50], rate[:50], 0.0, "rate", prior=1.5) == {}
+
+
+def test_fold_records_what_its_selection_believed(table: W.WearTable) -> None:
+    cfgs = [c for c in W.candidates() if c.map == "linear"]
+    f = W.run_fold(table, "F_f", (7,), "loto", W._Cache(), configs=cfgs)
+    assert f.n_configs == len(cfgs) == 12 and 1 <= f.inner_close <= 12
+    assert 0 < f.inner_score < 200
+    s = W.summarise([f])["loto"]
+    outer = float(np.mean(np.abs(f.tools[0].est - f.tools[0].vb)))
+    assert s["outer_score"]["median"] == pytest.approx(outer)
+    assert s["optimism"]["median"] == pytest.approx(outer - f.inner_score)

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from server.errors import CutwatchError
+from server.records.data_areas import DataStore, NotFound
 from server.records.measured_log import load_log
 from server.records.recorder import Recorder
-from server.records.store import DataStore, NotFound
 
 SIDE = {
     "sample_time": 4e-4,

@@ -170,20 +170,34 @@ def test_control_rejects(api: httpx.Client, body: dict[str, object], message: st
 
 
 def test_control_pause_resume_reset_speed(api: httpx.Client) -> None:
+    # judged by the loop's schedule, not by how much it computes in a fixed sleep (a
+    # loaded box may not step in 0.3 s, nor reach 4x; the rate is cutwatch bench's)
     assert api.post("/api/control", json={"action": "pause"}).json()["paused"] is True
     t0 = sim_t(api)
     time.sleep(0.3)
-    assert sim_t(api) == t0
+    assert sim_t(api) == t0  # paused: no block runs after the answer
     assert api.post("/api/control", json={"action": "resume"}).json()["paused"] is False
-    time.sleep(0.3)
-    assert sim_t(api) > t0
+    poll(lambda: sim_t(api) > t0, 20)
+    # reset: t from 0 on the wall clock's schedule, so never ahead of the wall time since
+    before = time.monotonic()
     api.post("/api/control", json={"action": "reset"})
-    assert sim_t(api) < 0.2
-    r = api.post("/api/control", json={"action": "speed", "value": 4})
-    assert r.json()["speed"] == 4.0
+    t_reset = sim_t(api)
+    assert t_reset <= time.monotonic() - before, t_reset
+    # speed 4 from a pause (t fixed, the schedule anchored at the answer): never more than
+    # 4x the wall time since, and sooner or later ahead of the wall clock, which 1x is not
+    assert api.post("/api/control", json={"action": "pause"}).json()["paused"] is True
     t1 = sim_t(api)
-    time.sleep(0.5)
-    assert sim_t(api) - t1 > 1.0  # 4x real time
+    before = time.monotonic()
+    r = api.post("/api/control", json={"action": "speed", "value": 4})
+    assert r.json()["speed"] == 4.0 and r.json()["paused"] is False
+
+    def ahead() -> bool:
+        ran = sim_t(api) - t1
+        wall = time.monotonic() - before
+        assert ran <= 4.0 * wall, (ran, wall)
+        return ran > wall
+
+    poll(ahead, 30)
     assert api.post("/api/control", json={"action": "speed", "value": 0}).json()["paused"]
     api.post("/api/control", json={"action": "speed", "value": 1})
 

@@ -53,14 +53,19 @@ def test_dashboard_moves_and_pauses(hp: str, tmp_path: Path) -> None:
         assert drawn > 1000
         page.screenshot(path=str(tmp_path / "dashboard-running.png"))
         shot0 = page.locator("#chart-force canvas").screenshot()
-        time.sleep(0.5)
-        assert page.locator("#chart-force canvas").screenshot() != shot0  # it moves
+        # it moves: polled, as a loaded box may draw nothing new in a fixed 0.5 s
+        wait_for(lambda: page.locator("#chart-force canvas").screenshot() != shot0)
 
         page.click("#pause")
         page.wait_for_selector("#simt:has-text('paused')", timeout=5000)
         t_paused = sim_t()
-        time.sleep(0.3)  # a frame built before the pause may still arrive
-        still = page.locator("#chart-force canvas").screenshot()
+        # frames come in the loop's order, so none built before the pause follows the
+        # one that said paused; a drawing it started may still be finishing: until two
+        # shots in a row agree (was a fixed 0.3 s), then it must stay so
+        shots = [page.locator("#chart-force canvas").screenshot()]
+        wait_for(lambda: shots.append(page.locator("#chart-force canvas").screenshot())
+                 or shots[-1] == shots[-2])  # fmt: skip
+        still = shots[-1]
         time.sleep(1.0)
         assert sim_t() == t_paused
         assert page.locator("#chart-force canvas").screenshot() == still  # it stopped
@@ -119,15 +124,21 @@ def test_viser_scene_renders_and_moves(tmp_path: Path) -> None:
 
         wait_for(lambda: drawn(shot()) > 0.2, timeout=30.0)
         a = shot()
-        time.sleep(1.0)
-        b = shot()
+
+        def moved(b: np.ndarray) -> float:
+            return float(np.mean(np.abs(a - b).sum(axis=2) > 30.0))
+
+        # polled (was one shot 1 s later: a loaded box may not redraw the scene in 1 s)
+        last: list[np.ndarray] = []
+        wait_for(lambda: last.append(shot()) or moved(last[-1]) > 0.002, timeout=30.0)
+        b = last[-1]
         page.screenshot(path=str(tmp_path / "viser.png"))
         out = Path("out")
         out.mkdir(exist_ok=True)
         page.screenshot(path=str(out / "viser.png"))
     assert drawn(a) > 0.2
     # the table, screw stripe and spindle move between the two shots
-    assert float(np.mean(np.abs(a - b).sum(axis=2) > 30.0)) > 0.002
+    assert moved(b) > 0.002
 
 
 def test_refused_request_shows_the_servers_message() -> None:

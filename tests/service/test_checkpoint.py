@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from common.state_io import StateFormatError, save_state
-from machine.params import preset
+from machine.stage_params import preset
 from server.pipeline.checkpoint import KIND, VERSION, load_checkpoint, save_checkpoint
 from server.pipeline.live_pipeline import LivePipeline
 from tests._live import ServeProcess, serve_process

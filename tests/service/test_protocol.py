@@ -328,10 +328,10 @@ def test_no_channel_name_is_written_in_web() -> None:
 
 def test_schema_js_carries_a_type_for_every_message() -> None:
     js = (WEB / "schema.js").read_text(encoding="utf-8")
-    for model in ("Hello", "Data", "Channel", "Chart", "PartStatus", "EventMessage", "Event",
-                  "LoopHealth", "Accuracy", "MonitorStatus", "Interval"):  # fmt: skip
+    for model in ("Hello", "Data", "HelloChannel", "HelloChart", "PartStatus", "EventMessage",
+                  "Event", "LoopHealth", "Accuracy", "MonitorStatus", "Interval"):  # fmt: skip
         assert f"@typedef {{Object}} {model}\n" in js, model
-    assert " * @property {Array<Channel>} channels" in js
+    assert " * @property {Array<HelloChannel>} channels" in js
     assert ' * @property {("operator"|"research")} page' in js
 
 

@@ -28,7 +28,7 @@ from websockets.sync.client import connect
 
 from common.errors import ParameterError
 from server.errors import CutwatchError
-from server.records.store import check_name
+from server.records.data_areas import check_name
 from server.service.app import create_app
 from server.service.settings import Settings, check_security, is_loopback
 from server.service.upload_check import Refused, mat_expanded_size

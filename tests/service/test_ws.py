@@ -161,29 +161,49 @@ def test_pause_seen_in_stream(hp: str) -> None:
 
 
 def test_slow_client_loses_frames_others_do_not() -> None:
-    # tiny socket buffers so a client that never reads fills the pipe within seconds
+    # tiny socket buffers so a client that never reads fills the pipe within seconds.
+    # Judged by what the clients are sent (the frames' seq, the drop counts), not by how
+    # fast they arrive: on a loaded box a reading client's frames can come 0.5 s apart (a
+    # CI run saw 0.52 s) with nothing wrong in the hub; the rate is cutwatch bench's.
+    # client_buffer 16 (0.32 s at 50 Hz), not 4: with 4 the reading client itself lost a
+    # frame whenever the box held the server's thread for 80 ms (2 runs at once + 2 busy
+    # loops); the slow client still overflows it, as it never reads.
     with serve(
-        scenario="default", sndbuf=4096, frame_hz=50, display_points=2000, client_buffer=4
+        scenario="default", sndbuf=4096, frame_hz=50, display_points=2000, client_buffer=16
     ) as hp:
         raw = socket.create_connection(("127.0.0.1", int(hp.split(":")[1])))
         raw.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
         slow = connect(f"ws://{hp}/ws", sock=raw, max_queue=2, ping_interval=None, close_timeout=1)
-        with connect(f"ws://{hp}/ws") as fast, httpx.Client(base_url=f"http://{hp}") as api:
+        with (
+            connect(f"ws://{hp}/ws", open_timeout=30) as fast,
+            httpx.Client(base_url=f"http://{hp}", timeout=30) as api,
+        ):
             recv(fast)
-            arrivals: list[float] = []
-            fast_dropped = 0
-            deadline = time.monotonic() + 20
-            while time.monotonic() < deadline:
-                f = recv(fast)
-                arrivals.append(time.monotonic())
-                fast_dropped += f["dropped"]
-                if len(arrivals) % 25 == 0 and metric(api, "dropped_frames_total") > 0:
-                    break
-            assert metric(api, "dropped_frames_total") > 0, "the slow client never lost a frame"
-            gaps = [b - a for a, b in itertools.pairwise(arrivals)]
-            assert fast_dropped == 0
-            assert max(gaps) < 0.5  # the fast client kept its ~50 Hz stream
-            assert metric(api, "realtime_factor") > 0.5  # the loop never waited
+            frames: list[dict[str, Any]] = []
+
+            def take(n: int) -> None:
+                while n > 0:
+                    f = recv(fast)
+                    if f["type"] == "data":
+                        frames.append(f)
+                        n -= 1
+
+            # until the slow client's pipe is full and its queue overflows
+            deadline = time.monotonic() + 60
+            while metric(api, "dropped_frames_total") == 0:
+                assert time.monotonic() < deadline, "the slow client never lost a frame"
+                take(25)
+            # then, while it stays stuck (still losing frames), the loop goes on and the
+            # reading client is sent every frame the loop publishes: not held by the other
+            lost0, start = metric(api, "dropped_frames_total"), len(frames)
+            take(50)
+            assert metric(api, "dropped_frames_total") > lost0, "the slow client was not stuck"
+            window = frames[start:]
+            seqs = [f["seq"] for f in window]
+            assert seqs == list(range(seqs[0], seqs[0] + len(seqs))), seqs
+            assert sum(f["dropped"] for f in frames) == 0
+            sim = [f["health"]["sim_t"] for f in window]
+            assert all(b > a for a, b in itertools.pairwise(sim)), sim  # the loop never waited
             # the slow client finally reads (faster now): it is told how many frames it lost
             raw.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 20)
             told = 0

@@ -27,7 +27,7 @@ HELP = "simulate the stage and write a measured log (CSV + JSON sidecar)"
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     from machine.effects import EFFECT_NAMES
-    from machine.params import PRESETS
+    from machine.stage_params import PRESETS
 
     p.add_argument("--out", type=Path, required=True, help="CSV file to write")
     p.add_argument("--seconds", type=float, default=10.0, help="simulated time [s]")

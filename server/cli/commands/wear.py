@@ -89,7 +89,29 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--first-list",
         action="store_true",
         help="--method hybrid: the protocol's first candidate list (40 configurations, "
-        "faster) instead of revision 2 (176)",
+        "faster); the same as --revision 1",
+    )
+    p.add_argument(
+        "--revision",
+        type=int,
+        choices=(1, 2, 3),
+        default=None,
+        help="--method hybrid: the protocol's candidate list (1: 40, 2: 176, 3: 36 "
+        "configurations per signal set; default 3, see docs/turning-wear.md)",
+    )
+    p.add_argument(
+        "--protocol",
+        choices=("loto", "leave-k", "both"),
+        default="loto",
+        help="--method hybrid without --test-tools: leave one tool out (default), "
+        "repeated leave-k-tools-out (k = 2, 3, 4, 5 seeded draws each) or both; each "
+        "split's pooled MAE is reported as the median and range over the splits",
+    )
+    p.add_argument(
+        "--quick",
+        action="store_true",
+        help="--method hybrid: the first split of each protocol only and the first list "
+        "without gradient boosting (30 configurations): a check that it runs, not a result",
     )
     p.add_argument("--no-baselines", action="store_true", help="skip the two baselines")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -162,6 +184,7 @@ def _run_hybrid(args: argparse.Namespace) -> int:
         _Cache,
         columns_needed,
         condition_groups,
+        outer_splits,
         run_fold,
         summarise,
     )
@@ -183,26 +206,43 @@ def _run_hybrid(args: argparse.Namespace) -> int:
             "tools; no model file), found --train-tools or --model"
         )
     test = parse_tools(args.test_tools, table, "--test-tools")
-    groups = [(t,) for t in table.tools] if test is None else [tuple(test)]
-    if len(table.tools) - len(groups[0]) < 3:
+    if test is not None and args.protocol != "loto":
+        raise CutwatchError(
+            f"--protocol {args.protocol}: expected no --test-tools (the protocol draws the "
+            f"test tools), found --test-tools {args.test_tools}"
+        )
+    if test is None:
+        splits = outer_splits(table.tools, quick=args.protocol == "loto")
+        if args.protocol == "leave-k":
+            splits = [sp for sp in splits if sp[0] != "loto"]
+        if args.quick:  # the first split of each protocol
+            splits = [sp for i, sp in enumerate(splits) if sp[0] not in {q for q, _ in splits[:i]}]
+    else:
+        splits = [("given", tuple(test))]
+    worst = max(len(t) for _, t in splits)
+    if len(table.tools) - worst < 3:
         raise CutwatchError(
             f"{table.path}: --method hybrid: expected 3 or more training tools (the choice "
-            f"is a leave-one-tool-out over them), found {len(table.tools) - len(groups[0])}"
+            f"is a leave-one-tool-out over them), found {len(table.tools) - worst}"
         )
-    cfgs = candidates(revision=1) if args.first_list else None
+    rev = 1 if args.first_list else (args.revision or 3)
+    cfgs = candidates(revision=rev)
+    if args.quick:
+        cfgs = [c for c in candidates(revision=1) if c.map != "gbr"]
     cache = _Cache()
     folds = []
-    for g in tqdm(groups, desc="wear folds", file=sys.stderr, disable=args.quiet):
-        folds.append(run_fold(table, args.signal_set, g, "loto" if test is None else "given",
-                              cache, configs=cfgs))  # fmt: skip
+    for proto, g in tqdm(splits, desc="wear folds", file=sys.stderr, disable=args.quiet):
+        folds.append(run_fold(table, args.signal_set, g, proto, cache, configs=cfgs))
     args.out.mkdir(parents=True, exist_ok=True)
     with (args.out / "estimates.csv").open("w", newline="") as f:
         w = csv.writer(f)
-        w.writerow(["tool", "segment", "vb_true", "vb_est", "vb_lo", "vb_hi", "chosen"])
+        w.writerow(["protocol", "split", "tool", "segment", "vb_true", "vb_est", "vb_lo",
+                    "vb_hi", "chosen"])  # fmt: skip
         for fo in folds:
+            sp = "+".join(str(t) for t in fo.test)
             for r in fo.tools:
                 for k in range(len(r.vb)):
-                    w.writerow([r.tool, k, f"{r.vb[k]:.3f}", f"{r.est[k]:.3f}",
+                    w.writerow([fo.protocol, sp, r.tool, k, f"{r.vb[k]:.3f}", f"{r.est[k]:.3f}",
                                 f"{r.lo[k]:.3f}", f"{r.hi[k]:.3f}", fo.chosen])  # fmt: skip
     summ = summarise(folds, condition_groups(table))
     rep = {
@@ -213,14 +253,24 @@ def _run_hybrid(args: argparse.Namespace) -> int:
         "interval": "95 % CV+ over the training tools",
         **summ,
     }
+    rep["revision"] = "quick (32)" if args.quick else rev
     (args.out / "report.json").write_text(json.dumps(rep, indent=2, default=float) + "\n")
-    po = next(iter(summ.values()))["pooled"]
-    ratio = po["mae"] / po["mae_linear"] if po["mae_linear"] > 0 else np.nan
-    print(
-        f"{table.path} [{args.signal_set}, hybrid]: MAE {po['mae']:.1f} um (linear "
-        f"{po['mae_linear']:.1f}, ratio {ratio:.2f}; gradient boosting {po['mae_gbr5']:.1f}; "
-        f"prior {po['mae_prior']:.1f}); 95 % interval covers {100 * po['coverage']:.0f} %"
-    )
+    for proto, v in summ.items():
+        po = v["pooled"]
+        ratio = po["mae"] / po["mae_linear"] if po["mae_linear"] > 0 else np.nan
+        print(
+            f"{table.path} [{args.signal_set}, hybrid, {proto}, {v['splits']} splits, "
+            f"{v['n_configs']} configurations]: MAE {po['mae']:.1f} um (linear "
+            f"{po['mae_linear']:.1f}, ratio {ratio:.2f}; gradient boosting "
+            f"{po['mae_gbr5']:.1f}; prior {po['mae_prior']:.1f}); 95 % interval covers "
+            f"{100 * po['coverage']:.0f} %"
+        )
+        if v["splits"] > 1:
+            print("  per split, median (range): " + "; ".join(
+                f"{k} {v[k]['median']:.3g} ({v[k]['min']:.3g}-{v[k]['max']:.3g})"
+                for k in ("mae", "mae_linear", "mae_gbr5", "mae_gbr_same", "mae_prior",
+                          "ratio_linear", "ratio_gbr5", "ratio_prior", "coverage", "optimism")
+            ))  # fmt: skip
     print(f"wrote {args.out}/estimates.csv, report.json")
     return 0
 

@@ -14,8 +14,8 @@ import numpy as np
 
 from common.stats import rms
 from estimators.rls import IdentifierParams
-from machine.params import ADDED_WEIGHT_INERTIA, preset
 from machine.stage import SEED000_FORCE, StageConfig
+from machine.stage_params import ADDED_WEIGHT_INERTIA, preset
 from server.experiments.reproduction import Check, Reproduction, Row
 from server.experiments.reproductions._stage_common import (
     VARIANTS,

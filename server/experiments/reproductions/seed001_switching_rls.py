@@ -16,8 +16,8 @@ import numpy as np
 
 from common.stats import rms
 from estimators.rls import IdentifierParams
-from machine.params import preset
 from machine.stage import SEED001_FORCE, StageConfig
+from machine.stage_params import preset
 from server.experiments.reproduction import Check, Reproduction, Row
 from server.experiments.reproductions._stage_common import (
     VARIANTS,

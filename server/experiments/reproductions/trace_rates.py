@@ -3,7 +3,7 @@
 The default live scenario (seed 000's stage reciprocating while milling, the workpiece
 losing mass, the tool wearing, the spindle stepping; the knobs a user can set drawn per
 seed as in ``live-identifiability``) is simulated with its drive at 5 kHz, and the
-observers get what a CNC's trace hands out (:mod:`machine.trace`): 2.5 kHz (every 2nd
+observers get what a CNC's trace hands out (:mod:`machine.cycle_trace`): 2.5 kHz (every 2nd
 sample: the live service's rate), 1 kHz and 500 Hz, each as a point sample per cycle and
 as the cycle's average. Every filter, observer and identifier is designed from the rate
 it is given (:func:`estimators.force_observer.observer_design`,
@@ -27,8 +27,8 @@ from typing import Any
 
 import numpy as np
 
+from machine.cycle_trace import trace
 from machine.stage import Measurements, StageConfig, Truth
-from machine.trace import trace
 from server.experiments.reproduction import Check, Reproduction, Row
 from server.pipeline.sources import SimulatorSource, SourceBlock
 

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from fastapi import APIRouter, HTTPException, Request
 
-from server.records.store import check_name
+from server.records.data_areas import check_name
 from server.service.analysis import Analyses, Busy
 from server.service.datafiles import find_log
 from server.service.deps import Authorised, Store, conflict

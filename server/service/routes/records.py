@@ -15,7 +15,7 @@ from pathlib import Path
 from fastapi import APIRouter, HTTPException
 from fastapi.responses import FileResponse
 
-from server.records.store import DataStore, NotFound, check_name
+from server.records.data_areas import DataStore, NotFound, check_name
 from server.service.deps import (
     Authorised,
     Config,

@@ -8,7 +8,7 @@ from pathlib import Path
 from fastapi import APIRouter, HTTPException
 from fastapi.responses import FileResponse, HTMLResponse
 
-from server.records.store import check_name
+from server.records.data_areas import check_name
 from server.service.deps import Config
 from server.service.http_errors import error
 from server.service.schemas import ResidualReport, error_responses

@@ -24,7 +24,7 @@ from fastapi import APIRouter, HTTPException, Query, Request
 from fastapi.responses import Response
 from starlette.requests import ClientDisconnect
 
-from server.records.store import DataStore, check_name
+from server.records.data_areas import DataStore, check_name
 from server.service.deps import Authorised, Config, Store, conflict
 from server.service.http_errors import FieldError, error
 from server.service.schemas import UploadInfo, Uploads, error_responses

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from machine.cycle_trace import trace
 from machine.errors import ParameterError
-from machine.trace import trace
 
 
 def test_point_and_average() -> None:
