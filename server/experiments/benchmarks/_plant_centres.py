@@ -111,24 +111,33 @@ def score(
 ) -> dict[str, Any]:
     """Per machine, each true event that the feed reached (``t < t_end``, the log's time
     the window covered) is found when the machine raised an event of its kind on its
-    G-code line from :data:`EARLY_S` before it to :data:`MATCH_S` after it; every other
-    raised event is false. ``raised``: per machine, its events as ``{"kind", "t",
-    "line"}`` on the machine's clock (:func:`on_machine_clock`)."""
+    G-code line from :data:`EARLY_S` before it to :data:`MATCH_S` after it. Every other
+    raised event is ``beside`` a true event when it is on that event's line in that
+    window (another monitor's, or another detector's, alarm of the same event: a tool
+    lost also reads as a breakage), else ``false``. ``raised``: per machine, its events
+    as ``{"kind", "t", "line"}`` on the machine's clock (:func:`on_machine_clock`)."""
+
+    def near(r: dict[str, Any], e: dict[str, Any]) -> bool:
+        return bool(r.get("line") == e["line"] and e["t"] - EARLY_S <= r["t"] <= e["t"] + MATCH_S)
+
     due = [e for e in truth if e["t"] < t_end - MATCH_S]
-    found = 0
-    false = 0
+    found = beside = false = 0
     for evs in raised.values():
         used: set[int] = set()
         for e in due:
-            hit = next((i for i, r in enumerate(evs) if i not in used and r["kind"] == e["kind"]
-                        and r.get("line") == e["line"]
-                        and e["t"] - EARLY_S <= r["t"] <= e["t"] + MATCH_S), None)  # fmt: skip
+            hits = (i for i, r in enumerate(evs) if i not in used and r["kind"] == e["kind"])
+            hit = next((i for i in hits if near(evs[i], e)), None)
             if hit is not None:
                 used.add(hit)
                 found += 1
-        false += len(evs) - len(used)
+        for i, r in enumerate(evs):
+            if i not in used:
+                if any(near(r, e) for e in truth):
+                    beside += 1
+                else:
+                    false += 1
     n = len(due) * len(raised)
-    return {"events_due": n, "found": found, "false": false,
+    return {"events_due": n, "found": found, "beside": beside, "false": false,
             "detection": found / n if n else float("nan")}  # fmt: skip
 
 
