@@ -257,9 +257,9 @@ class NoHealth(TypedDict):
 
 
 class StatusStrip(TypedDict, total=False):
-    """The status strip (``server.service.messages.MonitorStatus``'s fields), JSON-safe
-    (NaN -> None): ``MachineRuntime.monitor_status``; what the ``monitor`` section
-    carries of it (:class:`StatusSection`)."""
+    """The status strip (``server.service.messages.MonitorStatus``'s fields; a number not
+    known is NaN, or None once JSON-safe: ``MachineRuntime.monitor_status``); what the
+    ``monitor`` section carries of it (:class:`StatusSection`)."""
 
     state: str
     tool: int
