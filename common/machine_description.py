@@ -503,7 +503,7 @@ def from_legacy(d: Mapping[str, Any], columns: Iterable[str] | None = None) -> M
         kind = "two_inertia" if cols is not None and "q_l" in cols else "rigid"
     signals = _legacy_signals(effort, kind, cols)
     nominal = dict(d.get("nominal") or {})
-    ax: dict[str, Any] = {"kind": kind, "signals": signals, "units": {"position": pos}}
+    ax: AxisDict = {"kind": kind, "signals": signals, "units": {"position": pos}}
     if effort != "A":
         ax["units"]["effort"] = effort
     if "K_t" in nominal:
