@@ -31,6 +31,10 @@ collision's overload). Where the command changed in the last :data:`CMD_HOLD_S` 
 change, a run-up) or is 0 the force is read as 0 too. A missing tool is then seen
 through the spindle's power as well (no cut: a mean of 0 under the band).
 
+Where the CNC says a block cannot cut (:class:`server.pipeline.block_motion.CanCut`: from
+the program's text where the source holds it, else from the axes' commanded feed) only
+the collision detector watches it (``ProcessMonitor.step(..., cutting=False)``).
+
 It runs where the ``axes`` part runs and the description gives the spindle's speed and
 the CNC's line (else it is not built, or says why it cannot run). The knobs
 ``teach_parts`` and ``band_factor`` set it, as the spindle part's; a change teaches again.
@@ -39,6 +43,7 @@ the CNC's line (else it is not built, or says why it cannot run). The knobs
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -48,6 +53,7 @@ from common.errors import ParameterError
 from common.event_kinds import EventKind
 from common.machine_description import MachineDescription
 from estimators.process_monitor import Alarm, MonitorParams, ProcessMonitor
+from server.pipeline.block_motion import CanCut
 from server.pipeline.machine_view import MachineView
 from server.pipeline.part import (
     Block,
@@ -176,13 +182,23 @@ class AxisMonitorPart(LivePart):
         The machine's description (its axes, the spindle's ``speed``, the identities).
     program
         The part program's name the source runs ("": not known).
+    lines
+        Per G-code line, whether the program lets it cut
+        (:func:`server.pipeline.block_motion.cutting_lines`), where the source holds the
+        program's text; else the commanded feed says it.
     """
 
     name = "axis_monitor"
     needs = ("axes", "spindle")
 
-    def __init__(self, description: MachineDescription, program: str = "") -> None:
+    def __init__(
+        self,
+        description: MachineDescription,
+        program: str = "",
+        lines: Mapping[int, bool] | None = None,
+    ) -> None:
         self.axes = monitored_axes(description)
+        self.can_cut = CanCut(description, lines)
         sp = description.spindle
         self._speed = (sp.signals if sp is not None else {}).get("speed", "")
         self._speed_cmd = (sp.signals if sp is not None else {}).get("speed_cmd", "")
@@ -250,6 +266,7 @@ class AxisMonitorPart(LivePart):
             new = ln != self.st.line
             self.st.line, self.st.tool = ln, tl
             ovr = float(over[a0]) if math.isfinite(over[a0]) and 0.0 < over[a0] <= 3.0 else 1.0
+            can_cut = self.can_cut(cols, ln, a0, b0, new)
             for ax in self.axes:
                 st = self.st.monitors[ax]
                 if not self.monitor.has_room(st, tl, self.program, ln):
@@ -260,7 +277,7 @@ class AxisMonitorPart(LivePart):
                 f = np.where(air[a0:b0], 0.0, np.nan_to_num(force[ax][a0:b0]))
                 m = self.monitor.step(st, f, zeros[a0:b0], psi[a0:b0], tool=tl,
                                       program=self.program, line=ln, new_block=new,
-                                      override=ovr)  # fmt: skip
+                                      override=ovr, cutting=can_cut)  # fmt: skip
                 teaching |= bool(m.teaching)
                 for k, v in (("F_mean", m.f_mean), ("F_upper", m.upper),
                              ("F_lower", m.lower), ("F_extreme", m.extreme)):  # fmt: skip
@@ -310,7 +327,7 @@ class AxisMonitorPart(LivePart):
                             limit=a.limit, unit=_UNITS[str(a.detector)], message=msg)  # fmt: skip
 
     def status(self) -> dict[str, Any]:
-        return {}
+        return {"axes_cutting_from": self.can_cut.source}
 
     def state(self) -> AxisMonitorState:
         return self.st

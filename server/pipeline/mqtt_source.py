@@ -107,6 +107,17 @@ class MqttSource(LiveSource):
         return self._t
 
     @property
+    def feed_origin(self) -> float | None:
+        """The feed's time (the publisher's ``t0`` clock) at this source's time 0 [s]: a
+        sample at source time ``t`` is at ``t + feed_origin`` on the machine's own clock
+        (its log's, its edge device's). The source's time counts from the first sample
+        it received, so a pipeline that joined a running feed is behind the machine's
+        clock by this much (None before the first sample). A consumer that matches the
+        events' ``t`` to the machine's record adds it (``cutwatch worker``'s
+        ``/api/machines/<m>``: ``feed_origin_s``)."""
+        return self._t0
+
+    @property
     def rate_known(self) -> bool:
         """True once a meta described the machine: before it, :attr:`sample_time` is the
         simulator's default, a placeholder no one is told (the hello says null)."""

@@ -187,13 +187,14 @@ def _process(c: BuildContext) -> Part | None:
 
 
 def _spindle(c: BuildContext) -> Part | None:
+    from server.pipeline.block_motion import program_lines
     from server.pipeline.machine_view import description_of
     from server.pipeline.spindle_part import SpindlePart
 
     desc = description_of(c.source)
     if desc is None or desc.spindle is None or "power" not in desc.spindle.signals:
         return None  # the stage, a log, a feed without a spindle's power: not built
-    return SpindlePart(desc, str(getattr(c.source, "program", "")))
+    return SpindlePart(desc, str(getattr(c.source, "program", "")), program_lines(c.source))
 
 
 def _axes(c: BuildContext) -> Part | None:
@@ -221,6 +222,7 @@ def _cnc(c: BuildContext) -> Part | None:
 
 def _axis_monitor(c: BuildContext) -> Part | None:
     from server.pipeline.axis_monitor_part import AxisMonitorPart, monitored_axes
+    from server.pipeline.block_motion import program_lines
     from server.pipeline.machine_view import description_of
 
     desc = description_of(c.source)
@@ -228,7 +230,8 @@ def _axis_monitor(c: BuildContext) -> Part | None:
         return None  # no axes' force, or no spindle's cutting power to say where it cuts
     if desc.spindle is None or "line" not in desc.identities or not monitored_axes(desc):
         return None  # no revolution, no block to teach per, or no force in N (an export's A)
-    return AxisMonitorPart(desc, str(getattr(c.source, "program", "")))
+    prog = str(getattr(c.source, "program", ""))
+    return AxisMonitorPart(desc, prog, program_lines(c.source))
 
 
 def _two_inertia(c: BuildContext) -> Part | None:

@@ -423,6 +423,9 @@ class LiveProcess:
             line=rec.line,
             new_block=ps.new_block,
             override=rec.override,
+            # what the program says of the block before it runs: a feed at its feed per
+            # tooth (a cut) or an air move at the air speed (watched for collisions only)
+            cutting=bool(run.blk.cut),
         )
         ps.new_block = False
         # the block's segment (the monitor's running state, _RUN "seg"): taught or not

@@ -24,6 +24,9 @@ teacher's hold time after) the power holds the rotor's acceleration, whose inert
 description does not give: the monitor reads no cut there. It says ``teaching`` until
 every block it has seen has been taught ``teach_parts`` times, then ``watching``. The
 knobs ``teach_parts`` and ``band_factor`` set it; a change of either teaches again.
+Where the CNC says a block cannot cut (:class:`server.pipeline.block_motion.CanCut`: from
+the program's text where the source holds it, else from the axes' commanded feed) only
+the collision detector watches it; the status says from what (``cutting_from``).
 
 It runs on a source that describes a spindle with ``speed`` and ``power`` (the machining
 centre, :mod:`server.pipeline.centre_source`, or the same machine over a broker); the
@@ -33,6 +36,7 @@ factory builds it only for such a source, so the stage's scenarios stream what t
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -43,6 +47,7 @@ from common.event_kinds import EventKind
 from common.machine_description import MachineDescription
 from estimators.process_monitor import Alarm, MonitorParams, ProcessMonitor
 from estimators.spindle_power import IdlePower, IdlePowerParams, IdlePowerState
+from server.pipeline.block_motion import CanCut
 from server.pipeline.machine_view import MachineView
 from server.pipeline.part import (
     Block,
@@ -109,6 +114,10 @@ class SpindlePart(LivePart):
         identities' columns).
     program
         The part program's name the source runs ("": not known).
+    lines
+        Per G-code line, whether the program lets it cut
+        (:func:`server.pipeline.block_motion.cutting_lines`), where the source holds the
+        program's text; else the commanded feed says it.
     """
 
     name = "spindle"
@@ -186,7 +195,12 @@ class SpindlePart(LivePart):
         Channel("spindle_speed", "rpm", "spindle speed (the CNC's actual value)", "spindle"),
     )
 
-    def __init__(self, description: MachineDescription, program: str = "") -> None:
+    def __init__(
+        self,
+        description: MachineDescription,
+        program: str = "",
+        lines: Mapping[int, bool] | None = None,
+    ) -> None:
         sp = description.spindle
         sig = sp.signals if sp is not None else {}
         self._speed = sig.get("speed", "")
@@ -195,6 +209,7 @@ class SpindlePart(LivePart):
         self._tool = ids.get("tool", "")
         self._line = ids.get("line", "")
         self.program = program
+        self.can_cut = CanCut(description, lines)
         self.sample_time = float(description.sample_time)
         self.idle = IdlePower(IdlePowerParams(sample_time=self.sample_time))
         self.monitor = ProcessMonitor(MonitorParams(sample_time=self.sample_time))
@@ -257,13 +272,14 @@ class SpindlePart(LivePart):
             new = ln != self.st.line
             self.st.line, self.st.tool = ln, tl
             ovr = float(over[a]) if math.isfinite(over[a]) and 0.0 < over[a] <= 3.0 else 1.0
+            can_cut = self.can_cut(cols, ln, a, b, new)
             if not self.monitor.has_room(self.st.monitor, tl, self.program, ln):
                 # more blocks than the monitor's segments: this one is not watched (NaN)
                 self.monitor.end_block(self.st.monitor)
                 continue
             m = self.monitor.step(self.st.monitor, f[a:b], np.zeros(b - a), psi[a:b], tool=tl,
                                   program=self.program, line=ln, new_block=new,
-                                  override=ovr)  # fmt: skip
+                                  override=ovr, cutting=can_cut)  # fmt: skip
             self.st.teaching = bool(m.teaching)
             for k, v in (("spindle_mean", m.f_mean), ("spindle_upper", m.upper),
                          ("spindle_lower", m.lower), ("spindle_extreme", m.extreme)):  # fmt: skip
@@ -319,6 +335,7 @@ class SpindlePart(LivePart):
             "tool": self.st.tool,
             "program": self.program,
             "line": self.st.line,
+            "cutting_from": self.can_cut.source,
         }
 
     def state(self) -> SpindlePartState:

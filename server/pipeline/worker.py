@@ -484,6 +484,10 @@ class Worker:
                 "machine": name,
                 "worker": self.name,
                 "t": pipe.t if pipe is not None else None,
+                # the machine's clock at the pipeline's t = 0 (MqttSource.feed_origin)
+                "feed_origin_s": (
+                    getattr(pipe.source, "feed_origin", None) if pipe is not None else None
+                ),
                 "blocks": run.blocks,
                 "events": run.events,
                 "latest": {k: latest.get(k, math.nan) for k in PAGE_CHANNELS},

@@ -208,17 +208,21 @@ class _Events:
         self.client.disconnect()
 
 
-def _drive_log(log: Path, seconds: float, centres: bool, progress: bool) -> dict[str, Any]:
+def _drive_log(
+    log: Path, seconds: float, centres: bool, progress: bool, speed: float = 1.0
+) -> dict[str, Any]:
     """The log the feeder replays: a machining centre's recorded trace (its events' truth
     returned) or the simulated stage (no truth)."""
     if centres:
         from server.experiments.benchmarks._plant_centres import record
 
+        # longer than the window, the start and the rows' last check: the feed must not
+        # end (the margin: 120 s at 1x, 25 s of wall faster)
+        length = seconds * speed + (120.0 if speed <= 1.0 else 25.0 * speed)
         if progress:
-            print(f"  plant: recording {seconds + 120:g} s of a machining centre's trace",
+            print(f"  plant: recording {length:g} s of a machining centre's trace",
                   file=sys.stderr, flush=True)  # fmt: skip
-        # longer than the window, the start and the rows' last check: the feed must not end
-        return record(log, seconds=seconds + 120.0)
+        return record(log, seconds=length)
     subprocess.run(
         _cutwatch("simulate", "--out", str(log), "--seconds", str(seconds + 120)),
         check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
@@ -226,23 +230,50 @@ def _drive_log(log: Path, seconds: float, centres: bool, progress: bool) -> dict
     return {}
 
 
-def _scored(
-    events: _Events, truth: dict[str, Any], names: list[str], t_feed: float
-) -> dict[str, object]:
-    """The monitors' events against the trace's truth (``t_feed``: the log's time the
-    feed reached, playing at 1x from its start), and one machine's beside the truth."""
-    from server.experiments.benchmarks._plant_centres import score
+def _clocks(plant: _Plant) -> dict[str, tuple[float | None, float | None]]:
+    """Per machine, from the worker that owns it: the pipeline's time and the machine's
+    clock at its 0 (``feed_origin_s``); (None, None) where the worker does not answer."""
+    from harness.shards import shard_of
 
-    raised = {m: events.raised.get(m, []) for m in names}
-    sc = score(truth["events"], raised, min(t_feed, float(truth["seconds"])))
+    out: dict[str, tuple[float | None, float | None]] = {}
+    for m in plant.names:
+        port = plant.hports[shard_of(m, plant.n_workers)]
+        try:
+            d = httpx.get(f"http://127.0.0.1:{port}/api/machines/{m}", timeout=5).json()
+            out[m] = (d.get("t"), d.get("feed_origin_s"))
+        except (httpx.HTTPError, ValueError):
+            out[m] = (None, None)
+    return out
+
+
+def _scored(
+    events: _Events,
+    truth: dict[str, Any],
+    names: list[str],
+    clocks: dict[str, tuple[float | None, float | None]],
+) -> dict[str, object]:
+    """The monitors' events against the trace's truth, on each machine's own clock
+    (``clocks``: the worker's time and origin per machine, :func:`_clocks`), up to the
+    log's time every machine's pipeline has read; and one machine's beside the truth."""
+    from server.experiments.benchmarks._plant_centres import on_machine_clock, score
+
+    origins = {m: o for m, (_, o) in clocks.items()}
+    read = [t + (o or 0.0) for t, o in clocks.values() if t is not None]
+    t_read = min(read) if len(read) == len(names) else 0.0  # a machine not read: none due
+    raised = on_machine_clock({m: events.raised.get(m, []) for m in names}, origins)
+    sc = score(truth["events"], raised, min(t_read, float(truth["seconds"])))
     out: dict[str, object] = {f"monitor.{k}": v for k, v in sc.items()}
     out["monitor.events_in_trace"] = len(truth["events"])
     out["monitor.teach_parts"] = truth["teach_parts"]
-    out["monitor.feed_s"] = t_feed
+    # the log's time the slowest machine's pipeline had read (not the wall time since
+    # the feeder started: it reads the whole log first, 10-20 s on a loaded box)
+    out["monitor.feed_s"] = t_read
+    out["monitor.join_s"] = [round(o, 3) if o is not None else None for o in origins.values()]
     out["monitor.truth"] = [[e["kind"], round(e["t"], 2), e["line"]] for e in truth["events"]]
     out["monitor.raised_m000"] = [
         [e["kind"], round(float(e["t"]), 2), e["line"]] for e in raised.get(names[0], [])
     ]
+    out["monitor.raised_per_machine"] = [len(raised[m]) for m in names]
     return out
 
 
@@ -253,16 +284,19 @@ def run_plant(
     progress: bool,
     soak: bool = False,
     centres: bool = False,
+    feed_speed: float = 1.0,
 ) -> dict[str, object]:
     """One plant run (module docstring); ``soak``: no kill, memory sampled over time.
     ``centres``: the machines are machining centres at 500 Hz, every one replaying one
     recorded trace (:mod:`._plant_centres`), run as a soak (no kill: the monitors' events
-    are scored against the trace's truth)."""
+    are scored against the trace's truth). ``feed_speed``: log seconds per wall second
+    (``cutwatch feed --speed``; a test's quick plant reaches the trace's events sooner;
+    the costs are then those of that many more samples per second)."""
     from harness.shards import shard_of
 
     work = Path(tempfile.mkdtemp(prefix="cutwatch-bench-plant-"))
     log = work / "drive.csv"
-    truth = _drive_log(log, seconds, centres, progress)
+    truth = _drive_log(log, seconds, centres, progress, feed_speed)
     soak = soak or centres
     plant = _Plant(machines, workers, work)
     what = "machining centres at 500 Hz, one recorded trace replayed" if centres else "machines"
@@ -295,9 +329,8 @@ def run_plant(
             _wait_http(f"http://127.0.0.1:{plant.fport}/api/health", 60)
             if centres:
                 events = _Events(plant.bport)
-            feed_start = time.monotonic()
             plant.feeder = subprocess.Popen(
-                _cutwatch("feed", str(log), "--broker", plant.url,
+                _cutwatch("feed", str(log), "--broker", plant.url, "--speed", f"{feed_speed:g}",
                           "--machine", ",".join(plant.names), "--quiet"),
                 stdout=subprocess.DEVNULL,
             )  # fmt: skip
@@ -338,11 +371,13 @@ def run_plant(
             time.sleep(2 * STALE_AFTER)
             rows = httpx.get(f"http://127.0.0.1:{plant.fport}/api/fleet", timeout=5).json()
             out["fleet.ok_at_end"] = sum(r["status"] == "ok" for r in rows)
+            # a machine whose monitor raised an event is live, its row says "alarm"
+            out["fleet.alarm_at_end"] = sum(r["status"] == "alarm" for r in rows)
             hs = [plant.health(i) for i in range(workers)]
             out["workers.dropped_samples"] = sum(int(h.get("dropped_samples", 0)) for h in hs)
             out["workers.loop_ms_p50"] = max(float(h.get("loop_ms_p50") or 0) for h in hs)
             if events is not None:
-                out.update(_scored(events, truth, plant.names, time.monotonic() - feed_start))
+                out.update(_scored(events, truth, plant.names, _clocks(plant)))
     finally:
         if events is not None:
             events.stop()

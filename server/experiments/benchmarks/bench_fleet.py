@@ -274,14 +274,17 @@ def measure(
     seconds: float | None = None,
     soak: bool = False,
     centres: bool = False,
+    feed_speed: float = 1.0,
 ) -> dict[str, object]:
     """One run (the fleet is the repetition: every machine's latency counts). ``workers``
     0: one ``cutwatch serve`` per machine (today's mode); > 0: the plant mode
-    (``centres``: of machining centres at 500 Hz replaying a recorded trace)."""
+    (``centres``: of machining centres at 500 Hz replaying a recorded trace, fed at
+    ``feed_speed`` log seconds per wall second)."""
     n = machines if machines is not None else (4 if quick else MACHINES)
     secs = seconds if seconds is not None else (20.0 if quick else SECONDS)
     if workers > 0:
         from server.experiments.benchmarks._fleet_plant import run_plant
 
-        return run_plant(n, workers, secs, progress=not quick, soak=soak, centres=centres)
+        return run_plant(n, workers, secs, progress=not quick, soak=soak, centres=centres,
+                         feed_speed=feed_speed)  # fmt: skip
     return _run(n, secs, progress=not quick)

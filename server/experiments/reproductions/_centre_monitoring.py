@@ -36,6 +36,7 @@ from typing import Any
 import numpy as np
 
 from common.event_kinds import ProcessEventKind
+from server.pipeline.block_motion import cutting_lines
 
 #: the trace rates compared [Hz]
 RATES = (5000.0, 1000.0, 500.0)
@@ -159,25 +160,6 @@ def free_program(rng: np.random.Generator) -> Any:
         ]
     blocks.append(Block(9000, "end", seconds=0.5))
     return Program(f"O{int(rng.integers(3000, 9999))}", tuple(blocks), tools, start=(0, 0, 0.1))
-
-
-def cutting_lines(program: Any) -> dict[int, bool]:
-    """Per G-code line, whether the CNC's program lets the block cut: a G1 feed in the
-    XY plane (Z held; the machining centre's programs cut only so,
-    :class:`machine.centre.program.Program`). A G0 rapid, a tool change, a spindle start,
-    a dwell, the end and a feed along Z alone (a plunge into the clearance) cannot: the
-    monitors judge them by the collision's extreme limit only (as an industrial monitor
-    is switched on only around the program's cuts). Read from the program's text, not
-    from its cuts (the truth)."""
-    out: dict[int, bool] = {}
-    for b, _tool, _rpm, pos in program.walk():
-        out[b.line] = bool(
-            b.kind == "feed"
-            and b.target is not None
-            and abs(b.target[2] - pos[2]) <= 1e-12
-            and math.hypot(b.target[0] - pos[0], b.target[1] - pos[1]) > 0.0
-        )
-    return out
 
 
 # ---------------------------------------------------------------- the signals
