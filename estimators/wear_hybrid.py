@@ -399,20 +399,31 @@ def fit(tools: Sequence[ToolData], config: HybridConfig) -> HybridModel:
     return m
 
 
-LIFE_METHODS = ("rate", "mean")
+LIFE_METHODS = ("rate", "mean", "prior")
 
 
 def life_end(
-    est: F64, rate: F64, k: int, criterion: float, *, method: str = "rate", start: float = 0.0
+    est: F64,
+    rate: F64,
+    k: int,
+    criterion: float,
+    *,
+    method: str = "rate",
+    start: float = 0.0,
+    prior: float = math.nan,
 ) -> float:
     """Predicted segment at which VB reaches ``criterion``, from the estimate at segment
     ``k``: linear in the filtered rate (``rate``; for the map alone, the slope of the
-    estimate over the last 20 segments) or in the mean rate since the tool came in
-    (``mean``: (VB(k) - start) / k). inf when the rate is 0."""
+    estimate over the last 20 segments), in the mean rate since the tool came in
+    (``mean``: (VB(k) - start) / k) or in the training tools' rate at these cutting
+    conditions (``prior``: :meth:`HybridModel.prior_rate`, passed as ``prior``). inf
+    when the rate is 0."""
     v = float(est[k])
     if v >= criterion:
         return float(k)
-    if method == "mean":
+    if method == "prior":
+        r = prior
+    elif method == "mean":
         r = (v - start) / max(k, 1)
     else:
         r = float(rate[k])

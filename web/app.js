@@ -2,7 +2,7 @@
 // The message schema lives in protocol.js (its twin is server/service/messages.py). The
 // charts are built from the stream's own description (the hello: charts, channels, parts;
 // charts.js): no channel's name is written in web/.
-import { checkMessage } from "./protocol.js";
+import { checkMessage, request } from "./protocol.js";
 import { accuracyTable, accuracyTitle, parameterChannels, parameterRows } from "./panels.js";
 import { PAGES, PALETTE, chartSpecs, forceLooks } from "./charts.js";
 import { TIMELINE_HEAD, ackRefusal, eventRow, headline, markersIn, mergeEvent, ordered,
@@ -373,15 +373,8 @@ function showHealth(h) {
 }
 
 // ---------------------------------------------------------------- REST
-// the session is an HttpOnly cookie the browser sends by itself (log in at /login)
-function headers() {
-  return { "content-type": "application/json" };
-}
-
-// a 401 means the session has ended (or never began): back to the login page
-function toLogin(r) {
-  if (r.status === 401) location.assign("/login");
-}
+// the session is an HttpOnly cookie the browser sends by itself (log in at /login);
+// protocol.js's request sends a closed one (401) back to the login page
 
 async function showSession() {
   const s = await fetch("/api/session").then((r) => r.json());
@@ -394,15 +387,12 @@ async function showSession() {
 
 async function call(method, path, body) {
   $("error").textContent = "";
-  const r = await fetch(path, { method, headers: headers(), body: JSON.stringify(body) });
-  toLogin(r);
-  const j = await r.json().catch(() => ({}));
-  if (!r.ok) {
-    const d = j.detail;
-    $("error").textContent = Array.isArray(d) ? d.map((e) => e.msg).join("; ") : String(d);
-    throw new Error($("error").textContent);
+  try {
+    return await request(method, path, body);
+  } catch (e) {
+    $("error").textContent = e.message;
+    throw e;
   }
-  return j;
 }
 
 const control = (action, extra = {}) => call("POST", "/api/control", { action, ...extra });
@@ -559,14 +549,11 @@ function renderTimeline() {
 
 async function acknowledge(id) {
   $("ack-error").textContent = "";
-  const r = await fetch(`/api/events/${encodeURIComponent(id)}/ack`,
-    { method: "POST", headers: headers(), body: "{}" });
-  toLogin(r);
-  const j = await r.json().catch(() => ({}));
-  if (!r.ok) {
-    const d = j.detail;
-    $("ack-error").textContent = `acknowledge ${id}: ` +
-      (Array.isArray(d) ? d.map((e) => e.msg || JSON.stringify(e)).join("; ") : String(d ?? r.status));
+  let j;
+  try {
+    j = await request("POST", `/api/events/${encodeURIComponent(id)}/ack`, {});
+  } catch (e) {
+    $("ack-error").textContent = `acknowledge ${id}: ${e.message}`;
     throw new Error($("ack-error").textContent);
   }
   if (j && j.id && mergeEvent(state.events, j)) { renderTimeline(); state.dirty = true; }

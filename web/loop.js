@@ -6,6 +6,7 @@
 // observer without and with the identified effects. Which channels those are, the hello
 // says (their roles: reference, without_effects, with_effects; charts.js roles()).
 import { roles } from "./charts.js";
+import { request } from "./protocol.js";
 
 const $ = (id) => document.getElementById(id);
 const ERR_WINDOW = 5; // s of simulated time
@@ -21,26 +22,16 @@ const st = {
 };
 
 // ---------------------------------------------------------------- REST
-function headers(json = true) {
-  const h = json ? { "content-type": "application/json" } : { "content-type": "application/octet-stream" };
-  return h;
-}
-
 function say(msg) { $("loop-error").textContent = msg; }
 
+// protocol.js's request, its refusal said on the loop's panel
 async function api(method, path, body, raw = false) {
-  const init = { method, headers: headers(!raw) };
-  if (body !== undefined) init.body = raw ? body : JSON.stringify(body);
-  const r = await fetch(path, init);
-  if (r.status === 401) location.assign("/login");
-  const j = await r.json().catch(() => ({}));
-  if (!r.ok) {
-    const d = j.detail;
-    const msg = Array.isArray(d) ? d.map((e) => e.msg).join("; ") : `${r.status} ${r.statusText}`;
-    say(msg);
-    throw new Error(msg);
+  try {
+    return await request(method, path, body, raw);
+  } catch (e) {
+    say(e.message);
+    throw e;
   }
-  return j;
 }
 
 // ---------------------------------------------------------------- live error

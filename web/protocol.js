@@ -6,6 +6,25 @@ import { SCHEMA, VERSION } from "./schema.js";
 
 export { SCHEMA, VERSION };
 
+// The pages' one REST helper: JSON in and out (``raw``: the body sent as bytes, an upload),
+// a closed session (401) back to the login page, and a refusal thrown as an Error whose
+// message is the server's: a 422's fields' messages, the detail text, or the HTTP status.
+export async function request(method, path, body, raw = false) {
+  const type = raw ? "application/octet-stream" : "application/json";
+  const init = { method, headers: { "content-type": type } };
+  if (body !== undefined) init.body = raw ? body : JSON.stringify(body);
+  const r = await fetch(path, init);
+  if (r.status === 401) location.assign("/login");
+  const j = await r.json().catch(() => ({}));
+  if (!r.ok) throw new Error(refusal(j.detail, r));
+  return j;
+}
+
+function refusal(detail, r) {
+  if (Array.isArray(detail)) return detail.map((e) => e.msg || JSON.stringify(e)).join("; ");
+  return detail === undefined || detail === null ? `${r.status} ${r.statusText}` : String(detail);
+}
+
 // fields a message may lack (the model's default): a stream without the process monitor
 // sends no status; parts default to none
 const OPTIONAL = { data: new Set(["status", "parts"]) };

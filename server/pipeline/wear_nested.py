@@ -264,16 +264,19 @@ def _baselines(
     }
 
 
-def life_errors(vb: F64, est: F64, rate: F64, start: float, method: str) -> dict[str, float]:
+def life_errors(
+    vb: F64, est: F64, rate: F64, start: float, method: str, prior: float = math.nan
+) -> dict[str, float]:
     """|predicted - true end| / true remaining life at half of the life, per criterion
-    the tool reaches (none if it reaches neither)."""
+    the tool reaches (none if it reaches neither); ``prior``: the training tools' rate
+    at the tool's conditions (life method ``prior``)."""
     out: dict[str, float] = {}
     for crit in CRITERIA:
         hit = np.flatnonzero(vb >= crit)
         if len(hit) and hit[0] >= 2:
             h = int(hit[0])
             k = h // 2
-            end = life_end(est, rate, k, crit, method=method, start=start)
+            end = life_end(est, rate, k, crit, method=method, start=start, prior=prior)
             out[f"{crit:g}"] = abs(end - h) / (h - k) if math.isfinite(end) else math.inf
     return out
 
@@ -297,7 +300,9 @@ def life_parts(
     h = int(hit[0])
     k = h // 2
     lv = {"est": float(est[k]), "true": float(vb[k])}
-    if method == "mean":
+    if method == "prior":
+        r_est = prior
+    elif method == "mean":
         r_est = (lv["est"] - start) / max(k, 1)
     else:
         r_est = float(rate[k])
@@ -377,15 +382,22 @@ def run_fold(
         diff = np.asarray(score[c]) - sb
         se = float(np.std(diff, ddof=1) / math.sqrt(len(diff))) if len(diff) > 1 else 0.0
         close += int(float(np.mean(diff)) <= se)
+    model = model_of(tools, best)
+    loo = {i: model_of([t for t in tools if t != i], best) for i in tools}
+
+    def prior_of(m: HybridModel, d: ToolData) -> float:
+        return m.prior_rate(float(np.median(d.feed[: min(len(d.feed), 10)])))[0]
+
     # the life's extrapolation: chosen on the same inner folds
     life_method = min(
         LIFE_METHODS,
         key=lambda m: _life_score(
-            [life_errors(v, e, r, float(v[0]), m) for e, _, v, r in inner[best].values()]
+            [
+                life_errors(v, e, r, float(v[0]), m, prior_of(loo[i], data[i]))
+                for i, (e, _, v, r) in inner[best].items()
+            ]
         ),
     )
-    model = model_of(tools, best)
-    loo = {i: model_of([t for t in tools if t != i], best) for i in tools}
     out: list[ToolResult] = []
     for t in test:
         d = data[t]
@@ -394,8 +406,8 @@ def run_fold(
         lo, hi = _cv_plus(d, tools, loo, inner[best])
         base = _baselines(table, signals, tools, t, [data[x] for x in tools], d)
         r = ToolResult(t, d.vb, est, lo, hi, base)
-        r.life = life_errors(d.vb, est, rate, float(d.start_vb or 0.0), life_method)
-        prior = model.prior_rate(float(np.median(d.feed[: min(len(d.feed), 10)])))[0]
+        prior = prior_of(model, d)
+        r.life = life_errors(d.vb, est, rate, float(d.start_vb or 0.0), life_method, prior)
         r.life_parts = life_parts(d.vb, est, rate, float(d.start_vb or 0.0), life_method, prior)
         # entered part-way (a third into its life): with its record, and with none
         k = len(d.vb) // 3

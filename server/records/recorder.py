@@ -23,14 +23,28 @@ import tempfile
 import time
 from collections.abc import Mapping
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, Any, TypedDict
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from server.errors import CutwatchError
 
 #: the columns of the design's table (docs/design.md), written first and in this order
 COLUMNS = ("t", "tau_m", "i_m", "q_m", "q_l", "f_ext")
+#: one block as the recorder takes it: column name -> samples (None: not given)
+Columns = Mapping[str, ArrayLike | None]
+
+
+class RecordingSummary(TypedDict):
+    """What a recording is (:meth:`Recorder.summary`; the service's ``RecordInfo``)."""
+
+    name: str  # the CSV's file name
+    samples: int  # rows written
+    seconds: float  # duration of the samples written [s]
+    bytes: int  # size of the CSV [bytes]
+    active: bool  # still recording
+    end: str  # why it ended ('' while it runs)
 
 
 class Recorder:
@@ -84,7 +98,7 @@ class Recorder:
             return 0.0
         return self.t_last - self.t_first + float(self.sidecar.get("sample_time", 0.0))
 
-    def append(self, block: Mapping[str, Any]) -> None:
+    def append(self, block: Columns) -> None:
         """Append one block (``t`` and the columns present; same columns every block).
 
         Raises
@@ -121,7 +135,7 @@ class Recorder:
         elif self.seconds >= self.max_seconds:
             self.limit_reason = f"duration limit {self.max_seconds:g} s reached"
 
-    def close(self, reason: str = "stopped") -> dict[str, Any]:
+    def close(self, reason: str = "stopped") -> RecordingSummary:
         """Finish: sidecar written, both files renamed into place (or the temporary file
         removed when nothing was recorded). Returns the recording's summary."""
         if self.closed:
@@ -152,7 +166,7 @@ class Recorder:
         self.end_reason = self.limit_reason or reason
         return self.summary()
 
-    def summary(self) -> dict[str, Any]:
+    def summary(self) -> RecordingSummary:
         return {
             "name": self.path.name,
             "samples": self.samples,
@@ -163,7 +177,7 @@ class Recorder:
         }
 
 
-def _names(block: Mapping[str, Any]) -> list[str]:
+def _names(block: Columns) -> list[str]:
     """The block's columns in the recording's order: ``t``, the design's, then the others."""
     if "t" not in block:
         raise CutwatchError(f"recording: a block without column 't' ({sorted(block)[:8]})")

@@ -28,7 +28,7 @@ import time
 import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, TypedDict
 
 from server.records.data_areas import DataStore
 
@@ -49,6 +49,13 @@ def max_steps(kind: str | None) -> int:
     return 1 + len(two.FAMILIES) * two.TwoInertiaModel.max_effects
 
 
+class AnalysisOptions(TypedDict):
+    """What a request chose for its analysis (``cutwatch residual``'s options)."""
+
+    holdout: float | None  # share of the log kept back for validation (None: the default)
+    kind: str | None  # the log's model kind (None: its sidecar's)
+
+
 @dataclass
 class Job:
     """One analysis: its request, its state and, when done, what the report selected."""
@@ -57,7 +64,7 @@ class Job:
     log: str
     area: str
     report: str
-    options: dict[str, Any]
+    options: AnalysisOptions
     state: str = "queued"  # queued, running, done, failed
     progress: float = 0.0
     step: str = ""
@@ -108,7 +115,7 @@ class Analyses:
         return name
 
     def submit(
-        self, log_path: Path, log: str, area: str, report: str, options: dict[str, Any]
+        self, log_path: Path, log: str, area: str, report: str, options: AnalysisOptions
     ) -> Job:
         """Start an analysis of ``log_path`` into the report ``report``.
 
@@ -121,7 +128,7 @@ class Analyses:
             busy = next((j for j in self.jobs.values() if j.state in ("queued", "running")), None)
             if busy is not None:
                 raise Busy(busy)
-            job = Job(uuid.uuid4().hex[:12], log, area, report, dict(options))
+            job = Job(uuid.uuid4().hex[:12], log, area, report, options.copy())
             self.jobs[job.id] = job
             for old in list(self.jobs)[: max(0, len(self.jobs) - self.keep)]:
                 del self.jobs[old]
@@ -142,10 +149,11 @@ class Analyses:
         cmd = [sys.executable, "-c", "from server.cli.main import main; raise SystemExit(main())"]
         # the log by its name, run beside it: report.json's "log" names no server path
         cmd += ["residual", log_path.name, "--out", str(out)]
-        if job.options.get("holdout") is not None:
-            cmd += ["--holdout", repr(float(job.options["holdout"]))]
-        if job.options.get("kind") is not None:
-            cmd += ["--kind", str(job.options["kind"])]
+        holdout, kind = job.options.get("holdout"), job.options.get("kind")
+        if holdout is not None:
+            cmd += ["--holdout", repr(float(holdout))]
+        if kind is not None:
+            cmd += ["--kind", str(kind)]
         return cmd
 
     def _run(self, job: Job, log_path: Path) -> None:

@@ -25,14 +25,14 @@ import secrets
 import threading
 import time
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Literal
 from urllib.parse import urlsplit
 
 from fastapi import HTTPException
 from starlette.requests import HTTPConnection
 from starlette.websockets import WebSocket
 
-from server.service.http_errors import error
+from server.service.http_errors import ErrorEntry, error
 from server.service.settings import Settings, allowed_hosts, token_of
 
 Role = Literal["viewer", "operator"]
@@ -129,7 +129,7 @@ def access_of(conn: HTTPConnection) -> Access:
     return a
 
 
-def check(conn: HTTPConnection, need: Role) -> tuple[Role | None, int, dict[str, Any] | None]:
+def check(conn: HTTPConnection, need: Role) -> tuple[Role | None, int, ErrorEntry | None]:
     """The one access decision: ``(role, 200, None)`` or ``(None, status, error entry)``
     (401 without valid credentials, 403 for a viewer on an operator's request)."""
     role, found = access_of(conn).role_of(conn)
@@ -236,7 +236,7 @@ def same_origin(conn: HTTPConnection) -> bool:
     return theirs is not None and theirs == own_origin(conn)
 
 
-def refusal_origin(conn: HTTPConnection) -> dict[str, Any]:
+def refusal_origin(conn: HTTPConnection) -> ErrorEntry:
     got = conn.headers.get("origin") or conn.headers.get("sec-fetch-site")
     own = own_origin(conn)
     mine = f"{own[0]}://{own[1]}:{own[2]}" if own else "this service's own origin"
@@ -248,7 +248,7 @@ def refusal_origin(conn: HTTPConnection) -> dict[str, Any]:
     )
 
 
-def refusal_repeated_host(conn: HTTPConnection) -> dict[str, Any]:
+def refusal_repeated_host(conn: HTTPConnection) -> ErrorEntry:
     found = [v.decode("latin-1")[:100] for k, v in conn.scope["headers"] if k.lower() == b"host"]
     return error(
         "host",
@@ -258,7 +258,7 @@ def refusal_repeated_host(conn: HTTPConnection) -> dict[str, Any]:
     )
 
 
-def refusal_host(conn: HTTPConnection) -> dict[str, Any]:
+def refusal_host(conn: HTTPConnection) -> ErrorEntry:
     hosts = access_of(conn).hosts
     return error(
         "host",

@@ -22,7 +22,7 @@ from server.records.data_areas import DataStore
 from server.service.auth import operator
 from server.service.http_errors import error
 from server.service.loop import LiveLoop
-from server.service.recording import Recording
+from server.service.recording import Recording, RecordingSidecar
 from server.service.settings import Settings
 
 
@@ -115,7 +115,7 @@ class RecordingControl(Protocol):
     @property
     def error(self) -> str | None: ...
     def start_recording(
-        self, make: Callable[[dict[str, Any]], Recording], refuse: Callable[[], None] = ...
+        self, make: Callable[[RecordingSidecar], Recording], refuse: Callable[[], None] = ...
     ) -> Recording: ...
     def end_recording(self, reason: str) -> Recording | None: ...
 

@@ -22,7 +22,14 @@ from starlette.routing import Match, Mount
 
 from common.errors import ParameterError
 from server.errors import CutwatchError
-from server.service.http_errors import FieldError, SafeJSONResponse, echo, error, sanitise
+from server.service.http_errors import (
+    ErrorEntry,
+    FieldError,
+    SafeJSONResponse,
+    echo,
+    error,
+    sanitise,
+)
 
 
 def install(app: FastAPI) -> None:
@@ -33,7 +40,7 @@ def install(app: FastAPI) -> None:
     app.exception_handler(StarletteHTTPException)(_http_error)
 
 
-def _errors(status: int, items: Sequence[dict[str, Any]], **kw: Any) -> JSONResponse:
+def _errors(status: int, items: Sequence[ErrorEntry], **kw: Any) -> JSONResponse:
     return SafeJSONResponse({"detail": list(items)}, status_code=status, **kw)
 
 
@@ -114,7 +121,7 @@ async def _validation_error(request: Request, exc: RequestValidationError) -> JS
     return _errors(422, [_validation_item(request, e) for e in exc.errors()])
 
 
-def _validation_item(request: Request, e: Any) -> dict[str, Any]:
+def _validation_item(request: Request, e: Any) -> ErrorEntry:
     tagged = _tagged_union(request)
     if tagged is not None:
         e = _untagged(e, *tagged)

@@ -12,9 +12,10 @@ from __future__ import annotations
 
 import json
 import math
-from typing import Any
+from typing import Any, TypedDict
 
 from fastapi.responses import JSONResponse
+from pydantic import JsonValue
 
 from server.errors import CutwatchError
 
@@ -83,7 +84,16 @@ def sanitise(x: Any, depth: int = 0) -> Any:
     return _text(f"a {type(x).__name__}", 80)
 
 
-def error(field: str, allowed: str, got: Any, msg: str) -> dict[str, Any]:
+class ErrorEntry(TypedDict):
+    """One entry of the service's error body (``{"detail": [entry, ...]}``)."""
+
+    field: str  # the refused field (a dotted path into the body, a header, a query)
+    allowed: str  # what it allows
+    got: JsonValue  # what was found (JSON-safe, bounded)
+    msg: str  # one sentence
+
+
+def error(field: str, allowed: str, got: Any, msg: str) -> ErrorEntry:
     """One entry of an error body: the field, what it allows, what was found, a sentence."""
     return {
         "field": _text(str(field)),
@@ -111,5 +121,5 @@ class FieldError(CutwatchError):
         self.field, self.allowed, self.got = field, allowed, got
         super().__init__(msg)
 
-    def entry(self) -> dict[str, Any]:
+    def entry(self) -> ErrorEntry:
         return error(self.field, self.allowed, self.got, str(self))

@@ -38,7 +38,7 @@ from typing import Any, ClassVar
 from uvicorn.protocols.http.httptools_impl import STATUS_LINE, HttpToolsProtocol
 from uvicorn.protocols.websockets.websockets_sansio_impl import WebSocketsSansIOProtocol
 
-from server.service.http_errors import error
+from server.service.http_errors import ErrorEntry, error
 
 #: connections dropped by each limit since the process started
 DROPPED: dict[str, int] = {
@@ -71,7 +71,7 @@ class GuardedHttpToolsProtocol(HttpToolsProtocol):
         self._body_last = 0.0  # when its last byte came
         self._rate_start = 0.0  # the average rate is measured from here ...
         self._rate_bytes = 0  # ... and from this count on
-        self._answer: tuple[int, str, dict[str, Any]] | None = None
+        self._answer: tuple[int, str, ErrorEntry] | None = None
         self._addr = "?"
         self._counted = False  # in open_per_client
 
@@ -128,7 +128,7 @@ class GuardedHttpToolsProtocol(HttpToolsProtocol):
         allowed = f"a byte at least every {self.body_timeout:g} s"
         self._refuse(408, msg, error("body", allowed, self._body_bytes, msg))
 
-    def _refuse(self, status: int, msg: str, entry: dict[str, Any]) -> None:
+    def _refuse(self, status: int, msg: str, entry: ErrorEntry) -> None:
         """Answer ``status`` with the service's error body and close the connection."""
         self._disarm()
         self._phase = "closed"

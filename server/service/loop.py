@@ -35,7 +35,7 @@ import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypedDict
 
 import numpy as np
 
@@ -45,7 +45,7 @@ from server.pipeline.broker import BrokerConfig, parse_broker_url
 from server.pipeline.drive_feed import DriveFeed
 from server.pipeline.estimates_out import EstimatesPublisher
 from server.pipeline.events_out import EventsPublisher
-from server.pipeline.knobs import Knob
+from server.pipeline.knobs import Knob, KnobValue
 from server.pipeline.live_pipeline import LivePipeline
 from server.pipeline.mqtt_source import MqttSource
 from server.pipeline.opcua_source import OpcuaSource
@@ -58,7 +58,7 @@ from server.service.settings import MAX_SPEED, Settings
 
 if TYPE_CHECKING:
     from estimators.observer_effects import ObserverEffect
-    from server.service.recording import Recording
+    from server.service.recording import Recording, RecordingSidecar
     from server.service.viser_scene import StageScene
 
 
@@ -94,6 +94,14 @@ def broker_config(settings: Settings) -> BrokerConfig:
         certfile=settings.mqtt_certfile,
         keyfile=settings.mqtt_keyfile,
     )
+
+
+class EventsSummary(TypedDict):
+    """The monitor's events for /metrics (:meth:`LiveLoop.events_summary`)."""
+
+    total: dict[str, int]  # raised since the start, by kind
+    unacked: int  # not yet acknowledged
+    history_errors: int  # the history could not keep them
 
 
 @dataclass(frozen=True)
@@ -515,14 +523,14 @@ class LiveLoop:
         """Events not yet acknowledged, and whether one of them is an alarm or a feed hold."""
         return self.runtime.unacked()
 
-    def monitor_status(self) -> dict[str, Any]:
+    def monitor_status(self) -> MonitorStatus:
         """The status strip (:class:`MonitorStatus`): the pipeline's monitor status with
         the runtime's view of the acknowledgements: ``unacked``, and state ``alarm``
         while an alarm or a feed hold is not acknowledged (whatever the monitor's own
         state)."""
-        return MonitorStatus.model_validate(self.runtime.monitor_status()).model_dump()
+        return MonitorStatus.model_validate(self.runtime.monitor_status())
 
-    def events_summary(self) -> dict[str, Any]:
+    def events_summary(self) -> EventsSummary:
         """The counts for /metrics: events by kind since the start, unacknowledged,
         history errors."""
         n, _ = self.unacked()
@@ -597,8 +605,8 @@ class LiveLoop:
         with self.lock:
             p = self.pipeline
             return protocol.hello(
-                [c.describe() for c in p.channels()],
-                [c.describe() for c in p.charts()],
+                p.channels(),
+                p.charts(),
                 p.parts(),
                 p.sample_time if getattr(p.source, "rate_known", True) else None,
                 p.scenario,
@@ -655,8 +663,8 @@ class LiveLoop:
             self._p99 = float(np.percentile(lags, 99))
         return self._p99
 
-    def health(self) -> dict[str, Any]:
-        """The loop's health, shaped by :class:`~server.service.messages.LoopHealth`."""
+    def health(self) -> LoopHealth:
+        """The loop's health (:class:`~server.service.messages.LoopHealth`)."""
         return LoopHealth(
             sim_t=self.pipeline.t,
             speed=self.speed,
@@ -667,7 +675,7 @@ class LiveLoop:
             clients=self.hub.clients,
             dropped_total=self.hub.dropped(),
             stalls=self.stalls,
-        ).model_dump()
+        )
 
     def parts(self) -> list[dict[str, Any]]:
         """The pipeline's parts: name, running, and why not."""
@@ -684,7 +692,7 @@ class LiveLoop:
         with self.lock:
             return self.pipeline.idle()
 
-    def knob_values(self) -> dict[str, Any]:
+    def knob_values(self) -> dict[str, KnobValue]:
         with self.lock:
             return {k: v.value for k, v in self.pipeline.knobs().items()}
 
@@ -834,7 +842,7 @@ class LiveLoop:
 
     def start_recording(
         self,
-        make: Callable[[dict[str, Any]], Recording],
+        make: Callable[[RecordingSidecar], Recording],
         refuse: Callable[[], None] = lambda: None,
     ) -> Recording:
         """Start a recording of the running source: ``refuse()`` first (it raises when

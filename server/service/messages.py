@@ -25,6 +25,7 @@ from __future__ import annotations
 from typing import Any, ClassVar, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
+from pydantic.json_schema import JsonDict
 
 from common.event_kinds import EventKind
 from server.pipeline.knobs import KnobValue
@@ -34,7 +35,7 @@ from server.records.monitor_events import EventAction
 VERSION = 2
 
 
-def _versioned(schema: dict[str, Any], cls: type[Any]) -> None:
+def _versioned(schema: JsonDict, cls: type[Any]) -> None:
     schema["x-version"] = cls.VERSION
 
 

@@ -12,7 +12,7 @@ from starlette.types import ASGIApp, Receive, Scope, Send
 from starlette.websockets import WebSocketDisconnect
 
 from server.service import auth
-from server.service.http_errors import error
+from server.service.http_errors import ErrorEntry, error
 
 Message = MutableMapping[str, Any]
 
@@ -288,7 +288,7 @@ class Guard:
 
 def _decide(
     conn: HTTPConnection, ws: bool, need: auth.Role
-) -> tuple[str | None, tuple[int, dict[str, Any]] | None]:
+) -> tuple[str | None, tuple[int, ErrorEntry] | None]:
     """The caller's role (None when not checked: a public path) and the refusal, if any."""
     if auth.host_repeated(conn):
         return None, (400, auth.refusal_repeated_host(conn))
@@ -350,7 +350,7 @@ def _with_headers(send: Send) -> Send:
 async def send_json(
     send: Send,
     status: int,
-    item: dict[str, Any] | None,
+    item: ErrorEntry | None,
     headers: Sequence[tuple[bytes, bytes]] = (),
 ) -> None:
     """An answer in the service's one error body (``item``), or an empty one."""
@@ -364,7 +364,7 @@ async def send_json(
     await send({"type": "http.response.body", "body": body})
 
 
-async def _deny_ws(scope: Scope, send: Send, status: int, item: dict[str, Any]) -> None:
+async def _deny_ws(scope: Scope, send: Send, status: int, item: ErrorEntry) -> None:
     """Refuse a WebSocket upgrade: an HTTP answer with the error body where the server
     supports it (``websocket.http.response``), otherwise a close (403 handshake)."""
     if "websocket.http.response" in scope.get("extensions", {}):

@@ -61,10 +61,12 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 from common.jsonsafe import json_safe
+from server.pipeline.knobs import KnobValue
+from server.pipeline.part import Channel, Chart
 from server.service.messages import MESSAGES, VERSION, Data, EventMessage, Hello, fields
 
 __all__ = [
@@ -81,7 +83,7 @@ SLOW_FACTOR = 6
 #: significant digits of the ``accuracy`` numbers in a data frame
 ACCURACY_DIGITS = 4
 
-SCHEMA: dict[str, Any] = {
+SCHEMA: dict[str, int | list[str] | dict[str, int]] = {
     "version": VERSION,
     **{name: fields(model) for name, model in MESSAGES.items()},
     "versions": {name: model.VERSION for name, model in MESSAGES.items()},
@@ -91,18 +93,19 @@ _PER_CLIENT = {"type", "dropped"}
 
 
 def hello(
-    channels: list[dict[str, Any]],
-    charts: list[dict[str, Any]],
+    channels: Sequence[Channel],
+    charts: Sequence[Chart],
     parts: list[dict[str, Any]],
     sample_time: float | None,
     scenario: str,
-    knobs: Mapping[str, Any],
+    knobs: Mapping[str, KnobValue],
 ) -> str:
-    """Encode the ``hello`` message through :class:`~server.service.messages.Hello`."""
+    """Encode the ``hello`` message through :class:`~server.service.messages.Hello`: the
+    channels and charts as the parts declare them (each its ``describe()``)."""
     msg = Hello.model_validate(
         {
-            "channels": channels,
-            "charts": charts,
+            "channels": [c.describe() for c in channels],
+            "charts": [c.describe() for c in charts],
             "parts": parts,
             "sample_time": sample_time,
             "scenario": scenario,

@@ -15,12 +15,13 @@ from __future__ import annotations
 import queue
 import threading
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypedDict
 
 import numpy as np
 
+from common.arrays import F64
 from server.errors import CutwatchError
-from server.records.recorder import Recorder
+from server.records.recorder import Recorder, RecordingSummary
 
 if TYPE_CHECKING:
     from server.pipeline.sources import MeasurementSource, SourceBlock
@@ -29,8 +30,19 @@ if TYPE_CHECKING:
 LIVE_UNITS = {"effort": "N m", "position": "rad", "current": "A"}
 
 
-def source_sidecar(source: MeasurementSource, scenario: str) -> dict[str, Any]:
-    """The sidecar of a recording of ``source``: DESIGN's keys (sample time, units, kind,
+class RecordingSidecar(TypedDict):
+    """The sidecar of a recording of the live source (docs/design.md's keys)."""
+
+    sample_time: float  # [s]
+    units: dict[str, str]  # unit family: effort, position, current
+    kind: str  # the source's model kind (two_inertia...)
+    nominal: dict[str, float]  # the source's nominal parameters by name
+    encoder_resolution: float  # [rad]
+    source: str  # where the samples came from
+
+
+def source_sidecar(source: MeasurementSource, scenario: str) -> RecordingSidecar:
+    """The sidecar of a recording of ``source``: docs/design.md's keys (sample time, units, kind,
     nominal, encoder resolution) and where the samples came from."""
     return {
         "sample_time": float(source.sample_time),
@@ -42,11 +54,11 @@ def source_sidecar(source: MeasurementSource, scenario: str) -> dict[str, Any]:
     }
 
 
-def block_columns(block: SourceBlock) -> dict[str, Any]:
+def block_columns(block: SourceBlock) -> dict[str, F64]:
     """The measurements of one source block as the recorder's columns; ``f_ext`` only
     when the source gives a reference force (finite) for every sample."""
     m = block.meas
-    cols: dict[str, Any] = {"t": m.t, "tau_m": m.tau_m, "i_m": m.i_m, "q_m": m.q_m, "q_l": m.q_l}
+    cols: dict[str, F64] = {"t": m.t, "tau_m": m.tau_m, "i_m": m.i_m, "q_m": m.q_m, "q_l": m.q_l}
     f = np.asarray(m.f_ext)
     if f.size and bool(np.isfinite(f).all()):
         cols["f_ext"] = f
@@ -67,14 +79,14 @@ class Recording:
     """
 
     def __init__(
-        self, path: Path, sidecar: dict[str, Any], *, max_bytes: float, max_seconds: float
+        self, path: Path, sidecar: RecordingSidecar, *, max_bytes: float, max_seconds: float
     ) -> None:
         self.recorder = Recorder(path, sidecar, max_bytes=max_bytes, max_seconds=max_seconds)
         self.name = path.name
         self._q: queue.SimpleQueue[tuple[str, Any]] = queue.SimpleQueue()
         self._ending = False
         self._done = threading.Event()
-        self.result: dict[str, Any] | None = None
+        self.result: RecordingSummary | None = None
         self._thread = threading.Thread(target=self._write, name=f"record-{self.name}", daemon=True)
         self._thread.start()
 
@@ -100,15 +112,15 @@ class Recording:
             self._ending = True
             self._q.put(("end", reason))
 
-    def wait(self, timeout: float = 30.0) -> dict[str, Any]:
+    def wait(self, timeout: float = 30.0) -> RecordingSummary:
         """The recording's summary once its files are in place."""
         self._done.wait(timeout)
         return self.result if self.result is not None else self.summary()
 
-    def summary(self) -> dict[str, Any]:
+    def summary(self) -> RecordingSummary:
         return self._listed(self.recorder.summary(), self.active)
 
-    def _listed(self, s: dict[str, Any], active: bool) -> dict[str, Any]:
+    def _listed(self, s: RecordingSummary, active: bool) -> RecordingSummary:
         # seconds as the listing of the files computes them: samples x sample time
         s["seconds"] = s["samples"] * float(self.recorder.sidecar.get("sample_time", 0.0))
         s["active"] = active

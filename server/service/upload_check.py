@@ -23,9 +23,9 @@ import multiprocessing
 import os
 import struct
 import zlib
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Required, TypedDict
 
 #: MAT v5 data types (MATLAB's "MAT-File Format", table 1-1)
 MI_MATRIX, MI_COMPRESSED = 14, 15
@@ -176,7 +176,22 @@ def scan_csv(path: Path, limits: Limits) -> None:
                 )
 
 
-def check_file(path: Path, what: str, limits: Limits) -> dict[str, Any]:
+class LogFacts(TypedDict, total=False):
+    """What a check found in a measured log (nothing for a sidecar)."""
+
+    samples: int  # rows
+    sample_time: float  # [s]
+    log_kind: str | None  # the log's model kind (None: not said)
+
+
+class CheckAnswer(LogFacts, total=False):
+    """A check's answer: ``ok`` and the log's facts, or the refusal's ``error``."""
+
+    ok: Required[bool]
+    error: str  # why not (``ok`` False)
+
+
+def check_file(path: Path, what: str, limits: Limits) -> LogFacts:
     """The check itself (in the child): ``what`` is ``sidecar`` or ``log``."""
     from server.records.measured_log import check_sidecar, load_log
 
@@ -202,18 +217,18 @@ def check_file(path: Path, what: str, limits: Limits) -> dict[str, Any]:
     return {"samples": len(log["t"]), "sample_time": log.sample_time, "log_kind": log.kind}
 
 
-def _child(name: str, where: str, what: str, limits: dict[str, Any], conn: Any) -> None:
+def _child(name: str, where: str, what: str, limits: Limits, conn: Any) -> None:
     """The checking process: beside the file, under its memory limit, niced; sends one
     answer (``{"ok": True, ...}`` or ``{"ok": False, "error": msg}``) down ``conn``."""
     import resource
 
-    lim = Limits(**limits)
+    lim = limits
     os.chdir(where)  # messages name the file, never its directory
     cap = lim.memory_mb * 1024 * 1024
     resource.setrlimit(resource.RLIMIT_AS, (cap, cap))
     os.nice(10)  # the service's loop comes first
     try:
-        out: dict[str, Any] = {"ok": True, **check_file(Path(name), what, lim)}
+        out: CheckAnswer = {"ok": True, **check_file(Path(name), what, lim)}
     except MemoryError:
         out = {"ok": False, "error": f"{name}: checking it needed more than "
                f"{lim.memory_mb} MB (CUTWATCH_UPLOAD_CHECK_MB)"}  # fmt: skip
@@ -238,11 +253,11 @@ _CTX.set_forkserver_preload(["server.service.upload_check", "server.records.meas
                              "scipy.io"])  # fmt: skip
 
 
-def _run(path: Path, what: str, limits: Limits) -> dict[str, Any]:
+def _run(path: Path, what: str, limits: Limits) -> CheckAnswer:
     recv, send = _CTX.Pipe(duplex=False)
     p = _CTX.Process(
         target=_child,
-        args=(path.name, str(path.parent), what, asdict(limits), send),
+        args=(path.name, str(path.parent), what, limits, send),
         name=f"upload-check-{path.name}",
         daemon=True,
     )
@@ -250,7 +265,7 @@ def _run(path: Path, what: str, limits: Limits) -> dict[str, Any]:
     send.close()
     try:
         if recv.poll(limits.timeout_s):
-            out: dict[str, Any] = recv.recv()
+            out: CheckAnswer = recv.recv()
             return out
         p.kill()
         return {"ok": False, "error": f"{path.name}: its check took over {limits.timeout_s:g} s"}
@@ -285,7 +300,7 @@ def _noop(conn: Any) -> None:
     conn.close()
 
 
-async def run_check(path: Path, what: str, limits: Limits) -> dict[str, Any]:
+async def run_check(path: Path, what: str, limits: Limits) -> CheckAnswer:
     """Check ``path`` (``sidecar`` or ``log``) in a child process; the answer of
     :func:`_child`. Messages name the file by its name only (the child runs beside it)."""
     return await asyncio.to_thread(_run, path, what, limits)

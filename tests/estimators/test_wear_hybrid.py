@@ -110,3 +110,7 @@ def test_life_end_is_linear_in_the_rate_and_never_for_zero() -> None:
     est = np.array([0.0, 10.0, 20.0])
     assert life_end(est, np.array([10.0, 10.0, 10.0]), 2, 100.0) == pytest.approx(10.0)
     assert life_end(est, np.zeros(3), 2, 100.0) == float("inf")
+    # the training tools' rate at these conditions, whatever the filter's rate says
+    assert life_end(est, np.zeros(3), 2, 100.0, method="prior", prior=5.0) == pytest.approx(
+        2.0 + (100.0 - est[2]) / 5.0
+    )

@@ -98,3 +98,10 @@ def _unseen_rows(rows: dict, checks: dict) -> None:
     groups = {n: r for n, r in rows.items() if n.startswith(f"{pre}.group.")}
     assert len(groups) == 2 and all(r["ours"] > 0 for r in groups.values())
     assert {n.split(".")[4][:2] for n in groups} == {"S7", "S8"}, groups
+    # what the selection believed of its choice beside what it made out of fold
+    opt = rows[f"{pre}.optimism"]
+    assert opt["unit"] == "um" and "of 30 configurations" in opt["condition"]
+    assert abs(opt["ours"]) < 200
+    # the life error taken apart: the estimate's, beside the measured state's
+    lp = rows[f"{pre}.life_parts"]
+    assert lp["ours"] >= 0 and lp["paper"] >= 0 and "true level + our rate" in lp["condition"]

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from _wait import poll
 
 from estimators.observer_effects import ObserverEffect
 from estimators.segment_id import SEG_DISTURBANCE
@@ -264,7 +265,9 @@ def test_the_live_loop_waits_on_a_source_with_nothing(logs: dict[str, Path]) -> 
         while not loop.pipeline.finished:
             assert time.monotonic() < deadline and loop.error is None
             time.sleep(0.05)
-        time.sleep(0.3)
+        # the loop pauses on its next turn after the source finished: polled (was a
+        # fixed 0.3 s, which a loaded box's loop may not have had)
+        poll(lambda: loop.paused or loop.error is not None, 30, 0.05)
         assert loop.running and loop.error is None and loop.paused  # ended like a replay
         assert loop.pipeline.t == pytest.approx(N_LOG * 4e-4)
         # a feed that never delivers: the loop stays up, time stands, and it waits a frame

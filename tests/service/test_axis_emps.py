@@ -25,6 +25,7 @@ import paho.mqtt.client as mqtt
 import pytest
 from _broker import broker, need_mosquitto
 from _live import serve
+from _wait import poll
 from websockets.sync.client import connect
 
 from server.cli.main import main
@@ -104,7 +105,11 @@ def test_emps_through_mosquitto_into_the_service_meets_the_issue_targets() -> No
                 feeder.join(30)
                 h = get(hp, "/api/health")
                 snap = get(hp, "/api/snapshot")["pipeline"]
-                time.sleep(0.3)  # the last estimates message
+                # the last estimates message (the one of the last 50 ms of the record's
+                # time) through the broker: polled, was a fixed 0.3 s
+                last_t = h["sim_t"] - 0.05 - 1e-6
+                poll(lambda: any(decode_estimates(b)["t"] >= last_t for b in list(got.queue)),
+                     30)  # fmt: skip
         finally:
             sub.loop_stop()
             sub.disconnect()

@@ -59,16 +59,28 @@ def test_the_strip_names_one_tool_one_share_one_limit(tmp_path: Path) -> None:
         base = sp.base
         page.goto(f"{base}/")
         page.wait_for_selector("#conn[data-state=up]", timeout=30000)
-        control(base, {"action": "speed", "value": 5})
+
+        # each look is taken paused, the run resumed only when it is not there yet: the
+        # state read is the state judged, and the run moves at most speed x the wall time
+        # of one look between two (was: polled while running, then paused; a loaded box's
+        # slow poll at 1x could let the run pass the tool change ~5 s after the alarm)
+        def paused_until(pred: Any) -> Any:
+            control(base, {"action": "pause"})
+            got = pred()
+            if not got:
+                control(base, {"action": "resume"})
+            return got
 
         def share() -> float:
             s = snapshot(base)["status"]["wear_share"]
             return float(s) if s is not None else 0.0
 
-        wait_for(lambda: share() >= NEAR, timeout=ALARM_TIMEOUT_S)
-        control(base, {"action": "speed", "value": 1})
-        wait_for(lambda: wear_alarms(base), timeout=60)
-        control(base, {"action": "pause"})
+        control(base, {"action": "speed", "value": 5})
+        wait_for(lambda: paused_until(lambda: share() >= NEAR), timeout=ALARM_TIMEOUT_S)
+        # 1x (each resume re-anchors the schedule, so a slower speed would have its first
+        # block due later than the look's wall time: the run would hardly move)
+        control(base, {"action": "speed", "value": 1})  # unpauses
+        wait_for(lambda: paused_until(lambda: wear_alarms(base)), timeout=120)
         st = snapshot(base)["status"]
         (ev,) = wear_alarms(base)
         # the alarm's tool is still the one worn (the tool is changed at the limit, later)

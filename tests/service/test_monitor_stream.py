@@ -122,10 +122,22 @@ def run() -> Iterator[Run]:
                 poll(lambda: httpx.get(health).json()["events_out"]["connected"], 10)
                 with connect(f"ws://{hp}/ws") as ws:
                     _drive(r, ws)
-                n = len(r.events())
-                poll(lambda: got.qsize() >= n, 10, 0.05)
-                time.sleep(0.2)
-                r.mqtt = [got.get_nowait() for _ in range(got.qsize())]
+                # until every event the stream told of, and a command for each feed hold,
+                # is on the broker (was: as many messages as events, commands counted
+                # too, then a fixed 0.2 s for the rest)
+                kept = r.events()
+                holds = sum(e["action"] == "feed_hold" for e in kept)
+                msgs: list[mqtt.MQTTMessage] = []
+
+                def all_in() -> bool:
+                    while not got.empty():
+                        msgs.append(got.get_nowait())
+                    topics = [m.topic for m in msgs]
+                    return (topics.count("cutwatch/m1/events") >= len(kept)
+                            and topics.count("cutwatch/m1/command") >= holds)  # fmt: skip
+
+                poll(all_in, 30, 0.05)
+                r.mqtt = msgs
                 yield r
         finally:
             sub.loop_stop()

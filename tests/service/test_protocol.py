@@ -72,7 +72,7 @@ def test_schema_check_names_a_stale_file(
 def test_the_loop_builds_its_messages_from_the_models() -> None:
     loop = LiveLoop(Settings(scenario="default", viser=False), Hub(4))
     loop.pipeline.step(2 * loop.block_n)
-    health = loop.health()
+    health = loop.health().model_dump()
     assert list(health) == fields(LoopHealth)
     assert LoopHealth.model_validate(health, strict=True).sim_t == loop.pipeline.t
     hello = Hello.model_validate_json(loop.hello())
@@ -112,8 +112,8 @@ CHANNELS = (
 
 def frames(has_truth: bool = True) -> list[str]:
     hello = protocol.hello(
-        [c.describe() for c in CHANNELS],
-        [CHART.describe()],
+        CHANNELS,
+        [CHART],
         [{"name": "toy", "running": True, "reason": ""}],
         4e-4,
         "default",
@@ -261,8 +261,8 @@ def hello_of_the_default_pipeline() -> str:
 
     p = LivePipeline("default")
     return protocol.hello(
-        [c.describe() for c in p.channels()],
-        [c.describe() for c in p.charts()],
+        p.channels(),
+        p.charts(),
         p.parts(),
         p.sample_time,
         p.scenario,
@@ -364,8 +364,8 @@ def hello_of(scenario: str) -> dict[str, object]:
     p = LivePipeline(scenario)
     return json.loads(
         protocol.hello(
-            [c.describe() for c in p.channels()],
-            [c.describe() for c in p.charts()],
+            p.channels(),
+            p.charts(),
             p.parts(),
             p.sample_time,
             p.scenario,

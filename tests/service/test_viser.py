@@ -42,7 +42,9 @@ def test_taken_port_fails_clearly_and_does_not_drift() -> None:
 
 
 def test_scene_updates_coalesce() -> None:
-    scene = StageScene("127.0.0.1", free_port(), max_hz=10.0)
+    # 1 Hz: the call right after an update must fall within its period; at 10 Hz a
+    # loaded box could spend the 0.1 s in the first update itself (the skip then failed)
+    scene = StageScene("127.0.0.1", free_port(), max_hz=1.0)
     try:
         latest = {
             "q_m": 1.0,
@@ -56,7 +58,7 @@ def test_scene_updates_coalesce() -> None:
         assert not scene.update(latest, 0.3, 0.1)  # no viser client: nothing to do
         assert scene.update(latest, 0.3, 0.1, force=True)
         assert not scene.update(latest, 0.3, 0.15, force=True)  # within 1/max_hz: skipped
-        time.sleep(0.11)
+        time.sleep(1.01)
         assert scene.update(latest, 0.4, 0.2, force=True)
         assert scene.updates == 2
         assert tuple(scene.table.position) == pytest.approx((0.05, 0.0, 0.075))

@@ -66,7 +66,7 @@ from server.experiments.residual_logs import (
 NAME = "residual-selection"
 SOURCE = (
     "issue 12 item 5: Monte Carlo of the residual selection (no paper; targets of "
-    "DESIGN's performance budget and the issue)"
+    "docs/design.md's performance budget and the issue)"
 )
 
 RIGID_FAMILIES: tuple[str, ...] = ("none", *RIGID_EFFECTS)

@@ -89,6 +89,17 @@ def protocol_rows(s: str, p: str, v: dict[str, Any]) -> list[Row]:
             "",
             "fraction of test tools with coverage >= 0.75",
         ),
+        Row(
+            f"{pre}.optimism",
+            v["optimism"]["median"],
+            0.0,
+            "um",
+            f"outer - inner score of the chosen configuration per split, range "
+            f"{v['optimism']['min']:.1f}-{v['optimism']['max']:.1f}; inner "
+            f"{_rng(v['inner_score'])}, outer {_rng(v['outer_score'])}; "
+            f"{_rng(v['inner_close'])} of {v['n_configs']} configurations within one "
+            "paired S.E. of the best; paper = none",
+        ),
     ]
     return rows
 
@@ -165,6 +176,21 @@ def loto_rows(s: str, v: dict[str, Any]) -> list[Row]:
             "tools (300 um, 150 um if never 300); paper = target",
         ),
     ]
+    lp = v.get("life_parts", {})
+    if lp:
+        rows.append(
+            Row(
+                f"{pre}.life_parts",
+                lp["est/est"],
+                lp["true/true"],
+                "",
+                "median life error at half-life: level/rate from the estimate (ours), "
+                "paper = the measured VB and its mean rate; true level + our rate "
+                f"{lp['true/est']:.2f}, our level + true mean rate {lp['est/true']:.2f}, "
+                f"true level + prior rate {lp['true/prior']:.2f}; median level error "
+                f"{lp['level_err']:.1f} um",
+            )
+        )
     for i, (c, n) in enumerate(v["chosen"].items()):
         rows.append(Row(f"{pre}.chosen.{i}", n, None, "folds", c))
     return rows

@@ -9,7 +9,7 @@ from pathlib import Path
 from fastapi import APIRouter, HTTPException, Request
 
 from server.records.data_areas import check_name
-from server.service.analysis import Analyses, Busy
+from server.service.analysis import Analyses, AnalysisOptions, Busy
 from server.service.datafiles import find_log
 from server.service.deps import Authorised, Store, conflict
 from server.service.http_errors import FieldError, error
@@ -39,7 +39,7 @@ def start_analysis(body: AnalysisBody, request: Request, st: Store) -> AnalysisJ
     if not check_name(wanted):
         raise FieldError("report", _REPORT_RULE, body.report, f"report: expected {_REPORT_RULE}")
     a = jobs(request)
-    options = {"holdout": body.holdout, "kind": body.kind}
+    options = AnalysisOptions(holdout=body.holdout, kind=body.kind)
     try:
         job = a.submit(path, path.name, area, a.report_name(wanted), options)
     except Busy as exc:

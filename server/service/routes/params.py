@@ -17,7 +17,7 @@ from fastapi import APIRouter, HTTPException
 from common.errors import ParameterError
 from server.pipeline.knobs import KNOBS, Knob, not_read
 from server.service.deps import Authorised, Knobs
-from server.service.http_errors import echo, error
+from server.service.http_errors import ErrorEntry, echo, error
 from server.service.schemas import (
     BoolKnob,
     ChoiceKnob,
@@ -52,7 +52,7 @@ def _params(knobs: dict[str, Knob]) -> Params:
     return Params({name: _knob_out(k) for name, k in knobs.items()})
 
 
-def _check_knob(name: str, k: Knob, value: Any) -> tuple[Any, dict[str, Any] | None]:
+def _check_knob(name: str, k: Knob, value: Any) -> tuple[Any, ErrorEntry | None]:
     """Validate one PATCH field against its knob (:meth:`Knob.check`, the one check);
     return (value, None) or (None, error)."""
     try:
@@ -79,7 +79,7 @@ def patch_params(body: ParamsPatch, live: Knobs) -> Params:
     # reaches the knob), ranges and choices the knob's (Knob.check, one message)
     changes = body.root
     knobs = live.knobs()
-    errors: list[dict[str, Any]] = []
+    errors: list[ErrorEntry] = []
     clean: dict[str, Any] = {}
     if not changes:
         errors.append(

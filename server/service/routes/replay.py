@@ -6,8 +6,9 @@ report's effects in the axes' live rigid models (``GET``/``POST``/``DELETE
 from __future__ import annotations
 
 import json
+from collections.abc import Iterable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, TypedDict
 
 from fastapi import APIRouter
 
@@ -26,6 +27,9 @@ from server.service.schemas import (
     ReplayStarted,
     error_responses,
 )
+
+if TYPE_CHECKING:
+    from estimators.observer_effects import ObserverEffect
 
 router = APIRouter(prefix="/api", tags=["replay"], responses=error_responses())
 
@@ -165,8 +169,17 @@ def delete_axis_model(lp: LiveEffects) -> AxisModels:
     return AxisModels(axes=axes, t=t)
 
 
-def _effects_json(effects: Any) -> list[dict[str, Any]]:
-    out: list[dict[str, Any]] = json_safe(
+class EffectJson(TypedDict):
+    """An installed effect as the answers list it (non-finite numbers null)."""
+
+    name: str  # its family
+    side: str  # the observer's side it acts on
+    shape: dict[str, float | None]  # its shape's parameters
+    coef: list[float | None]  # its fitted coefficients
+
+
+def _effects_json(effects: Iterable[ObserverEffect]) -> list[EffectJson]:
+    out: list[EffectJson] = json_safe(
         [{"name": e.name, "side": e.side, "shape": dict(e.shape), "coef": list(e.coef)}
          for e in effects]
     )  # fmt: skip

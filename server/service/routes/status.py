@@ -32,7 +32,7 @@ def health(lp: Live, s: Config) -> Health:
             "viser_port": s.viser_port,
             "viser_running": lp.scene is not None,
             "scenario": lp.scenario,
-            **json_safe(h),
+            **json_safe(h.model_dump()),
             **json_safe(lp.broker_status()),
         }
     )
@@ -73,6 +73,11 @@ def snapshot(lp: Live) -> Snapshot:
     )
 
 
+def _num(v: float | None) -> float:
+    """A gauge's value: NaN where the health has none (JSON null)."""
+    return math.nan if v is None else float(v)
+
+
 @router.get(
     "/metrics",
     response_class=PlainTextResponse,
@@ -82,32 +87,32 @@ def snapshot(lp: Live) -> Snapshot:
 def metrics(lp: Live) -> PlainTextResponse:
     h = lp.health()
     rows = [
-        ("cutwatch_loop_lag_seconds", "gauge", "lateness of the last block", h["lag_ms"] / 1e3),
+        ("cutwatch_loop_lag_seconds", "gauge", "lateness of the last block", _num(h.lag_ms) / 1e3),
         (
             "cutwatch_loop_lag_p99_seconds",
             "gauge",
             "p99 block lateness (last 600 blocks)",
-            h["lag_p99_ms"] / 1e3,
+            _num(h.lag_p99_ms) / 1e3,
         ),
         (
             "cutwatch_realtime_factor",
             "gauge",
             "simulated seconds per wall second",
-            h["realtime_factor"],
+            h.realtime_factor,
         ),
         (
             "cutwatch_speed",
             "gauge",
             "requested speed (0 = paused)",
-            0.0 if h["paused"] else h["speed"],
+            0.0 if h.paused else h.speed,
         ),
-        ("cutwatch_sim_time_seconds", "gauge", "simulated time", h["sim_t"]),
-        ("cutwatch_ws_clients", "gauge", "connected WebSocket clients", h["clients"]),
+        ("cutwatch_sim_time_seconds", "gauge", "simulated time", h.sim_t),
+        ("cutwatch_ws_clients", "gauge", "connected WebSocket clients", h.clients),
         (
             "cutwatch_ws_dropped_frames_total",
             "counter",
             "frames dropped for slow clients",
-            h["dropped_total"],
+            h.dropped_total,
         ),
         ("cutwatch_frames_total", "counter", "frames published", lp.hub.frames_total),
         ("cutwatch_blocks_total", "counter", "blocks simulated", lp.blocks),
@@ -115,7 +120,7 @@ def metrics(lp: Live) -> PlainTextResponse:
             "cutwatch_loop_stalls_total",
             "counter",
             "clock re-anchors after a stall",
-            h["stalls"],
+            h.stalls,
         ),
     ]
     b = lp.broker_status()
@@ -163,7 +168,7 @@ def metrics(lp: Live) -> PlainTextResponse:
     ]  # fmt: skip
     lines = []
     for name, kind, doc, value in rows:
-        lines += [f"# HELP {name} {doc}", f"# TYPE {name} {kind}", f"{name} {float(value):g}"]
+        lines += [f"# HELP {name} {doc}", f"# TYPE {name} {kind}", f"{name} {_num(value):g}"]
     name = "cutwatch_events_total"
     lines += [f"# HELP {name} monitor events raised, by kind", f"# TYPE {name} counter"]
     lines += [f'{name}{{kind="{k}"}} {n:d}' for k, n in ev["total"].items()]

@@ -18,7 +18,6 @@ from __future__ import annotations
 import os
 import shutil
 from pathlib import Path
-from typing import Any
 
 from fastapi import APIRouter, HTTPException, Query, Request
 from fastapi.responses import Response
@@ -29,7 +28,7 @@ from server.service.deps import Authorised, Config, Store, conflict
 from server.service.http_errors import FieldError, error
 from server.service.schemas import UploadInfo, Uploads, error_responses
 from server.service.settings import Settings
-from server.service.upload_check import Limits, run_check
+from server.service.upload_check import CheckAnswer, Limits, LogFacts, run_check
 
 router = APIRouter(prefix="/api/uploads", tags=["uploads"], responses=error_responses())
 
@@ -51,9 +50,9 @@ def limits(s: Settings) -> Limits:
     )
 
 
-def _info(p: Path, checked: dict[str, Any] | None = None) -> UploadInfo:
+def _info(p: Path, checked: CheckAnswer | None = None) -> UploadInfo:
     is_log = p.suffix.lower() != ".json"
-    c = checked if checked is not None and is_log else {}
+    c: LogFacts = checked if checked is not None and is_log else {}
     return UploadInfo(
         name=p.name,
         bytes=p.stat().st_size,
@@ -139,7 +138,7 @@ async def _receive(request: Request, path: Path, limit: int) -> int | None:
     return size
 
 
-async def _check(st: DataStore, qdir: Path, name: str, s: Settings) -> dict[str, Any]:
+async def _check(st: DataStore, qdir: Path, name: str, s: Settings) -> CheckAnswer:
     """Check the quarantined ``qdir/name`` with its published companions linked beside
     it (a log's sidecar; a sidecar's logs, each checked with it); a refusal is a
     :class:`FieldError`."""
@@ -158,7 +157,7 @@ async def _check(st: DataStore, qdir: Path, name: str, s: Settings) -> dict[str,
         checks = [(qdir / name, "log")]
     else:  # the pair is checked through its logs; a sidecar alone by itself
         checks = [(p, "log") for p in logs] or [(qdir / name, "sidecar")]
-    answer: dict[str, Any] = {"ok": True}
+    answer: CheckAnswer = {"ok": True}
     for target, what in checks:
         answer = await run_check(target, what, limits(s))
         if not answer.get("ok"):
