@@ -26,7 +26,7 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from functools import cache
 from pathlib import Path
-from typing import Any, NotRequired, TypedDict
+from typing import Any, NotRequired, TypedDict, cast
 
 from common.errors import ParameterError
 
@@ -82,10 +82,11 @@ def _short(v: Any) -> str:
 
 
 class AxisUnitsDict(TypedDict):
-    """An axis' units as the description writes them."""
+    """An axis' units as the description writes them (:meth:`AxisDescription.to_dict`
+    always writes ``effort``; a description read may leave it out: ``N`` or ``N m``)."""
 
     position: str
-    effort: str
+    effort: NotRequired[str]
 
 
 class AxisDict(TypedDict):
@@ -100,15 +101,16 @@ class AxisDict(TypedDict):
 
 
 class SpindleDict(TypedDict):
-    """The spindle as the description writes it (:meth:`SpindleDescription.to_dict`)."""
+    """The spindle as the description writes it (:meth:`SpindleDescription.to_dict`
+    always writes ``units``; a description read may leave them out: the defaults)."""
 
     signals: dict[str, str]
-    units: dict[str, str]
+    units: NotRequired[dict[str, str]]
 
 
 class MachineDict(TypedDict):
     """A machine as the description writes it (:meth:`MachineDescription.to_dict`; its
-    schema: ``common/machine.schema.json``)."""
+    schema: ``common/machine.schema.json``): what :func:`validate` lets through."""
 
     sample_time: float
     axes: dict[str, AxisDict]
@@ -360,8 +362,9 @@ def validate(d: Any) -> None:
         err = jsonschema.exceptions.best_match(errors)
         expected, below, found = _expected(err)
         raise DescriptionError(_key(err.absolute_path, below), expected, found)
-    _check_numbers(d)
-    _check_sources(d)
+    # the schema's check above is what makes ``d`` a MachineDict
+    _check_numbers(cast(MachineDict, d))
+    _check_sources(cast(MachineDict, d))
 
 
 def _at_bounds(d: Mapping[str, Any]) -> dict[str, Any]:
@@ -377,7 +380,7 @@ def _at_bounds(d: Mapping[str, Any]) -> dict[str, Any]:
     return out
 
 
-def _check_numbers(d: Mapping[str, Any]) -> None:
+def _check_numbers(d: MachineDict) -> None:
     """Numbers are finite (JSON readers accept NaN and Infinity; the schema cannot see)."""
     if not math.isfinite(d["sample_time"]):
         raise DescriptionError("sample_time", "a finite number of seconds", d["sample_time"])
@@ -390,7 +393,7 @@ def _check_numbers(d: Mapping[str, Any]) -> None:
                 raise DescriptionError(f"axes.{name}.nominal.{k}", "a finite number", v)
 
 
-def _check_sources(d: Mapping[str, Any]) -> None:
+def _check_sources(d: MachineDict) -> None:
     """Each source carries one signal (two signals from one column is a slip of the pen)."""
     seen: dict[str, str] = {}
     places = [
@@ -422,10 +425,11 @@ def from_dict(d: Any) -> MachineDescription:
         ``d`` breaks the schema.
     """
     validate(d)
-    axes = tuple(_axis(name, ax) for name, ax in d["axes"].items())
+    m: MachineDict = d  # valid: :func:`validate` raised otherwise
+    axes = tuple(_axis(name, ax) for name, ax in m["axes"].items())
     spindle = None
-    if "spindle" in d:
-        sp = d["spindle"]
+    if "spindle" in m:
+        sp = m["spindle"]
         given = sp.get("units", {})
         # the commanded speed is in the speed's unit
         units = {
@@ -433,14 +437,14 @@ def from_dict(d: Any) -> MachineDescription:
         }
         spindle = SpindleDescription(dict(sp["signals"]), units)
     return MachineDescription(
-        sample_time=float(d["sample_time"]),
+        sample_time=float(m["sample_time"]),
         axes=axes,
         spindle=spindle,
-        identities=dict(d.get("identities", {})),
+        identities=dict(m.get("identities", {})),
     )
 
 
-def _axis(name: str, ax: Mapping[str, Any]) -> AxisDescription:
+def _axis(name: str, ax: AxisDict) -> AxisDescription:
     units = ax["units"]
     pos = units["position"]
     return AxisDescription(
@@ -499,7 +503,7 @@ def from_legacy(d: Mapping[str, Any], columns: Iterable[str] | None = None) -> M
         kind = "two_inertia" if cols is not None and "q_l" in cols else "rigid"
     signals = _legacy_signals(effort, kind, cols)
     nominal = dict(d.get("nominal") or {})
-    ax: dict[str, Any] = {"kind": kind, "signals": signals, "units": {"position": pos}}
+    ax: AxisDict = {"kind": kind, "signals": signals, "units": {"position": pos}}
     if effort != "A":
         ax["units"]["effort"] = effort
     if "K_t" in nominal:

@@ -230,7 +230,7 @@ def save_state(
     *,
     kind: str,
     version: int,
-    meta: Mapping[str, Any] | None = None,
+    meta: Mapping[str, JsonNode] | None = None,
 ) -> None:
     """Write ``state`` to ``path`` atomically (a temporary file renamed over it).
 

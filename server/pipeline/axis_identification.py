@@ -25,9 +25,9 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from common.arrays import F64
 from common.machine_description import AxisDescription, MachineDescription
@@ -150,7 +150,7 @@ class AxisIdentification:
         state: dict[str, RigidIdState],
         t: F64,
         columns: Mapping[str, F64],
-        learn: Mapping[str, Any] | None = None,
+        learn: Mapping[str, NDArray[np.bool_]] | None = None,
     ) -> tuple[dict[str, RigidIdState], dict[str, F64]]:
         """One block: ``t`` and the feed's columns by source name (``learn``: per axis, where
         it may learn). Returns the new state and the channels, ``len(t)`` values each."""

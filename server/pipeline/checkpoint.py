@@ -23,7 +23,7 @@ import os
 from dataclasses import dataclass, field
 from typing import Any
 
-from common.state_io import StateFormatError, load_state, save_state
+from common.state_io import JsonNode, StateFormatError, load_state, save_state
 from machine.stage import CuttingForce
 
 #: the checkpoint's kind in the file header
@@ -82,7 +82,11 @@ class PipelineState:
 
 def save_checkpoint(path: str | os.PathLike[str], state: PipelineState) -> None:
     """Write ``state`` to ``path`` (atomically: a crash leaves the previous file)."""
-    meta = {"scenario": state.scenario, "source": state.source, "t": float(state.t)}
+    meta: dict[str, JsonNode] = {
+        "scenario": state.scenario,
+        "source": state.source,
+        "t": float(state.t),
+    }
     save_state(path, state, kind=KIND, version=VERSION, meta=meta)
 
 

@@ -37,9 +37,10 @@ from __future__ import annotations
 import math
 import threading
 from collections.abc import Mapping, Sequence
-from typing import Any, TypedDict
+from typing import Any, NotRequired, TypedDict
 
 import numpy as np
+import numpy.typing as npt
 
 from server.pipeline.broker import (
     BrokerConfig,
@@ -105,7 +106,9 @@ class EstimatesPublisher:
             c.disconnect()
             c.loop_stop()
 
-    def observe(self, block: Mapping[str, Any], force_channel: str = "f_adaptive") -> None:
+    def observe(
+        self, block: Mapping[str, npt.ArrayLike], force_channel: str = "f_adaptive"
+    ) -> None:
         """Take one pipeline block (channel name -> samples)."""
         with self._lock:
             for k, v in block.items():
@@ -127,11 +130,11 @@ class EstimatesPublisher:
         channels: Sequence[Any],
         t: float,
         source: str,
-        health: Mapping[str, Any] | None = None,
+        health: RuntimeHealth | None = None,
         drive_wall: float | None = None,
         feed_health: Mapping[str, Any] | None = None,
-        monitor: Mapping[str, Any] | None = None,
-    ) -> dict[str, Any]:
+        monitor: StatusStrip | None = None,
+    ) -> EstimatesBody:
         """The message body for the period ending now (and the period restarts);
         ``monitor``: the service's monitor status (:class:`MonitorStatus` fields)."""
         with self._lock:
@@ -167,7 +170,7 @@ class EstimatesPublisher:
                 # an OPC UA source's status names its server; a drive feed is the broker's
                 who = "OPC UA server" if "server" in feed_health else "broker"
                 alarms.append(f"drive feed: {who} not connected")
-        body: dict[str, Any] = {
+        body: EstimatesBody = {
             "wall": now,
             "t": t,
             "source": source,
@@ -181,7 +184,7 @@ class EstimatesPublisher:
                 "remaining_life_min": life,
             },
             "alarms": alarms,
-            "health": dict(health or {}),
+            "health": health if health is not None else {},
             "dashboard": self.dashboard,
             "drive_wall": drive_wall,
         }
@@ -203,7 +206,7 @@ class EstimatesPublisher:
         # (time that went back: a new pipeline on the feed starts the grid again)
         return t >= self._next_t - 1e-9 or t < self._next_t - 2.0 * self.period
 
-    def publish(self, body: Mapping[str, Any], now: float, t: float | None = None) -> bool:
+    def publish(self, body: EstimatesBody, now: float, t: float | None = None) -> bool:
         """Send ``body`` (never blocks; False when not connected); ``t``: the machine's
         time of the message (the next is due a period of it later, on its grid)."""
         # on the period's grid (a late publish does not push the next one later)
@@ -240,6 +243,89 @@ class EstimatesOutHealth(TypedDict):
     rate_hz: float
 
 
+class RuntimeHealth(TypedDict):
+    """The runtime's own health (``MachineRuntime.health``; the message's ``health``)."""
+
+    runtime: str
+    blocks: int
+    resumed: bool
+    step_ms_p50: float
+
+
+class NoHealth(TypedDict):
+    """No runtime's health (``{}``: :meth:`EstimatesPublisher.build` without one)."""
+
+
+class StatusStrip(TypedDict, total=False):
+    """The status strip (``server.service.messages.MonitorStatus``'s fields; a number not
+    known is NaN, or None once JSON-safe: ``MachineRuntime.monitor_status``); what the
+    ``monitor`` section carries of it (:class:`StatusSection`)."""
+
+    state: str
+    tool: int
+    program: str
+    line: int
+    part: int
+    wear_share: float | None
+    life_left_min: float | None
+    wear_tool: int
+    wear_of: str
+    wear_limit_mm: float | None
+    wear_alarm_share: float | None
+    wear_lo_share: float | None
+    wear_hi_share: float | None
+    wear_calibrated: bool | None
+    unacked: int
+
+
+class StatusSection(TypedDict):
+    """The ``monitor`` section taken from the service's status strip (:class:`StatusStrip`;
+    a field the strip leaves out is None), in the message's order."""
+
+    state: str | None
+    tool: int | None
+    program: str | None
+    line: int | None
+    part: int | None
+    unacked: int | None
+    wear_tool: int | None
+    wear_of: str | None
+    wear_share: float | None
+    wear_limit_mm: float | None
+    wear_alarm_share: float | None
+    life_left_min: float | None
+
+
+class WearSection(TypedDict):
+    """The estimates message's ``wear``: one tool's estimated flank wear and life."""
+
+    tool: int
+    VB_mm: float
+    VB_limit_mm: float
+    remaining_life_min: float
+
+
+class EstimatesBody(TypedDict):
+    """The estimates message's body (:meth:`EstimatesPublisher.build`; ``encode_estimates``
+    adds its schema, version and machine)."""
+
+    wall: float
+    t: float
+    source: str
+    force: dict[str, float]
+    params: dict[str, float]
+    harmonics: dict[str, float]
+    wear: WearSection
+    alarms: list[str]
+    #: the runtime's health ({}: none given)
+    health: RuntimeHealth | NoHealth
+    dashboard: str | None
+    drive_wall: float | None
+    #: the drive feed's health (its source's own fields: free JSON of the feed's kind)
+    feed: NotRequired[dict[str, Any]]
+    monitor: NotRequired[MonitorSection | StatusSection]
+
+
 class MonitorSection(TypedDict):
     """The process monitor's state, tool and line from its latest channel values."""
 
@@ -266,24 +352,21 @@ def _monitor(latest: Mapping[str, float]) -> MonitorSection | None:
     }
 
 
-def _monitor_of_status(st: Mapping[str, Any]) -> dict[str, Any]:
+def _monitor_of_status(st: StatusStrip) -> StatusSection:
     """The ``monitor`` section from the service's status strip (its fields of one tool's
-    wear with it: the strip, the snapshot and this section say the same)."""
-    return {k: st.get(k) for k in _MONITOR_KEYS}
-
-
-#: the status strip's fields the ``monitor`` section carries
-_MONITOR_KEYS = (
-    "state",
-    "tool",
-    "program",
-    "line",
-    "part",
-    "unacked",
-    "wear_tool",
-    "wear_of",
-    "wear_share",
-    "wear_limit_mm",
-    "wear_alarm_share",
-    "life_left_min",
-)
+    wear with it: the strip, the snapshot and this section say the same; a field the
+    strip leaves out is None)."""
+    return {
+        "state": st.get("state"),
+        "tool": st.get("tool"),
+        "program": st.get("program"),
+        "line": st.get("line"),
+        "part": st.get("part"),
+        "unacked": st.get("unacked"),
+        "wear_tool": st.get("wear_tool"),
+        "wear_of": st.get("wear_of"),
+        "wear_share": st.get("wear_share"),
+        "wear_limit_mm": st.get("wear_limit_mm"),
+        "wear_alarm_share": st.get("wear_alarm_share"),
+        "life_left_min": st.get("life_left_min"),
+    }

@@ -73,7 +73,7 @@ import os
 import time
 from collections.abc import Iterable, Mapping
 from dataclasses import replace
-from typing import Any
+from typing import Any, TypedDict
 
 import numpy as np
 
@@ -86,6 +86,7 @@ from machine.stage import SEED000_FORCE, CuttingForce, StageConfig
 from machine.stage_params import ADDED_WEIGHT_INERTIA
 from server.errors import CutwatchError
 from server.pipeline.checkpoint import PipelineState, ScriptState
+from server.pipeline.estimates_out import StatusStrip
 from server.pipeline.knobs import (
     BASE_RPM,
     KNOBS,
@@ -160,8 +161,38 @@ def _builtin_force_estimates() -> tuple[str, ...]:
 #: the force estimates of the built-in parts, in the order the pipeline streams them
 FORCE_ESTIMATES = _builtin_force_estimates()
 
+
+class PartCosts(TypedDict):
+    """A part's wall time: estimating, and simulating a machine beside the stage [s]."""
+
+    estimation_s: float
+    simulation_s: float
+
+
+class SimulationCost(TypedDict):
+    """The source's wall time simulating (or reading) the machine [s]."""
+
+    simulation_s: float
+
+
+class EstimationCost(TypedDict):
+    """The pipeline's own coordination's wall time [s]."""
+
+    estimation_s: float
+
+
+class PipelineCosts(TypedDict):
+    """:meth:`LivePipeline.costs`: wall time over the machine's seconds stepped."""
+
+    machine_s: float
+    wall_s: float
+    parts: dict[str, PartCosts]
+    source: SimulationCost
+    pipeline: EstimationCost
+
+
 #: the status strip before any part says more (``MonitorStatus`` fields)
-_STATUS: dict[str, object] = {
+_STATUS: StatusStrip = {
     "state": "off",
     "tool": 0,
     "program": "",
@@ -728,13 +759,13 @@ class LivePipeline:
         self._samples = 0
         self._wall = 0.0
 
-    def costs(self) -> dict[str, Any]:
+    def costs(self) -> PipelineCosts:
         """Wall time spent since :meth:`reset_costs` (or the start), over the machine's
         seconds stepped: ``machine_s``; ``wall_s`` (every step); ``parts``: per part its
         ``estimation_s`` and ``simulation_s``; ``source`` (the simulator's stage, or a
         log's or a feed's reading, and the stage's reconfiguration); ``pipeline`` (the
         coordination: the block, the NaN of parts that do not run, the accuracy)."""
-        parts = {
+        parts: dict[str, PartCosts] = {
             p.name: {"estimation_s": self._cost[p.name][0], "simulation_s": self._cost[p.name][1]}
             for p in self._parts
         }
@@ -892,7 +923,7 @@ class LivePipeline:
         milling machine's T1/T2). Each field comes from the running part that says it
         (the process monitor: state, tool, program, line, part; the wear part: the
         ``wear_*`` fields and the life). ``unacked`` is the runtime's (0 here)."""
-        status = dict(_STATUS)
+        status: dict[str, object] = dict(_STATUS)
         for part in self._parts:
             if self._running(part):
                 status.update(part.status())

@@ -34,7 +34,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field, replace
-from typing import Any, ClassVar, Literal, Protocol, runtime_checkable
+from typing import Any, ClassVar, Literal, Protocol, TypedDict, runtime_checkable
 
 import numpy as np
 
@@ -181,10 +181,19 @@ class Chart:
     markers: bool = False
     part: str = ""
 
-    def describe(self) -> dict[str, Any]:
+    def describe(self) -> ChartInfo:
         """The chart as ``hello`` carries it (``server.service.messages.HelloChart``)."""
-        fields = ("id", "title", "page", "order", "window_s", "fast", "wide", "markers", "part")
-        return {f: getattr(self, f) for f in fields}
+        return {
+            "id": self.id,
+            "title": self.title,
+            "page": self.page,
+            "order": self.order,
+            "window_s": self.window_s,
+            "fast": self.fast,
+            "wide": self.wide,
+            "markers": self.markers,
+            "part": self.part,
+        }
 
     def series(self, *channels: Channel, start: int = 0) -> tuple[Channel, ...]:
         """``channels`` drawn on this chart, in this order from ``start`` (their chart,
@@ -194,6 +203,52 @@ class Chart:
             replace(c, chart=self.id, page=self.page, order=start + i, fast=self.fast)
             for i, c in enumerate(channels)
         )
+
+
+class ChartInfo(TypedDict):
+    """A chart as ``hello`` carries it (:meth:`Chart.describe`;
+    ``server.service.messages.HelloChart``)."""
+
+    id: str
+    title: str
+    page: Page
+    order: int
+    window_s: float
+    fast: bool
+    wide: bool
+    markers: bool
+    part: str
+
+
+class IntervalInfo(TypedDict):
+    """A channel's 95 % band: the names of its lower, upper and excited channels."""
+
+    lower: str
+    upper: str
+    excited: str
+
+
+class ChannelInfo(TypedDict):
+    """A channel as ``hello`` carries it (:meth:`Channel.describe`;
+    ``server.service.messages.HelloChannel``), in its order."""
+
+    name: str
+    unit: str
+    group: str
+    label: str
+    grid: str
+    chart: str
+    page: Page
+    order: int
+    truth: bool
+    color: str
+    dash: list[float]
+    width: float
+    axis: str
+    interval: IntervalInfo | None
+    fill_to: str
+    role: str
+    legend: str
 
 
 @dataclass(frozen=True)
@@ -254,7 +309,7 @@ class Channel:
         """``"t"`` (the fast display grid) or ``"ts"`` (the slow one)."""
         return "t" if self.fast else "ts"
 
-    def describe(self) -> dict[str, Any]:
+    def describe(self) -> ChannelInfo:
         """The channel as ``hello`` carries it (``server.service.messages.HelloChannel``)."""
         return {
             "name": self.name,
@@ -270,9 +325,11 @@ class Channel:
             "dash": list(self.dash),
             "width": self.width,
             "axis": self.axis,
-            "interval": None if self.interval is None else dict(
-                zip(("lower", "upper", "excited"), self.interval, strict=True)
-            ),
+            "interval": None if self.interval is None else {
+                "lower": self.interval[0],
+                "upper": self.interval[1],
+                "excited": self.interval[2],
+            },
             "fill_to": self.fill_to,
             "role": self.role,
             "legend": self.legend,

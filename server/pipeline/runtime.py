@@ -51,7 +51,7 @@ from common.errors import ParameterError
 from common.jsonsafe import json_safe
 from common.state_io import StateFormatError
 from server.pipeline.checkpoint import PipelineState, load_checkpoint, save_checkpoint
-from server.pipeline.estimates_out import EstimatesPublisher
+from server.pipeline.estimates_out import EstimatesPublisher, RuntimeHealth, StatusStrip
 from server.pipeline.events_out import EventsPublisher
 from server.pipeline.live_pipeline import LivePipeline
 from server.records.monitor_events import KINDS, RECORD_FIELDS, MonitorEvent, event_id
@@ -330,7 +330,7 @@ class MachineRuntime:
             return
         self._lives.clear()
 
-    def monitor_status(self) -> dict[str, Any]:
+    def monitor_status(self) -> StatusStrip:
         """The status strip's fields (``server.service.messages.MonitorStatus``): the
         pipeline's, with the events waiting for an acknowledgement (``unacked``) and
         state ``alarm`` while an alarm or a feed hold is among them (whatever the
@@ -375,7 +375,7 @@ class MachineRuntime:
             t = p.t
         return pub.publish(body, now, t)
 
-    def health(self) -> dict[str, Any]:
+    def health(self) -> RuntimeHealth:
         """The runtime's own health (the estimates message's): who runs it (``serve``, a
         worker), the blocks stepped, whether it resumed from a checkpoint, and the p50 of
         a block's wall time over the last 200 blocks [ms]."""

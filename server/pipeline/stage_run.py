@@ -12,6 +12,7 @@ instead (NaN when none).
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -140,7 +141,7 @@ class StageRun:
         *,
         seed: int = 0,
         ident: IdentifierParams | None = None,
-        observer_design: dict[str, Any] | None = None,
+        observer_design: Mapping[str, float | str] | None = None,
         source: MeasurementSource | None = None,
     ) -> None:
         self.source: MeasurementSource = source or SimulatorSource(config, seed=seed)

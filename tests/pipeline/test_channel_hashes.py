@@ -43,10 +43,16 @@ EXPECTED: dict[str, dict[str, str]] = {
 }
 # issue 28: the wear part's tool lives are numbered by its own tool (1, 2, ...), no longer
 # by the milling machine's tool in the spindle at the change; the channels are the same
+# issue 32: the process part tells the monitor which blocks can cut (the program's air moves
+# are watched for collisions only, not taught), so its band differs there; every other
+# channel and the events are as before
+_AIR_MOVES = "the monitor told which blocks cannot cut (issue 32): air moves not taught"
 EXPECTED["default-0"] = {
     "tool_changes: {'count': 11, 'hash': '3780e85cd13920da'} -> "
     "{'count': 11, 'hash': '2b19aa2d44d4b8e8'}": "the wear part's tools numbered by its own "
-    "count, not by the milling machine's tool (issue 28)"
+    "count, not by the milling machine's tool (issue 28)",
+    "channel mon_lower: de8fd11fab424493 -> 8fc00f1ba8f4849a": _AIR_MOVES,
+    "channel mon_upper: 3889c5f9ec332947 -> 3955289cea2b3b89": _AIR_MOVES,
 }
 
 

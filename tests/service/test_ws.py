@@ -20,6 +20,7 @@ from websockets.sync.client import ClientConnection, connect
 from server.pipeline.live_pipeline import LivePipeline
 from server.service import protocol
 from server.service.hub import ClientQueue, Hub
+from server.service.settings import Settings
 
 
 @pytest.fixture(scope="module")
@@ -72,22 +73,26 @@ def test_samples_neither_skipped_nor_repeated(hp: str) -> None:
 
 
 def test_frames_arrive_at_the_stated_rate(hp: str) -> None:
-    # the README/docs state 20 Hz frames at 1x: measured at a real client over 5 s,
-    # the frames' samples contiguous. Before the frame slots were anchored (a frame was
-    # sent only when a full period had passed since the previous one finished) this
-    # measured ~13 Hz. A generous floor: a functional check, not a benchmark.
+    # the README/docs state 20 Hz frames at 1x, one per 50 ms block. Before the frame
+    # slots were anchored (a frame was sent only when a full period had passed since the
+    # previous one finished) every third block or so went without its frame: ~13 Hz.
+    # Judged by the loop's own count: the frames it published (seq) per block it ran
+    # (sim_t / the block's length) between two frames, both read off the frames, not
+    # frames per wall second, which a loaded box lowers with the loop itself (the rate is
+    # cutwatch bench live's frames_received); the frames' samples contiguous.
     with connect(f"ws://{hp}/ws") as ws:
         hello = recv(ws)
         dt = hello["sample_time"]
-        recv(ws)  # the first frame starts the clock
         t0 = time.monotonic()
         frames = []
         while time.monotonic() - t0 < 5.0:
             frames.append(recv(ws))
-        wall = time.monotonic() - t0
+    frames = [f for f in frames if f["type"] == "data"]
     assert all(f["health"]["speed"] == 1.0 for f in frames)
-    rate = len(frames) / wall
-    assert rate >= 18.0, f"{rate:.1f} Hz over {wall:.1f} s"
+    block_s = round(Settings().block_ms * 1e-3 / dt) * dt
+    blocks = (frames[-1]["health"]["sim_t"] - frames[0]["health"]["sim_t"]) / block_s
+    published = frames[-1]["seq"] - frames[0]["seq"]
+    assert published >= 0.9 * blocks, (published, blocks)
     t = [x for f in frames for x in f["t"]]
     steps = {round((b - a) / dt) for a, b in itertools.pairwise(t)}
     assert len(steps) == 1  # complete frames: no samples skipped or repeated between them

@@ -25,13 +25,13 @@ from __future__ import annotations
 
 import statistics
 import time
-from typing import Any
 
-from server.pipeline.live_pipeline import LivePipeline
+from server.pipeline.live_pipeline import LivePipeline, PipelineCosts
 
 
-def _rate(block: int, seconds: float, repeats: int) -> tuple[float, list[dict[str, Any]]]:
-    rates, costs = [], []
+def _rate(block: int, seconds: float, repeats: int) -> tuple[float, list[PipelineCosts]]:
+    rates: list[float] = []
+    costs: list[PipelineCosts] = []
     for _ in range(repeats):
         p = LivePipeline("default")
         warm = max(1, round(2.0 / (block * p.sample_time)))
@@ -47,7 +47,7 @@ def _rate(block: int, seconds: float, repeats: int) -> tuple[float, list[dict[st
     return float(statistics.median(rates)), costs
 
 
-def _per_machine_second(costs: list[dict[str, Any]]) -> dict[str, float]:
+def _per_machine_second(costs: list[PipelineCosts]) -> dict[str, float]:
     """Median over the runs of each cost, in ms per machine-second."""
     rows: dict[str, list[float]] = {}
 
