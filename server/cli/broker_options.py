@@ -57,9 +57,9 @@ def add_broker_options(p: argparse.ArgumentParser) -> None:
     )
 
 
-def broker_settings(args: argparse.Namespace) -> dict[str, object]:
+def broker_settings(args: argparse.Namespace) -> dict[str, str]:
     """The options given, as ``Settings`` fields (``mqtt_username`` ...)."""
-    out: dict[str, object] = {f"mqtt_{name}": getattr(args, name) for name in _OPTIONS}
+    out: dict[str, str | None] = {f"mqtt_{name}": getattr(args, name) for name in _OPTIONS}
     if args.password_env != PASSWORD_ENV:
         out["mqtt_password"] = os.environ.get(args.password_env)
     return {k: v for k, v in out.items() if v is not None}

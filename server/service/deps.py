@@ -16,7 +16,7 @@ from typing import Annotated, Any, Protocol
 from fastapi import Depends, HTTPException, Request
 
 from estimators.observer_effects import ObserverEffect
-from server.pipeline.knobs import Knob
+from server.pipeline.knobs import Knob, KnobValue
 from server.pipeline.live_pipeline import LivePipeline
 from server.records.data_areas import DataStore
 from server.service.auth import operator
@@ -85,7 +85,7 @@ class KnobControl(Protocol):
     """The live knobs: read them, change them all or nothing (``/api/params``)."""
 
     def knobs(self) -> dict[str, Knob]: ...
-    def set_knobs(self, changes: Mapping[str, object]) -> dict[str, Knob]: ...
+    def set_knobs(self, changes: Mapping[str, KnobValue]) -> dict[str, Knob]: ...
 
 
 class EffectControl(Protocol):

@@ -25,7 +25,7 @@ import threading
 import time
 from collections.abc import AsyncIterator, Iterable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypedDict
 from urllib.parse import urlsplit, urlunsplit
 
 from fastapi import FastAPI, WebSocket, WebSocketDisconnect
@@ -348,6 +348,23 @@ def _offer(q: asyncio.Queue[str], item: str) -> None:
     q.put_nowait(item)
 
 
+class BrokerLink(TypedDict):
+    """The fleet page's broker subscription: connected, or why not."""
+
+    connected: bool
+    error: str  # the broker's refusal ('' while connected)
+
+
+class FleetHealth(BaseModel):
+    """``GET /api/health`` of the fleet page."""
+
+    status: str = Field(description="'ok': the page answers (the broker's state: connected)")
+    broker: str = Field(description="the broker, host:port")
+    connected: bool = Field(description="subscribed to the broker")
+    error: str = Field(description="the broker's refusal ('' while connected)")
+    machines: int = Field(description="rows on the page")
+
+
 def create_fleet_app(
     cfg: BrokerConfig, stale_after: float = 5.0, settings: Settings | None = None,
     links: Links | None = None,
@@ -358,7 +375,7 @@ def create_fleet_app(
     ``CUTWATCH_*`` when omitted; :func:`server.service.front.protect`); ``links``: where
     a row's link goes (:class:`Links`; none by default)."""
     state = FleetState(stale_after, links)
-    status: dict[str, Any] = {"connected": False, "error": ""}
+    status: BrokerLink = {"connected": False, "error": ""}
 
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
@@ -366,9 +383,9 @@ def create_fleet_app(
 
         def on_connect(cl: Any, _u: object, _f: object, rc: Any, _p: object = None) -> None:
             if getattr(rc, "is_failure", False):
-                status.update(connected=False, error=f"refused: {reason_text(rc)}")
+                status.update({"connected": False, "error": f"refused: {reason_text(rc)}"})
                 return
-            status.update(connected=True, error="")
+            status.update({"connected": True, "error": ""})
             cl.subscribe([(TOPIC, 0), (EVENTS_TOPIC, 1)])
 
         def on_disconnect(_c: object, _u: object, _f: object, rc: Any, _p: object = None) -> None:
@@ -402,8 +419,8 @@ def create_fleet_app(
         return state.rows()
 
     @app.get("/api/health", summary="broker connection of the fleet page")
-    def health() -> dict[str, Any]:
-        return {"status": "ok", "broker": cfg.describe(), **status, "machines": len(state.rows())}
+    def health() -> FleetHealth:
+        return FleetHealth(status="ok", broker=cfg.describe(), **status, machines=len(state.rows()))
 
     @app.get("/metrics", response_class=PlainTextResponse, summary="Prometheus metrics")
     def metrics() -> str:

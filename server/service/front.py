@@ -24,8 +24,10 @@ The files each serves are its pages' own, listed (``server.service.web_files``).
 
 from __future__ import annotations
 
+import asyncio
 import logging
 from collections.abc import Mapping
+from typing import Literal, TypedDict
 
 from fastapi import FastAPI
 
@@ -61,7 +63,18 @@ def protect(
     return app
 
 
-def uvicorn_options(settings: Settings) -> dict[str, object]:
+class UvicornOptions(TypedDict):
+    """The uvicorn options every process passes (``uvicorn.run``/``uvicorn.Config``)."""
+
+    workers: int
+    http: type[asyncio.Protocol]  # the guarded httptools protocol (limits, timeouts)
+    ws: type[asyncio.Protocol]  # websockets-sansio, a refused upgrade not an error
+    ws_max_size: int  # [bytes]
+    ws_per_message_deflate: bool
+    lifespan: Literal["on"]
+
+
+def uvicorn_options(settings: Settings) -> UvicornOptions:
     """The uvicorn options of every process (one worker; shared by the tests' servers)."""
     from server.service.http_guard import WebSocketProtocol, guarded_protocol
 

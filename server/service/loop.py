@@ -717,7 +717,7 @@ class LiveLoop:
         with self.lock:
             return self.pipeline.knobs()
 
-    def set_knobs(self, changes: Mapping[str, object]) -> dict[str, Knob]:
+    def set_knobs(self, changes: Mapping[str, KnobValue]) -> dict[str, Knob]:
         """Set knobs, all or nothing; the knobs after the change.
 
         Raises

@@ -68,5 +68,5 @@ def run(args: argparse.Namespace) -> int:
     app = create_fleet_app(cfg, stale_after=args.stale_after, settings=settings, links=links)
     # the service's HTTP limits (slow clients dropped) and WebSocket settings
     uvicorn.run(app, host=args.host, port=args.port, log_level="warning",
-                **uvicorn_options(settings))  # type: ignore[arg-type]  # fmt: skip
+                **uvicorn_options(settings))  # fmt: skip
     return 0

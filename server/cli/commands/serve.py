@@ -188,6 +188,6 @@ def run(args: argparse.Namespace) -> int:
         host=settings.host,
         port=settings.port,
         log_level=args.log_level,
-        **uvicorn_options(settings),  # type: ignore[arg-type]
+        **uvicorn_options(settings),
     )
     return 0

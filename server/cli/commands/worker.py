@@ -164,5 +164,5 @@ def run(args: argparse.Namespace) -> int:
           flush=True)  # fmt: skip
     # every process's HTTP limits (slow clients dropped) and WebSocket settings
     uvicorn.run(app, host=args.host, port=args.port, log_level="warning",
-                **uvicorn_options(settings))  # type: ignore[arg-type]  # fmt: skip
+                **uvicorn_options(settings))  # fmt: skip
     return 0

@@ -15,7 +15,7 @@ from typing import Any
 from fastapi import APIRouter, HTTPException
 
 from common.errors import ParameterError
-from server.pipeline.knobs import KNOBS, Knob, not_read
+from server.pipeline.knobs import KNOBS, Knob, KnobValue, not_read
 from server.service.deps import Authorised, Knobs
 from server.service.http_errors import ErrorEntry, echo, error
 from server.service.schemas import (
@@ -52,14 +52,14 @@ def _params(knobs: dict[str, Knob]) -> Params:
     return Params({name: _knob_out(k) for name, k in knobs.items()})
 
 
-def _check_knob(name: str, k: Knob, value: Any) -> tuple[Any, ErrorEntry | None]:
-    """Validate one PATCH field against its knob (:meth:`Knob.check`, the one check);
-    return (value, None) or (None, error)."""
+def _check_knob(name: str, k: Knob, value: Any) -> KnobValue | ErrorEntry:
+    """Validate one PATCH field against its knob (:meth:`Knob.check`, the one check):
+    the value as the knob takes it, or the field's error entry."""
     try:
-        return k.check(value), None
+        return k.check(value)
     except ParameterError as exc:
         msg = f"{name}: expected {exc.expected}, got {echo(value)!r}"
-        return None, error(name, exc.expected, value, msg)
+        return error(name, exc.expected, value, msg)
 
 
 @router.get("", summary="live parameters with their allowed ranges", response_model=Params)
@@ -80,7 +80,7 @@ def patch_params(body: ParamsPatch, live: Knobs) -> Params:
     changes = body.root
     knobs = live.knobs()
     errors: list[ErrorEntry] = []
-    clean: dict[str, Any] = {}
+    clean: dict[str, KnobValue] = {}
     if not changes:
         errors.append(
             error(
@@ -101,11 +101,11 @@ def patch_params(body: ParamsPatch, live: Knobs) -> Params:
                 error(name, allowed, value, f"unknown parameter {echo(name)!r}; expected {allowed}")
             )
             continue
-        v, err = _check_knob(name, knobs[name], value)
-        if err is not None:
-            errors.append(err)
+        checked = _check_knob(name, knobs[name], value)
+        if isinstance(checked, dict):  # an error entry (a knob's value is never a dict)
+            errors.append(checked)
         else:
-            clean[name] = v
+            clean[name] = checked
     if errors:
         raise HTTPException(422, detail=errors)
     return _params(live.set_knobs(clean))
