@@ -35,7 +35,7 @@ import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, TypedDict
+from typing import TYPE_CHECKING, Any, TypedDict, cast
 
 import numpy as np
 
@@ -51,6 +51,7 @@ from server.pipeline.mqtt_source import MqttSource
 from server.pipeline.opcua_source import OpcuaSource
 from server.pipeline.runtime import CheckpointWriter, EventHistory, MachineRuntime
 from server.records.history import HistoryStore
+from server.records.monitor_events import EventRecord
 from server.service import protocol
 from server.service.hub import ClientQueue, Hub
 from server.service.messages import Event, LoopHealth, MonitorStatus
@@ -502,10 +503,10 @@ class LiveLoop:
             raise
 
     # ------------------------------------------------------------------ events
-    def announce_event(self, ev: dict[str, Any]) -> None:
+    def announce_event(self, ev: EventRecord) -> None:
         """An event changed (acknowledged): its new record (an :class:`Event`) goes to
         every client and replaces the kept copy; the status counts it as acknowledged."""
-        self.runtime.announce(Event.model_validate(ev).model_dump())
+        self.runtime.announce(cast(EventRecord, Event.model_validate(ev).model_dump()))
 
     def add_client(self) -> tuple[ClientQueue, list[str]]:
         """Register a client (from its coroutine): its queue, and the event messages of
@@ -514,7 +515,7 @@ class LiveLoop:
         q, backlog = self.runtime.listen(self.hub.add)
         return q, [protocol.event_body(r) for r in backlog]
 
-    def recent_events(self) -> list[dict[str, Any]]:
+    def recent_events(self) -> list[EventRecord]:
         """The kept events (at most :data:`~server.pipeline.runtime.EVENTS_KEPT`), newest
         first, as :class:`Event`."""
         return self.runtime.recent_events()

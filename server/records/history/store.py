@@ -305,13 +305,11 @@ class HistoryStore:
                 self._timed(t0)
         return self.event(event_id)
 
-    def acknowledge(
-        self, event_id: str, by: str, wall: float | None = None
-    ) -> dict[str, Any] | None:
-        """:meth:`acknowledged` as a plain dict (what the runtime's ``EventHistory``
-        protocol asks, ``server/pipeline/runtime.py``)."""
+    def acknowledge(self, event_id: str, by: str, wall: float | None = None) -> EventRow | None:
+        """:meth:`acknowledged` (what the runtime's ``EventHistory`` protocol asks,
+        ``server/pipeline/runtime.py``)."""
         ev = self.acknowledged(event_id, by, wall)
-        return None if ev is None else dict(ev)
+        return None if ev is None else ev.copy()
 
     def events(
         self,
@@ -352,12 +350,11 @@ class HistoryStore:
             rows = conn.execute(page).mappings().all()
         return total, [_event_row(r) for r in rows]
 
-    def recent(self, n: int, *, unacked: bool = False) -> list[dict[str, Any]]:
+    def recent(self, n: int, *, unacked: bool = False) -> list[EventRow]:
         """The latest ``n`` events (only those not acknowledged: ``unacked``), oldest first:
-        what a restarted service shows again (:class:`EventRow` as plain dicts: what the
-        runtime's ``EventHistory`` asks)."""
+        what a restarted service shows again (what the runtime's ``EventHistory`` asks)."""
         _, items = self.events(acked=False if unacked else None, limit=n)
-        return [dict(r) for r in items[::-1]]
+        return items[::-1]
 
     # ------------------------------------------------------------------ tool lives
     def add_tool_changes(
