@@ -32,6 +32,7 @@ import numpy as np
 
 from common.errors import ParameterError
 from estimators.centre_wear import CentreWear, CentreWearParams, CentreWearState
+from server.pipeline.estimates_out import StatusStrip
 from server.pipeline.machine_view import MachineView
 from server.pipeline.part import Block, Channel, Chart, LivePart, Outputs, Verdict, needs_signals
 
@@ -202,7 +203,7 @@ class CentreWearPart(LivePart):
         ]  # fmt: skip
 
     # ------------------------------------------------------------------ status
-    def status(self) -> dict[str, object]:
+    def status(self) -> StatusStrip:
         """The strip's wear fields, of the tool in the spindle."""
         tool = self.st.tool
         lim = self.wear.params.vb_limit

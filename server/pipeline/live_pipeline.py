@@ -911,7 +911,7 @@ class LivePipeline:
         self._accuracy = self._new_accuracy()
 
     # ------------------------------------------------------------------ status
-    def monitor_status(self) -> dict[str, object]:
+    def monitor_status(self) -> StatusStrip:
         """What an operator reads from across the shop: the monitor's ``state`` (``off``
         without a process monitor, ``teaching``, ``watching``, ``alarm``: the block under
         way raised an event), the tool in the spindle and the CNC's program, line and
@@ -923,7 +923,7 @@ class LivePipeline:
         milling machine's T1/T2). Each field comes from the running part that says it
         (the process monitor: state, tool, program, line, part; the wear part: the
         ``wear_*`` fields and the life). ``unacked`` is the runtime's (0 here)."""
-        status: dict[str, object] = dict(_STATUS)
+        status = _STATUS.copy()
         for part in self._parts:
             if self._running(part):
                 status.update(part.status())

@@ -34,7 +34,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field, replace
-from typing import Any, ClassVar, Literal, Protocol, TypedDict, runtime_checkable
+from typing import TYPE_CHECKING, Any, ClassVar, Literal, Protocol, TypedDict, runtime_checkable
 
 import numpy as np
 
@@ -43,6 +43,9 @@ from machine.stage import CuttingForce, Measurements, Truth
 from server.pipeline.machine_view import MachineView
 from server.pipeline.sources import SourceBlock
 from server.records.monitor_events import MonitorEvent
+
+if TYPE_CHECKING:
+    from server.pipeline.estimates_out import StatusStrip
 
 __all__ = [
     "OK",
@@ -416,7 +419,7 @@ class Block:
     knobs: KnobMap
     plant: Plant
     notice: Callable[[Notice], None]
-    status: Callable[[], dict[str, object]]
+    status: Callable[[], StatusStrip]
     outputs: dict[str, F64] = field(default_factory=dict)
     shared: dict[str, Any] = field(default_factory=dict)
 
@@ -498,7 +501,7 @@ class Part(Protocol):
 
     def notice(self, change: Notice) -> None: ...
 
-    def status(self) -> dict[str, object]: ...
+    def status(self) -> StatusStrip: ...
 
     def take_tool_changes(self) -> list[dict[str, object]]: ...
 
@@ -547,7 +550,7 @@ class LivePart:
     def notice(self, change: Notice) -> None:
         """A change the CNC knows of (a spindle step, a tool change, a fresh workpiece)."""
 
-    def status(self) -> dict[str, object]:
+    def status(self) -> StatusStrip:
         """The part's share of the status strip (``MonitorStatus`` fields)."""
         return {}
 

@@ -70,6 +70,7 @@ from machine.process import (
     ProcessMachine,
     default_program,
 )
+from server.pipeline.estimates_out import StatusStrip
 from server.pipeline.machine_view import MachineView
 from server.pipeline.part import (
     Block,
@@ -551,7 +552,7 @@ class LiveProcess:
         return {k: np.full(n, self.ps.last.get(k, math.nan)) for k in MON_CHANNELS}
 
     # ------------------------------------------------------------------ status
-    def status(self) -> dict[str, object]:
+    def status(self) -> StatusStrip:
         """State (teaching, watching, alarm), tool, program, line and part of the latest
         sample (before the first step: the program's first block, teaching)."""
         last = self.ps.last
@@ -681,7 +682,7 @@ class ProcessPart(LivePart):
     def step(self, block: Block) -> Outputs:
         return self.live.step(block.t, block.sample_time)
 
-    def status(self) -> dict[str, object]:
+    def status(self) -> StatusStrip:
         return self.live.status()
 
     def take_tool_changes(self) -> list[dict[str, object]]:

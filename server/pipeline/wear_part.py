@@ -27,6 +27,7 @@ import numpy as np
 
 from common.errors import ParameterError
 from harness.wear_clock import AcceleratedToolWear
+from server.pipeline.estimates_out import StatusStrip
 from server.pipeline.machine_view import MachineView
 from server.pipeline.part import (
     Block,
@@ -193,7 +194,7 @@ class WearPart(LivePart):
         """The wearing tool's number: 1 for the first tool of the run, +1 at each change."""
         return self.tool.state.tools_changed + 1
 
-    def status(self) -> dict[str, object]:
+    def status(self) -> StatusStrip:
         """The strip's wear fields, all of this part's one tool (module docstring)."""
         s = self.tool.state
         share = s.vb_est / VB_LIMIT if math.isfinite(s.vb_est) else math.nan
