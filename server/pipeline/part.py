@@ -46,6 +46,7 @@ from server.records.monitor_events import MonitorEvent
 
 if TYPE_CHECKING:
     from server.pipeline.estimates_out import StatusStrip
+    from server.records.history.store import ToolChange
 
 __all__ = [
     "OK",
@@ -503,7 +504,7 @@ class Part(Protocol):
 
     def status(self) -> StatusStrip: ...
 
-    def take_tool_changes(self) -> list[dict[str, object]]: ...
+    def take_tool_changes(self) -> list[ToolChange]: ...
 
     def state(self) -> object: ...
 
@@ -554,7 +555,7 @@ class LivePart:
         """The part's share of the status strip (``MonitorStatus`` fields)."""
         return {}
 
-    def take_tool_changes(self) -> list[dict[str, object]]:
+    def take_tool_changes(self) -> list[ToolChange]:
         """The tool lives the part ended since the last call (the history keeps them)."""
         return []
 
@@ -566,6 +567,15 @@ class LivePart:
         """Continue from :meth:`state`'s value."""
 
 
+class PartInfo(TypedDict):
+    """A part as ``/api/health``, ``hello`` and the data frames list it
+    (:meth:`PartStatus.as_dict`)."""
+
+    name: str
+    running: bool
+    reason: str
+
+
 @dataclass(frozen=True)
 class PartStatus:
     """A part as ``/api/health`` and the stream list it: running, or why not."""
@@ -574,7 +584,7 @@ class PartStatus:
     running: bool
     reason: str = ""
 
-    def as_dict(self) -> dict[str, object]:
+    def as_dict(self) -> PartInfo:
         return {"name": self.name, "running": self.running, "reason": self.reason}
 
 

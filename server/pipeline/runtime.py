@@ -54,6 +54,7 @@ from server.pipeline.checkpoint import PipelineState, load_checkpoint, save_chec
 from server.pipeline.estimates_out import EstimatesPublisher, RuntimeHealth, StatusStrip
 from server.pipeline.events_out import EventsPublisher
 from server.pipeline.live_pipeline import LivePipeline
+from server.records.history.store import ToolChange
 from server.records.monitor_events import KINDS, EventRecord, MonitorEvent, event_id, event_record
 
 log = logging.getLogger("uvicorn.error")
@@ -81,7 +82,7 @@ class EventHistory(Protocol):
 
     def acknowledge(self, event_id: str, by: str) -> EventRecord | None: ...
 
-    def add_tool_changes(self, changes: list[dict[str, Any]]) -> Any: ...
+    def add_tool_changes(self, changes: list[ToolChange]) -> Any: ...
 
     def recent(self, n: int) -> Sequence[EventRecord]: ...
 
@@ -191,7 +192,7 @@ class MachineRuntime:
         self._home = (pipeline.scenario, pipeline.source.name)
         self.blocks = 0
         self.history_errors = 0
-        self._lives: list[dict[str, Any]] = []  # tool lives not yet in the history
+        self._lives: list[ToolChange] = []  # tool lives not yet in the history
         #: called with each event's record (:meth:`MonitorEvent.record`) when it is raised
         #: or acknowledged, under the events' lock (the service's browser hub)
         self.listeners: list[Callable[[EventRecord], None]] = []

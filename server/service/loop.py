@@ -46,9 +46,11 @@ from server.pipeline.drive_feed import DriveFeed
 from server.pipeline.estimates_out import EstimatesPublisher
 from server.pipeline.events_out import EventsPublisher
 from server.pipeline.knobs import Knob, KnobValue
-from server.pipeline.live_pipeline import LivePipeline
+from server.pipeline.live_pipeline import LivePipeline, MachineInfo
 from server.pipeline.mqtt_source import MqttSource
 from server.pipeline.opcua_source import OpcuaSource
+from server.pipeline.part import PartInfo
+from server.pipeline.process_part import Relearned
 from server.pipeline.runtime import CheckpointWriter, EventHistory, MachineRuntime
 from server.records.history import HistoryStore
 from server.records.monitor_events import EventRecord
@@ -678,12 +680,12 @@ class LiveLoop:
             stalls=self.stalls,
         )
 
-    def parts(self) -> list[dict[str, Any]]:
+    def parts(self) -> list[PartInfo]:
         """The pipeline's parts: name, running, and why not."""
         with self.lock:
             return self.pipeline.parts()
 
-    def machine_info(self) -> dict[str, Any]:
+    def machine_info(self) -> MachineInfo:
         """The machine and its parts (:meth:`LivePipeline.machine`)."""
         with self.lock:
             return self.pipeline.machine()
@@ -829,7 +831,7 @@ class LiveLoop:
             row = h.measure_tool_life(int(out["tool"]), int(out["index"]), float(vb_mm))
         return {**out, "recorded": row is not None}
 
-    def relearn(self, tool: int | None = None, program: str | None = None) -> dict[str, Any]:
+    def relearn(self, tool: int | None = None, program: str | None = None) -> Relearned:
         """Teach the monitor's limits again (:meth:`LivePipeline.relearn`): of one tool,
         one program, or all (both None); the tool, program and segments reset.
 

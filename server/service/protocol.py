@@ -66,7 +66,7 @@ from typing import Any
 
 from common.jsonsafe import json_safe
 from server.pipeline.knobs import KnobValue
-from server.pipeline.part import Channel, Chart
+from server.pipeline.part import Channel, Chart, PartInfo
 from server.records.monitor_events import EventRecord
 from server.service.messages import MESSAGES, VERSION, Data, EventMessage, Hello, fields
 
@@ -96,7 +96,7 @@ _PER_CLIENT = {"type", "dropped"}
 def hello(
     channels: Sequence[Channel],
     charts: Sequence[Chart],
-    parts: list[dict[str, Any]],
+    parts: Sequence[PartInfo],
     sample_time: float | None,
     scenario: str,
     knobs: Mapping[str, KnobValue],
