@@ -225,3 +225,6 @@ def test_hybrid_leave_k_tools_out_quick(tmp_path: Path, capsys: pytest.CaptureFi
     rc = main([*args, "--test-tools", "3", "--out", str(out), "--quiet"])
     err = capsys.readouterr().err
     assert rc == 2 and "--protocol leave-k" in err and "--test-tools" in err
+    rc = main([*args, "--k", "5", "--out", str(out), "--quiet"])
+    err = capsys.readouterr().err
+    assert rc == 2 and "--k" in err and "'5'" in err

@@ -108,6 +108,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "split's pooled MAE is reported as the median and range over the splits",
     )
     p.add_argument(
+        "--k",
+        metavar="K,...",
+        default=None,
+        help="--protocol leave-k or both: only these k of 2, 3, 4 (the same seeded draws "
+        "as the full run; e.g. to run k = 4 in a second process)",
+    )
+    p.add_argument(
         "--quick",
         action="store_true",
         help="--method hybrid: the first split of each protocol only and the first list "
@@ -179,6 +186,7 @@ def _run_hybrid(args: argparse.Namespace) -> int:
     from estimators.wear_hybrid import candidates
     from server.errors import CutwatchError
     from server.pipeline.wear_nested import (
+        K_OUT,
         SETS,
         SPEED,
         _Cache,
@@ -215,6 +223,16 @@ def _run_hybrid(args: argparse.Namespace) -> int:
         splits = outer_splits(table.tools, quick=args.protocol == "loto")
         if args.protocol == "leave-k":
             splits = [sp for sp in splits if sp[0] != "loto"]
+        if args.k is not None:
+            try:
+                ks = {int(x) for x in args.k.split(",") if x.strip()}
+            except ValueError:
+                ks = set()
+            if not ks or not ks <= set(K_OUT):
+                raise CutwatchError(
+                    f"--k: expected a comma list of {', '.join(map(str, K_OUT))}, found {args.k!r}"
+                )
+            splits = [sp for sp in splits if sp[0] == "loto" or int(sp[0][1:-1]) in ks]
         if args.quick:  # the first split of each protocol
             splits = [sp for i, sp in enumerate(splits) if sp[0] not in {q for q, _ in splits[:i]}]
     else:

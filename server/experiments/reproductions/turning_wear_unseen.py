@@ -1,17 +1,19 @@
 """Wear on tools never seen (issue 35): the nested evaluation's rows and checks for
 ``cutwatch reproduce turning-wear``.
 
-Per signal set and outer protocol (leave one tool out; leave k = 2, 3, 4 tools out, 10
-splits each): the hybrid's MAE (median and range over the splits) beside each
-baseline's, the ratios to the baselines per split, coverage and width of the CV+
-intervals; on leave-one-tool-out also MAE at the measured VB points, per cutting-
-condition group, the tools entered part-way, the remaining life at half-life and the
-configurations the folds chose. The condition groups come from the data (median spindle
-speed and feed per tool, :func:`server.pipeline.wear_nested.condition_groups`). Checks
-(the issue's targets) on leave-one-tool-out pooled over the nine tools, for the feed
-force and the drive signals. ``quick``: the feed force, two tools left out one at a
-time, the protocol's first candidate list (40 configurations); its checks are computed
-the same way and not expected to hold.
+Per signal set and outer protocol (leave one tool out; leave k = 2, 3, 4 tools out, 5
+splits each), under the protocol's current candidate list (revision 3, 36 per set): the
+hybrid's MAE (median and range over the splits) beside each baseline's, the ratios to
+the baselines per split, coverage and width of the CV+ intervals, the selection's
+optimism; on leave-one-tool-out also MAE at the measured VB points, per cutting-
+condition group, the tools entered part-way, the remaining life at half-life (and taken
+apart) and the configurations the folds chose. The condition groups come from the data
+(median spindle speed and feed per tool,
+:func:`server.pipeline.wear_nested.condition_groups`). Checks (the issue's targets) on
+leave-one-tool-out pooled over the nine tools, for the feed force and the drive signals.
+``quick``: the feed force, two tools left out one at a time, the protocol's first
+candidate list without boosting (30 configurations); its checks are computed the same
+way and not expected to hold.
 """
 
 from __future__ import annotations
