@@ -42,8 +42,11 @@ FORMAT_VERSION = 1
 PACKAGES = ("common.", "machine.", "estimators.", "harness.", "server.pipeline.")
 #: modules moved since a state could name them: a state written before reads as now
 MOVED = {
-    f"server.pipeline.{m}": f"harness.{m}"
-    for m in ("accuracy", "eccentricity_loop", "shards", "wear_clock")
+    **{
+        f"server.pipeline.{m}": f"harness.{m}"
+        for m in ("accuracy", "eccentricity_loop", "shards", "wear_clock")
+    },
+    "machine.params": "machine.stage_params",  # the stage's parameters, named by meaning
 }
 
 

@@ -33,6 +33,11 @@ from estimators.ud_rls import covariance_update, ud_update
 TABLE2_A_BOUNDS = ((-3.2, -2.8), (2.8, 3.2), (-1.2, -0.8))
 TABLE2_B_RATIO_BOUNDS = ((-2.5, -1.5), (0.8, 1.2))
 
+# Index of each entry of WearObserverState.misc: the static gain D and the offset of
+# seed004 (24)-(25), the previous sample's feed u and force y, whether the cut has started
+# (1.0) and the samples so far
+MISC_D, MISC_OFFSET, MISC_FEED, MISC_FORCE, MISC_STARTED, MISC_SAMPLES = range(6)
+
 
 @dataclass(frozen=True)
 class WearConstraints:
@@ -160,11 +165,11 @@ class WearObserverState:
     dy_hist: F64  # dy(k-1), dy(k-2), dy(k-3)
     u_hist: F64  # u(k-1), u(k-2), u(k-3)
     x0_hat: F64  # observer-form state estimate for the next sample
-    misc: F64  # [D, offset, u_prev, y_prev, started, samples]
+    misc: F64  # [D, offset, u_prev, y_prev, started, samples]: the MISC_* indices
 
     @property
     def static_gain(self) -> float:
-        return float(self.misc[0])
+        return float(self.misc[MISC_D])
 
 
 @dataclass(frozen=True, eq=False)
@@ -265,7 +270,7 @@ class ObserverArrays(NamedTuple):
     dy_hist: F64  # (3,) past dy, newest first
     u_hist: F64  # (3,) past feeds, newest first
     xh: F64  # (3,) x0_hat
-    misc: F64  # D, offset, last u, last y, started, samples
+    misc: F64  # D, offset, last u, last y, started, samples (the MISC_* indices)
 
 
 class ObserverOut(NamedTuple):
@@ -299,23 +304,23 @@ def _observer_block(
     for k in range(len(y)):
         uk = u[k]
         yk = y[k]
-        started = misc[4] > 0.5
+        started = misc[MISC_STARTED] > 0.5
         if not started and uk > 0.0:
             # seed004 (25): at the start of the cut the tool is sharp, x = 0, y(0) = D u(0)
-            misc[0] = yk / uk
-            misc[1] = 0.0
-            misc[4] = 1.0
+            misc[MISC_D] = yk / uk
+            misc[MISC_OFFSET] = 0.0
+            misc[MISC_STARTED] = 1.0
             started = True
-        elif started and abs(uk - misc[2]) > ftol * max(abs(misc[2]), 1e-12):
+        elif started and abs(uk - misc[MISC_FEED]) > ftol * max(abs(misc[MISC_FEED]), 1e-12):
             # section 4.3.1: D re-estimated on a feed change from the change of output
             # over the change of input, measured right before/after (no time for wear).
             # Choice: the offset keeps dy continuous across the change, so the wear
             # force already observed is not reinterpreted as static force.
-            d_new = (yk - misc[3]) / (uk - misc[2])
-            misc[1] += (misc[0] - d_new) * misc[2]
-            misc[0] = d_new
+            d_new = (yk - misc[MISC_FORCE]) / (uk - misc[MISC_FEED])
+            misc[MISC_OFFSET] += (misc[MISC_D] - d_new) * misc[MISC_FEED]
+            misc[MISC_D] = d_new
         # seed004 (24): dy(k) = y(k) - D u(k)
-        dyk = yk - misc[0] * uk - misc[1] if started else 0.0
+        dyk = yk - misc[MISC_D] * uk - misc[MISC_OFFSET] if started else 0.0
         # seed004 (28): scaled regressor phi(k-1)
         nz = False
         for i in range(3):
@@ -357,7 +362,7 @@ def _observer_block(
         out_th[k, 4] = b2
         out_th[k, 5] = b3
         out_dy[k] = dyk
-        out_D[k] = misc[0]
+        out_D[k] = misc[MISC_D]
         out_res[k] = res
         out_tr[k] = _covariance_trace(P, U, Dd, use_ud)
         # seed004 (18) without the static part: y_hat = x0_hat_1; seed004 (17) with the
@@ -376,9 +381,9 @@ def _observer_block(
         u_hist[2] = u_hist[1]
         u_hist[1] = u_hist[0]
         u_hist[0] = uk if started else 0.0
-        misc[2] = uk
-        misc[3] = yk
-        misc[5] += 1.0
+        misc[MISC_FEED] = uk
+        misc[MISC_FORCE] = yk
+        misc[MISC_SAMPLES] += 1.0
 
 
 class AdaptiveWearObserver:
@@ -423,7 +428,7 @@ class AdaptiveWearObserver:
             dy_hist=np.zeros(3),
             u_hist=np.zeros(3),
             x0_hat=np.zeros(3),
-            misc=np.zeros(6),
+            misc=np.zeros(MISC_SAMPLES + 1),
         )
 
     def step(
@@ -440,7 +445,7 @@ class AdaptiveWearObserver:
             raise ParameterError("force", f"a 1-D array shaped like feed {u.shape}", y.shape)
         if not (np.all(np.isfinite(y)) and np.all(np.isfinite(u))):
             raise ParameterError("force/feed", "finite values", "NaN or inf")
-        started = state.misc[4] > 0.5
+        started = state.misc[MISC_STARTED] > 0.5
         cutting = np.flatnonzero(u > 0.0)
         first = 0 if started else (int(cutting[0]) if len(cutting) else len(u))
         if np.any(u[first:] <= 0.0):

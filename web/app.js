@@ -457,15 +457,24 @@ async function loadViser() {
 async function loadControls() {
   const [params, sc] = await Promise.all([
     fetch("/api/params").then((r) => r.json()), fetch("/api/scenarios").then((r) => r.json())]);
-  const form = $("knobs");
-  const rows = Object.entries(params).flatMap(([n, k]) => knobControl(n, k));
+  // each knob on the page it names (page: an operator's on the machine's tab, the rest on
+  // the research tab), the same controls and the same PATCH on both
+  const entries = Object.entries(params);
+  const on = (page) => entries.filter(([, k]) => (k.page || "research") === page)
+    .flatMap(([n, k]) => knobControl(n, k));
+  const operator = on("operator");
+  $("knobs-operator").replaceChildren(...operator);
+  $("knobs-operator-panel").hidden = !operator.length;
+  const rows = on("research");
   if (!rows.length) {
     const none = document.createElement("p");
     none.className = "stat";
-    none.textContent = "No part of this machine reads a knob.";
+    none.textContent = operator.length
+      ? "No part of this machine reads a research knob (its operator's are on the machine's tab)."
+      : "No part of this machine reads a knob.";
     rows.push(none);
   }
-  form.replaceChildren(...rows);
+  $("knobs").replaceChildren(...rows);
   const sel = $("scenario");
   sel.replaceChildren(...Object.entries(sc.scenarios).map(([name, doc]) => {
     const o = document.createElement("option");

@@ -18,6 +18,10 @@ pipeline reads is refused, naming the parts that would (:func:`not_read`). A par
 pipeline that is paused (a band over the Nyquist frequency, a part it needs not running)
 keeps its knobs: a value set then is stored and applies when it runs again
 (:attr:`Knob.waiting` says so).
+
+Each knob names the dashboard page it is set on (:attr:`Knob.page`, as a chart carries its
+page): the operator's (the machine's tab: the process monitor's teach-in) or the research
+tab (the default: the simulated stage's and the estimators' knobs).
 """
 
 from __future__ import annotations
@@ -29,6 +33,7 @@ from dataclasses import dataclass, replace
 from common.errors import ParameterError
 from machine.effects import EFFECT_NAMES
 from server.pipeline.eccentricity_part import FORCE_SOURCES, TUNERS
+from server.pipeline.part import Page
 
 #: spindle speed at which the force's frequencies are the papers' 100 / 200 Hz
 BASE_RPM = 3000.0
@@ -65,6 +70,9 @@ class Knob:
     waiting
         In a pipeline's copy: why none of its parts that read it runs now (the value is
         kept for when one does); ``""``: one runs.
+    page
+        The dashboard page it is set on: ``"operator"`` (the machine's tab, an operator's
+        knob) or ``"research"``.
     """
 
     name: str
@@ -76,6 +84,7 @@ class Knob:
     choices: tuple[str, ...] | None = None
     parts: tuple[str, ...] = ()
     waiting: str = ""
+    page: Page = "research"
 
     @property
     def kind(self) -> str:
@@ -116,9 +125,16 @@ class Knob:
 
 
 def _number(
-    name: str, value: float, lo: float, hi: float, unit: str, doc: str, parts: tuple[str, ...]
+    name: str,
+    value: float,
+    lo: float,
+    hi: float,
+    unit: str,
+    doc: str,
+    parts: tuple[str, ...],
+    page: Page = "research",
 ) -> Knob:
-    return Knob(name, value, lo, hi, unit, doc, parts=parts)
+    return Knob(name, value, lo, hi, unit, doc, parts=parts, page=page)
 
 
 def _flag(name: str, value: bool, doc: str, parts: tuple[str, ...]) -> Knob:
@@ -216,6 +232,7 @@ KNOB_TABLE: tuple[Knob, ...] = (
         "process monitor: good parts taught per (tool, program, block) before it watches; "
         "a new value restarts the teach-in of every block",
         _MONITORS,
+        page="operator",  # the operator's teach-in: on the machine's tab
     ),
     _number(
         "band_factor",
@@ -226,6 +243,7 @@ KNOB_TABLE: tuple[Knob, ...] = (
         "process monitor: half-width of the bands on the mean force in taught spreads "
         "(at least band_rel 15 % of the mean); applies from the next sample, no relearn",
         _MONITORS,
+        page="operator",
     ),
     # each plant effect the observers do not model (machine.effects), on/off
     *(_flag(f"effect_{e}", False, f"plant effect {e!r} (unmodelled)", _SIM) for e in EFFECT_NAMES),

@@ -114,7 +114,11 @@ class MqttSource(LiveSource):
         it received, so a pipeline that joined a running feed is behind the machine's
         clock by this much (None before the first sample). A consumer that matches the
         events' ``t`` to the machine's record adds it (``cutwatch worker``'s
-        ``/api/machines/<m>``: ``feed_origin_s``)."""
+        ``/api/machines/<m>``: ``feed_origin_s``). It holds since its last change only:
+        a restored checkpoint or a publisher that restarted sets it anew (time goes on
+        from where it was, so the origin moves by what was missed), and events raised
+        before that change need the origin read then; the plant's bench runs no such
+        restart."""
         return self._t0
 
     @property

@@ -237,6 +237,10 @@ class _KnobBase(BaseModel):
         description="why none of those parts runs now (the value is kept for when one "
         "does); empty: one runs",
     )
+    page: Literal["operator", "research"] = Field(
+        "research",
+        description="the dashboard page it is set on: operator (the machine's tab) or research",
+    )
 
 
 class NumberKnob(_KnobBase):

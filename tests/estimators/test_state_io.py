@@ -3,6 +3,7 @@ file, read back and stepped on gives what the original state gives, bit for bit.
 
 from __future__ import annotations
 
+import json
 from collections.abc import Callable
 from dataclasses import fields, is_dataclass
 from pathlib import Path
@@ -161,3 +162,20 @@ def test_another_kind_or_version_is_refused(tmp_path: Path) -> None:
 def test_values_outside_the_codec_are_refused_by_path(tmp_path: Path) -> None:
     with pytest.raises(StateFormatError, match=r"state\.x\[1\]: expected a value of cutwatch"):
         save_state(tmp_path / "s.npz", {"x": (1.0, object())}, kind="k", version=1)
+
+
+def test_a_state_written_before_the_stage_params_moved_reads_as_now() -> None:
+    # machine/params.py became machine/stage_params.py (issue 34, names by meaning): the
+    # default scenario's checkpoint names its stage's parameters machine.params:StageParams
+    # (common.state_io.MOVED), and must still load after the upgrade
+    from common.state_io import decode, encode
+    from machine.stage_params import PRESETS, StageParams
+
+    params = PRESETS[sorted(PRESETS)[0]]
+    tree, arrays = encode({"config": {"params": params}})
+    text = json.dumps(tree)
+    assert '"machine.stage_params:StageParams"' in text
+    old = json.loads(text.replace("machine.stage_params:", "machine.params:"))
+    back = decode(old, arrays)
+    assert type(back["config"]["params"]) is StageParams
+    assert back["config"]["params"] == params

@@ -8,6 +8,9 @@ it, changing nothing (all or nothing); switched to the stage's scenario every kn
 offered again. In headless Chromium the knobs panel builds exactly those controls, a
 change through one reaches the pipeline, and the panel follows a scenario switch; the
 accuracy panel lists the axes' estimates and none of the stage's observers (not run).
+The centre's two knobs are an operator's (``page`` operator): they are set on the machine's
+tab, the page opens on, and a value set there is the pipeline's after a reload; the stage's
+scenario keeps its other knobs on the research tab.
 """
 
 from __future__ import annotations
@@ -96,12 +99,13 @@ def test_the_knobs_panel_follows_the_running_parts(hp: str) -> None:
     base = f"http://{hp}"
 
     def knob_ids(page: Any) -> set[str]:
-        ids = page.eval_on_selector_all("#knobs [id^=knob-]", "els => els.map(e => e.id)")
+        ids = page.eval_on_selector_all("form.knobs [id^=knob-]", "els => els.map(e => e.id)")
         return {i.removeprefix("knob-") for i in ids}
 
     with chromium_page(1280, 900) as (page, errors):
         page.goto(f"{base}/#research")
-        page.wait_for_selector("#knob-teach_parts", timeout=30000)
+        # built (on the machine's tab: an operator's knob, hidden while research shows)
+        page.wait_for_selector("#knob-teach_parts", state="attached", timeout=30000)
         assert knob_ids(page) == CENTRE_KNOBS
         # the accuracy panel: the running parts' estimates (the axes'), not the stage's
         page.wait_for_selector("#accuracy tr[data-key='X.F']", timeout=30000)
@@ -127,4 +131,56 @@ def test_the_knobs_panel_follows_the_running_parts(hp: str) -> None:
                 timeout=30,
             )
         wait_for(lambda: knob_ids(page) == CENTRE_KNOBS, 30)
+        assert errors == []
+
+
+@pytest.mark.browser
+@pytest.mark.skipif(not CHROMIUM.exists(), reason="/usr/bin/chromium is not installed")
+def test_the_operators_knobs_are_on_the_machines_tab(hp: str, api: httpx.Client) -> None:
+    base = f"http://{hp}"
+    params = api.get("/api/params").json()
+    assert {n for n, k in params.items() if k["page"] == "operator"} == CENTRE_KNOBS
+
+    def ids(form: str, page: Any) -> set[str]:
+        got = page.eval_on_selector_all(f"#{form} [id^=knob-]", "els => els.map(e => e.id)")
+        return {i.removeprefix("knob-") for i in got}
+
+    with chromium_page(1280, 900) as (page, errors):
+        page.goto(f"{base}/")  # the default page: the machine's
+        page.wait_for_selector("#knobs-operator #knob-teach_parts", timeout=30000)
+        assert page.get_attribute("body", "data-page") == "operator"
+        assert ids("knobs-operator", page) == CENTRE_KNOBS and ids("knobs", page) == set()
+        for name in CENTRE_KNOBS:
+            assert page.is_visible(f"#knob-{name}")
+        assert page.is_hidden("#knobs")  # the research form: on the other tab
+        # a change on the machine's tab: the same PATCH, the pipeline's value
+        new = 3.0 if params["teach_parts"]["value"] != 3.0 else 4.0
+        page.locator("#knob-teach_parts").evaluate(
+            f"el => {{ el.value = {new}; el.dispatchEvent(new Event('change')); }}"
+        )
+        wait_for(lambda: api.get("/api/params").json()["teach_parts"]["value"] == new)
+        page.reload()
+        page.wait_for_selector("#knobs-operator #knob-teach_parts", timeout=30000)
+        assert float(page.input_value("#knob-teach_parts")) == new
+        assert page.inner_text("label[for=knob-teach_parts] + input + output").startswith(
+            f"{new:.2f}"
+        )
+        # the stage's scenario: the teach-in's two on the machine's tab, the rest on research
+        try:
+            assert (
+                api.post(
+                    "/api/control", json={"action": "scenario", "scenario": "default"}
+                ).status_code
+                == 200
+            )
+            page.reload()
+            wait_for(lambda: "wear_rate" in ids("knobs", page), 30)
+            assert ids("knobs", page) == set(KNOBS) - CENTRE_KNOBS
+            assert ids("knobs-operator", page) == CENTRE_KNOBS
+            assert page.is_hidden("#knob-wear_rate")
+            page.click("#tab-research")
+            assert page.is_visible("#knob-wear_rate") and page.is_visible("#knob-weight_on")
+            assert page.is_hidden("#knob-teach_parts")
+        finally:
+            api.post("/api/control", json={"action": "scenario", "scenario": "machining-centre"})
         assert errors == []

@@ -33,18 +33,20 @@ router = APIRouter(prefix="/api/params", tags=["params"], responses=error_respon
 def _knob_out(k: Knob) -> NumberKnob | BoolKnob | ChoiceKnob:
     """A knob as ``/api/params`` lists it: its kind, value, unit, doc and what it allows."""
     v = k.value
-    parts, waiting = list(k.parts), k.waiting
+    parts, waiting, page = list(k.parts), k.waiting, k.page
     if isinstance(v, bool):
-        return BoolKnob(type="bool", value=v, unit=k.unit, doc=k.doc, parts=parts, waiting=waiting)
+        return BoolKnob(
+            type="bool", value=v, unit=k.unit, doc=k.doc, parts=parts, waiting=waiting, page=page
+        )
     if isinstance(v, str):  # a choice (Knob.kind): the only knobs holding a string
         choices = list(k.choices or ())
         return ChoiceKnob(
             type="choice", value=v, choices=choices, unit=k.unit, doc=k.doc, parts=parts,
-            waiting=waiting,
+            waiting=waiting, page=page,
         )  # fmt: skip
     return NumberKnob(
         type="number", value=v, min=k.min, max=k.max, unit=k.unit, doc=k.doc, parts=parts,
-        waiting=waiting,
+        waiting=waiting, page=page,
     )  # fmt: skip
 
 

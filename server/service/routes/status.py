@@ -65,9 +65,10 @@ def snapshot(lp: Live) -> Snapshot:
         json_safe(
             {
                 "pipeline": snap,
-                "health": lp.health(),
+                # the models as plain values, so json_safe turns a non-finite float to null
+                "health": lp.health().model_dump(),
                 "events": lp.recent_events(),
-                "status": lp.monitor_status(),
+                "status": lp.monitor_status().model_dump(),
             }
         )
     )
