@@ -40,6 +40,7 @@ from typing import TYPE_CHECKING, Any, TypedDict, cast
 import numpy as np
 
 from common.errors import ParameterError
+from harness.accuracy import AccuracySummary
 from server.errors import CutwatchError
 from server.pipeline.broker import BrokerConfig, parse_broker_url
 from server.pipeline.drive_feed import DriveFeed
@@ -744,7 +745,7 @@ class LiveLoop:
             snap["injected"] = self.pipeline.process_truths()[-INJECTED_KEPT:]
             return snap
 
-    def accuracy(self) -> dict[str, object]:
+    def accuracy(self) -> AccuracySummary:
         """The rolling accuracy of the force estimates."""
         with self.lock:
             return self.pipeline.accuracy()
