@@ -52,7 +52,12 @@ from server.pipeline.mqtt_source import MqttSource
 from server.pipeline.opcua_source import OpcuaSource
 from server.pipeline.part import PartInfo
 from server.pipeline.process_part import Relearned
-from server.pipeline.runtime import CheckpointWriter, EventHistory, MachineRuntime
+from server.pipeline.runtime import (
+    CheckpointStatus,
+    CheckpointWriter,
+    EventHistory,
+    MachineRuntime,
+)
 from server.records.history import HistoryStore
 from server.records.monitor_events import EventRecord
 from server.service import protocol
@@ -282,7 +287,7 @@ class LiveLoop:
         return self.runtime.checkpoint
 
     @property
-    def checkpoint_status(self) -> dict[str, Any]:
+    def checkpoint_status(self) -> CheckpointStatus:
         """What became of the checkpoint: path, resumed, resumed_t, saved_t, refused."""
         return self.runtime.checkpoint_status
 
