@@ -128,6 +128,7 @@ from server.pipeline.scenarios import (
 from server.pipeline.sources import (
     MeasurementSource,
     ReplaySource,
+    Scheduled,
     SimulatorSource,
     SourceBlock,
     open_replay,
@@ -985,7 +986,7 @@ class LivePipeline:
         size: float | None = None,
         at_t: float | None = None,
         at_part: int | None = None,
-    ) -> dict[str, object]:
+    ) -> Scheduled:
         """Schedule an event in the simulated part program
         (:meth:`server.pipeline.process_part.LiveProcess.inject`): ``kind`` one of
         breakage, collision, missing_tool; ``size`` (default: the reproduction's clear
@@ -1004,7 +1005,8 @@ class LivePipeline:
         """
         centre = getattr(self.source, "inject", None)
         if self.part("process") is None and callable(centre):
-            return dict(centre(kind, size, at_t, at_part))  # the machining centre's program
+            scheduled: Scheduled = centre(kind, size, at_t, at_part)  # the centre's program
+            return scheduled.copy()
         proc = self._process("kind")
         return proc.live.inject(kind, size, at_t, at_part)
 

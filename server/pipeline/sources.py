@@ -89,7 +89,7 @@ import math
 import os
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any, Protocol, TypeAlias, runtime_checkable
+from typing import Any, NotRequired, Protocol, TypeAlias, TypedDict, runtime_checkable
 
 import numpy as np
 
@@ -108,6 +108,22 @@ NOMINAL = ("J_M", "J_L", "K", "K_t", "B_M", "B_L", "F_CM", "F_CL")
 #: what a source says of its truth (:meth:`MeasurementSource.truth_summary`): true
 #: parameters and counts by name, a label (a log's path, a program, a server)
 TruthSummary: TypeAlias = dict[str, float | str]
+
+
+class Scheduled(TypedDict):
+    """An event scheduled in a simulated part program (``POST /api/control`` inject: the
+    default scenario's process part, :meth:`server.pipeline.process_part.LiveProcess.inject`;
+    the machining centre's source): its kind and size (``unit``), when (``at_t`` [s] or
+    ``at_part``, ``line``; ``now`` the time asked at) and where, in words."""
+
+    kind: str
+    size: float
+    at_part: int | None
+    where: str
+    unit: NotRequired[str]
+    at_t: NotRequired[float | None]
+    now: NotRequired[float]
+    line: NotRequired[int]
 
 
 @dataclass(frozen=True)
@@ -523,6 +539,7 @@ __all__ = [
     "LiveSource",
     "MeasurementSource",
     "ReplaySource",
+    "Scheduled",
     "SimulatorSource",
     "SourceBlock",
     "TruthSummary",

@@ -58,6 +58,7 @@ from server.pipeline.runtime import (
     EventHistory,
     MachineRuntime,
 )
+from server.pipeline.sources import Scheduled
 from server.records.history import HistoryStore
 from server.records.monitor_events import EventRecord
 from server.service import protocol
@@ -798,7 +799,7 @@ class LiveLoop:
         size: float | None = None,
         at_t: float | None = None,
         at_part: int | None = None,
-    ) -> dict[str, Any]:
+    ) -> Scheduled:
         """Schedule an event in the simulator (:meth:`LivePipeline.inject`); what was
         scheduled.
 
