@@ -54,6 +54,7 @@ from common.event_kinds import EventKind
 from common.machine_description import MachineDescription
 from estimators.process_monitor import Alarm, MonitorParams, ProcessMonitor
 from server.pipeline.block_motion import CanCut
+from server.pipeline.estimates_out import StatusStrip
 from server.pipeline.machine_view import MachineView
 from server.pipeline.part import (
     Block,
@@ -326,7 +327,7 @@ class AxisMonitorPart(LivePart):
                             program=a.program, line=a.line, part=-1, value=a.value,
                             limit=a.limit, unit=_UNITS[str(a.detector)], message=msg)  # fmt: skip
 
-    def status(self) -> dict[str, Any]:
+    def status(self) -> StatusStrip:
         return {"axes_cutting_from": self.can_cut.source}
 
     def state(self) -> AxisMonitorState:

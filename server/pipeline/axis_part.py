@@ -29,6 +29,7 @@ import numpy as np
 from common.machine_description import MachineDescription
 from estimators.rigid_id import LiveEffect, RigidIdState
 from server.pipeline.axis_identification import AxisIdentification
+from server.pipeline.estimates_out import StatusStrip
 from server.pipeline.machine_view import MachineView
 from server.pipeline.part import Block, Channel, Chart, LivePart, Outputs, Verdict, refuse
 
@@ -127,7 +128,7 @@ class AxisPart(LivePart):
         self.ident_state = dict(state["ident"])
         self.base_state = dict(state["base"])
 
-    def status(self) -> dict[str, object]:
+    def status(self) -> StatusStrip:
         return {}
 
 

@@ -32,8 +32,10 @@ import numpy as np
 
 from common.errors import ParameterError
 from estimators.centre_wear import CentreWear, CentreWearParams, CentreWearState
+from server.pipeline.estimates_out import StatusStrip
 from server.pipeline.machine_view import MachineView
 from server.pipeline.part import Block, Channel, Chart, LivePart, Outputs, Verdict, needs_signals
+from server.records.history.store import ToolChange
 
 __all__ = ["CENTRE_WEAR", "CentreWearPart", "CentreWearPartState"]
 
@@ -60,7 +62,7 @@ class CentreWearPartState:
     n: int = 0
     override: float = 1.0
     t: float = 0.0
-    changes: list[dict[str, object]] = field(default_factory=list)
+    changes: list[ToolChange] = field(default_factory=list)
 
 
 class CentreWearPart(LivePart):
@@ -202,7 +204,7 @@ class CentreWearPart(LivePart):
         ]  # fmt: skip
 
     # ------------------------------------------------------------------ status
-    def status(self) -> dict[str, object]:
+    def status(self) -> StatusStrip:
         """The strip's wear fields, of the tool in the spindle."""
         tool = self.st.tool
         lim = self.wear.params.vb_limit
@@ -226,7 +228,7 @@ class CentreWearPart(LivePart):
             "life_left_min": life_min,
         }
 
-    def take_tool_changes(self) -> list[dict[str, object]]:
+    def take_tool_changes(self) -> list[ToolChange]:
         out, self.st.changes = self.st.changes, []
         return out
 

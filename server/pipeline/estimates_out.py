@@ -276,6 +276,10 @@ class StatusStrip(TypedDict, total=False):
     wear_hi_share: float | None
     wear_calibrated: bool | None
     unacked: int
+    #: what tells the spindle's monitor the tool cuts (``server/pipeline/spindle_part.py``)
+    cutting_from: str
+    #: what tells the axes' monitor the tool cuts (``server/pipeline/axis_monitor_part.py``)
+    axes_cutting_from: str
 
 
 class StatusSection(TypedDict):

@@ -78,6 +78,7 @@ from typing import Any, TypedDict
 import numpy as np
 
 from common.errors import ParameterError
+from common.machine_description import MachineDict
 from estimators.observer_effects import ObserverEffect
 from estimators.rls import IdentifierParams
 from harness.accuracy import RollingAccuracy
@@ -104,6 +105,7 @@ from server.pipeline.part import (
     LivePart,
     Notice,
     Part,
+    PartInfo,
     PartStatus,
     Plan,
     Setup,
@@ -114,6 +116,7 @@ from server.pipeline.part import (
     Plant as BlockPlant,
 )
 from server.pipeline.part_registry import BUILTIN, BuildContext, extra_factories
+from server.pipeline.process_part import Relearned
 from server.pipeline.scenarios import (
     DEFAULT_SCENARIO,
     SCENARIO_OBJECTS,
@@ -130,6 +133,7 @@ from server.pipeline.sources import (
     open_replay,
 )
 from server.pipeline.stage_run import StageRun
+from server.records.history.store import ToolChange
 from server.records.monitor_events import EventOutbox, MonitorEvent
 
 __all__ = [
@@ -179,6 +183,33 @@ class EstimationCost(TypedDict):
     """The pipeline's own coordination's wall time [s]."""
 
     estimation_s: float
+
+
+class AxisInfo(TypedDict):
+    """A feed axis in :meth:`LivePipeline.machine`: its name, kind and signals' roles."""
+
+    name: str
+    kind: str
+    signals: list[str]
+
+
+class SpindleInfo(TypedDict):
+    """The spindle in :meth:`LivePipeline.machine`: its signals' roles."""
+
+    signals: list[str]
+
+
+class MachineInfo(TypedDict):
+    """What :meth:`LivePipeline.machine` gives (``GET /api/machine``)."""
+
+    source: str
+    scenario: str
+    sample_time: float
+    axes: list[AxisInfo]
+    spindle: SpindleInfo | None
+    identities: list[str]
+    description: MachineDict | None
+    parts: list[PartInfo]
 
 
 class PipelineCosts(TypedDict):
@@ -433,7 +464,7 @@ class LivePipeline:
         return bool(self.source.finished)
 
     # ------------------------------------------------------------------ the parts
-    def parts(self) -> list[dict[str, object]]:
+    def parts(self) -> list[PartInfo]:
         """Every part with ``name``, ``running`` and ``reason`` (why not), in order."""
         return [self._status[n].as_dict() for n in self._order]
 
@@ -838,12 +869,12 @@ class LivePipeline:
         return summary
 
     # ------------------------------------------------------------------ what the parts end
-    def take_tool_changes(self) -> list[dict[str, object]]:
+    def take_tool_changes(self) -> list[ToolChange]:
         """The tools taken out of the spindle since the last call, part by part, oldest
         first: ``tool``, ``index``, ``start_t``, ``end_t`` [s], ``wear_at_change_mm``,
         ``wear_true_mm``, ``wear_true_share``, ``cause``; the history records them (the
         wear part's tool, changed at its flank-wear limit; the part program's tools)."""
-        out: list[dict[str, object]] = []
+        out: list[ToolChange] = []
         for part in self._parts:
             out += part.take_tool_changes()
         return out
@@ -911,7 +942,7 @@ class LivePipeline:
         self._accuracy = self._new_accuracy()
 
     # ------------------------------------------------------------------ status
-    def monitor_status(self) -> dict[str, object]:
+    def monitor_status(self) -> StatusStrip:
         """What an operator reads from across the shop: the monitor's ``state`` (``off``
         without a process monitor, ``teaching``, ``watching``, ``alarm``: the block under
         way raised an event), the tool in the spindle and the CNC's program, line and
@@ -923,14 +954,14 @@ class LivePipeline:
         milling machine's T1/T2). Each field comes from the running part that says it
         (the process monitor: state, tool, program, line, part; the wear part: the
         ``wear_*`` fields and the life). ``unacked`` is the runtime's (0 here)."""
-        status: dict[str, object] = dict(_STATUS)
+        status = _STATUS.copy()
         for part in self._parts:
             if self._running(part):
                 status.update(part.status())
         status["unacked"] = 0
         return status
 
-    def machine(self) -> dict[str, object]:
+    def machine(self) -> MachineInfo:
         """The machine the source delivers and the parts that watch it (``GET
         /api/machine``): ``source``, ``sample_time`` [s]; ``axes`` (``name``, ``kind``,
         ``signals``: the roles it gives), ``spindle`` (its ``signals``; None without one),
@@ -979,7 +1010,7 @@ class LivePipeline:
         proc = self._process("kind")
         return proc.live.inject(kind, size, at_t, at_part)
 
-    def relearn(self, tool: int | None = None, program: str | None = None) -> dict[str, object]:
+    def relearn(self, tool: int | None = None, program: str | None = None) -> Relearned:
         """Restart the monitor's teach-in for a tool's and/or a program's blocks (both
         None: every block); returns ``{"tool", "program", "segments"}`` (segments reset).
 

@@ -34,7 +34,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field, replace
-from typing import Any, ClassVar, Literal, Protocol, TypedDict, runtime_checkable
+from typing import TYPE_CHECKING, Any, ClassVar, Literal, Protocol, TypedDict, runtime_checkable
 
 import numpy as np
 
@@ -43,6 +43,10 @@ from machine.stage import CuttingForce, Measurements, Truth
 from server.pipeline.machine_view import MachineView
 from server.pipeline.sources import SourceBlock
 from server.records.monitor_events import MonitorEvent
+
+if TYPE_CHECKING:
+    from server.pipeline.estimates_out import StatusStrip
+    from server.records.history.store import ToolChange
 
 __all__ = [
     "OK",
@@ -416,7 +420,7 @@ class Block:
     knobs: KnobMap
     plant: Plant
     notice: Callable[[Notice], None]
-    status: Callable[[], dict[str, object]]
+    status: Callable[[], StatusStrip]
     outputs: dict[str, F64] = field(default_factory=dict)
     shared: dict[str, Any] = field(default_factory=dict)
 
@@ -498,9 +502,9 @@ class Part(Protocol):
 
     def notice(self, change: Notice) -> None: ...
 
-    def status(self) -> dict[str, object]: ...
+    def status(self) -> StatusStrip: ...
 
-    def take_tool_changes(self) -> list[dict[str, object]]: ...
+    def take_tool_changes(self) -> list[ToolChange]: ...
 
     def state(self) -> object: ...
 
@@ -547,11 +551,11 @@ class LivePart:
     def notice(self, change: Notice) -> None:
         """A change the CNC knows of (a spindle step, a tool change, a fresh workpiece)."""
 
-    def status(self) -> dict[str, object]:
+    def status(self) -> StatusStrip:
         """The part's share of the status strip (``MonitorStatus`` fields)."""
         return {}
 
-    def take_tool_changes(self) -> list[dict[str, object]]:
+    def take_tool_changes(self) -> list[ToolChange]:
         """The tool lives the part ended since the last call (the history keeps them)."""
         return []
 
@@ -563,6 +567,15 @@ class LivePart:
         """Continue from :meth:`state`'s value."""
 
 
+class PartInfo(TypedDict):
+    """A part as ``/api/health``, ``hello`` and the data frames list it
+    (:meth:`PartStatus.as_dict`)."""
+
+    name: str
+    running: bool
+    reason: str
+
+
 @dataclass(frozen=True)
 class PartStatus:
     """A part as ``/api/health`` and the stream list it: running, or why not."""
@@ -571,7 +584,7 @@ class PartStatus:
     running: bool
     reason: str = ""
 
-    def as_dict(self) -> dict[str, object]:
+    def as_dict(self) -> PartInfo:
         return {"name": self.name, "running": self.running, "reason": self.reason}
 
 

@@ -52,7 +52,7 @@ import math
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
-from typing import Any, cast
+from typing import Any, TypedDict, cast
 
 import numpy as np
 
@@ -70,6 +70,7 @@ from machine.process import (
     ProcessMachine,
     default_program,
 )
+from server.pipeline.estimates_out import StatusStrip
 from server.pipeline.machine_view import MachineView
 from server.pipeline.part import (
     Block,
@@ -81,6 +82,7 @@ from server.pipeline.part import (
     Verdict,
     needs_simulator,
 )
+from server.records.history.store import ToolChange
 from server.records.monitor_events import DEFAULT_ACTIONS, MonitorEvent
 
 #: default size of each injected kind: the middle of the reproduction's clear range
@@ -161,6 +163,15 @@ class ProcessState:
     last: dict[str, float] = field(default_factory=dict)
     tool_since: dict[int, float] = field(default_factory=dict)
     tool_changes: list[dict[str, object]] = field(default_factory=list)
+
+
+class Relearned(TypedDict):
+    """What a relearn reset (:meth:`LiveProcess.relearn`): the tool and program asked
+    (None: every one) and the segments whose teach-in starts again."""
+
+    tool: int | None
+    program: str | None
+    segments: int
 
 
 class LiveProcess:
@@ -291,7 +302,7 @@ class LiveProcess:
         )
         return m.part + 1 if started else m.part
 
-    def relearn(self, tool: int | None = None, program: str | None = None) -> dict[str, object]:
+    def relearn(self, tool: int | None = None, program: str | None = None) -> Relearned:
         """Restart the teach-in of a tool's and/or a program's segments (both None: all);
         returns the segments reset.
 
@@ -551,7 +562,7 @@ class LiveProcess:
         return {k: np.full(n, self.ps.last.get(k, math.nan)) for k in MON_CHANNELS}
 
     # ------------------------------------------------------------------ status
-    def status(self) -> dict[str, object]:
+    def status(self) -> StatusStrip:
         """State (teaching, watching, alarm), tool, program, line and part of the latest
         sample (before the first step: the program's first block, teaching)."""
         last = self.ps.last
@@ -681,25 +692,27 @@ class ProcessPart(LivePart):
     def step(self, block: Block) -> Outputs:
         return self.live.step(block.t, block.sample_time)
 
-    def status(self) -> dict[str, object]:
+    def status(self) -> StatusStrip:
         return self.live.status()
 
-    def take_tool_changes(self) -> list[dict[str, object]]:
+    def take_tool_changes(self) -> list[ToolChange]:
         """The part program's tool changes as tool lives: the simulated machine's wear as
         a share of the tool's limit (a truth: no estimate of it), the cause ``wear_limit``
         for a worn tool, else the alarm after which the operator changed it."""
         program = self.live.ps.machine.program
-        out: list[dict[str, object]] = []
+        out: list[ToolChange] = []
         for c in self.live.take_tool_changes():
             number, wear = c["tool"], c["wear"]
+            start_t, end_t = c["start_t"], c["end_t"]
             assert isinstance(number, int) and isinstance(wear, float | int)
+            assert isinstance(start_t, float | int) and isinstance(end_t, float | int)
             cause = str(c["cause"])
             out.append(
                 {
                     "tool": number,
                     "index": None,
-                    "start_t": c["start_t"],
-                    "end_t": c["end_t"],
+                    "start_t": start_t,
+                    "end_t": end_t,
                     "wear_at_change_mm": None,
                     "wear_true_share": float(wear) / program.tool(number).wear_limit,
                     "cause": EventKind.WEAR_LIMIT if cause == "worn" else cause,

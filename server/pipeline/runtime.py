@@ -41,9 +41,9 @@ import logging
 import math
 import threading
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any, Protocol, TypeVar
 
 import numpy as np
 
@@ -54,7 +54,8 @@ from server.pipeline.checkpoint import PipelineState, load_checkpoint, save_chec
 from server.pipeline.estimates_out import EstimatesPublisher, RuntimeHealth, StatusStrip
 from server.pipeline.events_out import EventsPublisher
 from server.pipeline.live_pipeline import LivePipeline
-from server.records.monitor_events import KINDS, RECORD_FIELDS, MonitorEvent, event_id
+from server.records.history.store import ToolChange
+from server.records.monitor_events import KINDS, EventRecord, MonitorEvent, event_id, event_record
 
 log = logging.getLogger("uvicorn.error")
 
@@ -71,17 +72,19 @@ __all__ = [
     "MachineRuntime",
 ]
 
+_T = TypeVar("_T")
+
 
 class EventHistory(Protocol):
     """What a runtime asks of the event history (:class:`server.records.history.HistoryStore`)."""
 
     def add_events(self, events: list[MonitorEvent]) -> None: ...
 
-    def acknowledge(self, event_id: str, by: str) -> dict[str, Any] | None: ...
+    def acknowledge(self, event_id: str, by: str) -> EventRecord | None: ...
 
-    def add_tool_changes(self, changes: list[dict[str, Any]]) -> Any: ...
+    def add_tool_changes(self, changes: list[ToolChange]) -> Any: ...
 
-    def recent(self, n: int) -> list[dict[str, Any]]: ...
+    def recent(self, n: int) -> Sequence[EventRecord]: ...
 
 
 class CheckpointWriter:
@@ -189,14 +192,14 @@ class MachineRuntime:
         self._home = (pipeline.scenario, pipeline.source.name)
         self.blocks = 0
         self.history_errors = 0
-        self._lives: list[dict[str, Any]] = []  # tool lives not yet in the history
+        self._lives: list[ToolChange] = []  # tool lives not yet in the history
         #: called with each event's record (:meth:`MonitorEvent.record`) when it is raised
         #: or acknowledged, under the events' lock (the service's browser hub)
-        self.listeners: list[Callable[[dict[str, Any]], None]] = []
+        self.listeners: list[Callable[[EventRecord], None]] = []
         #: events raised since the start, by kind
         self.events_total: dict[str, int] = dict.fromkeys(KINDS, 0)
         self._ev_lock = threading.Lock()  # the kept events, their counts, listeners
-        self._events: collections.deque[dict[str, Any]] = collections.deque(maxlen=EVENTS_KEPT)
+        self._events: collections.deque[EventRecord] = collections.deque(maxlen=EVENTS_KEPT)
         self._unacked: dict[str, str] = {}  # id -> action, oldest first
         self._step_s: collections.deque[float] = collections.deque(maxlen=200)
         self._step_p50_ms = math.nan
@@ -276,16 +279,15 @@ class MachineRuntime:
             return
         with self._ev_lock:
             for r in recs:
-                rec = {k: r.get(k) for k in RECORD_FIELDS}
-                rec["acked"] = bool(rec["acked"])
+                rec = event_record(r)
                 self._events.append(rec)
                 if not rec["acked"]:
                     self._unacked[str(rec["id"])] = str(rec["action"])
 
-    def announce(self, rec: dict[str, Any]) -> None:
+    def announce(self, rec: EventRecord) -> None:
         """An event changed (acknowledged): its new record replaces the kept copy and goes
         to every listener; the status counts it as acknowledged."""
-        rec = {k: rec.get(k) for k in RECORD_FIELDS}
+        rec = event_record(rec)
         with self._ev_lock:
             for i, old in enumerate(self._events):
                 if old["id"] == rec["id"]:
@@ -295,20 +297,20 @@ class MachineRuntime:
             for fn in self.listeners:
                 fn(rec)
 
-    def listen(self, register: Callable[[], Any]) -> tuple[Any, list[dict[str, Any]]]:
+    def listen(self, register: Callable[[], _T]) -> tuple[_T, list[EventRecord]]:
         """Call ``register()`` (a new client's, adding it to the listeners' audience)
         under the events' lock; what it returned and the kept events not yet
         acknowledged (oldest first): an event raised meanwhile is in one of the two,
         never in both."""
         with self._ev_lock:
             got = register()
-            backlog = [dict(r) for r in self._events if not r["acked"]]
+            backlog = [r.copy() for r in self._events if not r["acked"]]
         return got, backlog
 
-    def recent_events(self) -> list[dict[str, Any]]:
+    def recent_events(self) -> list[EventRecord]:
         """The kept events (at most :data:`EVENTS_KEPT`), newest first."""
         with self._ev_lock:
-            return [dict(r) for r in reversed(self._events)]
+            return [r.copy() for r in reversed(self._events)]
 
     def unacked(self) -> tuple[int, bool]:
         """Events not yet acknowledged, and whether one of them is an alarm or a feed hold."""

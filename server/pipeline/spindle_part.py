@@ -48,6 +48,7 @@ from common.machine_description import MachineDescription
 from estimators.process_monitor import Alarm, MonitorParams, ProcessMonitor
 from estimators.spindle_power import IdlePower, IdlePowerParams, IdlePowerState
 from server.pipeline.block_motion import CanCut
+from server.pipeline.estimates_out import StatusStrip
 from server.pipeline.machine_view import MachineView
 from server.pipeline.part import (
     Block,
@@ -327,7 +328,7 @@ class SpindlePart(LivePart):
                             program=a.program, line=a.line, part=-1, value=a.value,
                             limit=a.limit, unit=_UNITS[str(a.detector)], message=msg)  # fmt: skip
 
-    def status(self) -> dict[str, object]:
+    def status(self) -> StatusStrip:
         """The monitor's state (teaching, watching) and the CNC's tool, program and line
         (the identities the trace carries)."""
         return {

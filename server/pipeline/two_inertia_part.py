@@ -46,6 +46,7 @@ from estimators.residual_rate import LOW_RATE_HZ
 from estimators.rigid_id import RigidIdentifier, RigidIdState, rigid_design
 from estimators.twist_id import TwistIdentifier, TwistIdParams, TwistIdState, mode_hz
 from server.pipeline.axis_monitor_part import CUT_W
+from server.pipeline.estimates_out import StatusStrip
 from server.pipeline.machine_view import MachineView
 from server.pipeline.part import Block, Channel, Chart, LivePart, Outputs, Verdict, refuse
 
@@ -223,7 +224,7 @@ class TwoInertiaAxisPart(LivePart):
                 "kept, filter states restarted"
             )
 
-    def status(self) -> dict[str, Any]:
+    def status(self) -> StatusStrip:
         return {}
 
     def state(self) -> TwoInertiaState | None:

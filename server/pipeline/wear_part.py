@@ -27,6 +27,7 @@ import numpy as np
 
 from common.errors import ParameterError
 from harness.wear_clock import AcceleratedToolWear
+from server.pipeline.estimates_out import StatusStrip
 from server.pipeline.machine_view import MachineView
 from server.pipeline.part import (
     Block,
@@ -42,6 +43,7 @@ from server.pipeline.part import (
 from server.pipeline.stage_part import COLORS
 from server.pipeline.wear_alarms import WEAR_ALARM_SHARE, WearAlarms
 from server.pipeline.wear_passes import VB_LIMIT, PassState, ToolWearPasses
+from server.records.history.store import ToolChange
 
 __all__ = ["WEAR", "WEAR_OF", "WearPart", "WearPartState"]
 
@@ -119,7 +121,7 @@ class WearPart(LivePart):
     def __init__(self, wear_rate: float) -> None:
         self.tool = ToolWearPasses(wear_rate)
         self.alarms = WearAlarms()
-        self._changes: list[dict[str, object]] = []
+        self._changes: list[ToolChange] = []
 
     def requires(self, machine: MachineView) -> Verdict:
         return needs_simulator(machine, "the tool's wear (seed 004's model sets the force)")
@@ -164,7 +166,7 @@ class WearPart(LivePart):
         self.tool.state.tool_start_t = block.t_end
         block.notice(Notice("disturbance", block.t_end))
 
-    def _life(self, block: Block, cause: str) -> dict[str, object]:
+    def _life(self, block: Block, cause: str) -> ToolChange:
         """The life of the wearing tool, ending now: its number (:attr:`tool_number`:
         this part's own tool, never the part program's tool in the spindle), its index
         (the same: 1 for the first tool of the run), the source times it was mounted and
@@ -193,7 +195,7 @@ class WearPart(LivePart):
         """The wearing tool's number: 1 for the first tool of the run, +1 at each change."""
         return self.tool.state.tools_changed + 1
 
-    def status(self) -> dict[str, object]:
+    def status(self) -> StatusStrip:
         """The strip's wear fields, all of this part's one tool (module docstring)."""
         s = self.tool.state
         share = s.vb_est / VB_LIMIT if math.isfinite(s.vb_est) else math.nan
@@ -206,7 +208,7 @@ class WearPart(LivePart):
             "wear_alarm_share": WEAR_ALARM_SHARE,
         }
 
-    def take_tool_changes(self) -> list[dict[str, object]]:
+    def take_tool_changes(self) -> list[ToolChange]:
         out, self._changes = self._changes, []
         return out
 

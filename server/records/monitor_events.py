@@ -105,6 +105,17 @@ class EventRecord(TypedDict):
     acked_wall: float | None
 
 
+def event_record(r: EventRecord) -> EventRecord:
+    """A copy of ``r`` holding the record's fields only, in :data:`RECORD_FIELDS`' order
+    (a history row without its received time; ``acked`` a bool)."""
+    return EventRecord(
+        id=r["id"], kind=r["kind"], action=r["action"], t=r["t"], tool=r["tool"],
+        program=r["program"], line=r["line"], part=r["part"], value=r["value"],
+        limit=r["limit"], unit=r["unit"], message=r["message"], machine=r["machine"],
+        acked=bool(r["acked"]), acked_by=r["acked_by"], acked_wall=r["acked_wall"],
+    )  # fmt: skip
+
+
 class EventWire(EventFields):
     """The broker's message (:meth:`MonitorEvent.to_wire`): the fields with the schema."""
 
@@ -194,17 +205,12 @@ class MonitorEvent:
             message=self.message, machine=self.machine, id=self.id,
         )  # fmt: skip
 
-    def record(self) -> dict[str, Any]:
+    def record(self) -> EventRecord:
         """The event as the stream, the snapshot and the history's REST carry it (the
         fields of ``server.service.messages.Event``, in its order; :class:`EventRecord`):
-        :meth:`as_dict` with its acknowledgement (none yet). A plain dict: the runtime
-        keeps and updates these as such (``server/pipeline/runtime.py``)."""
+        :meth:`as_dict` with its acknowledgement (none yet)."""
         d = self.as_dict()
-        return {k: d[k] for k in RECORD_FIELDS if k in d} | {  # type: ignore[literal-required]
-            "acked": False,
-            "acked_by": None,
-            "acked_wall": None,
-        }
+        return event_record({**d, "acked": False, "acked_by": None, "acked_wall": None})
 
     def to_wire(self) -> EventWire:
         """The broker's message: :meth:`as_dict` with ``schema`` and ``version``."""

@@ -18,6 +18,7 @@ from fastapi import Depends, HTTPException, Request
 from estimators.observer_effects import ObserverEffect
 from server.pipeline.knobs import Knob, KnobValue
 from server.pipeline.live_pipeline import LivePipeline
+from server.pipeline.process_part import Relearned
 from server.records.data_areas import DataStore
 from server.service.auth import operator
 from server.service.http_errors import error
@@ -78,7 +79,7 @@ class MonitorActions(Protocol):
         at_t: float | None = None,
         at_part: int | None = None,
     ) -> dict[str, Any]: ...
-    def relearn(self, tool: int | None = None, program: str | None = None) -> dict[str, Any]: ...
+    def relearn(self, tool: int | None = None, program: str | None = None) -> Relearned: ...
 
 
 class KnobControl(Protocol):

@@ -35,7 +35,7 @@ import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, TypedDict
+from typing import TYPE_CHECKING, Any, TypedDict, cast
 
 import numpy as np
 
@@ -46,11 +46,14 @@ from server.pipeline.drive_feed import DriveFeed
 from server.pipeline.estimates_out import EstimatesPublisher
 from server.pipeline.events_out import EventsPublisher
 from server.pipeline.knobs import Knob, KnobValue
-from server.pipeline.live_pipeline import LivePipeline
+from server.pipeline.live_pipeline import LivePipeline, MachineInfo
 from server.pipeline.mqtt_source import MqttSource
 from server.pipeline.opcua_source import OpcuaSource
+from server.pipeline.part import PartInfo
+from server.pipeline.process_part import Relearned
 from server.pipeline.runtime import CheckpointWriter, EventHistory, MachineRuntime
 from server.records.history import HistoryStore
+from server.records.monitor_events import EventRecord
 from server.service import protocol
 from server.service.hub import ClientQueue, Hub
 from server.service.messages import Event, LoopHealth, MonitorStatus
@@ -502,10 +505,10 @@ class LiveLoop:
             raise
 
     # ------------------------------------------------------------------ events
-    def announce_event(self, ev: dict[str, Any]) -> None:
+    def announce_event(self, ev: EventRecord) -> None:
         """An event changed (acknowledged): its new record (an :class:`Event`) goes to
         every client and replaces the kept copy; the status counts it as acknowledged."""
-        self.runtime.announce(Event.model_validate(ev).model_dump())
+        self.runtime.announce(cast(EventRecord, Event.model_validate(ev).model_dump()))
 
     def add_client(self) -> tuple[ClientQueue, list[str]]:
         """Register a client (from its coroutine): its queue, and the event messages of
@@ -514,7 +517,7 @@ class LiveLoop:
         q, backlog = self.runtime.listen(self.hub.add)
         return q, [protocol.event_body(r) for r in backlog]
 
-    def recent_events(self) -> list[dict[str, Any]]:
+    def recent_events(self) -> list[EventRecord]:
         """The kept events (at most :data:`~server.pipeline.runtime.EVENTS_KEPT`), newest
         first, as :class:`Event`."""
         return self.runtime.recent_events()
@@ -677,12 +680,12 @@ class LiveLoop:
             stalls=self.stalls,
         )
 
-    def parts(self) -> list[dict[str, Any]]:
+    def parts(self) -> list[PartInfo]:
         """The pipeline's parts: name, running, and why not."""
         with self.lock:
             return self.pipeline.parts()
 
-    def machine_info(self) -> dict[str, Any]:
+    def machine_info(self) -> MachineInfo:
         """The machine and its parts (:meth:`LivePipeline.machine`)."""
         with self.lock:
             return self.pipeline.machine()
@@ -828,7 +831,7 @@ class LiveLoop:
             row = h.measure_tool_life(int(out["tool"]), int(out["index"]), float(vb_mm))
         return {**out, "recorded": row is not None}
 
-    def relearn(self, tool: int | None = None, program: str | None = None) -> dict[str, Any]:
+    def relearn(self, tool: int | None = None, program: str | None = None) -> Relearned:
         """Teach the monitor's limits again (:meth:`LivePipeline.relearn`): of one tool,
         one program, or all (both None); the tool, program and segments reset.
 

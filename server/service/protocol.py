@@ -66,7 +66,8 @@ from typing import Any
 
 from common.jsonsafe import json_safe
 from server.pipeline.knobs import KnobValue
-from server.pipeline.part import Channel, Chart
+from server.pipeline.part import Channel, Chart, PartInfo
+from server.records.monitor_events import EventRecord
 from server.service.messages import MESSAGES, VERSION, Data, EventMessage, Hello, fields
 
 __all__ = [
@@ -95,7 +96,7 @@ _PER_CLIENT = {"type", "dropped"}
 def hello(
     channels: Sequence[Channel],
     charts: Sequence[Chart],
-    parts: list[dict[str, Any]],
+    parts: Sequence[PartInfo],
     sample_time: float | None,
     scenario: str,
     knobs: Mapping[str, KnobValue],
@@ -131,7 +132,7 @@ def data_body(frame: Mapping[str, Any]) -> str:
     return Data.model_validate(frame).model_dump_json(exclude=_PER_CLIENT)
 
 
-def event_body(record: Mapping[str, Any]) -> str:
+def event_body(record: EventRecord) -> str:
     """Encode the ``event`` message of an event record through
     :class:`~server.service.messages.EventMessage`."""
     return EventMessage.model_validate({"event": json_safe(dict(record))}).model_dump_json()

@@ -24,7 +24,7 @@ import threading
 import time
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
-from typing import Any, TypedDict
+from typing import Any, NotRequired, TypedDict
 
 from alembic import command
 from alembic.config import Config
@@ -133,6 +133,24 @@ class _EventInsert(EventFields):
     """An event's row as written (its acknowledgement is a row of its own)."""
 
     received_wall: float
+
+
+class ToolChange(TypedDict):
+    """A tool taken out of the spindle, as a part ends its life
+    (:meth:`server.pipeline.part.Part.take_tool_changes`) and :meth:`HistoryStore.add_tool_changes`
+    records it: times on the source's clock [s], wear [mm] (None: not known)."""
+
+    tool: int
+    index: int | None
+    start_t: float
+    end_t: float
+    wear_at_change_mm: float | None
+    cause: str
+    wear_true_mm: NotRequired[float | None]
+    wear_true_share: NotRequired[float | None]
+    start_wall: NotRequired[float | None]
+    end_wall: NotRequired[float | None]
+    machine: NotRequired[str]
 
 
 class ToolLifeRow(TypedDict):
@@ -305,13 +323,11 @@ class HistoryStore:
                 self._timed(t0)
         return self.event(event_id)
 
-    def acknowledge(
-        self, event_id: str, by: str, wall: float | None = None
-    ) -> dict[str, Any] | None:
-        """:meth:`acknowledged` as a plain dict (what the runtime's ``EventHistory``
-        protocol asks, ``server/pipeline/runtime.py``)."""
+    def acknowledge(self, event_id: str, by: str, wall: float | None = None) -> EventRow | None:
+        """:meth:`acknowledged` (what the runtime's ``EventHistory`` protocol asks,
+        ``server/pipeline/runtime.py``)."""
         ev = self.acknowledged(event_id, by, wall)
-        return None if ev is None else dict(ev)
+        return None if ev is None else ev.copy()
 
     def events(
         self,
@@ -352,16 +368,15 @@ class HistoryStore:
             rows = conn.execute(page).mappings().all()
         return total, [_event_row(r) for r in rows]
 
-    def recent(self, n: int, *, unacked: bool = False) -> list[dict[str, Any]]:
+    def recent(self, n: int, *, unacked: bool = False) -> list[EventRow]:
         """The latest ``n`` events (only those not acknowledged: ``unacked``), oldest first:
-        what a restarted service shows again (:class:`EventRow` as plain dicts: what the
-        runtime's ``EventHistory`` asks)."""
+        what a restarted service shows again (what the runtime's ``EventHistory`` asks)."""
         _, items = self.events(acked=False if unacked else None, limit=n)
-        return [dict(r) for r in items[::-1]]
+        return items[::-1]
 
     # ------------------------------------------------------------------ tool lives
     def add_tool_changes(
-        self, changes: Sequence[Mapping[str, Any]], wall: float | None = None
+        self, changes: Sequence[ToolChange], wall: float | None = None
     ) -> list[ToolLifeRow]:
         """Record tools taken out of the spindle (:meth:`LivePipeline.take_tool_changes`:
         ``tool``, ``index``, ``start_t``, ``end_t``, ``wear_at_change_mm``, ``cause``,
@@ -385,7 +400,7 @@ class HistoryStore:
                 row: _ToolLifeInsert = {
                     "machine": machine,
                     "tool": int(c["tool"]),
-                    "tool_index": None if c.get("index") is None else int(c["index"]),
+                    "tool_index": None if (index := c.get("index")) is None else int(index),
                     "start_t": start_t,
                     "end_t": float(c["end_t"]),
                     "start_wall": _num(c.get("start_wall")),

@@ -8,7 +8,7 @@ from typing import Any
 from fastapi import APIRouter
 
 from common.jsonsafe import json_safe
-from server.service.deps import Authorised, Controls, Monitor
+from server.service.deps import Authorised, Controls, Monitor, Relearned
 from server.service.schemas import (
     Control,
     ControlState,
@@ -38,7 +38,7 @@ def control(body: Control, pace: Controls, monitor: Monitor) -> ControlState:
     # as are inject's and relearn's fields; what the pipeline refuses (a source without a
     # simulator, a part already made) is a ParameterError: a 422 naming the field
     scheduled: dict[str, Any] | None = None
-    relearned: dict[str, Any] | None = None
+    relearned: Relearned | None = None
     match body:
         case Inject(kind=kind, size=size, at_t=at_t, at_part=at_part):
             scheduled = monitor.inject(kind, size=size, at_t=at_t, at_part=at_part)

@@ -20,7 +20,7 @@ from fastapi import APIRouter, Depends, HTTPException, Path, Query
 from common.event_kinds import EventKind
 from server.records.history import HistoryStore
 from server.records.history.store import MAX_LIMIT, EventRow
-from server.records.monitor_events import EventRecord
+from server.records.monitor_events import EventRecord, event_record
 from server.service.auth import operator
 from server.service.deps import Live, conflict
 from server.service.http_errors import error
@@ -125,8 +125,7 @@ async def acknowledge(
 
 def _stream_event(ev: EventRow) -> EventRecord:
     """The event as the stream carries it (without the history's received time)."""
-    rec: EventRecord = {k: v for k, v in ev.items() if k != "received_wall"}  # type: ignore[assignment]
-    return rec
+    return event_record(ev)
 
 
 @router.get(
