@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TypedDict
 
 import numpy as np
 
@@ -49,6 +49,30 @@ CENTRE_WEAR = Chart(
 )
 #: a life ended at this share of the limit or more was ended by the wear
 _WORN_SHARE = 0.9
+
+
+class WearLabel(TypedDict):
+    """A VB measured at a tool's change, as :meth:`CentreWearPart.label` took it: the
+    tool, its life's index and end [s], the VB measured and the estimate then [mm], and
+    whether the tool's wear map is calibrated by its labels now."""
+
+    tool: int
+    index: int
+    end_t: float
+    vb_mm: float
+    vb_est_mm: float
+    calibrated: bool
+
+
+class WearLife(TypedDict):
+    """A life the part ended (:meth:`CentreWearPart.lives`): VB measured None when not
+    labelled."""
+
+    tool: int
+    index: int
+    end_t: float
+    vb_est_mm: float
+    vb_mm: float | None
 
 
 @dataclass
@@ -170,7 +194,7 @@ class CentreWearPart(LivePart):
         return any(k[0] == tool and self.wear._is_cut(b) for k, b in self.st.est.blocks.items())
 
     # ------------------------------------------------------------------ labels
-    def label(self, tool: int, vb_mm: float) -> dict[str, Any]:
+    def label(self, tool: int, vb_mm: float) -> WearLabel:
         """A VB measured [mm] at ``tool``'s latest unlabelled tool change (REST).
 
         Raises
@@ -194,7 +218,7 @@ class CentreWearPart(LivePart):
             "calibrated": self.wear.calibrated(self.st.est, life.tool),
         }
 
-    def lives(self) -> list[dict[str, Any]]:
+    def lives(self) -> list[WearLife]:
         """The lives this part ended, labelled or not."""
         return [
             {"tool": lf.tool, "index": lf.instance, "end_t": lf.end_t,

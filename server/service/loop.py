@@ -43,6 +43,7 @@ from common.errors import ParameterError
 from harness.accuracy import AccuracySummary
 from server.errors import CutwatchError
 from server.pipeline.broker import BrokerConfig, parse_broker_url
+from server.pipeline.centre_wear_part import WearLabel
 from server.pipeline.drive_feed import DriveFeed
 from server.pipeline.estimates_out import EstimatesPublisher
 from server.pipeline.events_out import EventsPublisher
@@ -104,6 +105,13 @@ def broker_config(settings: Settings) -> BrokerConfig:
         certfile=settings.mqtt_certfile,
         keyfile=settings.mqtt_keyfile,
     )
+
+
+class WearLabelled(WearLabel):
+    """``POST /api/tool-life/vb``'s answer (:meth:`LiveLoop.label_tool_wear`): the label
+    taken, and whether the history recorded it on the tool's life."""
+
+    recorded: bool
 
 
 class EventsSummary(TypedDict):
@@ -812,7 +820,7 @@ class LiveLoop:
         with self.lock:
             return self.pipeline.inject(kind, size=size, at_t=at_t, at_part=at_part)
 
-    def label_tool_wear(self, tool: int, vb_mm: float) -> dict[str, Any]:
+    def label_tool_wear(self, tool: int, vb_mm: float) -> WearLabelled:
         """The VB measured [mm] at ``tool``'s latest ended life (the centre's wear part,
         :meth:`server.pipeline.centre_wear_part.CentreWearPart.label`).
 
@@ -830,7 +838,7 @@ class LiveLoop:
                     "a machine whose wear is read from its spindle's power (the centre_wear part)",
                     f"the {self.pipeline.scenario} pipeline",
                 )
-            out: dict[str, Any] = part.label(tool, vb_mm)
+            out: WearLabel = part.label(tool, vb_mm)
             self.runtime.keep_tool_lives()  # the change itself, if not kept yet
         h = self.history
         row = None
