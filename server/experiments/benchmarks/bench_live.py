@@ -35,7 +35,6 @@ import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import httpx
 import numpy as np
@@ -85,7 +84,7 @@ async def _reader(url: str, lat: list[float], stop: asyncio.Event) -> None:
 
 async def _session(
     base: str, ws_url: str, pid: int, windows: int, window_s: float, slow_s: float
-) -> dict[str, Any]:
+) -> Figures:
     lat: list[float] = []
     stop = asyncio.Event()
     tasks = [asyncio.create_task(_reader(ws_url, lat, stop)) for _ in range(CLIENTS)]
@@ -104,7 +103,7 @@ async def _session(
             await asyncio.sleep(1.0)
         cpu.append(100.0 * (_cpu_seconds(pid) - c0) / (time.monotonic() - w0))
     m = _metrics(base)
-    out: dict[str, Any] = {
+    out: Figures = {
         "clients": CLIENTS,
         "window_s": window_s,
         "windows": windows,
@@ -258,7 +257,7 @@ async def _soak_reader(url: str, c: _Client, stop: asyncio.Event) -> None:
 
 async def _soak_session(
     base: str, pid: int, duration_s: float, warmup_s: float, sample_s: float
-) -> dict[str, Any]:
+) -> Figures:
     ws_url = base.replace("http://", "ws://") + "/ws"
     stop = asyncio.Event()
     clients = [_Client() for _ in range(CLIENTS)]
@@ -294,7 +293,7 @@ def _soak_summary(
     m1: dict[str, float],
     wall: float,
     warmup_s: float,
-) -> dict[str, Any]:
+) -> Figures:
     t = np.array([s["t_s"] for s in series])
     rss = np.array([s["rss_mb"] for s in series])
     after = t >= min(warmup_s, 0.5 * wall)
@@ -333,7 +332,7 @@ def _soak_summary(
     }
 
 
-def soak(*, duration_s: float, warmup_s: float = 300.0, sample_s: float = 5.0) -> dict[str, Any]:
+def soak(*, duration_s: float, warmup_s: float = 300.0, sample_s: float = 5.0) -> Figures:
     """One long run of the service with 10 clients: memory and CPU over time, drops."""
     proc, base = _start_service()
     try:
