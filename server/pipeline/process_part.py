@@ -145,6 +145,18 @@ class Injection:
     flute: int = 0
 
 
+class ProgramToolChange(TypedDict):
+    """A tool the part program changed (:meth:`LiveProcess.take_tool_changes`): its
+    number, the instance's start and end [s], its wear (edge-coefficient growth,
+    :class:`machine.process.Tool`) and the cause (``worn``, ``breakage``, ``missing_tool``)."""
+
+    tool: int
+    start_t: float
+    end_t: float
+    wear: float
+    cause: str
+
+
 @dataclass
 class ProcessState:
     """Everything :class:`LiveProcess` carries from block to block but the monitor's
@@ -163,7 +175,7 @@ class ProcessState:
     truths: list[EventTruth] = field(default_factory=list)
     last: dict[str, float] = field(default_factory=dict)
     tool_since: dict[int, float] = field(default_factory=dict)
-    tool_changes: list[dict[str, object]] = field(default_factory=list)
+    tool_changes: list[ProgramToolChange] = field(default_factory=list)
 
 
 class Relearned(TypedDict):
@@ -549,7 +561,7 @@ class LiveProcess:
         ps.tool_since[number] = t
         del ps.tool_changes[:-100]
 
-    def take_tool_changes(self) -> list[dict[str, object]]:
+    def take_tool_changes(self) -> list[ProgramToolChange]:
         """The part program's tool changes since the last call, oldest first: ``tool``,
         ``start_t`` and ``end_t`` of the instance [s], ``wear`` (its edge-coefficient
         growth, :class:`machine.process.Tool`; the limit is the tool's ``wear_limit``)
@@ -703,17 +715,13 @@ class ProcessPart(LivePart):
         program = self.live.ps.machine.program
         out: list[ToolChange] = []
         for c in self.live.take_tool_changes():
-            number, wear = c["tool"], c["wear"]
-            start_t, end_t = c["start_t"], c["end_t"]
-            assert isinstance(number, int) and isinstance(wear, float | int)
-            assert isinstance(start_t, float | int) and isinstance(end_t, float | int)
-            cause = str(c["cause"])
+            number, wear, cause = c["tool"], c["wear"], c["cause"]
             out.append(
                 {
                     "tool": number,
                     "index": None,
-                    "start_t": start_t,
-                    "end_t": end_t,
+                    "start_t": c["start_t"],
+                    "end_t": c["end_t"],
                     "wear_at_change_mm": None,
                     "wear_true_share": float(wear) / program.tool(number).wear_limit,
                     "cause": EventKind.WEAR_LIMIT if cause == "worn" else cause,
