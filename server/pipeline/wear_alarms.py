@@ -16,6 +16,7 @@ Only the estimates are used (never the simulator's true wear).
 from __future__ import annotations
 
 import math
+from typing import TypedDict
 
 from common.event_kinds import EventKind
 from server.records.monitor_events import DEFAULT_ACTIONS, MonitorEvent
@@ -23,6 +24,15 @@ from server.records.monitor_events import DEFAULT_ACTIONS, MonitorEvent
 #: wear alarms: the estimated flank wear at this share of its limit, remaining life below
 WEAR_ALARM_SHARE = 0.9
 LIFE_ALARM_MIN = 2.0
+
+
+class BlockIds(TypedDict, total=False):
+    """The CNC's identities of a block (a key missing: not known)."""
+
+    tool: int
+    program: str
+    line: int
+    part: int
 
 
 def wear_alarm_message(tool: object, vb_est: float, vb_limit: float) -> str:
@@ -49,7 +59,7 @@ class WearAlarms:
         vb_est: float,
         vb_limit: float,
         life_left: float,
-        ids: dict[str, object],
+        ids: BlockIds,
     ) -> list[MonitorEvent]:
         """The events the wear estimate at ``t`` raises for the tool ``tool_index``
         (0 for the first tool, +1 at each change); ``ids``: the CNC's ``tool``,
@@ -75,7 +85,7 @@ class WearAlarms:
         limit: float,
         unit: str,
         message: str,
-        ids: dict[str, object],
+        ids: BlockIds,
     ) -> list[MonitorEvent]:
         if self._raised.get(kind) == tool_index:
             return []
