@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
+from typing import TypedDict
 
 import numpy as np
 
@@ -42,6 +43,20 @@ NO_REFERENCE = (
     "no reference force: the source has no truth and measures no force (f_ext); the "
     "estimates are not scored against each other"
 )
+
+
+class AccuracySummary(TypedDict):
+    """:meth:`RollingAccuracy.summary`: per window [s], each estimate's rms [N m] (NaN, or
+    None once rounded: not known)."""
+
+    mode: str
+    against: str | None
+    reason: str
+    windows: list[float]
+    span: list[float | None]
+    rms: dict[str, list[float | None]]
+    rms_q: dict[str, list[float | None]]
+    floor: list[float | None]
 
 
 class RollingAccuracy:
@@ -187,7 +202,7 @@ class RollingAccuracy:
         span: F64 = self._tot_n.astype(np.float64) * self.sample_time
         return out, span
 
-    def summary(self, digits: int | None = None) -> dict[str, object]:
+    def summary(self, digits: int | None = None) -> AccuracySummary:
         """The numbers the stream, ``/api/snapshot`` and ``/metrics`` show.
 
         ``{"mode": "truth" | "measured_force" | "none", "against": mode or None,

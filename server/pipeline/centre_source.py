@@ -45,7 +45,7 @@ from machine.centre.trace import CncTrace, TraceParams, TraceState
 from machine.process import EventTruth
 from machine.stage import Measurements
 from machine.stage_params import StageParams, preset
-from server.pipeline.sources import SourceBlock, empty_measurements
+from server.pipeline.sources import Scheduled, SourceBlock, TruthSummary, empty_measurements
 
 __all__ = ["CENTRE_RATE_HZ", "CentreSource"]
 
@@ -151,7 +151,7 @@ class CentreSource:
         size: float | None = None,
         at_t: float | None = None,
         at_part: int | None = None,
-    ) -> dict[str, object]:
+    ) -> Scheduled:
         """Schedule an event in the centre's part program: ``kind`` one of breakage,
         collision, missing_tool, of ``size`` (default
         :data:`server.pipeline.centre_feed.EVENT_SIZES`: a broken tooth of 0.3 mm, a
@@ -211,9 +211,9 @@ class CentreSource:
         self._tstate = copy.deepcopy(state["trace"])
         self._k = int(state["k"])
 
-    def truth_summary(self) -> dict[str, object]:
+    def truth_summary(self) -> TruthSummary:
         """The simulated machine's truth now: the part, the tool's flank wear, the events."""
-        out: dict[str, object] = {"program": self.program, "events": len(self.events)}
+        out: TruthSummary = {"program": self.program, "events": len(self.events)}
         for k in ("true_part", "true_vb"):
             v = self.truth.get(k)
             if v is not None and len(v):

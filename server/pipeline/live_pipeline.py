@@ -81,7 +81,7 @@ from common.errors import ParameterError
 from common.machine_description import MachineDict
 from estimators.observer_effects import ObserverEffect
 from estimators.rls import IdentifierParams
-from harness.accuracy import RollingAccuracy
+from harness.accuracy import AccuracySummary, RollingAccuracy
 from machine.effects import EFFECT_NAMES, PlantEffects
 from machine.stage import SEED000_FORCE, CuttingForce, StageConfig
 from machine.stage_params import ADDED_WEIGHT_INERTIA
@@ -128,6 +128,7 @@ from server.pipeline.scenarios import (
 from server.pipeline.sources import (
     MeasurementSource,
     ReplaySource,
+    Scheduled,
     SimulatorSource,
     SourceBlock,
     open_replay,
@@ -855,17 +856,15 @@ class LivePipeline:
         nothing to list)."""
         return _force_estimates(c for p in self._parts if self._running(p) for c in p.channels)
 
-    def accuracy(self, digits: int | None = None) -> dict[str, object]:
+    def accuracy(self, digits: int | None = None) -> AccuracySummary:
         """Rolling rms of the force estimates of the parts that run now, over the last 1 s
         and 10 s (:meth:`harness.accuracy.RollingAccuracy.summary`, every estimate
         scored, those of parts that do not run left out: a part that runs again has its
         row back, its windows kept; ``digits``: rounded, JSON-safe)."""
         summary = self._accuracy.summary(digits)
         live = set(self.running_force_estimates())
-        for key in ("rms", "rms_q"):
-            rows = summary[key]
-            if isinstance(rows, dict):
-                summary[key] = {k: v for k, v in rows.items() if k in live}
+        summary["rms"] = {k: v for k, v in summary["rms"].items() if k in live}
+        summary["rms_q"] = {k: v for k, v in summary["rms_q"].items() if k in live}
         return summary
 
     # ------------------------------------------------------------------ what the parts end
@@ -987,7 +986,7 @@ class LivePipeline:
         size: float | None = None,
         at_t: float | None = None,
         at_part: int | None = None,
-    ) -> dict[str, object]:
+    ) -> Scheduled:
         """Schedule an event in the simulated part program
         (:meth:`server.pipeline.process_part.LiveProcess.inject`): ``kind`` one of
         breakage, collision, missing_tool; ``size`` (default: the reproduction's clear
@@ -1006,7 +1005,8 @@ class LivePipeline:
         """
         centre = getattr(self.source, "inject", None)
         if self.part("process") is None and callable(centre):
-            return dict(centre(kind, size, at_t, at_part))  # the machining centre's program
+            scheduled: Scheduled = centre(kind, size, at_t, at_part)  # the centre's program
+            return scheduled.copy()
         proc = self._process("kind")
         return proc.live.inject(kind, size, at_t, at_part)
 

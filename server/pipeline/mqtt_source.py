@@ -39,6 +39,7 @@ from server.pipeline.sources import (
     RESUMED,
     LiveSource,
     SourceBlock,
+    TruthSummary,
     empty_measurements,
     nominal_config,
 )
@@ -202,7 +203,7 @@ class MqttSource(LiveSource):
     def _forget_origin(self) -> None:
         self._t0 = None
 
-    def truth_summary(self) -> dict[str, object]:
+    def truth_summary(self) -> TruthSummary:
         return {"machine": self.feed.machine}
 
     def status(self) -> dict[str, object]:

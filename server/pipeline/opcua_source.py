@@ -42,6 +42,7 @@ from server.pipeline.sources import (
     RESUMED,
     LiveSource,
     SourceBlock,
+    TruthSummary,
     empty_measurements,
     nominal_config,
 )
@@ -303,7 +304,7 @@ class OpcuaSource(LiveSource):
     def _forget_origin(self) -> None:
         self._origin = None
 
-    def truth_summary(self) -> dict[str, object]:
+    def truth_summary(self) -> TruthSummary:
         return {"server": self.options.url}
 
     def status(self) -> dict[str, object]:

@@ -82,6 +82,7 @@ from server.pipeline.part import (
     Verdict,
     needs_simulator,
 )
+from server.pipeline.sources import Scheduled
 from server.records.history.store import ToolChange
 from server.records.monitor_events import DEFAULT_ACTIONS, MonitorEvent
 
@@ -236,7 +237,7 @@ class LiveProcess:
         size: float | None = None,
         at_t: float | None = None,
         at_part: int | None = None,
-    ) -> dict[str, object]:
+    ) -> Scheduled:
         """Schedule an event (module docstring); returns what was scheduled.
 
         Raises

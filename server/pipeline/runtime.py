@@ -43,7 +43,7 @@ import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import Any, Protocol, TypeVar
+from typing import Any, Protocol, TypedDict, TypeVar
 
 import numpy as np
 
@@ -67,12 +67,27 @@ UNACKED_KEPT = 10_000
 __all__ = [
     "EVENTS_KEPT",
     "UNACKED_KEPT",
+    "CheckpointStatus",
     "CheckpointWriter",
     "EventHistory",
     "MachineRuntime",
 ]
 
 _T = TypeVar("_T")
+
+
+class CheckpointStatus(TypedDict, total=False):
+    """Where a runtime's checkpoint was read from or refused, and when written
+    (:attr:`MachineRuntime.checkpoint_status`; ``path`` and ``resumed`` always there)."""
+
+    path: str | None
+    resumed: bool
+    resumed_t: float
+    refused: str
+    kept_aside: str
+    saved_t: float
+    saved_wall: float
+    error: str
 
 
 class EventHistory(Protocol):
@@ -185,7 +200,7 @@ class MachineRuntime:
         self.host = host
         self.lock = lock or threading.RLock()
         #: where the pipeline's checkpoint was read from or refused, and when written
-        self.checkpoint_status: dict[str, Any] = {
+        self.checkpoint_status: CheckpointStatus = {
             "path": str(checkpoint) if checkpoint is not None else None,
             "resumed": False,
         }
@@ -402,12 +417,14 @@ class MachineRuntime:
             with self.lock:
                 self.pipeline.restore(state)
         except (StateFormatError, ParameterError, OSError) as exc:
-            self.checkpoint_status.update(resumed=False, refused=str(exc))
+            self.checkpoint_status["resumed"] = False
+            self.checkpoint_status["refused"] = str(exc)
             log.warning("cutwatch: %s: checkpoint refused, starting fresh: %s", self.machine, exc)
             if state is not None and isinstance(exc, ParameterError):
                 self._keep_aside(path, state)
             return False
-        self.checkpoint_status.update(resumed=True, resumed_t=state.t)
+        self.checkpoint_status["resumed"] = True
+        self.checkpoint_status["resumed_t"] = state.t
         log.warning("cutwatch: %s resumed from %s at t = %.3f s", self.machine, path, state.t)
         return True
 
@@ -425,7 +442,7 @@ class MachineRuntime:
         except OSError as exc:
             log.warning("cutwatch: %s: could not keep %s aside: %s", self.machine, path, exc)
             return
-        self.checkpoint_status.update(kept_aside=str(aside))
+        self.checkpoint_status["kept_aside"] = str(aside)
         log.warning(
             "cutwatch: %s: the state of scenario %r (%s source) kept as %s",
             self.machine,
@@ -460,4 +477,5 @@ class MachineRuntime:
             self.checkpoint_status["error"] = f"{type(exc).__name__}: {exc}"
             log.warning("cutwatch: %s: checkpoint not written: %s", self.machine, exc)
             return
-        self.checkpoint_status.update(saved_t=state.t, saved_wall=time.time())
+        self.checkpoint_status["saved_t"] = state.t
+        self.checkpoint_status["saved_wall"] = time.time()

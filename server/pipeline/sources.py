@@ -89,7 +89,7 @@ import math
 import os
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any, Protocol, runtime_checkable
+from typing import Any, NotRequired, Protocol, TypeAlias, TypedDict, runtime_checkable
 
 import numpy as np
 
@@ -105,6 +105,25 @@ from server.records.measured_log import MeasuredLog, load_log
 RESUMED = "resumed"
 #: the nominal parameters a replayed log's sidecar must give
 NOMINAL = ("J_M", "J_L", "K", "K_t", "B_M", "B_L", "F_CM", "F_CL")
+#: what a source says of its truth (:meth:`MeasurementSource.truth_summary`): true
+#: parameters and counts by name, a label (a log's path, a program, a server)
+TruthSummary: TypeAlias = dict[str, float | str]
+
+
+class Scheduled(TypedDict):
+    """An event scheduled in a simulated part program (``POST /api/control`` inject: the
+    default scenario's process part, :meth:`server.pipeline.process_part.LiveProcess.inject`;
+    the machining centre's source): its kind and size (``unit``), when (``at_t`` [s] or
+    ``at_part``, ``line``; ``now`` the time asked at) and where, in words."""
+
+    kind: str
+    size: float
+    at_part: int | None
+    where: str
+    unit: NotRequired[str]
+    at_t: NotRequired[float | None]
+    now: NotRequired[float]
+    line: NotRequired[int]
 
 
 @dataclass(frozen=True)
@@ -183,7 +202,7 @@ class MeasurementSource(Protocol):
 
     def restore(self, state: object) -> None: ...
 
-    def truth_summary(self) -> dict[str, object]: ...
+    def truth_summary(self) -> TruthSummary: ...
 
     def status(self) -> dict[str, object]: ...
 
@@ -284,7 +303,7 @@ class SimulatorSource:
             raise ParameterError("source", "a simulated stage (StageSim)", type(state).__name__)
         self.sim = copy.deepcopy(state)
 
-    def truth_summary(self) -> dict[str, object]:
+    def truth_summary(self) -> TruthSummary:
         """The true load parameters in effect (added inertia included)."""
         p = self.sim.config.true_params
         return {"J_L": p.J_L, "B_L": p.B_L, "F_CL": p.F_CL}
@@ -501,7 +520,7 @@ class ReplaySource(ConfiguredSource):
             raise ParameterError("source", f"a position in [0, {self.n}]", state)
         self.k = state
 
-    def truth_summary(self) -> dict[str, object]:
+    def truth_summary(self) -> TruthSummary:
         return {"log": str(self.log.path), "samples": self.n}
 
     def status(self) -> dict[str, object]:
@@ -520,8 +539,10 @@ __all__ = [
     "LiveSource",
     "MeasurementSource",
     "ReplaySource",
+    "Scheduled",
     "SimulatorSource",
     "SourceBlock",
+    "TruthSummary",
     "empty_measurements",
     "no_truth",
     "nominal_config",

@@ -44,7 +44,7 @@ import time
 from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, TypedDict
 
 import numpy as np
 
@@ -59,7 +59,7 @@ from server.pipeline.live_pipeline import LivePipeline
 from server.pipeline.mqtt_source import MqttSource
 from server.pipeline.opcua_machines import OpcuaMachine
 from server.pipeline.opcua_source import OpcuaSource
-from server.pipeline.runtime import CheckpointWriter, MachineRuntime
+from server.pipeline.runtime import CheckpointStatus, CheckpointWriter, MachineRuntime
 from server.pipeline.scenarios import STAGE_SCENARIO
 
 log = logging.getLogger("cutwatch.worker")
@@ -131,6 +131,25 @@ class WorkerConfig:
         return " + ".join(filter(None, [names, ua]))
 
 
+class WorkerHealth(TypedDict):
+    """A worker's status (:meth:`Worker.health`, its ``GET /api/health`` and ``/metrics``);
+    JSON-safe (a number not known is None)."""
+
+    status: str
+    worker: str
+    broker: str
+    connected: bool
+    error: str
+    machines: int
+    receiving: int
+    resumed: int
+    dropped_samples: int
+    opcua_connected: int
+    loop_ms_p50: float
+    loop_ms_max: float
+    warm_s: float | None
+
+
 @dataclass
 class MachineRun:
     """One machine of a worker: its feed (None: an OPC UA machine), publishers and runtime
@@ -170,8 +189,8 @@ class MachineRun:
         return sum(self.runtime.events_total.values()) if self.runtime is not None else 0
 
     @property
-    def checkpoint(self) -> dict[str, Any]:
-        return dict(self.runtime.checkpoint_status) if self.runtime is not None else {}
+    def checkpoint(self) -> CheckpointStatus:
+        return self.runtime.checkpoint_status.copy() if self.runtime is not None else {}
 
 
 class Worker:
@@ -500,7 +519,7 @@ class Worker:
             }
         )
 
-    def health(self) -> dict[str, Any]:
+    def health(self) -> WorkerHealth:
         with self._lock:
             runs = list(self.runs.values())
         loop = np.asarray(self.loop_s) if self.loop_s else np.zeros(1)

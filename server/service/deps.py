@@ -19,6 +19,7 @@ from estimators.observer_effects import ObserverEffect
 from server.pipeline.knobs import Knob, KnobValue
 from server.pipeline.live_pipeline import LivePipeline
 from server.pipeline.process_part import Relearned
+from server.pipeline.sources import Scheduled
 from server.records.data_areas import DataStore
 from server.service.auth import operator
 from server.service.http_errors import error
@@ -78,7 +79,7 @@ class MonitorActions(Protocol):
         size: float | None = None,
         at_t: float | None = None,
         at_part: int | None = None,
-    ) -> dict[str, Any]: ...
+    ) -> Scheduled: ...
     def relearn(self, tool: int | None = None, program: str | None = None) -> Relearned: ...
 
 

@@ -40,6 +40,7 @@ from typing import TYPE_CHECKING, Any, TypedDict, cast
 import numpy as np
 
 from common.errors import ParameterError
+from harness.accuracy import AccuracySummary
 from server.errors import CutwatchError
 from server.pipeline.broker import BrokerConfig, parse_broker_url
 from server.pipeline.drive_feed import DriveFeed
@@ -51,7 +52,13 @@ from server.pipeline.mqtt_source import MqttSource
 from server.pipeline.opcua_source import OpcuaSource
 from server.pipeline.part import PartInfo
 from server.pipeline.process_part import Relearned
-from server.pipeline.runtime import CheckpointWriter, EventHistory, MachineRuntime
+from server.pipeline.runtime import (
+    CheckpointStatus,
+    CheckpointWriter,
+    EventHistory,
+    MachineRuntime,
+)
+from server.pipeline.sources import Scheduled
 from server.records.history import HistoryStore
 from server.records.monitor_events import EventRecord
 from server.service import protocol
@@ -281,7 +288,7 @@ class LiveLoop:
         return self.runtime.checkpoint
 
     @property
-    def checkpoint_status(self) -> dict[str, Any]:
+    def checkpoint_status(self) -> CheckpointStatus:
         """What became of the checkpoint: path, resumed, resumed_t, saved_t, refused."""
         return self.runtime.checkpoint_status
 
@@ -744,7 +751,7 @@ class LiveLoop:
             snap["injected"] = self.pipeline.process_truths()[-INJECTED_KEPT:]
             return snap
 
-    def accuracy(self) -> dict[str, object]:
+    def accuracy(self) -> AccuracySummary:
         """The rolling accuracy of the force estimates."""
         with self.lock:
             return self.pipeline.accuracy()
@@ -792,7 +799,7 @@ class LiveLoop:
         size: float | None = None,
         at_t: float | None = None,
         at_part: int | None = None,
-    ) -> dict[str, Any]:
+    ) -> Scheduled:
         """Schedule an event in the simulator (:meth:`LivePipeline.inject`); what was
         scheduled.
 

@@ -17,6 +17,7 @@ from typing import Any
 import httpx
 import numpy as np
 
+from server.experiments.benchmarks import Figures
 from server.experiments.benchmarks._local import free_port, mosquitto
 from server.experiments.benchmarks.bench_fleet import (
     STALE_AFTER,
@@ -154,7 +155,7 @@ def _window(
 
 
 def _soak_figures(
-    out: dict[str, object], series: list[tuple[float, float, float, float]], lat: list[float]
+    out: Figures, series: list[tuple[float, float, float, float]], lat: list[float]
 ) -> None:
     """Memory over the soak: first, last, max, and the slope of a line fitted to the
     second half (MB per 10 min; flat memory: near 0); latency p99 per tenth."""
@@ -251,7 +252,7 @@ def _scored(
     truth: dict[str, Any],
     names: list[str],
     clocks: dict[str, tuple[float | None, float | None]],
-) -> dict[str, object]:
+) -> Figures:
     """The monitors' events against the trace's truth, on each machine's own clock
     (``clocks``: the worker's time and origin per machine, :func:`_clocks`), up to the
     log's time every machine's pipeline has read; and one machine's beside the truth."""
@@ -262,7 +263,7 @@ def _scored(
     t_read = min(read) if len(read) == len(names) else 0.0  # a machine not read: none due
     raised = on_machine_clock({m: events.raised.get(m, []) for m in names}, origins)
     sc = score(truth["events"], raised, min(t_read, float(truth["seconds"])))
-    out: dict[str, object] = {f"monitor.{k}": v for k, v in sc.items()}
+    out: Figures = {f"monitor.{k}": v for k, v in sc.items()}
     out["monitor.events_in_trace"] = len(truth["events"])
     out["monitor.teach_parts"] = truth["teach_parts"]
     # the log's time the slowest machine's pipeline had read (not the wall time since
@@ -285,7 +286,7 @@ def run_plant(
     soak: bool = False,
     centres: bool = False,
     feed_speed: float = 1.0,
-) -> dict[str, object]:
+) -> Figures:
     """One plant run (module docstring); ``soak``: no kill, memory sampled over time.
     ``centres``: the machines are machining centres at 500 Hz, every one replaying one
     recorded trace (:mod:`._plant_centres`), run as a soak (no kill: the monitors' events
@@ -300,7 +301,7 @@ def run_plant(
     soak = soak or centres
     plant = _Plant(machines, workers, work)
     what = "machining centres at 500 Hz, one recorded trace replayed" if centres else "machines"
-    out: dict[str, object] = {
+    out: Figures = {
         "configuration": (
             f"1 cutwatch feed ({machines} {what}) -> mosquitto -> {workers} x cutwatch "
             "worker (100 ms blocks, estimates at 10 Hz) -> cutwatch fleet; 2-core machine"

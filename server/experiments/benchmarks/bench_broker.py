@@ -12,6 +12,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from server.experiments.benchmarks import Figures
 from server.records.drive_wire import (
     decode_drive,
     decode_drive_json,
@@ -43,7 +44,7 @@ def _us(fn: Callable[[], object], count: int, repeats: int) -> float:
     return 1e6 * float(np.median(runs))
 
 
-def measure(*, repeats: int, quick: bool) -> dict[str, object]:
+def measure(*, repeats: int, quick: bool) -> Figures:
     cols = _block()
     count = 300 if quick else 3000
     variants: dict[str, tuple[Callable[[], bytes], Callable[[bytes], object]]] = {
@@ -57,7 +58,7 @@ def measure(*, repeats: int, quick: bool) -> dict[str, object]:
         ),
         "json": (lambda: encode_drive_json(1, 0.0, 4e-4, cols, UNITS), decode_drive_json),
     }
-    out: dict[str, object] = {
+    out: Figures = {
         "configuration": "one 125-sample block of tau_m, q_m, q_l, f_ext; encode + decode"
     }
     for name, (enc, dec) in variants.items():

@@ -17,6 +17,7 @@ import time
 
 from machine.centre.sim import MachiningCentre
 from machine.centre.trace import CncTrace, TraceParams
+from server.experiments.benchmarks import Figures
 
 #: samples of one default part (~31.8 s at 10 kHz)
 _PART = 318_000
@@ -40,10 +41,10 @@ def _rate(block: int, seconds: float, trace: bool) -> tuple[float, float]:
     return sim / (time.perf_counter() - t0), sim / max(time.process_time() - c0, 1e-9)
 
 
-def measure(*, repeats: int, quick: bool) -> dict[str, object]:
+def measure(*, repeats: int, quick: bool) -> Figures:
     """Medians of ``repeats`` runs over one part (a third of one with ``quick``)."""
     seconds = (_PART / 3 if quick else _PART) * 1e-4
-    out: dict[str, object] = {
+    out: Figures = {
         "configuration": f"the default part program, {seconds:.1f} s simulated per run, "
         "10 kHz, 1 core",
     }

@@ -26,6 +26,7 @@ from estimators.lobes_sd import SemiDiscretization
 from machine.chatter import ChatterCut, ChatterCutParams
 from machine.milling import MillingMachine, MillingParams
 from machine.milling_regen import DEMO_STRUCTURE
+from server.experiments.benchmarks import Figures
 
 CUT = CutGeometry(2, 1.0, True, 6e8, 2e8)
 
@@ -68,11 +69,11 @@ def _chart_speed_ms() -> float:
     return (time.perf_counter() - t0) / 2 * 1e3
 
 
-def measure(*, repeats: int, quick: bool) -> dict[str, object]:
+def measure(*, repeats: int, quick: bool) -> Figures:
     """Medians over ``repeats`` runs."""
     seconds = 0.5 if quick else 5.0
     mill = 0.2 if quick else 2.0
-    res: dict[str, object] = {
+    res: Figures = {
         "config": f"benchmark cut {seconds:g} s; seed 003 machine {mill:g} s per run",
         "cut_realtime_factor": _median(lambda: _cut_rate(seconds), repeats),
         "flexible_mill_realtime_factor": _median(lambda: _mill_rate(mill, True), repeats),

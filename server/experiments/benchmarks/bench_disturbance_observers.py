@@ -13,6 +13,7 @@ import numpy as np
 
 from estimators import dfo as dfo_mod
 from estimators.force_observer import ObserverParams
+from server.experiments.benchmarks import Figures
 from server.experiments.reproductions import seed002_disturbance_observers as do
 from server.pipeline import stage_harmonics as sh
 
@@ -26,11 +27,11 @@ def _median_time(fn: object, repeats: int) -> float:
     return statistics.median(times)
 
 
-def measure(*, repeats: int, quick: bool) -> dict[str, object]:
+def measure(*, repeats: int, quick: bool) -> Figures:
     """Simulated seconds per wall second (medians of ``repeats`` runs)."""
     duration = 1.0 if quick else 5.0
     do.simulate("combined", 0.05)  # compile / load the kernels
-    out: dict[str, object] = {
+    out: Figures = {
         "xy_sample_rate_hz": 10000.0,
         "xy_block_samples": 12,
         "xy_duration_s": duration,

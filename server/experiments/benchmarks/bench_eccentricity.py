@@ -11,6 +11,7 @@ import statistics
 import time
 
 from harness.eccentricity_loop import EccentricityLoop, ObserverForceSource
+from server.experiments.benchmarks import Figures
 from server.experiments.reproductions._seed003_cut import ESC_TABLE1, case_params
 
 
@@ -28,7 +29,7 @@ def _rate(make: object, seconds: float, repeats: int) -> float:
     return float(statistics.median(rates))
 
 
-def measure(*, repeats: int, quick: bool) -> dict[str, object]:
+def measure(*, repeats: int, quick: bool) -> Figures:
     """Realtime factors of the eccentricity loop variants (medians over ``repeats``)."""
     mp = case_params(1)
     seconds = 2.0 if quick else 20.0
@@ -38,7 +39,7 @@ def measure(*, repeats: int, quick: bool) -> dict[str, object]:
         loop.force_source = ObserverForceSource(loop.machine.drives.params)
         return loop
 
-    res: dict[str, object] = {
+    res: Figures = {
         "config": f"seed 003 case 1, 5 kHz, {seconds:g} s simulated per run",
         "machine_realtime_factor": _rate(
             lambda: EccentricityLoop(mp, tuner="off"), seconds, repeats

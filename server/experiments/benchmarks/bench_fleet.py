@@ -45,6 +45,7 @@ from typing import Any
 import httpx
 import numpy as np
 
+from server.experiments.benchmarks import Figures
 from server.experiments.benchmarks._local import free_port, mosquitto
 
 MACHINES = 20
@@ -171,7 +172,7 @@ def _watch(
     return lat, (killed_at, restarted_at, stale_at, recovered_at)
 
 
-def _run(machines: int, seconds: float, progress: bool) -> dict[str, object]:
+def _run(machines: int, seconds: float, progress: bool) -> Figures:
     work = Path(tempfile.mkdtemp(prefix="cutwatch-bench-fleet-"))
     log = work / "drive.csv"
     subprocess.run(
@@ -186,7 +187,7 @@ def _run(machines: int, seconds: float, progress: bool) -> dict[str, object]:
     services: list[subprocess.Popen[bytes]] = []
     feeders: dict[str, subprocess.Popen[bytes]] = {}
     fleet = None
-    out: dict[str, object] = {
+    out: Figures = {
         "configuration": (
             f"{machines} x (cutwatch feed -> mosquitto -> cutwatch serve --source mqtt "
             f"--publish-hz {PUBLISH_HZ:g}) -> cutwatch fleet; 2-core machine"
@@ -275,7 +276,7 @@ def measure(
     soak: bool = False,
     centres: bool = False,
     feed_speed: float = 1.0,
-) -> dict[str, object]:
+) -> Figures:
     """One run (the fleet is the repetition: every machine's latency counts). ``workers``
     0: one ``cutwatch serve`` per machine (today's mode); > 0: the plant mode
     (``centres``: of machining centres at 500 Hz replaying a recorded trace, fed at

@@ -15,6 +15,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+from server.experiments.benchmarks import Figures
+
 
 def _stats(name: str, xs: list[float]) -> dict[str, float]:
     v = sorted(xs)
@@ -26,7 +28,7 @@ def _stats(name: str, xs: list[float]) -> dict[str, float]:
     }
 
 
-def measure(*, repeats: int, quick: bool) -> dict[str, object]:
+def measure(*, repeats: int, quick: bool) -> Figures:
     """Per-write wall times [ms] (median, p95, p99) of ``repeats`` x 100 events (20 with
     ``quick``), FULL and NORMAL interleaved, and every fourth event acknowledged (FULL)."""
     from sqlalchemy import event
@@ -62,7 +64,7 @@ def measure(*, repeats: int, quick: bool) -> dict[str, object]:
         assert sync == 1, f"synchronous: expected NORMAL (1) on the comparison store, got {sync}"
         full.close()
         normal.close()
-    out: dict[str, object] = {"events": n, "directory": tempfile.gettempdir()}
+    out: Figures = {"events": n, "directory": tempfile.gettempdir()}
     for name, xs in times.items():
         out.update(_stats(name, xs))
     out["full_over_normal_median"] = statistics.median(times["full"]) / statistics.median(

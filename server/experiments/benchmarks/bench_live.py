@@ -40,6 +40,7 @@ from typing import Any
 import httpx
 import numpy as np
 
+from server.experiments.benchmarks import Figures
 from server.experiments.benchmarks._local import free_port
 
 CLIENTS = 10
@@ -195,7 +196,7 @@ def _stop(proc: subprocess.Popen[bytes]) -> None:
         proc.kill()
 
 
-def measure(*, repeats: int, quick: bool) -> dict[str, object]:
+def measure(*, repeats: int, quick: bool) -> Figures:
     """Run the service with 10 clients for ``repeats`` windows (10 s quick, 60 s full)."""
     proc, base = _start_service()
     port = int(base.rsplit(":", 1)[1])

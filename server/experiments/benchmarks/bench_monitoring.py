@@ -65,6 +65,7 @@ from typing import Any
 import httpx
 import numpy as np
 
+from server.experiments.benchmarks import Figures
 from server.experiments.benchmarks._local import free_port, mosquitto
 
 MACHINE = "bench"
@@ -253,7 +254,7 @@ def _one_event(base: str, log: Path, sub: _Listener, part: int) -> dict[str, flo
         }
 
 
-def measure(*, repeats: int, quick: bool) -> dict[str, object]:
+def measure(*, repeats: int, quick: bool) -> Figures:
     """Time ``EVENTS`` breakages (``QUICK_EVENTS`` quick) from their first sample's block
     to their command on the broker; ``repeats`` unused (see the module docstring)."""
     del repeats
@@ -286,7 +287,7 @@ def measure(*, repeats: int, quick: bool) -> dict[str, object]:
     return _summary(rows, metrics)
 
 
-def _summary(rows: list[dict[str, float]], metrics: str) -> dict[str, object]:
+def _summary(rows: list[dict[str, float]], metrics: str) -> Figures:
     timed = [r for r in rows if "latency_ms" in r and r["paced"]]
     lat = np.array([r["latency_ms"] for r in timed])
     det = np.array([r["detect_ms"] for r in timed])

@@ -43,6 +43,7 @@ from typing import Any
 import httpx
 import numpy as np
 
+from server.experiments.benchmarks import Figures
 from server.experiments.benchmarks._local import free_port
 from server.experiments.benchmarks._opcua_load import ROLES, node_map
 
@@ -155,10 +156,10 @@ def _one(d: Path, sample_time: float, seconds: float) -> dict[str, float]:
     }
 
 
-def measure(*, repeats: int, quick: bool) -> dict[str, object]:
+def measure(*, repeats: int, quick: bool) -> Figures:
     seconds = 8.0 if quick else 30.0
     times = SAMPLE_TIMES[:2] if quick else SAMPLE_TIMES
-    out: dict[str, object] = {
+    out: Figures = {
         "configuration": f"one opcua source, {AXES} rigid axes x {len(ROLES)} signals + 2 "
         f"spindle nodes, Aes256_Sha256_RsaPss SignAndEncrypt, load server and service on "
         f"this machine, {seconds:g} s per sampling interval, one dashboard client"

@@ -26,6 +26,7 @@ from __future__ import annotations
 import statistics
 import time
 
+from server.experiments.benchmarks import Figures
 from server.pipeline.live_pipeline import LivePipeline, PipelineCosts
 
 
@@ -71,12 +72,12 @@ def _per_machine_second(costs: list[PipelineCosts]) -> dict[str, float]:
     return {k: float(statistics.median(v)) for k, v in rows.items()}
 
 
-def measure(*, repeats: int, quick: bool) -> dict[str, object]:
+def measure(*, repeats: int, quick: bool) -> Figures:
     """Realtime factors of the whole live pipeline at two block sizes and its cost per
     machine-second by part (estimation apart from simulation)."""
     seconds = 5.0 if quick else 30.0
     live, costs = _rate(125, seconds, repeats)
-    res: dict[str, object] = {
+    res: Figures = {
         "config": f"LivePipeline('default'), every estimator, {seconds:g} s simulated per run; "
         "costs in ms of wall time per machine-second at the live block (125 samples)",
         "live_block_125.realtime_factor": live,

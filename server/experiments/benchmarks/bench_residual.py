@@ -15,6 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
+from server.experiments.benchmarks import Figures
+
 
 def _record(n: int, seed: int = 0) -> dict[str, np.ndarray]:
     rng = np.random.default_rng(seed)
@@ -27,7 +29,7 @@ def _record(n: int, seed: int = 0) -> dict[str, np.ndarray]:
     return {"t": t, "tau_m": f + rng.normal(0.0, 1.0, n), "q_m": q}
 
 
-def measure(*, repeats: int, quick: bool) -> dict[str, object]:
+def measure(*, repeats: int, quick: bool) -> Figures:
     """Median wall time of the residual analysis of one record (seconds)."""
     from estimators.residual import RigidModel
     from estimators.residual_engine import analyse

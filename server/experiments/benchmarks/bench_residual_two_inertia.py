@@ -13,8 +13,10 @@ import time
 
 import numpy as np
 
+from server.experiments.benchmarks import Figures
 
-def measure(*, repeats: int, quick: bool) -> dict[str, object]:
+
+def measure(*, repeats: int, quick: bool) -> Figures:
     """Median wall time of one analysis (seconds) and its real-time factor."""
     from estimators.force_observer import LoadParams
     from estimators.residual_engine import analyse

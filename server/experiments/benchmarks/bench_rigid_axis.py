@@ -17,6 +17,7 @@ import numpy as np
 
 from estimators.rigid_id import LiveEffect, RigidIdentifier, rigid_design
 from machine.rigid_axis import RigidAxisParams, simulate_rigid_axis
+from server.experiments.benchmarks import Figures
 
 EFFECTS = (
     LiveEffect.of("coulomb_asymmetry", {}),
@@ -43,9 +44,9 @@ def _rate(rate: float, seconds: float, effects: tuple[LiveEffect, ...]) -> tuple
     return blocks * block * ts / wall, wall / blocks
 
 
-def measure(*, repeats: int, quick: bool) -> dict[str, object]:
+def measure(*, repeats: int, quick: bool) -> Figures:
     short, long_ = (10.0, 30.0) if quick else (30.0, 120.0)
-    out: dict[str, object] = {
+    out: Figures = {
         "configuration": "one rigid axis, 50 ms blocks, estimation only (simulated before "
         "the clock), 1 core"
     }

@@ -12,6 +12,7 @@ import time
 
 import numpy as np
 
+from server.experiments.benchmarks import Figures
 from server.pipeline.stage_run import StageRun
 
 
@@ -26,9 +27,9 @@ def _rate(block: int, seconds: float) -> tuple[float, float]:
     return n * block * 4e-4 / wall, wall / n
 
 
-def measure(*, repeats: int, quick: bool) -> dict[str, object]:
+def measure(*, repeats: int, quick: bool) -> Figures:
     short, long_ = (2.0, 6.0) if quick else (10.0, 40.0)
-    out: dict[str, object] = {
+    out: Figures = {
         "configuration": "seed000 stage + front end + ordinary RLS + "
         "switching RLS + 3 force estimates, 1 core"
     }

@@ -22,6 +22,7 @@ from harness.wear_clock import (
     observer_params,
 )
 from machine.tool_wear import ToolWearModel
+from server.experiments.benchmarks import Figures
 
 
 def _median_time(fn: Callable[[], object], repeats: int) -> float:
@@ -33,7 +34,7 @@ def _median_time(fn: Callable[[], object], repeats: int) -> float:
     return statistics.median(times)
 
 
-def measure(*, repeats: int, quick: bool) -> dict[str, object]:
+def measure(*, repeats: int, quick: bool) -> Figures:
     """Medians of ``repeats`` runs; simulated seconds per wall second as ``*_realtime_factor``."""
     minutes = 15.0 if quick else 60.0
     n = round(minutes / SAMPLE_TIME_MIN)
@@ -42,7 +43,7 @@ def measure(*, repeats: int, quick: bool) -> dict[str, object]:
     model = ToolWearModel()
     feed = np.full(n, 0.1)
     tr = model.simulate(feed, SAMPLE_TIME_MIN)  # compiles the kernel
-    out: dict[str, object] = {
+    out: Figures = {
         "sample_time_min": SAMPLE_TIME_MIN,
         "run_min": minutes,
         "block_samples": block,

@@ -50,7 +50,7 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal, TypedDict
 
 import numpy as np
 
@@ -104,6 +104,28 @@ class Case:
     family: str
     seconds: float
     seed: int
+
+
+class CaseResult(TypedDict):
+    """One analysed case (:func:`run_case`; a line of the full run's cache): the case,
+    the effects selected, the groups found indistinguishable and which of each was
+    installed, the held-out ratios (NaN: none) and the seconds it took."""
+
+    kind: str
+    family: str
+    seconds: float
+    seed: int
+    selected: list[str]
+    groups: list[list[str]]
+    installed: list[str]
+    ratio: float
+    ratio_both_channels: float
+    effect_free_ratio: float
+    elapsed: float
+
+
+#: the ratios a group's median is taken of (:func:`summarise`)
+Ratio = Literal["ratio", "effect_free_ratio", "ratio_both_channels"]
 
 
 def _ratio(sq0: np.ndarray, sq1: np.ndarray) -> float:
@@ -168,7 +190,7 @@ def _stage_sq(res: Any, family: str, seed: int) -> tuple[np.ndarray, np.ndarray,
     return res.hold_sq_before[where], res.hold_sq_after[where], where
 
 
-def run_case(case: Case) -> dict[str, Any]:
+def run_case(case: Case) -> CaseResult:
     """Generate and analyse one case: the selection, the ambiguity, the held-out ratio
     where the effect acts, and the attainable ratio.
 
@@ -216,7 +238,7 @@ def run_case(case: Case) -> dict[str, Any]:
     }
 
 
-def score(out: dict[str, Any]) -> dict[str, float]:
+def score(out: CaseResult) -> dict[str, float]:
     """Per-case outcomes (0/1) of one analysed case."""
     fam, sel = out["family"], out["selected"]
     twins = {fam}
@@ -298,14 +320,14 @@ def cache_path() -> Path:
     return Path(base) / NAME / f"{code_version()}.jsonl"
 
 
-def _key(c: Case | dict[str, Any]) -> tuple[str, str, float, int]:
+def _key(c: Case | CaseResult) -> tuple[str, str, float, int]:
     if isinstance(c, Case):
         return (c.kind, c.family, float(c.seconds), int(c.seed))
     return (str(c["kind"]), str(c["family"]), float(c["seconds"]), int(c["seed"]))
 
 
-def _load_cache(path: Path) -> dict[tuple[str, str, float, int], dict[str, Any]]:
-    out: dict[tuple[str, str, float, int], dict[str, Any]] = {}
+def _load_cache(path: Path) -> dict[tuple[str, str, float, int], CaseResult]:
+    out: dict[tuple[str, str, float, int], CaseResult] = {}
     if not path.is_file():
         return out
     for line in path.read_text().splitlines():
@@ -319,7 +341,7 @@ def _load_cache(path: Path) -> dict[tuple[str, str, float, int], dict[str, Any]]
 
 def run_cases(
     cases: list[Case], *, progress: bool, workers: int = WORKERS, cache: Path | None = None
-) -> list[dict[str, Any]]:
+) -> list[CaseResult]:
     """Analyse every case with at most ``workers`` processes (spawned, one BLAS thread).
 
     With ``cache`` (a JSON-lines file), cases found there are not run again and every
@@ -328,7 +350,7 @@ def run_cases(
     from tqdm import tqdm
 
     done = _load_cache(cache) if cache is not None else {}
-    results: list[dict[str, Any]] = [done[_key(c)] for c in cases if _key(c) in done]
+    results: list[CaseResult] = [done[_key(c)] for c in cases if _key(c) in done]
     cases = [c for c in cases if _key(c) not in done]
     sink = None
     if cache is not None:
@@ -342,7 +364,7 @@ def run_cases(
         if results and progress:
             print(f"{NAME}: {len(results)} cases from {cache}", file=sys.stderr)
 
-    def keep(r: dict[str, Any]) -> None:
+    def keep(r: CaseResult) -> None:
         results.append(r)
         if sink is not None:
             sink.write(json.dumps(r) + "\n")
@@ -371,16 +393,16 @@ def run_cases(
     return results
 
 
-def summarise(results: list[dict[str, Any]]) -> dict[tuple[str, str, float], dict[str, float]]:
+def summarise(results: list[CaseResult]) -> dict[tuple[str, str, float], dict[str, float]]:
     """Rates and median ratio per (kind, family, length)."""
-    groups: dict[tuple[str, str, float], list[dict[str, Any]]] = {}
+    groups: dict[tuple[str, str, float], list[CaseResult]] = {}
     for r in results:
         groups.setdefault((r["kind"], r["family"], float(r["seconds"])), []).append(r)
     out = {}
     for key, rs in groups.items():
         sc = [score(r) for r in rs]
 
-        def med(k: str, rs: list[dict[str, Any]] = rs) -> float:
+        def med(k: Ratio, rs: list[CaseResult] = rs) -> float:
             v = [float(r[k]) for r in rs if k in r and math.isfinite(float(r[k]))]
             return float(np.median(v)) if v else math.nan
 

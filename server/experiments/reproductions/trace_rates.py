@@ -30,7 +30,7 @@ import numpy as np
 from machine.cycle_trace import trace
 from machine.stage import Measurements, StageConfig, Truth
 from server.experiments.reproduction import Check, Reproduction, Row
-from server.pipeline.sources import SimulatorSource, SourceBlock
+from server.pipeline.sources import SimulatorSource, SourceBlock, TruthSummary
 
 NAME = "trace-rates"
 SOURCE = "issue 30 item 5; seed 000 stage (Table I), the default live scenario"
@@ -99,7 +99,7 @@ class TraceSource:
     def restore(self, state: object) -> None:
         self.inner.restore(state)
 
-    def truth_summary(self) -> dict[str, object]:
+    def truth_summary(self) -> TruthSummary:
         return self.inner.truth_summary()
 
     def status(self) -> dict[str, object]:

@@ -3,12 +3,10 @@ relearn."""
 
 from __future__ import annotations
 
-from typing import Any
-
 from fastapi import APIRouter
 
 from common.jsonsafe import json_safe
-from server.service.deps import Authorised, Controls, Monitor, Relearned
+from server.service.deps import Authorised, Controls, Monitor, Relearned, Scheduled
 from server.service.schemas import (
     Control,
     ControlState,
@@ -37,7 +35,7 @@ def control(body: Control, pace: Controls, monitor: Monitor) -> ControlState:
     # the value and the scenario are checked by the request model (Speed, ScenarioName),
     # as are inject's and relearn's fields; what the pipeline refuses (a source without a
     # simulator, a part already made) is a ParameterError: a 422 naming the field
-    scheduled: dict[str, Any] | None = None
+    scheduled: Scheduled | None = None
     relearned: Relearned | None = None
     match body:
         case Inject(kind=kind, size=size, at_t=at_t, at_part=at_part):

@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 import math
-from typing import Any
 
 from fastapi import APIRouter
 from fastapi.responses import PlainTextResponse
 
 from common.jsonsafe import json_safe
+from harness.accuracy import AccuracySummary
 from server.pipeline.live_pipeline import SCENARIOS
 from server.service.deps import Config, Live
 from server.service.http_guard import DROPPED
@@ -180,7 +180,7 @@ def metrics(lp: Live) -> PlainTextResponse:
     )
 
 
-def _accuracy_lines(acc: dict[str, Any]) -> list[str]:
+def _accuracy_lines(acc: AccuracySummary) -> list[str]:
     """``cutwatch_force_error_rms{estimate, window, against}``: the rolling rms of each
     force estimate (``against`` = ``truth``, ``q_truth`` (the Q(s)-filtered true force) or
     ``measured_force``; nothing without a reference); the Q filter's own error as the estimate
