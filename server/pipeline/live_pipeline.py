@@ -213,6 +213,19 @@ class MachineInfo(TypedDict):
     parts: list[PartInfo]
 
 
+class InjectedTruth(TypedDict):
+    """An injected event's truth (:meth:`LivePipeline.process_truths`, the fields of
+    :class:`machine.process.EventTruth`): for scoring, never given to a detector."""
+
+    kind: str
+    t: float
+    sample: int
+    size: float
+    tool: int
+    line: int
+    part: int
+
+
 class PipelineCosts(TypedDict):
     """:meth:`LivePipeline.costs`: wall time over the machine's seconds stepped."""
 
@@ -1029,14 +1042,18 @@ class LivePipeline:
             )
         return proc
 
-    def process_truths(self) -> list[dict[str, object]]:
+    def process_truths(self) -> list[InjectedTruth]:
         """The injected events placed so far, with their truth (kind, first sample's time
         ``t`` and index ``sample``, size, tool, line, part): for scoring, never given to a
         detector."""
         proc = self.part("process")
         if proc is None:
             return []
-        return [dict(tr.__dict__) for tr in proc.live.ps.truths]
+        return [
+            InjectedTruth(kind=tr.kind, t=tr.t, sample=tr.sample, size=tr.size, tool=tr.tool,
+                          line=tr.line, part=tr.part)
+            for tr in proc.live.ps.truths
+        ]  # fmt: skip
 
     @property
     def latest(self) -> dict[str, float]:
