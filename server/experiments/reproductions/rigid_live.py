@@ -33,10 +33,11 @@ import math
 import os
 import tempfile
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, TypedDict
 
 import numpy as np
 
+from common.arrays import F64
 from server.errors import CutwatchError
 from server.experiments.reproduction import Check, Reproduction, Row
 
@@ -82,7 +83,59 @@ def emps_log() -> Any:
     return load_log(emps_path(), meta=meta, maps=["tau_m=vir*gtau", "q_m=qm"])
 
 
-def live_run(log: Any, effects: tuple[Any, ...] = ()) -> dict[str, Any]:
+if TYPE_CHECKING:
+    from estimators.rigid_id import RigidIdRecord
+
+
+class HistPoint(TypedDict):
+    """The live estimate after a block (:func:`live_run`): M, Fv, Fc, offset, their
+    Newey-West and plain half-widths, the velocity reversals so far."""
+
+    t: float
+    theta: F64
+    half: F64
+    plain: F64
+    reversals: int
+
+
+class LiveRun(TypedDict):
+    """The live identifier over a record (:func:`live_run`)."""
+
+    names: tuple[str, ...]
+    hist: list[HistPoint]
+    last: RigidIdRecord
+    force: F64
+    effort: F64
+    t: F64
+
+
+#: the EMPS runs (:func:`emps_section`): without and with the head's report
+EmpsRuns = TypedDict(
+    "EmpsRuns", {"base": LiveRun, "with": LiveRun, "report": dict[str, Any], "start": float}
+)
+
+
+class CncAxisRun(TypedDict):
+    """One CNC export axis (:func:`cnc_axis`): the live identifier's last block, the
+    batch least squares, the identifier's memory [s], no current recorded."""
+
+    last: RigidIdRecord
+    batch: F64
+    memory: float
+    silent: bool
+
+
+class Coverage(TypedDict):
+    """The coverage Monte Carlo (:func:`coverage`): per parameter, the share of seeds
+    covered (Newey-West, plain) and the median width ratio."""
+
+    hac: F64
+    plain: F64
+    ratio: F64
+    seeds: int
+
+
+def live_run(log: Any, effects: tuple[Any, ...] = ()) -> LiveRun:
     """The live identifier over ``log`` in blocks; its history and the process force."""
     from estimators.rigid_id import RigidIdentifier, rigid_design
 
@@ -90,7 +143,7 @@ def live_run(log: Any, effects: tuple[Any, ...] = ()) -> dict[str, Any]:
     ident = RigidIdentifier(params)
     st = ident.initial_state()
     t, q, tau = log["t"], log["q_m"], log["tau_m"]
-    hist: list[dict[str, Any]] = []
+    hist: list[HistPoint] = []
     force, effort, tt = [], [], []
     for a in range(0, log.n, BLOCK):
         st, r = ident.step(st, t[a : a + BLOCK], q[a : a + BLOCK], tau[a : a + BLOCK])
@@ -104,7 +157,7 @@ def live_run(log: Any, effects: tuple[Any, ...] = ()) -> dict[str, Any]:
             "effort": np.concatenate(effort), "t": np.concatenate(tt)}  # fmt: skip
 
 
-def on_target(h: dict[str, Any]) -> bool:
+def on_target(h: HistPoint) -> bool:
     """M, Fv, Fc within their tolerance of IDIM-LS and their half-widths within 10 %."""
     for i, k in enumerate(("M", "Fv", "Fc")):
         th, half = float(h["theta"][i]), float(h["half"][i])
@@ -113,7 +166,7 @@ def on_target(h: dict[str, Any]) -> bool:
     return True
 
 
-def time_to_target(hist: list[dict[str, Any]]) -> tuple[float, int]:
+def time_to_target(hist: list[HistPoint]) -> tuple[float, int]:
     """The first block end after which every later one is on target (nan: never)."""
     ok = [on_target(h) for h in hist]
     if not ok or not ok[-1]:
@@ -124,7 +177,7 @@ def time_to_target(hist: list[dict[str, Any]]) -> tuple[float, int]:
     return hist[k]["t"], int(hist[k]["reversals"])
 
 
-def relerr_tail(run: dict[str, Any], start: float) -> float:
+def relerr_tail(run: LiveRun, start: float) -> float:
     """``||F|| / ||P[tau]||`` in % over the samples after ``start`` (the process force is
     the effort less the model: its norm against the effort's is the benchmark's measure)."""
     m = (run["t"] >= start) & np.isfinite(run["force"])
@@ -152,7 +205,7 @@ def report_on_head(log: Any, fraction: float = SPLIT) -> tuple[dict[str, Any], t
     return rep, tuple(live_effects(rep, "emps head report"))
 
 
-def emps_section(quick: bool) -> tuple[list[Row], list[Check], dict[str, Any]]:
+def emps_section(quick: bool) -> tuple[list[Row], list[Check], EmpsRuns]:
     log = emps_log()
     base = live_run(log)
     rep, effects = report_on_head(log)
@@ -163,7 +216,7 @@ def emps_section(quick: bool) -> tuple[list[Row], list[Check], dict[str, Any]]:
 
 
 def _emps_rows(
-    base: dict[str, Any], withr: dict[str, Any], rep: dict[str, Any], start: float
+    base: LiveRun, withr: LiveRun, rep: dict[str, Any], start: float
 ) -> tuple[list[Row], list[Check]]:
     h = base["hist"][-1]
     units = {"M": "kg", "Fv": "N s/m", "Fc": "N", "offset": "N"}
@@ -212,7 +265,7 @@ def _emps_rows(
 CNC_EXPERIMENTS = ("experiment_01.csv", "experiment_06.csv", "experiment_11.csv")
 
 
-def cnc_axis(log: Any, axis: Any) -> dict[str, Any]:
+def cnc_axis(log: Any, axis: Any) -> CncAxisRun:
     """One axis of a CNC export through the live identifier (the CNC's velocity and
     acceleration), and the batch least squares on its moving rows."""
     from estimators.rigid_id import RigidIdentifier, rigid_design
@@ -275,9 +328,7 @@ def _mc_axis(seed: int, friction_along_travel: bool) -> Any:
     )  # fmt: skip
 
 
-def coverage(
-    seeds: int, seconds: float, friction_along_travel: bool, progress: bool
-) -> dict[str, Any]:
+def coverage(seeds: int, seconds: float, friction_along_travel: bool, progress: bool) -> Coverage:
     """Per parameter: the share of seeds whose interval covers the truth, and the median
     ratio of the Newey-West half-width to the plain one."""
     from tqdm import tqdm
@@ -303,7 +354,7 @@ def coverage(
             "ratio": np.median(ratio, axis=0), "seeds": seeds}  # fmt: skip
 
 
-def _coverage_rows(c: dict[str, Any], case: str, cond: str) -> list[Row]:
+def _coverage_rows(c: Coverage, case: str, cond: str) -> list[Row]:
     rows = []
     for i, k in enumerate(("M", "Fv", "Fc", "offset")):
         rows += [
@@ -343,7 +394,7 @@ def run(
     return rep
 
 
-def _plot(runs: dict[str, Any], plot_dir: Path) -> Path:
+def _plot(runs: EmpsRuns, plot_dir: Path) -> Path:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -369,8 +420,10 @@ def _plot(runs: dict[str, Any], plot_dir: Path) -> Path:
         ax.set_ylabel(k)
     axes[0].legend(fontsize=7, ncol=4)
     m = base["t"] >= runs["start"]
-    for key, lab in (("base", "without the report"), ("with", "with the report's effects")):
-        r = runs[key]
+    for r, lab in (
+        (runs["base"], "without the report"),
+        (runs["with"], "with the report's effects"),
+    ):
         axes[3].plot(r["t"][m][::5], r["force"][m][::5], lw=0.6, label=lab)
     axes[3].set_ylabel("process force [N]")
     axes[3].set_xlabel("t [s]")
