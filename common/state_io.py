@@ -47,6 +47,20 @@ MOVED = {
         for m in ("accuracy", "eccentricity_loop", "shards", "wear_clock")
     },
     "machine.params": "machine.stage_params",  # the stage's parameters, named by meaning
+    # estimators/ grouped by topic (issue 34 item 4): the tool-wear models
+    **{
+        f"estimators.{old}": f"estimators.wear.{new}"
+        for old, new in (
+            ("wear_calibration", "calibration"),
+            ("wear_hybrid", "hybrid"),
+            ("wear_law", "law"),
+            ("wear_linear", "linear"),
+            ("wear_monitor", "monitor"),
+            ("wear_observer", "observer"),
+            ("turning_wear", "turning"),
+            ("centre_wear", "centre"),
+        )
+    },
 }
 
 

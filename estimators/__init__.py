@@ -6,8 +6,9 @@ Public names of the cutting force observer and the identifiers are re-exported h
 other estimators are re-exported as their modules (each with its own ``__all__`` or
 documented public functions): ``dfo`` and ``imbdo`` (seed 002), ``esc`` and
 ``fast_tuner`` (seed 003), ``lobes``, ``lobes_zoa`` and ``lobes_sd`` (milling stability:
-zero-order and semi-discretization, docs/chatter.md), ``ud_rls``, ``wear_linear``,
-``wear_observer`` and ``wear_monitor`` (seed 004), ``idim``, and the residual loop:
+zero-order and semi-discretization, docs/chatter.md), ``ud_rls``, ``wear`` (tool wear: seed
+004's ``wear.linear``, ``wear.observer`` and ``wear.monitor``, the lathe's and the centre's
+wear models), ``idim``, and the residual loop:
 ``residual_engine`` (the one ``analyse`` over a residual model), ``residual`` (the rigid model),
 ``residual_families`` (its family registry), ``residual_two_inertia`` (the observer
 model), ``residual_selection`` (the decision rule), ``residual_shapes`` (shared shape
@@ -32,9 +33,7 @@ from estimators import (
     residual_shapes,
     residual_two_inertia,
     ud_rls,
-    wear_linear,
-    wear_monitor,
-    wear_observer,
+    wear,
 )
 from estimators.errors import EstimatorError, ParameterError
 from estimators.filters import DiscreteFilter, discretize, highpass, lowpass
@@ -109,7 +108,5 @@ __all__ = [
     "rls_init",
     "rls_update",
     "ud_rls",
-    "wear_linear",
-    "wear_monitor",
-    "wear_observer",
+    "wear",
 ]

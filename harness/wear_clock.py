@@ -17,16 +17,16 @@ import numpy as np
 
 from common.arrays import F64
 from estimators.errors import ParameterError
-from estimators.wear_law import WearLawParams
-from estimators.wear_linear import (
+from estimators.wear.law import WearLawParams
+from estimators.wear.linear import (
     DiscreteModel,
     linearise_along_path,
     observer_transform,
     transfer_function,
     zoh,
 )
-from estimators.wear_monitor import ToolLifeMonitor, ToolLifeParams, ToolLifeRecord
-from estimators.wear_observer import WearObserverParams
+from estimators.wear.monitor import ToolLifeMonitor, ToolLifeParams, ToolLifeRecord
+from estimators.wear.observer import WearObserverParams
 from machine.tool_wear import VB_LIMIT_MM, CuttingCondition, ToolWearModel
 
 #: Sample period of the wear observer [min]. The paper does not give it; 0.01 min
@@ -78,7 +78,7 @@ def observer_params(
 
 
 def wear_law_params(model: ToolWearModel, feed: float, **kw: float) -> WearLawParams:
-    """The off-line constants of the reduced wear law (``estimators.wear_law``).
+    """The off-line constants of the reduced wear law (``estimators.wear.law``).
 
     Read from the machine's wear model at its cutting condition and ``feed``: the form
     of seed004 (3)-(8) and every constant except the two scale factors the predictor fits
@@ -121,7 +121,7 @@ class AcceleratedToolWear:
         Flags of the tool-life monitor (fractions of the predicted tool life).
     life_sd : bool
         The monitor computes the remaining life's spread
-        (:attr:`estimators.wear_monitor.ToolLifeParams.life_sd`).
+        (:attr:`estimators.wear.monitor.ToolLifeParams.life_sd`).
     """
 
     def __init__(

@@ -5,7 +5,7 @@ power less the idle taught in the air, NaN while the speed changes) and the CNC'
 identities (``tool``, ``line``, ``override``), cuts it into block executions (a change
 of the CNC's line starts one, as the process monitor does) and hands each execution's
 mean cutting power and its seconds of known power to
-:class:`estimators.centre_wear.CentreWear`: the power relative to the taught fresh-tool
+:class:`estimators.wear.centre.CentreWear`: the power relative to the taught fresh-tool
 value of the same (tool, program, block), seed 004's monotone state per tool, a 95 %
 interval. The map from that relative power to VB is the machine's own: a prior
 ("uncalibrated", its wide interval) until a VB measured at a tool change is entered
@@ -31,7 +31,7 @@ from typing import TypedDict
 import numpy as np
 
 from common.errors import ParameterError
-from estimators.centre_wear import CentreWear, CentreWearParams, CentreWearState
+from estimators.wear.centre import CentreWear, CentreWearParams, CentreWearState
 from server.pipeline.estimates_out import StatusStrip
 from server.pipeline.machine_view import MachineView
 from server.pipeline.part import Block, Channel, Chart, LivePart, Outputs, Verdict, needs_signals

@@ -1,6 +1,6 @@
 """Flank wear on held-out tools: folds, metrics and the two baselines.
 
-One fold fits :mod:`estimators.turning_wear` on the training tools and estimates each
+One fold fits :mod:`estimators.wear.turning` on the training tools and estimates each
 test tool; the baselines are fitted on the same training rows: a straight line of VB on
 the signal's ``_MEAN`` (the first thing a data scientist tries) and scikit-learn's
 gradient boosting on the signal's five features (a learned model one would pick).
@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from common.arrays import F64
-from estimators.turning_wear import (
+from estimators.wear.turning import (
     ToolSeries,
     TurningWearModel,
     TurningWearParams,
@@ -143,7 +143,7 @@ def run_fold(
         est = estimate(model, s, p, criterion=criterion, life=life)
         life150 = None
         if life and s.vb is not None and criterion != 150.0:
-            from estimators.turning_wear import life_from
+            from estimators.wear.turning import life_from
 
             life150 = life_from(est.vb, est.rate, 150.0, model.lam)
         base = baselines(table, signal, train, t) if with_baselines and table.has_vb else {}

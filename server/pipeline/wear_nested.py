@@ -2,7 +2,7 @@
 "Tools never seen").
 
 Outer splits: leave one tool out, and repeated leave-k-tools-out (k = 2, 3, 4). Inside
-each outer fold every candidate configuration of :mod:`estimators.wear_hybrid` is scored
+each outer fold every candidate configuration of :mod:`estimators.wear.hybrid` is scored
 by leave-one-tool-out over the fold's training tools; the best is refit on all of them
 and run on the test tools; its inner models give CV+ intervals over tools. The
 baselines are fitted on the same training rows: a line of VB on one ``_MEAN``, gradient
@@ -21,8 +21,7 @@ from typing import Any
 import numpy as np
 
 from common.arrays import F64
-from estimators.turning_wear import clean_condition
-from estimators.wear_hybrid import (
+from estimators.wear.hybrid import (
     LIFE_METHODS,
     SAME_CONDITIONS,
     HybridConfig,
@@ -32,6 +31,7 @@ from estimators.wear_hybrid import (
     fit,
     life_end,
 )
+from estimators.wear.turning import clean_condition
 from server.records.wear_table import FEATURES, FEED, VB, WearTable, read_wear_table
 
 #: the signal sets (the first names the linear and five-feature baselines' signal)

@@ -9,8 +9,8 @@ import math
 import numpy as np
 import pytest
 
-from estimators.centre_wear import CentreWear, CentreWearParams
 from estimators.errors import ParameterError
+from estimators.wear.centre import CentreWear, CentreWearParams
 
 KEY = (2, "O2001", 140)
 REF_W = 1000.0

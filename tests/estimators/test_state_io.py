@@ -20,7 +20,7 @@ from estimators.observer_effects import EffectsParams, ObserverEffect, ObserverE
 from estimators.rls import IdentifierParams, LoadIdentifier
 from estimators.segment_id import SegmentIdentifier, SegmentIdentifierParams
 from estimators.ud_rls import ForgettingRLS, ForgettingRLSParams
-from estimators.wear_monitor import ToolLifeMonitor, ToolLifeParams
+from estimators.wear.monitor import ToolLifeMonitor, ToolLifeParams
 from machine.stage import StageConfig, StageSim
 from machine.stage_params import preset
 
@@ -179,3 +179,36 @@ def test_a_state_written_before_the_stage_params_moved_reads_as_now() -> None:
     back = decode(old, arrays)
     assert type(back["config"]["params"]) is StageParams
     assert back["config"]["params"] == params
+
+
+def test_a_state_written_before_the_wear_models_moved_reads_as_now() -> None:
+    # estimators/wear_monitor.py became estimators/wear/monitor.py and
+    # estimators/centre_wear.py estimators/wear/centre.py (issue 34 item 4, estimators
+    # grouped by topic): a checkpoint written before names the old modules
+    # (common.state_io.MOVED) and must still load after the upgrade
+    from common.state_io import decode, encode
+    from estimators.wear.centre import CentreWear, CentreWearState
+    from estimators.wear.monitor import ToolLifeState
+
+    est, s0, advance = _monitor()
+    saved = {
+        "params": est.params,
+        "tool": advance(s0, slice(0, 20))[0],
+        "centre": CentreWear().initial_state(),
+    }
+    tree, arrays = encode(saved)
+    text = json.dumps(tree)
+    assert '"estimators.wear.monitor:ToolLifeState"' in text
+    assert '"estimators.wear.centre:CentreWearState"' in text
+    old = text.replace("estimators.wear.monitor:", "estimators.wear_monitor:")
+    old = old.replace("estimators.wear.centre:", "estimators.centre_wear:")
+    assert "estimators.wear." not in old
+    back = decode(json.loads(old), arrays)
+    assert type(back["params"]) is ToolLifeParams
+    assert type(back["tool"]) is ToolLifeState
+    assert type(back["centre"]) is CentreWearState
+    again, again_arrays = encode(back)
+    assert json.dumps(again) == text
+    assert sorted(again_arrays) == sorted(arrays)
+    for k, a in arrays.items():
+        np.testing.assert_array_equal(again_arrays[k], a)

@@ -10,7 +10,7 @@ from scipy.signal import cont2discrete, ss2tf
 
 from estimators.errors import ParameterError as EstParameterError
 from estimators.ud_rls import ForgettingRLS, ForgettingRLSParams
-from estimators.wear_linear import (
+from estimators.wear.linear import (
     DiscreteModel,
     LinearModel,
     linearise_along_path,
@@ -19,8 +19,8 @@ from estimators.wear_linear import (
     transfer_function,
     zoh,
 )
-from estimators.wear_monitor import ToolLifeMonitor, ToolLifeParams
-from estimators.wear_observer import (
+from estimators.wear.monitor import ToolLifeMonitor, ToolLifeParams
+from estimators.wear.observer import (
     AdaptiveWearObserver,
     WearConstraints,
     WearObserverParams,

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from estimators.errors import ParameterError
-from estimators.turning_wear import (
+from estimators.wear.turning import (
     ToolSeries,
     TurningWearModel,
     TurningWearParams,

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from estimators.errors import ParameterError
-from estimators.wear_calibration import LabelledLife, MachineWear
-from estimators.wear_hybrid import HybridConfig
+from estimators.wear.calibration import LabelledLife, MachineWear
+from estimators.wear.hybrid import HybridConfig
 
 
 def life(seed: int, machine: str = "lathe-1", kind: str = "lathe", n: int = 120) -> LabelledLife:

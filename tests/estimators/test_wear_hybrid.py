@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from estimators.errors import ParameterError
-from estimators.wear_hybrid import (
+from estimators.wear.hybrid import (
     HybridConfig,
     ToolData,
     _pava,

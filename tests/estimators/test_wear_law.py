@@ -1,4 +1,4 @@
-"""The reduced wear law's remaining-life predictor (``estimators/wear_law.py``) on its own.
+"""The reduced wear law's remaining-life predictor (``estimators/wear/law.py``) on its own.
 
 The truth is the reduced law of seed004 (3)-(8) integrated here from its equations (scipy's
 ``solve_ivp``, tight tolerances), with the low-passed ``z = F / (f d)`` as a fourth state;
@@ -19,7 +19,7 @@ import pytest
 from scipy.integrate import quad, solve_ivp
 
 from estimators.errors import ParameterError
-from estimators.wear_law import WearLawParams, WearLawPredictor, w2_table, w_grid
+from estimators.wear.law import WearLawParams, WearLawPredictor, w2_table, w_grid
 
 P = WearLawParams(
     feed=0.1,

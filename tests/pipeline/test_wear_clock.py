@@ -16,8 +16,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from estimators.errors import ParameterError as EstParameterError
-from estimators.wear_law import WearLawParams
-from estimators.wear_monitor import ToolLifeMonitor, ToolLifeParams
+from estimators.wear.law import WearLawParams
+from estimators.wear.monitor import ToolLifeMonitor, ToolLifeParams
 from harness.wear_clock import AcceleratedToolWear, wear_law_params
 from machine.errors import ParameterError as MachParameterError
 from machine.tool_wear import DEFAULT_WEAR_PARAMS, ToolWearModel

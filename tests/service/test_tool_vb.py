@@ -5,7 +5,7 @@ VB entered at a tool change labels that life and the tool's map is calibrated fr
 
 A worn tool lasts tens of minutes of machine time (the simulator's lives), longer than
 a test may run, so the one tool change of the last test is the part's own bookkeeping
-of a change (:meth:`estimators.centre_wear.CentreWear` ends a life on two fresh
+of a change (:meth:`estimators.wear.centre.CentreWear` ends a life on two fresh
 readings) entered under the loop's lock; the route, the part's label and the strip are
 the real ones. Detection and calibration over whole lives are measured by
 ``cutwatch reproduce centre-wear``."""
@@ -25,7 +25,7 @@ import uvicorn
 from _live import in_thread
 from _wait import poll
 
-from estimators.centre_wear import Life
+from estimators.wear.centre import Life
 from server.service.app import create_app
 from server.service.front import uvicorn_options
 from server.service.loop import LiveLoop

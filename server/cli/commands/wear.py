@@ -183,7 +183,7 @@ def _run_hybrid(args: argparse.Namespace) -> int:
     import numpy as np
     from tqdm import tqdm
 
-    from estimators.wear_hybrid import candidates
+    from estimators.wear.hybrid import candidates
     from server.errors import CutwatchError
     from server.pipeline.wear_nested import (
         K_OUT,
@@ -294,7 +294,7 @@ def _run_hybrid(args: argparse.Namespace) -> int:
 
 
 def _read_model(path: Path, signal: str) -> Any:
-    from estimators.turning_wear import TurningWearModel
+    from estimators.wear.turning import TurningWearModel
     from server.errors import CutwatchError
 
     try:

@@ -13,8 +13,8 @@ from collections.abc import Callable
 
 import numpy as np
 
-from estimators.wear_monitor import ToolLifeMonitor, ToolLifeParams
-from estimators.wear_observer import AdaptiveWearObserver
+from estimators.wear.monitor import ToolLifeMonitor, ToolLifeParams
+from estimators.wear.observer import AdaptiveWearObserver
 from harness.wear_clock import (
     SAMPLE_TIME_MIN,
     AcceleratedToolWear,

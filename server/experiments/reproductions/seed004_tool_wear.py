@@ -25,8 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
-from estimators.wear_monitor import ToolLifeMonitor, ToolLifeParams
-from estimators.wear_observer import AdaptiveWearObserver, WearObserverRecord
+from estimators.wear.monitor import ToolLifeMonitor, ToolLifeParams
+from estimators.wear.observer import AdaptiveWearObserver, WearObserverRecord
 from harness.wear_clock import (
     SAMPLE_TIME_MIN,
     AcceleratedToolWear,
@@ -246,7 +246,7 @@ def _decimated_wear(model: ToolWearModel, tr: object) -> tuple[float, float, flo
     far better conditioned. Returns cond(T) at the end, the flank and crater relative
     errors at the last decimated sample, and its time [min].
     """
-    from estimators.wear_observer import deadbeat_observer_step
+    from estimators.wear.observer import deadbeat_observer_step
 
     states = np.asarray(tr.states)  # type: ignore[attr-defined]
     force = np.asarray(tr.force)  # type: ignore[attr-defined]

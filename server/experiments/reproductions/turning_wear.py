@@ -6,7 +6,7 @@ Mondragon Unibertsitatea; Ferrando Chacón et al., Int. J. Adv. Manuf. Technol. 
 
 Leave one tool out over the tools of the table, for each signal (feed force ``F_f``,
 Z-drive torque ``TV2.Z``, Z-drive current ``CV3.Z``): our observer
-(:mod:`estimators.turning_wear`) beside two baselines fitted on the same training rows of
+(:mod:`estimators.wear.turning`) beside two baselines fitted on the same training rows of
 the same folds: a straight line of VB on the signal's ``_MEAN`` and scikit-learn's
 gradient boosting (seed 18) on its five features. Rows: ``ours`` is our number, ``paper``
 holds the baseline's (or the nominal value) named in the row's condition. A learning
@@ -165,7 +165,7 @@ def _life_limits(table: Any, tools: list[int]) -> list[Row]:
     """The law's remaining life at half-life from the *measured* VB (no estimation error
     at all), with its local rate (10 segments) or its mean rate since the first segment:
     what the data allows a rate law to predict."""
-    from estimators.turning_wear import fit_law, life_from, local_rates
+    from estimators.wear.turning import fit_law, life_from, local_rates
     from server.pipeline.wear_folds import series_of
 
     rows = []
@@ -201,7 +201,7 @@ def _life_limits(table: Any, tools: list[int]) -> list[Row]:
 def _snr(table: Any, signal: str, tools: list[int], s: dict[str, Any]) -> list[Row]:
     """The wear part of the signal at VB = 150 um against its segment-to-segment scatter,
     and our MAE on the tools cut at other speeds (3, 5, 16) against the others."""
-    from estimators.turning_wear import fit
+    from estimators.wear.turning import fit
     from server.pipeline.wear_folds import series_of
 
     series = [series_of(table, signal, t)[0] for t in tools]

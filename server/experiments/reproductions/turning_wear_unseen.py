@@ -244,7 +244,7 @@ def checks(s: str, v: dict[str, Any]) -> list[Check]:
 
 def section(path: Any, quick: bool, bar: Any) -> tuple[list[Row], list[Check]]:
     """Run the nested evaluation and turn it into rows and checks."""
-    from estimators.wear_hybrid import candidates
+    from estimators.wear.hybrid import candidates
     from server.pipeline.wear_nested import (
         SETS,
         condition_groups,

@@ -17,7 +17,7 @@ tool pass. Per pass ``j`` (cutting time ``t_j`` on the wear clock [min], mean fo
    crater lowers the force (``-K14 w_c``), so VB is underestimated by
    ``K14 w_c / (K13 d)``.
 4. Trend: with ``law`` given (default of the live machine and the reproduction), the
-   reduced wear law of :mod:`estimators.wear_law` — the form of seed004 (3)-(8)
+   reduced wear law of :mod:`estimators.wear.law` — the form of seed004 (3)-(8)
    with its two scale factors fitted to the passes after the break-in
    (``t >= trend_start``); the crater's force loss of step 3 then follows the crater
    law driven by the measured force instead of a constant rate. Without ``law``:
@@ -26,7 +26,7 @@ tool pass. Per pass ``j`` (cutting time ``t_j`` on the wear clock [min], mean fo
    the law's).
 5. Remaining life until ``VB = vb_limit`` (ISO 3685: 0.3 mm): the law integrated forward
    with an S.D. from the fit's covariance and the off-line constants' uncertainty (see
-   :mod:`estimators.wear_law`); or the polynomial trend extrapolated, with an S.D. from
+   :mod:`estimators.wear.law`); or the polynomial trend extrapolated, with an S.D. from
    its covariance (delta method).
 6. Flags: with the predicted tool life ``L = t + RUL`` (the learned reference),
    warning when ``t >= warning_fraction L`` and alarm when ``t >= alarm_fraction L``;
@@ -43,7 +43,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from common.arrays import F64
 from estimators.errors import ParameterError, require_in, require_positive
-from estimators.wear_law import WearLawParams, WearLawPredictor
+from estimators.wear.law import WearLawParams, WearLawPredictor
 
 #: passes of history kept for the wear-law fit (the oldest are dropped beyond it)
 MAX_HISTORY = 4000
@@ -87,7 +87,7 @@ class ToolLifeParams:
         t = 0 from the first two pass means (linear in the pass mid-times); False:
         the first pass mean is used as is.
     law : WearLawParams or None
-        Off-line constants of the reduced wear law (:mod:`estimators.wear_law`) for the
+        Off-line constants of the reduced wear law (:mod:`estimators.wear.law`) for the
         remaining-life prediction; None: the polynomial trend.
     life_sd : bool
         Compute ``remaining_life_sd`` (True, default). With the wear law it costs four

@@ -25,7 +25,7 @@ import numpy as np
 
 from common.arrays import F64
 from estimators.errors import ParameterError
-from estimators.wear_hybrid import HybridConfig, HybridModel, ToolData, candidates, fit
+from estimators.wear.hybrid import HybridConfig, HybridModel, ToolData, candidates, fit
 
 KINDS = ("lathe", "mill")
 #: labelled lives needed before the map is used (leave-one-life-out needs 2 to fit on)
