@@ -1,8 +1,8 @@
 """The canonical effect names (docs/design.md, "Residual report"), defined once.
 
 The simulator (:data:`machine.effects.EFFECT_NAMES`: what it can produce) and the
-residual analyses (``FAMILIES`` plus ``NOT_OFFERED`` in :mod:`estimators.residual` and
-:mod:`estimators.residual_two_inertia`: what they can fit, and what they decline with a
+residual analyses (``FAMILIES`` plus ``NOT_OFFERED`` in :mod:`estimators.residual.rigid` and
+:mod:`estimators.residual.two_inertia`: what they can fit, and what they decline with a
 reason) use subsets of this list by meaning; ``tests/common/test_effect_names.py`` keeps
 every subset inside it and each analysis's fitted plus declined names equal to it.
 """

@@ -61,6 +61,13 @@ MOVED = {
             ("centre_wear", "centre"),
         )
     },
+    # ... and the residual loop (no live state holds one of its classes today; mapped all
+    # the same, so that nothing written by a later part can be lost to the move)
+    "estimators.residual": "estimators.residual.rigid",
+    **{
+        f"estimators.residual_{m}": f"estimators.residual.{m}"
+        for m in ("cv", "engine", "families", "rate", "selection", "shapes", "two_inertia")
+    },
 }
 
 

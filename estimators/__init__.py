@@ -8,11 +8,12 @@ documented public functions): ``dfo`` and ``imbdo`` (seed 002), ``esc`` and
 ``fast_tuner`` (seed 003), ``lobes``, ``lobes_zoa`` and ``lobes_sd`` (milling stability:
 zero-order and semi-discretization, docs/chatter.md), ``ud_rls``, ``wear`` (tool wear: seed
 004's ``wear.linear``, ``wear.observer`` and ``wear.monitor``, the lathe's and the centre's
-wear models), ``idim``, and the residual loop:
-``residual_engine`` (the one ``analyse`` over a residual model), ``residual`` (the rigid model),
-``residual_families`` (its family registry), ``residual_two_inertia`` (the observer
-model), ``residual_selection`` (the decision rule), ``residual_shapes`` (shared shape
-searches), ``residual_cv`` (cross-validated figures) and ``observer_effects``.
+wear models), ``idim``, ``residual`` (the residual loop:
+``residual.engine``, the one ``analyse`` over a residual model; ``residual.rigid``, the rigid
+model; ``residual.families``, its family registry; ``residual.two_inertia``, the observer
+model; ``residual.selection``, the decision rule; ``residual.shapes``, shared shape searches;
+``residual.cv``, cross-validated figures; ``residual.rate``, what a sampling rate allows) and
+``observer_effects``.
 """
 
 from estimators import (
@@ -26,12 +27,6 @@ from estimators import (
     lobes_zoa,
     observer_effects,
     residual,
-    residual_cv,
-    residual_engine,
-    residual_families,
-    residual_selection,
-    residual_shapes,
-    residual_two_inertia,
     ud_rls,
     wear,
 )
@@ -99,12 +94,6 @@ __all__ = [
     "lowpass",
     "observer_effects",
     "residual",
-    "residual_cv",
-    "residual_engine",
-    "residual_families",
-    "residual_selection",
-    "residual_shapes",
-    "residual_two_inertia",
     "rls_init",
     "rls_update",
     "ud_rls",

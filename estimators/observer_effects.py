@@ -1,6 +1,6 @@
 r"""Identified plant effects as terms of the cutting force observer (seed000 (2)-(4)).
 
-The residual analysis of a two-inertia log (:mod:`estimators.residual_two_inertia`)
+The residual analysis of a two-inertia log (:mod:`estimators.residual.two_inertia`)
 finds effects the nominal observer lacks; this module puts them *into* the observer, so
 the offline report and the live observers use the same terms. Each effect is a basis of
 functions of the measured signals, filtered by the observer's own Q(s), times fitted

@@ -84,8 +84,8 @@ from common.arrays import F64
 from estimators.errors import ParameterError, require_positive
 from estimators.filters import df2t_step, lowpass
 from estimators.hac import andrews_bandwidth, effective_rows, hac_covariance
-from estimators.residual_families import FAMILIES
-from estimators.residual_rate import LOW_RATE_HZ, low_rate_reasons
+from estimators.residual.families import FAMILIES
+from estimators.residual.rate import LOW_RATE_HZ, low_rate_reasons
 
 #: the base parameters, in column order
 BASE: tuple[str, ...] = ("M", "Fv", "Fc", "offset")

@@ -3,7 +3,7 @@
 :class:`EffectsPart` subtracts the terms of the effects the residual loop identified
 (:mod:`estimators.observer_effects`: friction asymmetry, cogging, screw lead error...)
 from the stage's fixed-parameter observer force, as
-:mod:`estimators.residual_two_inertia` does: channel ``f_effects``. With no effect
+:mod:`estimators.residual.two_inertia` does: channel ``f_effects``. With no effect
 installed it repeats ``f_fixed``. ``POST /api/observer-effects`` installs them
 (:meth:`EffectsPart.install`); they start from their initial state, and after a break in
 the measurements their filters start again.

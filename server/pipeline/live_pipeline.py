@@ -434,7 +434,7 @@ class LivePipeline:
     def set_observer_effects(self, effects: tuple[ObserverEffect, ...]) -> None:
         """Install identified effects (issue 4 section 4) into the live observer; ``()``
         removes them. Their terms are subtracted from the fixed-parameter observer's
-        force as :mod:`estimators.residual_two_inertia` does (channel ``f_effects``).
+        force as :mod:`estimators.residual.two_inertia` does (channel ``f_effects``).
 
         Raises
         ------

@@ -1,5 +1,5 @@
 """A measured log through the rigid residual model, with the choices its sampling rate
-allows (:func:`estimators.residual_rate.rate_plan`): the command ``cutwatch residual``
+allows (:func:`estimators.residual.rate.rate_plan`): the command ``cutwatch residual``
 and the ``cnc-mill`` reproduction build the model the same way."""
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ from server.records.measured_log import MeasuredLog
 
 
 def rigid_model(log: MeasuredLog) -> Any:
-    """The rigid model of ``log`` (:class:`estimators.residual.RigidModel`).
+    """The rigid model of ``log`` (:class:`estimators.residual.rigid.RigidModel`).
 
     The controller's velocity and acceleration are used when the log maps ``qd_m``
     (``qdd_m``); the record is cut where rows were left out; the ``load`` family is
@@ -20,9 +20,9 @@ def rigid_model(log: MeasuredLog) -> Any:
     ``--nominal-rows`` marks; below 100 Hz only the families a static map can identify
     are offered, the others named with the reason.
     """
-    from estimators.residual import RigidModel
-    from estimators.residual_families import FAMILIES as REGISTRY
-    from estimators.residual_rate import rate_plan
+    from estimators.residual.families import FAMILIES as REGISTRY
+    from estimators.residual.rate import rate_plan
+    from estimators.residual.rigid import RigidModel
 
     qd = log.columns.get("qd_m")
     plan = rate_plan(log.sample_time, velocity_given=qd is not None)
@@ -43,7 +43,7 @@ def rigid_model(log: MeasuredLog) -> Any:
 
 def model_notes(log: MeasuredLog, kind: str = "rigid") -> list[str]:
     """What the report says about the rate, the rows used and the effort's unit."""
-    from estimators.residual_rate import rate_plan
+    from estimators.residual.rate import rate_plan
 
     notes: list[str] = []
     if kind == "rigid":
@@ -80,7 +80,7 @@ def analyse_cnc_axis(
     """One axis of a CNC export through the loop; the report's numbers as a dict."""
     import numpy as np
 
-    from estimators.residual_engine import ResidualParams, analyse
+    from estimators.residual.engine import ResidualParams, analyse
     from server.records.measured_log import load_log
     from server.records.row_select import RowSelection
 

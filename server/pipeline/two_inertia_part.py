@@ -42,7 +42,7 @@ import numpy as np
 
 from common.errors import ParameterError
 from common.machine_description import MachineDescription
-from estimators.residual_rate import LOW_RATE_HZ
+from estimators.residual.rate import LOW_RATE_HZ
 from estimators.rigid_id import RigidIdentifier, RigidIdState, rigid_design
 from estimators.twist_id import TwistIdentifier, TwistIdParams, TwistIdState, mode_hz
 from server.pipeline.axis_monitor_part import CUT_W

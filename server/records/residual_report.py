@@ -21,8 +21,8 @@ from typing import Any
 import numpy as np
 
 from common.jsonsafe import json_safe
-from estimators.residual_engine import ResidualResult
-from estimators.residual_families import FAMILIES as RIGID_FAMILIES
+from estimators.residual.engine import ResidualResult
+from estimators.residual.families import FAMILIES as RIGID_FAMILIES
 from server.records.measured_log import MeasuredLog
 
 

@@ -41,7 +41,8 @@ _STEP_RE = re.compile(r"residual:\s*(\d+)\s*step")
 
 def max_steps(kind: str | None) -> int:
     """The most progress steps of an analysis of ``kind`` (1 + families x rounds)."""
-    from estimators import residual, residual_two_inertia
+    from estimators.residual import rigid as residual
+    from estimators.residual import two_inertia as residual_two_inertia
 
     if kind == "rigid":
         return 2 + len(residual.FAMILIES) * residual.RigidModel.max_effects

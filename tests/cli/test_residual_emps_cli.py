@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from estimators.residual_families import FAMILIES
+from estimators.residual.families import FAMILIES
 from server.cli.main import main
 from server.records.measured_log import write_log
 

@@ -5,9 +5,9 @@ from __future__ import annotations
 
 from common.effects import CANONICAL_EFFECT_NAMES, REAL_DRIVE_EFFECT_NAMES
 from estimators.observer_effects import COLUMNS, SIDES
-from estimators.residual import FAMILIES, NOT_OFFERED
-from estimators.residual_two_inertia import FAMILIES as FAMILIES_TWO_INERTIA
-from estimators.residual_two_inertia import NOT_OFFERED_TWO_INERTIA
+from estimators.residual.rigid import FAMILIES, NOT_OFFERED
+from estimators.residual.two_inertia import FAMILIES as FAMILIES_TWO_INERTIA
+from estimators.residual.two_inertia import NOT_OFFERED_TWO_INERTIA
 from machine.effects import EFFECT_NAMES
 
 EFFECTS = set(CANONICAL_EFFECT_NAMES) - {"none"}

@@ -21,10 +21,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from estimators.residual import RigidModel
-from estimators.residual_cv import cross_validate
-from estimators.residual_engine import ResidualParams, analyse
-from estimators.residual_families import (
+from estimators.residual.cv import cross_validate
+from estimators.residual.engine import ResidualParams, analyse
+from estimators.residual.families import (
     CANONICAL,
     DRIVE,
     FAMILIES,
@@ -34,6 +33,7 @@ from estimators.residual_families import (
     cv_order,
     position_periodogram,
 )
+from estimators.residual.rigid import RigidModel
 
 N = 20_000
 TS = 1e-3
@@ -69,7 +69,7 @@ def only(name: str, q: np.ndarray, f: np.ndarray, t: np.ndarray):
 
 
 def test_every_family_has_a_meaning_and_is_offered() -> None:
-    from estimators.residual import FAMILIES as OFFERED
+    from estimators.residual.rigid import FAMILIES as OFFERED
 
     for fam in DRIVE:
         assert (fam.name in OFFERED) == (fam.name in NAMES) == (fam.name not in NOT_OFFERED)
@@ -128,7 +128,7 @@ def test_position_friction_profile_per_direction() -> None:
 def direct_fit(name: str, q: np.ndarray, f: np.ndarray, t: np.ndarray):
     """Shape search on the nominal model's residual, then the joint least squares: the
     family's own parts, for families not offered to the analysis."""
-    from estimators.residual import signals
+    from estimators.residual.rigid import signals
 
     sig = signals(q, f, t, TS)
     nominal_cols = np.column_stack([sig.qdd, sig.qd, np.sign(sig.qd), np.ones(len(sig.t))])

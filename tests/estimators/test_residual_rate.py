@@ -7,7 +7,7 @@ import pytest
 
 from estimators.errors import ParameterError
 from estimators.idim import IdimParams
-from estimators.residual_rate import LOW_RATE_FAMILIES, rate_plan
+from estimators.residual.rate import LOW_RATE_FAMILIES, rate_plan
 
 
 @pytest.mark.parametrize("ts", [1e-3, 4e-4, 1e-4])

@@ -1,4 +1,4 @@
-"""The selection's test of the per-group reductions (estimators.residual_selection.verdict).
+"""The selection's test of the per-group reductions (estimators.residual.selection.verdict).
 
 An effect that acts at events puts its gain into the few groups holding them; the
 signed-rank test must find it where Student's t does not, and must keep its level when
@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from estimators.errors import ParameterError
-from estimators.residual_selection import OutOfFold, SelectionParams, verdict
+from estimators.residual.selection import OutOfFold, SelectionParams, verdict
 
 N_GROUPS = 20
 ROWS = 50  # rows per group

@@ -4,6 +4,7 @@ file, read back and stepped on gives what the original state gives, bit for bit.
 from __future__ import annotations
 
 import json
+import re
 from collections.abc import Callable
 from dataclasses import fields, is_dataclass
 from pathlib import Path
@@ -212,3 +213,27 @@ def test_a_state_written_before_the_wear_models_moved_reads_as_now() -> None:
     assert sorted(again_arrays) == sorted(arrays)
     for k, a in arrays.items():
         np.testing.assert_array_equal(again_arrays[k], a)
+
+
+def test_a_state_written_before_the_residual_loop_moved_reads_as_now() -> None:
+    # estimators/residual_engine.py became estimators/residual/engine.py and
+    # estimators/residual.py estimators/residual/rigid.py (issue 34 item 4): a state naming
+    # the old modules (common.state_io.MOVED) reads as now
+    from common.state_io import decode, encode
+    from estimators.residual.engine import ResidualParams
+
+    params = ResidualParams()
+    tree, arrays = encode({"residual": params})
+    text = json.dumps(tree)
+    assert '"estimators.residual.engine:ResidualParams"' in text
+    named = set(re.findall(r"estimators\.residual\.(\w+):", text))
+    assert "engine" in named
+    old = re.sub(
+        r"estimators\.residual\.(\w+):",
+        lambda m: "estimators.residual:" if m[1] == "rigid" else f"estimators.residual_{m[1]}:",
+        text,
+    )
+    assert "estimators.residual." not in old
+    back = decode(json.loads(old), arrays)
+    assert type(back["residual"]) is ResidualParams
+    assert back["residual"] == params

@@ -9,7 +9,7 @@ Examples::
 
 The nominal model (rigid: IDIM-LS, estimators.idim; two_inertia: the cutting force
 observer with the log's nominal parameters) is fitted on the first part of the record
-(1 - --holdout). Candidate effects (estimators.residual_engine) are selected greedily by
+(1 - --holdout). Candidate effects (estimators.residual.engine) are selected greedily by
 blocked cross-validation inside that fitting part: per round, each family's shape is
 searched again inside every training fold, its out-of-fold error reduction where it
 acts is tested (Holm over the round's candidates) and must remove a quarter of the
@@ -123,7 +123,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from estimators.errors import ParameterError
-    from estimators.residual_engine import ResidualParams, analyse, apply
+    from estimators.residual.engine import ResidualParams, analyse, apply
     from server.errors import CutwatchError
     from server.pipeline.residual_run import model_notes
     from server.records.measured_log import load_log, load_meta
@@ -174,7 +174,7 @@ def _model(kind: str, log: Any, args: argparse.Namespace) -> Any:
     """The residual model of ``log``: the rigid axis, or the observer with its nominal
     parameters, its reference force or the ``--air-cut`` segments."""
     from estimators.errors import ParameterError
-    from estimators.residual_two_inertia import TwoInertiaModel
+    from estimators.residual.two_inertia import TwoInertiaModel
     from server.errors import CutwatchError
     from server.pipeline.residual_run import rigid_model
 
@@ -268,7 +268,7 @@ def parse_air_cuts(specs: list[str], t: Any, where: str) -> Any:
 
 def _observer_inputs(log: Any) -> tuple[Any, Any]:
     from estimators.errors import ParameterError
-    from estimators.residual_two_inertia import nominal_observer
+    from estimators.residual.two_inertia import nominal_observer
     from server.errors import CutwatchError
 
     if "q_l" not in log.columns:

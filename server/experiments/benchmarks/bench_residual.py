@@ -31,8 +31,8 @@ def _record(n: int, seed: int = 0) -> dict[str, np.ndarray]:
 
 def measure(*, repeats: int, quick: bool) -> Figures:
     """Median wall time of the residual analysis of one record (seconds)."""
-    from estimators.residual import RigidModel
-    from estimators.residual_engine import analyse
+    from estimators.residual.engine import analyse
+    from estimators.residual.rigid import RigidModel
     from server.records.measured_log import load_log, write_log
     from server.records.residual_report import write_report
 

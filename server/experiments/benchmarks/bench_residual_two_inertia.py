@@ -19,8 +19,8 @@ from server.experiments.benchmarks import Figures
 def measure(*, repeats: int, quick: bool) -> Figures:
     """Median wall time of one analysis (seconds) and its real-time factor."""
     from estimators.force_observer import LoadParams
-    from estimators.residual_engine import analyse
-    from estimators.residual_two_inertia import TwoInertiaModel
+    from estimators.residual.engine import analyse
+    from estimators.residual.two_inertia import TwoInertiaModel
     from machine.effects import PlantEffects
     from machine.stage import StageConfig, StageSim
     from server.pipeline.stage_run import observer_params_for

@@ -3,11 +3,11 @@
 Every case is one seed of one family at one record length, for both kinds of log:
 
 * ``rigid``: the closed-form rigid axis of :func:`server.experiments.residual_logs.rigid_log`
-  (1 kHz), analysed by :func:`estimators.residual_engine.analyse` through
-  :class:`estimators.residual.RigidModel`;
+  (1 kHz), analysed by :func:`estimators.residual.engine.analyse` through
+  :class:`estimators.residual.rigid.RigidModel`;
 * ``two_inertia``: the simulator as ``cutwatch simulate --seed N`` runs it
   (:func:`server.experiments.residual_logs.simulate_stage`, 2.5 kHz), analysed by
-  :class:`estimators.residual_two_inertia.TwoInertiaModel` against its ``f_ext``.
+  :class:`estimators.residual.two_inertia.TwoInertiaModel` against its ``f_ext``.
 
 A seed draws the motion program, the noise and the effect's magnitude (x 0.7 ... 1.3 of
 the default) and phase. Rows per kind, family and length:
@@ -135,8 +135,8 @@ def _ratio(sq0: np.ndarray, sq1: np.ndarray) -> float:
 
 
 def _rigid(family: str, seconds: float, seed: int, max_effects: int | None = None) -> Any:
-    from estimators.residual import RigidModel
-    from estimators.residual_engine import ResidualParams, analyse
+    from estimators.residual.engine import ResidualParams, analyse
+    from estimators.residual.rigid import RigidModel
 
     cols = rigid_log(family, int(round(seconds * 1000)), seed)
     model = RigidModel(cols["q_m"], cols["tau_m"], cols["t"], 1e-3)
@@ -151,8 +151,8 @@ def _rigid_where(res: Any, family: str) -> np.ndarray:
 
 
 def _stage(family: str, seconds: float, seed: int, max_effects: int | None = None) -> Any:
-    from estimators.residual_engine import ResidualParams, analyse
-    from estimators.residual_two_inertia import TwoInertiaModel, nominal_observer
+    from estimators.residual.engine import ResidualParams, analyse
+    from estimators.residual.two_inertia import TwoInertiaModel, nominal_observer
 
     effects = [] if family == "none" else [family]
     cols, side, _ = simulate_stage(stage_case(effects, seed), seconds, seed=seed)

@@ -189,7 +189,7 @@ def report_on_head(log: Any, fraction: float = SPLIT) -> tuple[dict[str, Any], t
     analysed, its report written and read back as the live model reads a REPORT.json)."""
     import json
 
-    from estimators.residual_engine import ResidualParams, analyse
+    from estimators.residual.engine import ResidualParams, analyse
     from server.pipeline.residual_run import rigid_model
     from server.records.measured_log import load_log, write_log
     from server.records.residual_report import live_effects, report_dict

@@ -264,7 +264,7 @@ SUPPORT_TEXT: dict[str, str] = {
     "harmonic": "periodic in time",
     "drift": "growing with time",
     "delay": "where the effort changes quickly",
-    # the real-drive families (estimators.residual_families)
+    # the real-drive families (estimators.residual.families)
     "position_friction": "while moving, varying smoothly along the travel, per direction",
     "position_harmonics": "periodic in the position, with a part that follows the direction",
     "drive_delay": "where the whole effort changes quickly (it acts late)",

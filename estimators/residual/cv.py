@@ -12,7 +12,7 @@ is refitted on part of the record and scored on the rest, with the benchmark's m
   ``accel_quantile`` quantile, scored on the others (a proxy for a record with harder
   accelerations than the one fitted).
 
-Pure numpy; the columns are those of :mod:`estimators.residual`.
+Pure numpy; the columns are those of :mod:`estimators.residual.rigid`.
 """
 
 from __future__ import annotations
@@ -26,8 +26,8 @@ from numpy.typing import ArrayLike, NDArray
 from common.arrays import F64
 from estimators.errors import ParameterError, require_in
 from estimators.idim import IdimParams, decimate, decimated_index
-from estimators.residual import build_design, signals
-from estimators.residual_engine import Effect
+from estimators.residual.engine import Effect
+from estimators.residual.rigid import build_design, signals
 
 
 @dataclass(frozen=True)

@@ -3,12 +3,12 @@ r"""The rigid residual model: IDIM-LS of a one-position axis and its effect fami
 The nominal model is the rigid inverse dynamic model of :mod:`estimators.idim`,
 identified by IDIM-LS on the fitting part of the record (the first
 ``1 - holdout_fraction``). Each candidate effect is a family of extra regressor columns
-(the registry :data:`FAMILIES`, :mod:`estimators.residual_families`: the canonical
+(the registry :data:`FAMILIES`, :mod:`estimators.residual.families`: the canonical
 families and the real-drive ones) whose *shape* parameters (period, frequency, velocity
 scale, delay) are searched on the residual; its *linear* coefficients are refitted
 jointly with the nominal parameters. :class:`RigidModel` is this model as the engine
-(:func:`estimators.residual_engine.analyse`) uses it: the selection is blocked
-cross-validation over the fitting part (:mod:`estimators.residual_selection`); the
+(:func:`estimators.residual.engine.analyse`) uses it: the selection is blocked
+cross-validation over the fitting part (:mod:`estimators.residual.selection`); the
 held-out end is the report figure (``rms_*``, ``relerr_*`` on its decimated samples).
 
 Columns already spanned by the current model (e.g. ``offset`` in the rigid nominal, or
@@ -45,7 +45,7 @@ from estimators.idim import (
     kinematics,
     rigid_regressor,
 )
-from estimators.residual_engine import (
+from estimators.residual.engine import (
     Effect,
     Extension,
     ResidualParams,
@@ -54,13 +54,13 @@ from estimators.residual_engine import (
     Selection,
     Shape,
 )
-from estimators.residual_families import FAMILIES as REGISTRY
-from estimators.residual_families import LOAD, OFFERED, Family, SearchData
-from estimators.residual_rate import column_kinematics, rate_plan
-from estimators.residual_selection import Fold, OutOfFold, SelectionParams, support
-from estimators.residual_shapes import SEARCH_SAMPLES, unexplained_structure
+from estimators.residual.families import FAMILIES as REGISTRY
+from estimators.residual.families import LOAD, OFFERED, Family, SearchData
+from estimators.residual.rate import column_kinematics, rate_plan
+from estimators.residual.selection import Fold, OutOfFold, SelectionParams, support
+from estimators.residual.shapes import SEARCH_SAMPLES, unexplained_structure
 
-#: the rigid model's family registry (estimators.residual_families: one entry per family)
+#: the rigid model's family registry (estimators.residual.families: one entry per family)
 FAMILIES: Mapping[str, Family] = OFFERED
 #: canonical families (docs/design.md) not offered for a rigid one-position log, with the
 #: reason
@@ -76,7 +76,7 @@ ROWS_PER_BLOCK = 40
 
 def idim_for_rate(sample_time: float) -> IdimParams:
     """The filtering and decimation of the nominal fit for a record sampled every
-    ``sample_time`` seconds (:func:`estimators.residual_rate.rate_plan`: the benchmark's
+    ``sample_time`` seconds (:func:`estimators.residual.rate.rate_plan`: the benchmark's
     pipeline at 1 kHz and above, its proportions below)."""
     return rate_plan(sample_time).idim
 
@@ -288,7 +288,7 @@ class RigidFit:
 class RigidModel:
     """The rigid axis :math:`\\tau = M\\ddot q + F_v\\dot q + F_c\\,\\mathrm{sign}(\\dot q) +
     \\tau_{off}` by IDIM-LS (:mod:`estimators.idim`) as a residual model for
-    :func:`estimators.residual_engine.analyse`.
+    :func:`estimators.residual.engine.analyse`.
 
     Parameters
     ----------

@@ -8,7 +8,7 @@ names, shape search, derived figures, meaning): the canonical families (docs/des
 (:data:`CANONICAL`: offset, inertia, viscous, coulomb_asymmetry, stribeck,
 position_periodic, harmonic, delay, drift; columns in the comment above it) and the
 real-drive families (:data:`DRIVE`, below); :data:`OFFERED` is what
-:class:`estimators.residual.RigidModel` offers, which refits the coefficients jointly
+:class:`estimators.residual.rigid.RigidModel` offers, which refits the coefficients jointly
 with the nominal ones. The real-drive families, with :math:`v = \dot q`,
 :math:`a = \ddot q`, :math:`d_+ = 1[v > 0]`, :math:`d_- = 1[v < 0]`,
 :math:`x = 2 (q - q_{min}) / (q_{max} - q_{min}) - 1` clipped to [-1, 1]:
@@ -69,7 +69,7 @@ from numpy.typing import NDArray
 from common.arrays import F64
 from estimators.errors import ParameterError
 from estimators.idim import rigid_regressor
-from estimators.residual_shapes import (
+from estimators.residual.shapes import (
     gap_filled,
     project_rss,
     refine_grid,

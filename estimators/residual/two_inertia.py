@@ -22,8 +22,8 @@ channels, both at :math:`t_{k-1}` and filtered by Q(s):
 
 The held-out error is the rms over both channels,
 :math:`\sqrt{\overline{(e_F^2 + e_S^2)}/2}`; the rms of each channel is reported too.
-Selection is the engine's (:func:`estimators.residual_engine.analyse`, the rule of
-:mod:`estimators.residual_selection`) over :class:`TwoInertiaModel`; the folds cut the
+Selection is the engine's (:func:`estimators.residual.engine.analyse`, the rule of
+:mod:`estimators.residual.selection`) over :class:`TwoInertiaModel`; the folds cut the
 valid rows of both channels alike.
 The observer's own discretisation floor is part of the nominal model: a baseline column
 for the sampling error of eq. (2)'s Coulomb term (the sign of a velocity that crosses
@@ -48,7 +48,6 @@ from numpy.typing import ArrayLike, NDArray
 
 from common.arrays import F64
 from common.stats import rms
-from estimators import residual_engine as engine
 from estimators.errors import ParameterError, require_in
 from estimators.filters import DiscreteFilter, lowpass
 from estimators.force_observer import (
@@ -70,8 +69,9 @@ from estimators.observer_effects import (
     signature,
     stribeck_basis,
 )
-from estimators.residual_selection import Fold, OutOfFold, SelectionParams, support
-from estimators.residual_shapes import (
+from estimators.residual import engine as engine
+from estimators.residual.selection import Fold, OutOfFold, SelectionParams, support
+from estimators.residual.shapes import (
     gap_filled,
     project_rss,
     refine_grid,
@@ -461,7 +461,7 @@ class TwoInertiaFit:
 
 class TwoInertiaModel:
     """The cutting force observer (seed 000) with a log's nominal parameters as a
-    residual model for :func:`estimators.residual_engine.analyse`.
+    residual model for :func:`estimators.residual.engine.analyse`.
 
     Parameters
     ----------

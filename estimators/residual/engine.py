@@ -6,9 +6,9 @@ the current model plus a candidate on the fitting part and out of each fold, and
 its result holds. :func:`analyse` owns what is common: the rounds, the screening and
 the shape search again inside each training fold, Holm over a round's candidates, the
 minimum effect size, ties and the ambiguity report (the rule and its reasons:
-:mod:`estimators.residual_selection`, docs/residual-selection.md). The two models are
-:class:`estimators.residual.RigidModel` (IDIM-LS of a rigid axis) and
-:class:`estimators.residual_two_inertia.TwoInertiaModel` (the cutting force observer).
+:mod:`estimators.residual.selection`, docs/residual-selection.md). The two models are
+:class:`estimators.residual.rigid.RigidModel` (IDIM-LS of a rigid axis) and
+:class:`estimators.residual.two_inertia.TwoInertiaModel` (the cutting force observer).
 
 Per round, every family not yet selected is scored: its shape is searched on the
 residual of the whole fitting part; a family that adds no column the current model
@@ -35,7 +35,7 @@ import numpy as np
 
 from common.arrays import F64
 from estimators.errors import ParameterError, require_in
-from estimators.residual_selection import (
+from estimators.residual.selection import (
     Ambiguity,
     Fold,
     OutOfFold,
@@ -87,8 +87,8 @@ class ResidualParams:
 
 class FamilyEntry(Protocol):
     """What the engine asks of an effect family of any model's registry (the rigid
-    model's :class:`estimators.residual_families.Family`, the two-inertia model's
-    :class:`estimators.residual_two_inertia.TwoInertiaFamily`): whether it has a shape to search
+    model's :class:`estimators.residual.families.Family`, the two-inertia model's
+    :class:`estimators.residual.two_inertia.TwoInertiaFamily`): whether it has a shape to search
     again inside each training fold."""
 
     @property
@@ -394,8 +394,8 @@ def analyse(
     Parameters
     ----------
     model : ResidualModel
-        The record through a model: :class:`estimators.residual.RigidModel` or
-        :class:`estimators.residual_two_inertia.TwoInertiaModel`.
+        The record through a model: :class:`estimators.residual.rigid.RigidModel` or
+        :class:`estimators.residual.two_inertia.TwoInertiaModel`.
     params : ResidualParams
         Settings.
     progress : callable, optional
