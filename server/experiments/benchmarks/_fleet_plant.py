@@ -12,7 +12,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import httpx
 import numpy as np
@@ -26,6 +26,9 @@ from server.experiments.benchmarks.bench_fleet import (
     _stop,
     _wait_http,
 )
+
+if TYPE_CHECKING:
+    from server.experiments.benchmarks._plant_centres import PlantTruth
 
 #: share of the window that is the steady state (then worker 0 is killed and restarted)
 STEADY = 0.4
@@ -211,7 +214,7 @@ class _Events:
 
 def _drive_log(
     log: Path, seconds: float, centres: bool, progress: bool, speed: float = 1.0
-) -> dict[str, Any]:
+) -> PlantTruth | None:
     """The log the feeder replays: a machining centre's recorded trace (its events' truth
     returned) or the simulated stage (no truth)."""
     if centres:
@@ -228,7 +231,7 @@ def _drive_log(
         _cutwatch("simulate", "--out", str(log), "--seconds", str(seconds + 120)),
         check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
     )  # fmt: skip
-    return {}
+    return None
 
 
 def _clocks(plant: _Plant) -> dict[str, tuple[float | None, float | None]]:
@@ -249,7 +252,7 @@ def _clocks(plant: _Plant) -> dict[str, tuple[float | None, float | None]]:
 
 def _scored(
     events: _Events,
-    truth: dict[str, Any],
+    truth: PlantTruth,
     names: list[str],
     clocks: dict[str, tuple[float | None, float | None]],
 ) -> Figures:
@@ -263,7 +266,13 @@ def _scored(
     t_read = min(read) if len(read) == len(names) else 0.0  # a machine not read: none due
     raised = on_machine_clock({m: events.raised.get(m, []) for m in names}, origins)
     sc = score(truth["events"], raised, min(t_read, float(truth["seconds"])))
-    out: Figures = {f"monitor.{k}": v for k, v in sc.items()}
+    out: Figures = {
+        "monitor.events_due": sc["events_due"],
+        "monitor.found": sc["found"],
+        "monitor.beside": sc["beside"],
+        "monitor.false": sc["false"],
+        "monitor.detection": sc["detection"],
+    }
     out["monitor.events_in_trace"] = len(truth["events"])
     out["monitor.teach_parts"] = truth["teach_parts"]
     # the log's time the slowest machine's pipeline had read (not the wall time since
@@ -377,7 +386,7 @@ def run_plant(
             hs = [plant.health(i) for i in range(workers)]
             out["workers.dropped_samples"] = sum(int(h.get("dropped_samples", 0)) for h in hs)
             out["workers.loop_ms_p50"] = max(float(h.get("loop_ms_p50") or 0) for h in hs)
-            if events is not None:
+            if events is not None and truth is not None:  # both with centres
                 out.update(_scored(events, truth, plant.names, _clocks(plant)))
     finally:
         if events is not None:

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Any
+from typing import Any, TypedDict
 
 import numpy as np
 
@@ -31,6 +31,37 @@ MATCH_S = 10.0
 EARLY_S = 0.1
 
 
+class TrueEvent(TypedDict):
+    """An event the trace holds (its truth): kind, time on the log's clock [s], G-code
+    line, tool, size."""
+
+    kind: str
+    t: float
+    line: int
+    tool: int
+    size: float
+
+
+class PlantTruth(TypedDict):
+    """A recorded trace's truth (:func:`record`; ``<stem>.events.json``)."""
+
+    events: list[TrueEvent]
+    teach_parts: int
+    seconds: float
+    program: str
+    rate_hz: float
+
+
+class Score(TypedDict):
+    """The monitors' events scored against the truth (:func:`score`)."""
+
+    events_due: int
+    found: int
+    beside: int
+    false: int
+    detection: float
+
+
 def record(
     path: Path,
     *,
@@ -40,7 +71,7 @@ def record(
     rate_hz: float = 500.0,
     event_rate: float = 0.5,
     teach_parts: int = 5,
-) -> dict[str, Any]:
+) -> PlantTruth:
     """Write ``seconds`` of machine ``index``'s trace at ``rate_hz`` to ``path`` (CSV +
     sidecar) and its events' truth to ``<stem>.events.json``; returns that truth."""
     from common.event_kinds import ProcessEventKind
@@ -60,7 +91,7 @@ def record(
     cuts = [b.line for b in machine.program.blocks if b.cut is not None]
     chunk = trace.factor * max(1, round(0.1 * rate_hz))  # 100 ms of trace
     parts: list[dict[str, Any]] = []
-    events: list[dict[str, Any]] = []
+    events: list[TrueEvent] = []
     part = -1
     broken: set[int] = set()
     while state.k * machine.sample_time < seconds:
@@ -86,8 +117,9 @@ def record(
     cols = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
     side = {**signals.description_dict(machine.params, rate_hz), "program": machine.program.name}
     write_log(path, cols, side)
-    truth = {"events": events, "teach_parts": teach_parts, "seconds": float(cols["t"][-1]),
-             "program": machine.program.name, "rate_hz": rate_hz}  # fmt: skip
+    truth: PlantTruth = {"events": events, "teach_parts": teach_parts,
+                         "seconds": float(cols["t"][-1]), "program": machine.program.name,
+                         "rate_hz": rate_hz}  # fmt: skip
     Path(path).with_suffix(".events.json").write_text(json.dumps(truth, indent=1))
     return truth
 
@@ -106,9 +138,7 @@ def on_machine_clock(
     return out
 
 
-def score(
-    truth: list[dict[str, Any]], raised: dict[str, list[dict[str, Any]]], t_end: float
-) -> dict[str, Any]:
+def score(truth: list[TrueEvent], raised: dict[str, list[dict[str, Any]]], t_end: float) -> Score:
     """Per machine, each true event that the feed reached (``t < t_end``, the log's time
     the window covered) is found when the machine raised an event of its kind on its
     G-code line from :data:`EARLY_S` before it to :data:`MATCH_S` after it. Every other
@@ -117,7 +147,7 @@ def score(
     lost also reads as a breakage), else ``false``. ``raised``: per machine, its events
     as ``{"kind", "t", "line"}`` on the machine's clock (:func:`on_machine_clock`)."""
 
-    def near(r: dict[str, Any], e: dict[str, Any]) -> bool:
+    def near(r: dict[str, Any], e: TrueEvent) -> bool:
         return bool(r.get("line") == e["line"] and e["t"] - EARLY_S <= r["t"] <= e["t"] + MATCH_S)
 
     due = [e for e in truth if e["t"] < t_end - MATCH_S]

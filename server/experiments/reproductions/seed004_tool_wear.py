@@ -22,6 +22,7 @@ from __future__ import annotations
 import itertools
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import TypedDict
 
 import numpy as np
 
@@ -194,7 +195,23 @@ def _force_observer_errors(n_passes: int, pass_seconds: float, seed: int) -> np.
     return errs
 
 
-def _life_run(force_errors: np.ndarray, rng: np.random.Generator) -> dict[str, object]:
+class LifeRun(TypedDict):
+    """One tool cut to its life (:func:`_life_run`): per pass the time [min], true VB and
+    crater, force; the true life [min]; the monitor's records fed the dynamometer's and
+    the estimated force (``vb``, ``vb_trend``, ``remaining_life``, its sd, ``warning``,
+    ``alarm``); the monitor's parameters."""
+
+    t: np.ndarray
+    vb: np.ndarray
+    crater: np.ndarray
+    F: np.ndarray
+    life: float
+    dyn: dict[str, np.ndarray]
+    est: dict[str, np.ndarray]
+    params: ToolLifeParams
+
+
+def _life_run(force_errors: np.ndarray, rng: np.random.Generator) -> LifeRun:
     """Cut passes until VB = 0.3 mm; monitor fed dynamometer and estimated force."""
     true_w = AcceleratedToolWear(feed=FEED, wear_minutes_per_second=1.0)
     mon = ToolLifeMonitor(true_w.monitor.params)
@@ -664,15 +681,14 @@ def rows_wear(run: _ObserverRun) -> Section:
     return rows, []
 
 
-def rows_life(life: dict[str, object], ferr: np.ndarray, pass_seconds: float) -> Section:
+def rows_life(life: LifeRun, ferr: np.ndarray, pass_seconds: float) -> Section:
     """Beyond the paper: sensorless tool life, dynamometer and estimated force."""
     rows: list[Row] = []
     checks: list[Check] = []
     t = np.asarray(life["t"])
     vb = np.asarray(life["vb"])
-    life_min = float(life["life"])  # type: ignore[arg-type]
+    life_min = float(life["life"])
     dyn, est = life["dyn"], life["est"]
-    assert isinstance(dyn, dict) and isinstance(est, dict)
     mask = (t >= 2.0) & (vb <= VB_LIMIT_MM)
     rel_dyn = _rel_rms(dyn["vb"], vb, mask)
     rel_est = _rel_rms(est["vb"], vb, mask)
@@ -780,12 +796,11 @@ def rows_life(life: dict[str, object], ferr: np.ndarray, pass_seconds: float) ->
     return rows, checks
 
 
-def rows_mismatch(life: dict[str, object]) -> Section:
+def rows_mismatch(life: LifeRun) -> Section:
     """Remaining life of tools whose wear constants differ from the monitor's."""
     rows: list[Row] = []
     checks: list[Check] = []
     mon_params = life["params"]
-    assert isinstance(mon_params, ToolLifeParams)
     worst_sigma = 0.0
     for case, kw in MISMATCH.items():
         # the monitor keeps the nominal constants (off-line knowledge)
@@ -854,7 +869,7 @@ def run(
 
 
 def _plots(
-    out: Path, tr: object, rec: object, ks: np.ndarray, x0_run: np.ndarray, life: dict[str, object]
+    out: Path, tr: object, rec: object, ks: np.ndarray, x0_run: np.ndarray, life: LifeRun
 ) -> list[str]:
     import matplotlib
 
@@ -902,7 +917,6 @@ def _plots(
     tl = np.asarray(life["t"])
     est = life["est"]
     dyn = life["dyn"]
-    assert isinstance(est, dict) and isinstance(dyn, dict)
     fig, axs = plt.subplots(2, 1, figsize=(8, 7), sharex=True)
     axs[0].plot(tl, np.asarray(life["vb"]), "k-", label="true VB")
     axs[0].plot(tl, dyn["vb"], ".", ms=2, label="dynamometer")
@@ -911,7 +925,7 @@ def _plots(
     axs[0].axhline(VB_LIMIT_MM, color="grey", ls="--")
     axs[0].set_ylabel("flank wear VB [mm]")
     axs[0].legend()
-    life_min = float(life["life"])  # type: ignore[arg-type]
+    life_min = float(life["life"])
     axs[1].plot(tl, np.maximum(life_min - tl, 0), "k-", label="true remaining life")
     rul = est["remaining_life"]
     sd = est["remaining_life_sd"]
