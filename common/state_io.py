@@ -68,6 +68,9 @@ MOVED = {
         f"estimators.residual_{m}": f"estimators.residual.{m}"
         for m in ("cv", "engine", "families", "rate", "selection", "shapes", "two_inertia")
     },
+    # ... and the process monitors (the live process and spindle parts checkpoint them)
+    "estimators.process_monitor": "estimators.monitoring.process",
+    "estimators.spindle_power": "estimators.monitoring.spindle_power",
 }
 
 

@@ -12,8 +12,9 @@ wear models), ``idim``, ``residual`` (the residual loop:
 ``residual.engine``, the one ``analyse`` over a residual model; ``residual.rigid``, the rigid
 model; ``residual.families``, its family registry; ``residual.two_inertia``, the observer
 model; ``residual.selection``, the decision rule; ``residual.shapes``, shared shape searches;
-``residual.cv``, cross-validated figures; ``residual.rate``, what a sampling rate allows) and
-``observer_effects``.
+``residual.cv``, cross-validated figures; ``residual.rate``, what a sampling rate allows),
+``monitoring`` (the process monitors: ``monitoring.process``, teach-in limits and event
+detectors; ``monitoring.spindle_power``, the spindle's cutting power) and ``observer_effects``.
 """
 
 from estimators import (
@@ -25,6 +26,7 @@ from estimators import (
     lobes,
     lobes_sd,
     lobes_zoa,
+    monitoring,
     observer_effects,
     residual,
     ud_rls,
@@ -92,6 +94,7 @@ __all__ = [
     "lobes_sd",
     "lobes_zoa",
     "lowpass",
+    "monitoring",
     "observer_effects",
     "residual",
     "rls_init",

@@ -1,7 +1,7 @@
 """The process monitor on the axes' process force, taught per (tool, program, block).
 
 :class:`AxisMonitorPart` (issue 31 item 2) runs the spindle part's detector
-(:class:`estimators.process_monitor.ProcessMonitor`, seed 003's teach-in monitor of the
+(:class:`estimators.monitoring.process.ProcessMonitor`, seed 003's teach-in monitor of the
 issue-21 part) on each axis' process force ``<axis>.F`` that the ``axes`` part
 estimates (:mod:`server.pipeline.axis_part`: the effort less the rigid model identified
 live), one monitor per axis: the magnitude of the force, its mean over a spindle
@@ -52,7 +52,7 @@ import numpy as np
 from common.errors import ParameterError
 from common.event_kinds import EventKind
 from common.machine_description import MachineDescription
-from estimators.process_monitor import Alarm, MonitorParams, ProcessMonitor
+from estimators.monitoring.process import Alarm, MonitorParams, ProcessMonitor
 from server.pipeline.block_motion import CanCut
 from server.pipeline.estimates_out import StatusStrip
 from server.pipeline.machine_view import MachineView

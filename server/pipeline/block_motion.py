@@ -4,7 +4,7 @@ A process monitor taught per (tool, program, block) judges a block that cannot c
 rapid, a tool change, a spindle start or stop, a dwell, a feed along the tool's axis
 alone) by the collision's extreme limit only: a signal's error floor there (an axis
 accelerating, a spindle running up) would otherwise be taught as a cut and its next
-execution judged against it (:mod:`estimators.process_monitor`, ``step(...,
+execution judged against it (:mod:`estimators.monitoring.process`, ``step(...,
 cutting=False)``; issue 32: 37 -> 1 false alarms in the reproduction's quick rows). The
 live parts ask :class:`CanCut`, which answers from the best the source says:
 

@@ -9,7 +9,7 @@ estimates the cutting force from the drives
 (:class:`harness.eccentricity_loop.ObserverForceSource`: the seed-000 observers on
 each feed axis, scale quantised, current noise, a 2 % mass error; never the simulator's
 force) and watches it with the teach-in monitor
-(:class:`estimators.process_monitor.ProcessMonitor`). Each block of the stage (2.5 kHz)
+(:class:`estimators.monitoring.process.ProcessMonitor`). Each block of the stage (2.5 kHz)
 advances it by the same simulated time (the fractional remainder carried over, as
 :mod:`server.pipeline.eccentricity_part` does) and its values are picked on the stage's
 sample grid: the value at the latest machine sample not after the stage sample.
@@ -59,7 +59,7 @@ import numpy as np
 from common.arrays import F64
 from common.errors import ParameterError
 from common.event_kinds import EventKind, ProcessEventKind
-from estimators.process_monitor import Alarm, MonitorParams, ProcessMonitor
+from estimators.monitoring.process import Alarm, MonitorParams, ProcessMonitor
 from harness.eccentricity_loop import ObserverForceSource
 from machine.milling import MillingRecord
 from machine.process import (

@@ -2,7 +2,7 @@
 
 :class:`SpindlePart` (issue 31 phase 2, step b) reads a described machine's spindle
 signals (its ``speed`` [rpm] and ``power`` [W], by the machine description's column
-names) and runs :class:`estimators.spindle_power.IdlePower`: the idle power taught per
+names) and runs :class:`estimators.monitoring.spindle_power.IdlePower`: the idle power taught per
 speed while the spindle turns in the air, and the cutting power, the power less that
 idle power (NaN until a speed has been taught, and while the speed changes: not known,
 never a guess). Its charts, on the operator's page: the cutting power with the
@@ -11,7 +11,7 @@ monitor's limits (``spindle``), and the spindle's power with the taught idle pow
 cut of a few hundred watts on one chart). It also says which tool, line and program
 the CNC is at (the identities), the status strip's ``tool``, ``program``, ``line``.
 
-The process monitor (:class:`estimators.process_monitor.ProcessMonitor`, seed 003's
+The process monitor (:class:`estimators.monitoring.process.ProcessMonitor`, seed 003's
 teach-in monitor of the issue-21 part) watches the cutting power, taught per (tool,
 program, block) as industrial monitors teach limits on spindle power: a block's
 execution is the samples between two changes of the CNC's line; the spindle angle is
@@ -45,8 +45,8 @@ import numpy as np
 from common.errors import ParameterError
 from common.event_kinds import EventKind
 from common.machine_description import MachineDescription
-from estimators.process_monitor import Alarm, MonitorParams, ProcessMonitor
-from estimators.spindle_power import IdlePower, IdlePowerParams, IdlePowerState
+from estimators.monitoring.process import Alarm, MonitorParams, ProcessMonitor
+from estimators.monitoring.spindle_power import IdlePower, IdlePowerParams, IdlePowerState
 from server.pipeline.block_motion import CanCut
 from server.pipeline.estimates_out import StatusStrip
 from server.pipeline.machine_view import MachineView

@@ -1,6 +1,6 @@
 """The monitor's events as one record: the same shape on the stream, the broker and in the history.
 
-An event is what a detector of the process monitor (:mod:`estimators.process_monitor`)
+An event is what a detector of the process monitor (:mod:`estimators.monitoring.process`)
 or the tool-life monitor raised, with the CNC's identities of the block it happened in
 (tool, program, G-code line, part) and what the detector saw (its statistic's value and
 the limit it crossed). Every consumer takes it from here:

@@ -1,5 +1,6 @@
-"""The spindle's cutting power over the idle power taught per speed (estimators/spindle_power.py),
-on synthetic data and on the simulated machining centre's 500 Hz trace."""
+"""The spindle's cutting power over the idle power taught per speed
+(estimators/monitoring/spindle_power.py), on synthetic data and on the simulated machining
+centre's 500 Hz trace."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ import numpy as np
 import pytest
 
 from estimators.errors import ParameterError
-from estimators.spindle_power import IdlePower, IdlePowerParams
+from estimators.monitoring.spindle_power import IdlePower, IdlePowerParams
 from machine.centre.sim import MachiningCentre
 from machine.centre.trace import CncTrace, TraceParams
 

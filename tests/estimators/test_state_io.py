@@ -237,3 +237,28 @@ def test_a_state_written_before_the_residual_loop_moved_reads_as_now() -> None:
     back = decode(json.loads(old), arrays)
     assert type(back["residual"]) is ResidualParams
     assert back["residual"] == params
+
+
+def test_a_state_written_before_the_process_monitors_moved_reads_as_now() -> None:
+    # estimators/process_monitor.py became estimators/monitoring/process.py and
+    # estimators/spindle_power.py estimators/monitoring/spindle_power.py (issue 34 item 4):
+    # the live process and spindle parts' checkpoints named the old modules
+    # (common.state_io.MOVED) and must still load after the upgrade
+    from common.state_io import decode, encode
+    from estimators.monitoring.process import MonitorParams, ProcessMonitor
+    from estimators.monitoring.spindle_power import IdlePower, IdlePowerParams, IdlePowerState
+
+    idle = IdlePower(IdlePowerParams(sample_time=0.01))
+    saved = {"monitor": ProcessMonitor(MonitorParams()), "idle": idle, "s": idle.initial_state()}
+    tree, arrays = encode(saved)
+    text = json.dumps(tree)
+    assert '"estimators.monitoring.process:ProcessMonitor"' in text
+    assert '"estimators.monitoring.spindle_power:IdlePowerState"' in text
+    old = text.replace("estimators.monitoring.process:", "estimators.process_monitor:")
+    old = old.replace("estimators.monitoring.spindle_power:", "estimators.spindle_power:")
+    assert "estimators.monitoring." not in old
+    back = decode(json.loads(old), arrays)
+    assert type(back["monitor"]) is ProcessMonitor
+    assert type(back["idle"]) is IdlePower
+    assert type(back["s"]) is IdlePowerState
+    assert json.dumps(encode(back)[0]) == text

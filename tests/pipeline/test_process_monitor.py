@@ -1,4 +1,4 @@
-"""Teach-in envelopes and the detectors of estimators/process_monitor.py on simulated parts.
+"""Teach-in envelopes and the detectors of estimators/monitoring/process.py on simulated parts.
 
 The force the monitor sees is the drives' estimate (the seed 000 observer on each feed
 axis, scale quantised, current noise), never the simulator's true force.
@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from estimators.errors import ParameterError
-from estimators.process_monitor import MonitorParams, ProcessMonitor
+from estimators.monitoring.process import MonitorParams, ProcessMonitor
 from harness.eccentricity_loop import ObserverForceSource
 from machine.process import ProcessEvent, ProcessMachine, default_program
 

@@ -3,12 +3,12 @@ r"""The process monitor on the machining centre, at a CNC's trace rates (issue 3
 Each seed's machining centre (:mod:`machine.centre`) is simulated **once**, at 10 kHz;
 every chunk of it is exported as the CNC's trace at 5 kHz, 1 kHz and 500 Hz (point
 samples, :class:`machine.centre.trace.CncTrace`), and each trace is watched on three
-signal sets by the same :class:`estimators.process_monitor.ProcessMonitor`:
+signal sets by the same :class:`estimators.monitoring.process.ProcessMonitor`:
 
 ``spindle``
     the spindle drive alone: the cutting torque from its current and measured speed,
     :math:`T_{cut} = (K_t i\,\omega - \hat P_0(\omega)) / \omega` with the idle power
-    :math:`\hat P_0` taught per speed in the air (:class:`estimators.spindle_power.
+    :math:`\hat P_0` taught per speed in the air (:class:`estimators.monitoring.spindle_power.
     IdlePower`), as the tangential force at the tool's radius, :math:`T_{cut} / R` (the
     CNC's tool table knows the radius);
 ``axes``
@@ -216,8 +216,8 @@ class Watch:
     def __init__(self, machine: Any, rate: float) -> None:
         from estimators.filters import lowpass
         from estimators.force_observer import q_cutoff
-        from estimators.process_monitor import MonitorParams, ProcessMonitor
-        from estimators.spindle_power import IdlePower, IdlePowerParams
+        from estimators.monitoring.process import MonitorParams, ProcessMonitor
+        from estimators.monitoring.spindle_power import IdlePower, IdlePowerParams
         from machine.centre.trace import CncTrace, TraceParams
 
         self.rate = rate

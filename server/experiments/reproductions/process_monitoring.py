@@ -5,7 +5,7 @@ spindle speed, feed per tooth, depths, up/down milling; drive noise: scale resol
 current noise, observer mass error; event time and size). Per event kind
 (:data:`machine.process.EVENT_KINDS`) and size (``clear``, ``edge`` of detectability):
 
-1. teach :class:`estimators.process_monitor.ProcessMonitor` on the first good parts of a
+1. teach :class:`estimators.monitoring.process.ProcessMonitor` on the first good parts of a
    random two-cut program (tool 1; air, cut, air, cut, air);
 2. cut one more part with the event injected in a cut block, the force estimated from
    the X/Y drives by the observers (:class:`harness.eccentricity_loop.
@@ -199,7 +199,7 @@ def _noise(rng: np.random.Generator) -> dict[str, float]:
 
 
 def _setup(program: Any, rng: np.random.Generator, noise: dict[str, float], **kw: Any) -> Any:
-    from estimators.process_monitor import MonitorParams, ProcessMonitor
+    from estimators.monitoring.process import MonitorParams, ProcessMonitor
     from harness.eccentricity_loop import ObserverForceSource
     from machine.process import ProcessMachine
 
@@ -319,7 +319,7 @@ def _code(s: str) -> int:
 
 def run_free_case(case: Case) -> dict[str, Any]:
     """Event-free hours: every alarm after the teach-in is false."""
-    from estimators.process_monitor import DETECTORS
+    from estimators.monitoring.process import DETECTORS
 
     t_start = time.perf_counter()
     rng = np.random.default_rng([21, _code("none"), case.seed])
@@ -535,8 +535,8 @@ def _centre_key(r: Any) -> tuple[str, int, float]:
 
 
 _CENTRE_CODE = (
-    "estimators/process_monitor.py",
-    "estimators/spindle_power.py",
+    "estimators/monitoring/process.py",
+    "estimators/monitoring/spindle_power.py",
     "estimators/force_observer.py",
     "estimators/filters.py",
     "machine",
@@ -567,7 +567,7 @@ def run_centre(*, quick: bool, progress: bool) -> list[dict[str, Any]]:
 
 
 _CODE = (
-    "estimators/process_monitor.py",
+    "estimators/monitoring/process.py",
     "machine",
     "common",
     "harness/eccentricity_loop.py",
