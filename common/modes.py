@@ -15,8 +15,9 @@ of :math:`u\eta'` with :math:`\eta' = -\eta` for workpiece modes: both kinds ent
 chip the same way, and only the force each passes on to the machine differs (a tool
 mode loads the spindle and the feed drives, a workpiece mode the table).
 
-The simulator (:mod:`machine.regeneration`) and the stability lobes (:mod:`estimators.lobes`)
-both take a :class:`ModalModel`; it lives here so that they share one definition.
+The simulator (:mod:`machine.regeneration`) and the stability lobes
+(:mod:`estimators.chatter.lobes`) both take a :class:`ModalModel`; it lives here so that they
+share one definition.
 """
 
 from __future__ import annotations

@@ -71,6 +71,10 @@ MOVED = {
     # ... and the process monitors (the live process and spindle parts checkpoint them)
     "estimators.process_monitor": "estimators.monitoring.process",
     "estimators.spindle_power": "estimators.monitoring.spindle_power",
+    # ... and the stability lobes (no live state holds them today; mapped all the same)
+    "estimators.lobes": "estimators.chatter.lobes",
+    "estimators.lobes_sd": "estimators.chatter.sd",
+    "estimators.lobes_zoa": "estimators.chatter.zoa",
 }
 
 

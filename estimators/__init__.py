@@ -5,8 +5,9 @@ estimator takes measurements and parameters and returns estimates with diagnosti
 Public names of the cutting force observer and the identifiers are re-exported here; the
 other estimators are re-exported as their modules (each with its own ``__all__`` or
 documented public functions): ``dfo`` and ``imbdo`` (seed 002), ``esc`` and
-``fast_tuner`` (seed 003), ``lobes``, ``lobes_zoa`` and ``lobes_sd`` (milling stability:
-zero-order and semi-discretization, docs/chatter.md), ``ud_rls``, ``wear`` (tool wear: seed
+``fast_tuner`` (seed 003), ``chatter`` (milling stability: ``chatter.lobes``, the
+boundary and the chart, over ``chatter.zoa`` and ``chatter.sd``, the zero-order approximation
+and the semi-discretization, docs/chatter.md), ``ud_rls``, ``wear`` (tool wear: seed
 004's ``wear.linear``, ``wear.observer`` and ``wear.monitor``, the lathe's and the centre's
 wear models), ``idim``, ``residual`` (the residual loop:
 ``residual.engine``, the one ``analyse`` over a residual model; ``residual.rigid``, the rigid
@@ -18,14 +19,12 @@ detectors; ``monitoring.spindle_power``, the spindle's cutting power) and ``obse
 """
 
 from estimators import (
+    chatter,
     dfo,
     esc,
     fast_tuner,
     idim,
     imbdo,
-    lobes,
-    lobes_sd,
-    lobes_zoa,
     monitoring,
     observer_effects,
     residual,
@@ -80,6 +79,7 @@ __all__ = [
     "TorsionEstimator",
     "TorsionRecord",
     "TorsionState",
+    "chatter",
     "cutting_force",
     "cutting_force_lagged",
     "dfo",
@@ -90,9 +90,6 @@ __all__ = [
     "highpass",
     "idim",
     "imbdo",
-    "lobes",
-    "lobes_sd",
-    "lobes_zoa",
     "lowpass",
     "monitoring",
     "observer_effects",

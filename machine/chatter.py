@@ -3,7 +3,7 @@ r"""A tool with its modes cutting on a rigid machine: the chatter benchmark's si
 The cut of :mod:`machine.regeneration` with nothing else: the spindle at a set speed, the
 tool fed along X at the feed per tooth, the workpiece and the machine rigid but for the
 modes given. This is the model of Insperger and Stepan's milling benchmark (and of every
-stability lobe), so :mod:`estimators.lobes` can be checked against it; the machines with
+stability lobe), so :mod:`estimators.chatter.lobes` can be checked against it; the machines with
 feed drives (:mod:`machine.milling` with a ``structure``) use the same kernels.
 
 Definitions, used by every measurement (docs/chatter.md, "Definitions"):

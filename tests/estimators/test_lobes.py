@@ -11,9 +11,9 @@ import pytest
 from common.cut_geometry import CutGeometry
 from common.errors import ParameterError
 from common.modes import BENCHMARK_1DOF, ModalModel, Mode
-from estimators.lobes import first_crossing, intervals_for, lobe_chart, sd_boundary
-from estimators.lobes_sd import Multiplier, SemiDiscretization, largest_eigenvalue
-from estimators.lobes_zoa import zoa_boundary, zoa_chart, zoa_lobes
+from estimators.chatter.lobes import first_crossing, intervals_for, lobe_chart, sd_boundary
+from estimators.chatter.sd import Multiplier, SemiDiscretization, largest_eigenvalue
+from estimators.chatter.zoa import zoa_boundary, zoa_chart, zoa_lobes
 
 SLOT = CutGeometry(2, 1.0, True, 6e8, 2e8)
 

@@ -4,6 +4,7 @@ file, read back and stepped on gives what the original state gives, bit for bit.
 from __future__ import annotations
 
 import json
+import math
 import re
 from collections.abc import Callable
 from dataclasses import fields, is_dataclass
@@ -262,3 +263,30 @@ def test_a_state_written_before_the_process_monitors_moved_reads_as_now() -> Non
     assert type(back["idle"]) is IdlePower
     assert type(back["s"]) is IdlePowerState
     assert json.dumps(encode(back)[0]) == text
+
+
+def test_a_state_written_before_the_stability_lobes_moved_reads_as_now() -> None:
+    # estimators/lobes_sd.py became estimators/chatter/sd.py and estimators/lobes_zoa.py
+    # estimators/chatter/zoa.py (issue 34 item 4): a state naming the old modules
+    # (common.state_io.MOVED) reads as now
+    from common.state_io import decode, encode
+    from estimators.chatter.sd import Multiplier
+    from estimators.chatter.zoa import ZoaLobe
+
+    saved = {
+        "m": Multiplier(modulus=1.2, angle=math.pi),
+        "lobe": ZoaLobe(
+            k=0, rpm=np.array([9000.0]), depth=np.array([1e-3]), freq_hz=np.array([950.0])
+        ),
+    }
+    tree, arrays = encode(saved)
+    text = json.dumps(tree)
+    assert '"estimators.chatter.sd:Multiplier"' in text
+    assert '"estimators.chatter.zoa:ZoaLobe"' in text
+    old = text.replace("estimators.chatter.sd:", "estimators.lobes_sd:")
+    old = old.replace("estimators.chatter.zoa:", "estimators.lobes_zoa:")
+    assert "estimators.chatter." not in old
+    back = decode(json.loads(old), arrays)
+    assert back["m"] == saved["m"] and back["m"].kind == "flip"
+    assert type(back["lobe"]) is ZoaLobe
+    np.testing.assert_array_equal(back["lobe"].depth, saved["lobe"].depth)

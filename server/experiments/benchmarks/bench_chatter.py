@@ -21,8 +21,8 @@ import numpy as np
 
 from common.cut_geometry import CutGeometry
 from common.modes import BENCHMARK_1DOF
-from estimators.lobes import lobe_chart
-from estimators.lobes_sd import SemiDiscretization
+from estimators.chatter.lobes import lobe_chart
+from estimators.chatter.sd import SemiDiscretization
 from machine.chatter import ChatterCut, ChatterCutParams
 from machine.milling import MillingMachine, MillingParams
 from machine.milling_regen import DEMO_STRUCTURE

@@ -15,8 +15,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from common.modes import BENCHMARK_1DOF
-from estimators.lobes import intervals_for, sd_boundary
-from estimators.lobes_sd import SemiDiscretization
+from estimators.chatter.lobes import intervals_for, sd_boundary
+from estimators.chatter.sd import SemiDiscretization
 from machine.chatter import ChatterCutParams, Growth, growth_over
 from server.experiments.reproduction import Check, Row, Section
 from server.experiments.reproductions._chatter_lobes import (

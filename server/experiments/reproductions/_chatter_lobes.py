@@ -18,9 +18,9 @@ import numpy as np
 from common.arrays import F64
 from common.cut_geometry import BENCHMARK_KN, BENCHMARK_KT, CutGeometry
 from common.modes import BENCHMARK_1DOF
-from estimators.lobes import LobeChart, converged_boundary, lobe_chart, sd_boundary
-from estimators.lobes_sd import SemiDiscretization
-from estimators.lobes_zoa import zoa_chart
+from estimators.chatter.lobes import LobeChart, converged_boundary, lobe_chart, sd_boundary
+from estimators.chatter.sd import SemiDiscretization
+from estimators.chatter.zoa import zoa_chart
 from server.experiments.reproduction import Check, Row, Section
 
 #: the benchmark's radial immersions (down-milling)

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from estimators.lobes import LobeChart
+from estimators.chatter.lobes import LobeChart
 from server.experiments.reproduction import Reproduction
 from server.experiments.reproductions import _chatter_drives as drv
 from server.experiments.reproductions import _chatter_grid as grd

@@ -4,10 +4,10 @@ Two methods over the same inputs (a :class:`~common.modes.ModalModel`, a
 :class:`~common.cut_geometry.CutGeometry` with flutes, radial immersion, up/down
 milling and the cutting coefficients):
 
-- the zero-order approximation of Altintas and Budak (:mod:`estimators.lobes_zoa`):
+- the zero-order approximation of Altintas and Budak (:mod:`estimators.chatter.zoa`):
   the directional matrix averaged, a closed-form boundary; blind to the period-doubling
   (flip) lobes of interrupted cuts;
-- the semi-discretization of Insperger and Stepan (:mod:`estimators.lobes_sd`): the
+- the semi-discretization of Insperger and Stepan (:mod:`estimators.chatter.sd`): the
   Floquet multipliers of the periodic delay equation; every kind of loss of stability.
 
 The SD boundary at a speed is the smallest depth whose critical multiplier leaves the
@@ -30,9 +30,9 @@ import numpy as np
 from common.arrays import F64
 from common.cut_geometry import CutGeometry
 from common.modes import ModalModel
+from estimators.chatter.sd import DEFAULT_INTERVALS, Multiplier, SemiDiscretization
+from estimators.chatter.zoa import zoa_chart
 from estimators.errors import ParameterError, require_positive
-from estimators.lobes_sd import DEFAULT_INTERVALS, Multiplier, SemiDiscretization
-from estimators.lobes_zoa import zoa_chart
 
 #: intervals per period of the highest mode that :func:`intervals_for` asks for
 INTERVALS_PER_MODE_PERIOD = 80
