@@ -38,6 +38,7 @@ from typing import Any
 
 import numpy as np
 
+from common.state_io import JsonNode
 from server.errors import CutwatchError
 from server.experiments.reproduction import Check, Reproduction, Row
 
@@ -49,7 +50,7 @@ SOURCE = (
 )
 AXES: tuple[str, ...] = ("X", "Y")
 #: the export has no time column: one row per 100 ms; current in A, positions in mm
-META: dict[str, Any] = {"sample_time": 0.1, "units": {"effort": "A", "position": "m"}}
+META: dict[str, JsonNode] = {"sample_time": 0.1, "units": {"effort": "A", "position": "m"}}
 #: a stale copy of the previous row in every drive column
 REPEATS = "X1_*,Y1_*,Z1_*,S1_*"
 
