@@ -23,6 +23,7 @@ import numpy as np
 
 from common.arrays import F64
 from common.machine_description import MachineDescription, from_dict
+from common.state_io import JsonNode
 from machine.centre.params import CentreParams
 
 #: the roles an axis exports, by kind (what a CNC's trace gives per axis)
@@ -62,7 +63,9 @@ def description(params: CentreParams | None = None, rate_hz: float = 500.0) -> M
     return from_dict(description_dict(params, rate_hz))
 
 
-def description_dict(params: CentreParams | None = None, rate_hz: float = 500.0) -> dict[str, Any]:
+def description_dict(
+    params: CentreParams | None = None, rate_hz: float = 500.0
+) -> dict[str, JsonNode]:
     """The machine description of the centre's trace at ``rate_hz`` (issue 30's schema).
 
     Per axis its kind, its columns by role, units (m, N: efforts are motor currents [A]
@@ -70,7 +73,7 @@ def description_dict(params: CentreParams | None = None, rate_hz: float = 500.0)
     resolution along the axis; no nominal (a prior is never required).
     """
     p = params if params is not None else CentreParams()
-    axes: dict[str, Any] = {}
+    axes: dict[str, JsonNode] = {}
     for ax in p.axes:
         axes[ax.name] = {
             "kind": ax.kind,

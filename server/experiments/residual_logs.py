@@ -25,6 +25,8 @@ from typing import Any
 
 import numpy as np
 
+from common.state_io import JsonNode
+
 #: effects of the closed-form rigid log (besides "none")
 RIGID_EFFECTS: tuple[str, ...] = (
     "position_periodic",
@@ -52,7 +54,7 @@ STAGE_RANGES: dict[str, tuple[float, float]] = {
     "level_3": (0.15, 0.35),  # third plateau (default 0.25); the three in random order
     "current_noise": (0.01, 0.05),  # A rms (default 0)
 }
-RIGID_SIDECAR: dict[str, Any] = {
+RIGID_SIDECAR: dict[str, JsonNode] = {
     "units": {"effort": "N", "position": "m"},
     "kind": "rigid",
     "sample_time": 1e-3,

@@ -4,10 +4,11 @@ and the ``cnc-mill`` reproduction build the model the same way."""
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, TypedDict
 
+from common.state_io import JsonNode
 from server.records.measured_log import MeasuredLog
 
 
@@ -66,9 +67,35 @@ def model_notes(log: MeasuredLog, kind: str = "rigid") -> list[str]:
     return notes
 
 
+class EffectFit(TypedDict):
+    """A selected effect and its fitted parameters."""
+
+    name: str
+    params: dict[str, float]
+
+
+class CncAxisReport(TypedDict):
+    """:func:`analyse_cnc_axis`'s numbers: the held-out errors before and after, the
+    effects, each candidate's (cross-validated effect, p-value, note), the nominal fit."""
+
+    relerr_before: float
+    relerr_after: float
+    rms_before: float
+    rms_after: float
+    selected: list[str]
+    effects: list[EffectFit]
+    candidates: dict[str, tuple[float, float, str]]
+    unexplained: list[dict[str, float | str]]
+    r2_nominal: float
+    nominal: dict[str, float]
+    notes: list[str]
+    rows_read: int
+    rows_used: int
+
+
 def analyse_cnc_axis(
     path: Path,
-    meta: dict[str, Any],
+    meta: Mapping[str, JsonNode],
     maps: Sequence[str],
     *,
     drop: Sequence[str] = (),
@@ -76,7 +103,7 @@ def analyse_cnc_axis(
     load: str | None = None,
     holdout: float = 0.3,
     progress: Callable[[str], None] | None = None,
-) -> dict[str, Any]:
+) -> CncAxisReport:
     """One axis of a CNC export through the loop; the report's numbers as a dict."""
     import numpy as np
 

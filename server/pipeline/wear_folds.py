@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import NotRequired, TypedDict
 
 import numpy as np
 
@@ -84,6 +84,59 @@ def life_at_half(vb: F64, life: F64, criterion: float) -> float:
     return float((life[k] - true) / true)
 
 
+class BaselineError(TypedDict):
+    """A baseline's errors on one tool [um]."""
+
+    mae: float
+    rmse: float
+
+
+class ToolMetrics(TypedDict):
+    """One test tool's numbers; the errors only where the tool has measured wear."""
+
+    tool: int
+    segments: int
+    feed_glitches_replaced: int
+    interval_median_width: float
+    mae: NotRequired[float]
+    rmse: NotRequired[float]
+    coverage: NotRequired[float]
+    vb_max: NotRequired[float]
+    life_error_at_half: NotRequired[float]
+    life_error_at_half_150um: NotRequired[float]
+    baselines: NotRequired[dict[str, BaselineError]]
+
+
+class BaselineOverall(TypedDict):
+    """A baseline's pooled errors, and on how many tools ours is lower."""
+
+    mae: float
+    rmse: float
+    tools_ours_lower: int
+
+
+class Overall(TypedDict):
+    """The pooled numbers over the tools with measured wear (life: median)."""
+
+    mae: float
+    mae_mean_over_tools: float
+    rmse: float
+    coverage: float
+    interval_median_width: float
+    life_median_abs_rel_error: float
+    life_tools: int
+    life150_median_abs_rel_error: float
+    life150_tools: int
+    baselines: dict[str, BaselineOverall]
+
+
+class FoldSummary(TypedDict):
+    """:func:`summarise`'s result: per tool, and overall when any tool has measured wear."""
+
+    per_tool: list[ToolMetrics]
+    overall: NotRequired[Overall]
+
+
 @dataclass
 class ToolResult:
     """One test tool: the estimate and its numbers."""
@@ -95,11 +148,14 @@ class ToolResult:
     feed_glitches: int = 0
     life_150: F64 | None = None
 
-    def metrics(self, criterion: float) -> dict[str, Any]:
+    def metrics(self, criterion: float) -> ToolMetrics:
         e = self.estimate
-        out: dict[str, Any] = {"tool": self.tool, "segments": len(e.vb)}
-        out["feed_glitches_replaced"] = self.feed_glitches
-        out["interval_median_width"] = float(np.median(e.vb_hi - e.vb_lo))
+        out: ToolMetrics = {
+            "tool": self.tool,
+            "segments": len(e.vb),
+            "feed_glitches_replaced": self.feed_glitches,
+            "interval_median_width": float(np.median(e.vb_hi - e.vb_lo)),
+        }
         if self.vb is None:
             return out
         err = e.vb - self.vb
@@ -151,10 +207,21 @@ def run_fold(
     return model, results
 
 
-def summarise(results: Sequence[ToolResult], criterion: float) -> dict[str, Any]:
+def _life_errors(per: list[ToolMetrics], at_150um: bool) -> list[float]:
+    """The tools' absolute life errors at half life: a predicted life of "never" (inf) is
+    a miss and counts; NaN (criterion not reached) and no measured wear do not."""
+    errs = []
+    for m in per:
+        e = m.get("life_error_at_half_150um") if at_150um else m.get("life_error_at_half")
+        if e is not None and not np.isnan(e):
+            errs.append(abs(e))
+    return errs
+
+
+def summarise(results: Sequence[ToolResult], criterion: float) -> FoldSummary:
     """Per-tool metrics and the overall ones (pooled over segments; life: median)."""
     per = [r.metrics(criterion) for r in results]
-    out: dict[str, Any] = {"per_tool": per}
+    out: FoldSummary = {"per_tool": per}
     have = [r for r in results if r.vb is not None]
     if not have:
         return out
@@ -162,20 +229,21 @@ def summarise(results: Sequence[ToolResult], criterion: float) -> dict[str, Any]
     est = np.concatenate([r.estimate.vb for r in have])
     lo = np.concatenate([r.estimate.vb_lo for r in have])
     hi = np.concatenate([r.estimate.vb_hi for r in have])
-    ov: dict[str, Any] = {
+    life = _life_errors(per, False)
+    life150 = _life_errors(per, True)
+    ov: Overall = {
         "mae": float(np.mean(np.abs(est - vb))),
         "mae_mean_over_tools": float(np.mean([m["mae"] for m in per])),
         "rmse": float(np.sqrt(np.mean((est - vb) ** 2))),
         "coverage": float(np.mean((vb >= lo) & (vb <= hi))),
         "interval_median_width": float(np.median(hi - lo)),
+        "life_median_abs_rel_error": float(np.median(life)) if life else float("nan"),
+        "life_tools": len(life),
+        "life150_median_abs_rel_error": float(np.median(life150)) if life150 else float("nan"),
+        "life150_tools": len(life150),
+        "baselines": {},
     }
-    for key, name in (("life_error_at_half", "life"), ("life_error_at_half_150um", "life150")):
-        # a predicted life of "never" (inf) is a miss and counts; NaN: criterion not reached
-        errs = [abs(m[key]) for m in per if key in m and not np.isnan(m[key])]
-        ov[f"{name}_median_abs_rel_error"] = float(np.median(errs)) if errs else float("nan")
-        ov[f"{name}_tools"] = len(errs)
     names = sorted({k for r in have for k in r.baselines})
-    ov["baselines"] = {}
     for n in names:
         pred = np.concatenate([r.baselines[n] for r in have])
         ov["baselines"][n] = {

@@ -20,13 +20,18 @@ import importlib
 import math
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+from common.state_io import JsonNode
+
+if TYPE_CHECKING:
+    from asyncua import Node
 
 ROLES = ("q_m", "q_cmd", "qd_m", "qdd_m", "i_m", "tau_m")
 URI = "urn:cutwatch:bench:opcua-load"
 
 
-def node_map(axes: int, sample_time: float) -> dict[str, Any]:
+def node_map(axes: int, sample_time: float) -> dict[str, JsonNode]:
     """The node map of the load server."""
     return {
         "sample_time": sample_time,
@@ -71,7 +76,7 @@ async def serve(port: int, axes: int, sample_time: float, cert_dir: Path) -> Non
     server.set_security_policy([t.Aes256Sha256RsaPss_SignAndEncrypt,
                                 t.Basic256Sha256_SignAndEncrypt])  # fmt: skip
     idx = await server.register_namespace("urn:cutwatch:bench:nodes")
-    nodes: dict[str, Any] = {}
+    nodes: dict[str, Node] = {}
     for name in [f"A{k}.{r}" for k in range(axes) for r in ROLES] + ["S.speed", "S.power"]:
         nodes[name] = await server.nodes.objects.add_variable(ua.NodeId(name, idx), name, 0.0)
     dbl = ua.VariantType.Double

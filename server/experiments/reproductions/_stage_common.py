@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypedDict
 
 import numpy as np
 from numpy.typing import NDArray
@@ -93,7 +93,14 @@ def settle_time(t: F64, est: F64, truth: float, t0: float, tol: float = 0.1) -> 
 #: "ours": the ridge follows the estimate (1/p0 = 10) — the project's design, used live.
 #: "paper": the papers' recursion, the ridge fixed on the initial estimate with a weak
 #: P_0 (p0 = 100); row names get the prefix ``paper_recursion.``.
-VARIANTS: dict[str, dict[str, Any]] = {
+class Variant(TypedDict):
+    """An identifier variant: the :class:`IdentifierParams` fields it sets."""
+
+    ridge: str
+    p0: float
+
+
+VARIANTS: dict[str, Variant] = {
     "ours": {"ridge": "previous", "p0": 0.1},
     "paper": {"ridge": "initial", "p0": 100.0},
 }

@@ -12,7 +12,7 @@ simulated machine's (:class:`machine.centre.params.CentreParams`).
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import NamedTuple
 
 import numpy as np
 
@@ -29,7 +29,18 @@ SKIP = 30.0
 BLOCK = 25
 
 
-def run_case(seed: int, seconds: float) -> dict[str, Any]:
+Series = tuple[dict[str, np.ndarray], dict[str, np.ndarray]]
+
+
+class CaseRun(NamedTuple):
+    """One seed's run: the scores by row name (``X.F_err_rms``, ``X.K``, ...) and the
+    series (the outputs, the truth) for the figure."""
+
+    scores: dict[str, float]
+    series: Series
+
+
+def run_case(seed: int, seconds: float) -> CaseRun:
     """One seed: the scored errors and X's identified parameters at the end; the last
     run's series for the figure."""
     from server.pipeline.centre_source import CentreSource
@@ -50,7 +61,7 @@ def run_case(seed: int, seconds: float) -> dict[str, Any]:
     o = {k: np.concatenate(v) for k, v in outs.items()}
     t = {k: np.concatenate(v) for k, v in truth.items()}
     m = np.arange(len(o["X.F"])) >= SKIP * RATE
-    res: dict[str, Any] = {"series": (o, t)}
+    res: dict[str, float] = {}
     for a in "XYZ":
         tru = t[f"true_{a}_f_process"][m]
         res[f"{a}.force_rms"] = float(np.sqrt(np.mean(tru**2)))
@@ -59,7 +70,7 @@ def run_case(seed: int, seconds: float) -> dict[str, Any]:
     res["X.F_2i_err_rms"] = float(np.sqrt(np.nanmean((o["X.F_2i"][m] - tx) ** 2)))
     for k in ("K", "M_M", "M_L", "mode_hz"):
         res[f"X.{k}"] = float(o[f"X.{k}"][-1])
-    return res
+    return CaseRun(res, (o, t))
 
 
 def run(
@@ -80,10 +91,10 @@ def run(
     rep = Reproduction(NAME, SOURCE)
 
     def mean(k: str) -> float:
-        return float(np.mean([r[k] for r in runs]))
+        return float(np.mean([r.scores[k] for r in runs]))
 
     def worst(k: str) -> float:
-        return float(np.max([r[k] for r in runs]))
+        return float(np.max([r.scores[k] for r in runs]))
 
     for a in "XYZ":
         rep.rows += [
@@ -102,7 +113,7 @@ def run(
         Row("X.mode_hz", mean("X.mode_hz"), 130.0, "Hz", "from K, M_M, M_L"),
     ]
     for a in "XY":
-        share = max(r[f"{a}.F_err_rms"] / r[f"{a}.force_rms"] for r in runs)
+        share = max(r.scores[f"{a}.F_err_rms"] / r.scores[f"{a}.force_rms"] for r in runs)
         rep.checks.append(Check(f"{a}.F_err_under_half_the_force", share < 0.5, share, 0.5))
     rep.checks += [
         Check("Z.F_err_under_60N", worst("Z.F_err_rms") < 60.0, worst("Z.F_err_rms"), 60.0),
@@ -111,11 +122,11 @@ def run(
               mean("X.K") / truth["K"], 1.0),
     ]  # fmt: skip
     if plot_dir is not None:
-        _plot(runs[-1]["series"], plot_dir)
+        _plot(runs[-1].series, plot_dir)
     return rep
 
 
-def _plot(series: tuple[dict[str, np.ndarray], dict[str, np.ndarray]], plot_dir: Path) -> None:
+def _plot(series: Series, plot_dir: Path) -> None:
     """X's process force in T2's side cuts (N140, N150): the truth, the rigid model's and
     the two-inertia observer's, and Y's beside its truth."""
     import matplotlib

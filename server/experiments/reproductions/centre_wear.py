@@ -24,10 +24,11 @@ from __future__ import annotations
 import dataclasses
 import math
 from pathlib import Path
-from typing import Any
+from typing import TypedDict
 
 import numpy as np
 
+from common.arrays import F64
 from server.experiments.reproduction import Check, Reproduction, Row
 
 NAME = "centre-wear"
@@ -41,9 +42,19 @@ SEEDS_FULL, SECONDS_FULL = (1, 2, 3, 4), 3000.0
 TARGET_COVERAGE = 0.90
 
 
+class SeedRun(TypedDict):
+    """One seed's run: the samples (8 columns, see :func:`run_seed`) and the tool
+    changes made, detected and labelled."""
+
+    rows: F64
+    made: int
+    detected: int
+    labelled: int
+
+
 def run_seed(
     seed: int, seconds: float, *, life_scale: float = LIFE_SCALE, block: int = 500
-) -> dict[str, Any]:
+) -> SeedRun:
     """One seed: the samples (tool, instance, calibrated, true VB, estimate, low, high)
     [m] and the tool changes made by the simulator and detected by the part."""
     from machine.centre.sim import MachiningCentre

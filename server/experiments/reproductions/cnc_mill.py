@@ -34,12 +34,13 @@ from __future__ import annotations
 import os
 import re
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
+from common.state_io import JsonNode
 from server.errors import CutwatchError
 from server.experiments.reproduction import Check, Reproduction, Row
+from server.pipeline.residual_run import CncAxisReport
 
 NAME = "cnc-mill"
 SOURCE = (
@@ -49,9 +50,19 @@ SOURCE = (
 )
 AXES: tuple[str, ...] = ("X", "Y")
 #: the export has no time column: one row per 100 ms; current in A, positions in mm
-META: dict[str, Any] = {"sample_time": 0.1, "units": {"effort": "A", "position": "m"}}
+META: dict[str, JsonNode] = {"sample_time": 0.1, "units": {"effort": "A", "position": "m"}}
 #: a stale copy of the previous row in every drive column
 REPEATS = "X1_*,Y1_*,Z1_*,S1_*"
+
+
+class CncRun(CncAxisReport):
+    """One experiment's axis: the loop's report, the experiment and axis, the order
+    facts of the file and the README baseline's R^2 on all its rows."""
+
+    exp: str
+    axis: str
+    facts: dict[str, float]
+    r2_all_raw: float
 
 
 def idle_rule(path: Path) -> str:
@@ -188,12 +199,12 @@ def run(
     if not files:
         raise CutwatchError(f"{d}: expected experiment_NN.csv files, found none")
     rep = Reproduction(NAME, SOURCE)
-    runs: list[dict[str, Any]] = []
+    runs: list[CncRun] = []
     bar = tqdm(total=len(files) * len(AXES), desc=NAME, disable=not progress, leave=False)
     for path in files:
         facts = order_facts(path)
         for axis in AXES:
-            r = analyse_cnc_axis(
+            rep_axis = analyse_cnc_axis(
                 path,
                 META,
                 axis_maps(axis),
@@ -201,8 +212,13 @@ def run(
                 drop_repeats=REPEATS,
                 load=cutting_rule(path),
             )
-            r.update(exp=_exp_name(path), axis=axis, facts=facts)
-            r["r2_all_raw"] = baseline_r2(path, axis)
+            r: CncRun = {
+                **rep_axis,
+                "exp": _exp_name(path),
+                "axis": axis,
+                "facts": facts,
+                "r2_all_raw": baseline_r2(path, axis),
+            }
             runs.append(r)
             bar.update(1)
     bar.close()
@@ -223,7 +239,7 @@ def _unit(param: str) -> str:
     return "A"
 
 
-def _rows(rep: Reproduction, r: dict[str, Any]) -> None:
+def _rows(rep: Reproduction, r: CncRun) -> None:
     key = f"{r['exp']}.{r['axis']}"
     f = r["facts"]
     used = f"rows {r['rows_used']} of {r['rows_read']} used"
@@ -256,7 +272,7 @@ def _rows(rep: Reproduction, r: dict[str, Any]) -> None:
         ]  # fmt: skip
 
 
-def _checks(rep: Reproduction, runs: list[dict[str, Any]]) -> None:
+def _checks(rep: Reproduction, runs: list[CncRun]) -> None:
     for r in runs:
         if r["exp"] == "exp01":
             ax = r["axis"]
@@ -289,7 +305,7 @@ def _checks(rep: Reproduction, runs: list[dict[str, Any]]) -> None:
     )
 
 
-def _plot(runs: list[dict[str, Any]], plot_dir: Path) -> Path:
+def _plot(runs: list[CncRun], plot_dir: Path) -> Path:
     import matplotlib
 
     matplotlib.use("Agg")

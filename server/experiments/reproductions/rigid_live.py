@@ -38,6 +38,7 @@ from typing import TYPE_CHECKING, Any, TypedDict
 import numpy as np
 
 from common.arrays import F64
+from common.state_io import JsonNode
 from server.errors import CutwatchError
 from server.experiments.reproduction import Check, Reproduction, Row
 
@@ -111,7 +112,8 @@ class LiveRun(TypedDict):
 
 #: the EMPS runs (:func:`emps_section`): without and with the head's report
 EmpsRuns = TypedDict(
-    "EmpsRuns", {"base": LiveRun, "with": LiveRun, "report": dict[str, Any], "start": float}
+    "EmpsRuns",
+    {"base": LiveRun, "with": LiveRun, "report": dict[str, JsonNode], "start": float},
 )
 
 
@@ -184,7 +186,9 @@ def relerr_tail(run: LiveRun, start: float) -> float:
     return 100.0 * float(np.linalg.norm(run["force"][m]) / np.linalg.norm(run["effort"][m]))
 
 
-def report_on_head(log: Any, fraction: float = SPLIT) -> tuple[dict[str, Any], tuple[Any, ...]]:
+def report_on_head(
+    log: Any, fraction: float = SPLIT
+) -> tuple[dict[str, JsonNode], tuple[Any, ...]]:
     """``cutwatch residual`` on the first ``fraction`` of the record (written as a log,
     analysed, its report written and read back as the live model reads a REPORT.json)."""
     import json
@@ -201,7 +205,7 @@ def report_on_head(log: Any, fraction: float = SPLIT) -> tuple[dict[str, Any], t
                   {"units": dict(log.units), "kind": "rigid"})  # fmt: skip
         hlog = load_log(head)
         res = analyse(rigid_model(hlog), ResidualParams(), progress=None)
-        rep = json.loads(json.dumps(report_dict(hlog, res)))
+        rep: dict[str, JsonNode] = json.loads(json.dumps(report_dict(hlog, res)))
     return rep, tuple(live_effects(rep, "emps head report"))
 
 
@@ -216,7 +220,7 @@ def emps_section(quick: bool) -> tuple[list[Row], list[Check], EmpsRuns]:
 
 
 def _emps_rows(
-    base: LiveRun, withr: LiveRun, rep: dict[str, Any], start: float
+    base: LiveRun, withr: LiveRun, rep: dict[str, JsonNode], start: float
 ) -> tuple[list[Row], list[Check]]:
     h = base["hist"][-1]
     units = {"M": "kg", "Fv": "N s/m", "Fc": "N", "offset": "N"}
@@ -242,7 +246,8 @@ def _emps_rows(
             ]  # fmt: skip
     t_hit, rev = time_to_target(base["hist"])
     e0, e1 = relerr_tail(base, start), relerr_tail(withr, start)
-    selected = ", ".join(rep.get("selected", [])) or "none"
+    chosen = rep.get("selected", [])
+    selected = ", ".join(map(str, chosen if isinstance(chosen, list) else [])) or "none"
     rows += [
         Row("emps.live.time_to_target", t_hit, None, "s",
             "M, Fv in 5 %, Fc in 10 %, half-widths in 10 %, from then on"),

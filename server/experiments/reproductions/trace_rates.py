@@ -27,6 +27,7 @@ from typing import Any
 
 import numpy as np
 
+from common.arrays import F64
 from machine.cycle_trace import trace
 from machine.stage import Measurements, StageConfig, Truth
 from server.experiments.reproduction import Check, Reproduction, Row
@@ -126,7 +127,7 @@ def run_case(rate: int, model: str, seed: int, minutes: float) -> dict[str, floa
     return score({k: np.concatenate(v) for k, v in cols.items()})
 
 
-def score(a: dict[str, Any]) -> dict[str, float]:
+def score(a: dict[str, F64]) -> dict[str, float]:
     """J_L's share within 10 % of the excited time, the share excited, the force error."""
     m = a["t"] >= SKIP
     ex = (a["J_L_excited"] > 0.5) & m

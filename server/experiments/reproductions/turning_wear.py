@@ -24,12 +24,15 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from server.errors import CutwatchError
 from server.experiments.reproduction import Check, Reproduction, Row
+
+if TYPE_CHECKING:
+    from server.pipeline.wear_folds import FoldSummary
 
 NAME = "turning-wear"
 SOURCE = (
@@ -77,7 +80,7 @@ def data_path() -> Path:
 
 def _signal_section(
     table: Any, signal: str, tools: list[int], quick: bool, bar: Any
-) -> tuple[list[Row], list[Check], dict[str, Any]]:
+) -> tuple[list[Row], list[Check], FoldSummary]:
     from server.pipeline.wear_folds import learning_curve, leave_one_out, summarise
 
     res = leave_one_out(table, signal, tools, progress=bar.update)
@@ -198,7 +201,7 @@ def _life_limits(table: Any, tools: list[int]) -> list[Row]:
     return rows
 
 
-def _snr(table: Any, signal: str, tools: list[int], s: dict[str, Any]) -> list[Row]:
+def _snr(table: Any, signal: str, tools: list[int], s: FoldSummary) -> list[Row]:
     """The wear part of the signal at VB = 150 um against its segment-to-segment scatter,
     and our MAE on the tools cut at other speeds (3, 5, 16) against the others."""
     from estimators.wear.turning import fit
@@ -317,7 +320,7 @@ def run(
     return rep
 
 
-def _plot(plot_dir: Path, table: Any, signal: str, s: dict[str, Any]) -> str:
+def _plot(plot_dir: Path, table: Any, signal: str, s: FoldSummary) -> str:
     import matplotlib
 
     matplotlib.use("Agg")
