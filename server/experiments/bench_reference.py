@@ -163,7 +163,7 @@ class Reference:
         cpu = self.cpu_seconds
         return self.seconds / cpu if cpu > 0 else math.nan
 
-    def as_dict(self) -> dict[str, object]:
+    def as_dict(self) -> dict[str, float | list[float]]:
         runs = [r["seconds"] for r in self.runs]
         cpu = self.cpu_seconds
         return {
