@@ -541,7 +541,7 @@ def summarise(folds: Sequence[FoldResult], groups: dict[int, str] | None = None)
             "chosen": dict(
                 sorted(
                     {c: sum(f.chosen == c for f in fs) for c in {f.chosen for f in fs}}.items(),
-                    key=lambda kv: -kv[1],
+                    key=lambda kv: (-kv[1], kv[0]),  # ties by name: the same bytes every run
                 )
             ),
         }
