@@ -92,6 +92,7 @@ def test_tuner_knob_through_the_app() -> None:
             "choices": ["esc", "fast"],
             "parts": ["eccentricity"],  # the part that reads it (issue 31: knobs are parts')
             "waiting": "",
+            "page": "research",  # a research knob (the operator's are on the machine page)
         }
         r = c.patch("/api/params", json={"tuner": "slow"})
         assert r.status_code == 422
