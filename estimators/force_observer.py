@@ -97,7 +97,7 @@ def torsion_frequencies(J_M: float, J_L: float, K: float) -> tuple[float, float]
 
 def observer_design(
     J_M: float, J_L: float, K: float, sample_time: float
-) -> tuple[dict[str, object], str]:
+) -> tuple[dict[str, float | str], str]:
     """The observer's design for a rate, and why it departs from seed 000's (``""``:
     it does not). Q(s) at :func:`q_cutoff`; when the torsion's resonance lies at or above
     the Nyquist frequency, the motor-side observer's acceleration folds the torsion into
@@ -105,7 +105,7 @@ def observer_design(
     relation only (``mix="twist"``: the shaft torque from its twist)."""
     f_res, f_anti = torsion_frequencies(J_M, J_L, K)
     nyq = 0.5 / sample_time
-    design: dict[str, object] = {"q_hz": q_cutoff(sample_time)}
+    design: dict[str, float | str] = {"q_hz": q_cutoff(sample_time)}
     if f_res < nyq:
         return design, ""
     design["mix"] = "twist"
