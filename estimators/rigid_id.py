@@ -567,10 +567,10 @@ class RigidIdentifier:
         return new, self._record(new, t_out, force, sd, eff)
 
     def _inputs(self, t: F64, q: F64, tau: F64, qd: F64 | None, qdd: F64 | None,
-                learn: NDArray[np.bool_] | None) -> dict[str, Any]:  # fmt: skip
+                learn: NDArray[np.bool_] | None) -> dict[str, NDArray[Any]]:  # fmt: skip
         pr = self.params
         n = len(t)
-        out: dict[str, Any] = {"t": t, "q": q, "tau": tau}
+        out: dict[str, NDArray[Any]] = {"t": t, "q": q, "tau": tau}
         for name, v, need in (("qd", qd, pr.velocity == "given"),
                               ("qdd", qdd, pr.acceleration == "given")):  # fmt: skip
             if need and v is None:
@@ -590,7 +590,7 @@ class RigidIdentifier:
                             s.active.copy(), s.stats.copy())  # fmt: skip
 
     def _kinematics(
-        self, st: RigidIdState, a: dict[str, Any], n: int, t_out: F64
+        self, st: RigidIdState, a: dict[str, NDArray[Any]], n: int, t_out: F64
     ) -> tuple[_Rows, F64]:
         pr = self.params
         out = KinematicsOut(np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty(n))
