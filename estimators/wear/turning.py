@@ -62,13 +62,16 @@ turning, Part I*) adapted to what a table of one-second cutting segments has. Wh
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from common.arrays import F64
 from estimators.errors import ParameterError, require_in, require_positive
 from estimators.ud_rls import covariance_update
+
+if TYPE_CHECKING:
+    from common.state_io import JsonNode
 
 #: version of the JSON form of :class:`TurningWearModel`
 MODEL_VERSION = 1
@@ -199,7 +202,7 @@ class TurningWearModel:
     n_ref: int
     train_tools: list[int] = field(default_factory=list)
 
-    def to_dict(self) -> dict[str, Any]:
+    def to_dict(self) -> dict[str, JsonNode]:
         """JSON-ready form, with ``version``."""
         return {"version": MODEL_VERSION, "kind": "turning_wear", **asdict(self)}
 
