@@ -28,7 +28,7 @@ ESTIMATE_COLUMNS = (
 )  # fmt: skip
 
 
-def write_estimates(path: Path, rows: Sequence[Mapping[str, Any]], has_vb: bool) -> None:
+def write_estimates(path: Path, rows: Sequence[Mapping[str, float]], has_vb: bool) -> None:
     """One row per segment; ``vb_true`` only when the table has it."""
     cols = [c for c in ESTIMATE_COLUMNS if has_vb or c != "vb_true"]
     with path.open("w", newline="") as f:
@@ -153,7 +153,7 @@ def report_html(rep: Mapping[str, Any], figures: Sequence[tuple[str, str]]) -> s
 def write_report(
     out: Path,
     rep: Mapping[str, Any],
-    rows: Sequence[Mapping[str, Any]],
+    rows: Sequence[Mapping[str, float]],
     figures: Sequence[tuple[str, str]],
     has_vb: bool,
 ) -> None:

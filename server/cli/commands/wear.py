@@ -342,7 +342,7 @@ def _estimate(
 
 def _report(
     args: argparse.Namespace, table: Any, results: list[Any], fitted: Any
-) -> tuple[dict[str, Any], list[dict[str, Any]], list[tuple[str, str]]]:
+) -> tuple[dict[str, Any], list[dict[str, float]], list[tuple[str, str]]]:
     from server.pipeline.wear_folds import summarise
     from server.records.wear_report import tool_figure
     from server.records.wear_table import SIGNALS
