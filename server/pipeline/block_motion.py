@@ -36,11 +36,14 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from common.machine_description import MachineDescription
+
+if TYPE_CHECKING:
+    from common.arrays import F64
 
 __all__ = ["FROM_FEED", "FROM_PROGRAM", "NOT_SAID", "CanCut", "cutting_lines", "program_lines"]
 
@@ -113,7 +116,7 @@ class CanCut:
         self._tool = 0.0  # ... along the tool's axis [m]
         self._stopped = False  # the spindle's command was 0 in the block
 
-    def __call__(self, cols: Mapping[str, Any], line: int, a: int, b: int, new: bool) -> bool:
+    def __call__(self, cols: Mapping[str, F64], line: int, a: int, b: int, new: bool) -> bool:
         """May the samples ``a:b`` of ``cols`` (one execution of ``line``; ``new``: its
         first samples) cut?"""
         if self.lines is not None:
