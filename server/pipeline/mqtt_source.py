@@ -25,7 +25,7 @@ say why (:class:`~server.pipeline.machine_view.MachineView`), nothing is refused
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -43,6 +43,9 @@ from server.pipeline.sources import (
     empty_measurements,
     nominal_config,
 )
+
+if TYPE_CHECKING:
+    from common.arrays import F64
 
 
 class MqttSource(LiveSource):
@@ -166,7 +169,7 @@ class MqttSource(LiveSource):
         self.last_wall = self.feed.last_wall
         return SourceBlock(meas, None, disc, columns=self._with_identities(dict(c), take))
 
-    def _with_identities(self, cols: dict[str, Any], take: Any) -> dict[str, Any]:
+    def _with_identities(self, cols: dict[str, F64], take: Any) -> dict[str, F64]:
         """The block's columns with the CNC's identities (the drive header's segments) under
         the description's identity columns, as a log or the simulated centre gives them
         (the spindle and axis parts key their monitors' blocks on them); a tool or line
@@ -179,7 +182,7 @@ class MqttSource(LiveSource):
                 cols[name] = a if role == "override" else np.nan_to_num(a, nan=0.0)
         return cols
 
-    def _spindle(self, columns: dict[str, Any]) -> None:
+    def _spindle(self, columns: dict[str, F64]) -> None:
         """The spindle speed in effect from the block's speed signal [rpm]: the block's
         last finite value, kept until it moves by more than 0.5 % (a CNC's speed
         fluctuates; the DFO is retuned only on a real change)."""
@@ -223,8 +226,8 @@ _RPM = {"rpm": 1.0, "rad/s": 60.0 / (2.0 * math.pi), "1/s": 60.0}
 
 
 def _axis_measurements(
-    ax: AxisDescription, c: dict[str, Any], k_t: float, n: int
-) -> dict[str, Any]:
+    ax: AxisDescription, c: dict[str, F64], k_t: float, n: int
+) -> dict[str, F64]:
     """The first axis' measurements for the two-inertia observers, by role (NaN where
     the axis has none): the motor and load positions, the torque and the current (one
     from the other through K_t), the measured force."""
