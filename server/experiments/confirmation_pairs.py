@@ -40,10 +40,11 @@ from server.experiments.reproductions._centre_monitoring import (
     event_program,
     free_program,
 )
+from server.experiments.reproductions._centre_rows import entry
 
 VARIANTS = ("before", "after")
 #: the settings of ``before`` (the rule in samples: the floors alone)
-BEFORE = {"breakage_rev": 0.0, "collision_s": 0.0, "missing_s": 0.0}
+BEFORE: dict[str, float] = {"breakage_rev": 0.0, "collision_s": 0.0, "missing_s": 0.0}
 
 
 class PairWatch(Watch):
@@ -53,7 +54,10 @@ class PairWatch(Watch):
         from estimators.monitoring.process import MonitorParams, ProcessMonitor
 
         super().__init__(machine, rate)
-        mp = MonitorParams(sample_time=self.ts, teach_parts=TEACH_PARTS, **BEFORE)
+        mp = MonitorParams(
+            sample_time=self.ts, teach_parts=TEACH_PARTS, breakage_rev=BEFORE["breakage_rev"],
+            collision_s=BEFORE["collision_s"], missing_s=BEFORE["missing_s"],
+        )  # fmt: skip
         self.mon_b = {s: ProcessMonitor(mp) for s in MONITORS}
         self.mstate_b = {s: self.mon_b[s].initial_state() for s in MONITORS}
         self.alarms_b: list[dict[str, Any]] = []
@@ -76,7 +80,7 @@ class PairWatch(Watch):
             self.last = key
             self.block_n[key] = self.block_n.get(key, 0) + (b - a)
             ovr = float(tr.override[a])
-            kw = {
+            kw: dict[str, Any] = {
                 "tool": int(tr.tool[a]), "program": tr.program, "line": key[1],
                 "new_block": new, "override": ovr if ovr > 0.0 else 1.0,
                 "cutting": self.cutting.get(key[1], True),
@@ -209,11 +213,16 @@ def summary(rows: list[dict[str, Any]]) -> str:
         for sig in SETS:
             cells = []
             for rate in RATES:
-                got = {v: [r[f"{rate:g}"][v][sig] for r in rs] for v in VARIANTS}
+                got = {v: [entry({f"{rate:g}": r[f"{rate:g}"][v]}, rate, sig) for r in rs]
+                       for v in VARIANTS}  # fmt: skip
                 det = {v: [g["detected"] for g in got[v]] for v in VARIANTS}
                 kb, ka = sum(det["before"]), sum(det["after"])
-                lost = sum(1 for b, a in zip(det["before"], det["after"], strict=True) if b and not a)
-                won = sum(1 for b, a in zip(det["before"], det["after"], strict=True) if a and not b)
+                lost = sum(
+                    1 for b, a in zip(det["before"], det["after"], strict=True) if b and not a
+                )
+                won = sum(
+                    1 for b, a in zip(det["before"], det["after"], strict=True) if a and not b
+                )
                 both = [
                     (gb["delay_samples"], ga["delay_samples"], ga["delay_s"] - gb["delay_s"])
                     for gb, ga in zip(got["before"], got["after"], strict=True)
@@ -226,9 +235,29 @@ def summary(rows: list[dict[str, Any]]) -> str:
                 if dd:
                     cell += (f"; delay +{np.median(dd):.0f} median, +{max(dd):.0f} max samples"
                              f" (+{max(ms):.0f} ms)")  # fmt: skip
+                cell += _p95(kind, got)
                 cells.append(cell)
             out.append(f"| {kind} | {sig} | " + " | ".join(cells) + " |")
     return "\n".join(out)
+
+
+#: each kind's delay in its target's unit (as the reproduction's rows)
+_TARGET_KEY = {
+    ProcessEventKind.BREAKAGE: ("delay_revs", 1.0, "rev"),
+    ProcessEventKind.COLLISION: ("delay_from_estimate_s", 1e3, "ms"),
+    ProcessEventKind.MISSING_TOOL: ("delay_blocks", 1.0, "block"),
+}
+
+
+def _p95(kind: str, got: dict[str, list[dict[str, Any]]]) -> str:
+    """The p95 delay in the target's unit, before -> after (each over its own hits)."""
+    key, scale, unit = _TARGET_KEY[ProcessEventKind(kind)]
+    p = []
+    for v in VARIANTS:
+        d = [scale * g[key] for g in got[v] if g["detected"] and key in g]
+        d = [x for x in d if math.isfinite(x)]
+        p.append(f"{np.percentile(d, 95):.3g}" if d else "-")
+    return f"; p95 {p[0]} -> {p[1]} {unit}"
 
 
 def _load(path: Path) -> list[dict[str, Any]]:
@@ -271,7 +300,9 @@ def main(argv: list[str] | None = None) -> int:
     from tqdm import tqdm
 
     with multiprocessing.get_context("spawn").Pool(a.workers) as pool, a.out.open("a") as f:
-        for r in tqdm(pool.imap_unordered(_run, todo, chunksize=1), total=len(todo), file=sys.stderr):
+        for r in tqdm(
+            pool.imap_unordered(_run, todo, chunksize=1), total=len(todo), file=sys.stderr
+        ):
             f.write(json.dumps(r) + "\n")
             f.flush()
             if stop is not None and dt.datetime.now(dt.UTC) >= stop:
