@@ -99,7 +99,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="--method hybrid: the protocol's candidate list (1: 40, 2: 176, 3: 36 "
         "configurations per signal set; 4: revision 3's 36 with the prior wear rate's "
         "rule, the median at the same conditions or a Taylor-type law in the cutting "
-        "speed, chosen in each fold; default 3, see docs/turning-wear.md)",
+        "speed, chosen in each fold; default 4, see docs/turning-wear.md)",
     )
     p.add_argument(
         "--protocol",
@@ -245,7 +245,7 @@ def _run_hybrid(args: argparse.Namespace) -> int:
             f"{table.path}: --method hybrid: expected 3 or more training tools (the choice "
             f"is a leave-one-tool-out over them), found {len(table.tools) - worst}"
         )
-    rev = 1 if args.first_list else (args.revision or 3)
+    rev = 1 if args.first_list else (args.revision or 4)
     cfgs = candidates(revision=rev)
     if args.quick:
         cfgs = [c for c in candidates(revision=1) if c.map != "gbr"]
