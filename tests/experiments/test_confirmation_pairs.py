@@ -33,7 +33,8 @@ def test_every_case_is_watched_on_both_rules_at_every_rate(quick) -> None:  # ty
             assert set(r[f"{rate:g}"]) == set(cp.VARIANTS)
     free = next(r for r in rows if r["kind"] == "none")
     assert free["watched_h"] >= 0.01
-    assert "500 Hz before -> after" in text and "| missing_tool | spindle |" in text
+    assert "| 500 Hz |" in text and "| missing_tool | spindle |" in text
+    assert "| spindle | machine | " in text
 
 
 def test_a_lost_tool_is_confirmed_over_30_ms_after_and_one_revolution_before(quick) -> None:  # type: ignore[no-untyped-def]
