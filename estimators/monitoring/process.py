@@ -44,7 +44,8 @@ raised no alarm, clamped to [0.5, 2].
 Detectors (each with its reason):
 
 ``breakage`` (tooth breakage and chipping)
-    :math:`d_k` above its threshold for ``breakage_samples`` samples, evaluated where the
+    :math:`d_k` above its threshold for ``breakage_rev`` of a revolution (at least
+    :data:`MIN_BREAKAGE_SAMPLES` samples), evaluated where the
     block is taught as cutting and both windows lie in the block. A broken tooth moves
     the pattern by the order of 1 within one revolution; runout, wear and the feed
     override move it slowly. ``suspected`` (:math:`d_k` above ``suspect_share`` of the
@@ -53,10 +54,12 @@ Detectors (each with its reason):
     It is evaluated only while the mean force is above the lower limit (a missing tool is
     the other detector's).
 ``collision`` (collision, overload)
-    :math:`f_k` above the extreme limit for ``collision_samples`` consecutive samples:
-    no cut the program makes comes near it.
+    :math:`f_k` above the extreme limit for ``collision_s`` seconds of consecutive
+    samples (at least :data:`MIN_COLLISION_SAMPLES`): no cut the program makes comes near
+    it.
 ``missing_tool`` (missing or broken-off tool)
-    :math:`\bar f_k` below the lower limit for one revolution, where the block is taught
+    :math:`\bar f_k` below the lower limit for one revolution and at least ``missing_s``
+    seconds, where the block is taught
     as cutting (taught minimum of :math:`\bar f` above ``min_cut_force`` and above
     ``cut_share`` of the block's largest taught mean: past the entry's ramp, where a
     small shift of the entry would move the force a lot). The lower
@@ -69,6 +72,17 @@ axis accelerating, a spindle running up) would otherwise be taught as a cut and 
 execution judged against it (issue 32: on the machining centre's axes at 5 kHz, 732
 false alarms in 17 h, in plunges, rapids and spindle blocks). An industrial monitor is
 likewise switched on around the program's cuts only.
+
+Confirmations are physical quantities, the same at every sample rate (issue 32): a
+collision's force rises within the contact and stays, so its confirmation is a time; a
+breakage's pattern change is a per-revolution statistic that stays high for about a
+revolution after the step, so its confirmation is a share of the revolution; a lost
+tool's absence lasts the rest of the block while a light intermittent cut's mean,
+point-sampled at a few samples per revolution, dips for a few samples as the samples
+slide over the teeth, so its confirmation is a time (and never under the revolution
+the mean is taken over). Each has a floor in samples: below it a confirmation would
+rest on one or two samples of noise (docs/monitoring.md, "Confirmations in time and
+revolutions").
 
 Each detector alarms at most once per block execution (latched until the next block).
 The detectors run per sample inside one numba kernel, so their delays do not depend on
@@ -88,6 +102,9 @@ from common.arrays import F64
 from common.event_kinds import ProcessEventKind
 from estimators.errors import ParameterError, require_in, require_positive
 
+#: the fewest consecutive samples that confirm a breakage / a collision, whatever the rate
+MIN_BREAKAGE_SAMPLES = 3
+MIN_COLLISION_SAMPLES = 2
 #: the detectors, in the order of their ids in the alarm table
 DETECTORS: tuple[ProcessEventKind, ...] = tuple(ProcessEventKind)
 #: teach arrays per (segment, bin)
@@ -132,8 +149,15 @@ class MonitorParams:
         Breakage threshold on the pattern change ``d``.
     suspect_share : float
         ``suspected`` when ``d`` exceeds this share of the threshold.
-    breakage_samples, collision_samples : int
-        Consecutive samples above the limit that make an alarm.
+    breakage_rev : float
+        Share of a spindle revolution the pattern change stays above its threshold to
+        make a breakage alarm (at least :data:`MIN_BREAKAGE_SAMPLES` samples).
+    collision_s : float
+        Time the force stays above the extreme limit to make a collision alarm [s] (at
+        least :data:`MIN_COLLISION_SAMPLES` samples).
+    missing_s : float
+        Time the revolution's mean stays below the missing-tool limit to make an alarm
+        [s] (never less than the revolution the mean is taken over).
     gain_alpha : float
         Weight of one block in the tracked force ratio (0 keeps it at 1).
     max_revolution_samples : int
@@ -155,15 +179,15 @@ class MonitorParams:
     breakage_factor: float = 3.0
     breakage_floor: float = 0.1
     suspect_share: float = 0.5
-    breakage_samples: int = 3
-    collision_samples: int = 2
+    breakage_rev: float = 0.125
+    collision_s: float = 4e-4
+    missing_s: float = 0.03
     gain_alpha: float = 0.2
     max_revolution_samples: int = 8192
 
     def __post_init__(self) -> None:
         require_positive("sample_time", self.sample_time)
-        for name in ("teach_parts", "max_bins", "max_segments", "breakage_samples",
-                     "collision_samples", "max_revolution_samples"):  # fmt: skip
+        for name in ("teach_parts", "max_bins", "max_segments", "max_revolution_samples"):
             v = getattr(self, name)
             if int(v) != v or v < 1:
                 raise ParameterError(name, "an integer >= 1", v)
@@ -173,6 +197,9 @@ class MonitorParams:
             require_in(name, getattr(self, name), 0.0, 1.0)
         for name in ("extreme_floor", "min_cut_force", "breakage_floor"):
             require_positive(name, getattr(self, name))
+        require_in("breakage_rev", self.breakage_rev, 0.0, 1.0)
+        for name in ("collision_s", "missing_s"):
+            require_in(name, getattr(self, name), 0.0, 1.0)
 
     def packed(self) -> F64:
         return np.array(
@@ -180,8 +207,8 @@ class MonitorParams:
                 self.sample_time, self.teach_parts, self.bin_s, self.band_factor,
                 self.band_rel, self.lower_share, self.extreme_factor, self.extreme_floor,
                 self.min_cut_force, self.breakage_factor, self.breakage_floor,
-                self.suspect_share, self.breakage_samples, self.collision_samples,
-                self.gain_alpha, self.cut_share,
+                self.suspect_share, self.breakage_rev, self.collision_s,
+                self.gain_alpha, self.cut_share, self.missing_s,
             ]
         )  # fmt: skip
 
@@ -370,6 +397,12 @@ def _limits(
 
 
 @njit(cache=True)
+def _confirm_samples(seconds: float, ts: float, floor: int) -> int:  # pragma: no cover
+    """A confirmation time in samples of the rate: rounded up, at least ``floor``."""
+    return max(floor, math.ceil(seconds / ts - 1e-9))
+
+
+@njit(cache=True)
 def _collision(
     k: int, f: float, ex: float, nco: int, run: F64, alarms: F64, na: int
 ) -> int:  # pragma: no cover
@@ -424,15 +457,15 @@ def _breakage(
 
 @njit(cache=True)
 def _missing_tool(
-    k: int, fm: float, lo: float, dl: float, L: int, run: F64, alarms: F64, na: int
+    k: int, fm: float, lo: float, dl: float, L: int, nmt: int, run: F64, alarms: F64, na: int
 ) -> int:  # pragma: no cover
-    """Missing tool: below the lower limit for one revolution where the block cuts;
-    returns the alarm rows written so far."""
+    """Missing tool: below the lower limit for one revolution and at least ``nmt``
+    samples where the block cuts; returns the alarm rows written so far."""
     if not math.isnan(dl) and not math.isnan(fm) and fm < lo:
         run[10] += 1.0
     else:
         run[10] = 0.0
-    if L > 0 and run[10] >= L and run[13] == 0.0:
+    if L > 0 and run[10] >= max(L, nmt) and run[13] == 0.0:
         run[13] = 1.0
         alarms[na, 0] = k
         alarms[na, 1] = 2
@@ -514,8 +547,9 @@ def _monitor_kernel(
     bin_s = pr[2]
     mincut = pr[8]
     sshare = pr[11]
-    nbk = int(pr[12])
-    nco = int(pr[13])
+    brev = pr[12]
+    nco = _confirm_samples(pr[13], ts, MIN_COLLISION_SAMPLES)
+    nmt = _confirm_samples(pr[16], ts, 1)
     cut_lvl = max(mincut, pr[15] * seg_mpk[seg])
     nb = t_cnt.shape[1]
     lmax = fbuf.shape[1]
@@ -547,8 +581,9 @@ def _monitor_kernel(
                 hi = math.nan
                 dl = math.nan
             na = _collision(k, f, ex, nco, run, alarms, na)
+            nbk = max(MIN_BREAKAGE_SAMPLES, math.ceil(brev * L - 1e-9))
             na = _breakage(k, fm, d, lo, dl, nbk, sshare, run, o_sus, alarms, na)
-            na = _missing_tool(k, fm, lo, dl, L, run, alarms, na)
+            na = _missing_tool(k, fm, lo, dl, L, nmt, run, alarms, na)
             # the block's mean against the taught one (the tracked force ratio)
             if cnt > 0.0 and not math.isnan(fm) and not math.isnan(dl):
                 run[14] += fm

@@ -58,6 +58,13 @@ FRESH_SD_FLOOR = 10.0
 RATE_SD_FLOOR = 0.1
 #: feed rates within this relative distance are the same cutting conditions
 SAME_CONDITIONS = 0.02
+#: the prior wear rate's rule (protocol revision 4): revision 3's median at the same
+#: conditions, or a Taylor-type law in the cutting conditions (:func:`taylor_fit`)
+RATE_LAWS = ("median", "taylor")
+#: physical range of the law's exponent b (rate per segment ~ v_f^b): Taylor's n for
+#: carbide 0.2-0.6 (handbook, uncoated to coated), b = 1/n (segments at a fixed cutting
+#: time step) down to 1/n - 1 (one segment per pass of a fixed length): [0.67, 5]
+TAYLOR_B = (0.67, 5.0)
 
 
 @dataclass(frozen=True)
@@ -69,8 +76,11 @@ class HybridConfig:
     smoothing: float | None = 1e-2
     offset: bool = False
     features: str = "mean"
+    rate_law: str = "median"
 
     def __post_init__(self) -> None:
+        if self.rate_law not in RATE_LAWS:
+            raise ParameterError("rate_law", f"one of {RATE_LAWS}", self.rate_law)
         if self.features not in FEATURE_SETS:
             raise ParameterError("features", f"one of {FEATURE_SETS}", self.features)
         if self.reference not in REFERENCES:
@@ -86,7 +96,8 @@ class HybridConfig:
     def label(self) -> str:
         s = "map-alone" if self.smoothing is None else f"q={self.smoothing:g}"
         off = "/offset" if self.offset else ""
-        return f"{self.features}/{self.reference}/{self.map}/{s}{off}"
+        law = "" if self.rate_law == "median" else f"/rate={self.rate_law}"
+        return f"{self.features}/{self.reference}/{self.map}/{s}{off}{law}"
 
 
 #: revision 3's smoothings: the rate's random walk that a wear rate can have (docs)
@@ -97,7 +108,9 @@ MAPS_REV3 = (("linear", "mean"), ("isotonic", "mean"), ("gbr", "five"))
 
 
 def candidates(*, revision: int = 3) -> list[HybridConfig]:
-    """Every configuration of the protocol. Revision 3 (the list shrunk by physics,
+    """Every configuration of the protocol. Revision 4 has revision 3's 36; it adds the
+    choice of the prior rate's law, made per fold on the rates (:func:`choose_rate_law`),
+    not a configuration. Revision 3 (the list shrunk by physics,
     docs/turning-wear.md): (linear or isotonic on the ``_MEAN`` s, gradient boosting on
     every feature) x 2 references x 3 smoothings (1e-6, 1e-5, 1e-4) x with and without
     the tool-offset state = 36 per signal set; every one filtered (no map alone).
@@ -188,6 +201,8 @@ class HybridModel:
     v0_sd: float
     rates: list[tuple[float, float]] = field(default_factory=list)  # (feed, rate) per tool
     rate_sd: float = 1.0
+    #: the Taylor-type law of the prior rate: ln r = level + b ln(v_f / vref)
+    taylor: tuple[float, float, float, float] = (0.0, TAYLOR_B[0], math.nan, 1.0)
     sigma2_within: float = 1.0  # residual variance about each tool's mean residual
     sigma2_between: float = 0.0  # variance of the tools' mean residuals (the offset)
 
@@ -227,12 +242,13 @@ class HybridModel:
 
     # --------------------------------------------------------------- prior
     def prior_rate(self, feed: float) -> tuple[float, float]:
-        """The training tools' median wear rate [um/segment] at these conditions (when
-        two or more share them, else over all) and its spread."""
-        rs = np.array([r for f, r in self.rates])
-        same = np.array([abs(f - feed) <= SAME_CONDITIONS * feed for f, _ in self.rates])
-        pick = rs[same] if same.sum() >= 2 else rs
-        return float(np.median(pick)), self.rate_sd
+        """The prior wear rate [um/segment] at these conditions and its spread: the
+        training tools' median rate at the same conditions (two or more sharing them,
+        else over all; ``rate_law = "median"``) or the Taylor-type law fitted on them
+        (``"taylor"``)."""
+        if self.config.rate_law == "taylor":
+            return taylor_rate(self.taylor, feed), self.rate_sd
+        return median_rate(self.rates, feed), self.rate_sd
 
     def start(self, tool: ToolData) -> tuple[float, float]:
         """Start VB and its S.D.: the record's, or a fresh tool's."""
@@ -390,13 +406,70 @@ def fit(tools: Sequence[ToolData], config: HybridConfig) -> HybridModel:
     starts = [float(t.vb[0]) for t in train if t.vb is not None]
     m.v0 = float(np.mean(fresh)) if fresh else 0.0
     m.v0_sd = max(float(np.std(starts)), FRESH_SD_FLOOR)
-    m.rates = [
-        (float(np.median(t.feed)), float((t.vb[-1] - t.vb[0]) / max(len(t.vb) - 1, 1)))
-        for t in train
-        if t.vb is not None
-    ]
+    m.rates = [tool_rate(t) for t in train]
+    m.taylor = taylor_fit(m.rates)
     m.rate_sd = max(float(np.std([r for _, r in m.rates])), RATE_SD_FLOOR)
     return m
+
+
+def tool_rate(t: ToolData) -> tuple[float, float]:
+    """(median feed rate, mean wear rate [um/segment] from its first to its last row)."""
+    assert t.vb is not None
+    return float(np.median(t.feed)), float((t.vb[-1] - t.vb[0]) / max(len(t.vb) - 1, 1))
+
+
+def median_rate(rates: Sequence[tuple[float, float]], feed: float) -> float:
+    """Revision 3's rule: the median rate of the tools at the same conditions (feed
+    rates within ``SAME_CONDITIONS``) when two or more share them, else of all."""
+    rs = np.array([r for _, r in rates])
+    same = np.array([abs(f - feed) <= SAME_CONDITIONS * feed for f, _ in rates])
+    return float(np.median(rs[same] if same.sum() >= 2 else rs))
+
+
+def taylor_fit(rates: Sequence[tuple[float, float]]) -> tuple[float, float, float, float]:
+    """The prior rate's Taylor-type law ``ln r = level + b ln(v_f / vref)`` over the
+    tools' (feed rate, rate), each tool once (protocol revision 4): b the least-squares
+    slope clipped to :data:`TAYLOR_B` (the constrained fit of one parameter); the
+    lower bound when the feed rates span less than ``SAME_CONDITIONS`` (no slope);
+    level the median of ``ln r_i - b ln(v_i / vref)``; vref the median feed rate.
+    Rates are floored at 1e-3 um/segment for the logarithm. Returns (level, b, the
+    unclipped slope (nan without one), vref)."""
+    if len(rates) < 2:
+        raise ParameterError("rates", "two or more training tools", len(rates))
+    f = np.array([v for v, _ in rates])
+    vref = float(np.median(f))
+    x = np.log(f / vref)
+    y = np.log(np.maximum([r for _, r in rates], 1e-3))
+    if np.ptp(f) <= SAME_CONDITIONS * vref:
+        raw = math.nan
+        b = TAYLOR_B[0]
+    else:
+        xc = x - x.mean()
+        raw = float(xc @ (y - y.mean()) / (xc @ xc))
+        b = float(min(max(raw, TAYLOR_B[0]), TAYLOR_B[1]))
+    return float(np.median(y - b * x)), b, raw, vref
+
+
+def taylor_rate(law: tuple[float, float, float, float], feed: float) -> float:
+    """The law's rate [um/segment] at a feed rate."""
+    level, b, _, vref = law
+    return float(math.exp(level + b * math.log(feed / vref)))
+
+
+def choose_rate_law(rates: Sequence[tuple[float, float]]) -> tuple[str, dict[str, float]]:
+    """Revision 4's choice of the prior rate's rule on the training tools only: leave
+    one tool out, predict its rate from the others by each rule, score = mean absolute
+    error [um/segment], each tool once; the lower wins, a tie goes to ``median``."""
+    score: dict[str, float] = {}
+    for law in RATE_LAWS:
+        errs = []
+        for i, (f, r) in enumerate(rates):
+            rest = [x for j, x in enumerate(rates) if j != i]
+            p = taylor_rate(taylor_fit(rest), f) if law == "taylor" else median_rate(rest, f)
+            errs.append(abs(p - r))
+        score[law] = float(np.mean(errs))
+    best = min(RATE_LAWS, key=lambda k: (score[k], RATE_LAWS.index(k)))
+    return best, score
 
 
 LIFE_METHODS = ("rate", "mean", "prior")
@@ -437,14 +510,21 @@ __all__ = [
     "FEATURE_SETS",
     "LIFE_METHODS",
     "MAPS",
+    "RATE_LAWS",
     "REFERENCES",
     "SMOOTHINGS",
     "SMOOTHINGS_REV3",
+    "TAYLOR_B",
     "HybridConfig",
     "HybridModel",
     "ToolData",
     "candidates",
+    "choose_rate_law",
     "fit",
     "fresh_reference",
     "life_end",
+    "median_rate",
+    "taylor_fit",
+    "taylor_rate",
+    "tool_rate",
 ]

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -28,8 +28,11 @@ from estimators.wear.hybrid import (
     HybridModel,
     ToolData,
     candidates,
+    choose_rate_law,
     fit,
     life_end,
+    taylor_fit,
+    tool_rate,
 )
 from estimators.wear.turning import clean_condition
 from server.records.wear_table import FEATURES, FEED, VB, WearTable, read_wear_table
@@ -181,6 +184,13 @@ class FoldResult:
     #: (over the inner left-out tools): how many the inner folds cannot tell apart
     inner_close: int = 0
     n_configs: int = 0
+    #: the prior rate's rule chosen on the training tools (revision 4; ``median`` only
+    #: before), the law's exponent on them (clipped, and the unclipped slope) and each
+    #: rule's inner score [um/segment]
+    rate_law: str = "median"
+    rate_b: float = math.nan
+    rate_b_raw: float = math.nan
+    rate_scores: dict[str, float] = field(default_factory=dict)
 
 
 class _Cache:
@@ -354,12 +364,25 @@ def run_fold(
     cache: _Cache,
     *,
     configs: Sequence[HybridConfig] | None = None,
+    rate_laws: Sequence[str] = ("median",),
 ) -> FoldResult:
-    """One outer fold: nested choice, refit, CV+ intervals, baselines, life, entry."""
+    """One outer fold: nested choice, refit, CV+ intervals, baselines, life, entry.
+    ``rate_laws``: the prior rate's rules to choose from on the training tools' rates
+    (revision 4: ``("median", "taylor")``); the chosen one is set on every
+    configuration."""
     signals = SETS[set_name]
     tools = [t for t in table.tools if t not in test]
     data = {t: tool_data(table, signals, t) for t in table.tools}
     cfgs = list(configs) if configs is not None else candidates()
+    rates = [tool_rate(data[t]) for t in tools]
+    _, rate_b, rate_b_raw, _ = taylor_fit(rates)
+    rate_scores: dict[str, float] = {}
+    law = rate_laws[0]
+    if len(rate_laws) > 1:
+        law, sc = choose_rate_law(rates)
+        rate_scores = {k: v for k, v in sc.items() if k in rate_laws}
+        law = min(rate_laws, key=lambda k: (rate_scores[k], list(rate_laws).index(k)))
+    cfgs = [replace(c, rate_law=law) for c in cfgs]
 
     def model_of(train: Sequence[int], c: HybridConfig) -> HybridModel:
         key = (set_name, tuple(sorted(train)))
@@ -423,6 +446,10 @@ def run_fold(
         inner_score=float(np.mean(sb)),
         inner_close=close,
         n_configs=len(cfgs),
+        rate_law=law,
+        rate_b=rate_b,
+        rate_b_raw=rate_b_raw,
+        rate_scores=rate_scores,
     )
 
 
@@ -433,6 +460,7 @@ def evaluate(
     *,
     configs: Sequence[HybridConfig] | None = None,
     progress: Callable[[int], Any] | None = None,
+    rate_laws: Sequence[str] = ("median",),
 ) -> dict[str, list[FoldResult]]:
     """Every outer split for every signal set."""
     cache = _Cache()
@@ -440,7 +468,9 @@ def evaluate(
     for s in sets:
         res[s] = []
         for proto, test in splits:
-            res[s].append(run_fold(table, s, test, proto, cache, configs=configs))
+            res[s].append(
+                run_fold(table, s, test, proto, cache, configs=configs, rate_laws=rate_laws)
+            )
             if progress is not None:
                 progress(1)
         cache.fits.clear()
@@ -543,6 +573,16 @@ def summarise(folds: Sequence[FoldResult], groups: dict[int, str] | None = None)
                     {c: sum(f.chosen == c for f in fs) for c in {f.chosen for f in fs}}.items(),
                     key=lambda kv: (-kv[1], kv[0]),  # ties by name: the same bytes every run
                 )
+            ),
+            # the prior rate's rule per fold (revision 4) and the law's exponent: how
+            # often the training tools' own slope left the physical range
+            "rate_laws": {
+                law: sum(f.rate_law == law for f in fs) for law in sorted({f.rate_law for f in fs})
+            },
+            "rate_b": [f.rate_b for f in fs],
+            "rate_b_raw": [f.rate_b_raw for f in fs],
+            "rate_b_out_of_range": sum(
+                1 for f in fs if not (math.isfinite(f.rate_b_raw) and f.rate_b_raw == f.rate_b)
             ),
         }
         if p == "loto":

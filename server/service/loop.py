@@ -63,6 +63,7 @@ from server.pipeline.sources import Scheduled
 from server.records.history import HistoryStore
 from server.records.monitor_events import EventRecord
 from server.service import protocol
+from server.service.frame_slots import FrameSlots
 from server.service.hub import ClientQueue, Hub
 from server.service.messages import Event, LoopHealth, MonitorStatus
 from server.service.settings import MAX_SPEED, Settings
@@ -428,7 +429,8 @@ class LiveLoop:
             self.runtime.resume()
             self._anchor()
         last_frame = time.monotonic()
-        next_frame = last_frame  # wall time of the next frame's slot
+        # the first slot at the first block's due time at 1x (see FrameSlots)
+        slots = FrameSlots(self.frame_period, last_frame + self.frame_period)
         try:
             while not self._stop.is_set():
                 src = self.pipeline.source
@@ -503,17 +505,10 @@ class LiveLoop:
                     self.stalls += 1
                     with self.lock:
                         self._anchor()
-                # frames on their own wall schedule, next_frame += period: not "a period
-                # since the last frame finished", which at 1x (block period = frame
-                # period) skipped every frame whose block finished a little earlier
-                # than the previous one (jitter) and gave ~13 Hz instead of 20 Hz.
-                # A frame is due within half a block's wall time of its slot.
-                tol = 0.5 * min(block_s / max(speed, 1e-9), self.frame_period)
-                if done >= next_frame - tol:
+                # frames on their own wall schedule (see frame_slots): one per block at 1x,
+                # coalesced after a stall
+                if slots.due(done, block_s / max(speed, 1e-9)):
                     last_frame = done
-                    next_frame += self.frame_period
-                    if next_frame < done - tol:  # behind by a period or more: re-anchor
-                        next_frame = done + self.frame_period
                     self._publish()
         except Exception as exc:  # keep the service up and say why the loop stopped
             self.error = f"{type(exc).__name__}: {exc}"

@@ -11,13 +11,18 @@ import pytest
 
 from estimators.errors import ParameterError
 from estimators.wear.hybrid import (
+    TAYLOR_B,
     HybridConfig,
     ToolData,
     _pava,
     candidates,
+    choose_rate_law,
     fit,
     fresh_reference,
     life_end,
+    median_rate,
+    taylor_fit,
+    taylor_rate,
 )
 
 A = 0.8
@@ -51,6 +56,8 @@ def test_candidates_are_the_protocols_list() -> None:
 def test_bad_config_names_the_field() -> None:
     with pytest.raises(ParameterError, match="map"):
         HybridConfig(map="spline")
+    with pytest.raises(ParameterError, match="rate_law"):
+        HybridConfig(rate_law="power")
     with pytest.raises(ParameterError, match="smoothing"):
         HybridConfig(smoothing=-1.0)
 
@@ -114,3 +121,56 @@ def test_life_end_is_linear_in_the_rate_and_never_for_zero() -> None:
     assert life_end(est, np.zeros(3), 2, 100.0, method="prior", prior=5.0) == pytest.approx(
         2.0 + (100.0 - est[2]) / 5.0
     )
+
+
+def test_revision_4_keeps_revision_3s_configurations() -> None:
+    # the prior rate's rule is chosen per fold on the rates, not a configuration
+    assert candidates(revision=4) == candidates(revision=3)
+    assert HybridConfig(rate_law="taylor").label.endswith("/rate=taylor")
+    assert "rate=" not in HybridConfig().label
+
+
+def test_taylor_law_recovers_its_exponent_and_clips_it_to_the_physical_range() -> None:
+    feeds = [2000.0, 2100.0, 2260.0, 2260.0, 2500.0, 3300.0]
+    for b in (1.0, 2.5, 4.0):
+        rates = [(f, 1.8 * (f / 2260.0) ** b) for f in feeds]
+        level, bf, raw, vref = taylor_fit(rates)
+        assert vref == 2260.0 and bf == pytest.approx(b) and raw == pytest.approx(b)
+        assert taylor_rate((level, bf, raw, vref), 3000.0) == pytest.approx(
+            1.8 * (3000.0 / 2260.0) ** b
+        )
+    # a rate that falls with the speed, or grows faster than any carbide: clipped
+    falling = [(f, 1.8 * (f / 2260.0) ** -1.5) for f in feeds]
+    assert taylor_fit(falling)[1] == TAYLOR_B[0] and taylor_fit(falling)[2] == pytest.approx(-1.5)
+    steep = [(f, 1.8 * (f / 2260.0) ** 9) for f in feeds]
+    assert taylor_fit(steep)[1] == TAYLOR_B[1]
+    # one condition: no slope, the least extrapolation; the level is the median
+    one = [(2260.0, r) for r in (0.5, 1.0, 3.0)]
+    level, bf, raw, _ = taylor_fit(one)
+    assert bf == TAYLOR_B[0] and np.isnan(raw)
+    assert taylor_rate((level, bf, raw, 2260.0), 2260.0) == pytest.approx(1.0)
+    with pytest.raises(ParameterError, match="rates"):
+        taylor_fit([(2260.0, 1.0)])
+
+
+def test_a_tool_alone_at_its_speed_gets_the_laws_rate_not_the_median() -> None:
+    rates = [(f, 1.5 * (f / 2260.0) ** 2) for f in (2080.0, 2090.0, *[2260.0] * 6)]
+    assert median_rate(rates, 3320.0) == pytest.approx(1.5)  # the median over all
+    law = taylor_fit(rates)
+    assert taylor_rate(law, 3320.0) == pytest.approx(1.5 * (3320.0 / 2260.0) ** 2)
+    m = fit([tool(s, feed=f) for s, f in enumerate((2080.0, 2260.0, 2260.0))], HybridConfig())
+    r_med = m.prior_rate(3320.0)[0]
+    m.config = HybridConfig(rate_law="taylor")
+    assert m.prior_rate(3320.0)[0] == pytest.approx(taylor_rate(m.taylor, 3320.0))
+    assert m.prior_rate(3320.0)[0] != pytest.approx(r_med)
+
+
+def test_the_rate_law_is_chosen_on_what_it_predicts() -> None:
+    rng = np.random.default_rng(4)
+    feeds = [2080.0, 2090.0, 2260.0, 2265.0, 2270.0, 2500.0, 2900.0, 3300.0]
+    law = [(f, 1.5 * (f / 2260.0) ** 3 * rng.lognormal(0, 0.05)) for f in feeds]
+    best, score = choose_rate_law(law)
+    assert best == "taylor" and score["taylor"] < score["median"]
+    # one condition: both rules are the median of the others, a tie goes to median
+    best, score = choose_rate_law([(2260.0, r) for r in (0.5, 1.0, 1.8, 3.0)])
+    assert best == "median" and score["taylor"] == pytest.approx(score["median"])

@@ -105,3 +105,6 @@ def _unseen_rows(rows: dict, checks: dict) -> None:
     # the life error taken apart: the estimate's, beside the measured state's
     lp = rows[f"{pre}.life_parts"]
     assert lp["ours"] >= 0 and lp["paper"] >= 0 and "true level + our rate" in lp["condition"]
+    # revision 4: the prior rate's rule chosen in each of the two folds
+    rl = rows[f"{pre}.rate_law"]
+    assert 0 <= rl["ours"] <= 2 and rl["unit"] == "folds" and "[0.67, 5]" in rl["condition"]

@@ -47,12 +47,20 @@ EXPECTED: dict[str, dict[str, str]] = {
 # are watched for collisions only, not taught), so its band differs there; every other
 # channel and the events are as before
 _AIR_MOVES = "the monitor told which blocks cannot cut (issue 32): air moves not taught"
+# issue 32 (rates line): the breakage confirmation is 1/8 of a revolution (25 samples at the
+# default program's 1,500 rpm at 5 kHz), no longer 3 samples: the same 4 events, the two
+# breakage alarms 3.6 ms and 5.8 ms later (the second, in the injected collision's block,
+# now after the collision's alarm, not before it), so the monitor's state channel too
+_CONFIRM = "breakage confirmed over 1/8 revolution, not 3 samples (issue 32): alarms later"
 EXPECTED["default-0"] = {
     "tool_changes: {'count': 11, 'hash': '3780e85cd13920da'} -> "
     "{'count': 11, 'hash': '2b19aa2d44d4b8e8'}": "the wear part's tools numbered by its own "
     "count, not by the milling machine's tool (issue 28)",
     "channel mon_lower: de8fd11fab424493 -> 8fc00f1ba8f4849a": _AIR_MOVES,
     "channel mon_upper: 3889c5f9ec332947 -> 3955289cea2b3b89": _AIR_MOVES,
+    "events: {'count': 4, 'hash': '81222ab60ed6e655'} -> "
+    "{'count': 4, 'hash': '835601219dc40e6d'}": _CONFIRM,
+    "channel mon_state: 2699fd2061f78e1a -> 156d8960963df2f8": _CONFIRM,
 }
 
 

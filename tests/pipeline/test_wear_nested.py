@@ -143,3 +143,37 @@ def test_fold_records_what_its_selection_believed(table: W.WearTable) -> None:
     outer = float(np.mean(np.abs(f.tools[0].est - f.tools[0].vb)))
     assert s["outer_score"]["median"] == pytest.approx(outer)
     assert s["optimism"]["median"] == pytest.approx(outer - f.inner_score)
+
+
+def test_revision_4_chooses_the_prior_rate_on_the_training_tools_only(
+    table: W.WearTable,
+) -> None:
+    """Tool 3, alone at its speed: the prior rate's rule is chosen on the other eight
+    tools' rates (the test tool's VB reaches nothing of it), set on the chosen
+    configuration, and recorded with the law's exponent; with the median rule alone the
+    fold is revision 3's."""
+    from estimators.wear.hybrid import RATE_LAWS, choose_rate_law, taylor_fit, tool_rate
+
+    cfgs = [c for c in W.candidates() if c.map == "linear" and not c.offset][:2]
+    a = W.run_fold(table, "F_f", (3,), "loto", W._Cache(), configs=cfgs, rate_laws=RATE_LAWS)
+    train = [W.tool_data(table, ["F_f"], t) for t in table.tools if t != 3]
+    law, score = choose_rate_law([tool_rate(d) for d in train])
+    assert a.rate_law == law and a.rate_scores == pytest.approx(score)
+    assert ("/rate=taylor" in a.chosen) == (law == "taylor")
+    _, b, raw, _ = taylor_fit([tool_rate(d) for d in train])
+    assert a.rate_b == b and (np.isnan(a.rate_b_raw) or a.rate_b_raw == pytest.approx(raw))
+    s = W.summarise([a])["loto"]
+    assert s["rate_laws"] == {law: 1} and s["rate_b"] == [b]
+    assert s["rate_b_out_of_range"] == int(not (np.isfinite(raw) and raw == b))
+    cols = dict(table.columns)
+    vb = cols[W.VB].copy()
+    vb[table.rows_of(3)] *= 3.0
+    cols[W.VB] = vb
+    other = dataclasses.replace(table, columns=cols)
+    c = W.run_fold(other, "F_f", (3,), "loto", W._Cache(), configs=cfgs, rate_laws=RATE_LAWS)
+    assert (c.rate_law, c.chosen) == (a.rate_law, a.chosen)
+    np.testing.assert_allclose(c.tools[0].est, a.tools[0].est)
+    r3 = W.run_fold(table, "F_f", (3,), "loto", W._Cache(), configs=cfgs)
+    assert r3.rate_law == "median" and "rate=" not in r3.chosen and not r3.rate_scores
+    if law == "median":
+        np.testing.assert_allclose(r3.tools[0].est, a.tools[0].est)

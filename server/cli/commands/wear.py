@@ -94,10 +94,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--revision",
         type=int,
-        choices=(1, 2, 3),
+        choices=(1, 2, 3, 4),
         default=None,
         help="--method hybrid: the protocol's candidate list (1: 40, 2: 176, 3: 36 "
-        "configurations per signal set; default 3, see docs/turning-wear.md)",
+        "configurations per signal set; 4: revision 3's 36 with the prior wear rate's "
+        "rule, the median at the same conditions or a Taylor-type law in the cutting "
+        "speed, chosen in each fold; default 4, see docs/turning-wear.md)",
     )
     p.add_argument(
         "--protocol",
@@ -183,7 +185,7 @@ def _run_hybrid(args: argparse.Namespace) -> int:
     import numpy as np
     from tqdm import tqdm
 
-    from estimators.wear.hybrid import candidates
+    from estimators.wear.hybrid import RATE_LAWS, candidates
     from server.errors import CutwatchError
     from server.pipeline.wear_nested import (
         K_OUT,
@@ -243,14 +245,17 @@ def _run_hybrid(args: argparse.Namespace) -> int:
             f"{table.path}: --method hybrid: expected 3 or more training tools (the choice "
             f"is a leave-one-tool-out over them), found {len(table.tools) - worst}"
         )
-    rev = 1 if args.first_list else (args.revision or 3)
+    rev = 1 if args.first_list else (args.revision or 4)
     cfgs = candidates(revision=rev)
     if args.quick:
         cfgs = [c for c in candidates(revision=1) if c.map != "gbr"]
+    laws = RATE_LAWS if rev >= 4 else ("median",)
     cache = _Cache()
     folds = []
     for proto, g in tqdm(splits, desc="wear folds", file=sys.stderr, disable=args.quiet):
-        folds.append(run_fold(table, args.signal_set, g, proto, cache, configs=cfgs))
+        folds.append(
+            run_fold(table, args.signal_set, g, proto, cache, configs=cfgs, rate_laws=laws)
+        )
     args.out.mkdir(parents=True, exist_ok=True)
     with (args.out / "estimates.csv").open("w", newline="") as f:
         w = csv.writer(f)

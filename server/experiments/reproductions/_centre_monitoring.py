@@ -30,6 +30,7 @@ from __future__ import annotations
 import hashlib
 import math
 import time
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from typing import Any
 
@@ -338,7 +339,7 @@ class Watch:
         return ((k + 1) * f - 1) * self.trace.sample_time
 
 
-def _run_parts(machine: Any, state: Any, watches: list[Watch], parts: int) -> Any:
+def _run_parts(machine: Any, state: Any, watches: Sequence[Watch], parts: int) -> Any:
     """Simulate until ``parts`` more parts are done, every chunk into every watch."""
     end = state.part + parts
     while state.part < end:

@@ -39,13 +39,15 @@ TARGET_FALSE_PER_HOUR = 0.1
 TARGET_BREAKAGE_REVS = 2.0
 TARGET_COLLISION_S = 5e-3
 TARGET_MISSING_BLOCKS = 1.0
-#: what each detector needs to confirm, in samples of its own rate (MonitorParams)
+#: what each detector needs to confirm (MonitorParams: a time or a share of the revolution,
+#: with a floor in samples; the same physical quantity at every rate)
 CONFIRM: dict[str, str] = {
-    ProcessEventKind.BREAKAGE: "d over its threshold for 3 samples, d comparing the last "
-    "revolution with the one before",
-    ProcessEventKind.COLLISION: "the force over its extreme limit for 2 consecutive samples",
+    ProcessEventKind.BREAKAGE: "d over its threshold for 1/8 of a revolution and at least 3 "
+    "samples, d comparing the last revolution with the one before",
+    ProcessEventKind.COLLISION: "the force over its extreme limit for 0.4 ms and at least 2 "
+    "consecutive samples",
     ProcessEventKind.MISSING_TOOL: "the mean over the last revolution below the lower limit "
-    "for one revolution",
+    "for 30 ms and at least one revolution",
 }
 #: samples-per-revolution classes of the breakage rows
 SPR_BINS = ((0.0, 4.0), (4.0, 8.0), (8.0, 20.0), (20.0, math.inf))

@@ -2,7 +2,9 @@
 ``cutwatch reproduce turning-wear``.
 
 Per signal set and outer protocol (leave one tool out; leave k = 2, 3, 4 tools out, 5
-splits each), under the protocol's current candidate list (revision 3, 36 per set): the
+splits each), under the protocol's current revision (4: revision 3's 36 configurations
+per set, the prior wear rate's rule - the median at the same conditions or a Taylor-type
+law in the cutting speed - chosen in each fold on the training tools' rates): the
 hybrid's MAE (median and range over the splits) beside each baseline's, the ratios to
 the baselines per split, coverage and width of the CV+ intervals, the selection's
 optimism; on leave-one-tool-out also MAE at the measured VB points, per cutting-
@@ -195,6 +197,20 @@ def loto_rows(s: str, v: dict[str, Any]) -> list[Row]:
         )
     for i, (c, n) in enumerate(v["chosen"].items()):
         rows.append(Row(f"{pre}.chosen.{i}", n, None, "folds", c))
+    if "rate_laws" in v:
+        bs = [b for b in v["rate_b"] if b == b]
+        rows.append(
+            Row(
+                f"{pre}.rate_law",
+                v["rate_laws"].get("taylor", 0),
+                None,
+                "folds",
+                f"folds whose training tools chose the Taylor-type prior rate (revision 4) "
+                f"of {v['splits']}: {v['rate_laws']}; its exponent b "
+                f"{min(bs):.2f}-{max(bs):.2f}, the training tools' slope outside the "
+                f"physical range [0.67, 5] (clipped) in {v['rate_b_out_of_range']} folds",
+            )
+        )
     return rows
 
 
@@ -244,7 +260,7 @@ def checks(s: str, v: dict[str, Any]) -> list[Check]:
 
 def section(path: Any, quick: bool, bar: Any) -> tuple[list[Row], list[Check]]:
     """Run the nested evaluation and turn it into rows and checks."""
-    from estimators.wear.hybrid import candidates
+    from estimators.wear.hybrid import RATE_LAWS, candidates
     from server.pipeline.wear_nested import (
         SETS,
         condition_groups,
@@ -264,6 +280,7 @@ def section(path: Any, quick: bool, bar: Any) -> tuple[list[Row], list[Check]]:
         splits,
         configs=[c for c in candidates(revision=1) if c.map != "gbr"] if quick else None,
         progress=bar.update,
+        rate_laws=RATE_LAWS,
     )
     rows: list[Row] = []
     chk: list[Check] = []
