@@ -195,10 +195,15 @@ class _Cache:
     def get(
         self, key: tuple[Any, ...], tools: Sequence[ToolData], cfg: HybridConfig
     ) -> HybridModel:
-        k = (*key, cfg.features, cfg.reference, cfg.map)
+        k = (*key, cfg.features, cfg.reference, cfg.map, cfg.rate_law)
         m = self.fits.get(k)
-        if m is None:
-            m = fit(tools, HybridConfig(cfg.reference, cfg.map, None, features=cfg.features))
+        if m is None:  # the rule of the prior rate is fitted too (revision 5's law)
+            m = fit(
+                tools,
+                HybridConfig(
+                    cfg.reference, cfg.map, None, features=cfg.features, rate_law=cfg.rate_law
+                ),
+            )
             self.fits[k] = m
         return m
 

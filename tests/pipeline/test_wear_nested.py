@@ -192,4 +192,13 @@ def test_revision_5_runs_the_law_per_segment_in_every_fold(table: W.WearTable) -
     assert f.rate_b == segment_b(train, vref) and f.rate_b in SEGMENT_B
     r = f.tools[0]
     assert set(r.life) == {"300", "150"} and all(np.isfinite(v) for v in r.life.values())
-    assert r.life_parts["rate_prior"] > 0
+    # the prior rate at half-life: the training tools' median rate at vref, at the speed
+    # of the segment being cut (the law fitted in the fold, not a default)
+    b = f.rate_b
+    refs = [
+        (d.vb[-1] - d.vb[0]) / np.sum((d.feed[:-1] / vref) ** b) for d in train if d.vb is not None
+    ]
+    k = int(np.flatnonzero(r.vb >= 300)[0]) // 2
+    d11 = W.tool_data(table, ["F_f"], 11)
+    want = float(np.median(refs)) * (d11.feed[k] / vref) ** b
+    assert r.life_parts["rate_prior"] == pytest.approx(want)
