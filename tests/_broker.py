@@ -15,8 +15,9 @@ import shutil
 import socket
 import subprocess
 import tempfile
+import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -31,6 +32,27 @@ def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return int(s.getsockname()[1])
+
+
+@contextlib.contextmanager
+def silent_broker() -> Iterator[int]:
+    """A port where a TCP listener takes connections and never answers (no CONNACK, no
+    PUBACK): a broker that hangs. Whatever waits on the network there waits for good, so
+    "never blocks" is judged by whether a call returns at all, not by how long it took."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        s.listen(16)
+        yield int(s.getsockname()[1])
+
+
+def returns(fn: Callable[[], object], deadline: float = 60.0) -> list[object]:
+    """``[fn()]`` when it returned within ``deadline`` s, ``[]`` when it had not (or
+    raised); run on a daemon thread, so one that hangs does not hold the test run."""
+    out: list[object] = []
+    th = threading.Thread(target=lambda: out.append(fn()), daemon=True)
+    th.start()
+    th.join(deadline)
+    return out
 
 
 def need_mosquitto() -> None:

@@ -27,6 +27,7 @@ rate through the training tools' first segments cut fresh).
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -65,6 +66,15 @@ RATE_LAWS = ("median", "taylor")
 #: carbide 0.2-0.6 (handbook, uncoated to coated), b = 1/n (segments at a fixed cutting
 #: time step) down to 1/n - 1 (one segment per pass of a fixed length): [0.67, 5]
 TAYLOR_B = (0.67, 5.0)
+#: revision 5: the law per segment inside the filter (``rate_law = "segment"``); its
+#: exponent b from the knot intervals within the training tools, on this grid (0: no
+#: speed effect; the rest: the physical range)
+SEGMENT_B = (0.0, 0.67, 1.0, 1.5, 2.0, 3.0, 4.0, 5.0)
+#: a knot interval whose VB rises by at most this [um] is left out of b's fit (VB not
+#: measured inside a flat stretch)
+SEGMENT_MIN_DVB = 1.0
+#: a knot: the slope of VB changes by more than this (relative)
+KNOT_TOL = 0.01
 
 
 @dataclass(frozen=True)
@@ -79,8 +89,8 @@ class HybridConfig:
     rate_law: str = "median"
 
     def __post_init__(self) -> None:
-        if self.rate_law not in RATE_LAWS:
-            raise ParameterError("rate_law", f"one of {RATE_LAWS}", self.rate_law)
+        if self.rate_law not in (*RATE_LAWS, "segment"):
+            raise ParameterError("rate_law", f"one of {(*RATE_LAWS, 'segment')}", self.rate_law)
         if self.features not in FEATURE_SETS:
             raise ParameterError("features", f"one of {FEATURE_SETS}", self.features)
         if self.reference not in REFERENCES:
@@ -203,6 +213,11 @@ class HybridModel:
     rate_sd: float = 1.0
     #: the Taylor-type law of the prior rate: ln r = level + b ln(v_f / vref)
     taylor: tuple[float, float, float, float] = (0.0, TAYLOR_B[0], math.nan, 1.0)
+    #: revision 5: the law per segment, s_k = (v_k / vref)^speed_b; the training tools'
+    #: median rate at vref and its spread
+    speed_b: float = 0.0
+    rate_ref: float = 1.0
+    rate_ref_sd: float = 1.0
     sigma2_within: float = 1.0  # residual variance about each tool's mean residual
     sigma2_between: float = 0.0  # variance of the tools' mean residuals (the offset)
 
@@ -248,7 +263,18 @@ class HybridModel:
         (``"taylor"``)."""
         if self.config.rate_law == "taylor":
             return taylor_rate(self.taylor, feed), self.rate_sd
+        if self.config.rate_law == "segment":
+            s = self.scale(np.array([feed]))[0]
+            return self.rate_ref * s, self.rate_ref_sd * s
         return median_rate(self.rates, feed), self.rate_sd
+
+    def scale(self, feed: F64) -> F64:
+        """Revision 5: each segment's wear relative to one cut at vref, (v / vref)^b
+        (1 for the other rules)."""
+        f = np.asarray(feed, dtype=np.float64)
+        if self.config.rate_law != "segment" or self.speed_b == 0.0:
+            return np.ones(len(f))
+        return np.asarray((f / self.taylor[3]) ** self.speed_b, dtype=np.float64)
 
     def start(self, tool: ToolData) -> tuple[float, float]:
         """Start VB and its S.D.: the record's, or a fresh tool's."""
@@ -269,7 +295,12 @@ class HybridModel:
         if q is None:
             s = math.sqrt(self.sigma2)
             return z, np.full(n, s), np.full(n, np.nan)
-        r0, rsd = self.prior_rate(float(np.median(tool.feed[: min(n, 10)])))
+        seg = self.config.rate_law == "segment"
+        if seg:  # the state's rate is the rate at vref; a segment adds r s_k
+            r0, rsd = self.rate_ref, self.rate_ref_sd
+        else:
+            r0, rsd = self.prior_rate(float(np.median(tool.feed[: min(n, 10)])))
+        sc = self.scale(tool.feed)
         v, vsd = self.start(tool)
         r, c = r0, 0.0
         if self.config.offset:
@@ -282,9 +313,10 @@ class HybridModel:
         esd = np.empty(n)
         rate = np.empty(n)
         for k in range(n):
-            if k > 0:  # predict: VB += r; the rate a random walk; the offset constant
-                v = v + r
-                a, b, d, e = a + 2 * b + e, b + e, d + f, e + Q
+            if k > 0:  # predict: VB += r s; the rate a random walk; the offset constant
+                s = float(sc[k - 1])
+                v = v + r * s
+                a, b, d, e = a + 2 * s * b + s * s * e, b + s * e, d + s * f, e + Q
             h1, h2, h3 = a + d, b + f, d + g
             S = a + 2 * d + g + R
             innov = (z[k] - v - c) / S
@@ -295,7 +327,7 @@ class HybridModel:
             e, f, g = e - h2 * h2 / S, f - h2 * h3 / S, g - h3 * h3 / S
             if r < 0.0:  # the wear never shrinks: project the rate
                 r = 0.0
-            est[k], esd[k], rate[k] = v, math.sqrt(max(a, 1e-12)), r
+            est[k], esd[k], rate[k] = v, math.sqrt(max(a, 1e-12)), r * float(sc[k])
         return est, esd, rate
 
 
@@ -408,8 +440,56 @@ def fit(tools: Sequence[ToolData], config: HybridConfig) -> HybridModel:
     m.v0_sd = max(float(np.std(starts)), FRESH_SD_FLOOR)
     m.rates = [tool_rate(t) for t in train]
     m.taylor = taylor_fit(m.rates)
+    if config.rate_law == "segment":
+        vref = m.taylor[3]
+        m.speed_b = segment_b(train, vref)
+        refs = [
+            float((t.vb[-1] - t.vb[0]) / max(np.sum((t.feed[:-1] / vref) ** m.speed_b), 1e-9))
+            for t in train
+            if t.vb is not None
+        ]
+        m.rate_ref = float(np.median(refs))
+        m.rate_ref_sd = max(float(np.std(refs)), RATE_SD_FLOOR)
     m.rate_sd = max(float(np.std([r for _, r in m.rates])), RATE_SD_FLOOR)
     return m
+
+
+def knots(vb: F64) -> np.ndarray:
+    """Rows where VB was measured: the ends and every change of slope."""
+    d = np.diff(vb)
+    inner = np.flatnonzero(np.abs(np.diff(d)) > KNOT_TOL * np.maximum(np.abs(d[:-1]), 1e-9) + 1e-6)
+    return np.unique(np.concatenate([[0], inner + 1, [len(vb) - 1]]))
+
+
+def segment_b(tools: Sequence[ToolData], vref: float) -> float:
+    """Revision 5: the exponent of the law per segment from the knot intervals within
+    the tools: ``ln(dVB / sum s_k) = level(tool) + c VB_mid``, least squares for each b
+    of :data:`SEGMENT_B`, the lowest residual sum of squares wins (the first on a tie).
+    Intervals with dVB <= :data:`SEGMENT_MIN_DVB` are left out."""
+    rows: list[tuple[int, float, F64, float]] = []  # (tool index, dVB, feeds, mid VB)
+    for i, t in enumerate(tools):
+        if t.vb is None:
+            continue
+        kn = knots(t.vb)
+        for a, b in itertools.pairwise(kn):
+            dvb = float(t.vb[b] - t.vb[a])
+            if dvb > SEGMENT_MIN_DVB:
+                rows.append((i, dvb, t.feed[a:b] / vref, 0.5 * float(t.vb[a] + t.vb[b])))
+    if len(rows) < len(tools) + 2:
+        return 0.0
+    ids = sorted({r[0] for r in rows})
+    X = np.zeros((len(rows), len(ids) + 1))
+    for j, r in enumerate(rows):
+        X[j, ids.index(r[0])] = 1.0
+        X[j, -1] = r[3] / 100.0
+    best, best_rss = 0.0, math.inf
+    for b in SEGMENT_B:
+        y = np.array([math.log(r[1] / float(np.sum(r[2] ** b))) for r in rows])
+        c, *_ = np.linalg.lstsq(X, y, rcond=None)
+        rss = float(np.sum((y - X @ c) ** 2))
+        if rss < best_rss - 1e-12:
+            best, best_rss = b, rss
+    return best
 
 
 def tool_rate(t: ToolData) -> tuple[float, float]:
@@ -508,10 +588,12 @@ def life_end(
 
 __all__ = [
     "FEATURE_SETS",
+    "KNOT_TOL",
     "LIFE_METHODS",
     "MAPS",
     "RATE_LAWS",
     "REFERENCES",
+    "SEGMENT_B",
     "SMOOTHINGS",
     "SMOOTHINGS_REV3",
     "TAYLOR_B",
@@ -522,8 +604,10 @@ __all__ = [
     "choose_rate_law",
     "fit",
     "fresh_reference",
+    "knots",
     "life_end",
     "median_rate",
+    "segment_b",
     "taylor_fit",
     "taylor_rate",
     "tool_rate",

@@ -30,6 +30,7 @@ from estimators.wear.hybrid import (
     candidates,
     choose_rate_law,
     fit,
+    knots,
     life_end,
     taylor_fit,
     tool_rate,
@@ -53,8 +54,6 @@ K_OUT = (2, 3, 4)
 SPLITS_PER_K = 5
 SPLIT_SEED = 35
 ALPHA = 0.05
-#: a knot: the slope of VB changes by more than this (relative)
-KNOT_TOL = 0.01
 #: remaining-life criteria [um] (the second for tools that never reach the first)
 CRITERIA = (300.0, 150.0)
 BASELINES = ("linear", "gbr5", "gbr_same", "prior")
@@ -119,13 +118,6 @@ def tool_data(
     feed, _ = clean_condition(table.column(FEED, tool))
     vb = table.column(VB, tool)
     return ToolData(tool, x, feed, vb, float(vb[0]) if record else None, x_all=xa)
-
-
-def knots(vb: F64) -> np.ndarray:
-    """Rows where VB was measured: the ends and every change of slope."""
-    d = np.diff(vb)
-    inner = np.flatnonzero(np.abs(np.diff(d)) > KNOT_TOL * np.maximum(np.abs(d[:-1]), 1e-9) + 1e-6)
-    return np.unique(np.concatenate([[0], inner + 1, [len(vb) - 1]]))
 
 
 def outer_splits(
@@ -203,10 +195,15 @@ class _Cache:
     def get(
         self, key: tuple[Any, ...], tools: Sequence[ToolData], cfg: HybridConfig
     ) -> HybridModel:
-        k = (*key, cfg.features, cfg.reference, cfg.map)
+        k = (*key, cfg.features, cfg.reference, cfg.map, cfg.rate_law)
         m = self.fits.get(k)
-        if m is None:
-            m = fit(tools, HybridConfig(cfg.reference, cfg.map, None, features=cfg.features))
+        if m is None:  # the rule of the prior rate is fitted too (revision 5's law)
+            m = fit(
+                tools,
+                HybridConfig(
+                    cfg.reference, cfg.map, None, features=cfg.features, rate_law=cfg.rate_law
+                ),
+            )
             self.fits[k] = m
         return m
 
@@ -275,7 +272,7 @@ def _baselines(
 
 
 def life_errors(
-    vb: F64, est: F64, rate: F64, start: float, method: str, prior: float = math.nan
+    vb: F64, est: F64, rate: F64, start: float, method: str, prior: float | F64 = math.nan
 ) -> dict[str, float]:
     """|predicted - true end| / true remaining life at half of the life, per criterion
     the tool reaches (none if it reaches neither); ``prior``: the training tools' rate
@@ -286,13 +283,18 @@ def life_errors(
         if len(hit) and hit[0] >= 2:
             h = int(hit[0])
             k = h // 2
-            end = life_end(est, rate, k, crit, method=method, start=start, prior=prior)
+            end = life_end(est, rate, k, crit, method=method, start=start, prior=_at(prior, k))
             out[f"{crit:g}"] = abs(end - h) / (h - k) if math.isfinite(end) else math.inf
     return out
 
 
+def _at(prior: float | F64, k: int) -> float:
+    """The prior rate at segment ``k`` (revision 5's is per segment)."""
+    return float(prior) if np.ndim(prior) == 0 else float(np.asarray(prior)[k])
+
+
 def life_parts(
-    vb: F64, est: F64, rate: F64, start: float, method: str, prior: float
+    vb: F64, est: F64, rate: F64, start: float, method: str, prior: float | F64
 ) -> dict[str, float]:
     """The life error at half-life (300 um, 150 um if never 300) taken apart: the
     extrapolation is ``k + (criterion - level) / rate``; each of level and rate is taken
@@ -309,6 +311,7 @@ def life_parts(
         return {}
     h = int(hit[0])
     k = h // 2
+    prior = _at(prior, k)
     lv = {"est": float(est[k]), "true": float(vb[k])}
     if method == "prior":
         r_est = prior
@@ -408,7 +411,9 @@ def run_fold(
     model = model_of(tools, best)
     loo = {i: model_of([t for t in tools if t != i], best) for i in tools}
 
-    def prior_of(m: HybridModel, d: ToolData) -> float:
+    def prior_of(m: HybridModel, d: ToolData) -> float | F64:
+        if m.config.rate_law == "segment":  # per segment, at each segment's speed
+            return m.rate_ref * m.scale(d.feed)
         return m.prior_rate(float(np.median(d.feed[: min(len(d.feed), 10)])))[0]
 
     # the life's extrapolation: chosen on the same inner folds
@@ -447,8 +452,8 @@ def run_fold(
         inner_close=close,
         n_configs=len(cfgs),
         rate_law=law,
-        rate_b=rate_b,
-        rate_b_raw=rate_b_raw,
+        rate_b=model.speed_b if law == "segment" else rate_b,
+        rate_b_raw=model.speed_b if law == "segment" else rate_b_raw,
         rate_scores=rate_scores,
     )
 

@@ -108,6 +108,17 @@ def test_the_pipeline_costs_estimation_apart_from_simulation_by_part() -> None:
     assert total == pytest.approx(doc["cost.wall_ms"], rel=1e-6)
 
 
+def test_the_upload_group_measures_the_loops_lag_beside_idle() -> None:
+    # a real service, a real 20 MB upload (--quick): the figures are there and consistent
+    # (the lag itself is a measurement, not judged here)
+    doc = _bench("upload", "--json")["upload"]
+    assert doc["runs"] == 1 and doc["upload_mb"] > 19.0 and doc["upload_rows"] > 400_000
+    assert doc["lag_samples_per_upload"] >= 1
+    assert 0.0 <= doc["loop_lag_p99_idle_ms"] <= doc["loop_lag_max_idle_ms"]
+    assert 0.0 <= doc["loop_lag_p99_upload_ms"] <= doc["loop_lag_max_upload_ms"]
+    assert doc["upload_mb_per_s"] == pytest.approx(doc["upload_mb"] / doc["upload_s"])
+
+
 def test_against_runs_both_trees_in_turn_and_gives_every_figure_side_by_side() -> None:
     # the broker group: no kernels to compile in the other tree, the cheapest to run twice
     doc = _bench("broker", "--json", "--against", "HEAD")["broker"]

@@ -7,6 +7,7 @@ import queue
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -85,18 +86,35 @@ def test_feed_carries_the_log_to_a_subscriber(log: Path) -> None:
     np.testing.assert_allclose(t, ref["t"] - ref["t"][0], atol=1e-9)
 
 
-def _fed(port: int, argv: list[str], machine: str) -> list[tuple[str, bytes, bool]]:
-    """Everything a subscriber to ``machine``'s topics receives from one feed."""
+def collect(got: queue.Queue, enough: Callable[[list], bool]) -> list[tuple[str, bytes, bool]]:
+    """What a subscriber got: until ``enough(msgs)`` (within 60 s: a loaded box can pause
+    a stream for over a second, which a wait for the first 1 s pause took for its end),
+    then until a 1 s pause (nothing more may follow)."""
+    msgs: list[tuple[str, bytes, bool]] = []
+    deadline = time.monotonic() + 60
+    while not enough(msgs) and time.monotonic() < deadline:
+        with contextlib.suppress(queue.Empty):
+            msgs.append(got.get(timeout=1))
+    while True:
+        try:
+            msgs.append(got.get(timeout=1))
+        except queue.Empty:
+            return msgs
+
+
+def drive_samples(msgs: list[tuple[str, bytes, bool]]) -> int:
+    """Samples in the drive blocks among ``msgs``."""
+    return sum(decode_drive(p).n for t, p, _ in msgs if t.endswith("/drive"))
+
+
+def _fed(port: int, argv: list[str], machine: str, samples: int) -> list[tuple[str, bytes, bool]]:
+    """Everything a subscriber to ``machine``'s topics receives from one feed of
+    ``samples`` samples."""
     c, got = subscriber(port, [f"cutwatch/{machine}/#"])
     try:
         assert main(["feed", *argv, "--broker", f"mqtt://127.0.0.1:{port}",
                      "--machine", machine, "--speed", "0", "--quiet"]) == 0  # fmt: skip
-        msgs = []
-        while True:
-            try:
-                msgs.append(got.get(timeout=1))
-            except queue.Empty:
-                return msgs
+        return collect(got, lambda msgs: drive_samples(msgs) >= samples)
     finally:
         c.loop_stop()
         c.disconnect()
@@ -115,7 +133,7 @@ def test_a_real_cnc_export_is_fed_as_one_machine_with_every_column_and_its_line(
 
     desc = ROOT / "docs" / "machines" / "cnc-mill.json"
     with broker() as port:
-        msgs = _fed(port, [str(CNC), "--meta", str(desc)], "mill")
+        msgs = _fed(port, [str(CNC), "--meta", str(desc)], "mill", 1055)
     meta = [decode_meta(p) for t, p, _ in msgs if t.endswith("/meta")]
     machine = machine_of(meta[0])
     assert machine == from_dict({**load_meta(desc), "sample_time": 0.1})
@@ -152,7 +170,7 @@ def test_a_log_with_velocity_and_identities_sends_them(tmp_path: Path) -> None:
         {"units": {"effort": "N", "position": "m"}, "kind": "rigid", "program": "O42"},
     )
     with broker() as port:
-        msgs = _fed(port, [str(p), "--block-ms", "20"], "ax")
+        msgs = _fed(port, [str(p), "--block-ms", "20"], "ax", n)
     blocks = [decode_drive(p) for t, p, _ in msgs if t.endswith("/drive")]
     assert all(set(b.columns) == {"tau_m", "q_m", "qd_m"} for b in blocks)
     ident = [b.identities() for b in blocks]

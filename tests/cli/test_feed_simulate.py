@@ -3,13 +3,12 @@ published as their edge devices would (issue 31, item 4)."""
 
 from __future__ import annotations
 
-import queue
 import time
 
 import numpy as np
 import pytest
 from _broker import broker
-from test_feed import subscriber
+from test_feed import collect, subscriber
 
 from machine.centre.program import program_variant
 from server.cli.main import main
@@ -17,17 +16,15 @@ from server.pipeline.centre_feed import CentreFeed, CentreFeedParams
 from server.records.drive_wire import check_block, decode_drive, decode_meta, machine_of
 
 
-def _received(port: int, argv: list[str], topics: list[str]) -> list[tuple[str, bytes, bool]]:
+def _received(
+    port: int, argv: list[str], topics: list[str], blocks: int
+) -> list[tuple[str, bytes, bool]]:
+    """What a subscriber to ``topics`` receives from a feed of ``blocks`` drive blocks."""
     c, got = subscriber(port, topics)
     try:
         assert main(["feed", "--simulate", *argv, "--broker", f"mqtt://127.0.0.1:{port}",
                      "--quiet"]) == 0  # fmt: skip
-        msgs = []
-        while True:
-            try:
-                msgs.append(got.get(timeout=1))
-            except queue.Empty:
-                return msgs
+        return collect(got, lambda msgs: sum(t.endswith("/drive") for t, _, _ in msgs) >= blocks)
     finally:
         c.loop_stop()
         c.disconnect()
@@ -37,7 +34,7 @@ def test_three_machines_each_with_its_own_program_seed_and_trace() -> None:
     argv = ["--machine", "vmc", "--machines", "3", "--rate", "1000", "--seconds", "3",
             "--speed", "0", "--seed", "7"]  # fmt: skip
     with broker() as port:
-        msgs = _received(port, argv, ["cutwatch/+/#"])
+        msgs = _received(port, argv, ["cutwatch/+/#"], 3 * 60)
     names = ["vmc-1", "vmc-2", "vmc-3"]
     for k, name in enumerate(names):
         (meta,) = [decode_meta(p) for t, p, _ in msgs if t == f"cutwatch/{name}/meta"]
@@ -67,7 +64,7 @@ def test_a_simulated_feed_paces_at_the_trace_rate() -> None:
     argv = ["--machine", "vmc", "--seconds", "1.0", "--speed", "2"]
     with broker() as port:
         t0 = time.monotonic()
-        msgs = _received(port, argv, ["cutwatch/vmc/drive"])
+        msgs = _received(port, argv, ["cutwatch/vmc/drive"], 20)
         took = time.monotonic() - t0
     assert len(msgs) == 20 and took >= 0.5 * 0.95
 

@@ -303,16 +303,24 @@ def test_requests_need_the_token(service: Service) -> None:
 
 def test_slow_clients_are_dropped(service: Service) -> None:
     """The image's ``cutwatch serve`` has the HTTP limits (server/service/http_guard.py):
-    half a request line is answered 408 and closed within the default 10 s; a 10 MiB
-    header is refused with 431 long before it is all sent."""
-    with socket.create_connection(("127.0.0.1", service.port), timeout=15) as s:
-        t0 = time.monotonic()
+    half a request line is answered 408 and closed at the default 10 s, not before; a
+    10 MiB header is refused with 431 long before it is all sent.
+
+    When the 408 came is judged against what cannot race: the clock starts before the
+    connection, so before the server's timer, and the drop is never earlier than the
+    limit (less the timer clock's whole millisecond); the answer names the 10 s. No upper
+    bound on a loaded machine's lateness: without the limits uvicorn holds such a
+    connection for as long as the client likes, which the socket's 60 s timeout catches."""
+    t0 = time.monotonic()
+    with socket.create_connection(("127.0.0.1", service.port), timeout=60) as s:
         s.sendall(b"GET /api/hea")
         raw = b""
         while chunk := s.recv(4096):
             raw += chunk
         took = time.monotonic() - t0
-    assert raw.startswith(b"HTTP/1.1 408") and 9.5 <= took <= 12.0, (took, raw[:200])
+    assert raw.startswith(b"HTTP/1.1 408"), (took, raw[:200])
+    assert b"request headers not complete within 10 s" in raw, raw[:400]
+    assert took >= 10.0 - 0.01, took
     with socket.create_connection(("127.0.0.1", service.port), timeout=15) as s:
         s.sendall(b"GET /api/health HTTP/1.1\r\nHost: 127.0.0.1\r\nX-Big: ")
         sent = 0

@@ -21,6 +21,7 @@ from estimators.wear.hybrid import (
     fresh_reference,
     life_end,
     median_rate,
+    segment_b,
     taylor_fit,
     taylor_rate,
 )
@@ -174,3 +175,38 @@ def test_the_rate_law_is_chosen_on_what_it_predicts() -> None:
     # one condition: both rules are the median of the others, a tie goes to median
     best, score = choose_rate_law([(2260.0, r) for r in (0.5, 1.0, 1.8, 3.0)])
     assert best == "median" and score["taylor"] == pytest.approx(score["median"])
+
+
+def _scheduled(seed: int, b: float, *, accel: float = 0.0) -> ToolData:
+    """A tool cut at a schedule of four speed blocks (VB measured at each change), its
+    wear per segment 1.5 (v / 2260)^b (1 + accel VB / 100)."""
+    rng = np.random.default_rng(seed)
+    blocks = rng.permutation([1930.0, 2260.0, 2480.0, 2730.0])
+    feed = np.repeat(blocks, 40)
+    vb = np.zeros(len(feed))
+    for k in range(1, len(feed)):
+        vb[k] = vb[k - 1] + 1.5 * (feed[k - 1] / 2260.0) ** b * (1 + accel * vb[k - 1] / 100)
+    kn = np.array([0, 40, 80, 120, len(feed) - 1])
+    vb = np.interp(np.arange(len(feed)), kn, vb[kn])  # measured at the changes only
+    return ToolData(seed, vb[:, None], feed, vb, 0.0)
+
+
+def test_revision_5_reads_the_speed_exponent_from_within_the_tools() -> None:
+    for b in (0.0, 2.0, 4.0):
+        tools = [_scheduled(s, b, accel=0.2) for s in range(5)]
+        assert segment_b(tools, 2260.0) == pytest.approx(b, abs=0.6)
+    # the filter's prediction scales each segment's wear by its speed; the prior rate
+    # is the training tools' rate at vref, read at the segment's speed
+    tools = [_scheduled(s, 2.0) for s in range(5)]
+    m = fit(tools, HybridConfig(rate_law="segment", smoothing=1e-6))
+    vref = m.taylor[3]  # the training tools' median feed rate
+    assert m.speed_b == 2.0 and m.rate_ref == pytest.approx(1.5 * (vref / 2260.0) ** 2, rel=0.05)
+    assert m.prior_rate(2730.0)[0] == pytest.approx(m.rate_ref * (2730.0 / vref) ** 2)
+    test = _scheduled(9, 2.0)
+    est, _, rate = m.run(test)
+    assert np.all(np.diff(est) >= -1e-9)
+    ratio = rate[1:] / np.where(rate[:-1] > 0, rate[:-1], np.nan)
+    jump = np.flatnonzero(np.diff(test.feed) != 0)[0] + 1  # the first change of block
+    assert ratio[jump - 1] == pytest.approx((test.feed[jump] / test.feed[jump - 1]) ** 2, rel=0.05)
+    # the other rules do not scale
+    assert np.all(fit(tools, HybridConfig()).scale(test.feed) == 1.0)

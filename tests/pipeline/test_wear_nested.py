@@ -177,3 +177,28 @@ def test_revision_4_chooses_the_prior_rate_on_the_training_tools_only(
     assert r3.rate_law == "median" and "rate=" not in r3.chosen and not r3.rate_scores
     if law == "median":
         np.testing.assert_allclose(r3.tools[0].est, a.tools[0].est)
+
+
+def test_revision_5_runs_the_law_per_segment_in_every_fold(table: W.WearTable) -> None:
+    """The law per segment: its exponent fitted on the fold's training tools (one of
+    the grid), the prior rate per segment at each segment's speed, a life score."""
+    from estimators.wear.hybrid import SEGMENT_B, segment_b, taylor_fit, tool_rate
+
+    cfgs = [c for c in W.candidates() if c.map == "linear" and not c.offset][:1]
+    f = W.run_fold(table, "F_f", (11,), "loto", W._Cache(), configs=cfgs, rate_laws=("segment",))
+    train = [W.tool_data(table, ["F_f"], t) for t in table.tools if t != 11]
+    vref = taylor_fit([tool_rate(d) for d in train])[3]
+    assert f.rate_law == "segment" and "/rate=segment" in f.chosen
+    assert f.rate_b == segment_b(train, vref) and f.rate_b in SEGMENT_B
+    r = f.tools[0]
+    assert set(r.life) == {"300", "150"} and all(np.isfinite(v) for v in r.life.values())
+    # the prior rate at half-life: the training tools' median rate at vref, at the speed
+    # of the segment being cut (the law fitted in the fold, not a default)
+    b = f.rate_b
+    refs = [
+        (d.vb[-1] - d.vb[0]) / np.sum((d.feed[:-1] / vref) ** b) for d in train if d.vb is not None
+    ]
+    k = int(np.flatnonzero(r.vb >= 300)[0]) // 2
+    d11 = W.tool_data(table, ["F_f"], 11)
+    want = float(np.median(refs)) * (d11.feed[k] / vref) ** b
+    assert r.life_parts["rate_prior"] == pytest.approx(want)

@@ -72,6 +72,31 @@ def test_a_row_is_its_topics_machine_and_its_message_is_checked() -> None:
     assert s.rows()[0].event is not None and s.malformed == len(refused) + 1
 
 
+def test_nothing_waiting_clears_only_events_taken_the_grace_before_it() -> None:
+    # the acknowledgement rule on the fleet's own clock, given: an estimate saying nothing
+    # waits (monitor.unacked 0) was maybe built before an event raised just ahead of it,
+    # so it clears only the events taken ACK_GRACE_S before it or earlier (through a real
+    # broker, test_fleet judges the clearing a grace later; "just after" is judged here,
+    # where a loaded box's pause cannot move the times)
+    from server.records.monitor_events import DEFAULT_ACTIONS, MonitorEvent
+    from server.service.fleet import ACK_GRACE_S
+
+    s = FleetState(30.0)
+    ev = MonitorEvent(kind="breakage", action=DEFAULT_ACTIONS["breakage"], t=12.5, tool=3,
+                      machine="mill-4", message="breakage on T3")  # fmt: skip
+    quiet = encode_estimates("mill-4", {"wall": 1.0, "force": {"level": 3}, "alarms": [],
+                             "monitor": {"state": "watching", "unacked": 0}})  # fmt: skip
+    t0 = 1000.0
+    assert s.event("cutwatch/mill-4/events", json.dumps(ev.to_wire()).encode(), now=t0)
+    for dt in (0.0, 0.5 * ACK_GRACE_S, ACK_GRACE_S - 1e-6):  # arriving just after: waits
+        assert s.update("cutwatch/mill-4/estimates", quiet, now=t0 + dt) == "mill-4"
+        row = s.row("mill-4", now=t0 + dt)
+        assert row.monitor == "alarm" and row.event is not None and row.event.id == ev.id, dt
+    assert s.update("cutwatch/mill-4/estimates", quiet, now=t0 + ACK_GRACE_S) == "mill-4"
+    row = s.row("mill-4", now=t0 + ACK_GRACE_S)
+    assert row.monitor == "watching" and row.event is None and row.unacked == 0
+
+
 def test_a_fleet_off_loopback_needs_a_token(
     monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -9,12 +9,14 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import signal
 import subprocess
 import sys
 import threading
 import time
 from collections.abc import Iterator
+from itertools import pairwise
 from pathlib import Path
 from typing import Any
 
@@ -260,7 +262,7 @@ def test_browser_session_cookie(locked: tuple[httpx.Client, Path]) -> None:
     c, _ = locked
     base = str(c.base_url).rstrip("/")
     host = base.removeprefix("http://")
-    with httpx.Client(base_url=base, timeout=10) as b:
+    with httpx.Client(base_url=base, timeout=60) as b:
         r = b.post("/api/login", json={"token": "not-the-token-at-all"})
         assert r.status_code == 401 and "set-cookie" not in r.headers
         r = b.post("/api/login", json={"token": VIEWER}, headers={"origin": base})
@@ -273,7 +275,7 @@ def test_browser_session_cookie(locked: tuple[httpx.Client, Path]) -> None:
         sid = b.cookies["cutwatch_session"]
         hdr = {"Cookie": f"cutwatch_session={sid}"}
         with connect(f"ws://{host}/ws", additional_headers={**hdr, "Origin": base}) as ws:
-            assert json.loads(ws.recv(timeout=5))["type"] == "hello"
+            assert json.loads(ws.recv(timeout=60))["type"] == "hello"
         with pytest.raises(InvalidStatus) as exc:  # the cookie from another site's page
             connect(f"ws://{host}/ws", additional_headers={**hdr, "Origin": "http://evil.example"})
         assert exc.value.response.status_code == 403
@@ -289,7 +291,7 @@ def test_audit_line_for_every_state_change(
         assert c.patch("/api/params", json={"spindle_rpm": 2400}, headers=OP).status_code == 200
         assert c.post("/api/control", json={"action": "pause"}).status_code == 401
         c.get("/api/params", headers=OP)  # a read: no audit line
-        poll(lambda: len(caplog.records) >= 2, 5, 0.05)
+        poll(lambda: len(caplog.records) >= 2, 60, 0.05)
     lines = [r.getMessage() for r in caplog.records if r.name == "cutwatch.audit"]
     assert len(lines) == 2, lines
     assert "role=operator PATCH '/api/params' status=200" in lines[0]
@@ -301,7 +303,7 @@ def test_audit_line_for_every_state_change(
 def test_host_origin_and_headers_on_the_open_loopback_service(tmp_path: Path) -> None:
     with (
         serve(scenario="default", data_dir=tmp_path) as hp,
-        httpx.Client(base_url=f"http://{hp}") as c,
+        httpx.Client(base_url=f"http://{hp}", timeout=60) as c,
     ):
         # DNS rebinding: another name for this address
         r = c.post("/api/control", json={"action": "pause"}, headers={"Host": "attacker.example"})
@@ -369,7 +371,7 @@ def test_mat_bomb_does_not_reach_the_service(tmp_path: Path) -> None:
                        content=bomb.read_bytes(), headers=OP, timeout=120)  # fmt: skip
         took = time.monotonic() - t0
         peak, after = svc.rss_kb("VmHWM"), svc.rss_kb()
-        lag = httpx.get(f"{svc.base}/api/health").json()["lag_p99_ms"]
+        lag = httpx.get(f"{svc.base}/api/health", timeout=60).json()["lag_p99_ms"]
     (item,) = shaped(r)
     assert r.status_code == 422 and "expand to more than 100000000 bytes" in item["msg"]
     assert not (tmp_path / "data" / "uploads" / "bomb.mat").exists()
@@ -394,58 +396,155 @@ def _big_csv(path: Path, mb: float) -> int:
     return n
 
 
-def test_large_upload_keeps_the_loop_on_time(
-    tmp_path: Path,
-) -> None:
+def _children(pid: int) -> list[int]:
+    """Every process below ``pid`` (its children, theirs, ...), from /proc."""
+    out: list[int] = []
+    todo = [pid]
+    while todo:
+        for task in Path(f"/proc/{todo.pop()}/task").glob("*/children"):
+            try:
+                kids = [int(k) for k in task.read_text().split()]
+            except OSError:  # the process or thread has gone
+                continue
+            out += kids
+            todo += kids
+    return out
+
+
+def _forkserver(pid: int) -> int:
+    """The process the service forks its upload checks from (multiprocessing's
+    forkserver, started by the service's start-up)."""
+
+    def find() -> int | None:
+        for c in _children(pid):
+            try:
+                if b"multiprocessing.forkserver" in Path(f"/proc/{c}/cmdline").read_bytes():
+                    return c
+            except OSError:
+                continue
+        return None
+
+    found: int = poll(find, 60)
+    return found
+
+
+def _quarantined(data: Path, name: str) -> int:
+    """Bytes of ``name`` waiting in the quarantine (0: not there)."""
+    size = 0
+    for p in (data / ".quarantine").glob(f"*/{name}"):
+        try:
+            size = max(size, p.stat().st_size)
+        except OSError:  # removed between the listing and the look
+            continue
+    return size
+
+
+def _frames_after(ws: Any, sim_t: float, n: int = 3, timeout: float = 120.0) -> list[Any]:
+    """The next ``n`` data frames the stream sends of simulated time past ``sim_t``, as
+    (seq, sim_t); AssertionError if they do not come within ``timeout`` s."""
+    got: list[Any] = []
+    deadline = time.monotonic() + timeout
+    while len(got) < n:
+        left = deadline - time.monotonic()
+        assert left > 0, f"the stream stopped: {got} after sim_t {sim_t}"
+        msg = json.loads(ws.recv(timeout=left))
+        if msg.get("type") == "data" and msg["health"]["sim_t"] > sim_t:
+            got.append((msg["seq"], msg["health"]["sim_t"]))
+    return got
+
+
+def _rising(frames: list[Any]) -> bool:
+    return all(b[0] > a[0] and b[1] > a[1] for a, b in pairwise(frames))
+
+
+def test_a_large_upload_streams_to_disk_while_the_loop_runs_on(tmp_path: Path) -> None:
+    # What the security review found (issue 20): the 80 MB log was taken whole and checked
+    # in the service, and the loop stalled (651 ms of lag). Judged here by what cannot
+    # race, not by a latency (the loop's lag during an upload is `cutwatch bench upload`'s):
+    # 1. half the body sent and held: its bytes are on disk in the quarantine already
+    #    (streamed, not gathered in memory), and the loop publishes frames (seq and sim_t
+    #    rising) and /api/health answers meanwhile;
+    # 2. the body complete and the check held (its forkserver stopped by SIGSTOP, so no
+    #    check can start): frames and /api/health go on, and the upload waits unanswered
+    #    (the check is a child process's, awaited off the service's event loop);
+    # 3. released: 200 with the rows counted, listed; the service's peak RSS grew less
+    #    than the file's size.
     big = tmp_path / "big.csv"
     n = _big_csv(big, 80.0)
-    mb = big.stat().st_size / 1e6
+    size = big.stat().st_size
+    data = tmp_path / "data"
+    half, held, release = size // 2, threading.Event(), threading.Event()
+
+    def body() -> Iterator[bytes]:
+        with big.open("rb") as fh:
+            sent = 0
+            while chunk := fh.read(1 << 20):
+                if sent >= half and not held.is_set():
+                    held.set()
+                    release.wait(300)
+                yield chunk
+                sent += len(chunk)
+
     with (
-        serve_process(
-            "--scenario", "default", "--data-dir", str(tmp_path / "data"), CUTWATCH_TOKEN=OPERATOR
-        ) as svc,
+        serve_process("--scenario", "default", "--data-dir", str(data), CUTWATCH_TOKEN=OPERATOR)
+        as svc,
         httpx.Client(base_url=svc.base, headers=OP, timeout=120) as c,
-    ):
+        connect(f"ws://{svc.host}/ws", additional_headers=OP, open_timeout=60) as ws,
+    ):  # fmt: skip
         r = c.post(
             "/api/uploads",
             params={"name": "big.json"},
             content=big.with_suffix(".json").read_bytes(),
         )
         assert r.status_code == 200, r.text
-        time.sleep(2.0)
+        forkserver = _forkserver(svc.proc.pid)  # it has checked the sidecar
         before = svc.rss_kb()
         svc.reset_peak()
         result: dict[str, Any] = {}
 
         def send() -> None:
-            with big.open("rb") as fh:
-                result["r"] = httpx.post(f"{svc.base}/api/uploads", params={"name": "big.csv"},
-                                         content=fh, headers=OP, timeout=300)  # fmt: skip
-            result["t"] = time.monotonic()
+            with httpx.Client(headers=OP, timeout=600) as up:
+                result["r"] = up.post(f"{svc.base}/api/uploads", params={"name": "big.csv"},
+                                      content=body())  # fmt: skip
 
-        lags: list[float] = []
-        t0 = time.monotonic()
         th = threading.Thread(target=send)
         th.start()
-        while th.is_alive():
-            lags.append(c.get("/api/health").json()["lag_ms"])
-            time.sleep(0.03)
-        th.join()
-        took = result["t"] - t0
+        stopped = False
+        try:
+            assert held.wait(300), "the upload's first half was never sent"
+            # 1. half in: on disk while it arrives (a body gathered in memory is not)
+            poll(lambda: _quarantined(data, "big.csv") >= half // 2, 120)
+            t0 = c.get("/api/health").json()["sim_t"]
+            arriving = _frames_after(ws, t0)
+            assert _rising(arriving), arriving
+            os.kill(forkserver, signal.SIGSTOP)
+            stopped = True
+            release.set()
+            # 2. the whole body on disk; its check cannot start while the forkserver stands
+            poll(lambda: _quarantined(data, "big.csv") == size, 120)
+            t1 = c.get("/api/health").json()["sim_t"]
+            checking = _frames_after(ws, t1)
+            assert _rising(checking) and checking[0][1] > arriving[-1][1], checking
+            assert th.is_alive() and "r" not in result, "answered before its check ran"
+            assert not (data / "uploads" / "big.csv").exists()
+        finally:
+            release.set()
+            if stopped:
+                os.kill(forkserver, signal.SIGCONT)
+            th.join(600)
         peak = svc.rss_kb("VmHWM")
+        lag = c.get("/api/health").json()["lag_p99_ms"]
         r = result["r"]
         assert r.status_code == 200, r.text
         assert r.json()["samples"] == n
         names = {u["name"] for u in c.get("/api/uploads").json()["uploads"]}
         assert "big.csv" in names  # published once checked
-    p99 = float(np.percentile(lags, 99))
     grew = (peak - before) / 1e3
     print(
-        f"large upload: {mb:.1f} MB, {n} rows, {took:.1f} s to the answer; loop lag over "
-        f"{len(lags)} samples: p99 {p99:.1f} ms, max {max(lags):.1f} ms; service RSS "
-        f"+{grew:.1f} MB at peak"
+        f"large upload: {size / 1e6:.1f} MB, {n} rows; frames while it arrived {arriving}, "
+        f"while its check was held {checking}; service RSS +{grew:.1f} MB at peak; loop "
+        f"lag p99 {lag:.1f} ms (not judged here: cutwatch bench upload)"
     )
-    assert p99 < 50.0
     assert grew < 100.0
 
 
@@ -528,9 +627,9 @@ def test_a_killed_recording_is_cleaned_at_the_next_start(tmp_path: Path) -> None
         "--scenario", "default", "--data-dir", str(data), CUTWATCH_TOKEN=OPERATOR
     ) as svc:
         r = httpx.post(f"{svc.base}/api/record", json={"action": "start", "name": "k.csv"},
-                       headers=OP)  # fmt: skip
+                       headers=OP, timeout=60)  # fmt: skip
         assert r.status_code == 200, r.text
-        tmp = poll(lambda: list((data / "recordings").glob(".k.csv.*.tmp")), 10)
+        tmp = poll(lambda: list((data / "recordings").glob(".k.csv.*.tmp")), 60)
         time.sleep(0.5)
         svc.stop(signal.SIGKILL)
     assert all(p.exists() for p in tmp)  # the kill left it
@@ -538,7 +637,7 @@ def test_a_killed_recording_is_cleaned_at_the_next_start(tmp_path: Path) -> None
         "--scenario", "default", "--data-dir", str(data), CUTWATCH_TOKEN=OPERATOR
     ) as svc:
         assert not list((data / "recordings").glob(".*.tmp"))
-        listed = httpx.get(f"{svc.base}/api/records", headers=OP).json()["records"]
+        listed = httpx.get(f"{svc.base}/api/records", headers=OP, timeout=60).json()["records"]
         assert listed == []
         svc.stop()
     said = f"removed 1 temporary file(s) left by an interrupted run: recordings/{tmp[0].name}"

@@ -4,6 +4,11 @@ body trickling in, a connection that sends nothing, a 10 MiB header. Each is dro
 within its limit (2 s here, to keep the test short; 10 s by default) while ordinary
 requests and a WebSocket that outlives the limits keep working.
 
+When a drop came is judged against what cannot race: never before its limit (the clock
+started before the connection was opened, so before the server's timer), and before
+the default limit would have dropped it (the configured limit was the one applied),
+however late a loaded machine runs the server's timer short of that.
+
 Bounded: at most 10 slow connections at once, each test under ~10 s.
 """
 
@@ -15,6 +20,7 @@ import socket
 import threading
 import time
 from collections.abc import Iterator
+from pathlib import Path
 
 import httpx
 import pytest
@@ -22,12 +28,28 @@ from _live import serve_process
 from _wait import poll
 from websockets.sync.client import connect
 
+from server.service.settings import Settings
+
 HEADER_S = 2.0
 BODY_S = 2.0
 MAX_HEADER = 32768
 PER_CLIENT = 20
-#: how late a drop may come after its limit: the timer's own jitter on a loaded machine
-SLACK_S = 1.5
+#: the server's timers run on the event loop's clock, whole milliseconds under uvloop
+#: (libuv): a drop may come this much before its limit as this process measures it
+CLOCK_S = 0.01
+#: the default header and body limits (Settings): a drop this late would mean the
+#: configured limit was not the one applied
+DEFAULT_S = Settings().header_timeout_s
+assert Settings().body_timeout_s == DEFAULT_S
+#: a drop at or past this came too late to be the configured limit's: halfway to the
+#: default, 4 s past the limit (no stall of a loaded box delays a timer that long; the
+#: bound is only there to tell the two limits apart)
+LATE_S = (HEADER_S + DEFAULT_S) / 2
+
+
+def on_time(t: float, limit: float) -> bool:
+    """Dropped after at least ``limit`` s, and well before the default limit."""
+    return limit - CLOCK_S <= t < LATE_S
 
 
 @pytest.fixture(scope="module")
@@ -49,9 +71,12 @@ def open_conn(hp: str) -> socket.socket:
     return s
 
 
-def read_until_closed(s: socket.socket, limit_s: float) -> tuple[bytes, float]:
-    """Everything the server sends until it closes, and when it closed (from now)."""
-    t0 = time.monotonic()
+def read_until_closed(
+    s: socket.socket, limit_s: float, t0: float | None = None
+) -> tuple[bytes, float]:
+    """Everything the server sends until it closes, and when it closed (from ``t0``,
+    default now)."""
+    t0 = time.monotonic() if t0 is None else t0
     out = b""
     s.settimeout(0.2)
     while time.monotonic() - t0 < limit_s:
@@ -78,8 +103,8 @@ def test_headers_a_byte_at_a_time_are_dropped_in_time(server: str) -> None:
     """10 connections trickling a request's headers (a byte every 0.1 s, a 60-byte
     header would take 6 s): each answered 408 and closed within the header limit."""
     request = f"GET /api/health HTTP/1.1\r\nHost: {server}\r\nX-Slow: {'a' * 40}\r\n\r\n"
+    t0 = time.monotonic()  # before the connections: before the server's timers start
     conns = [open_conn(server) for _ in range(10)]
-    t0 = time.monotonic()
     closed_at: list[float] = []
     answers: list[bytes] = []
     lock = threading.Lock()
@@ -114,7 +139,7 @@ def test_headers_a_byte_at_a_time_are_dropped_in_time(server: str) -> None:
         c.close()
     print(f"byte-a-time headers: 10 connections closed after {sorted(closed_at)} s")
     assert len(closed_at) == 10
-    assert all(HEADER_S - 0.2 <= t <= HEADER_S + SLACK_S for t in closed_at), closed_at
+    assert all(on_time(t, HEADER_S) for t in closed_at), closed_at
     for a in answers:
         status, body = status_and_body(a)
         assert status == 408 and body["detail"][0]["field"] == "headers"
@@ -130,11 +155,12 @@ def test_headers_a_byte_at_a_time_are_dropped_in_time(server: str) -> None:
 
 
 def test_a_connection_that_sends_nothing_is_dropped(server: str) -> None:
+    t0 = time.monotonic()
     s = open_conn(server)
-    raw, t = read_until_closed(s, HEADER_S + 10)
+    raw, t = read_until_closed(s, HEADER_S + 10, t0)
     s.close()
     print(f"silent connection closed after {t:.2f} s")
-    assert HEADER_S - 0.2 <= t <= HEADER_S + SLACK_S
+    assert on_time(t, HEADER_S), t
     assert status_and_body(raw)[0] == 408
 
 
@@ -142,14 +168,15 @@ def test_a_connection_that_sends_nothing_is_dropped(server: str) -> None:
 def test_a_body_declared_1000_bytes_with_1_sent_is_dropped(server: str, path: str) -> None:
     """Whether the app waits for the body (a JSON route) or answers without it (404)."""
     s = open_conn(server)
+    t0 = time.monotonic()  # before the headers are sent: before the body's timer starts
     s.sendall(
         f"POST {path} HTTP/1.1\r\nHost: {server}\r\nContent-Type: application/json\r\n"
         "Content-Length: 1000\r\n\r\n{".encode()
     )
-    raw, t = read_until_closed(s, BODY_S + 10)
+    raw, t = read_until_closed(s, BODY_S + 10, t0)
     s.close()
     print(f"body 1 of 1000 bytes on {path}: closed after {t:.2f} s")
-    assert BODY_S - 0.2 <= t <= BODY_S + SLACK_S
+    assert on_time(t, BODY_S), t
     if path == "/api/control":  # the app was still waiting: the answer is ours
         status, body = status_and_body(raw)
         assert status == 408 and body["detail"][0]["field"] == "body"
@@ -160,11 +187,11 @@ def test_a_trickling_body_is_dropped_by_its_rate(server: str) -> None:
     """A byte every 0.5 s never leaves the body silent for 2 s, but it is far below the
     1024 bytes/s accepted past the first 2 s."""
     s = open_conn(server)
+    t0 = time.monotonic()  # before the headers are sent: before the body's timer starts
     s.sendall(
         f"POST /api/control HTTP/1.1\r\nHost: {server}\r\nContent-Type: application/json\r\n"
         "Content-Length: 1000\r\n\r\n".encode()
     )
-    t0 = time.monotonic()
     s.settimeout(0.5)
     raw = b""
     while time.monotonic() - t0 < BODY_S + 10:
@@ -181,26 +208,36 @@ def test_a_trickling_body_is_dropped_by_its_rate(server: str) -> None:
     t = time.monotonic() - t0
     s.close()
     print(f"trickling body: closed after {t:.2f} s")
-    assert BODY_S - 0.2 <= t <= BODY_S + SLACK_S
+    assert on_time(t, BODY_S), t
     status, body = status_and_body(raw)
     assert status == 408 and "bytes/s" in body["detail"][0]["msg"]
 
 
-def test_connections_from_one_address_are_bounded(server: str) -> None:
-    """20 silent connections are held (until their header limit); the 21st from the same
-    address is answered 503 at once; once they are gone, requests are served again."""
-    held = [open_conn(server) for _ in range(PER_CLIENT)]
-    try:
-        extra = open_conn(server)
-        raw, t = read_until_closed(extra, 5)
-        extra.close()
-        print(f"connection {PER_CLIENT + 1} from one address: 503 after {t:.3f} s")
-        status, body = status_and_body(raw)
-        assert status == 503 and body["detail"][0]["field"] == "connections" and t < 1.0
-    finally:
-        for c in held:
-            c.close()
-    poll(lambda: httpx.get(f"http://{server}/api/health", timeout=5).status_code == 200, 10)
+def test_connections_from_one_address_are_bounded(tmp_path: Path) -> None:
+    """20 silent connections are held; the 21st from the same address is answered 503 at
+    once; once they are gone, requests are served again. On a server of its own whose
+    header limit (120 s) outlasts any pause of a loaded machine between opening the 20
+    and the 21st: at the module's 2 s the first could be dropped before the last opened,
+    and the 21st would then be held, not refused."""
+    held_s = "120"
+    with serve_process(
+        "--scenario", "default", "--data-dir", str(tmp_path / "data"),
+        CUTWATCH_HEADER_TIMEOUT_S=held_s, CUTWATCH_MAX_CONNECTIONS_PER_CLIENT=str(PER_CLIENT),
+    ) as p:  # fmt: skip
+        hp = p.base.removeprefix("http://")
+        held = [open_conn(hp) for _ in range(PER_CLIENT)]
+        try:
+            extra = open_conn(hp)
+            # a 503 is answered as the connection is made; a held 21st would wait 120 s
+            raw, t = read_until_closed(extra, 60)
+            extra.close()
+            print(f"connection {PER_CLIENT + 1} from one address: 503 after {t:.3f} s")
+            status, body = status_and_body(raw)
+            assert status == 503 and body["detail"][0]["field"] == "connections"
+        finally:
+            for c in held:
+                c.close()
+        poll(lambda: httpx.get(f"{p.base}/api/health", timeout=5).status_code == 200, 30)
 
 
 def test_a_10_mib_header_is_refused_before_it_is_read(server: str) -> None:

@@ -17,6 +17,7 @@ Groups (modules server/experiments/benchmarks/bench_<group>.py; see docs/benchma
   rigid-axis             the live rigid identifier of one axis (1 kHz, 500 Hz)
   stage                  the stage with its observers and both RLS
   tool-wear              the wear model, observer and life monitor
+  upload                 the live loop's lag while an 80 MB log is uploaded, beside idle
 
 Every run also times a fixed reference workload of its own (numba, numpy and
 interpreter work, about 1 s; server/experiments/bench_reference.py) before and after

@@ -94,12 +94,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--revision",
         type=int,
-        choices=(1, 2, 3, 4),
+        choices=(1, 2, 3, 4, 5),
         default=None,
         help="--method hybrid: the protocol's candidate list (1: 40, 2: 176, 3: 36 "
         "configurations per signal set; 4: revision 3's 36 with the prior wear rate's "
         "rule, the median at the same conditions or a Taylor-type law in the cutting "
-        "speed, chosen in each fold; default 4, see docs/turning-wear.md)",
+        "speed, chosen in each fold; 5: revision 3's 36 with that law per segment inside the "
+        "filter, its exponent from the knot intervals within the training tools; default 4, "
+        "see docs/turning-wear.md)",
     )
     p.add_argument(
         "--protocol",
@@ -249,7 +251,7 @@ def _run_hybrid(args: argparse.Namespace) -> int:
     cfgs = candidates(revision=rev)
     if args.quick:
         cfgs = [c for c in candidates(revision=1) if c.map != "gbr"]
-    laws = RATE_LAWS if rev >= 4 else ("median",)
+    laws = ("segment",) if rev >= 5 else RATE_LAWS if rev == 4 else ("median",)
     cache = _Cache()
     folds = []
     for proto, g in tqdm(splits, desc="wear folds", file=sys.stderr, disable=args.quiet):
