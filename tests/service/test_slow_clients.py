@@ -5,9 +5,10 @@ within its limit (2 s here, to keep the test short; 10 s by default) while ordin
 requests and a WebSocket that outlives the limits keep working.
 
 When a drop came is judged against what cannot race: never before its limit (the clock
-started before the connection was opened, so before the server's timer), and before
-the default limit would have dropped it (the configured limit was the one applied),
-however late a loaded machine runs the server's timer short of that.
+started before the connection was opened, so before the server's timer). Which limit
+applied is read from the 408's body, which names it (``within 2 s``, ``a byte at least
+every 2 s``; the default would read 10 s), not from a wall-clock upper bound that a
+loaded machine's late timer could pass.
 
 Bounded: at most 10 slow connections at once, each test under ~10 s.
 """
@@ -37,19 +38,20 @@ PER_CLIENT = 20
 #: the server's timers run on the event loop's clock, whole milliseconds under uvloop
 #: (libuv): a drop may come this much before its limit as this process measures it
 CLOCK_S = 0.01
-#: the default header and body limits (Settings): a drop this late would mean the
-#: configured limit was not the one applied
+#: the default header and body limits (Settings): the configured ones differ, so the limit
+#: a 408 names tells which was applied
 DEFAULT_S = Settings().header_timeout_s
-assert Settings().body_timeout_s == DEFAULT_S
-#: a drop at or past this came too late to be the configured limit's: halfway to the
-#: default, 4 s past the limit (no stall of a loaded box delays a timer that long; the
-#: bound is only there to tell the two limits apart)
-LATE_S = (HEADER_S + DEFAULT_S) / 2
+assert Settings().body_timeout_s == DEFAULT_S and DEFAULT_S not in (HEADER_S, BODY_S)
+#: a connection still open this long was never dropped: a hang, not a late timer
+GIVE_UP_S = 60.0
+HEADER_NAMED = f"within {HEADER_S:g} s"
+BODY_NAMED = f"a byte at least every {BODY_S:g} s"
 
 
-def on_time(t: float, limit: float) -> bool:
-    """Dropped after at least ``limit`` s, and well before the default limit."""
-    return limit - CLOCK_S <= t < LATE_S
+def not_early(t: float, limit: float) -> bool:
+    """Dropped after at least ``limit`` s (no upper bound: a loaded machine may run the
+    server's timer late; the 408 names the limit that applied)."""
+    return t >= limit - CLOCK_S
 
 
 @pytest.fixture(scope="module")
@@ -100,9 +102,10 @@ def status_and_body(raw: bytes) -> tuple[int, dict]:
 
 
 def test_headers_a_byte_at_a_time_are_dropped_in_time(server: str) -> None:
-    """10 connections trickling a request's headers (a byte every 0.1 s, a 60-byte
-    header would take 6 s): each answered 408 and closed within the header limit."""
-    request = f"GET /api/health HTTP/1.1\r\nHost: {server}\r\nX-Slow: {'a' * 40}\r\n\r\n"
+    """10 connections trickling a request's headers (a byte every 0.1 s at most: the
+    600-byte header would take 60 s, so no late timer lets one complete): each answered
+    408 naming the header limit, and closed."""
+    request = f"GET /api/health HTTP/1.1\r\nHost: {server}\r\nX-Slow: {'a' * 600}\r\n\r\n"
     t0 = time.monotonic()  # before the connections: before the server's timers start
     conns = [open_conn(server) for _ in range(10)]
     closed_at: list[float] = []
@@ -134,15 +137,16 @@ def test_headers_a_byte_at_a_time_are_dropped_in_time(server: str) -> None:
     for th in threads:
         th.start()
     for th in threads:
-        th.join(HEADER_S + 10)
+        th.join(GIVE_UP_S * 2)
     for c in conns:
         c.close()
     print(f"byte-a-time headers: 10 connections closed after {sorted(closed_at)} s")
     assert len(closed_at) == 10
-    assert all(on_time(t, HEADER_S) for t in closed_at), closed_at
+    assert all(not_early(t, HEADER_S) for t in closed_at), closed_at
     for a in answers:
         status, body = status_and_body(a)
         assert status == 408 and body["detail"][0]["field"] == "headers"
+        assert body["detail"][0]["allowed"] == HEADER_NAMED, body
     # the server serves on, and counts them
     assert httpx.get(f"http://{server}/api/health", timeout=5).status_code == 200
     metrics = httpx.get(f"http://{server}/metrics", timeout=5).text
@@ -157,11 +161,13 @@ def test_headers_a_byte_at_a_time_are_dropped_in_time(server: str) -> None:
 def test_a_connection_that_sends_nothing_is_dropped(server: str) -> None:
     t0 = time.monotonic()
     s = open_conn(server)
-    raw, t = read_until_closed(s, HEADER_S + 10, t0)
+    raw, t = read_until_closed(s, GIVE_UP_S, t0)
     s.close()
     print(f"silent connection closed after {t:.2f} s")
-    assert on_time(t, HEADER_S), t
-    assert status_and_body(raw)[0] == 408
+    assert not_early(t, HEADER_S), t
+    status, body = status_and_body(raw)
+    assert status == 408 and body["detail"][0]["field"] == "headers"
+    assert body["detail"][0]["allowed"] == HEADER_NAMED, body
 
 
 @pytest.mark.parametrize("path", ["/api/control", "/api/nowhere"])
@@ -173,14 +179,18 @@ def test_a_body_declared_1000_bytes_with_1_sent_is_dropped(server: str, path: st
         f"POST {path} HTTP/1.1\r\nHost: {server}\r\nContent-Type: application/json\r\n"
         "Content-Length: 1000\r\n\r\n{".encode()
     )
-    raw, t = read_until_closed(s, BODY_S + 10, t0)
+    raw, t = read_until_closed(s, GIVE_UP_S, t0)
     s.close()
     print(f"body 1 of 1000 bytes on {path}: closed after {t:.2f} s")
-    assert on_time(t, BODY_S), t
+    assert not_early(t, BODY_S), t
     if path == "/api/control":  # the app was still waiting: the answer is ours
-        status, body = status_and_body(raw)
+        assert raw.startswith(b"HTTP/1.1 408"), raw[:200]
+    at = raw.find(b"HTTP/1.1 408")  # a 404 answered before the body may precede ours
+    if at >= 0 or path == "/api/control":
+        status, body = status_and_body(raw[at:])
         assert status == 408 and body["detail"][0]["field"] == "body"
         assert body["detail"][0]["got"] == 1
+        assert body["detail"][0]["allowed"] == BODY_NAMED, body
 
 
 def test_a_trickling_body_is_dropped_by_its_rate(server: str) -> None:
@@ -194,7 +204,7 @@ def test_a_trickling_body_is_dropped_by_its_rate(server: str) -> None:
     )
     s.settimeout(0.5)
     raw = b""
-    while time.monotonic() - t0 < BODY_S + 10:
+    while time.monotonic() - t0 < GIVE_UP_S:
         try:
             s.send(b" ")
             chunk = s.recv(4096)
@@ -208,9 +218,10 @@ def test_a_trickling_body_is_dropped_by_its_rate(server: str) -> None:
     t = time.monotonic() - t0
     s.close()
     print(f"trickling body: closed after {t:.2f} s")
-    assert on_time(t, BODY_S), t
+    assert not_early(t, BODY_S), t
     status, body = status_and_body(raw)
     assert status == 408 and "bytes/s" in body["detail"][0]["msg"]
+    assert body["detail"][0]["allowed"] == BODY_NAMED, body
 
 
 def test_connections_from_one_address_are_bounded(tmp_path: Path) -> None:

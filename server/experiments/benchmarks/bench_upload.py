@@ -65,13 +65,15 @@ def _peak_kb(pid: int) -> int:
 
 
 def _lags_while(c: httpx.Client, busy: threading.Thread | None, seconds: float) -> list[float]:
-    """The loop's lag [ms] sampled every SAMPLE_S while ``busy`` runs (or ``seconds``)."""
+    """The loop's lag [ms] sampled every SAMPLE_S while ``busy`` runs (or ``seconds``);
+    at least one sample (taken at once, even if ``busy`` has already ended)."""
     lags: list[float] = []
     end = time.monotonic() + seconds
-    while busy.is_alive() if busy is not None else time.monotonic() < end:
+    while True:
         lags.append(float(c.get("/api/health").json()["lag_ms"]))
+        if not (busy.is_alive() if busy is not None else time.monotonic() < end):
+            return lags
         time.sleep(SAMPLE_S)
-    return lags
 
 
 def _one(c: httpx.Client, pid: int, log: Path, i: int, idle_s: float) -> dict[str, float]:
@@ -82,10 +84,14 @@ def _one(c: httpx.Client, pid: int, log: Path, i: int, idle_s: float) -> dict[st
     Path(f"/proc/{pid}/clear_refs").write_text("5")  # the peak from here
     rss0 = _peak_kb(pid)
     answer: dict[str, httpx.Response] = {}
+    failed: list[BaseException] = []
 
-    def send() -> None:
-        with log.open("rb") as fh:
-            answer["r"] = c.post("/api/uploads", params={"name": f"{name}.csv"}, content=fh)
+    def send() -> None:  # a client of its own: httpx.Client is not shared between threads
+        try:
+            with httpx.Client(base_url=c.base_url, timeout=c.timeout) as up, log.open("rb") as fh:
+                answer["r"] = up.post("/api/uploads", params={"name": f"{name}.csv"}, content=fh)
+        except BaseException as e:  # handed to the measuring thread, raised there
+            failed.append(e)
 
     t0 = time.monotonic()
     th = threading.Thread(target=send)
@@ -93,6 +99,8 @@ def _one(c: httpx.Client, pid: int, log: Path, i: int, idle_s: float) -> dict[st
     busy = _lags_while(c, th, 0.0)
     th.join()
     took = time.monotonic() - t0
+    if failed:
+        raise failed[0]
     answer["r"].raise_for_status()
     return {
         "idle_p99": float(np.percentile(idle, 99)),
