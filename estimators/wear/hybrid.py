@@ -216,6 +216,9 @@ class HybridModel:
     #: revision 5: the law per segment, s_k = (v_k / vref)^speed_b; the training tools'
     #: median rate at vref and its spread
     speed_b: float = 0.0
+    #: revision 5: True when too few knot intervals were left for the fit (fewer than
+    #: the training tools + 2) and ``speed_b`` is the fallback 0, not a fitted value
+    speed_b_fallback: bool = False
     rate_ref: float = 1.0
     rate_ref_sd: float = 1.0
     sigma2_within: float = 1.0  # residual variance about each tool's mean residual
@@ -442,7 +445,7 @@ def fit(tools: Sequence[ToolData], config: HybridConfig) -> HybridModel:
     m.taylor = taylor_fit(m.rates)
     if config.rate_law == "segment":
         vref = m.taylor[3]
-        m.speed_b = segment_b(train, vref)
+        m.speed_b, m.speed_b_fallback = segment_fit(train, vref)
         refs = [
             float((t.vb[-1] - t.vb[0]) / max(np.sum((t.feed[:-1] / vref) ** m.speed_b), 1e-9))
             for t in train
@@ -462,10 +465,17 @@ def knots(vb: F64) -> np.ndarray:
 
 
 def segment_b(tools: Sequence[ToolData], vref: float) -> float:
+    """Revision 5: the exponent of the law per segment (:func:`segment_fit`'s b)."""
+    return segment_fit(tools, vref)[0]
+
+
+def segment_fit(tools: Sequence[ToolData], vref: float) -> tuple[float, bool]:
     """Revision 5: the exponent of the law per segment from the knot intervals within
     the tools: ``ln(dVB / sum s_k) = level(tool) + c VB_mid``, least squares for each b
     of :data:`SEGMENT_B`, the lowest residual sum of squares wins (the first on a tie).
-    Intervals with dVB <= :data:`SEGMENT_MIN_DVB` are left out."""
+    Intervals with dVB <= :data:`SEGMENT_MIN_DVB` are left out. With fewer intervals
+    than the tools + 2 (no degree of freedom for the slope) b falls back to 0 (no
+    speed factor). Returns (b, whether the fallback was used)."""
     rows: list[tuple[int, float, F64, float]] = []  # (tool index, dVB, feeds, mid VB)
     for i, t in enumerate(tools):
         if t.vb is None:
@@ -476,7 +486,7 @@ def segment_b(tools: Sequence[ToolData], vref: float) -> float:
             if dvb > SEGMENT_MIN_DVB:
                 rows.append((i, dvb, t.feed[a:b] / vref, 0.5 * float(t.vb[a] + t.vb[b])))
     if len(rows) < len(tools) + 2:
-        return 0.0
+        return 0.0, True
     ids = sorted({r[0] for r in rows})
     X = np.zeros((len(rows), len(ids) + 1))
     for j, r in enumerate(rows):
@@ -489,7 +499,7 @@ def segment_b(tools: Sequence[ToolData], vref: float) -> float:
         rss = float(np.sum((y - X @ c) ** 2))
         if rss < best_rss - 1e-12:
             best, best_rss = b, rss
-    return best
+    return best, False
 
 
 def tool_rate(t: ToolData) -> tuple[float, float]:
@@ -608,6 +618,7 @@ __all__ = [
     "life_end",
     "median_rate",
     "segment_b",
+    "segment_fit",
     "taylor_fit",
     "taylor_rate",
     "tool_rate",

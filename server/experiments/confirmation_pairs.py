@@ -8,7 +8,9 @@ copies of each monitor: ``before`` (the confirmations in samples of the rate: br
 a time). The same cut, noise and event reach both, so every difference is the rule's.
 
 ``python -m server.experiments.confirmation_pairs --out FILE`` appends one JSON line per
-case (resumes from FILE) until ``--until`` (UTC ``HH:MM``) or the cases are done;
+case (resumes from FILE: a row stands for a case of the same kind, seed and hours) until
+``--until`` (UTC ``HH:MM``, the next such time: tomorrow's if today's has passed) or the
+cases are done;
 ``--summary FILE`` prints the paired tables. ``--quick`` runs two short cases (the
 test's size).
 """
@@ -131,7 +133,7 @@ def run_event(case: CentreCase) -> dict[str, Any]:
     for w in watches:
         w.watch_from = w.n
     _run_parts(machine, state, watches, 1)
-    res: dict[str, Any] = {"kind": case.kind, "seed": case.seed, "rpm": rpm}
+    res: dict[str, Any] = {**case_fields(case), "rpm": rpm}
     for w in watches:
         res[f"{w.rate:g}"] = _both_scores(w, case.kind, line, rpm)
     return res
@@ -154,12 +156,47 @@ def run_free(case: CentreCase) -> dict[str, Any]:
     while state.k * machine.sample_time - t0 < case.hours * 3600.0:
         state = _run_parts(machine, state, watches, 1)
     res: dict[str, Any] = {
-        "kind": "none", "seed": case.seed,
+        **case_fields(case),
         "watched_h": (state.k * machine.sample_time - t0) / 3600.0,
     }  # fmt: skip
     for w, (a0, b0) in zip(watches, start, strict=True):
         res[f"{w.rate:g}"] = {"after": w.alarms[a0:], "before": w.alarms_b[b0:]}
     return res
+
+
+def case_fields(case: CentreCase) -> dict[str, Any]:
+    """What identifies and sizes a case, written into its row: the resume key."""
+    return {
+        "kind": case.kind, "seed": case.seed, "hours": case.hours,
+        "machine": case.machine, "size": case.size,
+    }  # fmt: skip
+
+
+def _key(fields: dict[str, Any]) -> tuple[Any, ...]:
+    return tuple(fields.get(k) for k in ("kind", "seed", "hours", "machine", "size"))
+
+
+def remaining(todo: list[CentreCase], rows: list[dict[str, Any]]) -> list[CentreCase]:
+    """The cases of ``todo`` not yet in ``rows``: a row counts for a case only if it was
+    the same case in every field that sizes it (a ``--quick`` file reused as ``--out``
+    of a full run does not stand for the full run's longer event-free cases; rows
+    written before the hours were recorded match nothing and are run again)."""
+    done = {_key(r) for r in rows}
+    return [c for c in todo if _key(case_fields(c)) not in done]
+
+
+def stop_time(until: str, now: dt.datetime) -> dt.datetime:
+    """The next ``until`` (UTC ``HH:MM``) after ``now``: today's, or tomorrow's when
+    today's is not later than ``now`` (``--until 06:00`` started at 22:00 runs the
+    night, it does not stop after the first case)."""
+    try:
+        hh, mm = (int(x) for x in until.split(":"))
+        if not (0 <= hh < 24 and 0 <= mm < 60):
+            raise ValueError
+    except ValueError:
+        raise ValueError(f"--until: expected a UTC time HH:MM, found {until!r}") from None
+    stop = now.replace(hour=hh, minute=mm, second=0, microsecond=0)
+    return stop if stop > now else stop + dt.timedelta(days=1)
 
 
 def _run(case: CentreCase) -> dict[str, Any]:
@@ -282,13 +319,13 @@ def main(argv: list[str] | None = None) -> int:
     if a.out is None:
         ap.error("--out FILE or --summary FILE")
     todo = cases(1, 0.01, 1, a.seed0) if a.quick else cases(a.free, a.hours, a.events, a.seed0)
-    done = {(r["kind"], r["seed"]) for r in _load(a.out)}
-    todo = [c for c in todo if (c.kind, c.seed) not in done]
+    todo = remaining(todo, _load(a.out))
     stop = None
     if a.until:
-        hh, mm = (int(x) for x in a.until.split(":"))
-        now = dt.datetime.now(dt.UTC)
-        stop = now.replace(hour=hh, minute=mm, second=0, microsecond=0)
+        try:
+            stop = stop_time(a.until, dt.datetime.now(dt.UTC))
+        except ValueError as e:
+            ap.error(str(e))
     from tqdm import tqdm
 
     with multiprocessing.get_context("spawn").Pool(a.workers) as pool, a.out.open("a") as f:

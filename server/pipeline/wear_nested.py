@@ -21,8 +21,10 @@ from typing import Any
 import numpy as np
 
 from common.arrays import F64
+from estimators.errors import ParameterError
 from estimators.wear.hybrid import (
     LIFE_METHODS,
+    RATE_LAWS,
     SAME_CONDITIONS,
     HybridConfig,
     HybridModel,
@@ -177,11 +179,14 @@ class FoldResult:
     inner_close: int = 0
     n_configs: int = 0
     #: the prior rate's rule chosen on the training tools (revision 4; ``median`` only
-    #: before), the law's exponent on them (clipped, and the unclipped slope) and each
-    #: rule's inner score [um/segment]
+    #: before; revision 5's ``segment`` alone), the law's exponent on them (clipped, and
+    #: the unclipped slope; under ``segment`` b is one of the grid ``SEGMENT_B`` and
+    #: there is no unclipped slope: nan) and each rule's inner score [um/segment]
     rate_law: str = "median"
     rate_b: float = math.nan
     rate_b_raw: float = math.nan
+    #: revision 5: b is the fallback 0 (too few knot intervals for the fit)
+    rate_b_fallback: bool = False
     rate_scores: dict[str, float] = field(default_factory=dict)
 
 
@@ -373,6 +378,15 @@ def run_fold(
     ``rate_laws``: the prior rate's rules to choose from on the training tools' rates
     (revision 4: ``("median", "taylor")``); the chosen one is set on every
     configuration."""
+    laws = tuple(rate_laws)
+    known = (*RATE_LAWS, "segment")
+    if not laws or any(k not in known for k in laws) or ("segment" in laws and len(laws) > 1):
+        raise ParameterError(
+            "rate_laws",
+            f"one or more of {RATE_LAWS}, or ('segment',) alone (revision 5's law is not "
+            "chosen against the others)",
+            laws,
+        )
     signals = SETS[set_name]
     tools = [t for t in table.tools if t not in test]
     data = {t: tool_data(table, signals, t) for t in table.tools}
@@ -453,7 +467,8 @@ def run_fold(
         n_configs=len(cfgs),
         rate_law=law,
         rate_b=model.speed_b if law == "segment" else rate_b,
-        rate_b_raw=model.speed_b if law == "segment" else rate_b_raw,
+        rate_b_raw=math.nan if law == "segment" else rate_b_raw,
+        rate_b_fallback=law == "segment" and model.speed_b_fallback,
         rate_scores=rate_scores,
     )
 
@@ -580,15 +595,21 @@ def summarise(folds: Sequence[FoldResult], groups: dict[int, str] | None = None)
                 )
             ),
             # the prior rate's rule per fold (revision 4) and the law's exponent: how
-            # often the training tools' own slope left the physical range
+            # often the training tools' own slope left the physical range (the Taylor-
+            # type law's folds only: revision 5's b is one of its grid, no raw slope),
+            # and how often revision 5's b was the fallback 0 (too few knot intervals)
             "rate_laws": {
                 law: sum(f.rate_law == law for f in fs) for law in sorted({f.rate_law for f in fs})
             },
             "rate_b": [f.rate_b for f in fs],
             "rate_b_raw": [f.rate_b_raw for f in fs],
             "rate_b_out_of_range": sum(
-                1 for f in fs if not (math.isfinite(f.rate_b_raw) and f.rate_b_raw == f.rate_b)
+                1
+                for f in fs
+                if f.rate_law != "segment"
+                and not (math.isfinite(f.rate_b_raw) and f.rate_b_raw == f.rate_b)
             ),
+            "rate_b_fallback": sum(f.rate_b_fallback for f in fs),
         }
         if p == "loto":
             out[p]["per_tool"] = tools

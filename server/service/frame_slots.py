@@ -24,7 +24,9 @@ class FrameSlots:
             raise ValueError(f"period_s: expected a frame period > 0 s, got {period_s!r}")
         self.period_s = period_s
         self.next_s = start_s  # the wall time of the next frame's slot
-        self.reanchored = 0  # how many times the schedule was moved after a stall
+        # how many times the schedule was moved onto a late block: after a stall at 1x or
+        # above; below 1x (a block longer than a period) on every frame
+        self.reanchored = 0
 
     def due(self, done_s: float, block_wall_s: float) -> bool:
         """Whether the block that finished at ``done_s`` (its wall length ``block_wall_s``:

@@ -22,6 +22,7 @@ from estimators.wear.hybrid import (
     life_end,
     median_rate,
     segment_b,
+    segment_fit,
     taylor_fit,
     taylor_rate,
 )
@@ -210,3 +211,15 @@ def test_revision_5_reads_the_speed_exponent_from_within_the_tools() -> None:
     assert ratio[jump - 1] == pytest.approx((test.feed[jump] / test.feed[jump - 1]) ** 2, rel=0.05)
     # the other rules do not scale
     assert np.all(fit(tools, HybridConfig()).scale(test.feed) == 1.0)
+
+
+def test_revision_5_records_when_b_falls_back_to_zero() -> None:
+    """Straight-line tools give one knot interval each, fewer than the tools + 2: no
+    slope to fit, b falls back to 0 and the model says so; scheduled tools fit b."""
+    straight = [tool(s) for s in range(4)]
+    assert segment_fit(straight, 2260.0) == (0.0, True)
+    m = fit(straight, HybridConfig(rate_law="segment"))
+    assert m.speed_b == 0.0 and m.speed_b_fallback
+    sched = [_scheduled(s, 2.0) for s in range(5)]
+    assert segment_fit(sched, 2260.0) == (2.0, False)
+    assert not fit(sched, HybridConfig(rate_law="segment")).speed_b_fallback

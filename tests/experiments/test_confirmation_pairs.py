@@ -62,3 +62,36 @@ def test_a_collision_is_confirmed_alike_on_both_rules(quick) -> None:  # type: i
             b, a = (r[f"{rate:g}"][v][sig] for v in cp.VARIANTS)
             assert a["detected"] == b["detected"]
             assert a.get("delay_samples") == b.get("delay_samples")
+
+
+def test_until_earlier_than_now_is_tomorrow() -> None:
+    import datetime as dt
+
+    now = dt.datetime(2026, 12, 7, 22, 21, 30, tzinfo=dt.UTC)
+    assert cp.stop_time("06:00", now) == dt.datetime(2026, 12, 8, 6, 0, tzinfo=dt.UTC)
+    assert cp.stop_time("23:05", now) == dt.datetime(2026, 12, 7, 23, 5, tzinfo=dt.UTC)
+    # this very minute is already past (seconds dropped): the next day's
+    assert cp.stop_time("22:21", now) == dt.datetime(2026, 12, 8, 22, 21, tzinfo=dt.UTC)
+    for bad in ("6", "25:00", "06:60", "ab:cd"):
+        with pytest.raises(ValueError, match="--until"):
+            cp.stop_time(bad, now)
+
+
+def test_until_in_the_past_is_refused_before_any_case_runs_wrongly(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    with pytest.raises(SystemExit):
+        cp.main(["--quick", "--out", str(tmp_path / "x.jsonl"), "--until", "7:99"])
+    assert not (tmp_path / "x.jsonl").exists()
+
+
+def test_a_quick_file_does_not_stand_for_a_full_runs_cases() -> None:
+    quick = cp.cases(1, 0.01, 1, 1000)
+    full = cp.cases(2, 0.5, 1, 1000)
+    rows = [cp.case_fields(c) for c in quick]  # what the quick run wrote (less the results)
+    left = cp.remaining(full, rows)
+    # the event cases are the same size in both (teach-in and one part): done; the
+    # event-free case of seed 1000 was 0.01 h, not 0.5 h: to run, as is seed 1001
+    assert [(c.kind, c.seed, c.hours) for c in left] == [("none", 1000, 0.5), ("none", 1001, 0.5)]
+    assert cp.remaining(quick, rows) == []
+    # a row from before the hours were recorded matches nothing
+    old = [{"kind": c.kind, "seed": c.seed} for c in full]
+    assert cp.remaining(full, old) == full

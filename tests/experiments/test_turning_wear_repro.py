@@ -108,3 +108,20 @@ def _unseen_rows(rows: dict, checks: dict) -> None:
     # revision 4: the prior rate's rule chosen in each of the two folds
     rl = rows[f"{pre}.rate_law"]
     assert 0 <= rl["ours"] <= 2 and rl["unit"] == "folds" and "[0.67, 5]" in rl["condition"]
+    assert "revision 4" in rl["condition"] and "revision 5" not in rl["condition"]
+
+
+def test_rate_law_row_says_what_ran() -> None:
+    """Revision 5's folds are counted as the law per segment, with the fallback; revision
+    4's as the Taylor-type law chosen, with its clipped slope."""
+    from server.experiments.reproductions.turning_wear_unseen import rate_law_row
+
+    seg = {"rate_laws": {"segment": 3}, "rate_b": [0.0, 1.0, 0.0], "splits": 3,
+           "rate_b_out_of_range": 0, "rate_b_fallback": 1}  # fmt: skip
+    r = rate_law_row("unseen.F_f.loto", seg)
+    assert r.ours == 3 and "revision 5" in r.condition and "revision 4" not in r.condition
+    assert "in 1 folds" in r.condition and "0.00-1.00" in r.condition
+    rev4 = {"rate_laws": {"median": 2, "taylor": 1}, "rate_b": [0.67, 0.67, 2.0],
+            "splits": 3, "rate_b_out_of_range": 2}  # fmt: skip
+    r = rate_law_row("unseen.F_f.loto", rev4)
+    assert r.ours == 1 and "revision 4" in r.condition and "[0.67, 5] (clipped) in 2" in r.condition

@@ -4,7 +4,8 @@ A synthetic cut (a steady force with a once-per-revolution pattern, a little noi
 taught and then watched at 5 kHz and 500 Hz: a lost tool alarms the same time after it
 is lost at both rates, a dip of the mean shorter than the missing-tool confirmation
 raises nothing at either (the rule in samples took it for a lost tool at 500 Hz), and a
-collision needs 0.4 ms and at least two samples over the limit.
+collision needs 0.4 ms and at least two samples over the limit; a breakage an eighth of a
+revolution and at least three samples, in samples per revolution of the rate and speed.
 """
 
 from __future__ import annotations
@@ -93,3 +94,44 @@ def test_the_confirmations_are_checked_and_named() -> None:
     for name in ("breakage_rev", "collision_s", "missing_s"):
         with pytest.raises(ParameterError, match=name):
             MonitorParams(**{name: -1.0})
+
+
+def _pattern_step(rate: float, rpm: float, seed: int, t0: float | None) -> tuple[np.ndarray, ...]:
+    """One block at ``rpm``: the once-per-revolution pattern 0.2 of the force, 0.8 from
+    ``t0`` on (a tooth broken: the mean stays, the pattern moves by 0.6)."""
+    n = int(BLOCK_S * rate)
+    t = np.arange(n) / rate
+    psi = np.mod(2 * math.pi * rpm / 60.0 * t, 2 * math.pi)
+    amp = np.where(t >= t0, 0.8, 0.2) if t0 is not None else np.full(n, 0.2)
+    f = F0 * (1.0 + amp * np.cos(psi)) + np.random.default_rng(seed).normal(0.0, 1.0, n)
+    return f, np.zeros(n), psi
+
+
+@pytest.mark.parametrize(
+    ("rate", "rpm", "expected"),
+    [
+        (5000.0, 6000.0, 7),  # 50 samples a revolution: an eighth is 6.25 -> 7
+        (5000.0, 1500.0, 25),  # 200 a revolution: 25
+        (1000.0, 1500.0, 5),  # 40 a revolution: 5
+        (500.0, 6000.0, 3),  # 5 a revolution: an eighth is under one sample, the floor 3
+    ],
+)
+def test_a_breakage_is_confirmed_over_an_eighth_of_a_revolution_at_least_3_samples(
+    rate: float, rpm: float, expected: int
+) -> None:
+    spr = rate * 60.0 / rpm  # samples per revolution, from the rate and the speed alone
+    assert expected == max(3, math.ceil(spr / 8.0 - 1e-9))
+    mon = ProcessMonitor(MonitorParams(sample_time=1.0 / rate, teach_parts=3))
+    st = mon.initial_state()
+    kw = {"tool": 1, "program": "O1", "line": 10, "new_block": True}
+    for seed in range(3):
+        assert mon.step(st, *_pattern_step(rate, rpm, seed, None), **kw).teaching  # type: ignore[arg-type]
+    k0 = int(st["samples"][0])
+    rec = mon.step(st, *_pattern_step(rate, rpm, 9, 0.5), **kw)  # type: ignore[arg-type]
+    (al,) = [a for a in rec.alarms if a.detector == "breakage"]
+    k = al.sample - k0
+    over = rec.pattern > rec.pattern_limit  # NaN compares False
+    assert not over[: int(0.5 * rate)].any()  # nothing before the tooth breaks
+    # the alarm closes the first run of samples over the limit, ``expected`` long
+    assert over[k - expected + 1 : k + 1].all(), (rate, rpm)
+    assert not over[k - expected], (rate, rpm)

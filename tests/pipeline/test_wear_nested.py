@@ -181,15 +181,23 @@ def test_revision_4_chooses_the_prior_rate_on_the_training_tools_only(
 
 def test_revision_5_runs_the_law_per_segment_in_every_fold(table: W.WearTable) -> None:
     """The law per segment: its exponent fitted on the fold's training tools (one of
-    the grid), the prior rate per segment at each segment's speed, a life score."""
-    from estimators.wear.hybrid import SEGMENT_B, segment_b, taylor_fit, tool_rate
+    the grid, b > 0 in this fold so the speed factor is exercised), the prior rate per
+    segment at each segment's speed, a life score; no raw slope (nan) and never counted
+    out of range, the fallback b = 0 recorded when it was used."""
+    from estimators.wear.hybrid import SEGMENT_B, segment_fit, taylor_fit, tool_rate
 
+    tid = 14
     cfgs = [c for c in W.candidates() if c.map == "linear" and not c.offset][:1]
-    f = W.run_fold(table, "F_f", (11,), "loto", W._Cache(), configs=cfgs, rate_laws=("segment",))
-    train = [W.tool_data(table, ["F_f"], t) for t in table.tools if t != 11]
+    f = W.run_fold(table, "F_f", (tid,), "loto", W._Cache(), configs=cfgs, rate_laws=("segment",))
+    train = [W.tool_data(table, ["F_f"], t) for t in table.tools if t != tid]
     vref = taylor_fit([tool_rate(d) for d in train])[3]
     assert f.rate_law == "segment" and "/rate=segment" in f.chosen
-    assert f.rate_b == segment_b(train, vref) and f.rate_b in SEGMENT_B
+    b_fit, fallback = segment_fit(train, vref)
+    assert f.rate_b == b_fit and f.rate_b in SEGMENT_B and f.rate_b > 0
+    assert f.rate_b_fallback is fallback is False and np.isnan(f.rate_b_raw)
+    s = W.summarise([f])["loto"]
+    assert s["rate_laws"] == {"segment": 1} and s["rate_b"] == [f.rate_b]
+    assert s["rate_b_out_of_range"] == 0 and s["rate_b_fallback"] == 0
     r = f.tools[0]
     assert set(r.life) == {"300", "150"} and all(np.isfinite(v) for v in r.life.values())
     # the prior rate at half-life: the training tools' median rate at vref, at the speed
@@ -199,6 +207,20 @@ def test_revision_5_runs_the_law_per_segment_in_every_fold(table: W.WearTable) -
         (d.vb[-1] - d.vb[0]) / np.sum((d.feed[:-1] / vref) ** b) for d in train if d.vb is not None
     ]
     k = int(np.flatnonzero(r.vb >= 300)[0]) // 2
-    d11 = W.tool_data(table, ["F_f"], 11)
-    want = float(np.median(refs)) * (d11.feed[k] / vref) ** b
+    dt = W.tool_data(table, ["F_f"], tid)
+    want = float(np.median(refs)) * (dt.feed[k] / vref) ** b
     assert r.life_parts["rate_prior"] == pytest.approx(want)
+    # the speed factor is not one: the prior at vref alone would differ
+    assert want != pytest.approx(float(np.median(refs)))
+
+
+def test_revision_5_law_is_not_mixed_with_the_others(table: W.WearTable) -> None:
+    """The choice between rules scores the median and the Taylor-type law only: asking
+    it to choose the law per segment too is refused, naming the field."""
+    from common.errors import ParameterError
+
+    cfgs = [c for c in W.candidates() if c.map == "linear" and not c.offset][:1]
+    for laws in (("median", "segment"), ("segment", "taylor"), ("weibull",), ()):
+        with pytest.raises(ParameterError, match="rate_laws") as e:
+            W.run_fold(table, "F_f", (3,), "loto", W._Cache(), configs=cfgs, rate_laws=laws)
+        assert repr(laws) in str(e.value)

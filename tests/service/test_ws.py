@@ -90,9 +90,15 @@ def test_frames_carry_whole_blocks_in_a_row(hp: str) -> None:
     block_s = round(Settings().block_ms * 1e-3 / dt) * dt
     seqs = [f["seq"] for f in frames]
     assert all(b - a == 1 for a, b in itertools.pairwise(seqs)), seqs
+    covered = []
     for a, b in itertools.pairwise(frames):
         blocks = (b["health"]["sim_t"] - a["health"]["sim_t"]) / block_s
         assert blocks >= 1 - 1e-6 and abs(blocks - round(blocks)) < 1e-6, blocks
+        covered.append(round(blocks))
+    # the loop's wiring of the schedule, roughly: most frames carry one block (a CI box
+    # that stalled gave 87 frames for 100 blocks: ~90 % of frames one block; the first rule
+    # gave ~0.65 frames per block: under half the frames one block)
+    assert sum(1 for c in covered if c == 1) >= 0.5 * len(covered), covered
     t = [x for f in frames for x in f["t"]]
     steps = {round((b - a) / dt) for a, b in itertools.pairwise(t)}
     assert len(steps) == 1  # complete frames: no samples skipped or repeated between them

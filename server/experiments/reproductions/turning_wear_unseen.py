@@ -198,20 +198,33 @@ def loto_rows(s: str, v: dict[str, Any]) -> list[Row]:
     for i, (c, n) in enumerate(v["chosen"].items()):
         rows.append(Row(f"{pre}.chosen.{i}", n, None, "folds", c))
     if "rate_laws" in v:
-        bs = [b for b in v["rate_b"] if b == b]
-        rows.append(
-            Row(
-                f"{pre}.rate_law",
-                v["rate_laws"].get("taylor", 0),
-                None,
-                "folds",
-                f"folds whose training tools chose the Taylor-type prior rate (revision 4) "
-                f"of {v['splits']}: {v['rate_laws']}; its exponent b "
-                f"{min(bs):.2f}-{max(bs):.2f}, the training tools' slope outside the "
-                f"physical range [0.67, 5] (clipped) in {v['rate_b_out_of_range']} folds",
-            )
-        )
+        rows.append(rate_law_row(pre, v))
     return rows
+
+
+def rate_law_row(pre: str, v: dict[str, Any]) -> Row:
+    """The prior rate's rule as it ran: revision 5's law per segment (b from its grid,
+    how often the fallback b = 0), else revision 4's choice between the median and the
+    Taylor-type law (how often the latter was chosen, its slope clipped)."""
+    laws = v["rate_laws"]
+    bs = [b for b in v["rate_b"] if b == b]
+    b_range = f"{min(bs):.2f}-{max(bs):.2f}" if bs else "none"
+    if "segment" in laws:
+        n = laws["segment"]
+        text = (
+            f"folds under the law per segment (revision 5) of {v['splits']}: {laws}; its "
+            f"exponent b {b_range} (the grid's values), the fallback b = 0 (too few knot "
+            f"intervals for the fit) in {v.get('rate_b_fallback', 0)} folds"
+        )
+    else:
+        n = laws.get("taylor", 0)
+        text = (
+            f"folds whose training tools chose the Taylor-type prior rate (revision 4) "
+            f"of {v['splits']}: {laws}; its exponent b {b_range}, the training tools' "
+            f"slope outside the physical range [0.67, 5] (clipped) in "
+            f"{v['rate_b_out_of_range']} folds"
+        )
+    return Row(f"{pre}.rate_law", n, None, "folds", text)
 
 
 def checks(s: str, v: dict[str, Any]) -> list[Check]:
