@@ -64,40 +64,18 @@ class PairWatch(Watch):
         self.mstate_b = {s: self.mon_b[s].initial_state() for s in MONITORS}
         self.alarms_b: list[dict[str, Any]] = []
 
-    def feed(self, rec: Any) -> None:
-        self.tstate, tr = self.trace.export(self.tstate, rec)
-        if tr.n == 0:
-            return
-        for e, j in zip(tr.events, tr.trace_index, strict=True):
-            self.events.append((self.n + j, e))
-        sig = self.signals(tr)
-        dpsi = tr.signal("S.speed") * (math.pi / 30.0) * self.ts
-        psi = np.mod(self.psi + np.cumsum(dpsi), 2.0 * math.pi)
-        self.psi = float(psi[-1])
-        keys = np.stack([tr.part, tr.line])
-        cuts = np.flatnonzero(np.any(keys[:, 1:] != keys[:, :-1], axis=0)) + 1
-        for a, b in zip([0, *cuts], [*cuts, tr.n], strict=True):
-            key = (int(tr.part[a]), int(tr.line[a]))
-            new = key != self.last
-            self.last = key
-            self.block_n[key] = self.block_n.get(key, 0) + (b - a)
-            ovr = float(tr.override[a])
-            kw: dict[str, Any] = {
-                "tool": int(tr.tool[a]), "program": tr.program, "line": key[1],
-                "new_block": new, "override": ovr if ovr > 0.0 else 1.0,
-                "cutting": self.cutting.get(key[1], True),
-            }  # fmt: skip
-            for s in MONITORS:
-                fx, fy = sig[s]
-                m = self.mon[s].step(self.mstate[s], fx[a:b], fy[a:b], psi[a:b], **kw)
-                self._note(s, m, self.n + a, key)
-                mb = self.mon_b[s].step(self.mstate_b[s], fx[a:b], fy[a:b], psi[a:b], **kw)
-                for al in mb.alarms:
-                    self.alarms_b.append(
-                        {"set": s, "detector": str(al.detector), "k": int(al.sample),
-                         "part": key[0], "line": key[1]}
-                    )  # fmt: skip
-        self.n += tr.n
+    def _step(
+        self, s: str, xyp: tuple[Any, Any, Any], kw: dict[str, Any], k0: int, key: tuple[int, int]
+    ) -> None:
+        """The block through both rules' monitors: ``after`` as :class:`Watch` does,
+        ``before`` beside it with the same signals and identities."""
+        super()._step(s, xyp, kw, k0, key)
+        mb = self.mon_b[s].step(self.mstate_b[s], *xyp, **kw)
+        for al in mb.alarms:
+            self.alarms_b.append(
+                {"set": s, "detector": str(al.detector), "k": int(al.sample),
+                 "part": key[0], "line": key[1]}
+            )  # fmt: skip
 
 
 def _both_scores(w: PairWatch, kind: str, line: int, rpm: float) -> dict[str, Any]:

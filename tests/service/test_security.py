@@ -30,6 +30,7 @@ from websockets.sync.client import connect
 
 from common.errors import ParameterError
 from server.errors import CutwatchError
+from server.experiments.benchmarks.bench_upload import rigid_log
 from server.records.data_areas import check_name
 from server.service.app import create_app
 from server.service.settings import Settings, check_security, is_loopback
@@ -386,15 +387,8 @@ def test_mat_bomb_does_not_reach_the_service(tmp_path: Path) -> None:
 
 
 def _big_csv(path: Path, mb: float) -> int:
-    """A valid rigid log of about ``mb`` MB (t, tau_m, q_m at 1 kHz); its rows."""
-    rows_per_mb = 1e6 / 39.5  # measured: 39.5 bytes per row
-    n = int(mb * rows_per_mb)
-    t = np.arange(n) * 1e-3
-    rng = np.random.default_rng(7)
-    cols = np.column_stack([t, np.sin(t) + 0.01 * rng.standard_normal(n), np.cos(t)])
-    with path.open("w") as fh:
-        fh.write("t,tau_m,q_m\n")
-        np.savetxt(fh, cols, fmt=["%.3f", "%.12f", "%.12f"], delimiter=",")
+    """A valid rigid log of about ``mb`` MB (the bench's) with its sidecar; its rows."""
+    n = rigid_log(path, mb)
     path.with_suffix(".json").write_text(json.dumps(SIDECAR))
     return n
 

@@ -45,7 +45,7 @@ SAMPLE_S = 0.03
 SIDECAR = {"sample_time": 0.001, "units": {"effort": "N m", "position": "rad"}, "kind": "rigid"}
 
 
-def _log(path: Path, mb: float) -> int:
+def rigid_log(path: Path, mb: float) -> int:
     """A valid rigid log of about ``mb`` MB (t, tau_m, q_m at 1 kHz); its rows."""
     n = int(mb * 1e6 / 39.5)  # 39.5 bytes per row at these formats
     t = np.arange(n) * 1e-3
@@ -141,7 +141,7 @@ def measure(*, repeats: int, quick: bool) -> Figures:
     mb, idle_s = (20.0, 3.0) if quick else (MB, IDLE_S)
     with tempfile.TemporaryDirectory(prefix="cutwatch-bench-upload-") as d:
         log = Path(d) / "big.csv"
-        rows = _log(log, mb)
+        rows = rigid_log(log, mb)
         size_mb = log.stat().st_size / 1e6
         proc, base = _start(Path(d) / "data")
         try:

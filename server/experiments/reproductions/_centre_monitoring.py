@@ -298,15 +298,23 @@ class Watch:
             self.last = key
             self.block_n[key] = self.block_n.get(key, 0) + (b - a)
             ovr = float(tr.override[a])
+            kw: dict[str, Any] = {
+                "tool": int(tr.tool[a]), "program": tr.program, "line": key[1],
+                "new_block": new, "override": ovr if ovr > 0.0 else 1.0,
+                "cutting": self.cutting.get(key[1], True),
+            }  # fmt: skip
             for s in MONITORS:
                 fx, fy = sig[s]
-                m = self.mon[s].step(
-                    self.mstate[s], fx[a:b], fy[a:b], psi[a:b], tool=int(tr.tool[a]),
-                    program=tr.program, line=key[1], new_block=new,
-                    override=ovr if ovr > 0.0 else 1.0, cutting=self.cutting.get(key[1], True),
-                )  # fmt: skip
-                self._note(s, m, self.n + a, key)
+                self._step(s, (fx[a:b], fy[a:b], psi[a:b]), kw, self.n + a, key)
         self.n += tr.n
+
+    def _step(
+        self, s: str, xyp: tuple[Any, Any, Any], kw: dict[str, Any], k0: int, key: tuple[int, int]
+    ) -> None:
+        """One block of one signal set through its monitor (``xyp``: the two force
+        signals and the spindle angle; ``kw``: the block's identities)."""
+        m = self.mon[s].step(self.mstate[s], *xyp, **kw)
+        self._note(s, m, k0, key)
 
     def _note(self, s: str, m: Any, k0: int, key: tuple[int, int]) -> None:
         for al in m.alarms:
