@@ -41,9 +41,10 @@ from estimators.wear.hybrid import (
 from server.pipeline.wear_nested import SETS, FoldResult, _Cache, run_fold, tool_data
 from server.records.wear_table import FEATURES, VB, WearTable
 
-#: the methods compared: ours (the hybrid), the line on one ``_MEAN``, gradient
-#: boosting on the five features and on the ``_MEAN`` alone
-METHODS = ("ours", "linear", "gbr5", "gbr_mean")
+#: the methods compared: ours (the hybrid), its map alone (the chosen configuration's
+#: measurement, before the filter), the line on one ``_MEAN``, gradient boosting on the
+#: five features and on the ``_MEAN`` alone
+METHODS = ("ours", "ours_map", "linear", "gbr5", "gbr_mean")
 #: the signal's range over a life: between these quantiles
 RANGE_Q = (0.05, 0.95)
 
@@ -147,6 +148,7 @@ def oracle(
             ref = np.vstack([np.median(xs, axis=0), np.zeros(xs.shape[1])])
         m = fit([d, d], cfg, ref_level=ref)
         out["ours"] = m.run(d)[0]
+        out["ours_map"] = m.measure(m.inputs(d), d.feed)
     return out
 
 
@@ -185,6 +187,7 @@ def shared_oracle(
             if c.label not in fits:
                 fits[c.label] = fit([data[u] for u in every], c)
             o["ours"] = fits[c.label].run(data[t])[0]
+            o["ours_map"] = fits[c.label].measure(fits[c.label].inputs(data[t]), data[t].feed)
         out[t] = o
     return out
 
@@ -207,8 +210,17 @@ def tool_diagnosis(
     r = fold.tools[0]
     s0 = SETS[set_name][0]
     train = [t for t in table.tools if t not in fold.test]
-    est = {
-        "ours": r.est,
+    d = tool_data(table, SETS[set_name], r.tool)
+    cfg = chosen_config(fold, configs) if configs is not None else None
+    est = {"ours": r.est}
+    no_offset: F64 | None = None
+    if cfg is not None:  # the fold's model, refitted (the fit is deterministic)
+        dtrain = [tool_data(table, SETS[set_name], t) for t in train]
+        fm = fit(dtrain, cfg)
+        est["ours_map"] = fm.measure(fm.inputs(d), d.feed)
+        if cfg.offset:  # the mechanism's check: the same choice without the offset state
+            no_offset = fit(dtrain, replace(cfg, offset=False)).run(d)[0]
+    est |= {
         "linear": r.base["linear"],
         "gbr5": r.base["gbr5"],
         "gbr_mean": gbr_mean(table, s0, train, r.tool),
@@ -216,8 +228,6 @@ def tool_diagnosis(
     vb = r.vb
     ip = interpolation(vb)
     kn = ip["knots"].astype(int)
-    d = tool_data(table, SETS[set_name], r.tool)
-    cfg = chosen_config(fold, configs) if configs is not None else None
     orc = oracle(table, set_name, d, cfg)
     x = table.column(f"{s0}_MEAN", r.tool)
     X5 = np.column_stack([table.column(f"{s0}_{f}", r.tool) for f in FEATURES])
@@ -264,6 +274,9 @@ def tool_diagnosis(
             row[f"{m}_oracle"] = float(np.mean(np.abs(orc[m] - vb)))
         if shared is not None and m in shared:
             row[f"{m}_shared"] = float(np.mean(np.abs(shared[m] - vb)))
+    if no_offset is not None:
+        row["ours_without_offset_mae"] = float(np.mean(np.abs(no_offset - vb)))
+        row["ours_without_offset_bias"] = float(np.mean(no_offset - vb))
     row["series"] = {"vb": vb.tolist(), **{m: e.tolist() for m, e in est.items()}}
     return row
 
@@ -376,6 +389,15 @@ def text(diag: dict[str, Any]) -> str:
             f"R^2 {t['r2_mean']:.2f} / {t['r2_five_linear']:.2f}  slope {t['line_slope']:.3g}  "
             f"VB {t['vb_first']:.0f}-{t['vb_last']:.0f}, {t['knots']} knots"
         )
+    for t in diag["tools"]:
+        if "ours_without_offset_mae" in t:
+            lines.append(
+                f"  tool {t['tool']:>2}: its fold chose the tool-offset state; the same "
+                f"configuration without it (a check of the mechanism, not a choice): MAE "
+                f"{t['ours_without_offset_mae']:.1f} um, bias "
+                f"{t['ours_without_offset_bias']:+.1f} (with it {t['ours_mae']:.1f}, "
+                f"{t['ours_bias']:+.1f})"
+            )
     return "\n".join(lines)
 
 
@@ -387,15 +409,15 @@ def figure(diags: Sequence[dict[str, Any]], path: Any) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(len(diags), 1, figsize=(9.5, 3.4 * len(diags)), squeeze=False)
-    cols = {"ours": "C0", "linear": "C1", "gbr5": "C2", "gbr_mean": "C4"}
+    fig, axes = plt.subplots(len(diags), 1, figsize=(11.5, 3.4 * len(diags)), squeeze=False)
+    cols = {"ours": "C0", "ours_map": "C9", "linear": "C1", "gbr5": "C2", "gbr_mean": "C4"}
     for ax, dg in zip(axes[:, 0], diags, strict=True):
         tools = dg["tools"]
         x = np.arange(len(tools))
-        w = 0.13
+        w = 0.12
         for i, m in enumerate(METHODS):
-            ax.bar(x + (i - 2.5) * w, [t[f"{m}_mae"] for t in tools], w, color=cols[m], label=m)
-            ax.plot(x + (i - 2.5) * w, [t[f"{m}_mae_lb"] for t in tools], "_", color="k", ms=6)
+            ax.bar(x + (i - 3) * w, [t[f"{m}_mae"] for t in tools], w, color=cols[m], label=m)
+            ax.plot(x + (i - 3) * w, [t[f"{m}_mae_lb"] for t in tools], "_", color="k", ms=5)
         for j, (k, lab, h) in enumerate(
             (
                 ("shared", "ours, one map fitted on all nine tools", ".."),
@@ -403,7 +425,7 @@ def figure(diags: Sequence[dict[str, Any]], path: Any) -> None:
             )
         ):
             ax.bar(
-                x + (1.5 + j) * w,
+                x + (2 + j) * w,
                 [t.get(f"ours_{k}", math.nan) for t in tools],
                 w,
                 color="white",
@@ -417,11 +439,11 @@ def figure(diags: Sequence[dict[str, Any]], path: Any) -> None:
         ax.set_title(
             f"{dg['set']}, each tool left out (solid) and in-sample (hatched); pooled ours "
             f"{p['ours_mae']:.1f}, linear {p['linear_mae']:.1f}, gbr5 {p['gbr5_mae']:.1f}, "
-            f"gbr_mean {p['gbr_mean_mae']:.1f} um; black ticks: lower bound over every "
-            "monotone VB through the knots",
+            f"gbr_mean {p['gbr_mean_mae']:.1f} um\nblack ticks: the error's lower bound over "
+            "every monotone VB through the measured points",
             fontsize=8,
         )
-        ax.legend(fontsize=7, ncol=3)
+        ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

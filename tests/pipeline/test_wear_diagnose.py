@@ -34,9 +34,29 @@ def table() -> W.WearTable:
 
 
 @pytest.fixture(scope="module")
-def diag(table: W.WearTable) -> dict[str, Any]:
-    folds = D.loto_folds(table, "F_f", [7, 16], configs=QUICK)
+def folds(table: W.WearTable) -> list[W.FoldResult]:
+    return D.loto_folds(table, "F_f", [7, 16], configs=QUICK)
+
+
+@pytest.fixture(scope="module")
+def diag(table: W.WearTable, folds: list[W.FoldResult]) -> dict[str, Any]:
     return D.diagnose(table, "F_f", folds, QUICK)
+
+
+def test_the_chosen_configuration_refitted_is_the_folds_model(
+    table: W.WearTable, folds: list[W.FoldResult], diag: dict[str, Any]
+) -> None:
+    """The map alone (``ours_map``) comes from the fold's chosen configuration refitted
+    on the fold's training tools: filtered, it gives the fold's estimate again."""
+    for f, t in zip(folds, diag["tools"], strict=True):
+        cfg = D.chosen_config(f, QUICK)
+        assert cfg.rate_law == f.rate_law and f.chosen.startswith(cfg.label + "/life=")
+        train = [W.tool_data(table, ("F_f",), u) for u in table.tools if u not in f.test]
+        m = fit(train, cfg)
+        d = W.tool_data(table, ("F_f",), f.test[0])
+        np.testing.assert_allclose(m.run(d)[0], f.tools[0].est, atol=1e-9)
+        np.testing.assert_allclose(m.measure(m.inputs(d), d.feed), t["series"]["ours_map"])
+        assert t["ours_map_mae"] != pytest.approx(t["ours_mae"])
 
 
 def test_the_knots_band_and_the_smooth_curve(table: W.WearTable) -> None:
@@ -105,7 +125,7 @@ def test_a_worn_tools_oracle_and_its_flat_reference(table: W.WearTable) -> None:
     assert d.vb is not None and d.vb[0] > 30.0
     cfg = W.HybridConfig("conditions", "isotonic", 1e-4, False, "mean")
     out = D.oracle(table, "F_f", d, cfg)
-    assert set(out) == {"ours", "linear", "gbr5", "gbr_mean"}
+    assert set(out) == {"ours", "ours_map", "linear", "gbr5", "gbr_mean"}
     ref2 = np.array([[123.0], [0.0]])
     again = fit([d, d], cfg, ref_level=ref2).run(d)[0]
     np.testing.assert_allclose(out["ours"], again, atol=1e-6)
@@ -133,3 +153,20 @@ def test_text_and_figure(tmp_path: Path, diag: dict[str, Any]) -> None:
     assert "tool  7" in s and "tool 16" in s and "lower bound" in s
     D.figure([diag, diag], tmp_path / "d.png")
     assert (tmp_path / "d.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_a_fold_that_chose_the_offset_state_is_checked_without_it(table: W.WearTable) -> None:
+    """When the fold's choice has the tool-offset state, the same configuration without
+    it is run beside (the mechanism's check); the fold's own estimate is unchanged."""
+    cfg = W.HybridConfig("conditions", "linear", 1e-4, True, "mean")
+    (f,) = D.loto_folds(table, "F_f", [11], configs=[cfg])
+    dg = D.diagnose(table, "F_f", [f], [cfg])
+    (t,) = dg["tools"]
+    train = [W.tool_data(table, ("F_f",), u) for u in table.tools if u != 11]
+    d = W.tool_data(table, ("F_f",), 11)
+    plain = fit(train, dataclasses.replace(D.chosen_config(f, [cfg]), offset=False)).run(d)[0]
+    assert d.vb is not None
+    assert t["ours_without_offset_mae"] == pytest.approx(float(np.mean(np.abs(plain - d.vb))))
+    assert t["ours_without_offset_mae"] != pytest.approx(t["ours_mae"])
+    np.testing.assert_allclose(t["series"]["ours"], f.tools[0].est)
+    assert "without it" in D.text(dg)
