@@ -7,6 +7,7 @@ Examples::
     cutwatch wear segments.csv --train-tools 6,7,11,14,15 --test-tools 3,10 \\
         --model out/model.json --out out/wear_a
     cutwatch wear other.csv --model out/model.json --out out/wear_b   # model read
+    cutwatch wear segments.csv --method hybrid --diagnose --out out/diag  # why missed
 
 Seed 004's adaptive wear observer adapted to one row per cutting segment (see
 docs/turning-wear.md): a wear state that only grows, a wear-rate law on the segment
@@ -124,6 +125,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="--method hybrid: the first split of each protocol only and the first list "
         "without gradient boosting (30 configurations): a check that it runs, not a result",
     )
+    p.add_argument(
+        "--diagnose",
+        action="store_true",
+        help="--method hybrid: why the remaining targets are missed (a diagnosis after the "
+        "results, nothing chosen by it): leave each tool (or each of --test-tools) out under "
+        "the default protocol and print, per method (ours, the line, gradient boosting on "
+        "five features and on the _MEAN alone), the MAE on all rows, at the measured VB "
+        "points, against a smooth monotone curve through them, its lower bound over every "
+        "monotone VB through them and the map fitted on the tool itself; writes "
+        "DIR/diagnosis.json and DIR/diagnosis.png",
+    )
     p.add_argument("--no-baselines", action="store_true", help="skip the two baselines")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
@@ -191,33 +203,18 @@ def _run_hybrid(args: argparse.Namespace) -> int:
     from server.errors import CutwatchError
     from server.pipeline.wear_nested import (
         K_OUT,
-        SETS,
-        SPEED,
         _Cache,
-        columns_needed,
         condition_groups,
         outer_splits,
         run_fold,
         summarise,
     )
-    from server.records.wear_table import VB, parse_tools, read_wear_table
+    from server.records.wear_table import parse_tools
 
-    if args.signal_set not in SETS:
-        raise CutwatchError(f"--set {args.signal_set!r}: expected one of {', '.join(SETS)}")
-    table = read_wear_table(
-        args.table, columns_needed([args.signal_set]), args.map, optional=(VB, SPEED)
-    )
-    if not table.has_vb:
-        raise CutwatchError(
-            f"{table.path}: column 'Vb': expected measured flank wear for --method hybrid "
-            "(the map is learnt across the other tools), found none"
-        )
-    if args.train_tools is not None or args.model is not None:
-        raise CutwatchError(
-            "--method hybrid: expected --test-tools only (the other tools are the training "
-            "tools; no model file), found --train-tools or --model"
-        )
+    table = _hybrid_table(args)
     test = parse_tools(args.test_tools, table, "--test-tools")
+    if args.diagnose:
+        return _run_diagnose(args, table, test)
     if test is not None and args.protocol != "loto":
         raise CutwatchError(
             f"--protocol {args.protocol}: expected no --test-tools (the protocol draws the "
@@ -297,6 +294,73 @@ def _run_hybrid(args: argparse.Namespace) -> int:
                           "ratio_linear", "ratio_gbr5", "ratio_prior", "coverage", "optimism")
             ))  # fmt: skip
     print(f"wrote {args.out}/estimates.csv, report.json")
+    return 0
+
+
+def _hybrid_table(args: argparse.Namespace) -> Any:
+    """The table for ``--method hybrid`` (with measured VB; no model, no training list)."""
+    from server.errors import CutwatchError
+    from server.pipeline.wear_nested import SETS, SPEED, columns_needed
+    from server.records.wear_table import VB, read_wear_table
+
+    if args.signal_set not in SETS:
+        raise CutwatchError(f"--set {args.signal_set!r}: expected one of {', '.join(SETS)}")
+    table = read_wear_table(
+        args.table, columns_needed([args.signal_set]), args.map, optional=(VB, SPEED)
+    )
+    if not table.has_vb:
+        raise CutwatchError(
+            f"{table.path}: column 'Vb': expected measured flank wear for --method hybrid "
+            "(the map is learnt across the other tools), found none"
+        )
+    if args.train_tools is not None or args.model is not None:
+        raise CutwatchError(
+            "--method hybrid: expected --test-tools only (the other tools are the training "
+            "tools; no model file), found --train-tools or --model"
+        )
+    return table
+
+
+def _run_diagnose(args: argparse.Namespace, table: Any, test: list[int] | None) -> int:
+    """``--diagnose``: leave each tool out in turn (the default protocol, or
+    ``--revision``), then :mod:`server.pipeline.wear_diagnose`'s tables and figure."""
+    from tqdm import tqdm
+
+    from estimators.wear.hybrid import RATE_LAWS, candidates
+    from server.errors import CutwatchError
+    from server.pipeline import wear_diagnose as D
+
+    if args.protocol != "loto":
+        raise CutwatchError(
+            f"--diagnose: expected --protocol loto (the diagnosis leaves one tool out at a "
+            f"time), found --protocol {args.protocol}"
+        )
+    tools = test if test is not None else list(table.tools)
+    if len(table.tools) - 1 < 3:
+        raise CutwatchError(
+            f"{table.path}: --diagnose: expected 3 or more training tools per fold, found "
+            f"{len(table.tools) - 1}"
+        )
+    rev = 1 if args.first_list else (args.revision or 4)
+    cfgs = candidates(revision=rev)
+    if args.quick:
+        cfgs = [c for c in candidates(revision=1) if c.map != "gbr"]
+    laws = ("segment",) if rev >= 5 else RATE_LAWS if rev == 4 else ("median",)
+    with tqdm(total=len(tools), desc="wear folds", file=sys.stderr, disable=args.quiet) as bar:
+        folds = D.loto_folds(
+            table, args.signal_set, tools, configs=cfgs, rate_laws=laws, progress=bar.update
+        )
+    dg = D.diagnose(table, args.signal_set, folds, cfgs)
+    dg["protocol"] = (
+        "leave one tool out, "
+        + ("quick (30 configurations, a check that it runs)" if args.quick else f"revision {rev}")
+        + ("" if rev != 4 or args.quick else " (the default)")
+    )
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "diagnosis.json").write_text(json.dumps(dg, indent=1, default=float) + "\n")
+    D.figure([dg], args.out / "diagnosis.png")
+    print(f"{table.path}: " + D.text(dg))
+    print(f"wrote {args.out}/diagnosis.json, diagnosis.png")
     return 0
 
 
