@@ -374,10 +374,12 @@ def _kinematics_kernel(
 
 @njit(cache=True)
 def _filter_columns(x, b, a, z, out):  # pragma: no cover
-    """P applied to every column of ``x`` (n, c), one filter state per column (row of z)."""
+    """P applied to every column of ``x`` (n, c), one filter state per column (row of z);
+    a value that is not finite enters as 0."""
     for k in range(x.shape[0]):
         for c in range(x.shape[1]):
-            out[k, c] = df2t_step(b, a, z[c], x[k, c])
+            v = x[k, c]
+            out[k, c] = df2t_step(b, a, z[c], v if np.isfinite(v) else 0.0)
 
 
 class _Rows:
@@ -621,7 +623,7 @@ class RigidIdentifier:
                 v0 = float(x[0, c]) if np.isfinite(x[0, c]) else 0.0
                 st.z[c] = self.filter.initial_state(v0)
         out = np.empty_like(x)
-        xx = np.ascontiguousarray(np.nan_to_num(x, nan=0.0, posinf=0.0, neginf=0.0))
+        xx = np.ascontiguousarray(x, dtype=np.float64)  # not finite: 0, in the kernel
         _filter_columns(xx, self.filter.b, self.filter.a, st.z, out)
         return out
 

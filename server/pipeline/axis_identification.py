@@ -173,20 +173,27 @@ class AxisIdentification:
 
 
 def _channels(axis: str, names: Sequence[str], rec: RigidIdRecord, n: int) -> dict[str, F64]:
-    """One axis' channels of a block: the estimate after the block held over it."""
-    out: dict[str, F64] = {}
+    """One axis' channels of a block: the estimate after the block held over it (the
+    held values are the rows of one array: one allocation per axis and block)."""
     idx = {k: i for i, k in enumerate(names)}
+    keys: list[str] = []
+    vals: list[float] = []
     for k in BASE:
         i = idx.get(k)
-        vals = (math.nan, math.nan, math.nan, 0.0) if i is None else (
+        four = (math.nan, math.nan, math.nan, 0.0) if i is None else (
             rec.theta[i], rec.lower[i], rec.upper[i], float(rec.excited[i]))  # fmt: skip
-        for suffix, v in zip(("", "_lo", "_hi", "_excited"), vals):
-            out[f"{axis}.{k}{suffix}"] = np.full(n, float(v))
+        for suffix, v in zip(("", "_lo", "_hi", "_excited"), four):
+            keys.append(f"{axis}.{k}{suffix}")
+            vals.append(float(v))
     for d in ("Fc_pos", "Fc_neg"):
-        out[f"{axis}.{d}"] = np.full(n, rec.directions.get(d, (math.nan, 0.0))[0])
+        keys.append(f"{axis}.{d}")
+        vals.append(rec.directions.get(d, (math.nan, 0.0))[0])
+    held = np.repeat(np.array(vals, dtype=np.float64)[:, None], n, axis=1)
+    out: dict[str, F64] = {k: held[j] for j, k in enumerate(keys)}
     out[f"{axis}.F"] = rec.force
     out[f"{axis}.F_sd"] = rec.force_sd
     out[f"{axis}.effort"] = rec.effort
-    out[f"{axis}.reversals"] = np.full(n, float(rec.reversals))
-    out[f"{axis}.moving_s"] = np.full(n, float(rec.moving_time))
+    tail = np.repeat(np.array([float(rec.reversals), float(rec.moving_time)])[:, None], n, axis=1)
+    out[f"{axis}.reversals"] = tail[0]
+    out[f"{axis}.moving_s"] = tail[1]
     return out

@@ -64,6 +64,7 @@ from server.pipeline.part import (
     Outputs,
     Setup,
     Verdict,
+    nan_to_num,
     needs_signals,
 )
 from server.records.monitor_events import DEFAULT_ACTIONS, MonitorEvent
@@ -243,7 +244,7 @@ class AxisMonitorPart(LivePart):
         out = {c.name: np.full(n, math.nan) for c in self.channels}
         if self._speed not in cols or self._line not in cols:
             return out, []
-        rpm = np.nan_to_num(np.asarray(cols[self._speed], dtype=np.float64))
+        rpm = nan_to_num(np.asarray(cols[self._speed], dtype=np.float64))
         psi = np.mod(self.st.psi + np.cumsum(rpm * (math.pi / 30.0)) * self.sample_time,
                      2.0 * math.pi)  # fmt: skip
         if n:
@@ -275,7 +276,7 @@ class AxisMonitorPart(LivePart):
                     self.monitor.end_block(st)
                     continue
                 # read but where the tool is known to be in the air (not known yet: 0)
-                f = np.where(air[a0:b0], 0.0, np.nan_to_num(force[ax][a0:b0]))
+                f = np.where(air[a0:b0], 0.0, nan_to_num(force[ax][a0:b0]))
                 m = self.monitor.step(st, f, zeros[a0:b0], psi[a0:b0], tool=tl,
                                       program=self.program, line=ln, new_block=new,
                                       override=ovr, cutting=can_cut)  # fmt: skip
@@ -296,7 +297,7 @@ class AxisMonitorPart(LivePart):
         (or where it is 0): a tool change, a run-up, no cut (no command: none)."""
         if self._speed_cmd not in cols:
             return np.zeros(n, dtype=bool)
-        c = np.nan_to_num(np.asarray(cols[self._speed_cmd], dtype=np.float64))
+        c = nan_to_num(np.asarray(cols[self._speed_cmd], dtype=np.float64))
         prev = self.st.last_cmd
         changed = np.abs(np.diff(c, prepend=c[0] if math.isnan(prev) else prev)) > 0.0
         k = np.arange(n)

@@ -272,6 +272,10 @@ class LivePipeline:
         built from its nominal parameters.
     """
 
+    #: the last block's outputs, their last values not taken yet (:attr:`_last`)
+    _last_out: dict[str, np.ndarray] | None = None
+    _last_d: dict[str, float]
+
     def __init__(
         self,
         scenario: str = DEFAULT_SCENARIO,
@@ -339,7 +343,7 @@ class LivePipeline:
         self.last_block: SourceBlock | None = None
         self._weight = math.nan  # seed 000's weight on the load (none applied yet)
         self._prev_factor = self._spindle_factor(0.0)
-        self._last: dict[str, float] = {}
+        self._last = {}
         self._applied: tuple[object, ...] = ()
         self._force_applied = self._force0
         self._knob_version = 0
@@ -773,7 +777,7 @@ class LivePipeline:
                 out.update(nan_channels(part.channels, src.n))
         res = {k: np.ascontiguousarray(v, dtype=np.float64) for k, v in out.items()}
         self._score(res, block)
-        self._last = {k: float(v[-1]) for k, v in res.items()}
+        self._last_out = res  # the last values taken when asked for (:attr:`_last`)
         self._samples += src.n
         self._wall += time.perf_counter() - w_start
         return res
@@ -796,6 +800,21 @@ class LivePipeline:
         block.outputs.update(ch)
         for ev in events:
             self.events.put(ev)
+
+    @property
+    def _last(self) -> dict[str, float]:
+        """Last value of every channel: taken from the last block's outputs when first
+        asked for after a step (not at every block: a worker asks a few times a second)."""
+        out = self._last_out
+        if out is not None:
+            self._last_d = {k: float(v[-1]) for k, v in out.items()}
+            self._last_out = None
+        return self._last_d
+
+    @_last.setter
+    def _last(self, values: dict[str, float]) -> None:
+        self._last_d = values
+        self._last_out = None
 
     # ------------------------------------------------------------------ costs
     def reset_costs(self) -> None:

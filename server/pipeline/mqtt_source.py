@@ -34,6 +34,7 @@ from common.machine_description import AxisDescription, MachineDescription
 from machine.stage import SEED000_FORCE, Measurements, StageConfig
 from machine.stage_params import preset
 from server.pipeline.drive_feed import DriveFeed
+from server.pipeline.part import nan_to_num
 from server.pipeline.sources import (
     NOMINAL,
     RESUMED,
@@ -179,7 +180,7 @@ class MqttSource(LiveSource):
             name = self.description.identities.get(role)
             if name and name not in cols:
                 a = np.asarray(v, dtype=np.float64)
-                cols[name] = a if role == "override" else np.nan_to_num(a, nan=0.0)
+                cols[name] = a if role == "override" else nan_to_num(a)
         return cols
 
     def _spindle(self, columns: dict[str, F64]) -> None:

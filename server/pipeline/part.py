@@ -588,6 +588,18 @@ class PartStatus:
         return {"name": self.name, "running": self.running, "reason": self.reason}
 
 
+def nan_to_num(a: F64, nan: float = 0.0) -> F64:
+    """``np.nan_to_num(a, nan=nan)`` (NaN to ``nan``, an infinity to the largest float of
+    its sign) without its cost when every value is finite, the case of almost every
+    block: then ``a`` itself (not a copy: the callers only read it)."""
+    if np.isfinite(a).all():
+        return a
+    return np.nan_to_num(a, nan=nan)
+
+
 def nan_channels(channels: Iterable[Channel], n: int) -> dict[str, F64]:
-    """The channels of a part that does not run: NaN, ``n`` values each."""
-    return {c.name: np.full(n, math.nan) for c in channels}
+    """The channels of a part that does not run: NaN, ``n`` values each (the rows of one
+    array: one allocation per part and block, each channel its own contiguous row)."""
+    names = [c.name for c in channels]
+    rows = np.full((len(names), n), math.nan)
+    return {name: rows[i] for i, name in enumerate(names)}

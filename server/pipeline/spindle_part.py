@@ -58,6 +58,7 @@ from server.pipeline.part import (
     Outputs,
     Setup,
     Verdict,
+    nan_to_num,
     needs_signals,
 )
 from server.records.monitor_events import DEFAULT_ACTIONS, MonitorEvent
@@ -255,7 +256,7 @@ class SpindlePart(LivePart):
         """The monitor over the block, block execution by block execution (a change of
         the CNC's line starts one); its channels and events."""
         n = block.n
-        w = np.nan_to_num(np.asarray(rpm, dtype=np.float64)) * (math.pi / 30.0)
+        w = nan_to_num(np.asarray(rpm, dtype=np.float64)) * (math.pi / 30.0)
         psi = np.mod(self.st.psi + np.cumsum(w) * self.sample_time, 2.0 * math.pi)
         self.st.psi = float(psi[-1]) if n else self.st.psi
         steady = self._steady(rpm)
@@ -297,7 +298,7 @@ class SpindlePart(LivePart):
         the description), which the monitor must not read as a cut (it reads 0 there: a
         collision during a spindle ramp is not seen)."""
         pr = self.idle.params
-        r = np.nan_to_num(np.asarray(rpm, dtype=np.float64))
+        r = nan_to_num(np.asarray(rpm, dtype=np.float64))
         prev = self.st.last_rpm if math.isfinite(self.st.last_rpm) else (r[0] if len(r) else 0.0)
         d = np.abs(np.diff(r, prepend=prev)) / self.sample_time
         if len(r):
