@@ -197,6 +197,124 @@ def _r2(y: F64, p: F64) -> float:
     return 1.0 - float(np.sum((y - p) ** 2)) / ss if ss > 0 else math.nan
 
 
+def held_out(
+    table: WearTable, set_name: str, fold: FoldResult, tool: int, cfg: HybridConfig | None
+) -> tuple[dict[str, F64], F64 | None]:
+    """One of a fold's test tools, each method fitted on the fold's training tools:
+    ours (the fold's estimate), its map alone (``cfg`` refitted: the fit is
+    deterministic), the line, ``gbr5`` and ``gbr_mean``; and, when ``cfg`` has the
+    tool-offset state, the same configuration without it (the mechanism's check, not a
+    choice; else None)."""
+    r = next(x for x in fold.tools if x.tool == tool)
+    train = [t for t in table.tools if t not in fold.test]
+    d = tool_data(table, SETS[set_name], tool)
+    est = {"ours": r.est}
+    no_offset: F64 | None = None
+    if cfg is not None:
+        dtrain = [tool_data(table, SETS[set_name], t) for t in train]
+        fm = fit(dtrain, cfg)
+        est["ours_map"] = fm.measure(fm.inputs(d), d.feed)
+        if cfg.offset:
+            no_offset = fit(dtrain, replace(cfg, offset=False)).run(d)[0]
+    est |= {
+        "linear": r.base["linear"],
+        "gbr5": r.base["gbr5"],
+        "gbr_mean": gbr_mean(table, SETS[set_name][0], train, tool),
+    }
+    return est, no_offset
+
+
+#: what :func:`split_ratios` measures per split: ours / linear on all rows, at the knots
+#: (all, inside the lives, the two ends), against PCHIP and the monotone lower bound
+SPLIT_KEYS = ("mae", "mae_knots", "mae_inner_knots", "mae_ends", "mae_pchip", "mae_lb")
+
+
+def split_ratios(
+    table: WearTable,
+    set_name: str,
+    fold: FoldResult,
+    configs: Sequence[HybridConfig],
+) -> dict[str, float]:
+    """One outer split (any number of test tools), pooled over its test tools: each
+    method's MAE measured every way of :data:`SPLIT_KEYS`, and ours / linear for each."""
+    cfg = chosen_config(fold, configs)
+    sums: dict[str, dict[str, float]] = {}
+    n = dict.fromkeys(SPLIT_KEYS, 0)
+    for r in fold.tools:
+        est, _ = held_out(table, set_name, fold, r.tool, cfg)
+        ip = interpolation(r.vb)
+        kn = ip["knots"].astype(int)
+        rows = np.arange(len(r.vb))
+        parts = {"mae": rows, "mae_knots": kn, "mae_inner_knots": kn[1:-1],
+                 "mae_ends": kn[[0, -1]], "mae_pchip": rows, "mae_lb": rows}  # fmt: skip
+        for k, idx in parts.items():
+            n[k] += len(idx)
+        for m, e in est.items():
+            err = np.abs(e - r.vb)
+            gap = np.maximum(ip["lo"] - e, 0.0) + np.maximum(e - ip["hi"], 0.0)
+            per = {k: err[idx] for k, idx in parts.items()}
+            per["mae_pchip"] = np.abs(e - ip["pchip"])
+            per["mae_lb"] = gap
+            acc = sums.setdefault(m, dict.fromkeys(SPLIT_KEYS, 0.0))
+            for k, v in per.items():
+                acc[k] += float(np.sum(v))
+    out = {f"{m}_{k}": v / n[k] for m, acc in sums.items() for k, v in acc.items()}
+    for k in SPLIT_KEYS:
+        out[f"ratio_{k}"] = out[f"ours_{k}"] / out[f"linear_{k}"]
+    for m in sums:  # (2): every method on all rows against boosting on five features
+        out[f"{m}_to_gbr5"] = out[f"{m}_mae"] / out["gbr5_mae"]
+    return out
+
+
+def spread(
+    table: WearTable,
+    set_name: str,
+    folds: Sequence[FoldResult],
+    configs: Sequence[HybridConfig] | None = None,
+) -> dict[str, dict[str, dict[str, float]]]:
+    """Per protocol (``loto``, ``l2o``, ...): the median and range over its splits of
+    every :func:`split_ratios` number."""
+    cfgs = list(configs) if configs is not None else candidates(revision=4)
+    per: dict[str, list[dict[str, float]]] = {}
+    for f in folds:
+        per.setdefault(f.protocol, []).append(split_ratios(table, set_name, f, cfgs))
+    return {
+        p: {
+            k: {
+                "median": float(np.median([m[k] for m in ms])),
+                "min": float(np.min([m[k] for m in ms])),
+                "max": float(np.max([m[k] for m in ms])),
+                "splits": float(len(ms)),
+            }
+            for k in ms[0]
+        }
+        for p, ms in per.items()
+    }
+
+
+def spread_text(sp: dict[str, dict[str, dict[str, float]]], set_name: str) -> str:
+    """The ratio ours / linear per split, median (range), every way it is measured."""
+    lines = [
+        f"[{set_name}] ours / linear per split, median (range) over the splits: "
+        + ", ".join(k.replace("mae_", "").replace("mae", "all rows") for k in SPLIT_KEYS)
+    ]
+    for p, v in sp.items():
+        cells = [
+            f"{v[f'ratio_{k}']['median']:.3f} ({v[f'ratio_{k}']['min']:.2f}-"
+            f"{v[f'ratio_{k}']['max']:.2f})"
+            for k in SPLIT_KEYS
+        ]
+        lines.append(f"  {p} ({int(v['ratio_mae']['splits'])} splits): " + "; ".join(cells))
+        to = [
+            f"{m} {v[f'{m}_to_gbr5']['median']:.3f} ({v[f'{m}_to_gbr5']['min']:.2f}-"
+            f"{v[f'{m}_to_gbr5']['max']:.2f})"
+            for m in METHODS
+            if f"{m}_to_gbr5" in v and m != "gbr5"
+        ]
+        lines.append("      all rows / gbr5: " + "; ".join(to))
+    return "\n".join(lines)
+
+
 def tool_diagnosis(
     table: WearTable,
     set_name: str,
@@ -209,22 +327,9 @@ def tool_diagnosis(
     signal's range and R^2 over the tool's life; the estimates (for the figure)."""
     r = fold.tools[0]
     s0 = SETS[set_name][0]
-    train = [t for t in table.tools if t not in fold.test]
     d = tool_data(table, SETS[set_name], r.tool)
     cfg = chosen_config(fold, configs) if configs is not None else None
-    est = {"ours": r.est}
-    no_offset: F64 | None = None
-    if cfg is not None:  # the fold's model, refitted (the fit is deterministic)
-        dtrain = [tool_data(table, SETS[set_name], t) for t in train]
-        fm = fit(dtrain, cfg)
-        est["ours_map"] = fm.measure(fm.inputs(d), d.feed)
-        if cfg.offset:  # the mechanism's check: the same choice without the offset state
-            no_offset = fit(dtrain, replace(cfg, offset=False)).run(d)[0]
-    est |= {
-        "linear": r.base["linear"],
-        "gbr5": r.base["gbr5"],
-        "gbr_mean": gbr_mean(table, s0, train, r.tool),
-    }
+    est, no_offset = held_out(table, set_name, fold, r.tool, cfg)
     vb = r.vb
     ip = interpolation(vb)
     kn = ip["knots"].astype(int)

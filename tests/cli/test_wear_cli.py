@@ -247,6 +247,24 @@ def test_hybrid_diagnose_quick(tmp_path: Path, capsys: pytest.CaptureFixture) ->
         e = np.array(t["series"][m])
         assert dg["pooled"][f"{m}_mae"] == pytest.approx(float(np.mean(np.abs(e - vb))))
     assert (out / "diagnosis.png").read_bytes()[:4] == b"\x89PNG"
+    assert dg["spread"]["loto"]["ratio_mae"]["median"] == pytest.approx(
+        dg["pooled"]["ours_mae"] / dg["pooled"]["linear_mae"]
+    )
     rc = main([*args, "--protocol", "both", "--out", str(out), "--quiet"])
     err = capsys.readouterr().err
     assert rc == 2 and "--protocol both" in err and "--diagnose" in err
+
+
+def test_hybrid_diagnose_leave_k_quick(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    """``--diagnose --protocol leave-k --k 2 --quick``: one split of two tools; the ratio
+    ours / linear measured every way, no per-tool diagnosis and no figure."""
+    out = tmp_path / "dk"
+    args = ["wear", str(TABLE), "--method", "hybrid", "--diagnose", "--protocol", "leave-k"]
+    assert main([*args, "--k", "2", "--quick", "--out", str(out), "--quiet"]) == 0
+    printed = capsys.readouterr().out
+    assert "l2o (1 splits)" in printed and "pchip" in printed
+    dg = json.loads((out / "diagnosis.json").read_text())
+    assert list(dg["spread"]) == ["l2o"] and "tools" not in dg
+    v = dg["spread"]["l2o"]
+    assert v["ratio_mae"]["splits"] == 1 and v["ratio_mae_lb"]["median"] > 0
+    assert not (out / "diagnosis.png").exists()

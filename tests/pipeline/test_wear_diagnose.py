@@ -170,3 +170,28 @@ def test_a_fold_that_chose_the_offset_state_is_checked_without_it(table: W.WearT
     assert t["ours_without_offset_mae"] != pytest.approx(t["ours_mae"])
     np.testing.assert_allclose(t["series"]["ours"], f.tools[0].est)
     assert "without it" in D.text(dg)
+
+
+def test_the_ratio_per_split_and_its_spread(
+    table: W.WearTable, folds: list[W.FoldResult], diag: dict[str, Any]
+) -> None:
+    """Leave one out: one tool per split, so each split's ratio is that tool's; a split
+    of two tools pools their rows (not the mean of their ratios)."""
+    sp = D.spread(table, "F_f", folds, QUICK)
+    ratios = [t["ours_mae"] / t["linear_mae"] for t in diag["tools"]]
+    lo = sp["loto"]["ratio_mae"]
+    assert lo["splits"] == 2 and lo["median"] == pytest.approx(float(np.median(ratios)))
+    assert lo["min"] == pytest.approx(min(ratios)) and lo["max"] == pytest.approx(max(ratios))
+    two = W.run_fold(table, "F_f", (7, 16), "l2o", W._Cache(), configs=QUICK)
+    r = D.split_ratios(table, "F_f", two, QUICK)
+    vb = np.concatenate([t.vb for t in two.tools])
+    est = np.concatenate([t.est for t in two.tools])
+    lin = np.concatenate([t.base["linear"] for t in two.tools])
+    assert r["ours_mae"] == pytest.approx(float(np.mean(np.abs(est - vb))))
+    assert r["ratio_mae"] == pytest.approx(r["ours_mae"] / float(np.mean(np.abs(lin - vb))))
+    for k in D.SPLIT_KEYS:
+        assert r[f"ours_{k}"] >= 0 and r[f"ratio_{k}"] > 0
+    assert r["ours_mae_lb"] <= r["ours_mae"]
+    assert "l2o (1 splits)" in D.spread_text(
+        {"l2o": D.spread(table, "F_f", [two], QUICK)["l2o"]}, "F_f"
+    )

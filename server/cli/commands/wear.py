@@ -129,12 +129,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--diagnose",
         action="store_true",
         help="--method hybrid: why the remaining targets are missed (a diagnosis after the "
-        "results, nothing chosen by it): leave each tool (or each of --test-tools) out under "
-        "the default protocol and print, per method (ours, the line, gradient boosting on "
-        "five features and on the _MEAN alone), the MAE on all rows, at the measured VB "
-        "points, against a smooth monotone curve through them, its lower bound over every "
-        "monotone VB through them and the map fitted on the tool itself; writes "
-        "DIR/diagnosis.json and DIR/diagnosis.png",
+        "results, nothing chosen by it): the splits of --protocol under the default "
+        "protocol; for the tools left out one at a time (each, or each of --test-tools) "
+        "per method (ours, its map alone, the line, gradient boosting on five features and "
+        "on the _MEAN alone) the MAE on all rows, at the measured VB points, against a "
+        "smooth monotone curve through them, its lower bound over every monotone VB "
+        "through them, and the maps fitted in-sample; for every split the ratio ours / "
+        "linear each of those ways, median (range) per protocol; writes DIR/diagnosis.json "
+        "and (leave one out) DIR/diagnosis.png",
     )
     p.add_argument("--no-baselines", action="store_true", help="skip the two baselines")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -202,10 +204,8 @@ def _run_hybrid(args: argparse.Namespace) -> int:
     from estimators.wear.hybrid import RATE_LAWS, candidates
     from server.errors import CutwatchError
     from server.pipeline.wear_nested import (
-        K_OUT,
         _Cache,
         condition_groups,
-        outer_splits,
         run_fold,
         summarise,
     )
@@ -221,21 +221,7 @@ def _run_hybrid(args: argparse.Namespace) -> int:
             f"test tools), found --test-tools {args.test_tools}"
         )
     if test is None:
-        splits = outer_splits(table.tools, quick=args.protocol == "loto")
-        if args.protocol == "leave-k":
-            splits = [sp for sp in splits if sp[0] != "loto"]
-        if args.k is not None:
-            try:
-                ks = {int(x) for x in args.k.split(",") if x.strip()}
-            except ValueError:
-                ks = set()
-            if not ks or not ks <= set(K_OUT):
-                raise CutwatchError(
-                    f"--k: expected a comma list of {', '.join(map(str, K_OUT))}, found {args.k!r}"
-                )
-            splits = [sp for sp in splits if sp[0] == "loto" or int(sp[0][1:-1]) in ks]
-        if args.quick:  # the first split of each protocol
-            splits = [sp for i, sp in enumerate(splits) if sp[0] not in {q for q, _ in splits[:i]}]
+        splits = _hybrid_splits(args, table)
     else:
         splits = [("given", tuple(test))]
     worst = max(len(t) for _, t in splits)
@@ -297,6 +283,29 @@ def _run_hybrid(args: argparse.Namespace) -> int:
     return 0
 
 
+def _hybrid_splits(args: argparse.Namespace, table: Any) -> list[tuple[str, tuple[int, ...]]]:
+    """The outer splits of ``--protocol`` (``--k`` and ``--quick`` applied)."""
+    from server.errors import CutwatchError
+    from server.pipeline.wear_nested import K_OUT, outer_splits
+
+    splits = outer_splits(table.tools, quick=args.protocol == "loto")
+    if args.protocol == "leave-k":
+        splits = [sp for sp in splits if sp[0] != "loto"]
+    if args.k is not None:
+        try:
+            ks = {int(x) for x in args.k.split(",") if x.strip()}
+        except ValueError:
+            ks = set()
+        if not ks or not ks <= set(K_OUT):
+            raise CutwatchError(
+                f"--k: expected a comma list of {', '.join(map(str, K_OUT))}, found {args.k!r}"
+            )
+        splits = [sp for sp in splits if sp[0] == "loto" or int(sp[0][1:-1]) in ks]
+    if args.quick:  # the first split of each protocol
+        splits = [sp for i, sp in enumerate(splits) if sp[0] not in {q for q, _ in splits[:i]}]
+    return splits
+
+
 def _hybrid_table(args: argparse.Namespace) -> Any:
     """The table for ``--method hybrid`` (with measured VB; no model, no training list)."""
     from server.errors import CutwatchError
@@ -322,45 +331,55 @@ def _hybrid_table(args: argparse.Namespace) -> Any:
 
 
 def _run_diagnose(args: argparse.Namespace, table: Any, test: list[int] | None) -> int:
-    """``--diagnose``: leave each tool out in turn (the default protocol, or
-    ``--revision``), then :mod:`server.pipeline.wear_diagnose`'s tables and figure."""
+    """``--diagnose``: the outer splits of ``--protocol`` under the default protocol (or
+    ``--revision``); for the tools left out one at a time,
+    :mod:`server.pipeline.wear_diagnose`'s tables and figure; for every split, the ratio
+    ours / linear measured every way, median (range) per protocol."""
     from tqdm import tqdm
 
     from estimators.wear.hybrid import RATE_LAWS, candidates
     from server.errors import CutwatchError
     from server.pipeline import wear_diagnose as D
+    from server.pipeline.wear_nested import _Cache, run_fold
 
-    if args.protocol != "loto":
+    if test is not None and args.protocol != "loto":
         raise CutwatchError(
-            f"--diagnose: expected --protocol loto (the diagnosis leaves one tool out at a "
-            f"time), found --protocol {args.protocol}"
+            f"--diagnose --protocol {args.protocol}: expected no --test-tools (the protocol "
+            f"draws the test tools), found --test-tools {args.test_tools}"
         )
-    tools = test if test is not None else list(table.tools)
-    if len(table.tools) - 1 < 3:
+    if len(table.tools) < 4:
         raise CutwatchError(
-            f"{table.path}: --diagnose: expected 3 or more training tools per fold, found "
-            f"{len(table.tools) - 1}"
+            f"{table.path}: --diagnose: expected 4 or more tools (3 or more training tools "
+            f"per fold), found {len(table.tools)}"
         )
+    splits: list[tuple[str, tuple[int, ...]]]
+    if args.protocol == "loto":
+        splits = [("loto", (t,)) for t in (test if test is not None else table.tools)]
+    else:
+        splits = _hybrid_splits(args, table)
     rev = 1 if args.first_list else (args.revision or 4)
     cfgs = candidates(revision=rev)
     if args.quick:
         cfgs = [c for c in candidates(revision=1) if c.map != "gbr"]
     laws = ("segment",) if rev >= 5 else RATE_LAWS if rev == 4 else ("median",)
-    with tqdm(total=len(tools), desc="wear folds", file=sys.stderr, disable=args.quiet) as bar:
-        folds = D.loto_folds(
-            table, args.signal_set, tools, configs=cfgs, rate_laws=laws, progress=bar.update
-        )
-    dg = D.diagnose(table, args.signal_set, folds, cfgs)
-    dg["protocol"] = (
-        "leave one tool out, "
-        + ("quick (30 configurations, a check that it runs)" if args.quick else f"revision {rev}")
-        + ("" if rev != 4 or args.quick else " (the default)")
-    )
+    cache = _Cache()
+    folds = [
+        run_fold(table, args.signal_set, g, proto, cache, configs=cfgs, rate_laws=laws)
+        for proto, g in tqdm(splits, desc="wear folds", file=sys.stderr, disable=args.quiet)
+    ]
+    what = "quick (30 configurations, a check that it runs)" if args.quick else f"revision {rev}"
+    loto = [f for f in folds if f.protocol == "loto"]
     args.out.mkdir(parents=True, exist_ok=True)
+    dg: dict[str, Any] = {"set": args.signal_set}
+    if loto:
+        dg = D.diagnose(table, args.signal_set, loto, cfgs)
+        D.figure([dg], args.out / "diagnosis.png")
+        print(f"{table.path}: " + D.text(dg))
+    dg["protocol"] = f"{args.protocol}, {what}" + (" (the default)" if what == "revision 4" else "")
+    dg["spread"] = D.spread(table, args.signal_set, folds, cfgs)
+    print(D.spread_text(dg["spread"], args.signal_set))
     (args.out / "diagnosis.json").write_text(json.dumps(dg, indent=1, default=float) + "\n")
-    D.figure([dg], args.out / "diagnosis.png")
-    print(f"{table.path}: " + D.text(dg))
-    print(f"wrote {args.out}/diagnosis.json, diagnosis.png")
+    print(f"wrote {args.out}/diagnosis.json" + (", diagnosis.png" if loto else ""))
     return 0
 
 
