@@ -96,15 +96,17 @@ def _line(x: F64, y: F64, xt: F64) -> F64:
     return np.asarray(c[0] + c[1] * xt, dtype=np.float64)
 
 
-def gbr_mean(table: WearTable, signal: str, train: Sequence[int], test: int) -> F64:
+def gbr_mean(
+    table: WearTable, signal: str, train: Sequence[int], test: int, extra: str | None = None
+) -> F64:
     """Gradient boosting (scikit-learn defaults, ``random_state=0``) on the ``_MEAN``
-    alone, fitted on the training tools' rows: how much of ``gbr5``'s lead is its other
-    four features."""
+    alone (or with one ``extra`` feature, e.g. ``"SK"``), fitted on the training tools'
+    rows: how much of ``gbr5``'s lead is its other four features, and which."""
     tr = np.concatenate([table.rows_of(t) for t in train])
-    col = table.columns[f"{signal}_MEAN"]
-    return _gbr(
-        col[tr][:, None], table.columns[VB][tr], table.column(f"{signal}_MEAN", test)[:, None]
-    )
+    cols = [f"{signal}_MEAN"] + ([f"{signal}_{extra}"] if extra else [])
+    X = np.column_stack([table.columns[c] for c in cols])
+    Xt = np.column_stack([table.column(c, test) for c in cols])
+    return _gbr(X[tr], table.columns[VB][tr], Xt)
 
 
 def interpolation(vb: F64) -> dict[str, F64]:
@@ -342,6 +344,7 @@ def tool_diagnosis(
     # no signal, the tool's own VB: its first VB and its own mean rate per segment
     own = vb[0] + (vb[-1] - vb[0]) / max(len(vb) - 1, 1) * np.arange(len(vb))
     q = np.quantile(x, RANGE_Q)
+    train = [t for t in table.tools if t not in fold.test]
     row: dict[str, Any] = {
         "tool": r.tool,
         "rows": len(vb),
@@ -379,6 +382,11 @@ def tool_diagnosis(
             row[f"{m}_oracle"] = float(np.mean(np.abs(orc[m] - vb)))
         if shared is not None and m in shared:
             row[f"{m}_shared"] = float(np.mean(np.abs(shared[m] - vb)))
+    for f in FEATURES[1:]:  # which shape feature gives boosting its lead
+        e = gbr_mean(table, s0, train, r.tool, extra=f)
+        row[f"gbr_mean_{f}_sum"] = float(np.sum(np.abs(e - vb)))
+        # the feature's correlation with VB over the tool's life
+        row[f"corr_{f}"] = float(np.corrcoef(table.column(f"{s0}_{f}", r.tool), vb)[0, 1])
     if no_offset is not None:
         row["ours_without_offset_mae"] = float(np.mean(np.abs(no_offset - vb)))
         row["ours_without_offset_bias"] = float(np.mean(no_offset - vb))
@@ -418,6 +426,8 @@ def diagnose(
             t[f"{m}_share"] = t[f"{m}_sum"] / n
     pooled["interp_pchip_gap"] = sum(t["interp_pchip_gap"] * t["rows"] for t in tools) / n
     pooled["interp_band"] = sum(t["interp_band"] * t["rows"] for t in tools) / n
+    for f in FEATURES[1:]:
+        pooled[f"gbr_mean_{f}_mae"] = sum(t[f"gbr_mean_{f}_sum"] for t in tools) / n
     pooled["own_rate_oracle"] = sum(t["own_rate_oracle"] * t["rows"] for t in tools) / n
     slopes = np.array([t["line_slope"] for t in tools])
     pooled["line_slope_median"] = float(np.median(slopes))
@@ -480,6 +490,11 @@ def text(diag: dict[str, Any]) -> str:
         f"{p['line_slope_min']:.3g} to {p['line_slope_max']:.3g})"
     )
     lines.append(
+        "boosting on the _MEAN and one more feature, held out: "
+        + ", ".join(f"+{f} {p[f'gbr_mean_{f}_mae']:.1f}" for f in FEATURES[1:])
+        + f" um (the _MEAN alone {p['gbr_mean_mae']:.1f}, all five {p['gbr5_mae']:.1f})"
+    )
+    lines.append(
         f"per tool ({diag['beats_linear']} of {len(diag['tools'])} below the line): MAE and "
         "share of the pooled MAE [um] ours / linear / gbr5 / gbr_mean; own-map oracle ours / "
         "linear; signal range 5-95 %; R^2 of VB on _MEAN / five features (in-sample); slope"
@@ -492,6 +507,7 @@ def text(diag: dict[str, Any]) -> str:
             f"{t['gbr_mean_share']:4.1f}  oracle {t.get('ours_oracle', nan):5.1f} / "
             f"{t['linear_oracle']:5.1f}  range {t['signal_range']:6.1f}  "
             f"R^2 {t['r2_mean']:.2f} / {t['r2_five_linear']:.2f}  slope {t['line_slope']:.3g}  "
+            f"corr(_SK, VB) {t['corr_SK']:+.2f}  "
             f"VB {t['vb_first']:.0f}-{t['vb_last']:.0f}, {t['knots']} knots"
         )
     for t in diag["tools"]:

@@ -144,6 +144,19 @@ def test_boosting_on_the_mean_sees_no_test_vb(table: W.WearTable) -> None:
     b = D.gbr_mean(dataclasses.replace(table, columns=cols), "F_f", train, 16)
     np.testing.assert_allclose(a, b)
     assert len(a) == len(table.rows_of(16)) and np.ptp(a) > 50.0
+    sk = D.gbr_mean(table, "F_f", train, 16, extra="SK")  # the _MEAN and the skewness
+    assert not np.allclose(sk, a)
+
+
+def test_one_more_feature_and_its_correlation(table: W.WearTable, diag: dict[str, Any]) -> None:
+    p = diag["pooled"]
+    for f in ("RMS", "MAX", "SK", "KURT"):
+        per = [t[f"gbr_mean_{f}_sum"] for t in diag["tools"]]
+        assert p[f"gbr_mean_{f}_mae"] == pytest.approx(sum(per) / p["rows"]) and min(per) > 0
+        for t in diag["tools"]:
+            x, vb = table.column(f"F_f_{f}", t["tool"]), table.column(W.VB, t["tool"])
+            assert t[f"corr_{f}"] == pytest.approx(float(np.corrcoef(x, vb)[0, 1]))
+    assert "+SK" in D.text(diag)
 
 
 def test_text_and_figure(tmp_path: Path, diag: dict[str, Any]) -> None:
