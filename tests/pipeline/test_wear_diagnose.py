@@ -104,6 +104,10 @@ def test_lower_bound_knots_and_shares_add_up(table: W.WearTable, diag: dict[str,
             assert t[f"{m}_mae_lb"] <= t[f"{m}_mae"] + 1e-9
     assert diag["ratio_to_linear"]["mae"] == pytest.approx(p["ours_mae"] / p["linear_mae"])
     assert diag["beats_linear"] == sum(t["ours_mae"] < t["linear_mae"] for t in diag["tools"])
+    assert diag["beats_linear_by"]["mae"] == diag["beats_linear"]
+    for k in ("mae_knots", "mae_pchip", "mae_lb"):
+        n = sum(t[f"ours_{k}"] < t[f"linear_{k}"] for t in diag["tools"])
+        assert diag["beats_linear_by"][k] == n
 
 
 def test_in_sample_oracles_bound_the_held_out_maps(diag: dict[str, Any]) -> None:
