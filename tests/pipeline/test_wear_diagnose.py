@@ -104,6 +104,10 @@ def test_lower_bound_knots_and_shares_add_up(table: W.WearTable, diag: dict[str,
             assert t[f"{m}_mae_lb"] <= t[f"{m}_mae"] + 1e-9
     assert diag["ratio_to_linear"]["mae"] == pytest.approx(p["ours_mae"] / p["linear_mae"])
     assert diag["beats_linear"] == sum(t["ours_mae"] < t["linear_mae"] for t in diag["tools"])
+    assert diag["beats_linear_by"]["mae"] == diag["beats_linear"]
+    for k in ("mae_knots", "mae_pchip", "mae_lb"):
+        n = sum(t[f"ours_{k}"] < t[f"linear_{k}"] for t in diag["tools"])
+        assert diag["beats_linear_by"][k] == n
 
 
 def test_in_sample_oracles_bound_the_held_out_maps(diag: dict[str, Any]) -> None:
@@ -144,6 +148,19 @@ def test_boosting_on_the_mean_sees_no_test_vb(table: W.WearTable) -> None:
     b = D.gbr_mean(dataclasses.replace(table, columns=cols), "F_f", train, 16)
     np.testing.assert_allclose(a, b)
     assert len(a) == len(table.rows_of(16)) and np.ptp(a) > 50.0
+    sk = D.gbr_mean(table, "F_f", train, 16, extra="SK")  # the _MEAN and the skewness
+    assert not np.allclose(sk, a)
+
+
+def test_one_more_feature_and_its_correlation(table: W.WearTable, diag: dict[str, Any]) -> None:
+    p = diag["pooled"]
+    for f in ("RMS", "MAX", "SK", "KURT"):
+        per = [t[f"gbr_mean_{f}_sum"] for t in diag["tools"]]
+        assert p[f"gbr_mean_{f}_mae"] == pytest.approx(sum(per) / p["rows"]) and min(per) > 0
+        for t in diag["tools"]:
+            x, vb = table.column(f"F_f_{f}", t["tool"]), table.column(W.VB, t["tool"])
+            assert t[f"corr_{f}"] == pytest.approx(float(np.corrcoef(x, vb)[0, 1]))
+    assert "+SK" in D.text(diag)
 
 
 def test_text_and_figure(tmp_path: Path, diag: dict[str, Any]) -> None:
