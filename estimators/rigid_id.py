@@ -382,6 +382,34 @@ def _filter_columns(x, b, a, z, out):  # pragma: no cover
             out[k, c] = df2t_step(b, a, z[c], v if np.isfinite(v) else 0.0)
 
 
+@njit(cache=True)
+def _front_kernel(v, acc, tau, has_mass, v_static, b, a, z, out, still):  # pragma: no cover
+    """The plain design's columns (no report's effects) built and filtered sample by
+    sample, as :func:`columns` and :meth:`RigidIdentifier._filtered` do them: per sample
+    [acc], v, sign v, 1, the effort, v, and sign v again as the force's Coulomb column
+    (0 where ``|v| <= v_static``: ``still``), each through P with its own state (row of
+    ``z``); a value that is not finite enters as 0. The same operations in the same
+    order: the same numbers, bit for bit."""
+    c0 = 1 if has_mass else 0
+    row = np.empty(out.shape[1])
+    for k in range(len(v)):
+        vk = v[k]
+        sg = 1.0 if vk > 0.0 else (-1.0 if vk < 0.0 else (0.0 if vk == 0.0 else vk))
+        if has_mass:
+            row[0] = acc[k]
+        row[c0] = vk
+        row[c0 + 1] = sg
+        row[c0 + 2] = 1.0
+        row[c0 + 3] = tau[k]
+        row[c0 + 4] = vk
+        st = abs(vk) <= v_static
+        still[k] = st
+        row[c0 + 5] = 0.0 if st else sg
+        for c in range(out.shape[1]):
+            x = row[c]
+            out[k, c] = df2t_step(b, a, z[c], x if np.isfinite(x) else 0.0)
+
+
 class _Rows:
     """Kinematics of some rows, as the residual families read them (:class:`Kin`)."""
 
@@ -553,10 +581,19 @@ class RigidIdentifier:
         # the columns learnt from (the sign of the velocity), the effort, the velocity and
         # the Coulomb column of the force (0 at standstill), filtered alike
         v_static = pr.static_rel * state.stats[ST_VMAX]
-        x_lrn = columns(pr, kin)
-        still = np.abs(kin.qd) <= v_static
-        x_raw = np.column_stack([x_lrn, tau_raw, kin.qd, np.where(still, 0.0, x_lrn[:, self._fc])])
-        filt = self._filtered(new, x_raw, fresh)
+        if self._fused(new, fresh, n):  # the plain design: one kernel, the same numbers
+            filt = np.empty((n, self.p + 3))
+            still = np.empty(n, dtype=np.bool_)
+            assert self.filter is not None
+            _front_kernel(kin.qd, kin.qdd, tau_raw, pr.has_mass, v_static, self.filter.b,
+                          self.filter.a, new.z, filt, still)  # fmt: skip
+        else:
+            x_lrn = columns(pr, kin)
+            still = np.abs(kin.qd) <= v_static
+            x_raw = np.column_stack(
+                [x_lrn, tau_raw, kin.qd, np.where(still, 0.0, x_lrn[:, self._fc])]
+            )
+            filt = self._filtered(new, x_raw, fresh)
         x_all, eff, v_f = filt[:, : self.p], filt[:, self.p], filt[:, self.p + 1]
         x_frc = x_all.copy()
         x_frc[:, self._fc] = filt[:, self.p + 2]
@@ -567,6 +604,18 @@ class RigidIdentifier:
             sd = np.where(still, np.hypot(sd, abs(theta0[self._fc]) / math.sqrt(3.0)), sd)
         self._learn(new, t_out, v_f, x_all, eff, arrays["learn"])
         return new, self._record(new, t_out, force, sd, eff)
+
+    def _fused(self, st: RigidIdState, fresh: bool, n: int) -> bool:
+        """May this block take :func:`_front_kernel`: a design without a report's effects,
+        filtered, its filters started (a fresh start sets them from the first row) and of
+        this design's width, and samples to take."""
+        return (
+            not self.params.effects
+            and self.filter is not None
+            and not fresh
+            and n > 0
+            and st.z.shape[0] == self.p + 3
+        )
 
     def _inputs(self, t: F64, q: F64, tau: F64, qd: F64 | None, qdd: F64 | None,
                 learn: NDArray[np.bool_] | None) -> dict[str, NDArray[Any]]:  # fmt: skip
