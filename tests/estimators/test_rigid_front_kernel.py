@@ -50,9 +50,10 @@ def test_fused_front_end_equals_the_column_path(
         x = np.concatenate([getattr(r, name) for r in a])
         y = np.concatenate([getattr(r, name) for r in b])
         assert x.tobytes() == y.tobytes(), name
-    assert np.concatenate([r.theta for r in a]).tobytes() == np.concatenate(
-        [r.theta for r in b]
-    ).tobytes()
+    assert (
+        np.concatenate([r.theta for r in a]).tobytes()
+        == np.concatenate([r.theta for r in b]).tobytes()
+    )
     assert st_a.z.tobytes() == st_b.z.tobytes()
     assert st_a.G.tobytes() == st_b.G.tobytes()
     assert a[-1].reversals == b[-1].reversals > 2  # it moved both ways
