@@ -64,6 +64,7 @@ from server.pipeline.part import (
     Outputs,
     Setup,
     Verdict,
+    diff_from,
     nan_to_num,
     needs_signals,
 )
@@ -299,7 +300,7 @@ class AxisMonitorPart(LivePart):
             return np.zeros(n, dtype=bool)
         c = nan_to_num(np.asarray(cols[self._speed_cmd], dtype=np.float64))
         prev = self.st.last_cmd
-        changed = np.abs(np.diff(c, prepend=c[0] if math.isnan(prev) else prev)) > 0.0
+        changed = np.abs(diff_from(c, c[0] if math.isnan(prev) else prev)) > 0.0
         k = np.arange(n)
         last = np.maximum.accumulate(np.where(changed, k, -1))
         since = np.where(last >= 0, (k - last) * self.sample_time,

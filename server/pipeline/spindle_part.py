@@ -58,6 +58,7 @@ from server.pipeline.part import (
     Outputs,
     Setup,
     Verdict,
+    diff_from,
     nan_to_num,
     needs_signals,
 )
@@ -300,7 +301,7 @@ class SpindlePart(LivePart):
         pr = self.idle.params
         r = nan_to_num(np.asarray(rpm, dtype=np.float64))
         prev = self.st.last_rpm if math.isfinite(self.st.last_rpm) else (r[0] if len(r) else 0.0)
-        d = np.abs(np.diff(r, prepend=prev)) / self.sample_time
+        d = np.abs(diff_from(r, prev)) / self.sample_time
         if len(r):
             self.st.last_rpm = float(r[-1])
         k = np.arange(len(r))
