@@ -386,12 +386,21 @@ def fresh_reference(tools: Sequence[ToolData], features: str = "mean") -> F64:
     return np.asarray(c, dtype=np.float64)
 
 
-def fit(tools: Sequence[ToolData], config: HybridConfig) -> HybridModel:
-    """Fit the map and the fresh-tool prior on training tools (each with ``vb``)."""
+def fit(
+    tools: Sequence[ToolData], config: HybridConfig, *, ref_level: F64 | None = None
+) -> HybridModel:
+    """Fit the map and the fresh-tool prior on training tools (each with ``vb``).
+    ``ref_level``: with ``reference = "conditions"``, the signals' fresh-tool level given
+    (shape (2, m), as :func:`fresh_reference` returns) instead of fitted; only the
+    diagnosis's in-sample oracle on one tool uses it (a tool that came in worn has no
+    fresh segments to fit it from, and on one tool any level is a constant the
+    standardisation removes)."""
     train = [t for t in tools if t.vb is not None]
     if len(train) < 2:
         raise ParameterError("tools", "two or more training tools with measured VB", len(train))
-    ref = fresh_reference(train, config.features) if config.reference == "conditions" else None
+    ref = None
+    if config.reference == "conditions":
+        ref = fresh_reference(train, config.features) if ref_level is None else ref_level
     five = config.features == "five"
     if five and any(t.x_all is None for t in train):
         raise ParameterError("x_all", "every feature of every training tool", None)

@@ -228,3 +228,43 @@ def test_hybrid_leave_k_tools_out_quick(tmp_path: Path, capsys: pytest.CaptureFi
     rc = main([*args, "--k", "5", "--out", str(out), "--quiet"])
     err = capsys.readouterr().err
     assert rc == 2 and "--k" in err and "'5'" in err
+
+
+def test_hybrid_diagnose_quick(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    """``--diagnose`` (issue 35's misses taken apart after the results): tool 16 left
+    out, quick list; the per-method table is printed, the JSON's pooled MAE is the
+    estimates' own, the figure is a PNG; another protocol is refused naming it."""
+    out = tmp_path / "dg"
+    args = ["wear", str(TABLE), "--method", "hybrid", "--diagnose", "--test-tools", "16"]
+    assert main([*args, "--quick", "--out", str(out), "--quiet"]) == 0
+    printed = capsys.readouterr().out
+    assert "monotone lower bound" in printed and "tool 16" in printed and "gbr_mean" in printed
+    dg = json.loads((out / "diagnosis.json").read_text())
+    (t,) = dg["tools"]
+    assert t["tool"] == 16 and "quick" in dg["protocol"]
+    vb = np.array(t["series"]["vb"])
+    for m in ("ours", "linear", "gbr5", "gbr_mean"):
+        e = np.array(t["series"][m])
+        assert dg["pooled"][f"{m}_mae"] == pytest.approx(float(np.mean(np.abs(e - vb))))
+    assert (out / "diagnosis.png").read_bytes()[:4] == b"\x89PNG"
+    assert dg["spread"]["loto"]["ratio_mae"]["median"] == pytest.approx(
+        dg["pooled"]["ours_mae"] / dg["pooled"]["linear_mae"]
+    )
+    rc = main([*args, "--protocol", "both", "--out", str(out), "--quiet"])
+    err = capsys.readouterr().err
+    assert rc == 2 and "--protocol both" in err and "--diagnose" in err
+
+
+def test_hybrid_diagnose_leave_k_quick(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    """``--diagnose --protocol leave-k --k 2 --quick``: one split of two tools; the ratio
+    ours / linear measured every way, no per-tool diagnosis and no figure."""
+    out = tmp_path / "dk"
+    args = ["wear", str(TABLE), "--method", "hybrid", "--diagnose", "--protocol", "leave-k"]
+    assert main([*args, "--k", "2", "--quick", "--out", str(out), "--quiet"]) == 0
+    printed = capsys.readouterr().out
+    assert "l2o (1 splits)" in printed and "pchip" in printed
+    dg = json.loads((out / "diagnosis.json").read_text())
+    assert list(dg["spread"]) == ["l2o"] and "tools" not in dg
+    v = dg["spread"]["l2o"]
+    assert v["ratio_mae"]["splits"] == 1 and v["ratio_mae_lb"]["median"] > 0
+    assert not (out / "diagnosis.png").exists()

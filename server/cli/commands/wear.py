@@ -7,6 +7,7 @@ Examples::
     cutwatch wear segments.csv --train-tools 6,7,11,14,15 --test-tools 3,10 \\
         --model out/model.json --out out/wear_a
     cutwatch wear other.csv --model out/model.json --out out/wear_b   # model read
+    cutwatch wear segments.csv --method hybrid --diagnose --out out/diag  # why missed
 
 Seed 004's adaptive wear observer adapted to one row per cutting segment (see
 docs/turning-wear.md): a wear state that only grows, a wear-rate law on the segment
@@ -124,6 +125,19 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="--method hybrid: the first split of each protocol only and the first list "
         "without gradient boosting (30 configurations): a check that it runs, not a result",
     )
+    p.add_argument(
+        "--diagnose",
+        action="store_true",
+        help="--method hybrid: why the remaining targets are missed (a diagnosis after the "
+        "results, nothing chosen by it): the splits of --protocol under the default "
+        "protocol; for the tools left out one at a time (each, or each of --test-tools) "
+        "per method (ours, its map alone, the line, gradient boosting on five features and "
+        "on the _MEAN alone) the MAE on all rows, at the measured VB points, against a "
+        "smooth monotone curve through them, its lower bound over every monotone VB "
+        "through them, and the maps fitted in-sample; for every split the ratio ours / "
+        "linear each of those ways, median (range) per protocol; writes DIR/diagnosis.json "
+        "and (leave one out) DIR/diagnosis.png",
+    )
     p.add_argument("--no-baselines", action="store_true", help="skip the two baselines")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
@@ -190,55 +204,24 @@ def _run_hybrid(args: argparse.Namespace) -> int:
     from estimators.wear.hybrid import RATE_LAWS, candidates
     from server.errors import CutwatchError
     from server.pipeline.wear_nested import (
-        K_OUT,
-        SETS,
-        SPEED,
         _Cache,
-        columns_needed,
         condition_groups,
-        outer_splits,
         run_fold,
         summarise,
     )
-    from server.records.wear_table import VB, parse_tools, read_wear_table
+    from server.records.wear_table import parse_tools
 
-    if args.signal_set not in SETS:
-        raise CutwatchError(f"--set {args.signal_set!r}: expected one of {', '.join(SETS)}")
-    table = read_wear_table(
-        args.table, columns_needed([args.signal_set]), args.map, optional=(VB, SPEED)
-    )
-    if not table.has_vb:
-        raise CutwatchError(
-            f"{table.path}: column 'Vb': expected measured flank wear for --method hybrid "
-            "(the map is learnt across the other tools), found none"
-        )
-    if args.train_tools is not None or args.model is not None:
-        raise CutwatchError(
-            "--method hybrid: expected --test-tools only (the other tools are the training "
-            "tools; no model file), found --train-tools or --model"
-        )
+    table = _hybrid_table(args)
     test = parse_tools(args.test_tools, table, "--test-tools")
+    if args.diagnose:
+        return _run_diagnose(args, table, test)
     if test is not None and args.protocol != "loto":
         raise CutwatchError(
             f"--protocol {args.protocol}: expected no --test-tools (the protocol draws the "
             f"test tools), found --test-tools {args.test_tools}"
         )
     if test is None:
-        splits = outer_splits(table.tools, quick=args.protocol == "loto")
-        if args.protocol == "leave-k":
-            splits = [sp for sp in splits if sp[0] != "loto"]
-        if args.k is not None:
-            try:
-                ks = {int(x) for x in args.k.split(",") if x.strip()}
-            except ValueError:
-                ks = set()
-            if not ks or not ks <= set(K_OUT):
-                raise CutwatchError(
-                    f"--k: expected a comma list of {', '.join(map(str, K_OUT))}, found {args.k!r}"
-                )
-            splits = [sp for sp in splits if sp[0] == "loto" or int(sp[0][1:-1]) in ks]
-        if args.quick:  # the first split of each protocol
-            splits = [sp for i, sp in enumerate(splits) if sp[0] not in {q for q, _ in splits[:i]}]
+        splits = _hybrid_splits(args, table)
     else:
         splits = [("given", tuple(test))]
     worst = max(len(t) for _, t in splits)
@@ -297,6 +280,106 @@ def _run_hybrid(args: argparse.Namespace) -> int:
                           "ratio_linear", "ratio_gbr5", "ratio_prior", "coverage", "optimism")
             ))  # fmt: skip
     print(f"wrote {args.out}/estimates.csv, report.json")
+    return 0
+
+
+def _hybrid_splits(args: argparse.Namespace, table: Any) -> list[tuple[str, tuple[int, ...]]]:
+    """The outer splits of ``--protocol`` (``--k`` and ``--quick`` applied)."""
+    from server.errors import CutwatchError
+    from server.pipeline.wear_nested import K_OUT, outer_splits
+
+    splits = outer_splits(table.tools, quick=args.protocol == "loto")
+    if args.protocol == "leave-k":
+        splits = [sp for sp in splits if sp[0] != "loto"]
+    if args.k is not None:
+        try:
+            ks = {int(x) for x in args.k.split(",") if x.strip()}
+        except ValueError:
+            ks = set()
+        if not ks or not ks <= set(K_OUT):
+            raise CutwatchError(
+                f"--k: expected a comma list of {', '.join(map(str, K_OUT))}, found {args.k!r}"
+            )
+        splits = [sp for sp in splits if sp[0] == "loto" or int(sp[0][1:-1]) in ks]
+    if args.quick:  # the first split of each protocol
+        splits = [sp for i, sp in enumerate(splits) if sp[0] not in {q for q, _ in splits[:i]}]
+    return splits
+
+
+def _hybrid_table(args: argparse.Namespace) -> Any:
+    """The table for ``--method hybrid`` (with measured VB; no model, no training list)."""
+    from server.errors import CutwatchError
+    from server.pipeline.wear_nested import SETS, SPEED, columns_needed
+    from server.records.wear_table import VB, read_wear_table
+
+    if args.signal_set not in SETS:
+        raise CutwatchError(f"--set {args.signal_set!r}: expected one of {', '.join(SETS)}")
+    table = read_wear_table(
+        args.table, columns_needed([args.signal_set]), args.map, optional=(VB, SPEED)
+    )
+    if not table.has_vb:
+        raise CutwatchError(
+            f"{table.path}: column 'Vb': expected measured flank wear for --method hybrid "
+            "(the map is learnt across the other tools), found none"
+        )
+    if args.train_tools is not None or args.model is not None:
+        raise CutwatchError(
+            "--method hybrid: expected --test-tools only (the other tools are the training "
+            "tools; no model file), found --train-tools or --model"
+        )
+    return table
+
+
+def _run_diagnose(args: argparse.Namespace, table: Any, test: list[int] | None) -> int:
+    """``--diagnose``: the outer splits of ``--protocol`` under the default protocol (or
+    ``--revision``); for the tools left out one at a time,
+    :mod:`server.pipeline.wear_diagnose`'s tables and figure; for every split, the ratio
+    ours / linear measured every way, median (range) per protocol."""
+    from tqdm import tqdm
+
+    from estimators.wear.hybrid import RATE_LAWS, candidates
+    from server.errors import CutwatchError
+    from server.pipeline import wear_diagnose as D
+    from server.pipeline.wear_nested import _Cache, run_fold
+
+    if test is not None and args.protocol != "loto":
+        raise CutwatchError(
+            f"--diagnose --protocol {args.protocol}: expected no --test-tools (the protocol "
+            f"draws the test tools), found --test-tools {args.test_tools}"
+        )
+    if len(table.tools) < 4:
+        raise CutwatchError(
+            f"{table.path}: --diagnose: expected 4 or more tools (3 or more training tools "
+            f"per fold), found {len(table.tools)}"
+        )
+    splits: list[tuple[str, tuple[int, ...]]]
+    if args.protocol == "loto":
+        splits = [("loto", (t,)) for t in (test if test is not None else table.tools)]
+    else:
+        splits = _hybrid_splits(args, table)
+    rev = 1 if args.first_list else (args.revision or 4)
+    cfgs = candidates(revision=rev)
+    if args.quick:
+        cfgs = [c for c in candidates(revision=1) if c.map != "gbr"]
+    laws = ("segment",) if rev >= 5 else RATE_LAWS if rev == 4 else ("median",)
+    cache = _Cache()
+    folds = [
+        run_fold(table, args.signal_set, g, proto, cache, configs=cfgs, rate_laws=laws)
+        for proto, g in tqdm(splits, desc="wear folds", file=sys.stderr, disable=args.quiet)
+    ]
+    what = "quick (30 configurations, a check that it runs)" if args.quick else f"revision {rev}"
+    loto = [f for f in folds if f.protocol == "loto"]
+    args.out.mkdir(parents=True, exist_ok=True)
+    dg: dict[str, Any] = {"set": args.signal_set}
+    if loto:
+        dg = D.diagnose(table, args.signal_set, loto, cfgs)
+        D.figure([dg], args.out / "diagnosis.png")
+        print(f"{table.path}: " + D.text(dg))
+    dg["protocol"] = f"{args.protocol}, {what}" + (" (the default)" if what == "revision 4" else "")
+    dg["spread"] = D.spread(table, args.signal_set, folds, cfgs)
+    print(D.spread_text(dg["spread"], args.signal_set))
+    (args.out / "diagnosis.json").write_text(json.dumps(dg, indent=1, default=float) + "\n")
+    print(f"wrote {args.out}/diagnosis.json" + (", diagnosis.png" if loto else ""))
     return 0
 
 
