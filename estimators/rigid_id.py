@@ -410,6 +410,42 @@ def _front_kernel(v, acc, tau, has_mass, v_static, b, a, z, out, still):  # prag
             out[k, c] = df2t_step(b, a, z[c], x if np.isfinite(x) else 0.0)
 
 
+@njit(cache=True)
+def _rows_kernel(first, step, v_f, t, x, learn, vmax, moving_rel, from_t, use):  # pragma: no cover
+    """The rows a block may learn from (:meth:`RigidIdentifier._learn`, the same
+    comparisons): every ``step``-th sample from ``first``, the largest speed among them
+    (NaN if one is NaN) kept when above ``vmax``; a row moving (``|v| > moving_rel`` of
+    that), settled (``t >= from_t``), allowed (``learn``) and finite. Fills ``use``
+    with the rows' indices; returns their count and the new ``vmax``."""
+    mx = 0.0
+    nan = False
+    seen = False
+    for i in range(first, len(v_f), step):
+        a = abs(v_f[i])
+        if np.isnan(a):
+            nan = True
+        elif not seen or a > mx:
+            mx = a
+        seen = True
+    if not seen:
+        return 0, vmax
+    if not nan and mx > vmax:
+        vmax = mx
+    lim = moving_rel * vmax
+    m = 0
+    for i in range(first, len(v_f), step):
+        if abs(v_f[i]) > lim and t[i] >= from_t and learn[i]:
+            ok = True
+            for c in range(x.shape[1]):
+                if not np.isfinite(x[i, c]):
+                    ok = False
+                    break
+            if ok:
+                use[m] = i
+                m += 1
+    return m, vmax
+
+
 class _Rows:
     """Kinematics of some rows, as the residual families read them (:class:`Kin`)."""
 
@@ -693,21 +729,20 @@ class RigidIdentifier:
         pr = self.params
         n = len(t)
         phase = int(st.stats[ST_PHASE])
-        idx = np.arange((-phase) % pr.decimation, n, pr.decimation)
+        first = (-phase) % pr.decimation
         st.stats[ST_PHASE] = (phase + n) % pr.decimation
         st.stats[ST_SAMPLES] += n
-        if not len(idx):
+        if first >= n:
             return
-        v = v_f[idx]
-        st.stats[ST_VMAX] = max(st.stats[ST_VMAX], float(np.max(np.abs(v))))
-        moving = np.abs(v) > pr.moving_rel * st.stats[ST_VMAX]
-        settled = t[idx] >= st.stats[ST_START_T] + pr.settle_s
-        use = idx[moving & settled & learn[idx] & np.all(np.isfinite(x[idx]), axis=1)]
-        if not len(use):
+        use = np.empty((n - first + pr.decimation - 1) // pr.decimation, dtype=np.intp)
+        m, vmax = _rows_kernel(first, pr.decimation, v_f, t, x, learn, float(st.stats[ST_VMAX]),
+                               pr.moving_rel, st.stats[ST_START_T] + pr.settle_s, use)  # fmt: skip
+        st.stats[ST_VMAX] = vmax
+        use = use[:m]
+        if not m:
             return
         self._count_reversals(st, v_f[use])
         xr, yr = x[use], eff[use]
-        m = len(use)
         w = self.lam ** np.arange(m - 1, -1, -1, dtype=np.float64)
         decay = self.lam**m
         st.G = decay * st.G + (xr * w[:, None]).T @ xr
