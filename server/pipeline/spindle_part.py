@@ -58,6 +58,7 @@ from server.pipeline.part import (
     Outputs,
     Setup,
     Verdict,
+    column_or,
     diff_from,
     nan_to_num,
     needs_signals,
@@ -262,9 +263,9 @@ class SpindlePart(LivePart):
         self.st.psi = float(psi[-1]) if n else self.st.psi
         steady = self._steady(rpm)
         f = np.where(np.isfinite(cut) & steady, np.asarray(cut, dtype=np.float64), 0.0)
-        tool = np.asarray(cols.get(self._tool, np.zeros(n)), dtype=np.float64)
-        line = np.asarray(cols.get(self._line, np.zeros(n)), dtype=np.float64)
-        over = np.asarray(cols.get("override", np.ones(n)), dtype=np.float64)
+        tool = np.asarray(column_or(cols, self._tool, n, 0.0), dtype=np.float64)
+        line = np.asarray(column_or(cols, self._line, n, 0.0), dtype=np.float64)
+        over = np.asarray(column_or(cols, "override", n, 1.0), dtype=np.float64)
         out = {"spindle_cut": np.where(steady, np.asarray(cut, dtype=np.float64), math.nan)}
         out |= {k: np.full(n, math.nan) for k in ("spindle_mean", "spindle_upper",
                                                  "spindle_lower", "spindle_extreme")}  # fmt: skip

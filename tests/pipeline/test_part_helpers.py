@@ -63,3 +63,12 @@ def test_latest_is_the_last_value_of_each_channel() -> None:
     assert p.latest.keys() == want.keys()
     assert all((math.isnan(want[k]) and math.isnan(v)) or want[k] == v for k, v in p.latest.items())
     assert p.state().latest.keys() == want.keys()
+
+
+def test_column_or_gives_the_column_or_the_fill() -> None:
+    from server.pipeline.part import column_or
+
+    a = np.array([1.0, 2.0])
+    assert column_or({"x": a}, "x", 2, math.nan) is a
+    assert column_or({}, "x", 3, 1.0).tolist() == [1.0, 1.0, 1.0]
+    assert np.isnan(column_or({}, "x", 2, math.nan)).all()
