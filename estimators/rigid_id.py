@@ -446,6 +446,11 @@ def _rows_kernel(first, step, v_f, t, x, learn, vmax, moving_rel, from_t, use): 
     return m, vmax
 
 
+#: lower, upper, half-width without the Newey-West correction, excited, friction by
+#: direction (value, half-width), whether the directions differ (:meth:`RigidIdentifier._intervals`)
+_Intervals = tuple[F64, F64, F64, NDArray[np.bool_], dict[str, tuple[float, float]], bool]
+
+
 class _Rows:
     """Kinematics of some rows, as the residual families read them (:class:`Kin`)."""
 
@@ -536,6 +541,8 @@ class RigidIdentifier:
         self._keep = int(math.ceil(p.keep_memories * p.memory_s / p.row_time))
         self._z = float(stats.norm.ppf(0.5 + 0.5 * p.level))
         self._fc = self.names.index("Fc")
+        #: the last intervals computed and what they were computed from (:meth:`_intervals`)
+        self._last_intervals: tuple[tuple[object, ...], _Intervals] | None = None
 
     def initial_state(self) -> RigidIdState:
         p = self.p
@@ -799,6 +806,28 @@ class RigidIdentifier:
 
     # ------------------------------------------------------------------ output
     def _record(self, st: RigidIdState, t: F64, force: F64, sd: F64, eff: F64) -> RigidIdRecord:
+        th = st.theta
+        lower, upper, half_plain, excited, directions, differs = self._intervals(st)
+        return RigidIdRecord(
+            t=t, force=force, force_sd=sd, effort=eff, theta=th.copy(),
+            lower=lower.copy(), upper=upper.copy(), half_plain=half_plain.copy(),
+            excited=excited.copy(),
+            rows=int(st.stats[ST_ROWS]), reversals=int(st.stats[ST_REVERSALS]),
+            moving_time=float(st.stats[ST_MOVING_T]), bandwidth=int(st.stats[ST_BANDWIDTH]),
+            residual_rms=float(math.sqrt(st.stats[ST_S2])),
+            directions=dict(directions),
+            direction_differs=differs,
+        )  # fmt: skip
+
+    def _intervals(self, st: RigidIdState) -> _Intervals:
+        """The estimate's intervals, excitation and friction by direction: a function of
+        the estimate, its covariances, the reversals and the residual's variance only,
+        so those of the block before when these have not changed (most blocks: the
+        estimate moves only on the blocks it learns from)."""
+        key = (st.theta.tobytes(), st.cov.tobytes(), st.cov_plain.tobytes(),
+               float(st.stats[ST_REVERSALS]), float(st.stats[ST_S2]))  # fmt: skip
+        if self._last_intervals is not None and self._last_intervals[0] == key:
+            return self._last_intervals[1]
         half = self._z * np.sqrt(np.diag(st.cov))
         th = st.theta
         dirs: dict[str, tuple[float, float]] = {}
@@ -808,17 +837,13 @@ class RigidIdentifier:
             # Fc_pos - Fc_neg = 2 offset (+ a report's dir_pos): its interval
             off = self._fc + 1
             differs = bool(abs(th[off]) > half[off]) and st.stats[ST_REVERSALS] >= 1
-        return RigidIdRecord(
-            t=t, force=force, force_sd=sd, effort=eff, theta=th.copy(),
-            lower=th - half, upper=th + half,
-            half_plain=self._z * np.sqrt(np.diag(st.cov_plain)),
-            excited=self._excited(st, half),
-            rows=int(st.stats[ST_ROWS]), reversals=int(st.stats[ST_REVERSALS]),
-            moving_time=float(st.stats[ST_MOVING_T]), bandwidth=int(st.stats[ST_BANDWIDTH]),
-            residual_rms=float(math.sqrt(st.stats[ST_S2])),
-            directions={k: (v, self._z * s) for k, (v, s) in dirs.items()},
-            direction_differs=differs,
+        out: _Intervals = (
+            th - half, th + half, self._z * np.sqrt(np.diag(st.cov_plain)),
+            self._excited(st, half), {k: (v, self._z * s) for k, (v, s) in dirs.items()},
+            differs,
         )  # fmt: skip
+        self._last_intervals = (key, out)
+        return out
 
     def _excited(self, st: RigidIdState, half: F64) -> NDArray[np.bool_]:
         """Per column: a base parameter whose 95 % half-width is at most ``excited_rel``
