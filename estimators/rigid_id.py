@@ -382,6 +382,75 @@ def _filter_columns(x, b, a, z, out):  # pragma: no cover
             out[k, c] = df2t_step(b, a, z[c], v if np.isfinite(v) else 0.0)
 
 
+@njit(cache=True)
+def _front_kernel(v, acc, tau, has_mass, v_static, b, a, z, out, still):  # pragma: no cover
+    """The plain design's columns (no report's effects) built and filtered sample by
+    sample, as :func:`columns` and :meth:`RigidIdentifier._filtered` do them: per sample
+    [acc], v, sign v, 1, the effort, v, and sign v again as the force's Coulomb column
+    (0 where ``|v| <= v_static``: ``still``), each through P with its own state (row of
+    ``z``); a value that is not finite enters as 0. The same operations in the same
+    order: the same numbers, bit for bit."""
+    c0 = 1 if has_mass else 0
+    row = np.empty(out.shape[1])
+    for k in range(len(v)):
+        vk = v[k]
+        sg = 1.0 if vk > 0.0 else (-1.0 if vk < 0.0 else (0.0 if vk == 0.0 else vk))
+        if has_mass:
+            row[0] = acc[k]
+        row[c0] = vk
+        row[c0 + 1] = sg
+        row[c0 + 2] = 1.0
+        row[c0 + 3] = tau[k]
+        row[c0 + 4] = vk
+        st = abs(vk) <= v_static
+        still[k] = st
+        row[c0 + 5] = 0.0 if st else sg
+        for c in range(out.shape[1]):
+            x = row[c]
+            out[k, c] = df2t_step(b, a, z[c], x if np.isfinite(x) else 0.0)
+
+
+@njit(cache=True)
+def _rows_kernel(first, step, v_f, t, x, learn, vmax, moving_rel, from_t, use):  # pragma: no cover
+    """The rows a block may learn from (:meth:`RigidIdentifier._learn`, the same
+    comparisons): every ``step``-th sample from ``first``, the largest speed among them
+    (NaN if one is NaN) kept when above ``vmax``; a row moving (``|v| > moving_rel`` of
+    that), settled (``t >= from_t``), allowed (``learn``) and finite. Fills ``use``
+    with the rows' indices; returns their count and the new ``vmax``."""
+    mx = 0.0
+    nan = False
+    seen = False
+    for i in range(first, len(v_f), step):
+        a = abs(v_f[i])
+        if np.isnan(a):
+            nan = True
+        elif not seen or a > mx:
+            mx = a
+        seen = True
+    if not seen:
+        return 0, vmax
+    if not nan and mx > vmax:
+        vmax = mx
+    lim = moving_rel * vmax
+    m = 0
+    for i in range(first, len(v_f), step):
+        if abs(v_f[i]) > lim and t[i] >= from_t and learn[i]:
+            ok = True
+            for c in range(x.shape[1]):
+                if not np.isfinite(x[i, c]):
+                    ok = False
+                    break
+            if ok:
+                use[m] = i
+                m += 1
+    return m, vmax
+
+
+#: lower, upper, half-width without the Newey-West correction, excited, friction by
+#: direction (value, half-width), whether the directions differ (:meth:`RigidIdentifier._intervals`)
+_Intervals = tuple[F64, F64, F64, NDArray[np.bool_], dict[str, tuple[float, float]], bool]
+
+
 class _Rows:
     """Kinematics of some rows, as the residual families read them (:class:`Kin`)."""
 
@@ -472,6 +541,8 @@ class RigidIdentifier:
         self._keep = int(math.ceil(p.keep_memories * p.memory_s / p.row_time))
         self._z = float(stats.norm.ppf(0.5 + 0.5 * p.level))
         self._fc = self.names.index("Fc")
+        #: the last intervals computed and what they were computed from (:meth:`_intervals`)
+        self._last_intervals: tuple[tuple[object, ...], _Intervals] | None = None
 
     def initial_state(self) -> RigidIdState:
         p = self.p
@@ -553,10 +624,19 @@ class RigidIdentifier:
         # the columns learnt from (the sign of the velocity), the effort, the velocity and
         # the Coulomb column of the force (0 at standstill), filtered alike
         v_static = pr.static_rel * state.stats[ST_VMAX]
-        x_lrn = columns(pr, kin)
-        still = np.abs(kin.qd) <= v_static
-        x_raw = np.column_stack([x_lrn, tau_raw, kin.qd, np.where(still, 0.0, x_lrn[:, self._fc])])
-        filt = self._filtered(new, x_raw, fresh)
+        if self._fused(new, fresh, n):  # the plain design: one kernel, the same numbers
+            filt = np.empty((n, self.p + 3))
+            still = np.empty(n, dtype=np.bool_)
+            assert self.filter is not None
+            _front_kernel(kin.qd, kin.qdd, tau_raw, pr.has_mass, v_static, self.filter.b,
+                          self.filter.a, new.z, filt, still)  # fmt: skip
+        else:
+            x_lrn = columns(pr, kin)
+            still = np.abs(kin.qd) <= v_static
+            x_raw = np.column_stack(
+                [x_lrn, tau_raw, kin.qd, np.where(still, 0.0, x_lrn[:, self._fc])]
+            )
+            filt = self._filtered(new, x_raw, fresh)
         x_all, eff, v_f = filt[:, : self.p], filt[:, self.p], filt[:, self.p + 1]
         x_frc = x_all.copy()
         x_frc[:, self._fc] = filt[:, self.p + 2]
@@ -567,6 +647,18 @@ class RigidIdentifier:
             sd = np.where(still, np.hypot(sd, abs(theta0[self._fc]) / math.sqrt(3.0)), sd)
         self._learn(new, t_out, v_f, x_all, eff, arrays["learn"])
         return new, self._record(new, t_out, force, sd, eff)
+
+    def _fused(self, st: RigidIdState, fresh: bool, n: int) -> bool:
+        """May this block take :func:`_front_kernel`: a design without a report's effects,
+        filtered, its filters started (a fresh start sets them from the first row) and of
+        this design's width, and samples to take."""
+        return (
+            not self.params.effects
+            and self.filter is not None
+            and not fresh
+            and n > 0
+            and st.z.shape[0] == self.p + 3
+        )
 
     def _inputs(self, t: F64, q: F64, tau: F64, qd: F64 | None, qdd: F64 | None,
                 learn: NDArray[np.bool_] | None) -> dict[str, NDArray[Any]]:  # fmt: skip
@@ -644,21 +736,20 @@ class RigidIdentifier:
         pr = self.params
         n = len(t)
         phase = int(st.stats[ST_PHASE])
-        idx = np.arange((-phase) % pr.decimation, n, pr.decimation)
+        first = (-phase) % pr.decimation
         st.stats[ST_PHASE] = (phase + n) % pr.decimation
         st.stats[ST_SAMPLES] += n
-        if not len(idx):
+        if first >= n:
             return
-        v = v_f[idx]
-        st.stats[ST_VMAX] = max(st.stats[ST_VMAX], float(np.max(np.abs(v))))
-        moving = np.abs(v) > pr.moving_rel * st.stats[ST_VMAX]
-        settled = t[idx] >= st.stats[ST_START_T] + pr.settle_s
-        use = idx[moving & settled & learn[idx] & np.all(np.isfinite(x[idx]), axis=1)]
-        if not len(use):
+        use = np.empty((n - first + pr.decimation - 1) // pr.decimation, dtype=np.intp)
+        m, vmax = _rows_kernel(first, pr.decimation, v_f, t, x, learn, float(st.stats[ST_VMAX]),
+                               pr.moving_rel, st.stats[ST_START_T] + pr.settle_s, use)  # fmt: skip
+        st.stats[ST_VMAX] = vmax
+        use = use[:m]
+        if not m:
             return
         self._count_reversals(st, v_f[use])
         xr, yr = x[use], eff[use]
-        m = len(use)
         w = self.lam ** np.arange(m - 1, -1, -1, dtype=np.float64)
         decay = self.lam**m
         st.G = decay * st.G + (xr * w[:, None]).T @ xr
@@ -715,6 +806,28 @@ class RigidIdentifier:
 
     # ------------------------------------------------------------------ output
     def _record(self, st: RigidIdState, t: F64, force: F64, sd: F64, eff: F64) -> RigidIdRecord:
+        th = st.theta
+        lower, upper, half_plain, excited, directions, differs = self._intervals(st)
+        return RigidIdRecord(
+            t=t, force=force, force_sd=sd, effort=eff, theta=th.copy(),
+            lower=lower.copy(), upper=upper.copy(), half_plain=half_plain.copy(),
+            excited=excited.copy(),
+            rows=int(st.stats[ST_ROWS]), reversals=int(st.stats[ST_REVERSALS]),
+            moving_time=float(st.stats[ST_MOVING_T]), bandwidth=int(st.stats[ST_BANDWIDTH]),
+            residual_rms=float(math.sqrt(st.stats[ST_S2])),
+            directions=dict(directions),
+            direction_differs=differs,
+        )  # fmt: skip
+
+    def _intervals(self, st: RigidIdState) -> _Intervals:
+        """The estimate's intervals, excitation and friction by direction: a function of
+        the estimate, its covariances, the reversals and the residual's variance only,
+        so those of the block before when these have not changed (most blocks: the
+        estimate moves only on the blocks it learns from)."""
+        key = (st.theta.tobytes(), st.cov.tobytes(), st.cov_plain.tobytes(),
+               float(st.stats[ST_REVERSALS]), float(st.stats[ST_S2]))  # fmt: skip
+        if self._last_intervals is not None and self._last_intervals[0] == key:
+            return self._last_intervals[1]
         half = self._z * np.sqrt(np.diag(st.cov))
         th = st.theta
         dirs: dict[str, tuple[float, float]] = {}
@@ -724,17 +837,13 @@ class RigidIdentifier:
             # Fc_pos - Fc_neg = 2 offset (+ a report's dir_pos): its interval
             off = self._fc + 1
             differs = bool(abs(th[off]) > half[off]) and st.stats[ST_REVERSALS] >= 1
-        return RigidIdRecord(
-            t=t, force=force, force_sd=sd, effort=eff, theta=th.copy(),
-            lower=th - half, upper=th + half,
-            half_plain=self._z * np.sqrt(np.diag(st.cov_plain)),
-            excited=self._excited(st, half),
-            rows=int(st.stats[ST_ROWS]), reversals=int(st.stats[ST_REVERSALS]),
-            moving_time=float(st.stats[ST_MOVING_T]), bandwidth=int(st.stats[ST_BANDWIDTH]),
-            residual_rms=float(math.sqrt(st.stats[ST_S2])),
-            directions={k: (v, self._z * s) for k, (v, s) in dirs.items()},
-            direction_differs=differs,
+        out: _Intervals = (
+            th - half, th + half, self._z * np.sqrt(np.diag(st.cov_plain)),
+            self._excited(st, half), {k: (v, self._z * s) for k, (v, s) in dirs.items()},
+            differs,
         )  # fmt: skip
+        self._last_intervals = (key, out)
+        return out
 
     def _excited(self, st: RigidIdState, half: F64) -> NDArray[np.bool_]:
         """Per column: a base parameter whose 95 % half-width is at most ``excited_rel``

@@ -64,6 +64,9 @@ from server.pipeline.part import (
     Outputs,
     Setup,
     Verdict,
+    column_or,
+    diff_from,
+    nan_channels,
     nan_to_num,
     needs_signals,
 )
@@ -241,7 +244,7 @@ class AxisMonitorPart(LivePart):
     def step(self, block: Block) -> Outputs:
         n = block.n
         cols = block.source.columns or {}
-        out = {c.name: np.full(n, math.nan) for c in self.channels}
+        out = nan_channels(self.channels, n)
         if self._speed not in cols or self._line not in cols:
             return out, []
         rpm = nan_to_num(np.asarray(cols[self._speed], dtype=np.float64))
@@ -249,13 +252,11 @@ class AxisMonitorPart(LivePart):
                      2.0 * math.pi)  # fmt: skip
         if n:
             self.st.psi = float(psi[-1])
-        tool = np.asarray(cols.get(self._tool, np.zeros(n)), dtype=np.float64)
+        tool = np.asarray(column_or(cols, self._tool, n, 0.0), dtype=np.float64)
         line = np.asarray(cols[self._line], dtype=np.float64)
-        over = np.asarray(cols.get("override", np.ones(n)), dtype=np.float64)
-        force = {
-            a: np.asarray(block.outputs.get(f"{a}.F", np.full(n, math.nan))) for a in self.axes
-        }
-        cut = np.asarray(block.outputs.get("spindle_cut", np.full(n, math.nan)))
+        over = np.asarray(column_or(cols, "override", n, 1.0), dtype=np.float64)
+        force = {a: np.asarray(column_or(block.outputs, f"{a}.F", n, math.nan)) for a in self.axes}
+        cut = np.asarray(column_or(block.outputs, "spindle_cut", n, math.nan))
         with np.errstate(invalid="ignore"):
             air = np.isfinite(cut) & (cut <= CUT_W)  # known to be in the air
         air |= ~np.isfinite(cut) & self._commanded_change(cols, n)
@@ -299,7 +300,7 @@ class AxisMonitorPart(LivePart):
             return np.zeros(n, dtype=bool)
         c = nan_to_num(np.asarray(cols[self._speed_cmd], dtype=np.float64))
         prev = self.st.last_cmd
-        changed = np.abs(np.diff(c, prepend=c[0] if math.isnan(prev) else prev)) > 0.0
+        changed = np.abs(diff_from(c, c[0] if math.isnan(prev) else prev)) > 0.0
         k = np.arange(n)
         last = np.maximum.accumulate(np.where(changed, k, -1))
         since = np.where(last >= 0, (k - last) * self.sample_time,

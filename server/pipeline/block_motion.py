@@ -41,6 +41,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from common.machine_description import MachineDescription
+from server.pipeline.part import diff_from
 
 if TYPE_CHECKING:
     from common.arrays import F64
@@ -134,7 +135,7 @@ class CanCut:
             if not q.size:
                 continue
             prev = self._last.get(ax, float(q[0]))
-            d = float(np.nansum(np.abs(np.diff(q, prepend=prev))))
+            d = float(np.nansum(np.abs(diff_from(q, prev))))
             if math.isfinite(q[-1]):
                 self._last[ax] = float(q[-1])
             if ax == TOOL_AXIS:

@@ -34,7 +34,16 @@ from common.errors import ParameterError
 from estimators.wear.centre import CentreWear, CentreWearParams, CentreWearState
 from server.pipeline.estimates_out import StatusStrip
 from server.pipeline.machine_view import MachineView
-from server.pipeline.part import Block, Channel, Chart, LivePart, Outputs, Verdict, needs_signals
+from server.pipeline.part import (
+    Block,
+    Channel,
+    Chart,
+    LivePart,
+    Outputs,
+    Verdict,
+    column_or,
+    needs_signals,
+)
 from server.records.history.store import ToolChange
 
 __all__ = ["CENTRE_WEAR", "CentreWearPart", "CentreWearPartState"]
@@ -138,11 +147,11 @@ class CentreWearPart(LivePart):
     # ------------------------------------------------------------------ step
     def step(self, block: Block) -> Outputs:
         n = block.n
-        cut = np.asarray(block.outputs.get("spindle_cut", np.full(n, math.nan)), dtype=np.float64)
+        cut = np.asarray(column_or(block.outputs, "spindle_cut", n, math.nan), dtype=np.float64)
         cols = block.source.columns or {}
-        line = np.asarray(cols.get("line", np.zeros(n)), dtype=np.float64)
-        tool = np.asarray(cols.get("tool", np.zeros(n)), dtype=np.float64)
-        ovr = np.asarray(cols.get("override", np.ones(n)), dtype=np.float64)
+        line = np.asarray(column_or(cols, "line", n, 0.0), dtype=np.float64)
+        tool = np.asarray(column_or(cols, "tool", n, 0.0), dtype=np.float64)
+        ovr = np.asarray(column_or(cols, "override", n, 1.0), dtype=np.float64)
         t = np.asarray(block.t, dtype=np.float64)
         dt = float(t[1] - t[0]) if n > 1 else 0.0
         cuts = np.flatnonzero(line[1:] != line[:-1]) + 1

@@ -525,14 +525,17 @@ class LivePipeline:
 
     def _check(self, view: MachineView) -> None:
         """Ask every part whether it can run on ``view`` (in order: a part whose needed
-        part does not run cannot run either); a verdict that changed is logged."""
+        part does not run cannot run either); a part that stops or starts running is
+        logged (not a paused part's reason that changed: the DFO's names the spindle's
+        harmonic, which moves with every speed of a program, a line per speed change and
+        machine in a plant's worker)."""
         for part in self._parts:
             old = self._status.get(part.name, PartStatus(part.name, True))
             if old.reason.startswith("stopped"):
                 continue  # stopped on an error: until the next reset
             v = self._verdict(part, view)
             new = PartStatus(part.name, v.ok, v.reason)
-            if old != new and part.name in self._status:
+            if old.running != new.running and part.name in self._status:
                 log.warning(
                     "cutwatch: part %s %s",
                     part.name,

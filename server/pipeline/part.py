@@ -597,6 +597,23 @@ def nan_to_num(a: F64, nan: float = 0.0) -> F64:
     return np.nan_to_num(a, nan=nan)
 
 
+def column_or(cols: Mapping[str, Any], name: str, n: int, fill: float) -> Any:
+    """``cols[name]``, or ``n`` values of ``fill`` when it has none (built only then,
+    not as ``cols.get(name, np.full(n, fill))`` builds it at every block)."""
+    v = cols.get(name)
+    return np.full(n, fill) if v is None else v
+
+
+def diff_from(a: F64, prev: float) -> F64:
+    """``np.diff(a, prepend=prev)`` (the same subtractions) without its concatenation:
+    each sample less the one before it, the first less ``prev``."""
+    out = np.empty(len(a))
+    if len(a):
+        out[0] = a[0] - prev
+        np.subtract(a[1:], a[:-1], out=out[1:])
+    return out
+
+
 def nan_channels(channels: Iterable[Channel], n: int) -> dict[str, F64]:
     """The channels of a part that does not run: NaN, ``n`` values each (the rows of one
     array: one allocation per part and block, each channel its own contiguous row)."""

@@ -58,6 +58,8 @@ from server.pipeline.part import (
     Outputs,
     Setup,
     Verdict,
+    column_or,
+    diff_from,
     nan_to_num,
     needs_signals,
 )
@@ -261,9 +263,9 @@ class SpindlePart(LivePart):
         self.st.psi = float(psi[-1]) if n else self.st.psi
         steady = self._steady(rpm)
         f = np.where(np.isfinite(cut) & steady, np.asarray(cut, dtype=np.float64), 0.0)
-        tool = np.asarray(cols.get(self._tool, np.zeros(n)), dtype=np.float64)
-        line = np.asarray(cols.get(self._line, np.zeros(n)), dtype=np.float64)
-        over = np.asarray(cols.get("override", np.ones(n)), dtype=np.float64)
+        tool = np.asarray(column_or(cols, self._tool, n, 0.0), dtype=np.float64)
+        line = np.asarray(column_or(cols, self._line, n, 0.0), dtype=np.float64)
+        over = np.asarray(column_or(cols, "override", n, 1.0), dtype=np.float64)
         out = {"spindle_cut": np.where(steady, np.asarray(cut, dtype=np.float64), math.nan)}
         out |= {k: np.full(n, math.nan) for k in ("spindle_mean", "spindle_upper",
                                                  "spindle_lower", "spindle_extreme")}  # fmt: skip
@@ -300,7 +302,7 @@ class SpindlePart(LivePart):
         pr = self.idle.params
         r = nan_to_num(np.asarray(rpm, dtype=np.float64))
         prev = self.st.last_rpm if math.isfinite(self.st.last_rpm) else (r[0] if len(r) else 0.0)
-        d = np.abs(np.diff(r, prepend=prev)) / self.sample_time
+        d = np.abs(diff_from(r, prev)) / self.sample_time
         if len(r):
             self.st.last_rpm = float(r[-1])
         k = np.arange(len(r))

@@ -48,7 +48,17 @@ from estimators.twist_id import TwistIdentifier, TwistIdParams, TwistIdState, mo
 from server.pipeline.axis_monitor_part import CUT_W
 from server.pipeline.estimates_out import StatusStrip
 from server.pipeline.machine_view import MachineView
-from server.pipeline.part import Block, Channel, Chart, LivePart, Outputs, Verdict, refuse
+from server.pipeline.part import (
+    Block,
+    Channel,
+    Chart,
+    LivePart,
+    Outputs,
+    Verdict,
+    column_or,
+    nan_channels,
+    refuse,
+)
 
 __all__ = ["TwoInertiaAxisPart", "TwoInertiaState", "two_inertia_axes"]
 
@@ -172,7 +182,7 @@ class TwoInertiaAxisPart(LivePart):
 
     def step(self, block: Block) -> Outputs:
         n = block.n
-        out = {c.name: np.full(n, math.nan) for c in self.channels}
+        out = nan_channels(self.channels, n)
         cols = block.source.columns or {}
         if self._why or not cols:
             return out, []
@@ -180,7 +190,7 @@ class TwoInertiaAxisPart(LivePart):
         if src.discontinuity is not None:
             self.st.motor = {a: self.motor.restart_filters(s) for a, s in self.st.motor.items()}
             self.st.load = {a: self.load.restart_filters(s) for a, s in self.st.load.items()}
-        cut = np.asarray(block.outputs.get("spindle_cut", np.full(n, math.nan)))
+        cut = np.asarray(column_or(block.outputs, "spindle_cut", n, math.nan))
         with np.errstate(invalid="ignore"):
             air = np.isfinite(cut) & (cut <= CUT_W)
         t = np.asarray(src.meas.t, dtype=np.float64)
