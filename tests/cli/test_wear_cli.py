@@ -12,17 +12,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from _shared_data import TURNING_WEAR, shared_file
 
 from server.cli.main import main
 
-TABLE = next(
-    (
-        p / "shared" / "data" / "turning-wear" / "segments.csv"
-        for p in Path(__file__).resolve().parents
-        if (p / "shared" / "data" / "turning-wear" / "segments.csv").exists()
-    ),
-    Path("segments.csv-not-found"),
-)
+TABLE = shared_file(*TURNING_WEAR) or Path("segments.csv-not-found")
 pytestmark = pytest.mark.skipif(not TABLE.exists(), reason="turning-wear data not present")
 
 

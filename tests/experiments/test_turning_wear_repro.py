@@ -3,19 +3,15 @@
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import pytest
+from _shared_data import TURNING_WEAR, shared_file
 
 from server.cli.main import main
 from server.experiments.reproductions import turning_wear
 
 pytestmark = pytest.mark.skipif(
-    not any(
-        (p / "shared" / "data" / "turning-wear" / "segments.csv").exists()
-        for p in Path(__file__).resolve().parents
-    ),
-    reason="turning-wear data not present",
+    shared_file(*TURNING_WEAR) is None, reason="turning-wear data not present"
 )
 
 

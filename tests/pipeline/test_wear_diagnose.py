@@ -11,19 +11,13 @@ from typing import Any
 
 import numpy as np
 import pytest
+from _shared_data import TURNING_WEAR, shared_file
 
 from estimators.wear.hybrid import candidates, fit
 from server.pipeline import wear_diagnose as D
 from server.pipeline import wear_nested as W
 
-DATA = next(
-    (
-        p / "shared" / "data" / "turning-wear" / "segments.csv"
-        for p in Path(__file__).resolve().parents
-        if (p / "shared" / "data" / "turning-wear" / "segments.csv").exists()
-    ),
-    None,
-)
+DATA = shared_file(*TURNING_WEAR)
 pytestmark = pytest.mark.skipif(DATA is None, reason="turning-wear data not present")
 QUICK = [c for c in candidates(revision=1) if c.map != "gbr"]
 

@@ -4,21 +4,14 @@ that nothing of a test tool's VB reaches the choice, the fit or the interval."""
 from __future__ import annotations
 
 import dataclasses
-from pathlib import Path
 
 import numpy as np
 import pytest
+from _shared_data import TURNING_WEAR, shared_file
 
 from server.pipeline import wear_nested as W
 
-DATA = next(
-    (
-        p / "shared" / "data" / "turning-wear" / "segments.csv"
-        for p in Path(__file__).resolve().parents
-        if (p / "shared" / "data" / "turning-wear" / "segments.csv").exists()
-    ),
-    None,
-)
+DATA = shared_file(*TURNING_WEAR)
 pytestmark = pytest.mark.skipif(DATA is None, reason="turning-wear data not present")
 
 

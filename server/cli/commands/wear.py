@@ -201,7 +201,6 @@ def _run_hybrid(args: argparse.Namespace) -> int:
     import numpy as np
     from tqdm import tqdm
 
-    from estimators.wear.hybrid import RATE_LAWS, candidates
     from server.errors import CutwatchError
     from server.pipeline.wear_nested import (
         _Cache,
@@ -230,11 +229,7 @@ def _run_hybrid(args: argparse.Namespace) -> int:
             f"{table.path}: --method hybrid: expected 3 or more training tools (the choice "
             f"is a leave-one-tool-out over them), found {len(table.tools) - worst}"
         )
-    rev = 1 if args.first_list else (args.revision or 4)
-    cfgs = candidates(revision=rev)
-    if args.quick:
-        cfgs = [c for c in candidates(revision=1) if c.map != "gbr"]
-    laws = ("segment",) if rev >= 5 else RATE_LAWS if rev == 4 else ("median",)
+    rev, cfgs, laws = _protocol(args)
     cache = _Cache()
     folds = []
     for proto, g in tqdm(splits, desc="wear folds", file=sys.stderr, disable=args.quiet):
@@ -281,6 +276,20 @@ def _run_hybrid(args: argparse.Namespace) -> int:
             ))  # fmt: skip
     print(f"wrote {args.out}/estimates.csv, report.json")
     return 0
+
+
+def _protocol(args: argparse.Namespace) -> tuple[int, list[Any], tuple[str, ...]]:
+    """The protocol revision the arguments name (4 by default; 1 with ``--first-list``),
+    its candidate configurations (``--quick``: revision 1's list without boosting) and the
+    prior rate's rules each fold chooses among."""
+    from estimators.wear.hybrid import RATE_LAWS, candidates
+
+    rev = 1 if args.first_list else (args.revision or 4)
+    cfgs = candidates(revision=rev)
+    if args.quick:
+        cfgs = [c for c in candidates(revision=1) if c.map != "gbr"]
+    laws = ("segment",) if rev >= 5 else RATE_LAWS if rev == 4 else ("median",)
+    return rev, list(cfgs), laws
 
 
 def _hybrid_splits(args: argparse.Namespace, table: Any) -> list[tuple[str, tuple[int, ...]]]:
@@ -337,7 +346,6 @@ def _run_diagnose(args: argparse.Namespace, table: Any, test: list[int] | None) 
     ours / linear measured every way, median (range) per protocol."""
     from tqdm import tqdm
 
-    from estimators.wear.hybrid import RATE_LAWS, candidates
     from server.errors import CutwatchError
     from server.pipeline import wear_diagnose as D
     from server.pipeline.wear_nested import _Cache, run_fold
@@ -357,11 +365,7 @@ def _run_diagnose(args: argparse.Namespace, table: Any, test: list[int] | None) 
         splits = [("loto", (t,)) for t in (test if test is not None else table.tools)]
     else:
         splits = _hybrid_splits(args, table)
-    rev = 1 if args.first_list else (args.revision or 4)
-    cfgs = candidates(revision=rev)
-    if args.quick:
-        cfgs = [c for c in candidates(revision=1) if c.map != "gbr"]
-    laws = ("segment",) if rev >= 5 else RATE_LAWS if rev == 4 else ("median",)
+    rev, cfgs, laws = _protocol(args)
     cache = _Cache()
     folds = [
         run_fold(table, args.signal_set, g, proto, cache, configs=cfgs, rate_laws=laws)
