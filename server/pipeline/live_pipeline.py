@@ -272,9 +272,12 @@ class LivePipeline:
         built from its nominal parameters.
     """
 
-    #: the last block's outputs, their last values not taken yet (:attr:`_last`)
+    #: the last block's outputs (:attr:`_last` takes their last values when asked)
     _last_out: dict[str, np.ndarray] | None = None
-    _last_d: dict[str, float]
+    #: the outputs the last values were taken from, and those values: one tuple, rebound
+    #: whole, so a reader on another thread (a worker's HTTP answers read ``latest``
+    #: without the loop's lock) never stores an older block's values over a newer one's
+    _last_memo: tuple[object, dict[str, float]] = (None, {})
 
     def __init__(
         self,
@@ -807,17 +810,20 @@ class LivePipeline:
     @property
     def _last(self) -> dict[str, float]:
         """Last value of every channel: taken from the last block's outputs when first
-        asked for after a step (not at every block: a worker asks a few times a second)."""
+        asked for after a step (not at every block: a worker asks a few times a second).
+        Writes nothing but its memo, whole: a read racing a step can only recompute."""
         out = self._last_out
-        if out is not None:
-            self._last_d = {k: float(v[-1]) for k, v in out.items()}
-            self._last_out = None
-        return self._last_d
+        memo = self._last_memo
+        if memo[0] is out:
+            return memo[1]
+        d = {} if out is None else {k: float(v[-1]) for k, v in out.items()}
+        self._last_memo = (out, d)
+        return d
 
     @_last.setter
     def _last(self, values: dict[str, float]) -> None:
-        self._last_d = values
-        self._last_out = None
+        # one rebind, as a step's: values of a restored state as one-sample outputs
+        self._last_out = {k: np.array([v], dtype=float) for k, v in values.items()}
 
     # ------------------------------------------------------------------ costs
     def reset_costs(self) -> None:

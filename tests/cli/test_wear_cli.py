@@ -247,6 +247,10 @@ def test_hybrid_diagnose_quick(tmp_path: Path, capsys: pytest.CaptureFixture) ->
     rc = main([*args, "--protocol", "both", "--out", str(out), "--quiet"])
     err = capsys.readouterr().err
     assert rc == 2 and "--protocol both" in err and "--diagnose" in err
+    for flag in ("--diagnose", "--quick"):  # without --method hybrid: refused, not ignored
+        rc = main(["wear", str(TABLE), flag, "--out", str(out), "--quiet"])
+        err = capsys.readouterr().err
+        assert rc == 2 and flag in err and "--method hybrid" in err and "observer" in err, err
 
 
 def test_hybrid_diagnose_leave_k_quick(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:

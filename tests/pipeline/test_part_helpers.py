@@ -65,6 +65,43 @@ def test_latest_is_the_last_value_of_each_channel() -> None:
     assert p.state().latest.keys() == want.keys()
 
 
+def _same(a: dict[str, float], b: dict[str, float]) -> bool:
+    return a.keys() == b.keys() and all(
+        (math.isnan(a[k]) and math.isnan(b[k])) or a[k] == b[k] for k in a
+    )
+
+
+def test_a_step_during_a_read_never_masks_the_newer_block() -> None:
+    """A worker's HTTP answer reads ``latest`` without the loop's lock. Here the loop steps
+    while a reader is taking block k's values (the interleaving the review found: the
+    reader then cleared block k+1's outputs and kept k's); the next read must give block
+    k+1's. A restored state's values read back as they were set."""
+    from server.experiments.benchmarks.bench_centre_pipeline import drive_blocks, pipeline_of
+
+    meta, blocks = drive_blocks(3.0)
+    p = pipeline_of(meta, blocks)
+    for _ in range(3):
+        p.step(50)
+    stepped: list[dict[str, np.ndarray]] = []
+
+    class SteppingOutputs(dict):  # type: ignore[type-arg]
+        def items(self):  # type: ignore[no-untyped-def,override]
+            if not stepped:
+                stepped.append(p.step(50))  # the loop thread runs here
+            return super().items()
+
+    assert p._last_out is not None
+    old = {k: float(v[-1]) for k, v in p._last_out.items()}
+    p._last_out = SteppingOutputs(p._last_out)
+    assert _same(p.latest, old)  # the racing read itself gives block k
+    new = {k: float(v[-1]) for k, v in stepped[0].items()}
+    assert not _same(old, new)
+    assert _same(p.latest, new)
+    p._last = {"a": 1.5, "b": math.nan}
+    got = p.latest
+    assert got["a"] == 1.5 and math.isnan(got["b"]) and got.keys() == {"a", "b"}
+
+
 def test_column_or_gives_the_column_or_the_fill() -> None:
     from server.pipeline.part import column_or
 

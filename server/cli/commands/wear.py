@@ -156,6 +156,13 @@ def run(args: argparse.Namespace) -> int:
 
     if not (math.isfinite(args.criterion) and args.criterion > 0):
         raise CutwatchError(f"--criterion {args.criterion}: expected a VB limit > 0 um")
+    if args.method != "hybrid":
+        for flag, given in (("--diagnose", args.diagnose), ("--quick", args.quick)):
+            if given:
+                raise CutwatchError(
+                    f"{flag}: expected --method hybrid (it diagnoses or shortens the nested "
+                    f"evaluation), found --method {args.method}"
+                )
     if args.method == "hybrid":
         return _run_hybrid(args)
     table = read_wear_table(args.table, [FEED, *signal_columns(args.signal)], args.map)
