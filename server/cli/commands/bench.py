@@ -3,6 +3,7 @@
 Groups (modules server/experiments/benchmarks/bench_<group>.py; see docs/benchmarks.md):
   broker                 the drive-block wire format: binary against JSON
   centre                 the machining centre's simulation and its CNC trace export
+  centre-pipeline        one machining centre's pipeline at 500 Hz as a worker steps it
   chatter                the regenerative cut, the flexible-tool machine, the lobes
   disturbance-observers  seed 002's loops and the stage DFO
   eccentricity           milling with X/Y drives, ESC and the fast tuner
